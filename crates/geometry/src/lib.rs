@@ -18,12 +18,15 @@
 #![deny(missing_docs)]
 
 pub mod camera;
+pub mod cloud;
 pub mod error;
 pub mod image;
+pub mod io;
 pub mod pose;
 pub mod rig;
 
 pub use camera::{CameraModel, DepthKind, Distortion, Intrinsics};
+pub use cloud::{Mesh, PointCloud};
 pub use error::GeometryError;
 pub use image::Image;
 pub use pose::RigidTransform;
