@@ -797,7 +797,7 @@ fn decode(ty: u32, data: &[u8], little: bool) -> Result<Stored, String> {
         MI_INT64 => ints!(i64, 8),
         MI_UINT64 => ints!(u64, 8),
         MI_SINGLE => {
-            if data.len() % 4 != 0 {
+            if !data.len().is_multiple_of(4) {
                 return Err("single data is not a whole number of 4-byte values".into());
             }
             Stored::Floats(
@@ -810,7 +810,7 @@ fn decode(ty: u32, data: &[u8], little: bool) -> Result<Stored, String> {
             )
         }
         MI_DOUBLE => {
-            if data.len() % 8 != 0 {
+            if !data.len().is_multiple_of(8) {
                 return Err("double data is not a whole number of 8-byte values".into());
             }
             Stored::Floats(
@@ -991,7 +991,7 @@ fn push_element(out: &mut Vec<u8>, ty: u32, data: &[u8]) {
     out.extend_from_slice(&ty.to_le_bytes());
     out.extend_from_slice(&(data.len() as u32).to_le_bytes());
     out.extend_from_slice(data);
-    while out.len() % 8 != 0 {
+    while !out.len().is_multiple_of(8) {
         out.push(0);
     }
 }
