@@ -2,6 +2,7 @@
 //! open files; these modules do nothing else.
 
 pub mod atomic;
+pub mod course;
 pub mod mat;
 
 /// The shared test-data folder (`KFUSE_SHARED_DATA` or `<workspace>/../shared/data`), or
