@@ -3,6 +3,7 @@
 
 pub mod atomic;
 pub mod course;
+pub mod images;
 pub mod mat;
 
 /// The shared test-data folder (`KFUSE_SHARED_DATA` or `<workspace>/../shared/data`), or
