@@ -1,6 +1,8 @@
 //! `kfuse`: Kinect v2 capture, calibration and RGB-D fusion. The CLI is a thin layer of `clap`
 //! structs over the library crates.
 
+mod figures;
+
 use clap::{Parser, Subcommand};
 
 /// Kinect v2 capture, calibration and RGB-D fusion.
