@@ -1,6 +1,8 @@
 //! `kfuse`: Kinect v2 capture, calibration and RGB-D fusion. The CLI is a thin layer of `clap`
 //! structs over the library crates.
 
+mod cmd_demo;
+mod cmd_fuse;
 mod figures;
 
 use clap::{Parser, Subcommand};
@@ -17,6 +19,10 @@ struct Cli {
 enum Command {
     /// Print the camera conventions kfuse uses (pixels, frames, units).
     Conventions,
+    /// Fuse a depth frame with a colour frame: cloud, registered depth, meshes, holes, figures.
+    Fuse(cmd_fuse::FuseArgs),
+    /// Render a synthetic Kinect v2 frame, write it as input files and fuse it.
+    Demo(cmd_demo::DemoArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -27,6 +33,11 @@ fn main() -> anyhow::Result<()> {
             println!("frames: x right, y down, z forward; the depth camera is the reference");
             println!("poses: color_from_depth maps X_depth to X_color = R X_depth + T (metres)");
         }
+        Command::Fuse(args) => {
+            let result = cmd_fuse::run(&args)?;
+            cmd_fuse::report(&result);
+        }
+        Command::Demo(args) => cmd_demo::run(&args)?,
     }
     Ok(())
 }
