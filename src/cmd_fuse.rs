@@ -369,7 +369,10 @@ fn write_figures(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files:
         &save(7),
         titles::TASK7,
         &[
-            Panel::new("z-buffer (nearest surface per colour pixel)", figures::depth_colors(&out.zbuffer, range)),
+            Panel::new(
+                "z-buffer (nearest surface per colour pixel)",
+                figures::depth_colors(&figures::downsample_depth_min(&out.zbuffer, cw.div_ceil(figures::PANEL_WIDTH)), range),
+            ),
             Panel::new("filled depth over the colour image", figures::depth_overlay(&inputs.color, &out.filled, 0.55)),
         ],
         2,

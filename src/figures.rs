@@ -45,7 +45,7 @@ fn register_font() {
 }
 
 /// Width of one image panel in a panel figure, pixels (the panel is scaled to it).
-const PANEL_WIDTH: usize = 640;
+pub const PANEL_WIDTH: usize = 640;
 /// Height of the figure's title bar, pixels.
 const TITLE_BAR: usize = 48;
 /// Height of a panel's caption bar, pixels.
@@ -113,6 +113,25 @@ pub fn robust_range(values: impl Iterator<Item = f32>) -> Option<(f32, f32)> {
 pub fn depth_colors(depth: &Image<f32>, range: Option<(f32, f32)>) -> Image<[u8; 3]> {
     let (lo, hi) = range.or_else(|| robust_range(depth.data().iter().copied())).unwrap_or((0.0, 1.0));
     depth.map(|&d| if d.is_finite() { colormap((d - lo) / (hi - lo)) } else { [0, 0, 0] })
+}
+
+/// Depth reduced by `factor` in each direction keeping the nearest valid sample of each
+/// block: sparse depth (a z-buffer) stays visible when a figure shrinks it.
+pub fn downsample_depth_min(depth: &Image<f32>, factor: usize) -> Image<f32> {
+    let f = factor.max(1);
+    let (w, h) = depth.size();
+    Image::from_fn(w.div_ceil(f), h.div_ceil(f), |x, y| {
+        let mut best = f32::NAN;
+        for yy in y * f..((y + 1) * f).min(h) {
+            for xx in x * f..((x + 1) * f).min(w) {
+                let d = *depth.get(xx, yy);
+                if d.is_finite() && !(best <= d) {
+                    best = d;
+                }
+            }
+        }
+        best
+    })
 }
 
 /// A mask as an image: `true` = red over dark grey.
@@ -308,13 +327,16 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
         return img;
     }
     let centre = finite.iter().fold(Vector3::zeros(), |a, v| a + v) / finite.len() as f64;
-    let radius = finite.iter().map(|v| (v - centre).norm()).fold(0.0, f64::max).max(1e-6);
+    // Frame the bulk of the mesh (90 % of the vertices), not its farthest outlier.
+    let mut dists: Vec<f64> = finite.iter().map(|v| (v - centre).norm()).collect();
+    dists.sort_by(f64::total_cmp);
+    let radius = dists[dists.len() * 9 / 10].max(1e-6);
     let rot: Matrix3<f64> = *(Rotation3::from_axis_angle(&Vector3::x_axis(), pitch_deg.to_radians())
         * Rotation3::from_axis_angle(&Vector3::y_axis(), yaw_deg.to_radians()))
     .matrix();
-    // Virtual pinhole at 2.5 radii from the centre, focal length fitting the sphere.
-    let dist = 2.5 * radius;
-    let f = 0.5 * width.min(height) as f64 * dist / radius * 0.9;
+    // Virtual pinhole at 3 radii from the centre; the radius spans 55 % of the smaller side.
+    let dist = 3.0 * radius;
+    let f = 0.55 * width.min(height) as f64 * dist / radius;
     let view = |v: [f32; 3]| -> Option<(f64, f64, f64)> {
         let p = rot * (Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64) - centre) + Vector3::new(0.0, 0.0, dist);
         if !(p.z > 1e-9) {
@@ -339,6 +361,14 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
             }
         };
         let (ca, cb, cc) = (color(0), color(1), color(2));
+        let plot = |img: &mut Image<[u8; 3]>, zbuf: &mut [f64], x: usize, y: usize, z: f64, w: [f64; 3]| {
+            let k = y * width + x;
+            if z < zbuf[k] {
+                zbuf[k] = z;
+                *img.get_mut(x, y) =
+                    [0, 1, 2].map(|i| ((w[0] * ca[i] + w[1] * cb[i] + w[2] * cc[i]) * shade).round().clamp(0.0, 255.0) as u8);
+            }
+        };
         let area = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
         if area.abs() < 1e-12 {
             continue;
@@ -350,6 +380,7 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
         if x1 < 0 || y1 < 0 {
             continue;
         }
+        let mut covered = false;
         for y in y0..=y1 as usize {
             for x in x0..=x1 as usize {
                 let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
@@ -359,13 +390,17 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
                 if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
                     continue;
                 }
+                covered = true;
                 let z = w0 * a.2 + w1 * b.2 + w2 * c.2;
-                let k = y * width + x;
-                if z < zbuf[k] {
-                    zbuf[k] = z;
-                    *img.get_mut(x, y) =
-                        [0, 1, 2].map(|i| ((w0 * ca[i] + w1 * cb[i] + w2 * cc[i]) * shade).round().clamp(0.0, 255.0) as u8);
-                }
+                plot(&mut img, &mut zbuf, x, y, z, [w0, w1, w2]);
+            }
+        }
+        // A triangle smaller than a pixel covers no pixel centre: draw it as one pixel at its
+        // centroid, or a dense mesh seen from afar would vanish.
+        if !covered {
+            let (cx, cy) = ((a.0 + b.0 + c.0) / 3.0, (a.1 + b.1 + c.1) / 3.0);
+            if cx >= 0.0 && cy >= 0.0 && (cx as usize) < width && (cy as usize) < height {
+                plot(&mut img, &mut zbuf, cx as usize, cy as usize, (a.2 + b.2 + c.2) / 3.0, [1.0 / 3.0; 3]);
             }
         }
     }

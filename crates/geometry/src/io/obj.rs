@@ -4,7 +4,8 @@
 //! extended with `r g b` in 0..1 when the mesh has vertex colours, as MeshLab and `tobj`
 //! read; texture coordinates `vt s t` with the origin at the bottom-left of the texture;
 //! 1-based faces `f a/a b/b c/c`), `<stem>.mtl` (one material whose `map_Kd` is the texture)
-//! and `<stem>_texture.png`. Units: metres.
+//! and `<stem>_texture.png`. Units: metres, written with 5 decimals (10 µm, far below any
+//! depth sensor's noise); texture coordinates with 6 (0.002 px on a 1920-px texture).
 
 use std::path::{Path, PathBuf};
 
@@ -72,7 +73,7 @@ pub fn write_textured_obj(obj_path: &Path, mesh: &Mesh, texture: Option<&Image<[
             if let Some(c) = mesh.colors.get(i) {
                 writeln!(
                     out,
-                    "v {} {} {} {:.4} {:.4} {:.4}",
+                    "v {:.5} {:.5} {:.5} {:.4} {:.4} {:.4}",
                     v[0],
                     v[1],
                     v[2],
@@ -81,11 +82,11 @@ pub fn write_textured_obj(obj_path: &Path, mesh: &Mesh, texture: Option<&Image<[
                     c[2] as f32 / 255.0
                 )?;
             } else {
-                writeln!(out, "v {} {} {}", v[0], v[1], v[2])?;
+                writeln!(out, "v {:.5} {:.5} {:.5}", v[0], v[1], v[2])?;
             }
         }
         for t in &mesh.uvs {
-            writeln!(out, "vt {} {}", t[0], t[1])?;
+            writeln!(out, "vt {:.6} {:.6}", t[0], t[1])?;
         }
         writeln!(out, "usemtl {MATERIAL_NAME}")?;
         let uv = !mesh.uvs.is_empty();
