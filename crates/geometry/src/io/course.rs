@@ -102,6 +102,13 @@ pub fn read_course_with(path: &Path, convention: CourseConvention) -> Result<Cou
 /// Builds [`CourseData`] from a parsed file: needs `Depth` (H×W), `Image` (H×W×3, float 0..1
 /// or uint8), `Dparam` / `Cparam` structs with `fp`, `cx`, `cy`, and `R` (3×3), `T` (3×1, m).
 pub fn course_from_mat(file: &MatFile, convention: CourseConvention) -> Result<CourseData, GeometryError> {
+    if file.get("Dparam").and_then(|d| d.field("fp")).is_none() && file.get("Dparam").and_then(|d| d.field("fx")).is_some() {
+        return Err(file.error(
+            "looks like the lab's KinectData.mat (Dparam with fx, fy, cx, cy): its 'Depth' is an 8-bit picture, not \
+             depth, so it cannot be fused; export its rig with the calibration tools and pass a real depth image"
+                .into(),
+        ));
+    }
     let depth_arr = file.numeric("Depth")?;
     if depth_arr.dims.len() != 2 || depth_arr.is_complex() {
         return Err(file.error(format!(
@@ -455,6 +462,10 @@ mod tests {
         .unwrap();
         let err = read_course(&path).unwrap_err().to_string();
         assert!(err.contains("partial.mat") && err.contains("no variable 'Image'"), "{err}");
+        if let Some(data) = shared_data("missing_variables_are_named") {
+            let err = read_course(&data.join("kinect-lab/KinectData.mat")).unwrap_err().to_string();
+            assert!(err.contains("KinectData.mat") && err.contains("not depth"), "{err}");
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -7,7 +7,11 @@ use crate::{GeometryError, Rig};
 
 /// Reads and validates a rig file.
 pub fn read_rig(path: &Path) -> Result<Rig, GeometryError> {
-    let text = std::fs::read_to_string(path).map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+    let text = String::from_utf8(bytes).map_err(|_| GeometryError::Format {
+        path: path.to_path_buf(),
+        message: "not a kfuse rig file (binary, not JSON text); create one with `kfuse calibrate`".into(),
+    })?;
     let rig = Rig::from_json(&text, path)?;
     rig.validate().map_err(|e| GeometryError::Format { path: path.to_path_buf(), message: e.to_string() })?;
     Ok(rig)
@@ -47,5 +51,8 @@ mod tests {
         std::fs::write(dir.join("bad.json"), "{\"format\": 3}").unwrap();
         let err = read_rig(&dir.join("bad.json")).unwrap_err().to_string();
         assert!(err.contains("bad.json") && err.contains("not a kfuse rig file"), "{err}");
+        std::fs::write(dir.join("image.png"), b"\x89PNG\r\n\x1a\n\xff\xfe").unwrap();
+        let err = read_rig(&dir.join("image.png")).unwrap_err().to_string();
+        assert!(err.contains("image.png") && err.contains("not a kfuse rig file"), "{err}");
     }
 }
