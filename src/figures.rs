@@ -125,7 +125,7 @@ pub fn downsample_depth_min(depth: &Image<f32>, factor: usize) -> Image<f32> {
         for yy in y * f..((y + 1) * f).min(h) {
             for xx in x * f..((x + 1) * f).min(w) {
                 let d = *depth.get(xx, yy);
-                if d.is_finite() && !(best <= d) {
+                if d.is_finite() && (best.is_nan() || d < best) {
                     best = d;
                 }
             }
@@ -339,7 +339,7 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
     let f = 0.55 * width.min(height) as f64 * dist / radius;
     let view = |v: [f32; 3]| -> Option<(f64, f64, f64)> {
         let p = rot * (Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64) - centre) + Vector3::new(0.0, 0.0, dist);
-        if !(p.z > 1e-9) {
+        if p.z.is_nan() || p.z <= 1e-9 {
             return None;
         }
         Some((f * p.x / p.z + width as f64 / 2.0, f * p.y / p.z + height as f64 / 2.0, p.z))
