@@ -403,4 +403,44 @@ mod tests {
         let err = read_depth(&nan, MILLIMETRES).unwrap_err().to_string();
         assert!(err.contains("nan.tif") && err.contains("no valid depth"), "{err}");
     }
+
+    #[test]
+    fn jpeg_colour_and_tiff16_depth_from_other_writers() {
+        let dir = scratch("others");
+        // JPEG written by the image crate: lossy, so compare within the codec's error on a
+        // flat colour (quality 95 keeps flat areas within a few levels).
+        let jpg = dir.join("c.jpg");
+        image::RgbImage::from_pixel(16, 8, image::Rgb([200, 120, 40])).save(&jpg).unwrap();
+        let c = read_color(&jpg).unwrap();
+        assert_eq!(c.size(), (16, 8));
+        let p = c.get(5, 5);
+        assert!((p[0] as i32 - 200).abs() <= 4 && (p[1] as i32 - 120).abs() <= 4 && (p[2] as i32 - 40).abs() <= 4, "{p:?}");
+        // 16-bit grey TIFF written by the tiff crate, in millimetres and with a custom scale.
+        let tif = dir.join("d16.tif");
+        let mut bytes = Cursor::new(Vec::new());
+        let units: Vec<u16> = (0..12).map(|i| i * 250).collect();
+        tiff::encoder::TiffEncoder::new(&mut bytes)
+            .unwrap()
+            .write_image::<tiff::encoder::colortype::Gray16>(4, 3, &units)
+            .unwrap();
+        std::fs::write(&tif, bytes.into_inner()).unwrap();
+        let d = read_depth(&tif, MILLIMETRES).unwrap();
+        assert!(d.get(0, 0).is_nan());
+        assert!((d.get(1, 0) - 0.25).abs() < 1e-7 && (d.get(3, 2) - 2.75).abs() < 1e-6);
+        let d = read_depth(&tif, 1e-4).unwrap(); // 0.1 mm units
+        assert!((d.get(3, 2) - 0.275).abs() < 1e-7);
+        assert!(read_depth(&tif, 0.0).is_err());
+        // A multi-channel EXR: the Z channel is taken, whatever else is there.
+        use exr::prelude::*;
+        let exr_path = dir.join("multi.exr");
+        let mut list = SmallVec::new();
+        list.push(AnyChannel::new("R", FlatSamples::F32(vec![9.0; 6])));
+        list.push(AnyChannel::new("Z", FlatSamples::F32(vec![1.5, 2.0, f32::NAN, 0.0, -1.0, 3.0])));
+        let layer = Layer::new((3, 2), LayerAttributes::named("x"), Encoding::UNCOMPRESSED, AnyChannels::sort(list));
+        exr::prelude::Image::from_layer(layer).write().to_file(&exr_path).unwrap();
+        let d = read_depth(&exr_path, MILLIMETRES).unwrap();
+        let v: Vec<f32> = d.data().to_vec();
+        assert_eq!((v[0], v[1], v[5]), (1.5, 2.0, 3.0));
+        assert!(v[2].is_nan() && v[3].is_nan() && v[4].is_nan(), "NaN, 0 and negative are no sample: {v:?}");
+    }
 }
