@@ -1,11 +1,13 @@
 //! CPU fusion benchmarks on a Kinect-size frame (512×424 depth → 1920×1080 colour), rendered
 //! by `geometry::synth::kinect_preset`.
 //!
-//! * `register+holes/single`: exact z-buffered registration (H1+H2+H7 fused) plus the H8
-//!   hole mask, one thread, no allocation: the number to compare with OpenCV's
+//! * `register+holes/single`: exact z-buffered registration (H1+H2+H7 fused, marking the
+//!   occupancy bits as it goes) plus the H8 hole mask, one thread, no allocation: the number to compare with OpenCV's
 //!   `cv2.rgbd.registerDepth` and Open3D's `project_to_depth_image`
 //!   (`benches/peers/register_peers.py`). Goal: <= 2 ms.
-//! * `register+holes/rayon`: the same on all rayon threads (atomic-min z-buffer).
+//! * `register+holes/single_scan`: the same, the mask reading the z-buffer back instead.
+//! * `register+holes/rayon`: registration on all rayon threads (atomic-min z-buffer), mask
+//!   on one.
 //! * `stage/*`: every stage of `geometry::fusion::run` on its own, and `run` itself.
 //!
 //! `KFUSE_WRITE_PEER_FRAME=1 cargo bench --bench fusion_cpu` also writes the frame for the
@@ -74,6 +76,14 @@ fn benches(c: &mut Criterion) {
 
     let mut g = c.benchmark_group("register+holes");
     g.bench_function("single", |b| {
+        b.iter(|| {
+            let words = masker.words_per_row();
+            let n = fusion::register_depth_marking(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer, masker.occupancy_mut(), words);
+            let holes = masker.compute_from_occupancy(&mut mask);
+            black_box((n, holes))
+        })
+    });
+    g.bench_function("single_scan", |b| {
         b.iter(|| {
             let n = fusion::register_depth(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer);
             let holes = masker.compute(&zbuffer, &mut mask);
