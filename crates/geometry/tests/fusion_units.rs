@@ -122,3 +122,34 @@ fn ransac_recovers_a_plane_among_outliers() {
     let again = fusion::fit_plane_ransac(&depth, &cam, &PlaneFitOptions { max_samples: 5000, ..PlaneFitOptions::default() }).unwrap();
     assert_eq!(fit, again);
 }
+
+#[test]
+fn marking_registration_gives_the_same_zbuffer_and_hole_mask() {
+    let setup = synth::kinect_preset(false);
+    let frame = synth::render(&setup);
+    let rig = &setup.rig;
+    let proj = fusion::ColorProjection::from_rig(rig);
+    let rays = fusion::depth_ray_table(&rig.depth, frame.depth_kind);
+    let (cw, ch) = (rig.color.width, rig.color.height);
+    let opts = fusion::FusionOptions::default();
+    let (r, g) = (fusion::coverage_radius_px(rig, &opts), fusion::hole_grow_px(rig, &opts));
+
+    let mut zb = vec![0f32; cw * ch];
+    fusion::register_depth(frame.depth.data(), &rays, &proj, &mut zb);
+    let mut masker = fusion::HoleMasker::new(cw, ch, r, g);
+    let mut mask = vec![false; cw * ch];
+    let holes = masker.compute(&zb, &mut mask);
+
+    let mut zb2 = vec![1f32; cw * ch];
+    let mut masker2 = fusion::HoleMasker::new(cw, ch, r, g);
+    let words = masker2.words_per_row();
+    fusion::register_depth_marking(frame.depth.data(), &rays, &proj, &mut zb2, masker2.occupancy_mut(), words);
+    let mut mask2 = vec![true; cw * ch];
+    let holes2 = masker2.compute_from_occupancy(&mut mask2);
+
+    assert!(zb.iter().zip(&zb2).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert_eq!(holes, holes2);
+    assert!(holes > 5_000);
+    assert_eq!(mask, mask2);
+    assert_eq!(mask.iter().filter(|&&m| m).count(), holes);
+}
