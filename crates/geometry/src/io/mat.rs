@@ -1146,6 +1146,28 @@ mod tests {
     }
 
     #[test]
+    fn complex_and_logical_arrays() {
+        let vars = vec![
+            (
+                "z",
+                MatValue::Numeric(NumericArray {
+                    dims: vec![1, 2],
+                    real: NumericData::Double(vec![1.0, 2.0]),
+                    imag: Some(NumericData::Double(vec![0.5, -0.5])),
+                }),
+            ),
+            ("mask", MatValue::Numeric(NumericArray { dims: vec![2, 1], real: NumericData::Logical(vec![1, 0]), imag: None })),
+        ];
+        let f = MatFile::parse(&encode(&vars).unwrap(), Path::new("c.mat")).unwrap();
+        let z = f.numeric("z").unwrap();
+        assert_eq!(z.imag, Some(NumericData::Double(vec![0.5, -0.5])));
+        let err = f.matrix("z").unwrap_err().to_string();
+        assert!(err.contains("c.mat") && err.contains("complex"), "{err}");
+        assert_eq!(f.numeric("mask").unwrap().class(), MatClass::Logical);
+        assert_eq!(f.matrix("mask").unwrap().data, vec![1.0, 0.0]);
+    }
+
+    #[test]
     fn truncated_and_garbage_files_give_errors_naming_the_file() {
         let bytes = encode(&[("M", MatValue::double_matrix(4, 4, &[1.0; 16]))]).unwrap();
         for cut in [10, 128 + 4, 128 + 40, bytes.len() - 9] {
