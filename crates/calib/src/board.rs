@@ -9,9 +9,10 @@ use crate::CalibError;
 ///
 /// Board frame: origin at the first inner corner, corner `k` at
 /// `(square·(k mod cols), square·(k div cols), 0)` metres; the top-left square (next to
-/// corner 0, outside the inner grid) is black. That asymmetry fixes the labelling for boards
-/// whose inner-corner counts differ in parity (7×5 has one odd and one odd count, so the
-/// colour of the corner square, not the counts, decides the origin).
+/// corner 0, outside the inner grid) has the colour [`Board::top_left_black`]. The colouring
+/// fixes the board's handedness and, on partial boards, which rows or columns are missing;
+/// for odd × odd inner corners (7×5) it is symmetric under a 180° turn, which the detector
+/// resolves by orientation (see `detect`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Board {
     /// Inner corners per row (along the board's x axis).
@@ -20,6 +21,11 @@ pub struct Board {
     pub rows: usize,
     /// Square side, metres.
     pub square_m: f64,
+    /// Colour of the board's top-left square (the one diagonal to corner 0): `Some(true)`
+    /// black, `Some(false)` white, `None` unknown (the detector finds it from the images; a
+    /// real board is never seen mirrored, so one colouring fits every view).
+    #[serde(default)]
+    pub top_left_black: Option<bool>,
 }
 
 impl Board {
@@ -33,7 +39,7 @@ impl Board {
         if !(square_m.is_finite() && square_m > 0.0) {
             return Err(CalibError::InvalidArgument(format!("square length {square_m} m must be positive")));
         }
-        Ok(Self { cols, rows, square_m })
+        Ok(Self { cols, rows, square_m, top_left_black: None })
     }
 
     /// Number of inner corners.

@@ -20,6 +20,7 @@
 
 mod board;
 mod bundle;
+pub mod detect;
 mod error;
 pub mod mono;
 pub mod stereo;
