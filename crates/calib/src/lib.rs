@@ -19,6 +19,7 @@
 #![deny(missing_docs)]
 
 mod board;
+pub mod bouguet;
 mod bundle;
 pub mod detect;
 mod error;

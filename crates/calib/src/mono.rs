@@ -122,7 +122,8 @@ pub struct IntrinsicsStd {
 }
 
 impl IntrinsicsStd {
-    pub(crate) fn from_array(a: [f64; N_INTR]) -> Self {
+    /// From solver order `fx, fy, cx, cy, skew, k1, k2, p1, p2, k3`.
+    pub fn from_array(a: [f64; N_INTR]) -> Self {
         Self { fx: a[0], fy: a[1], cx: a[2], cy: a[3], skew: a[4], k1: a[5], k2: a[6], p1: a[7], p2: a[8], k3: a[9] }
     }
     /// In solver order `fx, fy, cx, cy, skew, k1, k2, p1, p2, k3`.
