@@ -23,8 +23,11 @@ pub mod bouguet;
 mod bundle;
 pub mod detect;
 mod error;
+pub mod files;
+pub mod io;
 pub mod mono;
 pub mod stereo;
+pub mod undistort;
 pub mod zhang;
 
 pub use board::{Board, Corner, ViewCorners};

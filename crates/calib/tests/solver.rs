@@ -212,3 +212,36 @@ fn bad_inputs_give_clear_errors() {
     assert!(matches!(e, CalibError::Degenerate { .. }), "{e}");
     assert!(e.to_string().contains("fronto-parallel"), "{e}");
 }
+
+#[test]
+fn rig_file_and_opencv_yaml_keep_the_calibration() {
+    let Some(data) = shared_data("rig_file_and_opencv_yaml_keep_the_calibration") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let (ir, color, cfd) = (gt_camera(&gt, "ir"), gt_camera(&gt, "color"), gt_color_from_depth(&gt));
+    let poses: Vec<_> = (0..6).map(|i| gt_pose(&gt, i, "ir")).collect();
+    let cposes: Vec<_> = poses.iter().map(|p| cfd.compose(p)).collect();
+    let r = calibrate_stereo(&board(), &synth_views(&ir, &poses, 0.07, 1), &synth_views(&color, &cposes, 0.05, 2), &StereoOptions::default(), None, None).unwrap();
+    let rig = calib::files::stereo_rig(&r, &board());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rig.json");
+    calib::files::write_text(&path, &rig.to_json()).unwrap();
+    let back = geometry::Rig::from_json(&std::fs::read_to_string(&path).unwrap(), &path).unwrap();
+    assert_eq!(back.depth, rig.depth);
+    assert_eq!(back.color, rig.color);
+    assert!((back.color_from_depth.matrix() - rig.color_from_depth.matrix()).abs().max() < 1e-15);
+    let report = back.calibration.unwrap();
+    assert_eq!(report["pairs_used"].as_array().unwrap().len(), 6);
+    assert!((report["depth_std_1sigma"]["fx"].as_f64().unwrap() - r.depth_std.fx).abs() < 1e-12);
+    // YAML: parse the numbers of T and M2 back (17 significant digits: exact).
+    let yaml = calib::files::opencv_yaml_rig(&rig);
+    let data_of = |name: &str| -> Vec<f64> {
+        let start = yaml.find(&format!("{name}: !!opencv-matrix")).unwrap();
+        let line = yaml[start..].lines().find(|l| l.trim_start().starts_with("data:")).unwrap();
+        line.trim().trim_start_matches("data: [").trim_end_matches(']').split(',').map(|v| v.trim().parse().unwrap()).collect()
+    };
+    let t = data_of("T");
+    assert_eq!(t, vec![rig.color_from_depth.translation.x, rig.color_from_depth.translation.y, rig.color_from_depth.translation.z]);
+    let m2 = data_of("M2");
+    assert_eq!((m2[0], m2[2], m2[4], m2[5]), (rig.color.intrinsics.fx, rig.color.intrinsics.cx, rig.color.intrinsics.fy, rig.color.intrinsics.cy));
+    assert!(yaml.starts_with("%YAML:1.0\n---\n"));
+}
