@@ -3,6 +3,9 @@
 
 use clap::{Parser, Subcommand};
 
+mod cmd_calibrate;
+mod cmd_undistort;
+
 /// Kinect v2 capture, calibration and RGB-D fusion.
 #[derive(Parser)]
 #[command(name = "kfuse", version, about, long_about = None)]
@@ -15,11 +18,17 @@ struct Cli {
 enum Command {
     /// Print the camera conventions kfuse uses (pixels, frames, units).
     Conventions,
+    /// Calibrate the colour and/or IR camera from checkerboard images (rig file + report).
+    Calibrate(cmd_calibrate::CalibrateArgs),
+    /// Remove lens distortion from images with a rig file (writes *_rect images).
+    Undistort(cmd_undistort::UndistortArgs),
 }
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Command::Calibrate(args) => cmd_calibrate::run(args)?,
+        Command::Undistort(args) => cmd_undistort::run(args)?,
         Command::Conventions => {
             println!("pixels: 0-based, integer coordinates are pixel centres");
             println!("frames: x right, y down, z forward; the depth camera is the reference");

@@ -613,14 +613,33 @@ pub fn to_f32(img: &Image<u8>) -> Image<f32> {
 /// from the complete detections (majority) and the images are labelled again with it, so that
 /// partial boards cannot pick the other colouring.
 pub fn detect_views(images: &[(String, &Image<u8>)], board: &Board) -> (Vec<ViewCorners>, Board) {
+    detect_views_with_progress(images, board, &|| {})
+}
+
+/// [`detect_views`] calling `progress` once per image of the first pass (for progress bars).
+pub fn detect_views_with_progress(
+    images: &[(String, &Image<u8>)],
+    board: &Board,
+    progress: &(dyn Fn() + Sync),
+) -> (Vec<ViewCorners>, Board) {
     use rayon::prelude::*;
+    let first = |board: &Board| -> Vec<Option<Detection>> {
+        images
+            .par_iter()
+            .map(|(_, img)| {
+                let d = detect(&to_f32(img), board, &DetectorParams::for_image(img.width(), img.height()));
+                progress();
+                d
+            })
+            .collect()
+    };
     let run = |board: &Board| -> Vec<Option<Detection>> {
         images
             .par_iter()
             .map(|(_, img)| detect(&to_f32(img), board, &DetectorParams::for_image(img.width(), img.height())))
             .collect()
     };
-    let mut dets = run(board);
+    let mut dets = first(board);
     let mut board = *board;
     if board.top_left_black.is_none() {
         let complete: Vec<bool> = dets.iter().flatten().filter(|d| d.complete).map(|d| d.top_left_black).collect();
