@@ -390,7 +390,11 @@ pub fn calibrate_mono(
             rms_px: f64::NAN,
             n_corners: v.corners.len(),
             tilt_deg: f64::NAN,
-            rejected: Some(format!("only {} corners (need {MIN_CORNERS_PER_VIEW})", v.corners.len())),
+            rejected: Some(if v.corners.is_empty() {
+                "no board found".to_string()
+            } else {
+                format!("only {} corners (need {MIN_CORNERS_PER_VIEW})", v.corners.len())
+            }),
         })
         .collect();
     for (vi, &orig) in usable.iter().enumerate() {

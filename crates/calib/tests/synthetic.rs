@@ -101,7 +101,7 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
     let joint = &cv["calibration_from_classic_corners"]["stereo"]["joint_standard5"];
     let (cv_dt, cv_dr) = (f(&joint["T_error_norm_mm"]), f(&joint["rotation_error_deg"]));
     eprintln!("stereo |dT| {dt:.4} mm (OpenCV {cv_dt:.4}), rotation {dr:.4}° (OpenCV {cv_dr:.4}), rms {:.4} / {:.4} px", r.depth_rms_px, r.color_rms_px);
-    for (cam, model, key) in [("ir", r.depth, "cam1"), ("color", r.color, "cam2")] {
+    for (cam, model, key, std) in [("ir", r.depth, "cam1", r.depth_std), ("color", r.color, "cam2", r.color_std)] {
         let truth = gt_camera(&gt, cam);
         let k = model.intrinsics;
         let t = truth.intrinsics;
@@ -116,9 +116,18 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
             "{cam}: fx err {:.4}% (OpenCV {:.4}%), fy {:.4}% ({:.4}%), pp err ({:.3}, {:.3}) px (OpenCV ({:.3}, {:.3}))",
             100.0 * efx, 100.0 * cv_fx, 100.0 * efy, 100.0 * cv_fy, epp.x, epp.y, cv_pp.x, cv_pp.y
         );
+        // Honest uncertainty on the rendered images: the truth within ±3σ.
+        for (e, s) in [(k.fx - t.fx, std.fx), (k.fy - t.fy, std.fy), (k.cx - t.cx, std.cx), (k.cy - t.cy, std.cy)] {
+            assert!(e.abs() < 3.0 * s, "{cam}: error {e} vs σ {s}");
+        }
         // Acceptance bars: 0.1 % on f, 0.5 px on the principal point.
         assert!(efx < 1e-3 && efy < 1e-3, "{cam}");
         assert!(epp.x.abs() < 0.5 && epp.y.abs() < 0.5, "{cam}");
+    }
+    let st = r.translation_std_m * 1000.0;
+    let et = (r.color_from_depth.translation - truth_cfd.translation) * 1000.0;
+    for j in 0..3 {
+        assert!(et[j].abs() < 3.0 * st[j], "T[{j}] error {} mm vs σ {} mm", et[j], st[j]);
     }
     // Acceptance bars: 0.5 mm and 0.05°, and no worse than OpenCV's joint stereoCalibrate.
     assert!(dt < 0.5 && dr < 0.05);
