@@ -172,3 +172,23 @@ fn standard_model_rms_is_no_worse_than_opencvs_on_the_same_views() {
     eprintln!("standard model on the lab's 9 views: ours {:.4} px, OpenCV on Bouguet's corners {theirs:.4} px", r.rms_px);
     assert!(r.rms_px <= theirs);
 }
+
+#[test]
+fn a_misdetected_real_corner_is_caught_not_absorbed() {
+    let Some(data) = shared_data("a_misdetected_real_corner_is_caught_not_absorbed") else { return };
+    let dets = detections(&data);
+    let views: Vec<ViewCorners> = [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| dets[i - 1].clone()).collect();
+    let clean = calibrate_mono("ir", &board(), &views, &CalibFlags::bouguet(), None).unwrap();
+    for (shift, view, corner) in [(Vector2::new(4.0, 0.0), 2, 12), (Vector2::new(-4.2, 4.2), 5, 30), (Vector2::new(0.0, 7.0), 7, 3)] {
+        let mut bad = views.clone();
+        bad[view].corners[corner].px += shift;
+        let id = bad[view].corners[corner].id;
+        let r = calibrate_mono("ir", &board(), &bad, &CalibFlags::bouguet(), None).unwrap();
+        eprintln!("shift {:.1} px: rejected {:?}", shift.norm(), r.rejected_corners);
+        assert_eq!(r.rejected_corners.len(), 1, "{:?}", r.rejected_corners);
+        assert_eq!((r.rejected_corners[0].view.as_str(), r.rejected_corners[0].id), (bad[view].name.as_str(), id));
+        // Not absorbed: the result equals the clean fit (same corners minus one) to well
+        // within its σ.
+        assert!((r.camera.intrinsics.fx - clean.camera.intrinsics.fx).abs() < 0.1 * clean.std.fx);
+    }
+}
