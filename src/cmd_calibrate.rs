@@ -185,8 +185,11 @@ fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
     println!("\n{camera}: {}x{}, RMS {:.4} px (σ per axis {:.4} px)", m.camera.width, m.camera.height, m.rms_px, m.sigma_px);
     println!("  fx {:.3} ± {:.3}  fy {:.3} ± {:.3}  cx {:.3} ± {:.3}  cy {:.3} ± {:.3}   (1σ)", k.fx, s.fx, k.fy, s.fy, k.cx, s.cx, k.cy, s.cy);
     println!("  k1 {:.5} ± {:.5}  k2 {:.5} ± {:.5}  p1 {:.6} ± {:.6}  p2 {:.6} ± {:.6}  k3 {:.5} ± {:.5}", d.k1, s.k1, d.k2, s.k2, d.p1, s.p1, d.p2, s.p2, d.k3, s.k3);
-    if let Some(r) = d.fold_radius() {
-        println!("  note: the distortion model folds at undistorted radius {r:.3} (normalised); undistortion masks beyond it");
+    if let Some((r, fraction)) = calib::undistort::fold_inside_image(&m.camera) {
+        println!(
+            "  note: the distortion model folds inside the image (undistorted radius {r:.3}): {:.2} % of the pixels, near the corners, see no valid ray; undistortion masks them",
+            100.0 * fraction
+        );
     }
     println!("  {:<28} {:>8} {:>8} {:>8}  status", "image", "corners", "RMS px", "tilt°");
     for v in &m.views {

@@ -425,7 +425,7 @@ fn label(img: &Image<f32>, board: &Board, pts: &[(Vector2<f64>, f32)], grid: &Gr
                 known.iter().sum::<Vector2<f64>>() / 4.0
             } else if i >= 0 && j >= 0 && i + 1 < ni && j + 1 < nj {
                 map(&hgrid, i as f64 + 0.5, j as f64 + 0.5)
-            } else if known.len() >= 1 {
+            } else if !known.is_empty() {
                 // Outer cells (the board's border squares): use the grid homography.
                 map(&hgrid, i as f64 + 0.5, j as f64 + 0.5)
             } else {
@@ -691,7 +691,7 @@ fn x_axis(view: &ViewCorners, board: &Board) -> Option<Vector2<f64>> {
 /// opposite origins for a board near 90°; the cameras are not rotated against each other by
 /// more than a few degrees, so the x axes must point the same way.
 pub fn align_pair(depth: &ViewCorners, color: &ViewCorners, board: &Board) -> ViewCorners {
-    if (board.cols + board.rows) % 2 != 0 {
+    if !(board.cols + board.rows).is_multiple_of(2) {
         return color.clone();
     }
     match (x_axis(depth, board), x_axis(color, board)) {

@@ -425,6 +425,9 @@ pub fn calibrate_mono(
     })
 }
 
+/// Final solution, rejected corners, and `(view, reason)` of rejected views.
+pub(crate) type Outcome = (Solution, Vec<RejectedCorner>, Vec<(usize, String)>);
+
 /// Solve, then alternately reject corner outliers and outlier views until none remain.
 /// Returns the final solution, the rejected corners and `(view, reason)` of rejected views.
 pub(crate) fn solve_with_outliers(
@@ -433,7 +436,7 @@ pub(crate) fn solve_with_outliers(
     names: &dyn Fn(usize, usize) -> String,
     n_cams: usize,
     reject_outliers: bool,
-) -> Result<(Solution, Vec<RejectedCorner>, Vec<(usize, String)>), CalibError> {
+) -> Result<Outcome, CalibError> {
     let mut sol = p.solve();
     check_finite(camera, p)?;
     let mut rejected_corners = Vec::new();
@@ -462,10 +465,13 @@ pub(crate) fn solve_with_outliers(
             vals.sort_by(f64::total_cmp);
             let median = vals[vals.len() / 2];
             for (v, r) in rms.iter().enumerate() {
-                if p.view_active[v] && r.1 > 0 && r.0 > VIEW_OUTLIER_FACTOR * median && r.0 > VIEW_OUTLIER_MIN_PX {
-                    if worst.is_none_or(|w| r.0 / median > w.1 / w.2) {
-                        worst = Some((v, r.0, median));
-                    }
+                if p.view_active[v]
+                    && r.1 > 0
+                    && r.0 > VIEW_OUTLIER_FACTOR * median
+                    && r.0 > VIEW_OUTLIER_MIN_PX
+                    && worst.is_none_or(|w| r.0 / median > w.1 / w.2)
+                {
+                    worst = Some((v, r.0, median));
                 }
             }
         }

@@ -14,7 +14,7 @@ use crate::mono::{
 use crate::{calibrate_mono, Board, CalibError, ViewCorners};
 
 /// Options of [`calibrate_stereo`].
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct StereoOptions {
     /// Flags of the depth/IR camera.
     pub depth_flags: CalibFlags,
@@ -23,12 +23,6 @@ pub struct StereoOptions {
     /// Keep both cameras' intrinsics at their single-camera values (OpenCV's
     /// `CALIB_FIX_INTRINSIC`); only `color_from_depth` and the board poses move.
     pub fix_intrinsics: bool,
-}
-
-impl Default for StereoOptions {
-    fn default() -> Self {
-        Self { depth_flags: CalibFlags::default(), color_flags: CalibFlags::default(), fix_intrinsics: false }
-    }
 }
 
 /// The result of [`calibrate_stereo`].

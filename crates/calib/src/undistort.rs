@@ -71,6 +71,27 @@ impl UndistortMap {
     }
 }
 
+/// Where the model folds inside the image: `Some((fold radius, fraction of the image's pixels
+/// that lie beyond the largest distorted radius the model reaches))`. Those pixels see no
+/// valid ray (the lab's IR k1/k2 fold near the image corners); `None` when every pixel has one.
+pub fn fold_inside_image(camera: &CameraModel) -> Option<(f64, f64)> {
+    let r = camera.distortion.fold_radius()?;
+    let d = &camera.distortion;
+    let r2 = r * r;
+    let max_distorted = r * (1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3)));
+    let k = camera.intrinsics;
+    let mut beyond = 0usize;
+    for v in 0..camera.height {
+        for u in 0..camera.width {
+            let p = k.from_pixel(u as f64, v as f64);
+            if p.norm() >= max_distorted {
+                beyond += 1;
+            }
+        }
+    }
+    (beyond > 0).then(|| (r, beyond as f64 / (camera.width * camera.height) as f64))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
