@@ -252,3 +252,34 @@ fn rig_file_and_opencv_yaml_keep_the_calibration() {
     assert_eq!((m2[0], m2[2], m2[4], m2[5]), (rig.color.intrinsics.fx, rig.color.intrinsics.cx, rig.color.intrinsics.fy, rig.color.intrinsics.cy));
     assert!(yaml.starts_with("%YAML:1.0\n---\n"));
 }
+
+#[test]
+fn opencv_rendered_corners_give_opencv_uncertainties() {
+    let Some(data) = shared_data("opencv_rendered_corners_give_opencv_uncertainties") else { return };
+    let cv = json(data.join("synthetic-calib/opencv_reference.json"));
+    let mono = &cv["calibration_from_classic_corners"]["mono"];
+    let bouguet_like = CalibFlags { use_intrinsic_guess: false, ..CalibFlags::bouguet() };
+    for (key, cam, flags, (w, h)) in [
+        ("ir_standard5", "ir", CalibFlags::default(), (512, 424)),
+        ("ir_fixk3", "ir", CalibFlags { fix_k3: true, ..CalibFlags::default() }, (512, 424)),
+        ("color_standard5", "color", CalibFlags::default(), (1920, 1080)),
+        ("color_bouguet_fixpp_fixk3", "color", bouguet_like, (1920, 1080)),
+    ] {
+        let views: Vec<ViewCorners> = (1..=15)
+            .map(|i| {
+                let name = format!("{cam}/{cam}_{i:02}.png");
+                corners_from(&cv["corners_px"][&name]["classic"], &name, w, h)
+            })
+            .collect();
+        let flags = CalibFlags { reject_outliers: false, ..flags };
+        let r = calibrate_mono(cam, &board(), &views, &flags, None).unwrap();
+        let want = &mono[key]["intrinsics"];
+        assert!((r.camera.intrinsics.fx - f(&want["fx"])).abs() < 0.02, "{key}: fx {} vs {}", r.camera.intrinsics.fx, want["fx"]);
+        let ours = r.std.to_array();
+        for (i, name) in calib::mono::intrinsic_names().iter().enumerate() {
+            let Some(theirs) = want["std"][*name].as_f64().filter(|&t| t > 0.0) else { continue };
+            // Acceptance: within 10 % of calibrateCameraExtended on the same corners.
+            assert!((ours[i] / theirs - 1.0).abs() < 0.10, "{key}: σ {name} ours {} opencv {theirs}", ours[i]);
+        }
+    }
+}
