@@ -308,8 +308,8 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
 
     if let Some(dir) = &args.report {
         let staged = StagedDir::new(dir)?;
-        figs.ir_images = ir_images.iter().zip(&ir_views).map(|(i, v)| (i, v)).collect();
-        figs.color_images = color_images.iter().zip(&color_views).map(|(i, v)| (i, v)).collect();
+        figs.ir_images = ir_images.iter().zip(&ir_views).collect();
+        figs.color_images = color_images.iter().zip(&color_views).collect();
         figs.write(&staged, &report)?;
         staged.commit()?;
         println!("\nreport: {}", dir.display());
