@@ -40,7 +40,8 @@ pub struct StereoCalibration {
     pub color_std: IntrinsicsStd,
     /// σ of the rotation of `color_from_depth` (small-angle components about x, y, z), rad.
     pub rotation_std_rad: Vector3<f64>,
-    /// σ of the translation of `color_from_depth`, metres.
+    /// σ of the translation of `color_from_depth`, metres. With `fix_intrinsics` it is
+    /// conditional on the fixed intrinsics and understates the real error.
     pub translation_std_m: Vector3<f64>,
     /// RMS over both cameras' corners, px.
     pub rms_px: f64,
