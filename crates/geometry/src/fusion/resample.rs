@@ -35,7 +35,7 @@ pub fn disc_offsets(radius_px: f32) -> Vec<(i32, i32, i32)> {
 /// 2. the result is the value of the first offset in disc order whose value is
 ///    `<= zmin * (1 + depth_jump)`.
 ///
-/// Emptiness is tested on the bits (`z != z` here; `bits == 0xFFFF_FFFF` in WGSL, where NaN
+/// Emptiness is tested on the bits (`is_nan` here; `bits == 0xFFFF_FFFF` in WGSL, where NaN
 /// comparisons are not reliable).
 ///
 /// Pass 1 keeps hidden background samples that fell between the samples of a nearer
@@ -62,12 +62,12 @@ pub fn nearest_fill_pixel(src: &[f32], w: usize, h: usize, x: i32, y: i32, offse
         let (sx, sy) = (x + dx, y + dy);
         if sx >= 0 && sy >= 0 && (sx as usize) < w && (sy as usize) < h {
             let z = src[sy as usize * w + sx as usize];
-            if !(zmin <= z) && z == z {
+            if !(zmin <= z) && !z.is_nan() {
                 zmin = z;
             }
         }
     }
-    if zmin != zmin {
+    if zmin.is_nan() {
         return ZBUFFER_EMPTY;
     }
     let limit = zmin * (1.0 + depth_jump);
