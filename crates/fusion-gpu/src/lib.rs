@@ -1,0 +1,2 @@
+//! placeholder during bootstrap
+#![deny(missing_docs)]
