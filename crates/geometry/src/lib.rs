@@ -20,6 +20,7 @@
 pub mod camera;
 pub mod cloud;
 pub mod error;
+pub mod fusion;
 pub mod image;
 pub mod io;
 pub mod pose;
