@@ -25,6 +25,7 @@ pub mod image;
 pub mod io;
 pub mod pose;
 pub mod rig;
+pub mod synth;
 
 pub use camera::{CameraModel, DepthKind, Distortion, Intrinsics};
 pub use cloud::{Mesh, PointCloud};
