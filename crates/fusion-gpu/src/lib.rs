@@ -32,6 +32,7 @@
 mod context;
 mod error;
 pub mod shaders;
+mod tables;
 
-pub use context::{FusionContext, GpuFrame, GpuPolicy, ReadBack};
+pub use context::{FramePlan, FusionContext, GpuFrame, GpuPolicy, StageOptions};
 pub use error::GpuError;

@@ -2,18 +2,16 @@
 
 mod common;
 
-use common::{context_or_skip, kinect_rig, scene_depth};
-use fusion_gpu::ReadBack;
+use common::{context_or_skip, course, kinect, with_small_color};
 use geometry::fusion::{backproject_pixel, depth_ray_table, project_point, register_depth, ColorProjection};
-use geometry::{DepthKind, Rig};
+use geometry::{DepthKind, Image, Rig};
 
 /// Runs one frame on both paths and asserts H1 points, H2 samples and the H7 z-buffer are
 /// bit-identical (the shaders mirror the CPU twins operation by operation; lavapipe neither
 /// fuses multiply-adds nor approximates division, so no tolerance is needed).
-fn assert_bit_identical(test: &str, rig: &Rig, kind: DepthKind) {
+fn assert_bit_identical(test: &str, rig: &Rig, depth: &Image<f32>, kind: DepthKind) {
     let Some(mut ctx) = context_or_skip(test) else { return };
-    let depth = scene_depth(rig, kind);
-    let gpu = ctx.register(rig, &depth, kind, ReadBack { points: true, samples: true }).expect("GPU frame");
+    let gpu = ctx.register(rig, depth, kind, true).expect("GPU frame");
 
     let rays = depth_ray_table(&rig.depth, kind);
     let proj = ColorProjection::from_rig(rig);
@@ -53,21 +51,28 @@ fn assert_bit_identical(test: &str, rig: &Rig, kind: DepthKind) {
     );
     assert_eq!(differing, 0, "{test}: z-buffer pixels differing in bits");
     // The scene must actually exercise the stages (not a vacuous comparison).
-    assert!(n_points > 400 * 400 && filled > 1000, "{test}: scene too empty");
+    assert!(n_points > 10_000 && filled > 1000, "{test}: scene too empty");
 }
 
 #[test]
-fn z_input_kinect_to_1080p_is_bit_identical() {
-    assert_bit_identical("z_input_kinect_to_1080p_is_bit_identical", &kinect_rig(1920, 1080), DepthKind::Z);
+fn kinect_preset_z_input_h1_h2_h7_bit_identical() {
+    let (setup, frame) = kinect();
+    assert_eq!(frame.depth_kind, DepthKind::Z);
+    assert_bit_identical("kinect_preset_z_input_h1_h2_h7_bit_identical", &setup.rig, &frame.depth, DepthKind::Z);
 }
 
 #[test]
-fn range_input_is_bit_identical() {
-    assert_bit_identical("range_input_is_bit_identical", &kinect_rig(1920, 1080), DepthKind::Range);
+fn course_preset_range_input_h1_h2_h7_bit_identical() {
+    let (setup, frame) = course();
+    assert_eq!(frame.depth_kind, DepthKind::Range);
+    assert_bit_identical("course_preset_range_input_h1_h2_h7_bit_identical", &setup.rig, &frame.depth, DepthKind::Range);
 }
 
 #[test]
 fn small_colour_image_with_many_collisions_is_bit_identical() {
-    // 240x135: ~7 depth samples per colour pixel, so atomicMin resolves real conflicts.
-    assert_bit_identical("small_colour_image_with_many_collisions_is_bit_identical", &kinect_rig(240, 135), DepthKind::Z);
+    // Colour camera shrunk to 240 px wide: several depth samples per colour pixel, so
+    // atomicMin resolves real conflicts.
+    let (setup, frame) = kinect();
+    let rig = with_small_color(&setup.rig, 240);
+    assert_bit_identical("small_colour_image_with_many_collisions_is_bit_identical", &rig, &frame.depth, DepthKind::Z);
 }
