@@ -240,7 +240,7 @@ impl FusionContext {
         if desc.backends.is_empty() {
             desc.backends = wgpu::Backends::VULKAN;
         }
-        let backends = format!("{:?}", desc.backends);
+        let backends = "Vulkan".to_string();
         let instance = wgpu::Instance::new(desc);
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
