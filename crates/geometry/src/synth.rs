@@ -364,8 +364,8 @@ pub struct SynthFrame {
     /// Per depth pixel: its surface point is visible to the colour camera and lands on the
     /// colour image.
     pub true_seen_by_color: Image<bool>,
-    /// Per colour pixel: its surface point is inside the depth camera's view and visible to
-    /// it (the pixel can get a depth sample).
+    /// Per colour pixel: its surface point is inside the depth camera's view, visible to it,
+    /// and the depth pixel it falls on (rounded) holds a valid measurement.
     pub true_seen_by_depth: Image<bool>,
     /// Per colour pixel: the true disocclusion mask (inside the depth view, hidden from it).
     pub true_disocclusion: Image<bool>,
@@ -474,12 +474,17 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
             let obj = &scene.objects[hit.object];
             let p = hit.point;
             let z = rig.color_from_depth.apply(&p).z;
-            let in_view = rig.depth.project(&p).is_some_and(|px| rig.depth.contains(px.x, px.y));
+            let depth_px_at = rig.depth.project(&p).filter(|px| rig.depth.contains(px.x, px.y));
+            let in_view = depth_px_at.is_some();
             let visible = scene.cast(&zero, &p).is_some_and(|h| h.t >= 1.0 - HIDDEN_TOLERANCE);
+            let measured = depth_px_at.is_some_and(|px| {
+                let (x, y) = ((px.x + 0.5).floor() as usize, (px.y + 0.5).floor() as usize);
+                depth_px[y * dw + x].depth.is_finite()
+            });
             ColorPx {
                 color: obj.texture.color_u8(&p),
                 z: z as f32,
-                seen_by_depth: in_view && visible,
+                seen_by_depth: in_view && visible && measured,
                 disoccluded: in_view && !visible,
                 object: hit.object as u16,
             }
@@ -583,7 +588,7 @@ pub fn kinect_rig() -> Rig {
 }
 
 /// The Kinect preset: [`kinect_rig`], a tilted background plane at 2.2–4.8 m (its far corner
-/// beyond the 4.5 m range), a box, a sphere and a cone at 1.7–2.4 m, smooth colour
+/// beyond the 4.5 m range), a box, a sphere and a cone at 1.0–1.7 m, smooth colour
 /// patterns; z depth with realistic invalid pixels (beyond range, low amplitude, 0.2 %
 /// dropouts). `noise` adds [`KINECT_NOISE_SIGMA_M`] Gaussian depth noise.
 pub fn kinect_preset(noise: bool) -> SynthSetup {
@@ -596,24 +601,24 @@ pub fn kinect_preset(noise: bool) -> SynthSetup {
             },
             SceneObject {
                 shape: Shape::Box {
-                    center: Vector3::new(-0.5, 0.15, 1.9),
-                    half_extents: Vector3::new(0.2, 0.25, 0.18),
+                    center: Vector3::new(-0.29, 0.08, 1.1),
+                    half_extents: Vector3::new(0.11, 0.15, 0.1),
                     rotation: Rotation3::from_euler_angles(0.15, 0.5, 0.05),
                 },
                 texture: Texture::Stripes { period_m: 0.2, direction: Vector3::new(1.0, 0.5, 0.3), a: [200, 50, 40], b: [250, 220, 90] },
                 ir_albedo: 0.7,
             },
             SceneObject {
-                shape: Shape::Sphere { center: Vector3::new(0.45, -0.1, 2.1), radius: 0.24 },
+                shape: Shape::Sphere { center: Vector3::new(0.27, -0.06, 1.25), radius: 0.14 },
                 texture: Texture::Plaid { period_m: 0.3, base: [90, 160, 110], amplitude: 60.0 },
                 ir_albedo: 0.7,
             },
             SceneObject {
                 shape: Shape::Cone {
-                    apex: Vector3::new(0.0, -0.35, 2.4),
+                    apex: Vector3::new(0.0, -0.2, 1.45),
                     axis: Vector3::new(0.0, 1.0, 0.1),
                     half_angle: 20f64.to_radians(),
-                    height: 0.55,
+                    height: 0.32,
                 },
                 texture: Texture::Stripes { period_m: 0.15, direction: Vector3::new(0.0, 1.0, 0.0), a: [70, 50, 170], b: [220, 200, 250] },
                 ir_albedo: 0.6,
