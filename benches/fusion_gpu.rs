@@ -21,7 +21,7 @@ const STREAM_FRAMES: usize = 8;
 
 /// The later stages' parameters used for the GPU "all stages" figures.
 const STAGES: StageOptions =
-    StageOptions { nearest_radius_px: 2.5, depth_jump: 0.05, hole_radius_px: 3.0, occlusion_tolerance: Some(0.02) };
+    StageOptions { nearest_radius_px: 2.5, depth_jump: 0.05, hole_radius_px: 3.5, hole_grow_px: 2.0, occlusion_tolerance: Some(0.02) };
 
 fn bench(c: &mut Criterion) {
     let setup = synth::kinect_preset(true);

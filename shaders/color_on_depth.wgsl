@@ -11,6 +11,8 @@ struct Params {
     size: vec4<u32>,
     // occlusion tolerance (relative), use the occlusion test (1.0) or not (0.0), unused, unused.
     occlusion: vec4<f32>,
+    // Always 0; unknown to the compiler, see keep().
+    opaque: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -30,6 +32,12 @@ fn byte_at(k: u32) -> f32 {
 
 fn is_nan(x: f32) -> bool {
     return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
+}
+
+// x, unchanged, but materialised as an f32 so that `a + b * c` is never contracted into a
+// fused multiply-add (see project.wgsl).
+fn keep(x: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(x) ^ params.opaque.x);
 }
 
 @compute @workgroup_size(256)
@@ -77,9 +85,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let c10 = byte_at(3u * (y0 * width + x1) + k);
         let c01 = byte_at(3u * (y1 * width + x0) + k);
         let c11 = byte_at(3u * (y1 * width + x1) + k);
-        let top = c00 + (c10 - c00) * fx;
-        let bottom = c01 + (c11 - c01) * fx;
-        let value = top + (bottom - top) * fy;
+        let top = c00 + keep((c10 - c00) * fx);
+        let bottom = c01 + keep((c11 - c01) * fx);
+        let value = top + keep((bottom - top) * fy);
         out = out | (u32(floor(value + 0.5)) << (8u * k));
     }
     rgba[i] = out;

@@ -9,6 +9,8 @@ struct Params {
     size: vec4<u32>,
     // n0, n1, n2, d.
     plane: vec4<f32>,
+    // Always 0; unknown to the compiler, see keep().
+    opaque: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -17,6 +19,13 @@ struct Params {
 // Colour camera ray table: (x, y) per pixel, NaN where the lens folds.
 @group(0) @binding(3) var<storage, read> rays: array<vec2<f32>>;
 @group(0) @binding(4) var<storage, read_write> filled: array<u32>;
+
+// x, unchanged, but materialised as an f32: XOR with a value the compiler cannot know
+// stops it from contracting `a * b + c` into a fused multiply-add (lavapipe does that here,
+// which changes the last bit relative to the CPU twin).
+fn keep(x: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(x) ^ params.opaque.x);
+}
 
 @compute @workgroup_size(256)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -27,7 +36,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var out = dense[i];
     if holes[i] == 1u {
         let ray = rays[i];
-        let den = params.plane.x * ray.x + params.plane.y * ray.y + params.plane.z;
+        let den = keep(keep(params.plane.x * ray.x) + keep(params.plane.y * ray.y)) + params.plane.z;
         let z = params.plane.w / den;
         let b = bitcast<u32>(z);
         // 0 < z < +inf on the bits (NaN, negatives and zero fail).

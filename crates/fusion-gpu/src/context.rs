@@ -9,7 +9,9 @@ use bytemuck::{Pod, Zeroable};
 use geometry::fusion::{depth_ray_table, ColorProjection};
 use geometry::{CameraModel, DepthKind, Image, Rig};
 
-use crate::tables::{disc_offsets, hole_half_widths};
+use geometry::fusion::disc_offsets;
+
+use crate::tables::hole_half_widths;
 use crate::{shaders, GpuError};
 
 /// Invocations per workgroup of every kernel (the `@workgroup_size` in the shaders): 256 is a
@@ -48,6 +50,8 @@ pub struct StageOptions {
     pub depth_jump: f32,
     /// H8 hole mask: coverage radius in colour pixels (`geometry::fusion::HoleMasker`).
     pub hole_radius_px: f32,
+    /// H8 hole mask: how far hole cores grow back, colour pixels (`HoleMasker`'s `grow`).
+    pub hole_grow_px: f32,
     /// H6: a depth pixel's colour is dropped when its `z` exceeds the colour camera's H3 depth
     /// there by more than this fraction (`geometry::fusion::color_on_depth`); `None` samples
     /// every pixel without an occlusion test.
@@ -97,6 +101,8 @@ struct ProjectParams {
     d0: [f32; 4],
     d1: [f32; 4],
     size: [u32; 4],
+    /// Always zero (see `keep()` in the shaders).
+    opaque: [u32; 4],
 }
 
 #[repr(C)]
@@ -119,6 +125,8 @@ struct HoleParams {
 struct ColorParams {
     size: [u32; 4],
     occlusion: [f32; 4],
+    /// Always zero (see `keep()` in the shaders).
+    opaque: [u32; 4],
 }
 
 #[repr(C)]
@@ -126,6 +134,8 @@ struct ColorParams {
 struct PlaneParams {
     size: [u32; 4],
     plane: [f32; 4],
+    /// Always zero (see `keep()` in the shaders).
+    opaque: [u32; 4],
 }
 
 struct Kernels {
@@ -136,7 +146,8 @@ struct Kernels {
     nearest: wgpu::ComputePipeline,
     hole_clear: wgpu::ComputePipeline,
     hole_cover: wgpu::ComputePipeline,
-    hole_mask: wgpu::ComputePipeline,
+    hole_core: wgpu::ComputePipeline,
+    hole_grow: wgpu::ComputePipeline,
     color: wgpu::ComputePipeline,
     plane_fill: wgpu::ComputePipeline,
 }
@@ -161,6 +172,7 @@ struct FrameSlot {
     covered: wgpu::Buffer,
     row_extent: wgpu::Buffer,
     col_extent: wgpu::Buffer,
+    core: wgpu::Buffer,
     holes: wgpu::Buffer,
     color: wgpu::Buffer,
     rgba: wgpu::Buffer,
@@ -212,9 +224,10 @@ pub struct FusionContext {
     limits: wgpu::Limits,
     kernels: Kernels,
     depth_rays: Option<Cached<(CameraModel, DepthKind)>>,
-    color_rays: Option<Cached<CameraModel>>,
+    color_rays: Option<(Cached<CameraModel>, Vec<[f32; 2]>)>,
     offsets: Option<Cached<u32>>,
     half_widths: Option<Cached<u32>>,
+    grow_half_widths: Option<Cached<u32>>,
     slots: Vec<FrameSlot>,
     errors: Arc<Mutex<Vec<String>>>,
 }
@@ -279,7 +292,8 @@ impl FusionContext {
             nearest: pipeline(&device, "nearest_fill.wgsl", shaders::NEAREST_FILL, "main"),
             hole_clear: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "clear_extents"),
             hole_cover: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "coverage"),
-            hole_mask: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "mask"),
+            hole_core: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "core_mask"),
+            hole_grow: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "grow"),
             color: pipeline(&device, "color_on_depth.wgsl", shaders::COLOR_ON_DEPTH, "main"),
             plane_fill: pipeline(&device, "plane_fill.wgsl", shaders::PLANE_FILL, "main"),
         };
@@ -293,6 +307,7 @@ impl FusionContext {
             color_rays: None,
             offsets: None,
             half_widths: None,
+            grow_half_widths: None,
             slots: Vec::new(),
             errors,
         };
@@ -428,7 +443,8 @@ impl FusionContext {
     /// H8 fill on the GPU: `nearest` (H3, colour-sized) with every `holes` pixel replaced by the
     /// depth of the plane `normal · X = offset` (colour frame, metres) along the pixel's
     /// undistorted ray. Bit-identical to `geometry::fusion::fill_holes_with_plane` with the
-    /// plane rounded to `f32`. The plane itself comes from the CPU RANSAC fit.
+    /// plane rounded to `f32`, including the count of pixels filled. The plane itself comes
+    /// from the CPU RANSAC fit (`geometry::fusion::fit_plane_ransac`).
     pub fn fill_holes_with_plane(
         &mut self,
         color_camera: &CameraModel,
@@ -436,7 +452,7 @@ impl FusionContext {
         holes: &Image<bool>,
         normal: [f32; 3],
         offset: f32,
-    ) -> Result<Image<f32>, GpuError> {
+    ) -> Result<(Image<f32>, usize), GpuError> {
         color_camera.validate()?;
         let (w, h) = (color_camera.width, color_camera.height);
         nearest.expect_size("nearest-filled colour depth", w, h)?;
@@ -453,9 +469,19 @@ impl FusionContext {
         q.write_buffer(&s.nearest, 0, bytemuck::cast_slice(nearest.data()));
         let mask: Vec<u32> = holes.data().iter().map(|&b| b as u32).collect();
         q.write_buffer(&s.holes, 0, bytemuck::cast_slice(&mask));
-        let params = PlaneParams { size: [w as u32, h as u32, m, stride], plane: [normal[0], normal[1], normal[2], offset] };
+        let params = PlaneParams { size: [w as u32, h as u32, m, stride], plane: [normal[0], normal[1], normal[2], offset], opaque: [0; 4] };
         q.write_buffer(&s.uniforms[U_PLANE], 0, bytemuck::bytes_of(&params));
-        let rays = &self.color_rays.as_ref().expect("ensure_color_rays ran").buffer;
+        let (rays, host_rays) = match &self.color_rays {
+            Some((c, host)) => (&c.buffer, host),
+            None => return Err(self.device_error("filling holes", "colour ray table missing".into())),
+        };
+        // The count the CPU twin reports: hole pixels whose ray meets the plane in front.
+        let filled = holes
+            .data()
+            .iter()
+            .zip(host_rays)
+            .filter(|(m, ray)| **m && geometry::fusion::plane_depth_pixel(normal, offset, **ray).is_some())
+            .count();
         let group = self.bind(
             &self.kernels.plane_fill,
             &[(0, &s.uniforms[U_PLANE]), (1, &s.nearest), (2, &s.holes), (3, rays), (4, &s.filled)],
@@ -476,7 +502,7 @@ impl FusionContext {
         });
         self.wait(submission, &rx, 1)?;
         let data: Vec<f32> = self.read_mapped(&self.slots[0].read_nearest, bytes)?;
-        Ok(Image::from_vec(w, h, data)?)
+        Ok((Image::from_vec(w, h, data)?, filled))
     }
 
     fn device_error(&self, during: &'static str, message: String) -> GpuError {
@@ -506,10 +532,10 @@ impl FusionContext {
     }
 
     fn ensure_color_rays(&mut self, camera: &CameraModel) {
-        if self.color_rays.as_ref().is_none_or(|c| c.key != *camera) {
+        if self.color_rays.as_ref().is_none_or(|(c, _)| c.key != *camera) {
             let table = camera.ray_table();
             let buffer = self.upload("colour ray table", &table);
-            self.color_rays = Some(Cached { key: *camera, buffer, len: table.len() as u32 });
+            self.color_rays = Some((Cached { key: *camera, buffer, len: table.len() as u32 }, table));
         }
     }
 
@@ -520,7 +546,8 @@ impl FusionContext {
             let buffer = self.upload("depth ray table", &table);
             self.depth_rays = Some(Cached { key, buffer, len: table.len() as u32 });
         }
-        let (nearest_r, hole_r) = stages.map_or((0.0, 0.0), |s| (s.nearest_radius_px, s.hole_radius_px));
+        let (nearest_r, hole_r, grow_r) =
+            stages.map_or((0.0, 0.0, 0.0), |s| (s.nearest_radius_px, s.hole_radius_px, s.hole_grow_px));
         if self.offsets.as_ref().is_none_or(|c| c.key != nearest_r.to_bits()) {
             let table: Vec<[i32; 2]> = disc_offsets(nearest_r).into_iter().map(|(dx, dy, _)| [dx, dy]).collect();
             let buffer = self.upload("disc offsets", &table);
@@ -530,6 +557,11 @@ impl FusionContext {
             let table = hole_half_widths(hole_r);
             let buffer = self.upload("hole half widths", &table);
             self.half_widths = Some(Cached { key: hole_r.to_bits(), buffer, len: table.len() as u32 });
+        }
+        if self.grow_half_widths.as_ref().is_none_or(|c| c.key != grow_r.to_bits()) {
+            let table = hole_half_widths(grow_r);
+            let buffer = self.upload("hole grow half widths", &table);
+            self.grow_half_widths = Some(Cached { key: grow_r.to_bits(), buffer, len: table.len() as u32 });
         }
     }
 
@@ -572,6 +604,7 @@ impl FusionContext {
             covered: buf("covered", m * 4, storage),
             row_extent: buf("row extents", ch * 8, storage),
             col_extent: buf("column extents", cw * 8, storage),
+            core: buf("hole cores", m * 4, storage),
             holes: buf("holes", m * 4, storage),
             color: buf("colour image", m * 3, storage),
             rgba: buf("colour on depth", n * 4, storage),
@@ -619,6 +652,7 @@ impl FusionContext {
         let rays = self.depth_rays.as_ref().ok_or_else(missing)?;
         let offsets = self.offsets.as_ref().ok_or_else(missing)?;
         let half_widths = self.half_widths.as_ref().ok_or_else(missing)?;
+        let grow_half_widths = self.grow_half_widths.as_ref().ok_or_else(missing)?;
         let s = &self.slots[slot];
         let n = depth.data().len() as u32;
         let (cw, ch) = (proj.width, proj.height);
@@ -639,6 +673,7 @@ impl FusionContext {
             d0: [proj.skew, proj.k1, proj.k2, proj.p1],
             d1: [proj.p2, proj.k3, 0.0, 0.0],
             size: [cw, ch, n, dstride],
+            opaque: [0; 4],
         };
         q.write_buffer(&u[U_PROJECT], 0, bytemuck::bytes_of(&pp));
         q.write_buffer(&u[U_ZCLEAR], 0, bytemuck::bytes_of(&SizeParams { size: [cw, ch, m, cstride] }));
@@ -664,10 +699,10 @@ impl FusionContext {
             reads.stages = true;
             let np = NearestParams { size: [cw, ch, m, cstride], offsets: [offsets.len, 0, 0, 0], jump: [st.depth_jump, 0.0, 0.0, 0.0] };
             q.write_buffer(&u[U_NEAREST], 0, bytemuck::bytes_of(&np));
-            let radius = half_widths.len.saturating_sub(1);
-            let hc = HoleParams { size: [cw, ch, cw.max(ch), estride], radius: [radius, 0, 0, 0] };
+            let radius = [half_widths.len.saturating_sub(1), grow_half_widths.len.saturating_sub(1), 0, 0];
+            let hc = HoleParams { size: [cw, ch, cw.max(ch), estride], radius };
             q.write_buffer(&u[U_HOLE_CLEAR], 0, bytemuck::bytes_of(&hc));
-            let hp = HoleParams { size: [cw, ch, m, cstride], radius: [radius, 0, 0, 0] };
+            let hp = HoleParams { size: [cw, ch, m, cstride], radius };
             q.write_buffer(&u[U_HOLE], 0, bytemuck::bytes_of(&hp));
             groups.push((
                 &k.nearest,
@@ -695,10 +730,18 @@ impl FusionContext {
                 (cx, cy),
             ));
             groups.push((
-                &k.hole_mask,
+                &k.hole_core,
                 self.bind(
-                    &k.hole_mask,
-                    &[(0, &u[U_HOLE]), (3, &s.covered), (4, &s.row_extent), (5, &s.col_extent), (6, &s.holes)],
+                    &k.hole_core,
+                    &[(0, &u[U_HOLE]), (3, &s.covered), (4, &s.row_extent), (5, &s.col_extent), (6, &s.core)],
+                ),
+                (cx, cy),
+            ));
+            groups.push((
+                &k.hole_grow,
+                self.bind(
+                    &k.hole_grow,
+                    &[(0, &u[U_HOLE]), (1, &s.zbuffer), (6, &s.core), (7, &grow_half_widths.buffer), (8, &s.holes)],
                 ),
                 (cx, cy),
             ));
@@ -706,7 +749,7 @@ impl FusionContext {
                 reads.color = true;
                 write_padded(q, &s.color, bytemuck::cast_slice(c.data()));
                 let (tol, on) = st.occlusion_tolerance.map_or((0.0, 0.0), |t| (t, 1.0));
-                let cp = ColorParams { size: [cw, ch, n, dstride], occlusion: [tol, on, 0.0, 0.0] };
+                let cp = ColorParams { size: [cw, ch, n, dstride], occlusion: [tol, on, 0.0, 0.0], opaque: [0; 4] };
                 q.write_buffer(&u[U_COLOR], 0, bytemuck::bytes_of(&cp));
                 groups.push((
                     &k.color,

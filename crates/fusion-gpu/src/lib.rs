@@ -31,6 +31,7 @@
 
 mod context;
 mod error;
+mod run;
 pub mod shaders;
 mod tables;
 
