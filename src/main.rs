@@ -3,6 +3,7 @@
 
 mod cmd_demo;
 mod cmd_fuse;
+mod cmd_view;
 mod figures;
 
 use clap::{Parser, Subcommand};
@@ -23,6 +24,8 @@ enum Command {
     Fuse(cmd_fuse::FuseArgs),
     /// Render a synthetic Kinect v2 frame, write it as input files and fuse it.
     Demo(cmd_demo::DemoArgs),
+    /// Open the viewer: 2D panes, 3D cloud and mesh, live fusion switches.
+    View(cmd_view::ViewArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -38,6 +41,7 @@ fn main() -> anyhow::Result<()> {
             cmd_fuse::report(&result);
         }
         Command::Demo(args) => cmd_demo::run(&args)?,
+        Command::View(args) => cmd_view::run(&args)?,
     }
     Ok(())
 }
