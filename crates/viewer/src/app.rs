@@ -217,7 +217,7 @@ impl ViewerApp {
 
     /// Draws the whole viewer into `ui`.
     pub fn ui(&mut self, ui: &mut egui::Ui) {
-        egui::Panel::top("kfuse-top").show_inside(ui, |ui| {
+        egui::Panel::top("kfuse-top").show(ui, |ui| {
             ui.horizontal(|ui| {
                 ui.strong("kfuse view");
                 ui.separator();
@@ -233,13 +233,13 @@ impl ViewerApp {
         });
         if let Some(err) = &self.error {
             let msg = err.to_string();
-            egui::Panel::top("kfuse-error").show_inside(ui, |ui| {
+            egui::Panel::top("kfuse-error").show(ui, |ui| {
                 ui.colored_label(Color32::from_rgb(230, 80, 80), egui::RichText::new("Error").heading());
                 ui.label(msg);
             });
         }
         if self.frame.is_none() || self.fused.is_none() {
-            egui::CentralPanel::default().show_inside(ui, |ui| {
+            egui::CentralPanel::default().show(ui, |ui| {
                 ui.label("Open a `kfuse fuse` output folder or a capture folder: kfuse view DIR (or kfuse view --demo).");
             });
             return;
@@ -252,7 +252,7 @@ impl ViewerApp {
     }
 
     fn images_page(&mut self, ui: &mut egui::Ui) {
-        egui::Panel::left("kfuse-panes").resizable(false).show_inside(ui, |ui| {
+        egui::Panel::left("kfuse-panes").resizable(false).show(ui, |ui| {
             ui.heading("Pane");
             for pane in Pane::ALL {
                 if ui.selectable_label(self.pane == pane, pane.label()).clicked() && self.pane != pane {
@@ -268,7 +268,7 @@ impl ViewerApp {
             }
             ui.label("Scroll: zoom · drag: pan");
         });
-        egui::Panel::bottom("kfuse-probe").show_inside(ui, |ui| {
+        egui::Panel::bottom("kfuse-probe").show(ui, |ui| {
             ui.label(match &self.probe {
                 Some(p) => format!(
                     "pixel ({}, {})   depth {}   point {}",
@@ -280,7 +280,7 @@ impl ViewerApp {
                 None => "move the cursor over the image".to_string(),
             });
         });
-        egui::CentralPanel::default().show_inside(ui, |ui| {
+        egui::CentralPanel::default().show(ui, |ui| {
             let (Some(frame), Some(fused)) = (self.frame.clone(), self.fused.as_ref()) else { return };
             if self.pane == Pane::Ir && frame.ir.is_none() {
                 ui.label("This source has no IR image (a capture folder's ir.png).");
@@ -329,7 +329,7 @@ impl ViewerApp {
 
     fn view3d_page(&mut self, ui: &mut egui::Ui) {
         let mut t = self.toggles;
-        egui::Panel::left("kfuse-3d-controls").resizable(false).show_inside(ui, |ui| {
+        egui::Panel::left("kfuse-3d-controls").resizable(false).show(ui, |ui| {
             ui.heading("Fusion");
             ui.label("Resampling (H3)");
             ui.radio_value(&mut t.resampling, Resampling::Nearest, "Nearest");
@@ -361,7 +361,7 @@ impl ViewerApp {
         } else if slider_busy {
             ui.ctx().request_repaint();
         }
-        egui::CentralPanel::default().show_inside(ui, |ui| {
+        egui::CentralPanel::default().show(ui, |ui| {
             let rect = ui.available_rect_before_wrap();
             let resp = ui.allocate_rect(rect, Sense::click_and_drag());
             if resp.dragged_by(egui::PointerButton::Primary) && !ui.input(|i| i.modifiers.shift) {
@@ -392,7 +392,7 @@ impl ViewerApp {
     }
 
     fn summary_page(&mut self, ui: &mut egui::Ui) {
-        egui::CentralPanel::default().show_inside(ui, |ui| {
+        egui::CentralPanel::default().show(ui, |ui| {
             let Some(f) = &self.fused else { return };
             let s = &f.output.summary;
             ui.heading("Fusion summary");

@@ -17,7 +17,7 @@ pub const CHECKER_PX: usize = 64;
 pub const BLEND_ALPHA: f32 = 0.5;
 
 /// The 2D panes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Pane {
     /// Colour image (colour camera).
     Color,

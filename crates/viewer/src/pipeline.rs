@@ -2,9 +2,13 @@
 //!
 //! [`Toggles`] map onto [`FusionOptions`]; the stages `geometry::fusion::run` has no switch
 //! for are recomputed here from its public stage functions:
-//! * **z-buffer off**: every H2 sample is written in depth-pixel order, the last one wins
-//!   (what a naive scatter does), so background samples overwrite the foreground where both
-//!   land on one colour pixel; H3, H8 and H6 (without its occlusion test) then run on that.
+//! * **z-buffer off**: H2's samples are scattered without a depth test, in depth-pixel order,
+//!   and the first sample on a colour pixel stays ([`first_write_wins`]); H3, H8 and H6
+//!   (without its occlusion test) then run on that. Where a foreground object and the
+//!   background hidden behind it (seen by the depth camera, not by the colour camera) land on
+//!   one colour pixel, the background can win. (Keeping the *last* sample instead would hide
+//!   the effect on a Kinect: with the colour camera at −x, row-major order is
+//!   occlusion-compatible and reproduces the z-buffer exactly.)
 //! * **Delaunay + hole filling**: the plane fill is applied to the Delaunay-linear depth.
 //! * **edge-face removal off**: the 3D view shows H4's mesh instead of H5's.
 
@@ -107,7 +111,7 @@ pub fn fuse(frame: &Frame, toggles: Toggles, gpu: Option<&mut fusion_gpu::Fusion
     let mut recompute_mesh = false;
     if !toggles.zbuffer {
         let (cw, ch) = (rig.color.width, rig.color.height);
-        output.zbuffer = last_write_wins(&output.samples, cw, ch);
+        output.zbuffer = first_write_wins(&output.samples, cw, ch);
         output.nearest = nearest_fill(&output.zbuffer, radius, options.depth_jump);
         output.hole_mask = fusion::hole_mask(&output.zbuffer, radius, hole_grow_px(rig, &options));
         let rays = fusion::depth_ray_table(&rig.depth, frame.kind);
@@ -146,11 +150,15 @@ pub fn fuse(frame: &Frame, toggles: Toggles, gpu: Option<&mut fusion_gpu::Fusion
     Ok(Fused { toggles, output, shown_depth, mesh, filled_pixels, backend })
 }
 
-/// H7 without the depth test: each sample overwrites its colour pixel, in sample order.
-pub fn last_write_wins(samples: &[fusion::ColorSample], width: usize, height: usize) -> Image<f32> {
+/// H7 without the depth test: in sample order, the first sample on a colour pixel stays.
+/// Empty pixels hold [`fusion::ZBUFFER_EMPTY`], like the z-buffer.
+pub fn first_write_wins(samples: &[fusion::ColorSample], width: usize, height: usize) -> Image<f32> {
+    let empty = fusion::ZBUFFER_EMPTY.to_bits();
     let mut img = Image::filled(width, height, fusion::ZBUFFER_EMPTY);
     for s in samples {
-        if let Some(i) = fusion::zbuffer_index(s.u, s.v, width as u32, height as u32) {
+        if let Some(i) = fusion::zbuffer_index(s.u, s.v, width as u32, height as u32)
+            && img.data()[i].to_bits() == empty
+        {
             img.data_mut()[i] = s.z;
         }
     }

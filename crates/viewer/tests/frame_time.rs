@@ -63,7 +63,7 @@ fn frame_time_kinect_textured_mesh() {
     let i = queue.submit([enc.finish()]);
     buf.slice(..).map_async(wgpu::MapMode::Read, |_| {});
     device.poll(wgpu::PollType::Wait { submission_index: Some(i), timeout: None }).unwrap();
-    let data = buf.slice(..).get_mapped_range();
+    let data = buf.slice(..).get_mapped_range().expect("mapped above");
     let bg = viewer::render3d::BACKGROUND.map(|c| (c * 255.0).round() as u8);
     let covered = data.chunks(4).filter(|p| (p[0] as i32 - bg[0] as i32).abs() > 2 || (p[1] as i32 - bg[1] as i32).abs() > 2 || (p[2] as i32 - bg[2] as i32).abs() > 2).count();
     let frac = covered as f64 / (W * H) as f64;
