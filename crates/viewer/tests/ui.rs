@@ -65,8 +65,12 @@ fn images_page_hover_shows_the_value_under_the_cursor() {
     h.hover_at(egui::Pos2::new(x, SIZE.y * 0.5));
     h.run();
     let probe = h.state().probe.expect("hovering the image gives a probe");
-    // The 512×424 depth image fitted in the panel: the cursor is within a few pixels of its centre.
-    assert!((probe.pixel[0] as i32 - 256).abs() < 40 && (probe.pixel[1] as i32 - 212).abs() < 40, "{probe:?}");
+    // The cursor is inside the 512×424 depth image, and the probe reads that pixel's depth.
+    assert!(probe.pixel[0] < 512 && probe.pixel[1] < 424, "{probe:?}");
+    let z = *common::synth_frame().0.depth.get(probe.pixel[0], probe.pixel[1]);
+    assert!(z.is_finite(), "the image centre sees the scene");
+    // mm from f32 metres: 1e-3 mm.
+    assert!((probe.depth_mm.unwrap() - z * 1000.0).abs() < 1e-3, "{probe:?} vs {z} m");
     let text = format!("pixel ({}, {})", probe.pixel[0], probe.pixel[1]);
     h.get_by_label_contains(&text);
 }
