@@ -417,7 +417,13 @@ impl ViewerApp {
                 row("faces before / after H5", format!("{} / {}", f.output.mesh.faces.len(), f.output.mesh_clean.faces.len()));
                 row("colour-on-depth pixels (H6)", s.color_on_depth_pixels.to_string());
                 if let Some(p) = &s.plane {
-                    row("hole plane", format!("{p:?}"));
+                    row(
+                        "hole plane (RANSAC)",
+                        format!(
+                            "n = ({:.3}, {:.3}, {:.3}), offset {:.3} m, {} of {} inliers, rms {:.1} mm",
+                            p.normal[0], p.normal[1], p.normal[2], p.offset, p.inliers, p.samples, p.rms_m * 1000.0
+                        ),
+                    );
                 }
                 row("backend", format!("{:?}", f.backend));
             });
