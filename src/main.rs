@@ -3,6 +3,7 @@
 
 mod cmd_demo;
 mod cmd_fuse;
+mod cmd_view;
 mod figures;
 
 use clap::{Parser, Subcommand};
@@ -30,6 +31,8 @@ enum Command {
     Calibrate(cmd_calibrate::CalibrateArgs),
     /// Remove lens distortion from images with a rig file (writes *_rect images).
     Undistort(cmd_undistort::UndistortArgs),
+    /// Open the viewer: 2D panes, 3D cloud and mesh, live fusion switches.
+    View(cmd_view::ViewArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -64,6 +67,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             cmd_fuse::report(&result);
         }
         Command::Demo(args) => cmd_demo::run(&args)?,
+        Command::View(args) => cmd_view::run(&args)?,
     }
     Ok(())
 }

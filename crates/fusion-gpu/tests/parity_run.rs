@@ -1,0 +1,93 @@
+//! The whole pipeline: `FusionContext::run` (H1, H2, H7, H3 nearest, H8 mask + fill, H6 on
+//! the GPU) against `geometry::fusion::run` (all on the CPU), stage by stage.
+//!
+//! Tolerance: none. Every GPU stage mirrors its CPU twin operation by operation, and lavapipe
+//! neither fuses multiply-adds nor approximates division, so every image must be
+//! bit-identical (NaN compared by bits). The CPU-only stages (H3 linear, H4, H5, RANSAC)
+//! then see identical inputs and must give identical outputs too.
+
+mod common;
+
+use common::{context_or_skip, course, kinect};
+use geometry::fusion::{run, FusionOptions, FusionOutput};
+use geometry::{DepthKind, Image};
+
+fn differing_bits(a: &Image<f32>, b: &Image<f32>) -> usize {
+    a.data().iter().zip(b.data()).filter(|(x, y)| x.to_bits() != y.to_bits()).count()
+}
+
+fn differing<T: PartialEq>(a: &[T], b: &[T]) -> usize {
+    a.iter().zip(b).filter(|(x, y)| x != y).count() + a.len().abs_diff(b.len())
+}
+
+/// Compares every output and prints the per-stage figures the final report quotes.
+fn assert_same(test: &str, cpu: &FusionOutput, gpu: &FusionOutput) {
+    let point_bits = |c: &FusionOutput| c.cloud.points.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
+    let sample_bits =
+        |c: &FusionOutput| c.samples.iter().map(|s| (s.u.to_bits(), s.v.to_bits(), s.z.to_bits(), s.point)).collect::<Vec<_>>();
+    let rows = [
+        ("H1 points (coords)", differing(&point_bits(cpu), &point_bits(gpu)), cpu.cloud.points.len() * 3),
+        ("H1 pixels", differing(&cpu.cloud_pixels, &gpu.cloud_pixels), cpu.cloud_pixels.len()),
+        ("H2 samples", differing(&sample_bits(cpu), &sample_bits(gpu)), cpu.samples.len()),
+        ("H7 z-buffer", differing_bits(&cpu.zbuffer, &gpu.zbuffer), cpu.zbuffer.data().len()),
+        ("H3 nearest", differing_bits(&cpu.nearest, &gpu.nearest), cpu.nearest.data().len()),
+        ("H8 hole mask", differing(cpu.hole_mask.data(), gpu.hole_mask.data()), cpu.hole_mask.data().len()),
+        ("H8 filled", differing_bits(&cpu.filled, &gpu.filled), cpu.filled.data().len()),
+        ("H6 colour", differing(cpu.color_on_depth.data(), gpu.color_on_depth.data()), cpu.color_on_depth.data().len()),
+        ("H6 valid", differing(cpu.color_on_depth_valid.data(), gpu.color_on_depth_valid.data()), cpu.color_on_depth_valid.data().len()),
+        ("H1+H6 cloud colours", differing(&cpu.cloud.colors, &gpu.cloud.colors), cpu.cloud.colors.len()),
+    ];
+    for (stage, diff, total) in rows {
+        eprintln!("{test}: {stage}: {diff} of {total} differ");
+    }
+    eprintln!("{test}: summary {:?}", gpu.summary);
+    for (stage, diff, total) in rows {
+        assert_eq!(diff, 0, "{test}: {stage}: {diff} of {total} differ");
+    }
+    match (&cpu.linear, &gpu.linear) {
+        (Some(a), Some(b)) => assert_eq!(differing_bits(a, b), 0, "{test}: H3 linear"),
+        (None, None) => {}
+        _ => panic!("{test}: H3 linear computed on one side only"),
+    }
+    assert_eq!(cpu.mesh, gpu.mesh, "{test}: H4 mesh");
+    assert_eq!(cpu.mesh_clean, gpu.mesh_clean, "{test}: H5 mesh");
+    assert_eq!(cpu.summary, gpu.summary, "{test}: summary");
+    // Not vacuous: the frame has holes that were filled and colour that was sampled.
+    let s = &gpu.summary;
+    assert!(s.zbuffer_pixels > 10_000 && s.hole_pixels > 100 && s.filled_pixels > 0 && s.color_on_depth_pixels > 10_000, "{s:?}");
+}
+
+#[test]
+fn kinect_preset_full_pipeline_matches_cpu() {
+    let test = "kinect_preset_full_pipeline_matches_cpu";
+    let Some(mut ctx) = context_or_skip(test) else { return };
+    let (setup, frame) = kinect();
+    let options = FusionOptions::default();
+    let cpu = run(&setup.rig, &frame.depth, DepthKind::Z, &frame.color, &options).expect("CPU run");
+    let gpu = ctx.run(&setup.rig, &frame.depth, DepthKind::Z, &frame.color, &options).expect("GPU run");
+    assert_same(test, &cpu, &gpu);
+}
+
+#[test]
+fn course_preset_full_pipeline_matches_cpu() {
+    let test = "course_preset_full_pipeline_matches_cpu";
+    let Some(mut ctx) = context_or_skip(test) else { return };
+    let (setup, frame) = course();
+    // H3 linear is CPU code on both sides; skip it here to keep the test fast.
+    let options = FusionOptions { linear: false, ..FusionOptions::default() };
+    let cpu = run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("CPU run");
+    let gpu = ctx.run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("GPU run");
+    assert_same(test, &cpu, &gpu);
+}
+
+#[test]
+fn all_invalid_depth_is_rejected_like_on_the_cpu() {
+    let test = "all_invalid_depth_is_rejected_like_on_the_cpu";
+    let Some(mut ctx) = context_or_skip(test) else { return };
+    let (setup, frame) = kinect();
+    let empty = Image::filled(512, 424, 0.0f32);
+    let options = FusionOptions::default();
+    let cpu = run(&setup.rig, &empty, DepthKind::Z, &frame.color, &options).expect_err("CPU accepted");
+    let gpu = ctx.run(&setup.rig, &empty, DepthKind::Z, &frame.color, &options).expect_err("GPU accepted");
+    assert_eq!(cpu.to_string(), gpu.to_string());
+}

@@ -1,0 +1,150 @@
+//! Loading what the viewer shows: a `kfuse fuse` output folder, a capture folder or the
+//! bundled synthetic scene.
+//!
+//! Folder kinds (decided by the files present):
+//! * **fuse output** (`summary.json`): its `inputs` name the rig, colour and depth files (or a
+//!   `synthdata.mat`); relative paths are tried against the current directory, then the
+//!   folder's parent, then the folder itself by file name.
+//! * **capture** (`rig.json`): `rig.json`, `color.png`, `depth.png` (16-bit millimetres, z),
+//!   optional `ir.png` (16-bit amplitude).
+
+use std::path::{Path, PathBuf};
+
+use geometry::io::{course, images, rig as rigio};
+use geometry::{synth, DepthKind, GeometryError, Image, Rig};
+
+use crate::ViewerError;
+
+/// The raw inputs of one frame: what the fusion pipeline is re-run on.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// Where it came from (shown in the title bar).
+    pub name: String,
+    /// Both cameras and `color_from_depth`.
+    pub rig: Rig,
+    /// Depth image (depth camera), metres, NaN or 0 = no sample.
+    pub depth: Image<f32>,
+    /// What `depth` measures.
+    pub kind: DepthKind,
+    /// Colour image (colour camera).
+    pub color: Image<[u8; 3]>,
+    /// IR amplitude (depth camera), arbitrary units, if the source has one.
+    pub ir: Option<Image<f32>>,
+}
+
+/// The bundled synthetic Kinect v2 scene (`geometry::synth::kinect_preset` with noise):
+/// the IR pane shows its simulated amplitude.
+pub fn demo_frame() -> Frame {
+    let setup = synth::kinect_preset(true);
+    let frame = synth::render(&setup);
+    Frame {
+        name: "synthetic Kinect v2 scene".into(),
+        rig: setup.rig,
+        depth: frame.depth,
+        kind: frame.depth_kind,
+        color: frame.color,
+        ir: Some(frame.amplitude),
+    }
+}
+
+/// Opens a `kfuse fuse` output folder or a capture folder (see the module docs).
+pub fn open_folder(dir: &Path) -> Result<Frame, ViewerError> {
+    if !dir.is_dir() {
+        return Err(ViewerError::NotAFolder { path: dir.to_path_buf() });
+    }
+    let summary = dir.join("summary.json");
+    if summary.is_file() {
+        return open_fuse_output(dir, &summary);
+    }
+    if dir.join("rig.json").exists() {
+        return open_capture(dir);
+    }
+    Err(ViewerError::UnknownFolder { path: dir.to_path_buf() })
+}
+
+fn bad(path: &Path, e: GeometryError) -> ViewerError {
+    ViewerError::BadFile { path: path.to_path_buf(), message: e.to_string() }
+}
+
+fn require(path: PathBuf, hint: &str) -> Result<PathBuf, ViewerError> {
+    if path.is_file() { Ok(path) } else { Err(ViewerError::MissingFile { path, hint: hint.into() }) }
+}
+
+fn check_size(path: &Path, camera: &'static str, got: (usize, usize), want: (usize, usize)) -> Result<(), ViewerError> {
+    if got == want {
+        return Ok(());
+    }
+    Err(ViewerError::SizeMismatch { path: path.to_path_buf(), camera, got_w: got.0, got_h: got.1, want_w: want.0, want_h: want.1 })
+}
+
+fn load(name: String, rig_path: &Path, color_path: &Path, depth_path: &Path, scale: f64, kind: DepthKind, ir_path: Option<&Path>) -> Result<Frame, ViewerError> {
+    let rig = rigio::read_rig(rig_path).map_err(|e| bad(rig_path, e))?;
+    let color = images::read_color(color_path).map_err(|e| bad(color_path, e))?;
+    check_size(color_path, "colour", color.size(), (rig.color.width, rig.color.height))?;
+    let depth = images::read_depth(depth_path, scale).map_err(|e| bad(depth_path, e))?;
+    check_size(depth_path, "depth", depth.size(), (rig.depth.width, rig.depth.height))?;
+    let ir = match ir_path {
+        Some(p) => {
+            let ir = images::read_depth(p, 1.0).map_err(|e| bad(p, e))?;
+            check_size(p, "depth (IR)", ir.size(), (rig.depth.width, rig.depth.height))?;
+            Some(ir)
+        }
+        None => None,
+    };
+    Ok(Frame { name, rig, depth, kind, color, ir })
+}
+
+fn open_capture(dir: &Path) -> Result<Frame, ViewerError> {
+    const HINT: &str = "a capture folder holds rig.json, color.png and depth.png (16-bit mm), as `kfuse demo` writes into input/";
+    let rig = require(dir.join("rig.json"), HINT)?;
+    let color = require(dir.join("color.png"), HINT)?;
+    let depth = require(dir.join("depth.png"), HINT)?;
+    let ir = dir.join("ir.png");
+    let ir = ir.is_file().then_some(ir);
+    load(dir.display().to_string(), &rig, &color, &depth, images::MILLIMETRES, DepthKind::Z, ir.as_deref())
+}
+
+/// Resolves an input path recorded in summary.json (see the module docs).
+fn resolve(dir: &Path, recorded: &str, summary: &Path) -> Result<PathBuf, ViewerError> {
+    let p = PathBuf::from(recorded);
+    let mut tries = vec![p.clone()];
+    if p.is_relative() {
+        if let Some(parent) = dir.parent() {
+            tries.push(parent.join(&p));
+        }
+    }
+    if let Some(name) = p.file_name() {
+        tries.push(dir.join(name));
+    }
+    tries.into_iter().find(|t| t.is_file()).ok_or_else(|| ViewerError::MissingFile {
+        path: p,
+        hint: format!("{} names it as an input of the fusion; restore it or re-run `kfuse fuse`", summary.display()),
+    })
+}
+
+fn open_fuse_output(dir: &Path, summary: &Path) -> Result<Frame, ViewerError> {
+    let text = std::fs::read_to_string(summary).map_err(|e| ViewerError::BadFile { path: summary.into(), message: e.to_string() })?;
+    let json: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| ViewerError::BadFile { path: summary.into(), message: format!("not valid JSON ({e}); re-run `kfuse fuse`") })?;
+    let inputs = json.get("inputs").ok_or_else(|| ViewerError::BadFile {
+        path: summary.into(),
+        message: "no \"inputs\" entry; it was not written by `kfuse fuse`".into(),
+    })?;
+    let field = |k: &str| inputs.get(k).and_then(|v| v.as_str());
+    let name = dir.display().to_string();
+    if let Some(mat) = field("mat") {
+        let mat = resolve(dir, mat, summary)?;
+        let data = course::read_course(&mat).map_err(|e| bad(&mat, e))?;
+        return Ok(Frame { name, rig: data.rig, depth: data.depth, kind: data.depth_kind, color: data.color, ir: None });
+    }
+    let (Some(rig), Some(color), Some(depth)) = (field("rig"), field("color"), field("depth")) else {
+        return Err(ViewerError::BadFile { path: summary.into(), message: "\"inputs\" lacks rig, color or depth; re-run `kfuse fuse`".into() });
+    };
+    let kind = match field("depth_kind") {
+        Some("range") => DepthKind::Range,
+        _ => DepthKind::Z,
+    };
+    let scale = inputs.get("depth_scale_m_per_unit").and_then(|v| v.as_f64()).unwrap_or(images::MILLIMETRES);
+    let (rig, color, depth) = (resolve(dir, rig, summary)?, resolve(dir, color, summary)?, resolve(dir, depth, summary)?);
+    load(name, &rig, &color, &depth, scale, kind, None)
+}

@@ -1,0 +1,61 @@
+//! The viewer's error type.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong while opening or fusing a folder. Each variant names the
+/// file (or folder) and says how to fix it; the app shows it in an error panel.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewerError {
+    /// The folder does not exist or is not a folder.
+    #[error("{path}: not a folder; pass the output folder of `kfuse fuse`, or a capture folder with rig.json, color.png and depth.png")]
+    NotAFolder {
+        /// The path given.
+        path: PathBuf,
+    },
+    /// The folder holds neither `summary.json` nor `rig.json`.
+    #[error("{path}: neither summary.json (a `kfuse fuse` output) nor rig.json (a capture folder) is in this folder")]
+    UnknownFolder {
+        /// The folder.
+        path: PathBuf,
+    },
+    /// A file the folder needs is missing.
+    #[error("{path}: missing; {hint}")]
+    MissingFile {
+        /// The file that was looked for.
+        path: PathBuf,
+        /// What it is and where it should come from.
+        hint: String,
+    },
+    /// A file exists but could not be read or parsed.
+    #[error("{path}: {message}")]
+    BadFile {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// An image does not match its camera in the rig.
+    #[error("{path} is {got_w}x{got_h}, but the rig says the {camera} camera is {want_w}x{want_h}; use the rig this image was captured with")]
+    SizeMismatch {
+        /// The image file.
+        path: PathBuf,
+        /// Which camera.
+        camera: &'static str,
+        /// Image width.
+        got_w: usize,
+        /// Image height.
+        got_h: usize,
+        /// Rig width.
+        want_w: usize,
+        /// Rig height.
+        want_h: usize,
+    },
+    /// The fusion pipeline refused the inputs.
+    #[error("fusion failed on {source_name}: {message}")]
+    Fusion {
+        /// Which data set.
+        source_name: String,
+        /// The pipeline's message.
+        message: String,
+    },
+}

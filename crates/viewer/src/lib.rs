@@ -1,0 +1,27 @@
+//! kfuse's viewer: the fusion of one Kinect v2 frame, in 2D panes and a 3D view, with the
+//! pipeline's switches re-running the fusion live.
+//!
+//! Library-first: [`ViewerApp`] holds all state and draws into any `egui::Ui`, so the
+//! headless tests (`egui_kittest`) drive exactly what `kfuse view` shows. The pure parts
+//! (loading [`data`], the pipeline with its [`pipeline::Toggles`], the pane images
+//! [`panes`], zoom/pan [`view2d`], the orbit camera [`camera3d`]) are tested without a window.
+//!
+//! # Conventions
+//!
+//! Those of `geometry`: pixels 0-based with centres at integers; frames x right, y down,
+//! z forward; the depth camera is the rig's reference; metres (the UI prints millimetres for
+//! depth). The 3D view shows everything in the **colour camera's frame** (the cloud is moved
+//! there with `color_from_depth`), seen initially from the colour camera.
+#![deny(missing_docs)]
+
+mod app;
+pub mod camera3d;
+pub mod data;
+mod error;
+pub mod panes;
+pub mod pipeline;
+pub mod render3d;
+pub mod view2d;
+
+pub use app::{BackendChoice, Page, ViewerApp};
+pub use error::ViewerError;
