@@ -18,7 +18,7 @@ use geometry::synth;
 use geometry::{DepthKind, Image};
 
 /// Frames per streaming measurement: enough for the two slots to reach a steady state.
-const STREAM_FRAMES: usize = 8;
+const STREAM_FRAMES: usize = 4;
 
 fn bench(c: &mut Criterion) {
     let setup = synth::kinect_preset(true);
