@@ -418,9 +418,16 @@ impl FusionContext {
         let mut pending: VecDeque<Pending> = VecDeque::new();
         let mut count = 0;
         for (k, (depth, color)) in frames.into_iter().enumerate() {
-            depth.expect_size("depth image", depth_size.0, depth_size.1)?;
-            if let Some(c) = color {
-                c.expect_size("colour image", color_size.0, color_size.1)?;
+            let sizes = depth
+                .expect_size("depth image", depth_size.0, depth_size.1)
+                .and_then(|()| color.map_or(Ok(()), |c| c.expect_size("colour image", color_size.0, color_size.1)));
+            if let Err(e) = sizes {
+                // Let the frames in flight complete so their read-back buffers are unmapped
+                // and the context stays usable; their results are dropped with the error.
+                while let Some(p) = pending.pop_front() {
+                    let _ = self.finish(p);
+                }
+                return Err(e.into());
             }
             let slot = k % STREAM_SLOTS;
             if let Some(pos) = pending.iter().position(|p| p.slot == slot) {

@@ -41,3 +41,20 @@ fn streamed_frames_equal_single_frames_in_order() {
     assert_ne!(streamed[0].1.zbuffer.data()[..].iter().map(|z| z.to_bits()).collect::<Vec<_>>(),
                streamed[3].1.zbuffer.data()[..].iter().map(|z| z.to_bits()).collect::<Vec<_>>());
 }
+
+#[test]
+fn a_bad_frame_mid_stream_is_an_error_and_the_context_stays_usable() {
+    let test = "a_bad_frame_mid_stream_is_an_error_and_the_context_stays_usable";
+    let Some(mut ctx) = context_or_skip(test) else { return };
+    let (setup, frame) = kinect();
+    let bad = Image::filled(10, 10, 1.0f32);
+    let frames = [&frame.depth, &bad, &frame.depth];
+    let mut seen = 0;
+    let err = ctx
+        .stream(&setup.rig, DepthKind::Z, frames.iter().map(|d| (*d, None)), FramePlan::default(), |_, _| seen += 1)
+        .expect_err("a 10x10 depth frame was accepted");
+    assert!(err.to_string().contains("10x10"), "{err}");
+    assert_eq!(seen, 0, "results of a failed stream are not handed out");
+    let after = ctx.register(&setup.rig, &frame.depth, DepthKind::Z, false).expect("context unusable after the error");
+    assert!(after.zbuffer.data().iter().any(|z| !z.is_nan()));
+}
