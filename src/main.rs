@@ -1,6 +1,10 @@
 //! `kfuse`: Kinect v2 capture, calibration and RGB-D fusion. The CLI is a thin layer of `clap`
 //! structs over the library crates.
 
+mod cmd_demo;
+mod cmd_fuse;
+mod figures;
+
 use clap::{Parser, Subcommand};
 
 /// Kinect v2 capture, calibration and RGB-D fusion.
@@ -15,16 +19,42 @@ struct Cli {
 enum Command {
     /// Print the camera conventions kfuse uses (pixels, frames, units).
     Conventions,
+    /// Fuse a depth frame with a colour frame: cloud, registered depth, meshes, holes, figures.
+    Fuse(cmd_fuse::FuseArgs),
+    /// Render a synthetic Kinect v2 frame, write it as input files and fuse it.
+    Demo(cmd_demo::DemoArgs),
 }
 
-fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
+fn main() -> std::process::ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            // One line: the error and each cause not already spelled out by the one before.
+            let mut message = e.to_string();
+            for cause in e.chain().skip(1) {
+                let cause = cause.to_string();
+                if !message.contains(&cause) {
+                    message = format!("{message}: {cause}");
+                }
+            }
+            eprintln!("error: {message}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Conventions => {
             println!("pixels: 0-based, integer coordinates are pixel centres");
             println!("frames: x right, y down, z forward; the depth camera is the reference");
             println!("poses: color_from_depth maps X_depth to X_color = R X_depth + T (metres)");
         }
+        Command::Fuse(args) => {
+            let result = cmd_fuse::run(&args)?;
+            cmd_fuse::report(&result);
+        }
+        Command::Demo(args) => cmd_demo::run(&args)?,
     }
     Ok(())
 }

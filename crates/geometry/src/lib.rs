@@ -1,5 +1,10 @@
 //! Camera geometry, rig calibration files and the CPU fusion pipeline of kfuse.
 //!
+//! * [`fusion`]: the eight depth → colour stages H1–H8 and their one-call entry point
+//!   [`fusion::run`].
+//! * [`synth`]: analytic synthetic scenes rendered through a rig, with the ground truths the
+//!   fusion tests are checked against.
+//!
 //! # Conventions (the same as `DESIGN.md`; every module of this crate follows them)
 //!
 //! * **Pixels** are 0-based and integer coordinates are pixel *centres* (OpenCV and Bouguet

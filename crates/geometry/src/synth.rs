@@ -371,6 +371,11 @@ pub struct SynthFrame {
     pub true_disocclusion: Image<bool>,
     /// Per colour pixel: index of the object seen (`u16::MAX` for none).
     pub true_color_object: Image<u16>,
+    /// Per colour pixel: unit surface normal in the colour camera's frame, facing the
+    /// camera (NaN where nothing is hit).
+    pub true_color_normal: Image<[f32; 3]>,
+    /// Per depth pixel: index of the object seen (`u16::MAX` for none).
+    pub true_depth_object: Image<u16>,
 }
 
 /// Undistorted normalised rays of every pixel in f64 (NaN where the lens folds).
@@ -413,6 +418,7 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
         true_z: f32,
         color: [u8; 3],
         seen: bool,
+        object: u16,
     }
     let depth_px: Vec<DepthPx> = (0..dh)
         .into_par_iter()
@@ -421,7 +427,7 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
             let rays = &depth_rays[v * dw..(v + 1) * dw];
             rays.iter()
                 .map(|ray| {
-                    let none = DepthPx { depth: f32::NAN, amplitude: 0.0, true_z: f32::NAN, color: [0; 3], seen: false };
+                    let none = DepthPx { depth: f32::NAN, amplitude: 0.0, true_z: f32::NAN, color: [0; 3], seen: false, object: u16::MAX };
                     let Some(ray) = ray else { return none };
                     let Some(hit) = scene.cast(&zero, ray) else { return none };
                     let obj = &scene.objects[hit.object];
@@ -448,6 +454,7 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
                         true_z: p.z as f32,
                         color: obj.texture.color_u8(&p),
                         seen,
+                        object: hit.object as u16,
                     }
                 })
                 .collect::<Vec<_>>()
@@ -463,11 +470,12 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
         seen_by_depth: bool,
         disoccluded: bool,
         object: u16,
+        normal: [f32; 3],
     }
     let color_px: Vec<ColorPx> = color_rays
         .par_iter()
         .map(|ray| {
-            let none = ColorPx { color: [0; 3], z: f32::NAN, seen_by_depth: false, disoccluded: false, object: u16::MAX };
+            let none = ColorPx { color: [0; 3], z: f32::NAN, seen_by_depth: false, disoccluded: false, object: u16::MAX, normal: [f32::NAN; 3] };
             let Some(ray) = ray else { return none };
             let dir = rot_dc * ray;
             let Some(hit) = scene.cast(&color_origin, &dir) else { return none };
@@ -487,6 +495,10 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
                 seen_by_depth: in_view && visible && measured,
                 disoccluded: in_view && !visible,
                 object: hit.object as u16,
+                normal: {
+                    let n = rig.color_from_depth.rotation * hit.normal;
+                    [n.x as f32, n.y as f32, n.z as f32]
+                },
             }
         })
         .collect();
@@ -503,6 +515,8 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
         true_seen_by_depth: Image::from_fn(cw, ch, |x, y| color_px[y * cw + x].seen_by_depth),
         true_disocclusion: Image::from_fn(cw, ch, |x, y| color_px[y * cw + x].disoccluded),
         true_color_object: Image::from_fn(cw, ch, |x, y| color_px[y * cw + x].object),
+        true_color_normal: Image::from_fn(cw, ch, |x, y| color_px[y * cw + x].normal),
+        true_depth_object: Image::from_fn(dw, dh, |x, y| depth_px[y * dw + x].object),
     }
 }
 

@@ -113,6 +113,17 @@ impl HoleMasker {
         self.radius
     }
 
+    /// 64-bit words per bit row.
+    pub fn words_per_row(&self) -> usize {
+        self.words
+    }
+
+    /// The occupancy bit image [`HoleMasker::compute_from_occupancy`] reads (bit `x % 64` of
+    /// word `y * words_per_row + x / 64`), e.g. for [`super::register_depth_marking`].
+    pub fn occupancy_mut(&mut self) -> &mut [u64] {
+        &mut self.occupied
+    }
+
     /// Computes the hole mask of `zbuffer` (row-major, `NaN` = empty) into `mask`; returns the
     /// number of hole pixels. Both slices must be `width × height`.
     pub fn compute(&mut self, zbuffer: &[f32], mask: &mut [bool]) -> usize {
@@ -129,6 +140,12 @@ impl HoleMasker {
                 out[wi] = bits;
             }
         }
+        self.compute_from_occupancy(mask)
+    }
+
+    /// Steps 2–4 on the occupancy already in [`HoleMasker::occupancy_mut`].
+    pub fn compute_from_occupancy(&mut self, mask: &mut [bool]) -> usize {
+        let (w, h, words) = (self.width, self.height, self.words);
         // 2. covered.
         dilate_disc(&self.occupied, &mut self.covered, &mut self.levels, w, h, words, self.radius);
         // 3. core: not covered, between covered pixels in the row and in the column.
@@ -170,11 +187,17 @@ impl HoleMasker {
         let mut count = 0;
         for y in 0..h {
             let out = &mut mask[y * w..(y + 1) * w];
-            for (x, m) in out.iter_mut().enumerate() {
-                let (i, b) = (y * words + x / 64, x % 64);
-                let hole = (self.holes[i] & !self.occupied[i]) >> b & 1 == 1;
-                *m = hole;
-                count += hole as usize;
+            for (wi, chunk) in out.chunks_mut(64).enumerate() {
+                let i = y * words + wi;
+                let bits = self.holes[i] & !self.occupied[i];
+                if bits == 0 {
+                    chunk.fill(false);
+                    continue;
+                }
+                count += bits.count_ones() as usize;
+                for (b, m) in chunk.iter_mut().enumerate() {
+                    *m = bits >> b & 1 == 1;
+                }
             }
         }
         count

@@ -51,11 +51,11 @@ pub use holes::{fill_holes_with_plane, fit_plane_ransac, hole_mask, plane_depth_
 pub use mesh::{face_normal, is_stretched, mesh_from_depth, remove_stretched_faces};
 pub use pixel::{
     backproject_pixel, depth_ray_table, project_color_point, project_point, register_pixel, transform_point,
-    zbuffer_index, zbuffer_min, ColorProjection, ZBUFFER_EMPTY,
+    zbuffer_index, zbuffer_min, zbuffer_pixel, floor_f32, ColorProjection, ZBUFFER_EMPTY,
 };
 pub use register::{
     atomic_zbuffer_to_image, backproject_cloud, project_cloud, register_depth, register_depth_parallel,
-    zbuffer_from_samples, ColorSample,
+    zbuffer_from_samples, register_depth_marking, ColorSample,
 };
 pub use resample::{disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel, LinearStats};
 

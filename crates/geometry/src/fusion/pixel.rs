@@ -157,12 +157,32 @@ pub fn project_point(p: &ColorProjection, x: [f32; 3]) -> Option<[f32; 3]> {
 /// outside a `width × height` image (or `u`, `v` are NaN).
 #[inline]
 pub fn zbuffer_index(u: f32, v: f32, width: u32, height: u32) -> Option<usize> {
-    let px = (u + 0.5).floor();
-    let py = (v + 0.5).floor();
+    let (px, py) = zbuffer_pixel(u, v, width, height)?;
+    Some(py * width as usize + px)
+}
+
+/// The pixel `(floor(u + 0.5), floor(v + 0.5))` as `(column, row)`, or `None` outside the
+/// image (see [`zbuffer_index`]).
+#[inline]
+pub fn zbuffer_pixel(u: f32, v: f32, width: u32, height: u32) -> Option<(usize, usize)> {
+    let px = floor_f32(u + 0.5);
+    let py = floor_f32(v + 0.5);
     if !(px >= 0.0 && py >= 0.0 && px < width as f32 && py < height as f32) {
         return None;
     }
-    Some(py as usize * width as usize + px as usize)
+    Some((px as usize, py as usize))
+}
+
+/// `x.floor()` without a libm call (x86-64's baseline has no rounding instruction): exact for
+/// every `|x| < 2^31`; NaN and larger magnitudes come out as some value outside any image,
+/// which is all [`zbuffer_index`] needs.
+#[inline]
+pub fn floor_f32(x: f32) -> f32 {
+    if !(x.abs() < 2_147_483_520.0) {
+        return if x == x { x } else { f32::NAN };
+    }
+    let t = x as i32 as f32;
+    if t > x { t - 1.0 } else { t }
 }
 
 /// H7 for one sample: keeps the smaller `z` in `slot` (an empty slot holds NaN).
@@ -242,6 +262,10 @@ mod tests {
         assert_eq!(zbuffer_index(-0.51, 0.0, 4, 2), None);
         assert_eq!(zbuffer_index(3.5, 0.0, 4, 2), None);
         assert_eq!(zbuffer_index(f32::NAN, 0.0, 4, 2), None);
+        for x in [-3.5f32, -3.0, -0.2, -0.0, 0.0, 0.49, 0.5, 1.0, 2.999, 1e7 + 0.5, -1e9, 3e9, f32::INFINITY, f32::NEG_INFINITY] {
+            assert_eq!(floor_f32(x), x.floor(), "floor({x})");
+        }
+        assert!(floor_f32(f32::NAN).is_nan());
         let mut slot = ZBUFFER_EMPTY;
         zbuffer_min(&mut slot, 2.0);
         zbuffer_min(&mut slot, 3.0);

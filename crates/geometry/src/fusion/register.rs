@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use rayon::prelude::*;
 
 use super::pixel::{
-    backproject_pixel, project_point, register_pixel, zbuffer_index, zbuffer_min, ColorProjection, ZBUFFER_EMPTY,
+    backproject_pixel, project_point, register_pixel, zbuffer_index, zbuffer_min, zbuffer_pixel, ColorProjection, ZBUFFER_EMPTY,
 };
 use crate::{Image, PointCloud};
 
@@ -76,6 +76,34 @@ pub fn register_depth(depth: &[f32], rays: &[[f32; 3]], proj: &ColorProjection, 
         if let Some([u, v, z]) = register_pixel(proj, ray, value) {
             if let Some(i) = zbuffer_index(u, v, proj.width, proj.height) {
                 zbuffer_min(&mut zbuffer[i], z);
+                landed += 1;
+            }
+        }
+    }
+    landed
+}
+
+/// [`register_depth`] that also marks the landing pixels in an occupancy bit image
+/// (`words_per_row` 64-bit words per colour row, bit `x % 64` of word `x / 64`), which it
+/// clears first: exactly the non-empty pixels of the z-buffer, without scanning it again.
+/// Feed it to [`super::HoleMasker::compute_from_occupancy`].
+pub fn register_depth_marking(
+    depth: &[f32],
+    rays: &[[f32; 3]],
+    proj: &ColorProjection,
+    zbuffer: &mut [f32],
+    occupancy: &mut [u64],
+    words_per_row: usize,
+) -> usize {
+    zbuffer.fill(ZBUFFER_EMPTY);
+    occupancy.fill(0);
+    let w = proj.width as usize;
+    let mut landed = 0;
+    for (&value, &ray) in depth.iter().zip(rays) {
+        if let Some([u, v, z]) = register_pixel(proj, ray, value) {
+            if let Some((x, y)) = zbuffer_pixel(u, v, proj.width, proj.height) {
+                zbuffer_min(&mut zbuffer[y * w + x], z);
+                occupancy[y * words_per_row + x / 64] |= 1u64 << (x % 64);
                 landed += 1;
             }
         }

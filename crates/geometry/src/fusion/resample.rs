@@ -35,6 +35,9 @@ pub fn disc_offsets(radius_px: f32) -> Vec<(i32, i32, i32)> {
 /// 2. the result is the value of the first offset in disc order whose value is
 ///    `<= zmin * (1 + depth_jump)`.
 ///
+/// Emptiness is tested on the bits (`z != z` here; `bits == 0xFFFF_FFFF` in WGSL, where NaN
+/// comparisons are not reliable).
+///
 /// Pass 1 keeps hidden background samples that fell between the samples of a nearer
 /// surface (the colour camera cannot see them) from winning; pass 2 keeps the edge of the
 /// nearer surface where it is (no dilation beyond half the sample spacing).

@@ -1,0 +1,115 @@
+#!/usr/bin/env python3
+"""Times depth-to-colour registration in OpenCV and Open3D on kfuse's benchmark frame.
+
+The frame (a Kinect-size synthetic scene: 512x424 depth, 1920x1080 colour) is written by the
+Rust bench:
+
+    KFUSE_WRITE_PEER_FRAME=1 cargo bench --bench fusion_cpu -- --warm-up-time 1 --measurement-time 3
+
+into `$CARGO_TARGET_DIR/peer-frame/` (default `target/peer-frame/`): `depth.png` (16-bit,
+millimetres, 0 = no sample), `color.png`, `rig.json` (kfuse rig file: both cameras with
+Brown-Conrady distortion, `color_from_depth` rotation + translation in metres).
+
+Setup (CPU-only wheels):
+
+    python3 -m venv /tmp/peers-venv
+    /tmp/peers-venv/bin/pip install opencv-contrib-python-headless open3d-cpu numpy
+    /tmp/peers-venv/bin/python benches/peers/register_peers.py [FRAME_DIR]
+
+What is timed (median of repeated runs, one frame, single-threaded where the library allows):
+
+* OpenCV `cv2.rgbd.registerDepth`: depth (mm, uint16) -> colour camera, z-buffered, with the
+  colour camera's distortion; it assumes an undistorted depth image (the depth lens is ignored).
+* Open3D (tensor API): `PointCloud.create_from_depth_image` (pinhole, no distortion) followed by
+  `project_to_depth_image` into the colour camera (no distortion), reported separately and summed.
+
+Compare with kfuse's `register+holes/single` (registration + hole mask, with both lenses'
+distortion) in the criterion report.
+"""
+
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def median_ms(fn, repeats=30, warmup=3):
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(times), min(times)
+
+
+def camera_matrix(cam):
+    return np.array([[cam["fx"], cam.get("skew", 0.0), cam["cx"]], [0.0, cam["fy"], cam["cy"]], [0.0, 0.0, 1.0]])
+
+
+def main():
+    default = Path(os.environ.get("CARGO_TARGET_DIR", Path(__file__).resolve().parents[2] / "target")) / "peer-frame"
+    frame_dir = Path(sys.argv[1]) if len(sys.argv) > 1 else default
+    rig = json.loads((frame_dir / "rig.json").read_text())
+    dcam, ccam = rig["depth_camera"], rig["color_camera"]
+    extr = np.eye(4)
+    extr[:3, :3] = np.array(rig["color_from_depth"]["rotation"])
+    extr[:3, 3] = np.array(rig["color_from_depth"]["translation_m"])
+
+    import cv2
+
+    depth_mm = cv2.imread(str(frame_dir / "depth.png"), cv2.IMREAD_UNCHANGED)
+    assert depth_mm is not None and depth_mm.dtype == np.uint16, "depth.png must be 16-bit"
+    print(f"frame: depth {depth_mm.shape[1]}x{depth_mm.shape[0]}, colour {ccam['width']}x{ccam['height']}, "
+          f"{int((depth_mm > 0).sum())} valid depth pixels")
+    results = {}
+
+    cv2.setNumThreads(1)
+    kd, kc = camera_matrix(dcam), camera_matrix(ccam)
+    dist_c = np.array([ccam["k1"], ccam["k2"], ccam["p1"], ccam["p2"], ccam.get("k3", 0.0)])
+    size = (ccam["width"], ccam["height"])
+
+    def cv_register():
+        return cv2.rgbd.registerDepth(kd, kc, dist_c, extr, depth_mm, size, depthDilation=False)
+
+    out = cv_register()
+    results["opencv registerDepth (1 thread)"] = median_ms(cv_register)
+    print(f"opencv: {int(np.count_nonzero(out))} registered pixels, version {cv2.__version__}")
+
+    import open3d as o3d
+
+    o3d_depth = o3d.t.geometry.Image(o3d.core.Tensor(depth_mm))
+    kd_t = o3d.core.Tensor(kd, dtype=o3d.core.Dtype.Float64)
+    kc_t = o3d.core.Tensor(kc, dtype=o3d.core.Dtype.Float64)
+    eye = o3d.core.Tensor(np.eye(4), dtype=o3d.core.Dtype.Float64)
+    extr_t = o3d.core.Tensor(extr, dtype=o3d.core.Dtype.Float64)
+
+    def o3d_cloud():
+        return o3d.t.geometry.PointCloud.create_from_depth_image(o3d_depth, kd_t, eye, depth_scale=1000.0, depth_max=10.0)
+
+    pcd = o3d_cloud()
+
+    def o3d_project():
+        return pcd.project_to_depth_image(size[0], size[1], kc_t, extr_t, depth_scale=1000.0, depth_max=10.0)
+
+    img = o3d_project()
+    print(f"open3d: {pcd.point.positions.shape[0]} points, "
+          f"{int(np.count_nonzero(np.asarray(img.as_tensor().numpy())))} registered pixels, version {o3d.__version__}")
+    a = median_ms(o3d_cloud)
+    b = median_ms(o3d_project)
+    results["open3d create_from_depth_image"] = a
+    results["open3d project_to_depth_image"] = b
+    results["open3d total"] = (a[0] + b[0], a[1] + b[1])
+
+    print(f"{'method':40s} {'median ms':>10s} {'min ms':>10s}")
+    for k, (med, mn) in results.items():
+        print(f"{k:40s} {med:10.2f} {mn:10.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,446 @@
+//! Colour, depth and mask images on disk.
+//!
+//! * **Colour**: PNG, JPEG, TIFF or BMP, 8- or 16-bit, grey / RGB / RGBA → `Image<[u8; 3]>`
+//!   (16-bit channels are scaled to 8 bits, alpha dropped, grey replicated).
+//! * **Depth**, read into metres with `NaN` for "no sample":
+//!   - 16-bit grey PNG or TIFF, integer units (Kinect: millimetres, `metres_per_unit = 0.001`);
+//!     `0` means no sample;
+//!   - 32-bit float grey TIFF or single-channel OpenEXR (`Y`, `Z`, `R` or `depth` channel, or
+//!     the only channel) in metres; `NaN`, `±∞` and values ≤ 0 mean no sample.
+//!
+//!   8-bit images are refused: they are pictures of depth, not measurements.
+//! * **Depth written** as 16-bit PNG in millimetres (`NaN` → 0, rounded to the nearest mm,
+//!   clamped to 1..=65 535 mm so a valid sample never becomes "no sample") and as float
+//!   OpenEXR in metres (one channel `Y`, so OpenCV's `imread(..., IMREAD_ANYDEPTH)` and image
+//!   viewers show it as grey; `NaN` kept). Float TIFF in metres for tests and exchange.
+//! * **Masks** are written as 8-bit grey PNG (0 / 255), colour as 8-bit RGB PNG.
+//!
+//! Every write goes through [`crate::io::atomic`]: a file appears complete or not at all.
+
+use std::io::Cursor;
+use std::path::Path;
+
+use crate::io::atomic::write_bytes_atomic;
+use crate::{GeometryError, Image};
+
+/// The colour formats accepted, for error messages and `--help`.
+pub const COLOR_FORMATS: &str = "PNG, JPEG, TIFF or BMP (8/16-bit grey, RGB or RGBA)";
+/// The depth formats accepted, for error messages and `--help`.
+pub const DEPTH_FORMATS: &str =
+    "16-bit grey PNG/TIFF in integer units (millimetres by default), or 32-bit float grey TIFF / OpenEXR in metres";
+/// Metres per unit of Kinect 16-bit depth images (millimetres).
+pub const MILLIMETRES: f64 = 1e-3;
+/// Largest depth a 16-bit millimetre PNG can hold, metres.
+pub const PNG16_MAX_M: f32 = 65.535;
+
+fn read_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
+    std::fs::read(path).map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })
+}
+
+fn format_err(path: &Path, message: impl Into<String>) -> GeometryError {
+    GeometryError::Format { path: path.to_path_buf(), message: message.into() }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Container {
+    Png,
+    Tiff,
+    Exr,
+    Jpeg,
+    Bmp,
+    Unknown,
+}
+
+/// Recognises a file by its first bytes (never by its name).
+fn sniff(bytes: &[u8]) -> Container {
+    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Container::Png
+    } else if bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*") {
+        Container::Tiff
+    } else if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        Container::Exr
+    } else if bytes.starts_with(&[0xff, 0xd8, 0xff]) {
+        Container::Jpeg
+    } else if bytes.starts_with(b"BM") {
+        Container::Bmp
+    } else {
+        Container::Unknown
+    }
+}
+
+/// Reads a colour image (see the module docs for the formats).
+pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
+    let bytes = read_bytes(path)?;
+    let format = match sniff(&bytes) {
+        Container::Png => image::ImageFormat::Png,
+        Container::Tiff => image::ImageFormat::Tiff,
+        Container::Jpeg => image::ImageFormat::Jpeg,
+        Container::Bmp => image::ImageFormat::Bmp,
+        Container::Exr => {
+            return Err(format_err(path, format!("is an OpenEXR (float) image; colour images must be {COLOR_FORMATS}")));
+        }
+        Container::Unknown => {
+            return Err(format_err(path, format!("is not an image kfuse can read (unknown format); use {COLOR_FORMATS}")));
+        }
+    };
+    let img = image::load_from_memory_with_format(&bytes, format)
+        .map_err(|e| format_err(path, format!("corrupt or unsupported {format:?} image: {e}; use {COLOR_FORMATS}")))?;
+    if matches!(img, image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)) {
+        return Err(format_err(path, format!("is a floating-point image; colour images must be {COLOR_FORMATS}")));
+    }
+    let rgb = img.into_rgb8();
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    let pixels = rgb.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Image::from_vec(w, h, pixels)
+}
+
+/// Reads a depth image into metres (`NaN` = no sample). `metres_per_unit` scales 16-bit
+/// integer images ([`MILLIMETRES`] for Kinect files); float images are already metres.
+/// Fails when the image holds no valid sample at all.
+pub fn read_depth(path: &Path, metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
+    if !(metres_per_unit.is_finite() && metres_per_unit > 0.0) {
+        return Err(GeometryError::InvalidParameter(format!(
+            "depth scale must be a positive number of metres per unit, got {metres_per_unit}"
+        )));
+    }
+    let bytes = read_bytes(path)?;
+    let img = match sniff(&bytes) {
+        Container::Png => read_depth_png(path, &bytes, metres_per_unit)?,
+        Container::Tiff => read_depth_tiff(path, &bytes, metres_per_unit)?,
+        Container::Exr => read_depth_exr(path, &bytes)?,
+        Container::Jpeg | Container::Bmp => {
+            return Err(format_err(
+                path,
+                format!("is an 8-bit JPEG/BMP picture, not depth measurements; depth must be {DEPTH_FORMATS}"),
+            ));
+        }
+        Container::Unknown => {
+            return Err(format_err(path, format!("is not an image kfuse can read (unknown format); depth must be {DEPTH_FORMATS}")));
+        }
+    };
+    if !img.data().iter().any(|d| d.is_finite()) {
+        return Err(format_err(
+            path,
+            "has no valid depth sample (every pixel is 0 or NaN); check that this is the depth image and not an empty frame",
+        ));
+    }
+    Ok(img)
+}
+
+fn from_units(w: usize, h: usize, units: Vec<u16>, metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
+    let data = units.into_iter().map(|u| if u == 0 { f32::NAN } else { (u as f64 * metres_per_unit) as f32 }).collect();
+    Image::from_vec(w, h, data)
+}
+
+fn from_metres(w: usize, h: usize, metres: Vec<f32>) -> Result<Image<f32>, GeometryError> {
+    let data = metres.into_iter().map(|d| if d.is_finite() && d > 0.0 { d } else { f32::NAN }).collect();
+    Image::from_vec(w, h, data)
+}
+
+fn read_depth_png(path: &Path, bytes: &[u8], metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+        .map_err(|e| format_err(path, format!("corrupt PNG: {e}")))?;
+    match img {
+        image::DynamicImage::ImageLuma16(buf) => {
+            let (w, h) = (buf.width() as usize, buf.height() as usize);
+            from_units(w, h, buf.into_raw(), metres_per_unit)
+        }
+        other => Err(format_err(
+            path,
+            format!("is a {:?} PNG; depth must be {DEPTH_FORMATS}", other.color()),
+        )),
+    }
+}
+
+fn read_depth_tiff(path: &Path, bytes: &[u8], metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
+    let tiff_err = |e: tiff::TiffError| format_err(path, format!("corrupt or unsupported TIFF: {e}; depth must be {DEPTH_FORMATS}"));
+    let mut dec = tiff::decoder::Decoder::new(Cursor::new(bytes)).map_err(tiff_err)?;
+    let (w, h) = dec.dimensions().map_err(tiff_err)?;
+    let colour = dec.colortype().map_err(tiff_err)?;
+    let (w, h) = (w as usize, h as usize);
+    match (colour, dec.read_image().map_err(tiff_err)?) {
+        (tiff::ColorType::Gray(16), tiff::decoder::DecodingResult::U16(v)) => from_units(w, h, v, metres_per_unit),
+        (tiff::ColorType::Gray(32), tiff::decoder::DecodingResult::F32(v)) => from_metres(w, h, v),
+        (c, _) => Err(format_err(path, format!("is a {c:?} TIFF; depth must be {DEPTH_FORMATS}"))),
+    }
+}
+
+/// EXR channel names taken as depth, in order of preference (case-insensitive, compared with
+/// the last dot-separated part of the name).
+const EXR_DEPTH_CHANNELS: [&str; 4] = ["z", "depth", "y", "r"];
+
+fn read_depth_exr(path: &Path, bytes: &[u8]) -> Result<Image<f32>, GeometryError> {
+    use exr::prelude::*;
+    let img = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(|e| format_err(path, format!("corrupt or unsupported OpenEXR: {e}")))?;
+    let layer = &img.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let channels = &layer.channel_data.list;
+    let short = |c: &AnyChannel<FlatSamples>| c.name.to_string().rsplit('.').next().unwrap_or_default().to_lowercase();
+    let channel = if channels.len() == 1 {
+        &channels[0]
+    } else {
+        EXR_DEPTH_CHANNELS
+            .iter()
+            .find_map(|want| channels.iter().find(|c| short(c) == *want))
+            .ok_or_else(|| {
+                let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
+                format_err(path, format!("has channels {}; expected one channel or one named Z, depth, Y or R (metres)", names.join(", ")))
+            })?
+    };
+    let values: Vec<f32> = match &channel.sample_data {
+        FlatSamples::F32(v) => v.clone(),
+        FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+        FlatSamples::U32(_) => {
+            return Err(format_err(path, format!("channel '{}' holds integers; EXR depth must be float metres", channel.name)));
+        }
+    };
+    from_metres(w, h, values)
+}
+
+/// Depth in metres → 16-bit millimetres: `NaN` (or ≤ 0) → 0; valid values rounded to the
+/// nearest millimetre and clamped to `1..=65535`.
+pub fn depth_to_mm(depth: &Image<f32>) -> Vec<u16> {
+    depth
+        .data()
+        .iter()
+        .map(|&d| if d.is_finite() && d > 0.0 { (d as f64 * 1e3).round().clamp(1.0, 65535.0) as u16 } else { 0 })
+        .collect()
+}
+
+fn encode_png(img: image::DynamicImage, path: &Path) -> Result<Vec<u8>, GeometryError> {
+    let mut out = Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png).map_err(|e| format_err(path, format!("cannot encode PNG: {e}")))?;
+    Ok(out.into_inner())
+}
+
+fn size_u32(path: &Path, w: usize, h: usize) -> Result<(u32, u32), GeometryError> {
+    match (u32::try_from(w), u32::try_from(h)) {
+        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
+        _ => Err(format_err(path, format!("cannot write a {w}x{h} image"))),
+    }
+}
+
+/// Writes depth (metres) as a 16-bit grey PNG in millimetres (see [`depth_to_mm`]).
+pub fn write_depth_png16(path: &Path, depth: &Image<f32>) -> Result<(), GeometryError> {
+    let (w, h) = size_u32(path, depth.width(), depth.height())?;
+    let buf = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, depth_to_mm(depth))
+        .ok_or_else(|| format_err(path, "internal: buffer size"))?;
+    write_bytes_atomic(path, &encode_png(image::DynamicImage::ImageLuma16(buf), path)?)
+}
+
+/// Writes depth (metres, `NaN` kept) as a single-channel (`Y`) 32-bit float OpenEXR file.
+pub fn write_depth_exr(path: &Path, depth: &Image<f32>) -> Result<(), GeometryError> {
+    use exr::prelude::*;
+    size_u32(path, depth.width(), depth.height())?;
+    let channel = AnyChannel::new("Y", FlatSamples::F32(depth.data().to_vec()));
+    let mut list = SmallVec::new();
+    list.push(channel);
+    let layer = Layer::new(
+        (depth.width(), depth.height()),
+        LayerAttributes::named("depth_m"),
+        Encoding::FAST_LOSSLESS,
+        AnyChannels::sort(list),
+    );
+    let mut out = Cursor::new(Vec::new());
+    exr::prelude::Image::from_layer(layer)
+        .write()
+        .to_buffered(&mut out)
+        .map_err(|e| format_err(path, format!("cannot encode OpenEXR: {e}")))?;
+    write_bytes_atomic(path, &out.into_inner())
+}
+
+/// Writes depth (metres, `NaN` kept) as a 32-bit float grey TIFF.
+pub fn write_depth_tiff(path: &Path, depth: &Image<f32>) -> Result<(), GeometryError> {
+    let (w, h) = size_u32(path, depth.width(), depth.height())?;
+    let mut out = Cursor::new(Vec::new());
+    let mut enc = tiff::encoder::TiffEncoder::new(&mut out).map_err(|e| format_err(path, format!("cannot encode TIFF: {e}")))?;
+    enc.write_image::<tiff::encoder::colortype::Gray32Float>(w, h, depth.data())
+        .map_err(|e| format_err(path, format!("cannot encode TIFF: {e}")))?;
+    write_bytes_atomic(path, &out.into_inner())
+}
+
+/// Writes 16-bit integer depth units as a grey PNG (e.g. raw Kinect millimetres).
+pub fn write_u16_png(path: &Path, image: &Image<u16>) -> Result<(), GeometryError> {
+    let (w, h) = size_u32(path, image.width(), image.height())?;
+    let buf = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, image.data().to_vec())
+        .ok_or_else(|| format_err(path, "internal: buffer size"))?;
+    write_bytes_atomic(path, &encode_png(image::DynamicImage::ImageLuma16(buf), path)?)
+}
+
+/// Writes an RGB image as an 8-bit PNG.
+pub fn write_color_png(path: &Path, image: &Image<[u8; 3]>) -> Result<(), GeometryError> {
+    let (w, h) = size_u32(path, image.width(), image.height())?;
+    let raw: Vec<u8> = image.data().iter().flatten().copied().collect();
+    let buf = image::RgbImage::from_raw(w, h, raw).ok_or_else(|| format_err(path, "internal: buffer size"))?;
+    write_bytes_atomic(path, &encode_png(image::DynamicImage::ImageRgb8(buf), path)?)
+}
+
+/// Writes an 8-bit grey image as PNG.
+pub fn write_gray_png(path: &Path, image: &Image<u8>) -> Result<(), GeometryError> {
+    let (w, h) = size_u32(path, image.width(), image.height())?;
+    let buf = image::GrayImage::from_raw(w, h, image.data().to_vec()).ok_or_else(|| format_err(path, "internal: buffer size"))?;
+    write_bytes_atomic(path, &encode_png(image::DynamicImage::ImageLuma8(buf), path)?)
+}
+
+/// Writes a mask as an 8-bit grey PNG: `true` → 255, `false` → 0.
+pub fn write_mask_png(path: &Path, mask: &Image<bool>) -> Result<(), GeometryError> {
+    write_gray_png(path, &mask.map(|&m| if m { 255 } else { 0 }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("kfuse-images-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    fn ramp() -> Image<f32> {
+        Image::from_fn(7, 5, |x, y| if (x + y) % 4 == 0 { f32::NAN } else { 0.5 + 0.0371 * x as f32 + 0.913 * y as f32 })
+    }
+
+    #[test]
+    fn depth_png16_round_trip_in_millimetres() {
+        let dir = scratch("png16");
+        let path = dir.join("d.png");
+        let mut depth = ramp();
+        *depth.get_mut(1, 0) = 70.0; // beyond 65.535 m: clamps
+        *depth.get_mut(2, 0) = 0.0002; // rounds to 0 mm but is valid: clamps to 1 mm
+        write_depth_png16(&path, &depth).unwrap();
+        // Independent reader: the image crate sees 16-bit grey with the millimetre values.
+        let raw = image::open(&path).unwrap();
+        let raw = raw.as_luma16().unwrap();
+        assert_eq!(raw.get_pixel(0, 0).0[0], 0, "NaN must be 0");
+        assert_eq!(raw.get_pixel(1, 0).0[0], 65535);
+        assert_eq!(raw.get_pixel(2, 0).0[0], 1);
+        assert_eq!(raw.get_pixel(3, 2).0[0], (1000.0 * (0.5f32 + 0.0371 * 3.0 + 0.913 * 2.0) as f64).round() as u16);
+        let back = read_depth(&path, MILLIMETRES).unwrap();
+        for (a, b) in depth.data().iter().zip(back.data()).skip(3) {
+            // Millimetre quantisation: |error| ≤ 0.5 mm (+ f32 rounding).
+            assert!(a.is_nan() && b.is_nan() || (a - b).abs() <= 0.5e-3 + 1e-6, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn float_exr_and_tiff_round_trip_exactly() {
+        let dir = scratch("float");
+        let depth = ramp();
+        for name in ["d.exr", "d.tif"] {
+            let path = dir.join(name);
+            if name.ends_with("exr") {
+                write_depth_exr(&path, &depth).unwrap();
+            } else {
+                write_depth_tiff(&path, &depth).unwrap();
+            }
+            let back = read_depth(&path, MILLIMETRES).unwrap();
+            assert_eq!(back.size(), depth.size());
+            for (a, b) in depth.data().iter().zip(back.data()) {
+                assert!(a.is_nan() && b.is_nan() || a == b, "{name}: {a} vs {b}");
+            }
+        }
+        // Independent reader of the EXR: the exr crate's own RGBA path sees a grey image
+        // whose luminance channel carries the metres.
+        let img = exr::prelude::read_first_flat_layer_from_file(dir.join("d.exr")).unwrap();
+        assert_eq!(img.layer_data.channel_data.list[0].name.to_string(), "Y");
+        assert_eq!(img.layer_data.channel_data.list[0].sample_data.value_by_flat_index(1).to_f32(), depth.data()[1]);
+    }
+
+    #[test]
+    fn colour_png_round_trip_and_formats() {
+        let dir = scratch("colour");
+        let img = Image::from_fn(4, 3, |x, y| [x as u8 * 60, y as u8 * 100, 7]);
+        let path = dir.join("c.png");
+        write_color_png(&path, &img).unwrap();
+        assert_eq!(read_color(&path).unwrap(), img);
+        // BMP written by the image crate reads back the same.
+        let bmp = dir.join("c.bmp");
+        image::RgbImage::from_raw(4, 3, img.data().iter().flatten().copied().collect()).unwrap().save(&bmp).unwrap();
+        assert_eq!(read_color(&bmp).unwrap(), img);
+        let mask = Image::from_fn(4, 3, |x, _| x > 1);
+        write_mask_png(&dir.join("m.png"), &mask).unwrap();
+        let m = image::open(dir.join("m.png")).unwrap().into_luma8();
+        assert_eq!((m.get_pixel(0, 0).0[0], m.get_pixel(3, 2).0[0]), (0, 255));
+    }
+
+    #[test]
+    fn bad_inputs_give_clear_errors() {
+        let dir = scratch("bad");
+        let missing = dir.join("missing.png");
+        let err = read_depth(&missing, MILLIMETRES).unwrap_err().to_string();
+        assert!(err.contains("missing.png"), "{err}");
+        let corrupt = dir.join("corrupt.png");
+        let mut bytes = b"\x89PNG\r\n\x1a\n".to_vec();
+        bytes.extend_from_slice(&[0u8; 40]);
+        std::fs::write(&corrupt, &bytes).unwrap();
+        let err = read_color(&corrupt).unwrap_err().to_string();
+        assert!(err.contains("corrupt.png") && err.contains("corrupt"), "{err}");
+        let text = dir.join("notes.png");
+        std::fs::write(&text, "hello").unwrap();
+        let err = read_color(&text).unwrap_err().to_string();
+        assert!(err.contains("notes.png") && err.contains("PNG, JPEG, TIFF or BMP"), "{err}");
+        // An 8-bit grey PNG is not depth.
+        let gray = dir.join("gray8.png");
+        write_gray_png(&gray, &Image::filled(3, 3, 9u8)).unwrap();
+        let err = read_depth(&gray, MILLIMETRES).unwrap_err().to_string();
+        assert!(err.contains("gray8.png") && err.contains("16-bit"), "{err}");
+        // All-zero and all-NaN depth.
+        let zero = dir.join("zero.png");
+        write_depth_png16(&zero, &Image::filled(3, 3, f32::NAN)).unwrap();
+        let err = read_depth(&zero, MILLIMETRES).unwrap_err().to_string();
+        assert!(err.contains("zero.png") && err.contains("no valid depth"), "{err}");
+        let nan = dir.join("nan.tif");
+        write_depth_tiff(&nan, &Image::filled(3, 3, f32::NAN)).unwrap();
+        let err = read_depth(&nan, MILLIMETRES).unwrap_err().to_string();
+        assert!(err.contains("nan.tif") && err.contains("no valid depth"), "{err}");
+    }
+
+    #[test]
+    fn jpeg_colour_and_tiff16_depth_from_other_writers() {
+        let dir = scratch("others");
+        // JPEG written by the image crate: lossy, so compare within the codec's error on a
+        // flat colour (quality 95 keeps flat areas within a few levels).
+        let jpg = dir.join("c.jpg");
+        image::RgbImage::from_pixel(16, 8, image::Rgb([200, 120, 40])).save(&jpg).unwrap();
+        let c = read_color(&jpg).unwrap();
+        assert_eq!(c.size(), (16, 8));
+        let p = c.get(5, 5);
+        assert!((p[0] as i32 - 200).abs() <= 4 && (p[1] as i32 - 120).abs() <= 4 && (p[2] as i32 - 40).abs() <= 4, "{p:?}");
+        // 16-bit grey TIFF written by the tiff crate, in millimetres and with a custom scale.
+        let tif = dir.join("d16.tif");
+        let mut bytes = Cursor::new(Vec::new());
+        let units: Vec<u16> = (0..12).map(|i| i * 250).collect();
+        tiff::encoder::TiffEncoder::new(&mut bytes)
+            .unwrap()
+            .write_image::<tiff::encoder::colortype::Gray16>(4, 3, &units)
+            .unwrap();
+        std::fs::write(&tif, bytes.into_inner()).unwrap();
+        let d = read_depth(&tif, MILLIMETRES).unwrap();
+        assert!(d.get(0, 0).is_nan());
+        assert!((d.get(1, 0) - 0.25).abs() < 1e-7 && (d.get(3, 2) - 2.75).abs() < 1e-6);
+        let d = read_depth(&tif, 1e-4).unwrap(); // 0.1 mm units
+        assert!((d.get(3, 2) - 0.275).abs() < 1e-7);
+        assert!(read_depth(&tif, 0.0).is_err());
+        // A multi-channel EXR: the Z channel is taken, whatever else is there.
+        use exr::prelude::*;
+        let exr_path = dir.join("multi.exr");
+        let mut list = SmallVec::new();
+        list.push(AnyChannel::new("R", FlatSamples::F32(vec![9.0; 6])));
+        list.push(AnyChannel::new("Z", FlatSamples::F32(vec![1.5, 2.0, f32::NAN, 0.0, -1.0, 3.0])));
+        let layer = Layer::new((3, 2), LayerAttributes::named("x"), Encoding::UNCOMPRESSED, AnyChannels::sort(list));
+        exr::prelude::Image::from_layer(layer).write().to_file(&exr_path).unwrap();
+        let d = read_depth(&exr_path, MILLIMETRES).unwrap();
+        let v: Vec<f32> = d.data().to_vec();
+        assert_eq!((v[0], v[1], v[5]), (1.5, 2.0, 3.0));
+        assert!(v[2].is_nan() && v[3].is_nan() && v[4].is_nan(), "NaN, 0 and negative are no sample: {v:?}");
+    }
+}

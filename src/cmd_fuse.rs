@@ -1,0 +1,410 @@
+//! `kfuse fuse`: depth + colour + rig → coloured cloud, registered depth, meshes, holes and
+//! the lab's figures, written into one output folder that appears only when complete.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
+use geometry::io::atomic::{StagedDir, write_bytes_atomic};
+use geometry::io::{course, images, obj, ply, rig as rigio};
+use geometry::{DepthKind, Image, Rig};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+use crate::figures::{self, Panel, titles};
+
+/// Fuse one depth frame with one colour frame.
+#[derive(Args, Debug, Clone)]
+#[command(after_help = "\
+Examples:
+  kfuse fuse --rig rig.json --color color.png --depth depth.png --out fused
+  kfuse fuse --rig rig.json --color c.jpg --depth d.exr --depth-kind range --out fused
+  kfuse fuse --mat ../shared/data/course/synthdata.mat --out course-fused
+  kfuse fuse --rig rig.json --color c.png --depth d.png --resample nearest --no-figures --out quick
+
+Inputs are the raw (distorted) camera images; the rig's distortion is applied exactly.
+Depth: 16-bit PNG/TIFF in millimetres (see --depth-scale) or 32-bit float TIFF/EXR in metres;
+0 or NaN means no sample.
+
+Outputs (in --out; the folder appears only when everything was written):
+  cloud.ply                      H1 points, depth camera frame, H6 colours
+  depth_zbuffer / depth_nearest / depth_linear / depth_filled  .png (16-bit mm) + .exr (m),
+                                 colour camera frame and pixel grid
+  hole_mask.png                  H8 disocclusion holes (255 = hole)
+  color_on_depth.png             H6 colour sampled on the depth grid
+  mesh.ply, mesh.obj/.mtl/_texture.png           H4 textured mesh (colour camera frame)
+  mesh_clean.ply, mesh_clean.obj/.mtl/_texture.png   H5 without stretched faces
+  summary.json                   counts, plane, timings, inputs and units
+  task1.png ... task8.png        the lab's figures")]
+pub struct FuseArgs {
+    /// Rig file (JSON from `kfuse calibrate`) describing both cameras and color_from_depth.
+    #[arg(long, value_name = "RIG.json", required_unless_present = "mat", requires_all = ["color", "depth"])]
+    pub rig: Option<PathBuf>,
+    /// Colour image (PNG, JPEG, TIFF or BMP), as captured (distorted).
+    #[arg(long, value_name = "C.png", requires = "rig")]
+    pub color: Option<PathBuf>,
+    /// Depth image of the depth camera, as captured.
+    #[arg(long, value_name = "D.png", requires = "rig")]
+    pub depth: Option<PathBuf>,
+    /// What the depth values measure: z (along the optical axis, Kinect) or range (distance to
+    /// the optical centre).
+    #[arg(long, value_enum, default_value_t = DepthKindArg::Z)]
+    pub depth_kind: DepthKindArg,
+    /// Metres per unit of 16-bit depth images (0.001 = millimetres). Float images are metres.
+    #[arg(long, default_value_t = images::MILLIMETRES, value_name = "M_PER_UNIT")]
+    pub depth_scale: f64,
+    /// The lab course's MATLAB file (synthdata.mat) instead of --rig/--color/--depth.
+    #[arg(long, value_name = "FILE.mat", conflicts_with_all = ["rig", "color", "depth"])]
+    pub mat: Option<PathBuf>,
+    /// Output folder (created; same-named files in it are replaced).
+    #[arg(long, short, value_name = "DIR")]
+    pub out: PathBuf,
+    /// H3 resampling: both nearest and Delaunay-linear, or nearest only (faster).
+    #[arg(long, value_enum, default_value_t = ResampleArg::Both)]
+    pub resample: ResampleArg,
+    /// Which colour-frame depth H4 meshes.
+    #[arg(long, value_enum, default_value_t = MeshFromArg::Filled)]
+    pub mesh_from: MeshFromArg,
+    /// H5 threshold: a face is removed when its normal's in-plane part exceeds RATIO times
+    /// its depth part (1.0 = 45°; larger keeps more slanted faces).
+    #[arg(long, value_name = "RATIO", default_value_t = FusionOptions::default().stretch_ratio)]
+    pub stretch_ratio: f32,
+    /// Coverage radius of H3 nearest fill and H8 holes, in depth-sample spacings.
+    #[arg(long, value_name = "FACTOR", default_value_t = FusionOptions::default().hole_radius_factor)]
+    pub hole_radius: f32,
+    /// Do not draw the Task 1-8 figures.
+    #[arg(long)]
+    pub no_figures: bool,
+}
+
+/// `--depth-kind`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthKindArg {
+    /// Distance along the optical axis.
+    Z,
+    /// Distance to the optical centre.
+    Range,
+}
+
+/// `--resample`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ResampleArg {
+    /// Nearest fill and Delaunay-linear.
+    Both,
+    /// Nearest fill only.
+    Nearest,
+}
+
+/// `--mesh-from`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeshFromArg {
+    /// Nearest fill with plane-filled holes.
+    Filled,
+    /// Nearest fill.
+    Nearest,
+    /// Delaunay-linear.
+    Linear,
+}
+
+/// The inputs of one fusion, loaded and checked.
+pub struct Inputs {
+    /// The rig.
+    pub rig: Rig,
+    /// Depth, metres, NaN = none.
+    pub depth: Image<f32>,
+    /// Depth kind.
+    pub kind: DepthKind,
+    /// Colour.
+    pub color: Image<[u8; 3]>,
+    /// Description for summary.json.
+    pub description: serde_json::Value,
+}
+
+fn check_size(what: &str, path: &Path, got: (usize, usize), want: (usize, usize), rig_path: &Path) -> Result<()> {
+    if got != want {
+        bail!(
+            "{what} {} is {}x{}, but the rig {} says that camera is {}x{}; pass the {what} of that camera or the rig it was calibrated with",
+            path.display(),
+            got.0,
+            got.1,
+            rig_path.display(),
+            want.0,
+            want.1
+        );
+    }
+    Ok(())
+}
+
+/// Loads and checks the inputs named by `args` (nothing is written).
+pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
+    if let Some(mat) = &args.mat {
+        let data = course::read_course(mat)?;
+        return Ok(Inputs {
+            description: serde_json::json!({
+                "mat": mat,
+                "convention": "synthdata.mat: cx, cy 1-based; R, T = colour camera pose in the depth frame; Depth = range (m)",
+            }),
+            rig: data.rig,
+            depth: data.depth,
+            kind: data.depth_kind,
+            color: data.color,
+        });
+    }
+    let (Some(rig_path), Some(color_path), Some(depth_path)) = (&args.rig, &args.color, &args.depth) else {
+        bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
+    };
+    let rig = rigio::read_rig(rig_path)?;
+    let color = images::read_color(color_path)?;
+    check_size("colour image", color_path, color.size(), (rig.color.width, rig.color.height), rig_path)?;
+    let depth = images::read_depth(depth_path, args.depth_scale)?;
+    check_size("depth image", depth_path, depth.size(), (rig.depth.width, rig.depth.height), rig_path)?;
+    let kind = match args.depth_kind {
+        DepthKindArg::Z => DepthKind::Z,
+        DepthKindArg::Range => DepthKind::Range,
+    };
+    Ok(Inputs {
+        description: serde_json::json!({
+            "rig": rig_path, "color": color_path, "depth": depth_path,
+            "depth_kind": kind, "depth_scale_m_per_unit": args.depth_scale,
+        }),
+        rig,
+        depth,
+        kind,
+        color,
+    })
+}
+
+/// The fusion options `args` ask for.
+pub fn options(args: &FuseArgs) -> Result<FusionOptions> {
+    if !(args.stretch_ratio.is_finite() && args.stretch_ratio > 0.0) {
+        bail!("--stretch-ratio must be a positive number, got {}", args.stretch_ratio);
+    }
+    if !(args.hole_radius.is_finite() && args.hole_radius > 0.0) {
+        bail!("--hole-radius must be a positive number, got {}", args.hole_radius);
+    }
+    let mesh_source = match args.mesh_from {
+        MeshFromArg::Filled => MeshSource::Filled,
+        MeshFromArg::Nearest => MeshSource::Nearest,
+        MeshFromArg::Linear => MeshSource::Linear,
+    };
+    if mesh_source == MeshSource::Linear && args.resample == ResampleArg::Nearest {
+        bail!("--mesh-from linear needs the linear resampling: drop --resample nearest");
+    }
+    Ok(FusionOptions {
+        linear: args.resample == ResampleArg::Both,
+        mesh_source,
+        stretch_ratio: args.stretch_ratio,
+        hole_radius_factor: args.hole_radius,
+        record_timings: true,
+        ..FusionOptions::default()
+    })
+}
+
+#[derive(Serialize)]
+struct SummaryFile<'a> {
+    format: &'static str,
+    kfuse_version: &'static str,
+    inputs: &'a serde_json::Value,
+    units: serde_json::Value,
+    options: &'a FusionOptions,
+    summary: &'a fusion::FusionSummary,
+    files: Vec<String>,
+}
+
+/// What [`run`] produced.
+pub struct FuseResult {
+    /// The committed output folder.
+    pub out: PathBuf,
+    /// The fusion's counts.
+    pub summary: fusion::FusionSummary,
+}
+
+fn progress(steps: u64) -> ProgressBar {
+    let bar = ProgressBar::new(steps);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(120));
+    bar
+}
+
+/// Runs `kfuse fuse`.
+pub fn run(args: &FuseArgs) -> Result<FuseResult> {
+    let bar = progress(6);
+    bar.set_message("reading inputs");
+    let options = options(args)?;
+    let inputs = load_inputs(args)?;
+    bar.inc(1);
+    bar.set_message("fusing (H1-H8)");
+    let output = fusion::run(&inputs.rig, &inputs.depth, inputs.kind, &inputs.color, &options).with_context(|| {
+        format!("fusing {}", input_names(args))
+    })?;
+    bar.inc(1);
+    let staged = StagedDir::new(&args.out)?;
+    let mut files = Vec::new();
+    bar.set_message("writing cloud and depth images");
+    write_data(&staged, &inputs, &output, &mut files)?;
+    bar.inc(1);
+    bar.set_message("writing meshes");
+    write_meshes(&staged, &inputs, &output, &mut files)?;
+    bar.inc(1);
+    if !args.no_figures {
+        bar.set_message("drawing figures");
+        write_figures(&staged, &inputs, &output, &mut files)?;
+    }
+    bar.inc(1);
+    files.push("summary.json".into());
+    let summary = SummaryFile {
+        format: "kfuse-fuse-summary",
+        kfuse_version: env!("CARGO_PKG_VERSION"),
+        inputs: &inputs.description,
+        units: serde_json::json!({
+            "lengths": "metres",
+            "depth_png": "16-bit millimetres, 0 = no sample",
+            "depth_exr": "32-bit float metres (channel Y), NaN = no sample",
+            "pixels": "0-based, integer coordinates are pixel centres",
+            "frames": "cloud.ply: depth camera; meshes and depth_*: colour camera (x right, y down, z forward)",
+        }),
+        options: &options,
+        summary: &output.summary,
+        files,
+    };
+    let json = serde_json::to_string_pretty(&summary).context("serialising summary.json")?;
+    write_bytes_atomic(&staged.join("summary.json"), json.as_bytes())?;
+    bar.set_message("committing");
+    let out = staged.commit()?;
+    bar.inc(1);
+    bar.finish_and_clear();
+    Ok(FuseResult { out, summary: output.summary })
+}
+
+fn input_names(args: &FuseArgs) -> String {
+    match (&args.mat, &args.depth, &args.color) {
+        (Some(m), _, _) => m.display().to_string(),
+        (_, Some(d), Some(c)) => format!("{} with {}", d.display(), c.display()),
+        _ => "the inputs".into(),
+    }
+}
+
+fn write_depth_pair(staged: &StagedDir, name: &str, depth: &Image<f32>, files: &mut Vec<String>) -> Result<()> {
+    images::write_depth_png16(&staged.join(format!("{name}.png")), depth)?;
+    images::write_depth_exr(&staged.join(format!("{name}.exr")), depth)?;
+    files.push(format!("{name}.png"));
+    files.push(format!("{name}.exr"));
+    Ok(())
+}
+
+fn write_data(staged: &StagedDir, _inputs: &Inputs, out: &FusionOutput, files: &mut Vec<String>) -> Result<()> {
+    ply::write_cloud_ply(&staged.join("cloud.ply"), &out.cloud, "depth camera")?;
+    files.push("cloud.ply".into());
+    write_depth_pair(staged, "depth_zbuffer", &out.zbuffer, files)?;
+    write_depth_pair(staged, "depth_nearest", &out.nearest, files)?;
+    if let Some(linear) = &out.linear {
+        write_depth_pair(staged, "depth_linear", linear, files)?;
+    }
+    write_depth_pair(staged, "depth_filled", &out.filled, files)?;
+    images::write_mask_png(&staged.join("hole_mask.png"), &out.hole_mask)?;
+    images::write_color_png(&staged.join("color_on_depth.png"), &out.color_on_depth)?;
+    files.push("hole_mask.png".into());
+    files.push("color_on_depth.png".into());
+    Ok(())
+}
+
+fn write_meshes(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files: &mut Vec<String>) -> Result<()> {
+    for (name, mesh) in [("mesh", &out.mesh), ("mesh_clean", &out.mesh_clean)] {
+        let texture = format!("{name}_texture.png");
+        ply::write_mesh_ply(&staged.join(format!("{name}.ply")), mesh, "colour camera", Some(&texture))?;
+        obj::write_textured_obj(&staged.join(format!("{name}.obj")), mesh, Some(&inputs.color))?;
+        for ext in [".ply", ".obj", ".mtl", "_texture.png"] {
+            files.push(format!("{name}{ext}"));
+        }
+    }
+    Ok(())
+}
+
+/// Width of mesh renders in the Task 4/5 figures, pixels.
+const MESH_RENDER_WIDTH: usize = 960;
+/// View of the mesh renders: turned 25° about the vertical and 12° down, so depth steps and
+/// the stretched faces along them are visible.
+const MESH_VIEW_DEG: (f64, f64) = (25.0, -12.0);
+
+fn write_figures(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files: &mut Vec<String>) -> Result<()> {
+    let (cw, ch) = inputs.color.size();
+    let mut save = |n: usize| {
+        let name = format!("task{n}.png");
+        files.push(name.clone());
+        staged.join(name)
+    };
+    figures::save_cloud_3d(&save(1), titles::TASK1, &out.cloud)?;
+    let samples: Vec<[f32; 3]> = out.samples.iter().map(|s| [s.u, s.v, s.z]).collect();
+    figures::save_projected_scatter(&save(2), titles::TASK2, &samples, cw, ch)?;
+    // One colour range for every colour-frame depth image, so panels compare.
+    let range = figures::robust_range(out.nearest.data().iter().copied());
+    let mut task3 = vec![Panel::new("nearest", figures::depth_colors(&out.nearest, range))];
+    match &out.linear {
+        Some(l) => task3.push(Panel::new("Delaunay-linear", figures::depth_colors(l, range))),
+        None => task3.push(Panel::new("Delaunay-linear: not computed (--resample nearest)", Image::filled(cw, ch, [255, 255, 255]))),
+    }
+    figures::save_panels(&save(3), titles::TASK3, &task3, 2)?;
+    let mh = MESH_RENDER_WIDTH * ch / cw.max(1);
+    for (n, title, mesh) in [(4, titles::TASK4, &out.mesh), (5, titles::TASK5, &out.mesh_clean)] {
+        let view = figures::render_mesh(mesh, MESH_RENDER_WIDTH, mh, MESH_VIEW_DEG.0, MESH_VIEW_DEG.1);
+        let caption = format!("{} triangles, turned {}° / {}°", mesh.faces.len(), MESH_VIEW_DEG.0, MESH_VIEW_DEG.1);
+        figures::save_panels(&save(n), title, &[Panel::new(caption, view)], 1)?;
+    }
+    let depth_range = figures::robust_range(inputs.depth.data().iter().copied());
+    figures::save_panels(
+        &save(6),
+        titles::TASK6,
+        &[
+            Panel::new("colour sampled on the depth grid", out.color_on_depth.clone()),
+            Panel::new("input depth (depth camera)", figures::depth_colors(&inputs.depth, depth_range)),
+        ],
+        2,
+    )?;
+    figures::save_panels(
+        &save(7),
+        titles::TASK7,
+        &[
+            Panel::new(
+                "z-buffer (nearest surface per colour pixel)",
+                figures::depth_colors(&figures::downsample_depth_min(&out.zbuffer, cw.div_ceil(figures::PANEL_WIDTH)), range),
+            ),
+            Panel::new("filled depth over the colour image", figures::depth_overlay(&inputs.color, &out.filled, 0.55)),
+        ],
+        2,
+    )?;
+    let plane = match &out.summary.plane {
+        Some(p) => format!("filled from plane ({} px, RMS {:.1} mm)", out.summary.filled_pixels, p.rms_m * 1e3),
+        None => "no plane found: holes left empty".into(),
+    };
+    figures::save_panels(
+        &save(8),
+        titles::TASK8,
+        &[
+            Panel::new(format!("disocclusion holes ({} px)", out.summary.hole_pixels), figures::mask_colors(&out.hole_mask)),
+            Panel::new(plane, figures::depth_colors(&out.filled, range)),
+        ],
+        2,
+    )?;
+    Ok(())
+}
+
+/// Prints where the results are.
+pub fn report(result: &FuseResult) {
+    let s = &result.summary;
+    println!("fused {} depth samples into {} points", s.valid_depth_pixels, s.points);
+    println!(
+        "  colour view: {} samples, z-buffer {} px, holes {} px (filled {}), mesh {} -> {} faces after H5",
+        s.samples_in_view, s.zbuffer_pixels, s.hole_pixels, s.filled_pixels, s.faces_before, s.faces_after
+    );
+    let out = result.out.display();
+    println!("results in {out}/");
+    println!("  point cloud   {out}/cloud.ply       (MeshLab, CloudCompare, Blender)");
+    println!("  meshes        {out}/mesh.obj, {out}/mesh_clean.obj (+ .ply)");
+    println!("  depth         {out}/depth_filled.png (16-bit mm), .exr (m)");
+    println!("  figures       {out}/task1.png ... task8.png   summary: {out}/summary.json");
+}
