@@ -112,3 +112,32 @@ fn fuse_entry_point_reports_the_engine() {
         }
     }
 }
+
+/// The shared data folder (`KFUSE_SHARED_DATA`, else `<workspace>/../shared/data`), or `None`
+/// after printing SKIP; with `KFUSE_REQUIRE_SHARED_DATA=1` (CI) a missing folder panics.
+fn shared_data(test: &str) -> Option<std::path::PathBuf> {
+    let dir = std::env::var_os("KFUSE_SHARED_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    if dir.is_dir() {
+        return Some(dir);
+    }
+    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
+        panic!("{test}: shared data not found at {} (KFUSE_REQUIRE_SHARED_DATA=1)", dir.display());
+    }
+    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
+    None
+}
+
+#[test]
+fn course_synthdata_mat_full_pipeline_matches_cpu() {
+    let test = "course_synthdata_mat_full_pipeline_matches_cpu";
+    let Some(dir) = shared_data(test) else { return };
+    let Some(mut ctx) = context_or_skip(test) else { return };
+    let path = dir.join("course/synthdata.mat");
+    let data = geometry::io::course::read_course(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let options = FusionOptions { linear: false, ..FusionOptions::default() };
+    let cpu = run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("CPU run");
+    let gpu = ctx.run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("GPU run");
+    assert_same(test, &cpu, &gpu);
+}
