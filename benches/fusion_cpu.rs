@@ -56,6 +56,24 @@ fn write_peer_frame(setup: &synth::SynthSetup, frame: &synth::SynthFrame) {
     eprintln!("peer frame written to {}", dir.display());
 }
 
+/// Nanoseconds this thread has run on a CPU (`/proc/thread-self/schedstat`, Linux), or `None`.
+fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+}
+
+/// CPU time per call of `f` over `iters` calls: on a machine shared with other jobs the
+/// wall-clock figures of criterion include time spent waiting for a core; this does not.
+fn report_cpu_time(name: &str, iters: u32, mut f: impl FnMut()) {
+    f();
+    let (Some(t0), w0) = (thread_cpu_ns(), std::time::Instant::now()) else { return };
+    for _ in 0..iters {
+        f();
+    }
+    let Some(t1) = thread_cpu_ns() else { return };
+    let wall = w0.elapsed().as_secs_f64() * 1e3 / iters as f64;
+    eprintln!("cpu-time {name}: {:.3} ms per call on one core ({wall:.3} ms wall)", (t1 - t0) as f64 / 1e6 / iters as f64);
+}
+
 fn benches(c: &mut Criterion) {
     let setup = synth::kinect_preset(false);
     let frame = synth::render(&setup);
@@ -74,6 +92,20 @@ fn benches(c: &mut Criterion) {
     let mut masker = HoleMasker::new(cw, ch, radius, grow);
     let atomic: Vec<AtomicU32> = (0..cw * ch).map(|_| AtomicU32::new(0)).collect();
 
+    report_cpu_time("register+holes/single", 200, || {
+        let words = masker.words_per_row();
+        let n = fusion::register_depth_marking(frame.depth.data(), &rays, &proj, &mut zbuffer, masker.occupancy_mut(), words);
+        black_box((n, masker.compute_from_occupancy(&mut mask)));
+    });
+    report_cpu_time("stage/register_single", 200, || {
+        black_box(fusion::register_depth(frame.depth.data(), &rays, &proj, &mut zbuffer));
+    });
+    report_cpu_time("stage/hole_mask_from_occupancy", 200, || {
+        black_box(masker.compute_from_occupancy(&mut mask));
+    });
+    if std::env::var_os("KFUSE_CPU_TIME_ONLY").is_some() {
+        return;
+    }
     let mut g = c.benchmark_group("register+holes");
     g.bench_function("single", |b| {
         b.iter(|| {

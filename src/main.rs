@@ -7,6 +7,9 @@ mod figures;
 
 use clap::{Parser, Subcommand};
 
+mod cmd_calibrate;
+mod cmd_undistort;
+
 /// Kinect v2 capture, calibration and RGB-D fusion.
 #[derive(Parser)]
 #[command(name = "kfuse", version, about, long_about = None)]
@@ -23,6 +26,10 @@ enum Command {
     Fuse(cmd_fuse::FuseArgs),
     /// Render a synthetic Kinect v2 frame, write it as input files and fuse it.
     Demo(cmd_demo::DemoArgs),
+    /// Calibrate the colour and/or IR camera from checkerboard images (rig file + report).
+    Calibrate(cmd_calibrate::CalibrateArgs),
+    /// Remove lens distortion from images with a rig file (writes *_rect images).
+    Undistort(cmd_undistort::UndistortArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -45,6 +52,8 @@ fn main() -> std::process::ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Calibrate(args) => cmd_calibrate::run(args)?,
+        Command::Undistort(args) => cmd_undistort::run(args)?,
         Command::Conventions => {
             println!("pixels: 0-based, integer coordinates are pixel centres");
             println!("frames: x right, y down, z forward; the depth camera is the reference");

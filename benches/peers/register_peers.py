@@ -16,9 +16,9 @@ Setup (CPU-only wheels):
     /tmp/peers-venv/bin/pip install opencv-contrib-python-headless open3d-cpu numpy
     /tmp/peers-venv/bin/python benches/peers/register_peers.py [FRAME_DIR]
 
-What is timed (median of repeated runs, one frame, single-threaded where the library allows):
+What is timed (median and minimum wall-clock and median process CPU time of repeated runs, one frame, single-threaded where the library allows):
 
-* OpenCV `cv2.rgbd.registerDepth`: depth (mm, uint16) -> colour camera, z-buffered, with the
+* OpenCV `registerDepth` (`cv2.rgbd` in 4.x, `cv2` in 5.x): depth (mm, uint16) -> colour camera, z-buffered, with the
   colour camera's distortion; it assumes an undistorted depth image (the depth lens is ignored).
 * Open3D (tensor API): `PointCloud.create_from_depth_image` (pinhole, no distortion) followed by
   `project_to_depth_image` into the colour camera (no distortion), reported separately and summed.
@@ -40,12 +40,14 @@ import numpy as np
 def median_ms(fn, repeats=30, warmup=3):
     for _ in range(warmup):
         fn()
-    times = []
+    times, cpu = [], []
     for _ in range(repeats):
+        c = time.process_time()
         t = time.perf_counter()
         fn()
         times.append((time.perf_counter() - t) * 1e3)
-    return statistics.median(times), min(times)
+        cpu.append((time.process_time() - c) * 1e3)
+    return statistics.median(times), min(times), statistics.median(cpu)
 
 
 def camera_matrix(cam):
@@ -74,8 +76,11 @@ def main():
     dist_c = np.array([ccam["k1"], ccam["k2"], ccam["p1"], ccam["p2"], ccam.get("k3", 0.0)])
     size = (ccam["width"], ccam["height"])
 
+    # OpenCV 4 (contrib) has it in cv2.rgbd; OpenCV 5 moved it into the main 3d module.
+    register_depth = getattr(getattr(cv2, "rgbd", None), "registerDepth", None) or cv2.registerDepth
+
     def cv_register():
-        return cv2.rgbd.registerDepth(kd, kc, dist_c, extr, depth_mm, size, depthDilation=False)
+        return register_depth(kd, kc, dist_c, extr, depth_mm, size, depthDilation=False)
 
     out = cv_register()
     results["opencv registerDepth (1 thread)"] = median_ms(cv_register)
@@ -104,11 +109,13 @@ def main():
     b = median_ms(o3d_project)
     results["open3d create_from_depth_image"] = a
     results["open3d project_to_depth_image"] = b
-    results["open3d total"] = (a[0] + b[0], a[1] + b[1])
+    results["open3d total"] = tuple(x + y for x, y in zip(a, b))
 
-    print(f"{'method':40s} {'median ms':>10s} {'min ms':>10s}")
-    for k, (med, mn) in results.items():
-        print(f"{k:40s} {med:10.2f} {mn:10.2f}")
+    # CPU ms sums all threads of the process: compare it with the Rust bench's "cpu-time"
+    # lines on a machine shared with other jobs, where wall-clock times include waiting.
+    print(f"{'method':40s} {'median ms':>10s} {'min ms':>10s} {'CPU ms':>10s}")
+    for k, (med, mn, c) in results.items():
+        print(f"{k:40s} {med:10.2f} {mn:10.2f} {c:10.2f}")
 
 
 if __name__ == "__main__":

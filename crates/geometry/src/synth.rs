@@ -325,7 +325,7 @@ impl Default for SensorOptions {
             min_amplitude: 0.0,
             dropout_fraction: 0.0,
             noise_sigma_m: 0.0,
-            seed: 0x6b66_7573_65,
+            seed: 0x006b_6675_7365,
         }
     }
 }

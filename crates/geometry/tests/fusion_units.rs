@@ -153,3 +153,24 @@ fn marking_registration_gives_the_same_zbuffer_and_hole_mask() {
     assert_eq!(mask, mask2);
     assert_eq!(mask.iter().filter(|&&m| m).count(), holes);
 }
+
+#[test]
+fn nearest_fill_interior_fast_path_matches_the_reference_pixel_function() {
+    // A sparse pseudo-random z-buffer: the image-wide fill (fast interior path) must equal
+    // nearest_fill_pixel (bounds-checked reference) everywhere, bit for bit.
+    let (w, h) = (97usize, 61usize);
+    let zb = Image::from_fn(w, h, |x, y| {
+        let k = (x * 7919 + y * 104_729) % 13;
+        if k < 2 { 1.0 + 0.01 * ((x * 31 + y * 17) % 50) as f32 } else if k == 2 { 3.0 } else { fusion::ZBUFFER_EMPTY }
+    });
+    let radius = 3.4;
+    let fill = fusion::nearest_fill(&zb, radius, 0.05);
+    let offsets = fusion::disc_offsets(radius);
+    for y in 0..h {
+        for x in 0..w {
+            let want = fusion::nearest_fill_pixel(zb.data(), w, h, x as i32, y as i32, &offsets, 0.05);
+            assert_eq!(fill.get(x, y).to_bits(), want.to_bits(), "({x}, {y})");
+        }
+    }
+    assert!(fill.data().iter().any(|z| *z == 3.0) && fill.data().iter().any(|z| *z < 2.0));
+}

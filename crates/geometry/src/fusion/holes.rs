@@ -135,7 +135,7 @@ impl HoleMasker {
             for (wi, chunk) in row.chunks(64).enumerate() {
                 let mut bits = 0u64;
                 for (b, &z) in chunk.iter().enumerate() {
-                    bits |= ((z == z) as u64) << b;
+                    bits |= (!z.is_nan() as u64) << b;
                 }
                 out[wi] = bits;
             }
@@ -252,7 +252,7 @@ impl Default for PlaneFitOptions {
             threshold_m: 0.01,
             // 20 000 samples pin a plane to ~1e-4 relative; more only costs time.
             max_samples: 20_000,
-            seed: 0x6b66_7573_65,
+            seed: 0x006b_6675_7365,
         }
     }
 }

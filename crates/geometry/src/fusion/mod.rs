@@ -90,7 +90,8 @@ pub struct FusionOptions {
     /// surface", H3 linear's edge test). 5 %: ten times the Kinect's depth noise, well below
     /// object/background gaps.
     pub depth_jump: f32,
-    /// Compute H3's Delaunay-linear resampling (the slowest stage, ~0.2 s per Kinect frame).
+    /// Compute H3's Delaunay-linear resampling (the slowest stage: a Delaunay triangulation of
+    /// ~190k samples per Kinect frame).
     pub linear: bool,
     /// Longest triangle edge H3 linear fills, in sample spacings: 3 bridges stretched
     /// samples on slanted surfaces but not disocclusion holes wider than ~3 samples.

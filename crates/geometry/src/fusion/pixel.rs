@@ -179,7 +179,7 @@ pub fn zbuffer_pixel(u: f32, v: f32, width: u32, height: u32) -> Option<(usize, 
 #[inline]
 pub fn floor_f32(x: f32) -> f32 {
     if !(x.abs() < 2_147_483_520.0) {
-        return if x == x { x } else { f32::NAN };
+        return x; // NaN, infinities and integers beyond 2^31 are their own floor.
     }
     let t = x as i32 as f32;
     if t > x { t - 1.0 } else { t }

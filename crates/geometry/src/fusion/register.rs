@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use rayon::prelude::*;
 
 use super::pixel::{
-    backproject_pixel, project_point, register_pixel, zbuffer_index, zbuffer_min, zbuffer_pixel, ColorProjection, ZBUFFER_EMPTY,
+    backproject_pixel, project_point, transform_point, zbuffer_index, zbuffer_min, zbuffer_pixel, ColorProjection, ZBUFFER_EMPTY,
 };
 use crate::{Image, PointCloud};
 
@@ -65,6 +65,37 @@ pub fn zbuffer_from_samples(samples: &[ColorSample], width: u32, height: u32) ->
     img
 }
 
+/// Pixels per block of the two-pass hot loop: 256 × 3 `f32` stay in L1.
+const BLOCK: usize = 256;
+
+/// Pass 1 of the hot loop over one block: `[u, v, z]` of every pixel, NaN `u` where
+/// [`register_pixel`] gives `None`. Branch-free and the same arithmetic as
+/// [`register_pixel`] (so bit-identical), which lets the compiler vectorise it.
+#[inline]
+fn project_block(p: &ColorProjection, depth: &[f32], rays: &[[f32; 3]], u: &mut [f32; BLOCK], v: &mut [f32; BLOCK], z: &mut [f32; BLOCK]) {
+    for i in 0..depth.len().min(BLOCK) {
+        let value = depth[i];
+        let ray = rays[i];
+        let valid = value > 0.0 && value < f32::INFINITY;
+        let zd = value * ray[2];
+        let xc = transform_point(p, [ray[0] * zd, ray[1] * zd, zd]);
+        let zc = xc[2];
+        let xn = xc[0] / zc;
+        let yn = xc[1] / zc;
+        let r2 = xn * xn + yn * yn;
+        let radial = 1.0 + r2 * (p.k1 + r2 * (p.k2 + r2 * p.k3));
+        let xy = xn * yn;
+        let xdist = xn * radial + 2.0 * p.p1 * xy + p.p2 * (r2 + 2.0 * xn * xn);
+        let ydist = yn * radial + p.p1 * (r2 + 2.0 * yn * yn) + 2.0 * p.p2 * xy;
+        let uu = p.fx * xdist + p.skew * ydist + p.cx;
+        let vv = p.fy * ydist + p.cy;
+        let ok = valid && zc > 0.0;
+        u[i] = if ok { uu } else { f32::NAN };
+        v[i] = vv;
+        z[i] = zc;
+    }
+}
+
 /// H1 + H2 + H7 fused, single thread, no allocation: clears `zbuffer` (colour-sized,
 /// row-major) to [`ZBUFFER_EMPTY`] and z-buffers every depth pixel into it.
 /// `depth` and `rays` are depth-sized and row-major. Returns the number of samples that
@@ -72,10 +103,12 @@ pub fn zbuffer_from_samples(samples: &[ColorSample], width: u32, height: u32) ->
 pub fn register_depth(depth: &[f32], rays: &[[f32; 3]], proj: &ColorProjection, zbuffer: &mut [f32]) -> usize {
     zbuffer.fill(ZBUFFER_EMPTY);
     let mut landed = 0;
-    for (&value, &ray) in depth.iter().zip(rays) {
-        if let Some([u, v, z]) = register_pixel(proj, ray, value) {
-            if let Some(i) = zbuffer_index(u, v, proj.width, proj.height) {
-                zbuffer_min(&mut zbuffer[i], z);
+    let (mut bu, mut bv, mut bz) = ([0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK]);
+    for (d, r) in depth.chunks(BLOCK).zip(rays.chunks(BLOCK)) {
+        project_block(proj, d, r, &mut bu, &mut bv, &mut bz);
+        for i in 0..d.len() {
+            if let Some(j) = zbuffer_index(bu[i], bv[i], proj.width, proj.height) {
+                zbuffer_min(&mut zbuffer[j], bz[i]);
                 landed += 1;
             }
         }
@@ -99,10 +132,12 @@ pub fn register_depth_marking(
     occupancy.fill(0);
     let w = proj.width as usize;
     let mut landed = 0;
-    for (&value, &ray) in depth.iter().zip(rays) {
-        if let Some([u, v, z]) = register_pixel(proj, ray, value) {
-            if let Some((x, y)) = zbuffer_pixel(u, v, proj.width, proj.height) {
-                zbuffer_min(&mut zbuffer[y * w + x], z);
+    let (mut bu, mut bv, mut bz) = ([0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK]);
+    for (d, r) in depth.chunks(BLOCK).zip(rays.chunks(BLOCK)) {
+        project_block(proj, d, r, &mut bu, &mut bv, &mut bz);
+        for i in 0..d.len() {
+            if let Some((x, y)) = zbuffer_pixel(bu[i], bv[i], proj.width, proj.height) {
+                zbuffer_min(&mut zbuffer[y * w + x], bz[i]);
                 occupancy[y * words_per_row + x / 64] |= 1u64 << (x % 64);
                 landed += 1;
             }
@@ -131,10 +166,12 @@ pub fn register_depth_parallel(
         .zip(rays.par_chunks(chunk))
         .map(|(d, r)| {
             let mut n = 0;
-            for (&value, &ray) in d.iter().zip(r) {
-                if let Some([u, v, z]) = register_pixel(proj, ray, value) {
-                    if let Some(i) = zbuffer_index(u, v, proj.width, proj.height) {
-                        zbuffer[i].fetch_min(z.to_bits(), Ordering::Relaxed);
+            let (mut bu, mut bv, mut bz) = ([0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK]);
+            for (d, r) in d.chunks(BLOCK).zip(r.chunks(BLOCK)) {
+                project_block(proj, d, r, &mut bu, &mut bv, &mut bz);
+                for i in 0..d.len() {
+                    if let Some(j) = zbuffer_index(bu[i], bv[i], proj.width, proj.height) {
+                        zbuffer[j].fetch_min(bz[i].to_bits(), Ordering::Relaxed);
                         n += 1;
                     }
                 }

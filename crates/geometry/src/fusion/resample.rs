@@ -35,7 +35,7 @@ pub fn disc_offsets(radius_px: f32) -> Vec<(i32, i32, i32)> {
 /// 2. the result is the value of the first offset in disc order whose value is
 ///    `<= zmin * (1 + depth_jump)`.
 ///
-/// Emptiness is tested on the bits (`z != z` here; `bits == 0xFFFF_FFFF` in WGSL, where NaN
+/// Emptiness is tested on the bits (`is_nan` here; `bits == 0xFFFF_FFFF` in WGSL, where NaN
 /// comparisons are not reliable).
 ///
 /// Pass 1 keeps hidden background samples that fell between the samples of a nearer
@@ -45,13 +45,44 @@ pub fn nearest_fill(zbuffer: &Image<f32>, radius_px: f32, depth_jump: f32) -> Im
     let (w, h) = zbuffer.size();
     let offsets = disc_offsets(radius_px);
     let src = zbuffer.data();
+    let k = offsets.iter().map(|o| o.0.abs().max(o.1.abs())).max().unwrap_or(0) as usize;
+    let linear: Vec<isize> = offsets.iter().map(|&(dx, dy, _)| dy as isize * w as isize + dx as isize).collect();
     let mut out = Image::filled(w, h, ZBUFFER_EMPTY);
     out.data_mut().par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let interior_row = y >= k && y + k < h;
         for (x, o) in row.iter_mut().enumerate() {
-            *o = nearest_fill_pixel(src, w, h, x as i32, y as i32, &offsets, depth_jump);
+            *o = if interior_row && x >= k && x + k < w {
+                nearest_fill_interior(src, y * w + x, &linear, depth_jump)
+            } else {
+                nearest_fill_pixel(src, w, h, x as i32, y as i32, &offsets, depth_jump)
+            };
         }
     });
     out
+}
+
+/// [`nearest_fill_pixel`] for a pixel whose whole disc is inside the image (no bounds
+/// tests; `linear` = the disc offsets as row-major index offsets). Same result.
+#[inline]
+fn nearest_fill_interior(src: &[f32], centre: usize, linear: &[isize], depth_jump: f32) -> f32 {
+    let mut zmin = ZBUFFER_EMPTY;
+    for &d in linear {
+        let z = src[centre.wrapping_add_signed(d)];
+        if !(zmin <= z) && !z.is_nan() {
+            zmin = z;
+        }
+    }
+    if zmin.is_nan() {
+        return ZBUFFER_EMPTY;
+    }
+    let limit = zmin * (1.0 + depth_jump);
+    for &d in linear {
+        let z = src[centre.wrapping_add_signed(d)];
+        if z <= limit {
+            return z;
+        }
+    }
+    ZBUFFER_EMPTY
 }
 
 /// One pixel of [`nearest_fill`].
@@ -62,12 +93,12 @@ pub fn nearest_fill_pixel(src: &[f32], w: usize, h: usize, x: i32, y: i32, offse
         let (sx, sy) = (x + dx, y + dy);
         if sx >= 0 && sy >= 0 && (sx as usize) < w && (sy as usize) < h {
             let z = src[sy as usize * w + sx as usize];
-            if !(zmin <= z) && z == z {
+            if !(zmin <= z) && !z.is_nan() {
                 zmin = z;
             }
         }
     }
-    if zmin != zmin {
+    if zmin.is_nan() {
         return ZBUFFER_EMPTY;
     }
     let limit = zmin * (1.0 + depth_jump);

@@ -1,0 +1,103 @@
+//! The error type of the `calib` crate.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong while detecting boards, calibrating or reading and writing
+/// calibration files. Variants name the image or file, the sizes and counts involved, and say
+/// how to fix the input where there is a fix.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibError {
+    /// Fewer usable views than a calibration needs.
+    #[error("{camera}: only {usable} usable view(s) with a detected board, at least {needed} are needed; add images that show the whole board at different tilts")]
+    TooFewViews {
+        /// Which camera ("colour", "depth/IR", "stereo pairs").
+        camera: String,
+        /// Views with a usable board.
+        usable: usize,
+        /// Views needed.
+        needed: usize,
+    },
+    /// The board was not found in any image.
+    #[error("{camera}: no {cols}x{rows} checkerboard found in any of the {images} image(s); check --board (inner corners, e.g. 7x5) and that the board is visible")]
+    NoBoard {
+        /// Which camera.
+        camera: String,
+        /// Images searched.
+        images: usize,
+        /// Inner corners per row.
+        cols: usize,
+        /// Inner corners per column.
+        rows: usize,
+    },
+    /// The views do not constrain the focal length: every board is (nearly) parallel to the
+    /// image plane.
+    #[error("{camera}: degenerate views — the boards are all (nearly) fronto-parallel (largest tilt {max_tilt_deg:.1}°, need ≥ {min_tilt_deg:.0}°); tilt the board 20–45° in several directions")]
+    Degenerate {
+        /// Which camera.
+        camera: String,
+        /// Largest board tilt among the views, degrees.
+        max_tilt_deg: f64,
+        /// Smallest acceptable largest tilt, degrees.
+        min_tilt_deg: f64,
+    },
+    /// Images of one camera do not all have the same size.
+    #[error("{camera}: image '{image}' is {got_w}x{got_h} but the first image is {want_w}x{want_h}; all images of one camera must have the same size")]
+    MixedSizes {
+        /// Which camera.
+        camera: String,
+        /// The odd image.
+        image: String,
+        /// Its width.
+        got_w: usize,
+        /// Its height.
+        got_h: usize,
+        /// The first image's width.
+        want_w: usize,
+        /// The first image's height.
+        want_h: usize,
+    },
+    /// A colour/IR pair where only one image shows the board.
+    #[error("pair {pair}: the board is found in the {found} image '{found_image}' but not in the {missing} image '{missing_image}'; remove the pair or pass --allow-unpaired to use such images for that camera's intrinsics only")]
+    UnpairedView {
+        /// The pair's index (0-based) or name.
+        pair: String,
+        /// Camera that has the board.
+        found: String,
+        /// Image that has the board.
+        found_image: String,
+        /// Camera that lacks it.
+        missing: String,
+        /// Image that lacks it.
+        missing_image: String,
+    },
+    /// The optimisation did not produce finite parameters.
+    #[error("{camera}: the optimisation diverged ({message}); check the board size and square length")]
+    Diverged {
+        /// Which camera.
+        camera: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// Invalid argument (board size, square length, flags).
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's error.
+        source: std::io::Error,
+    },
+    /// A file was read but its content is not what was expected.
+    #[error("{path}: {message}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+    /// An error of the geometry core (rig file, atomic write).
+    #[error(transparent)]
+    Geometry(#[from] geometry::GeometryError),
+}

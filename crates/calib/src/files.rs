@@ -1,0 +1,133 @@
+//! Calibration files: the rig JSON (`geometry::Rig` with its `calibration` report), a
+//! single-camera JSON, and OpenCV FileStorage YAML export. Writing goes through
+//! `geometry::io::atomic` (temporary file + rename), so a failed run leaves nothing half-written.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use geometry::io::atomic::write_bytes_atomic;
+use geometry::{CameraModel, Rig, RigidTransform};
+use serde_json::{json, Value};
+
+use crate::mono::{IntrinsicsStd, MonoCalibration};
+use crate::{Board, CalibError, StereoCalibration};
+
+/// Handout thresholds (lab L2): colour RMS must stay below 0.2 px, IR below 0.4 px.
+pub const COLOR_RMS_LIMIT_PX: f64 = 0.2;
+/// See [`COLOR_RMS_LIMIT_PX`].
+pub const DEPTH_RMS_LIMIT_PX: f64 = 0.4;
+
+fn std_json(s: &IntrinsicsStd) -> Value {
+    json!({"fx": s.fx, "fy": s.fy, "cx": s.cx, "cy": s.cy, "skew": s.skew,
+           "k1": s.k1, "k2": s.k2, "p1": s.p1, "p2": s.p2, "k3": s.k3})
+}
+
+/// The report of one camera's calibration (JSON).
+pub fn mono_report(m: &MonoCalibration) -> Value {
+    json!({
+        "rms_px": m.rms_px,
+        "sigma_px": m.sigma_px,
+        "std_1sigma": std_json(&m.std),
+        "flags": m.flags,
+        "fold_radius_normalised": m.camera.distortion.fold_radius(),
+        "images": m.views.iter().map(|v| json!({
+            "name": v.name, "rms_px": if v.rms_px.is_finite() { json!(v.rms_px) } else { Value::Null },
+            "corners": v.n_corners, "tilt_deg": if v.tilt_deg.is_finite() { json!(v.tilt_deg) } else { Value::Null },
+            "rejected": v.rejected,
+        })).collect::<Vec<_>>(),
+        "rejected_corners": m.rejected_corners,
+    })
+}
+
+fn board_json(board: &Board) -> Value {
+    json!({"inner_corners_cols": board.cols, "inner_corners_rows": board.rows, "square_m": board.square_m,
+           "top_left_black": board.top_left_black})
+}
+
+/// The rig of a stereo calibration, with the full report in its `calibration` field.
+pub fn stereo_rig(s: &StereoCalibration, board: &Board) -> Rig {
+    let mut rig = Rig::new(s.depth, s.color, s.color_from_depth);
+    let r = s.rotation_std_rad;
+    let t = s.translation_std_m;
+    rig.calibration = Some(json!({
+        "tool": concat!("kfuse calibrate ", env!("CARGO_PKG_VERSION")),
+        "units": "px for errors and intrinsics σ, metres for translations, radians for rotations; σ are 1σ",
+        "board": board_json(board),
+        "rms_px": s.rms_px,
+        "depth_rms_px": s.depth_rms_px,
+        "color_rms_px": s.color_rms_px,
+        "depth_std_1sigma": std_json(&s.depth_std),
+        "color_std_1sigma": std_json(&s.color_std),
+        "color_from_depth_rotation_std_rad": [r.x, r.y, r.z],
+        "color_from_depth_translation_std_m": [t.x, t.y, t.z],
+        "pairs_used": s.pairs_used,
+        "per_pair_rms_px": s.view_rms_px.iter().map(|(d, c)| json!({
+            "depth": if d.is_finite() { json!(d) } else { Value::Null },
+            "color": if c.is_finite() { json!(c) } else { Value::Null },
+        })).collect::<Vec<_>>(),
+        "rejected_views": s.rejected_views.iter().map(|(i, why)| json!({"pair": i, "reason": why})).collect::<Vec<_>>(),
+        "rejected_corners": s.rejected_corners,
+        "depth_single_camera": mono_report(&s.depth_mono),
+        "color_single_camera": mono_report(&s.color_mono),
+    }));
+    rig
+}
+
+/// A single-camera calibration file (`format: kfuse-camera`).
+pub fn camera_json(m: &MonoCalibration, board: &Board, role: &str) -> String {
+    let mut report = mono_report(m);
+    report["board"] = board_json(board);
+    let v = json!({
+        "format": "kfuse-camera", "version": 1, "role": role,
+        "units": "intrinsics in pixels",
+        "camera": m.camera,
+        "calibration": report,
+    });
+    serde_json::to_string_pretty(&v).unwrap_or_default()
+}
+
+fn yaml_matrix(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
+    let values: Vec<String> = data.iter().map(|v| format!("{v:.17e}")).collect();
+    let _ = writeln!(out, "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]", values.join(", "));
+}
+
+fn k_of(c: &CameraModel) -> [f64; 9] {
+    let k = c.intrinsics;
+    [k.fx, k.skew, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
+}
+
+/// OpenCV FileStorage YAML of one camera (`cv::FileStorage` reads it: `camera_matrix`,
+/// `distortion_coefficients`, `image_width`, `image_height`).
+pub fn opencv_yaml_camera(c: &CameraModel) -> String {
+    let mut s = String::from("%YAML:1.0\n---\n");
+    let _ = writeln!(s, "image_width: {}\nimage_height: {}", c.width, c.height);
+    yaml_matrix(&mut s, "camera_matrix", 3, 3, &k_of(c));
+    yaml_matrix(&mut s, "distortion_coefficients", 1, 5, &c.distortion.to_array());
+    s
+}
+
+/// OpenCV FileStorage YAML of a rig in `stereoCalibrate`'s naming: camera 1 = depth/IR
+/// (`M1`, `D1`), camera 2 = colour (`M2`, `D2`), `R`, `T` with `X_2 = R·X_1 + T`. `T` is in
+/// metres (`T_units: m`); multiply by 1000 for a board measured in millimetres.
+pub fn opencv_yaml_rig(rig: &Rig) -> String {
+    let mut s = String::from("%YAML:1.0\n---\n");
+    let _ = writeln!(s, "image_width_1: {}\nimage_height_1: {}", rig.depth.width, rig.depth.height);
+    let _ = writeln!(s, "image_width_2: {}\nimage_height_2: {}", rig.color.width, rig.color.height);
+    yaml_matrix(&mut s, "M1", 3, 3, &k_of(&rig.depth));
+    yaml_matrix(&mut s, "D1", 1, 5, &rig.depth.distortion.to_array());
+    yaml_matrix(&mut s, "M2", 3, 3, &k_of(&rig.color));
+    yaml_matrix(&mut s, "D2", 1, 5, &rig.color.distortion.to_array());
+    let cfd: &RigidTransform = &rig.color_from_depth;
+    let r = cfd.rotation.matrix();
+    let rd: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
+    yaml_matrix(&mut s, "R", 3, 3, &rd);
+    yaml_matrix(&mut s, "T", 3, 1, &[cfd.translation.x, cfd.translation.y, cfd.translation.z]);
+    let _ = writeln!(s, "T_units: m");
+    s
+}
+
+/// Writes text atomically.
+pub fn write_text(path: &Path, text: &str) -> Result<(), CalibError> {
+    write_bytes_atomic(path, text.as_bytes())?;
+    Ok(())
+}

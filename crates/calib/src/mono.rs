@@ -1,0 +1,504 @@
+//! Single-camera calibration: Zhang initialisation, LM refinement, uncertainty, and
+//! automatic (always reported) corner and view outlier rejection.
+
+use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
+use nalgebra::Vector2;
+use serde::{Deserialize, Serialize};
+
+use crate::bundle::{CamState, Obs, Problem, Solution, INTR_NAMES, N_INTR};
+use crate::zhang::{focal_with_principal_point, homography, pose_from_homography, tilt_deg, zhang_intrinsics};
+use crate::{Board, CalibError, ViewCorners};
+
+/// A calibration needs three views: two leave Zhang's system with no redundancy.
+pub const MIN_VIEWS: usize = 3;
+/// Corners a view needs to give a homography with some redundancy.
+pub const MIN_CORNERS_PER_VIEW: usize = 6;
+/// Largest board tilt below which the views are called fronto-parallel (focal length
+/// unobservable): 3° foreshortens a 7x5 board by < 0.2 px at Kinect resolutions.
+pub const MIN_MAX_TILT_DEG: f64 = 3.0;
+/// A corner whose error exceeds this many robust σ is an outlier. 6σ keeps a false alarm
+/// below 1e-7 per corner for Gaussian noise, while a 4 px mis-detection on 0.3 px noise is 13σ.
+pub const CORNER_OUTLIER_SIGMAS: f64 = 6.0;
+/// Corners closer than this are never called outliers, whatever the noise estimate: real IR
+/// corners have heavy-tailed errors up to ~1.2 px (kinect-lab, OpenCV's and Bouguet's corners
+/// alike), while a mis-detection is 4–7 px.
+pub const CORNER_OUTLIER_MIN_PX: f64 = 1.5;
+/// A view whose RMS exceeds this multiple of the median view RMS is an outlier view.
+pub const VIEW_OUTLIER_FACTOR: f64 = 3.0;
+/// Views below this RMS are never rejected (the handout's colour bar is 0.2 px).
+pub const VIEW_OUTLIER_MIN_PX: f64 = 0.5;
+/// Median of the Rayleigh distribution in units of σ: turns the median corner error into a
+/// per-axis noise estimate.
+const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_6;
+
+/// What to estimate (OpenCV's and Bouguet's flags).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CalibFlags {
+    /// Keep `cx, cy` (at the guess, or at the image centre `((w-1)/2, (h-1)/2)`).
+    pub fix_principal_point: bool,
+    /// Keep `fy / fx` at the guess's ratio (1 without a guess).
+    pub fix_aspect_ratio: bool,
+    /// Skew fixed at zero (default; OpenCV has no skew, Bouguet's `est_alpha = 0`).
+    pub zero_skew: bool,
+    /// Keep `k3` (at 0 without a guess). Bouguet's default.
+    pub fix_k3: bool,
+    /// `p1 = p2 = 0`, not estimated.
+    pub zero_tangential: bool,
+    /// Start from the given camera instead of Zhang's closed form.
+    pub use_intrinsic_guess: bool,
+    /// Keep the intrinsics entirely (stereo with known cameras).
+    pub fix_intrinsics: bool,
+    /// Reject corner and view outliers (always reported). Off reproduces OpenCV, which has
+    /// no rejection.
+    pub reject_outliers: bool,
+}
+
+impl Default for CalibFlags {
+    /// OpenCV's standard 5-coefficient model: everything but skew estimated.
+    fn default() -> Self {
+        Self {
+            fix_principal_point: false,
+            fix_aspect_ratio: false,
+            zero_skew: true,
+            fix_k3: false,
+            zero_tangential: false,
+            use_intrinsic_guess: false,
+            fix_intrinsics: false,
+            reject_outliers: true,
+        }
+    }
+}
+
+impl CalibFlags {
+    /// The lab's Bouguet settings: principal point fixed at the centre, k3 = 0, no skew.
+    pub fn bouguet() -> Self {
+        Self { fix_principal_point: true, fix_k3: true, ..Self::default() }
+    }
+
+    pub(crate) fn free_mask(&self) -> [bool; N_INTR] {
+        if self.fix_intrinsics {
+            return [false; N_INTR];
+        }
+        [
+            true,
+            !self.fix_aspect_ratio,
+            !self.fix_principal_point,
+            !self.fix_principal_point,
+            !self.zero_skew,
+            true,
+            true,
+            !self.zero_tangential,
+            !self.zero_tangential,
+            !self.fix_k3,
+        ]
+    }
+}
+
+/// One standard deviation of every intrinsic parameter (0 for fixed ones), same units as the
+/// parameter. From `(JᵀJ)⁻¹ · σ²` with `σ² = Σ|e|² / (2·N_corners − N_params)` (OpenCV's
+/// `calibrateCameraExtended`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct IntrinsicsStd {
+    /// σ of fx, px.
+    pub fx: f64,
+    /// σ of fy, px.
+    pub fy: f64,
+    /// σ of cx, px.
+    pub cx: f64,
+    /// σ of cy, px.
+    pub cy: f64,
+    /// σ of skew, px.
+    pub skew: f64,
+    /// σ of k1.
+    pub k1: f64,
+    /// σ of k2.
+    pub k2: f64,
+    /// σ of p1.
+    pub p1: f64,
+    /// σ of p2.
+    pub p2: f64,
+    /// σ of k3.
+    pub k3: f64,
+}
+
+impl IntrinsicsStd {
+    /// From solver order `fx, fy, cx, cy, skew, k1, k2, p1, p2, k3`.
+    pub fn from_array(a: [f64; N_INTR]) -> Self {
+        Self { fx: a[0], fy: a[1], cx: a[2], cy: a[3], skew: a[4], k1: a[5], k2: a[6], p1: a[7], p2: a[8], k3: a[9] }
+    }
+    /// In solver order `fx, fy, cx, cy, skew, k1, k2, p1, p2, k3`.
+    pub fn to_array(&self) -> [f64; N_INTR] {
+        [self.fx, self.fy, self.cx, self.cy, self.skew, self.k1, self.k2, self.p1, self.p2, self.k3]
+    }
+}
+
+/// Per-view outcome.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewReport {
+    /// Image name.
+    pub name: String,
+    /// `camera_from_board`, metres (None for a rejected view).
+    #[serde(skip)]
+    pub camera_from_board: Option<RigidTransform>,
+    /// RMS reprojection error over the view's used corners, px.
+    pub rms_px: f64,
+    /// Corners used.
+    pub n_corners: usize,
+    /// Board tilt, degrees.
+    pub tilt_deg: f64,
+    /// Why the view was left out, if it was.
+    pub rejected: Option<String>,
+}
+
+/// A corner left out as an outlier.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RejectedCorner {
+    /// Image name.
+    pub view: String,
+    /// Board index of the corner.
+    pub id: usize,
+    /// Its reprojection error when it was rejected, px.
+    pub error_px: f64,
+    /// The outlier threshold then, px.
+    pub threshold_px: f64,
+}
+
+/// The result of [`calibrate_mono`].
+#[derive(Debug, Clone)]
+pub struct MonoCalibration {
+    /// The calibrated camera.
+    pub camera: CameraModel,
+    /// σ of every intrinsic parameter.
+    pub std: IntrinsicsStd,
+    /// RMS reprojection error over all used corners, px (OpenCV's definition).
+    pub rms_px: f64,
+    /// Estimated per-axis corner noise σ = sqrt(Σ|e|² / (2·N_corners − N_params)), px.
+    pub sigma_px: f64,
+    /// Every input view in input order, with its RMS or why it was rejected.
+    pub views: Vec<ViewReport>,
+    /// Corners rejected as outliers.
+    pub rejected_corners: Vec<RejectedCorner>,
+    /// The flags used.
+    pub flags: CalibFlags,
+    /// LM iterations of the last run.
+    pub iterations: usize,
+    /// Residuals of every used corner: (view index, corner id, observed px, error px vector).
+    pub residuals: Vec<(usize, usize, Vector2<f64>, Vector2<f64>)>,
+}
+
+pub(crate) fn initial_camera(
+    camera: &str,
+    board: &Board,
+    views: &[&ViewCorners],
+    flags: &CalibFlags,
+    guess: Option<&CameraModel>,
+    width: usize,
+    height: usize,
+) -> Result<(Intrinsics, Distortion, Vec<RigidTransform>), CalibError> {
+    let hs: Vec<_> = views
+        .iter()
+        .map(|v| {
+            let plane: Vec<_> = v.corners.iter().map(|c| board.object_point(c.id).xy()).collect();
+            let px: Vec<_> = v.corners.iter().map(|c| c.px).collect();
+            homography(&plane, &px)
+        })
+        .collect();
+    let valid: Vec<_> = hs.iter().flatten().copied().collect();
+    let centre = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
+    let (mut intr, dist) = match guess.filter(|_| flags.use_intrinsic_guess) {
+        Some(g) => (g.intrinsics, g.distortion),
+        None => {
+            let zhang = (!flags.fix_principal_point).then(|| zhang_intrinsics(&valid, width, height)).flatten();
+            let k = match zhang {
+                Some(k) => k,
+                None => {
+                    let (cx, cy) = match guess {
+                        Some(g) if flags.fix_principal_point => (g.intrinsics.cx, g.intrinsics.cy),
+                        _ => centre,
+                    };
+                    let (fx, fy) = focal_with_principal_point(&valid, cx, cy).ok_or_else(|| CalibError::Degenerate {
+                        camera: camera.into(),
+                        max_tilt_deg: 0.0,
+                        min_tilt_deg: MIN_MAX_TILT_DEG,
+                    })?;
+                    Intrinsics::new(fx, fy, cx, cy)
+                }
+            };
+            (k, Distortion::NONE)
+        }
+    };
+    if flags.fix_aspect_ratio && !flags.use_intrinsic_guess {
+        let f = 0.5 * (intr.fx + intr.fy);
+        intr.fx = f;
+        intr.fy = f;
+    }
+    let mut poses = Vec::with_capacity(views.len());
+    for (v, h) in views.iter().zip(&hs) {
+        let pose = h.as_ref().and_then(|h| pose_from_homography(h, &intr)).ok_or_else(|| CalibError::Diverged {
+            camera: camera.into(),
+            message: format!("no board pose for view '{}' from its homography", v.name),
+        })?;
+        poses.push(pose);
+    }
+    let max_tilt = poses.iter().map(tilt_deg).fold(0.0_f64, f64::max);
+    if max_tilt < MIN_MAX_TILT_DEG || !(intr.fx.is_finite() && intr.fx > 0.0) {
+        return Err(CalibError::Degenerate { camera: camera.into(), max_tilt_deg: max_tilt, min_tilt_deg: MIN_MAX_TILT_DEG });
+    }
+    Ok((intr, dist, poses))
+}
+
+/// Checks sizes and counts, returns the image size and the usable views' indices.
+pub(crate) fn usable_views(camera: &str, board: &Board, views: &[ViewCorners]) -> Result<(usize, usize, Vec<usize>), CalibError> {
+    let Some(first) = views.first() else {
+        return Err(CalibError::TooFewViews { camera: camera.into(), usable: 0, needed: MIN_VIEWS });
+    };
+    for v in views {
+        if (v.width, v.height) != (first.width, first.height) {
+            return Err(CalibError::MixedSizes {
+                camera: camera.into(),
+                image: v.name.clone(),
+                got_w: v.width,
+                got_h: v.height,
+                want_w: first.width,
+                want_h: first.height,
+            });
+        }
+    }
+    let usable: Vec<usize> = (0..views.len()).filter(|&i| views[i].corners.len() >= MIN_CORNERS_PER_VIEW).collect();
+    if usable.is_empty() && views.iter().all(|v| v.corners.is_empty()) {
+        return Err(CalibError::NoBoard { camera: camera.into(), images: views.len(), cols: board.cols, rows: board.rows });
+    }
+    if usable.len() < MIN_VIEWS {
+        return Err(CalibError::TooFewViews { camera: camera.into(), usable: usable.len(), needed: MIN_VIEWS });
+    }
+    Ok((first.width, first.height, usable))
+}
+
+/// Robust per-axis noise σ from the median corner error.
+pub(crate) fn robust_sigma(errors: &mut [f64]) -> f64 {
+    if errors.is_empty() {
+        return 0.0;
+    }
+    errors.sort_by(f64::total_cmp);
+    errors[errors.len() / 2] / RAYLEIGH_MEDIAN
+}
+
+/// One round of corner outlier rejection on a solved problem: deactivates, per view, the worst
+/// corner above the threshold. Returns the rejected corners.
+pub(crate) fn reject_corner_outliers(p: &mut Problem, view_names: &dyn Fn(usize, usize) -> String) -> Vec<RejectedCorner> {
+    let mut errs: Vec<f64> = p.obs.iter().filter(|o| o.active && p.view_active[o.view]).map(|o| p.residual(o).norm()).collect();
+    let sigma = robust_sigma(&mut errs);
+    let threshold = (CORNER_OUTLIER_SIGMAS * sigma).max(CORNER_OUTLIER_MIN_PX);
+    let mut worst: std::collections::BTreeMap<(usize, usize), (usize, f64)> = Default::default();
+    for (i, o) in p.obs.iter().enumerate() {
+        if !(o.active && p.view_active[o.view]) {
+            continue;
+        }
+        let e = p.residual(o).norm();
+        if e > threshold {
+            let w = worst.entry((o.cam, o.view)).or_insert((i, e));
+            if e > w.1 {
+                *w = (i, e);
+            }
+        }
+    }
+    worst
+        .values()
+        .map(|&(i, e)| {
+            p.obs[i].active = false;
+            RejectedCorner { view: view_names(p.obs[i].cam, p.obs[i].view), id: p.obs[i].id, error_px: e, threshold_px: threshold }
+        })
+        .collect()
+}
+
+/// Per-camera, per-view RMS of the active observations.
+pub(crate) fn view_rms(p: &Problem, cam: usize) -> Vec<(f64, usize)> {
+    let mut acc = vec![(0.0, 0usize); p.ref_from_board.len()];
+    for o in p.obs.iter().filter(|o| o.active && o.cam == cam && p.view_active[o.view]) {
+        acc[o.view].0 += p.residual(o).norm_squared();
+        acc[o.view].1 += 1;
+    }
+    acc.into_iter().map(|(s, n)| (if n > 0 { (s / n as f64).sqrt() } else { 0.0 }, n)).collect()
+}
+
+/// σ of camera `c`'s intrinsics from a solution.
+pub(crate) fn intrinsics_std(sol: &Solution, c: usize, sigma2: f64) -> IntrinsicsStd {
+    let mut out = [0.0; N_INTR];
+    if let Some(cov) = &sol.covariance_unscaled {
+        for (i, col) in sol.layout.intr_col[c].iter().enumerate() {
+            if let Some(col) = col {
+                out[i] = (cov[(*col, *col)] * sigma2).max(0.0).sqrt();
+            }
+        }
+    }
+    IntrinsicsStd::from_array(out)
+}
+
+/// σ² = Σ|e|² / (N_residuals − N_params), OpenCV's residual variance; every corner gives two
+/// residuals (x and y), so N_residuals = 2·N_corners.
+pub(crate) fn residual_variance(sol: &Solution) -> f64 {
+    let dof = 2.0 * sol.n_active_obs as f64 - sol.n_params as f64;
+    if dof > 0.0 { sol.cost / dof } else { f64::NAN }
+}
+
+/// Calibrates one camera from labelled corners.
+///
+/// `views` must all have the same image size; views with fewer than
+/// [`MIN_CORNERS_PER_VIEW`] corners are reported as rejected. After the first fit, corner
+/// outliers (> [`CORNER_OUTLIER_SIGMAS`] robust σ) and then view outliers (RMS >
+/// [`VIEW_OUTLIER_FACTOR`] × median) are removed one round at a time and the fit repeated;
+/// every removal is listed in the result.
+pub fn calibrate_mono(
+    camera: &str,
+    board: &Board,
+    views: &[ViewCorners],
+    flags: &CalibFlags,
+    guess: Option<&CameraModel>,
+) -> Result<MonoCalibration, CalibError> {
+    let (width, height, usable) = usable_views(camera, board, views)?;
+    let used: Vec<&ViewCorners> = usable.iter().map(|&i| &views[i]).collect();
+    let (intr, dist, poses) = initial_camera(camera, board, &used, flags, guess, width, height)?;
+    let mut free = flags.free_mask();
+    let aspect = flags.fix_aspect_ratio.then(|| intr.fy / intr.fx);
+    if aspect.is_some() {
+        free[1] = false;
+    }
+    let mut obs = Vec::new();
+    for (vi, v) in used.iter().enumerate() {
+        for c in &v.corners {
+            obs.push(Obs { cam: 0, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true });
+        }
+    }
+    let mut p = Problem {
+        cams: vec![CamState { intr, dist, free, aspect }],
+        cam_from_ref: vec![RigidTransform::identity()],
+        extrinsics_free: false,
+        ref_from_board: poses,
+        view_active: vec![true; used.len()],
+        obs,
+    };
+    let names: Vec<String> = used.iter().map(|v| v.name.clone()).collect();
+    let (sol, rejected_corners, view_rejections) = solve_with_outliers(camera, &mut p, &|_, v| names[v].clone(), 1, flags.reject_outliers)?;
+    let sigma2 = residual_variance(&sol);
+    let std = intrinsics_std(&sol, 0, sigma2);
+    let rms = view_rms(&p, 0);
+    let mut views_out: Vec<ViewReport> = views
+        .iter()
+        .map(|v| ViewReport {
+            name: v.name.clone(),
+            camera_from_board: None,
+            rms_px: f64::NAN,
+            n_corners: v.corners.len(),
+            tilt_deg: f64::NAN,
+            rejected: Some(if v.corners.is_empty() {
+                "no board found".to_string()
+            } else {
+                format!("only {} corners (need {MIN_CORNERS_PER_VIEW})", v.corners.len())
+            }),
+        })
+        .collect();
+    for (vi, &orig) in usable.iter().enumerate() {
+        let r = &mut views_out[orig];
+        r.rms_px = rms[vi].0;
+        r.n_corners = rms[vi].1;
+        r.tilt_deg = tilt_deg(&p.ref_from_board[vi]);
+        r.camera_from_board = p.view_active[vi].then_some(p.ref_from_board[vi]);
+        r.rejected = view_rejections.iter().find(|(v, _)| *v == vi).map(|(_, why)| why.clone());
+    }
+    let residuals = p
+        .obs
+        .iter()
+        .filter(|o| o.active && p.view_active[o.view])
+        .map(|o| (usable[o.view], o.id, o.pixel, p.residual(o)))
+        .collect();
+    let c = &p.cams[0];
+    Ok(MonoCalibration {
+        camera: CameraModel::new(width, height, c.intr, c.dist),
+        std,
+        rms_px: (sol.cost / sol.n_active_obs.max(1) as f64).sqrt(),
+        sigma_px: sigma2.sqrt(),
+        views: views_out,
+        rejected_corners,
+        flags: *flags,
+        iterations: sol.iterations,
+        residuals,
+    })
+}
+
+/// Final solution, rejected corners, and `(view, reason)` of rejected views.
+pub(crate) type Outcome = (Solution, Vec<RejectedCorner>, Vec<(usize, String)>);
+
+/// Solve, then alternately reject corner outliers and outlier views until none remain.
+/// Returns the final solution, the rejected corners and `(view, reason)` of rejected views.
+pub(crate) fn solve_with_outliers(
+    camera: &str,
+    p: &mut Problem,
+    names: &dyn Fn(usize, usize) -> String,
+    n_cams: usize,
+    reject_outliers: bool,
+) -> Result<Outcome, CalibError> {
+    let mut sol = p.solve();
+    check_finite(camera, p)?;
+    let mut rejected_corners = Vec::new();
+    let mut rejected_views = Vec::new();
+    let rounds = if reject_outliers { 50 } else { 0 };
+    for _round in 0..rounds {
+        let r = reject_corner_outliers(p, names);
+        if !r.is_empty() {
+            rejected_corners.extend(r);
+            sol = p.solve();
+            check_finite(camera, p)?;
+            continue;
+        }
+        // View outliers, one per round, never below MIN_VIEWS active views.
+        let active_views = p.view_active.iter().filter(|&&a| a).count();
+        if active_views <= MIN_VIEWS {
+            break;
+        }
+        let mut worst: Option<(usize, f64, f64)> = None;
+        for cam in 0..n_cams {
+            let rms = view_rms(p, cam);
+            let mut vals: Vec<f64> = rms.iter().enumerate().filter(|(v, r)| p.view_active[*v] && r.1 > 0).map(|(_, r)| r.0).collect();
+            if vals.is_empty() {
+                continue;
+            }
+            vals.sort_by(f64::total_cmp);
+            let median = vals[vals.len() / 2];
+            for (v, r) in rms.iter().enumerate() {
+                if p.view_active[v]
+                    && r.1 > 0
+                    && r.0 > VIEW_OUTLIER_FACTOR * median
+                    && r.0 > VIEW_OUTLIER_MIN_PX
+                    && worst.is_none_or(|w| r.0 / median > w.1 / w.2)
+                {
+                    worst = Some((v, r.0, median));
+                }
+            }
+        }
+        let Some((v, rms, median)) = worst else { break };
+        p.view_active[v] = false;
+        rejected_views.push((
+            v,
+            format!("outlier view: RMS {rms:.3} px > {VIEW_OUTLIER_FACTOR} × median {median:.3} px"),
+        ));
+        sol = p.solve();
+        check_finite(camera, p)?;
+    }
+    Ok((sol, rejected_corners, rejected_views))
+}
+
+fn check_finite(camera: &str, p: &Problem) -> Result<(), CalibError> {
+    for c in &p.cams {
+        let k = c.intr;
+        let all = [k.fx, k.fy, k.cx, k.cy, k.skew].into_iter().chain(c.dist.to_array());
+        if all.into_iter().any(|v| !v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
+            return Err(CalibError::Diverged { camera: camera.into(), message: format!("intrinsics became {k:?}") });
+        }
+    }
+    Ok(())
+}
+
+/// Names of the intrinsic parameters in the order of [`IntrinsicsStd::to_array`].
+pub fn intrinsic_names() -> [&'static str; N_INTR] {
+    INTR_NAMES
+}

@@ -1,0 +1,215 @@
+//! Stereo calibration of the depth/IR + colour pair: per-camera calibration, then a joint
+//! Levenberg–Marquardt refinement of both cameras' intrinsics (optionally fixed),
+//! `color_from_depth` and the shared board poses.
+
+use geometry::{CameraModel, RigidTransform};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::bundle::{CamState, Obs, Problem};
+use crate::mono::{
+    intrinsics_std, residual_variance, solve_with_outliers, view_rms, CalibFlags, IntrinsicsStd, MonoCalibration,
+    RejectedCorner, MIN_VIEWS,
+};
+use crate::{calibrate_mono, Board, CalibError, ViewCorners};
+
+/// Options of [`calibrate_stereo`].
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct StereoOptions {
+    /// Flags of the depth/IR camera.
+    pub depth_flags: CalibFlags,
+    /// Flags of the colour camera.
+    pub color_flags: CalibFlags,
+    /// Keep both cameras' intrinsics at their single-camera values (OpenCV's
+    /// `CALIB_FIX_INTRINSIC`); only `color_from_depth` and the board poses move.
+    pub fix_intrinsics: bool,
+}
+
+/// The result of [`calibrate_stereo`].
+#[derive(Debug, Clone)]
+pub struct StereoCalibration {
+    /// Depth/IR camera after the joint refinement.
+    pub depth: CameraModel,
+    /// Colour camera after the joint refinement.
+    pub color: CameraModel,
+    /// `X_color = R·X_depth + T`, metres.
+    pub color_from_depth: RigidTransform,
+    /// σ of the depth camera's intrinsics.
+    pub depth_std: IntrinsicsStd,
+    /// σ of the colour camera's intrinsics.
+    pub color_std: IntrinsicsStd,
+    /// σ of the rotation of `color_from_depth` (small-angle components about x, y, z), rad.
+    pub rotation_std_rad: Vector3<f64>,
+    /// σ of the translation of `color_from_depth`, metres. With `fix_intrinsics` it is
+    /// conditional on the fixed intrinsics and understates the real error.
+    pub translation_std_m: Vector3<f64>,
+    /// RMS over both cameras' corners, px.
+    pub rms_px: f64,
+    /// Per-camera RMS after the joint refinement, px.
+    pub depth_rms_px: f64,
+    /// Per-camera RMS after the joint refinement, px.
+    pub color_rms_px: f64,
+    /// Per view: (depth RMS, colour RMS), px; NaN where that camera has no corners.
+    pub view_rms_px: Vec<(f64, f64)>,
+    /// Views (pair index) seen by both cameras and used.
+    pub pairs_used: Vec<usize>,
+    /// Views rejected in the joint fit, with the reason.
+    pub rejected_views: Vec<(usize, String)>,
+    /// Corners rejected in the joint fit.
+    pub rejected_corners: Vec<RejectedCorner>,
+    /// The single-camera calibrations the joint fit started from.
+    pub depth_mono: MonoCalibration,
+    /// The single-camera calibrations the joint fit started from.
+    pub color_mono: MonoCalibration,
+}
+
+/// Average of rigid transforms (quaternion mean with sign alignment, mean translation).
+fn average(ts: &[RigidTransform]) -> RigidTransform {
+    let q0 = UnitQuaternion::from_rotation_matrix(&ts[0].rotation);
+    let mut sum = Quaternion::new(0.0, 0.0, 0.0, 0.0);
+    let mut t = Vector3::zeros();
+    for x in ts {
+        let q = UnitQuaternion::from_rotation_matrix(&x.rotation);
+        let q = if q.coords.dot(&q0.coords) < 0.0 { -q.into_inner() } else { q.into_inner() };
+        sum += q;
+        t += x.translation;
+    }
+    let q = UnitQuaternion::from_quaternion(sum);
+    RigidTransform::new(q.to_rotation_matrix(), t / ts.len() as f64)
+}
+
+/// Calibrates the pair. `depth_views[i]` and `color_views[i]` are the two images of pair `i`
+/// (an image without a board has no corners). Each camera is first calibrated alone (with its
+/// own outlier rejection); pairs in which both cameras' views survived initialise
+/// `color_from_depth`, and the joint fit then uses every surviving view of either camera.
+pub fn calibrate_stereo(
+    board: &Board,
+    depth_views: &[ViewCorners],
+    color_views: &[ViewCorners],
+    options: &StereoOptions,
+    depth_guess: Option<&CameraModel>,
+    color_guess: Option<&CameraModel>,
+) -> Result<StereoCalibration, CalibError> {
+    if depth_views.len() != color_views.len() {
+        return Err(CalibError::InvalidArgument(format!(
+            "{} depth/IR images but {} colour images: give one image of each camera per board pose",
+            depth_views.len(),
+            color_views.len()
+        )));
+    }
+    let depth_mono = calibrate_mono("depth/IR camera", board, depth_views, &options.depth_flags, depth_guess)?;
+    let color_mono = calibrate_mono("colour camera", board, color_views, &options.color_flags, color_guess)?;
+    let pose = |m: &MonoCalibration, i: usize| m.views[i].camera_from_board.filter(|_| m.views[i].rejected.is_none());
+    let pairs: Vec<usize> =
+        (0..depth_views.len()).filter(|&i| pose(&depth_mono, i).is_some() && pose(&color_mono, i).is_some()).collect();
+    if pairs.len() < MIN_VIEWS {
+        return Err(CalibError::TooFewViews { camera: "stereo pairs (board seen by both cameras)".into(), usable: pairs.len(), needed: MIN_VIEWS });
+    }
+    let estimates: Vec<RigidTransform> = pairs
+        .iter()
+        .filter_map(|&i| Some(pose(&color_mono, i)?.compose(&pose(&depth_mono, i)?.inverse())))
+        .collect();
+    let color_from_depth = average(&estimates);
+
+    let mut views_idx = Vec::new();
+    let mut ref_from_board = Vec::new();
+    for i in 0..depth_views.len() {
+        let init = match (pose(&depth_mono, i), pose(&color_mono, i)) {
+            (Some(d), _) => d,
+            (None, Some(c)) => color_from_depth.inverse().compose(&c),
+            (None, None) => continue,
+        };
+        views_idx.push(i);
+        ref_from_board.push(init);
+    }
+    let mut obs = Vec::new();
+    for (vi, &i) in views_idx.iter().enumerate() {
+        for (cam, (views, mono)) in [(depth_views, &depth_mono), (color_views, &color_mono)].into_iter().enumerate() {
+            if pose(mono, i).is_none() {
+                continue;
+            }
+            for c in &views[i].corners {
+                obs.push(Obs { cam, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true });
+            }
+        }
+    }
+    let state = |m: &MonoCalibration, flags: &CalibFlags| {
+        let mut f = *flags;
+        f.fix_intrinsics |= options.fix_intrinsics;
+        let mut free = f.free_mask();
+        let aspect = f.fix_aspect_ratio.then(|| m.camera.intrinsics.fy / m.camera.intrinsics.fx);
+        if aspect.is_some() {
+            free[1] = false;
+        }
+        CamState { intr: m.camera.intrinsics, dist: m.camera.distortion, free, aspect }
+    };
+    let mut p = Problem {
+        cams: vec![state(&depth_mono, &options.depth_flags), state(&color_mono, &options.color_flags)],
+        cam_from_ref: vec![RigidTransform::identity(), color_from_depth],
+        extrinsics_free: true,
+        view_active: vec![true; ref_from_board.len()],
+        ref_from_board,
+        obs,
+    };
+    let names = |cam: usize, v: usize| {
+        let views = if cam == 0 { depth_views } else { color_views };
+        views[views_idx[v]].name.clone()
+    };
+    let (sol, rejected_corners, rejected) = solve_with_outliers(
+        "stereo",
+        &mut p,
+        &names,
+        2,
+        options.depth_flags.reject_outliers && options.color_flags.reject_outliers,
+    )?;
+    let sigma2 = residual_variance(&sol);
+    let mut rot_std = Vector3::zeros();
+    let mut t_std = Vector3::zeros();
+    if let (Some(cov), Some(col)) = (&sol.covariance_unscaled, sol.layout.extr_col[1]) {
+        for j in 0..3 {
+            rot_std[j] = (cov[(col + j, col + j)] * sigma2).max(0.0).sqrt();
+            t_std[j] = (cov[(col + 3 + j, col + 3 + j)] * sigma2).max(0.0).sqrt();
+        }
+    }
+    // The solver perturbs on the left (R ← exp(δ)R); σ of the axis-angle components equals
+    // σ of δ to first order for the small rotations of a Kinect rig.
+    let rms_d = view_rms(&p, 0);
+    let rms_c = view_rms(&p, 1);
+    let cam_rms = |cam: usize| {
+        let (s, n) = p
+            .obs
+            .iter()
+            .filter(|o| o.active && o.cam == cam && p.view_active[o.view])
+            .fold((0.0, 0usize), |(s, n), o| (s + p.residual(o).norm_squared(), n + 1));
+        (s / n.max(1) as f64).sqrt()
+    };
+    let mut view_rms_px = vec![(f64::NAN, f64::NAN); depth_views.len()];
+    for (vi, &i) in views_idx.iter().enumerate() {
+        if p.view_active[vi] {
+            view_rms_px[i] = (
+                if rms_d[vi].1 > 0 { rms_d[vi].0 } else { f64::NAN },
+                if rms_c[vi].1 > 0 { rms_c[vi].0 } else { f64::NAN },
+            );
+        }
+    }
+    let d = &p.cams[0];
+    let c = &p.cams[1];
+    Ok(StereoCalibration {
+        depth: CameraModel::new(depth_mono.camera.width, depth_mono.camera.height, d.intr, d.dist),
+        color: CameraModel::new(color_mono.camera.width, color_mono.camera.height, c.intr, c.dist),
+        color_from_depth: p.cam_from_ref[1],
+        depth_std: intrinsics_std(&sol, 0, sigma2),
+        color_std: intrinsics_std(&sol, 1, sigma2),
+        rotation_std_rad: rot_std,
+        translation_std_m: t_std,
+        rms_px: (sol.cost / sol.n_active_obs.max(1) as f64).sqrt(),
+        depth_rms_px: cam_rms(0),
+        color_rms_px: cam_rms(1),
+        view_rms_px,
+        pairs_used: pairs.into_iter().filter(|i| views_idx.iter().position(|v| v == i).is_some_and(|vi| p.view_active[vi])).collect(),
+        rejected_views: rejected.into_iter().map(|(v, why)| (views_idx[v], why)).collect(),
+        rejected_corners,
+        depth_mono,
+        color_mono,
+    })
+}

@@ -1,0 +1,136 @@
+//! The rendered set `synthetic-calib/`: detection and calibration against exact ground truth,
+//! and against OpenCV's results on the same images (`opencv_reference.json`).
+
+mod common;
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use calib::detect::{align_pair, detect_views, rotate_180};
+use calib::{calibrate_stereo, StereoOptions, ViewCorners};
+use common::*;
+use geometry::Image;
+use nalgebra::Vector2;
+
+fn load_gray(path: &Path) -> Image<u8> {
+    let img = image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).to_luma8();
+    Image::from_vec(img.width() as usize, img.height() as usize, img.into_raw()).unwrap()
+}
+
+/// (IR views, colour views aligned to their IR partner), detected once per test binary: the
+/// 15 colour PNGs are 1920x1080 and decoding them dominates the test time.
+fn views(data: &Path) -> &'static (Vec<ViewCorners>, Vec<ViewCorners>) {
+    static V: OnceLock<(Vec<ViewCorners>, Vec<ViewCorners>)> = OnceLock::new();
+    V.get_or_init(|| {
+        let run = |cam: &str| {
+            let imgs: Vec<(String, Image<u8>)> = (1..=15)
+                .map(|i| {
+                    let name = format!("{cam}/{cam}_{i:02}.png");
+                    let img = load_gray(&data.join("synthetic-calib").join(&name));
+                    (name, img)
+                })
+                .collect();
+            let refs: Vec<(String, &Image<u8>)> = imgs.iter().map(|(n, i)| (n.clone(), i)).collect();
+            detect_views(&refs, &board()).0
+        };
+        let ir = run("ir");
+        let color = run("color");
+        let color = ir.iter().zip(&color).map(|(d, c)| align_pair(d, c, &board())).collect();
+        (ir, color)
+    })
+}
+
+/// Mean corner error against the truth, allowing the board's 180° symmetry per view.
+fn corner_error(views: &[ViewCorners], gt: &serde_json::Value, cam: &str) -> (f64, f64, usize) {
+    let (mut sum, mut max, mut n) = (0.0, 0.0f64, 0);
+    for (i, v) in views.iter().enumerate() {
+        let truth = corners_from(&gt["views"][i][cam]["corners_px"], "", 0, 0);
+        let err = |v: &ViewCorners| v.corners.iter().map(|c| (c.px - truth.get(c.id).unwrap()).norm()).collect::<Vec<_>>();
+        let a = err(v);
+        let b = err(&rotate_180(v, &board()));
+        let e = if a.iter().sum::<f64>() <= b.iter().sum::<f64>() { a } else { b };
+        sum += e.iter().sum::<f64>();
+        max = e.iter().copied().fold(max, f64::max);
+        n += e.len();
+    }
+    (sum / n as f64, max, n)
+}
+
+#[test]
+fn rendered_corners_are_as_accurate_as_opencvs() {
+    let Some(data) = shared_data("rendered_corners_are_as_accurate_as_opencvs") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let cv = json(data.join("synthetic-calib/opencv_reference.json"));
+    let (ir, color) = views(&data);
+    for (cam, views, key) in [("ir", ir, "classic_ir"), ("color", color, "classic_color")] {
+        assert!(views.iter().all(|v| v.corners.len() == 35), "{cam}: {:?}", views.iter().map(|v| v.corners.len()).collect::<Vec<_>>());
+        let (mean, max, n) = corner_error(views, &gt, cam);
+        let theirs = f(&cv["detection_summary"][key]["mean_err_px"]);
+        eprintln!("{cam}: {n} corners, mean error {mean:.4} px (OpenCV classic {theirs:.4}), max {max:.3}");
+        // The bar of synthetic-calib/README.md: OpenCV's classic corners' mean error.
+        assert!(mean <= theirs, "{cam}: {mean} vs {theirs}");
+    }
+}
+
+#[test]
+fn rendered_pair_labels_agree_between_cameras() {
+    let Some(data) = shared_data("rendered_pair_labels_agree_between_cameras") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let (ir, color) = views(&data);
+    // Whether each camera's labelling equals the truth's or its 180° twin: a pair must agree
+    // (else the stereo fit would pair corner k with corner 34 − k).
+    for i in 0..15 {
+        let same = |v: &ViewCorners, cam: &str| {
+            let t = corners_from(&gt["views"][i][cam]["corners_px"], "", 0, 0);
+            v.corners.iter().all(|c| (c.px - t.get(c.id).unwrap()).norm() < 1.0)
+        };
+        assert_eq!(same(&ir[i], "ir"), same(&color[i], "color"), "view {}", i + 1);
+    }
+}
+
+#[test]
+fn rendered_stereo_beats_the_bars_and_opencv() {
+    let Some(data) = shared_data("rendered_stereo_beats_the_bars_and_opencv") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let cv = json(data.join("synthetic-calib/opencv_reference.json"));
+    let (ir, color) = views(&data);
+    let r = calibrate_stereo(&board(), ir, color, &StereoOptions::default(), None, None).unwrap();
+    let truth_cfd = gt_color_from_depth(&gt);
+    let dt = (r.color_from_depth.translation - truth_cfd.translation).norm() * 1000.0;
+    let dr = rotation_error_deg(&r.color_from_depth, &truth_cfd);
+    let joint = &cv["calibration_from_classic_corners"]["stereo"]["joint_standard5"];
+    let (cv_dt, cv_dr) = (f(&joint["T_error_norm_mm"]), f(&joint["rotation_error_deg"]));
+    eprintln!("stereo |dT| {dt:.4} mm (OpenCV {cv_dt:.4}), rotation {dr:.4}° (OpenCV {cv_dr:.4}), rms {:.4} / {:.4} px", r.depth_rms_px, r.color_rms_px);
+    for (cam, model, key, std) in [("ir", r.depth, "cam1", r.depth_std), ("color", r.color, "cam2", r.color_std)] {
+        let truth = gt_camera(&gt, cam);
+        let k = model.intrinsics;
+        let t = truth.intrinsics;
+        let c = &joint[key];
+        let efx = (k.fx / t.fx - 1.0).abs();
+        let efy = (k.fy / t.fy - 1.0).abs();
+        let epp = Vector2::new(k.cx - t.cx, k.cy - t.cy);
+        let cv_fx = (f(&c["fx"]) / t.fx - 1.0).abs();
+        let cv_fy = (f(&c["fy"]) / t.fy - 1.0).abs();
+        let cv_pp = Vector2::new(f(&c["cx"]) - t.cx, f(&c["cy"]) - t.cy);
+        eprintln!(
+            "{cam}: fx err {:.4}% (OpenCV {:.4}%), fy {:.4}% ({:.4}%), pp err ({:.3}, {:.3}) px (OpenCV ({:.3}, {:.3}))",
+            100.0 * efx, 100.0 * cv_fx, 100.0 * efy, 100.0 * cv_fy, epp.x, epp.y, cv_pp.x, cv_pp.y
+        );
+        // Honest uncertainty on the rendered images: the truth within ±3σ.
+        for (e, s) in [(k.fx - t.fx, std.fx), (k.fy - t.fy, std.fy), (k.cx - t.cx, std.cx), (k.cy - t.cy, std.cy)] {
+            assert!(e.abs() < 3.0 * s, "{cam}: error {e} vs σ {s}");
+        }
+        // Acceptance bars: 0.1 % on f, 0.5 px on the principal point.
+        assert!(efx < 1e-3 && efy < 1e-3, "{cam}");
+        assert!(epp.x.abs() < 0.5 && epp.y.abs() < 0.5, "{cam}");
+    }
+    let st = r.translation_std_m * 1000.0;
+    let et = (r.color_from_depth.translation - truth_cfd.translation) * 1000.0;
+    for j in 0..3 {
+        assert!(et[j].abs() < 3.0 * st[j], "T[{j}] error {} mm vs σ {} mm", et[j], st[j]);
+    }
+    // Acceptance bars: 0.5 mm and 0.05°, and no worse than OpenCV's joint stereoCalibrate.
+    assert!(dt < 0.5 && dr < 0.05);
+    assert!(dt <= cv_dt && dr <= cv_dr, "OpenCV: {cv_dt} mm, {cv_dr}°");
+    assert_eq!(r.pairs_used.len(), 15);
+}

@@ -1,0 +1,111 @@
+//! End-to-end tests of `kfuse calibrate` and `kfuse undistort` on the shared data.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn shared(test: &str) -> Option<PathBuf> {
+    let dir = std::env::var("KFUSE_SHARED_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    if dir.join("README.md").exists() {
+        return Some(dir);
+    }
+    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
+        panic!("{test}: shared data required but not found at {}", dir.display());
+    }
+    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
+    None
+}
+
+fn kfuse(args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("kfuse runs");
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    (out.status.success(), text)
+}
+
+#[test]
+fn calibrates_the_real_ir_session_and_writes_the_report() {
+    let Some(data) = shared("calibrates_the_real_ir_session_and_writes_the_report") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("ir.json");
+    let report = tmp.path().join("report");
+    let pattern = format!("{}/kinect-lab/ir_*.bmp", data.display());
+    let (ok, text) = kfuse(&["calibrate", "--ir", &pattern, "--lab-settings", "--out", out.to_str().unwrap(), "--report", report.to_str().unwrap()]);
+    assert!(ok, "{text}");
+    // ir_23 has no board and is reported as such; the other 11 are used.
+    assert!(text.contains("ir_23.bmp") && text.contains("REJECTED"), "{text}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let fx = v["camera"]["fx"].as_f64().unwrap();
+    // The lab's fc(1) = 364.126 ± 2.62 (3σ).
+    assert!((fx - 364.126).abs() < 2.62, "fx {fx}");
+    for f in ["report.json", "per_image_error.png", "residuals_ir.png", "board_poses_ir.png", "corners_ir_1.png", "corners_ir_23.png"] {
+        assert!(report.join(f).is_file(), "{f} missing");
+    }
+}
+
+#[test]
+fn bad_inputs_fail_clearly_and_write_nothing() {
+    let Some(data) = shared("bad_inputs_fail_clearly_and_write_nothing") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("rig.json");
+    let o = out.to_str().unwrap();
+    let lab = data.join("kinect-lab");
+    let syn = data.join("synthetic-calib");
+    // No board in any image.
+    let (ok, text) = kfuse(&["calibrate", "--ir", lab.join("ir_23.bmp").to_str().unwrap(), "--out", o]);
+    assert!(!ok && text.contains("no 7x5 checkerboard found"), "{text}");
+    // Fewer than 3 usable views.
+    let two = format!("{}/kinect-lab/ir_1?.bmp", data.display()); // ir_10, ir_11
+    let (ok, text) = kfuse(&["calibrate", "--ir", &two, "--out", o]);
+    assert!(!ok && text.contains("at least 3 are needed"), "{text}");
+    // Mixed image sizes within one camera.
+    let (ok, text) = kfuse(&[
+        "calibrate", "--ir", lab.join("ir_1.bmp").to_str().unwrap(), "--ir", lab.join("ir_3.bmp").to_str().unwrap(),
+        "--ir", syn.join("color/color_01.png").to_str().unwrap(), "--out", o,
+    ]);
+    assert!(!ok && text.contains("must have the same size"), "{text}");
+    // A pair where only the colour image shows the board.
+    let dir = tmp.path().join("pairs");
+    std::fs::create_dir_all(&dir).unwrap();
+    for i in 1..=4 {
+        std::fs::copy(syn.join(format!("color/color_{i:02}.png")), dir.join(format!("color_{i}.png"))).unwrap();
+        let ir = if i == 4 { lab.join("ir_23.bmp") } else { syn.join(format!("ir/ir_{i:02}.png")) };
+        std::fs::copy(ir, dir.join(format!("ir_{i}.{}", if i == 4 { "bmp" } else { "png" }))).unwrap();
+    }
+    let (ok, text) = kfuse(&["calibrate", "--color", &format!("{}/color_*", dir.display()), "--ir", &format!("{}/ir_*", dir.display()), "--out", o]);
+    assert!(!ok && text.contains("pair 4") && text.contains("--allow-unpaired"), "{text}");
+    // A pattern matching nothing.
+    let (ok, text) = kfuse(&["calibrate", "--ir", "/nonexistent/ir_*.png", "--out", o]);
+    assert!(!ok && text.contains("no file matches"), "{text}");
+    // Nothing was written by any failed run.
+    assert!(!out.exists());
+    assert_eq!(std::fs::read_dir(tmp.path()).unwrap().count(), 1, "only the pairs folder");
+}
+
+#[test]
+fn undistort_writes_rect_images() {
+    let Some(data) = shared("undistort_writes_rect_images") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    // A rig with the lab's Bouguet IR camera and a plain colour camera.
+    let rig = tmp.path().join("rig.json");
+    std::fs::write(
+        &rig,
+        r#"{"format":"kfuse-rig","version":1,
+            "depth_camera":{"width":512,"height":424,"fx":364.126,"fy":365.126,"cx":255.5,"cy":211.5,"k1":0.099,"k2":-0.2206,"p1":0.0041,"p2":0.0016,"k3":0},
+            "color_camera":{"width":1920,"height":1080,"fx":1060,"fy":1060,"cx":959.5,"cy":539.5,"k1":0.04,"k2":-0.04,"p1":0.003,"p2":-0.005,"k3":0},
+            "color_from_depth":{"rotation":[[1,0,0],[0,1,0],[0,0,1]],"translation_m":[-0.052,0,0]}}"#,
+    )
+    .unwrap();
+    let out = tmp.path().join("rect");
+    let img = data.join("kinect-lab/ir_1.bmp");
+    let (ok, text) = kfuse(&["undistort", "--rig", rig.to_str().unwrap(), "--camera", "depth", img.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{text}");
+    let rect = calib::io::read_gray(&out.join("ir_1_rect.png")).unwrap();
+    let input = calib::io::read_gray(&img).unwrap();
+    assert_eq!(rect.size(), (512, 424));
+    // Next to the principal point the lens does not move pixels: the same value comes back.
+    assert_eq!(rect.get(255, 211), input.get(255, 211));
+    // Away from the centre it does (barrel-like k1 > 0 with k2 < 0): the image changed.
+    let changed = rect.data().iter().zip(input.data()).filter(|(a, b)| a != b).count();
+    assert!(changed > 10_000, "{changed} pixels changed");
+}
