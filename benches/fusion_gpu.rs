@@ -10,18 +10,15 @@ use std::sync::atomic::AtomicU32;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use fusion_gpu::{FramePlan, FusionContext, GpuPolicy, StageOptions};
 use geometry::fusion::{
-    backproject_cloud, depth_ray_table, project_cloud, register_depth, register_depth_parallel, zbuffer_from_samples,
-    ColorProjection,
+    backproject_cloud, color_on_depth, coverage_radius_px, depth_ray_table, fill_holes_with_plane, hole_grow_px, hole_mask,
+    nearest_fill, project_cloud, register_depth, register_depth_parallel, run, zbuffer_from_samples, ColorProjection,
+    FusionOptions, PlaneFit,
 };
 use geometry::synth;
 use geometry::{DepthKind, Image};
 
 /// Frames per streaming measurement: enough for the two slots to reach a steady state.
-const STREAM_FRAMES: usize = 8;
-
-/// The later stages' parameters used for the GPU "all stages" figures.
-const STAGES: StageOptions =
-    StageOptions { nearest_radius_px: 2.5, depth_jump: 0.05, hole_radius_px: 3.5, hole_grow_px: 2.0, occlusion_tolerance: Some(0.02) };
+const STREAM_FRAMES: usize = 4;
 
 fn bench(c: &mut Criterion) {
     let setup = synth::kinect_preset(true);
@@ -48,6 +45,34 @@ fn bench(c: &mut Criterion) {
     g.bench_function("h1_h2_h7_fused_rayon", |b| {
         b.iter(|| black_box(register_depth_parallel(depth.data(), &rays, rig.depth.width, &proj, &atomic)))
     });
+    let zbuffer = zbuffer_from_samples(&samples, cw as u32, ch as u32);
+    let radius = coverage_radius_px(rig, &FusionOptions::default());
+    let grow = hole_grow_px(rig, &FusionOptions::default());
+    g.bench_function("h3_nearest_fill", |b| b.iter(|| black_box(nearest_fill(&zbuffer, radius, 0.05))));
+    let nearest_cpu = nearest_fill(&zbuffer, radius, 0.05);
+    g.bench_function("h8_hole_mask", |b| b.iter(|| black_box(hole_mask(&zbuffer, radius, grow))));
+    let mask_cpu = hole_mask(&zbuffer, radius, grow);
+    let plane = PlaneFit { normal: [0.0, 0.0, 1.0], offset: 3.0, inliers: 0, samples: 0, rms_m: 0.0 };
+    g.bench_function("h8_plane_fill", |b| {
+        b.iter(|| black_box(fill_holes_with_plane(&nearest_cpu, &mask_cpu, &rig.color, &plane)))
+    });
+    g.bench_function("h6_color_on_depth", |b| {
+        b.iter(|| black_box(color_on_depth(depth, &rays, &proj, &frame.color, Some(&nearest_cpu), 0.02)))
+    });
+    g.finish();
+
+    // End to end, H1-H8 (H3 linear off: it is the same CPU code on both paths).
+    let options = FusionOptions { linear: false, ..FusionOptions::default() };
+    let mut g = c.benchmark_group("end_to_end");
+    // Frames of 10-200 ms: 10 samples keep the run within minutes on lavapipe.
+    g.sample_size(10);
+    g.bench_function("cpu_run", |b| b.iter(|| black_box(run(rig, depth, kind, &frame.color, &options).expect("CPU run"))));
+    let gpu_ctx = FusionContext::new(GpuPolicy::Required);
+    if let Ok(mut ctx) = gpu_ctx {
+        g.bench_function("gpu_run", |b| {
+            b.iter(|| black_box(ctx.run(rig, depth, kind, &frame.color, &options).expect("GPU run")))
+        });
+    }
     g.finish();
 
     let mut ctx = match FusionContext::new(GpuPolicy::Required) {
@@ -58,8 +83,17 @@ fn bench(c: &mut Criterion) {
         }
     };
     println!("GPU adapter: {}", ctx.adapter_summary());
-    let all = FramePlan { stages: Some(STAGES), read_intermediates: false };
+    // The later stages with the parameters geometry::fusion::run derives for this rig.
+    let stages = StageOptions {
+        nearest_radius_px: radius,
+        depth_jump: 0.05,
+        hole_radius_px: radius,
+        hole_grow_px: grow,
+        occlusion_tolerance: Some(0.02),
+    };
+    let all = FramePlan { stages: Some(stages), read_intermediates: false };
     let mut g = c.benchmark_group("gpu");
+    g.sample_size(10);
     g.bench_function("h1_h2_h7_with_upload_readback", |b| {
         b.iter(|| black_box(ctx.register(rig, depth, kind, false).expect("GPU frame")))
     });
@@ -76,6 +110,7 @@ fn bench(c: &mut Criterion) {
     // Streaming throughput: STREAM_FRAMES frames through two slots vs one at a time.
     let depths: Vec<Image<f32>> = (0..STREAM_FRAMES).map(|k| depth.map(|&z| z * (1.0 + 0.01 * k as f32))).collect();
     let mut g = c.benchmark_group("gpu_stream");
+    g.sample_size(10);
     g.throughput(Throughput::Elements(STREAM_FRAMES as u64));
     g.bench_function("streamed_two_slots", |b| {
         b.iter(|| {

@@ -6,11 +6,12 @@
 //                 above and below it in its column;
 //   hole(p)     = !occupied(p) and some core pixel within the disc of radius `grow`
 //                 (second half-width table).
-// Entry points, in order: `clear_extents`, `coverage` (covered flags + per-row/column first
-// and last covered pixel by atomicMin/atomicMax), `core_mask`, `grow`.
+// Entry points, in order: `coverage` (covered flags), `extents` (first and last covered pixel
+// of every row and column, one invocation per row / column: no atomics, whose contention on
+// a few thousand addresses costs ~0.4 s per frame on lavapipe), `core_mask`, `grow`.
 
 struct Params {
-    // colour width, colour height, number of pixels (clear: max(width, height)), row stride.
+    // colour width, colour height, number of pixels (extents: width + height), row stride.
     size: vec4<u32>,
     // R (coverage) = entries of half_width - 1, G (grow) = entries of grow_half_width - 1,
     // unused, unused.
@@ -22,10 +23,10 @@ struct Params {
 @group(0) @binding(2) var<storage, read> half_width: array<u32>;
 // 1 where covered, 0 elsewhere.
 @group(0) @binding(3) var<storage, read_write> covered: array<u32>;
-// Per row y: [2y] = first covered x, [2y + 1] = last covered x + 1 (0 = none).
-@group(0) @binding(4) var<storage, read_write> row_extent: array<atomic<u32>>;
-// Per column x: [2x] = first covered y, [2x + 1] = last covered y + 1 (0 = none).
-@group(0) @binding(5) var<storage, read_write> col_extent: array<atomic<u32>>;
+// Per row y: [2y] = first covered x, [2y + 1] = last covered x + 1 (0xFFFFFFFF, 0 = none).
+@group(0) @binding(4) var<storage, read_write> row_extent: array<u32>;
+// Per column x: [2x] = first covered y, [2x + 1] = last covered y + 1 (0xFFFFFFFF, 0 = none).
+@group(0) @binding(5) var<storage, read_write> col_extent: array<u32>;
 // 1 for a core pixel, 0 elsewhere.
 @group(0) @binding(6) var<storage, read_write> core: array<u32>;
 @group(0) @binding(7) var<storage, read> grow_half_width: array<u32>;
@@ -36,19 +37,37 @@ fn is_nan_bits(b: u32) -> bool {
     return (b & 0x7fffffffu) > 0x7f800000u;
 }
 
-@compute @workgroup_size(256)
-fn clear_extents(@builtin(global_invocation_id) gid: vec3<u32>) {
+@compute @workgroup_size(64)
+fn extents(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.y * params.size.w + gid.x;
-    if i >= params.size.z {
+    let w = params.size.x;
+    let h = params.size.y;
+    if i >= w + h {
         return;
     }
-    if i < params.size.y {
-        atomicStore(&row_extent[2u * i], 0xffffffffu);
-        atomicStore(&row_extent[2u * i + 1u], 0u);
-    }
-    if i < params.size.x {
-        atomicStore(&col_extent[2u * i], 0xffffffffu);
-        atomicStore(&col_extent[2u * i + 1u], 0u);
+    var first = 0xffffffffu;
+    var end = 0u;
+    if i < h {
+        // Row i.
+        for (var x = 0u; x < w; x++) {
+            if covered[i * w + x] == 1u {
+                first = min(first, x);
+                end = x + 1u;
+            }
+        }
+        row_extent[2u * i] = first;
+        row_extent[2u * i + 1u] = end;
+    } else {
+        // Column i - h.
+        let x = i - h;
+        for (var y = 0u; y < h; y++) {
+            if covered[y * w + x] == 1u {
+                first = min(first, y);
+                end = y + 1u;
+            }
+        }
+        col_extent[2u * x] = first;
+        col_extent[2u * x + 1u] = end;
     }
 }
 
@@ -78,15 +97,7 @@ fn coverage(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
     }
-    if hit {
-        covered[i] = 1u;
-        atomicMin(&row_extent[2u * u32(y)], u32(x));
-        atomicMax(&row_extent[2u * u32(y) + 1u], u32(x) + 1u);
-        atomicMin(&col_extent[2u * u32(x)], u32(y));
-        atomicMax(&col_extent[2u * u32(x) + 1u], u32(y) + 1u);
-    } else {
-        covered[i] = 0u;
-    }
+    covered[i] = select(0u, 1u, hit);
 }
 
 @compute @workgroup_size(256)
@@ -99,10 +110,10 @@ fn core_mask(@builtin(global_invocation_id) gid: vec3<u32>) {
     let y = i / params.size.x;
     var hole = 0u;
     if covered[i] == 0u {
-        let row_first = atomicLoad(&row_extent[2u * y]);
-        let row_end = atomicLoad(&row_extent[2u * y + 1u]);
-        let col_first = atomicLoad(&col_extent[2u * x]);
-        let col_end = atomicLoad(&col_extent[2u * x + 1u]);
+        let row_first = row_extent[2u * y];
+        let row_end = row_extent[2u * y + 1u];
+        let col_first = col_extent[2u * x];
+        let col_end = col_extent[2u * x + 1u];
         // first < x < last, with "end" = last + 1 and first = 0xFFFFFFFF when none.
         if row_first != 0xffffffffu && row_first < x && x + 1u < row_end
             && col_first != 0xffffffffu && col_first < y && y + 1u < col_end {

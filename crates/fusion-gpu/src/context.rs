@@ -18,6 +18,10 @@ use crate::{shaders, GpuError};
 /// multiple of every vendor's SIMD width and within WebGPU's default limit.
 const WORKGROUP_SIZE: u32 = 256;
 
+/// Workgroup size of the hole mask's per-row / per-column `extents` kernel: only
+/// `width + height` invocations, each a long loop, so small groups spread them over more cores.
+const EXTENT_WORKGROUP_SIZE: u32 = 64;
+
 /// Frame slots of the streaming mode: two, so one frame computes while the previous one is
 /// read back and the next one uploads.
 const STREAM_SLOTS: usize = 2;
@@ -144,7 +148,7 @@ struct Kernels {
     zclear: wgpu::ComputePipeline,
     zscatter: wgpu::ComputePipeline,
     nearest: wgpu::ComputePipeline,
-    hole_clear: wgpu::ComputePipeline,
+    hole_extents: wgpu::ComputePipeline,
     hole_cover: wgpu::ComputePipeline,
     hole_core: wgpu::ComputePipeline,
     hole_grow: wgpu::ComputePipeline,
@@ -290,7 +294,7 @@ impl FusionContext {
             zclear: pipeline(&device, "zbuffer.wgsl", shaders::ZBUFFER, "clear"),
             zscatter: pipeline(&device, "zbuffer.wgsl", shaders::ZBUFFER, "scatter"),
             nearest: pipeline(&device, "nearest_fill.wgsl", shaders::NEAREST_FILL, "main"),
-            hole_clear: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "clear_extents"),
+            hole_extents: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "extents"),
             hole_cover: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "coverage"),
             hole_core: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "core_mask"),
             hole_grow: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "grow"),
@@ -414,9 +418,16 @@ impl FusionContext {
         let mut pending: VecDeque<Pending> = VecDeque::new();
         let mut count = 0;
         for (k, (depth, color)) in frames.into_iter().enumerate() {
-            depth.expect_size("depth image", depth_size.0, depth_size.1)?;
-            if let Some(c) = color {
-                c.expect_size("colour image", color_size.0, color_size.1)?;
+            let sizes = depth
+                .expect_size("depth image", depth_size.0, depth_size.1)
+                .and_then(|()| color.map_or(Ok(()), |c| c.expect_size("colour image", color_size.0, color_size.1)));
+            if let Err(e) = sizes {
+                // Let the frames in flight complete so their read-back buffers are unmapped
+                // and the context stays usable; their results are dropped with the error.
+                while let Some(p) = pending.pop_front() {
+                    let _ = self.finish(p);
+                }
+                return Err(e.into());
             }
             let slot = k % STREAM_SLOTS;
             if let Some(pos) = pending.iter().position(|p| p.slot == slot) {
@@ -620,11 +631,15 @@ impl FusionContext {
 
     /// Workgroups along x and y, and invocations per row, for `n` items.
     fn grid(&self, n: u32) -> (u32, u32, u32) {
-        let groups = n.div_ceil(WORKGROUP_SIZE).max(1);
+        self.grid_sized(n, WORKGROUP_SIZE)
+    }
+
+    fn grid_sized(&self, n: u32, workgroup: u32) -> (u32, u32, u32) {
+        let groups = n.div_ceil(workgroup).max(1);
         let max_x = self.limits.max_compute_workgroups_per_dimension.max(1);
         let x = groups.min(max_x);
         let y = groups.div_ceil(x);
-        (x, y, x * WORKGROUP_SIZE)
+        (x, y, x * workgroup)
     }
 
     fn bind(&self, pipe: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
@@ -659,7 +674,7 @@ impl FusionContext {
         let m = cw * ch;
         let (dx, dy, dstride) = self.grid(n);
         let (cx, cy, cstride) = self.grid(m);
-        let (ex, ey, estride) = self.grid(cw.max(ch));
+        let (ex, ey, estride) = self.grid_sized(cw + ch, EXTENT_WORKGROUP_SIZE);
         let k = &self.kernels;
         let q = &self.queue;
         let u = &s.uniforms;
@@ -700,7 +715,7 @@ impl FusionContext {
             let np = NearestParams { size: [cw, ch, m, cstride], offsets: [offsets.len, 0, 0, 0], jump: [st.depth_jump, 0.0, 0.0, 0.0] };
             q.write_buffer(&u[U_NEAREST], 0, bytemuck::bytes_of(&np));
             let radius = [half_widths.len.saturating_sub(1), grow_half_widths.len.saturating_sub(1), 0, 0];
-            let hc = HoleParams { size: [cw, ch, cw.max(ch), estride], radius };
+            let hc = HoleParams { size: [cw, ch, cw + ch, estride], radius };
             q.write_buffer(&u[U_HOLE_CLEAR], 0, bytemuck::bytes_of(&hc));
             let hp = HoleParams { size: [cw, ch, m, cstride], radius };
             q.write_buffer(&u[U_HOLE], 0, bytemuck::bytes_of(&hp));
@@ -708,11 +723,6 @@ impl FusionContext {
                 &k.nearest,
                 self.bind(&k.nearest, &[(0, &u[U_NEAREST]), (1, &s.zbuffer), (2, &offsets.buffer), (3, &s.nearest)]),
                 (cx, cy),
-            ));
-            groups.push((
-                &k.hole_clear,
-                self.bind(&k.hole_clear, &[(0, &u[U_HOLE_CLEAR]), (4, &s.row_extent), (5, &s.col_extent)]),
-                (ex, ey),
             ));
             groups.push((
                 &k.hole_cover,
@@ -723,11 +733,14 @@ impl FusionContext {
                         (1, &s.zbuffer),
                         (2, &half_widths.buffer),
                         (3, &s.covered),
-                        (4, &s.row_extent),
-                        (5, &s.col_extent),
                     ],
                 ),
                 (cx, cy),
+            ));
+            groups.push((
+                &k.hole_extents,
+                self.bind(&k.hole_extents, &[(0, &u[U_HOLE_CLEAR]), (3, &s.covered), (4, &s.row_extent), (5, &s.col_extent)]),
+                (ex, ey),
             ));
             groups.push((
                 &k.hole_core,

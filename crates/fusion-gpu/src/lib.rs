@@ -1,15 +1,25 @@
 //! The kfuse depth → colour fusion stages as WGSL compute shaders on wgpu (Vulkan only).
 //!
 //! Every stage has a CPU twin in [`geometry::fusion`] whose `f32` arithmetic the shader
-//! mirrors operation by operation (same order, no fused multiply-add, no `dot()`, validity
-//! decided on bit patterns), so on an adapter that neither fuses nor approximates (lavapipe
-//! does neither) the results are bit-identical:
+//! mirrors operation by operation (same order, no `dot()`, validity decided on bit patterns,
+//! products that feed a sum pinned with `keep()` so no compiler contracts them into a fused
+//! multiply-add), so on an adapter with IEEE division (lavapipe) every stage is
+//! **bit-identical** to the CPU:
 //!
 //! | stage | shader | CPU twin |
 //! | --- | --- | --- |
 //! | H1 back-projection (z or range, ray table) | `shaders/backproject.wgsl` | [`geometry::fusion::backproject_pixel`] |
 //! | H2 `X_c = R·X_d + T`, projection with distortion | `shaders/project.wgsl` | [`geometry::fusion::project_point`] |
 //! | H7 z-buffer, `atomicMin` on the f32 bits | `shaders/zbuffer.wgsl` | [`geometry::fusion::register_depth`] |
+//! | H3 nearest fill (disc, nearest surface) | `shaders/nearest_fill.wgsl` | [`geometry::fusion::nearest_fill_pixel`] |
+//! | H8 hole mask (coverage, core, grow) | `shaders/hole_mask.wgsl` | [`geometry::fusion::HoleMasker`] |
+//! | H8 plane fill (plane from the CPU RANSAC) | `shaders/plane_fill.wgsl` | [`geometry::fusion::plane_depth_pixel`] |
+//! | H6 colour onto the depth grid (bilinear) | `shaders/color_on_depth.wgsl` | [`geometry::fusion::bilinear_rgb`] |
+//!
+//! Not on the GPU: the RANSAC plane fit (a few hundred sequential hypotheses over ≤ 20 000
+//! points), H3 Delaunay-linear (spade), H4 meshing and H5 face removal; [`FusionContext::run`]
+//! runs them on the CPU between and after the GPU passes. Hardware GPUs may round division
+//! differently (Vulkan allows 2.5 ulp), so there parity is to the ulp, not the bit.
 //!
 //! # Conventions (as in `DESIGN.md`)
 //!
@@ -22,11 +32,20 @@
 //!
 //! # Use
 //!
-//! [`FusionContext::new`] opens the adapter (it names it: [`FusionContext::adapter_name`]) and
-//! compiles the pipelines once; [`FusionContext::register`] runs one frame,
-//! [`FusionContext::stream`] overlaps upload, compute and read-back of consecutive frames with
-//! two frame slots. Frames whose buffers exceed the adapter's binding limit are refused
-//! up front with [`GpuError::FrameTooLarge`]; no adapter gives [`GpuError::NoAdapter`].
+//! ```no_run
+//! # fn demo(rig: &geometry::Rig, depth: &geometry::Image<f32>, color: &geometry::Image<[u8; 3]>) -> Result<(), fusion_gpu::GpuError> {
+//! use fusion_gpu::{FusionContext, GpuPolicy};
+//! let mut ctx = FusionContext::new(GpuPolicy::Required)?; // GpuError::NoAdapter without Vulkan
+//! eprintln!("GPU: {}", ctx.adapter_name());
+//! let options = geometry::fusion::FusionOptions::default();
+//! let out = ctx.run(rig, depth, geometry::DepthKind::Z, color, &options)?; // a FusionOutput
+//! # Ok(()) }
+//! ```
+//!
+//! [`FusionContext::new`] opens the adapter and compiles the pipelines once; buffers are
+//! reused across frames. [`FusionContext::stream`] overlaps upload, compute and read-back of
+//! consecutive frames with two frame slots. Frames whose buffers exceed the adapter's binding
+//! limit (lavapipe: 128 MiB) are refused up front with [`GpuError::FrameTooLarge`].
 #![deny(missing_docs)]
 
 mod context;
@@ -37,3 +56,4 @@ mod tables;
 
 pub use context::{FramePlan, FusionContext, GpuFrame, GpuPolicy, StageOptions};
 pub use error::GpuError;
+pub use run::{fuse, Engine};

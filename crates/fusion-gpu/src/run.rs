@@ -170,3 +170,46 @@ impl FusionContext {
         })
     }
 }
+
+/// Which engine [`fuse`] used.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Engine {
+    /// The GPU adapter of this name.
+    Gpu {
+        /// Adapter name, e.g. `llvmpipe (LLVM 15.0.6, 256 bits)`.
+        adapter: String,
+        /// True for a software adapter (lavapipe): correct but slower than the CPU path.
+        software: bool,
+    },
+    /// The CPU pipeline, because [`GpuPolicy::Auto`] found no adapter; `reason` is the
+    /// [`GpuError::NoAdapter`] message, for the CLI's warning.
+    CpuFallback {
+        /// Why the GPU was not used.
+        reason: String,
+    },
+}
+
+/// The CLI's `--gpu` / `--gpu auto` in one call: runs the frame on a new [`FusionContext`],
+/// or, under [`GpuPolicy::Auto`] when there is no adapter, on the CPU
+/// ([`geometry::fusion::run`]). Under [`GpuPolicy::Required`] no adapter is
+/// [`GpuError::NoAdapter`]. For many frames keep a [`FusionContext`] instead.
+pub fn fuse(
+    policy: crate::GpuPolicy,
+    rig: &Rig,
+    depth: &Image<f32>,
+    kind: DepthKind,
+    color: &Image<[u8; 3]>,
+    options: &FusionOptions,
+) -> Result<(FusionOutput, Engine), GpuError> {
+    match FusionContext::new(policy) {
+        Ok(mut ctx) => {
+            let engine = Engine::Gpu { adapter: ctx.adapter_name().to_string(), software: ctx.is_software() };
+            Ok((ctx.run(rig, depth, kind, color, options)?, engine))
+        }
+        Err(e @ GpuError::NoAdapter { .. }) if policy.falls_back_to_cpu() => {
+            let out = geometry::fusion::run(rig, depth, kind, color, options)?;
+            Ok((out, Engine::CpuFallback { reason: e.to_string() }))
+        }
+        Err(e) => Err(e),
+    }
+}

@@ -91,3 +91,53 @@ fn all_invalid_depth_is_rejected_like_on_the_cpu() {
     let gpu = ctx.run(&setup.rig, &empty, DepthKind::Z, &frame.color, &options).expect_err("GPU accepted");
     assert_eq!(cpu.to_string(), gpu.to_string());
 }
+
+#[test]
+fn fuse_entry_point_reports_the_engine() {
+    let test = "fuse_entry_point_reports_the_engine";
+    // Under Auto the call always succeeds: on the GPU when there is one, else on the CPU.
+    let (setup, frame) = course();
+    let options = FusionOptions { linear: false, ..FusionOptions::default() };
+    let (out, engine) =
+        fusion_gpu::fuse(fusion_gpu::GpuPolicy::Auto, &setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options)
+            .expect("fuse");
+    let cpu = run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("CPU run");
+    assert_eq!(out.summary, cpu.summary, "{test}");
+    match engine {
+        fusion_gpu::Engine::Gpu { adapter, .. } => eprintln!("{test}: GPU {adapter}"),
+        fusion_gpu::Engine::CpuFallback { reason } => {
+            assert!(reason.contains("without --gpu"), "{reason}");
+            assert!(std::env::var("KFUSE_REQUIRE_GPU").map_or(true, |v| v != "1"), "{test}: fell back in CI");
+            eprintln!("SKIP {test} (GPU half): {reason}");
+        }
+    }
+}
+
+/// The shared data folder (`KFUSE_SHARED_DATA`, else `<workspace>/../shared/data`), or `None`
+/// after printing SKIP; with `KFUSE_REQUIRE_SHARED_DATA=1` (CI) a missing folder panics.
+fn shared_data(test: &str) -> Option<std::path::PathBuf> {
+    let dir = std::env::var_os("KFUSE_SHARED_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    if dir.is_dir() {
+        return Some(dir);
+    }
+    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
+        panic!("{test}: shared data not found at {} (KFUSE_REQUIRE_SHARED_DATA=1)", dir.display());
+    }
+    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
+    None
+}
+
+#[test]
+fn course_synthdata_mat_full_pipeline_matches_cpu() {
+    let test = "course_synthdata_mat_full_pipeline_matches_cpu";
+    let Some(dir) = shared_data(test) else { return };
+    let Some(mut ctx) = context_or_skip(test) else { return };
+    let path = dir.join("course/synthdata.mat");
+    let data = geometry::io::course::read_course(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let options = FusionOptions { linear: false, ..FusionOptions::default() };
+    let cpu = run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("CPU run");
+    let gpu = ctx.run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("GPU run");
+    assert_same(test, &cpu, &gpu);
+}
