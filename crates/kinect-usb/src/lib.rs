@@ -22,5 +22,6 @@ pub mod raw;
 pub mod params;
 pub mod decoder;
 pub mod testdata;
+pub mod registration;
 
 pub use error::{KinectError, Result, UsbError};
