@@ -23,5 +23,10 @@ pub mod params;
 pub mod decoder;
 pub mod testdata;
 pub mod registration;
+pub mod stream;
+pub mod forward;
+pub mod protocol;
+pub mod backend;
+pub mod device;
 
 pub use error::{KinectError, Result, UsbError};
