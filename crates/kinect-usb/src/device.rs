@@ -301,6 +301,7 @@ impl<B: UsbBackend> KinectDevice<B> {
                 StreamEvent::Stopped { reason: StopReason::Disconnected } => {
                     return Err(KinectError::Disconnected { what: "streaming".into() });
                 }
+                StreamEvent::Stopped { reason: StopReason::Requested } => return Err(KinectError::EndOfStream),
                 StreamEvent::Stopped { reason } => {
                     return Err(KinectError::Protocol { what: format!("{kind:?} stream"), detail: format!("stream stopped: {reason:?}") });
                 }

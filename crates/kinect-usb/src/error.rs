@@ -119,6 +119,9 @@ pub enum KinectError {
         /// What is wrong.
         detail: String,
     },
+    /// The stream ended normally (end of a replayed recording).
+    #[error("end of stream (recording exhausted)")]
+    EndOfStream,
     /// Invalid parameter given by the caller.
     #[error("invalid parameter: {0}")]
     Invalid(String),

@@ -28,5 +28,7 @@ pub mod forward;
 pub mod protocol;
 pub mod backend;
 pub mod device;
+pub mod sim;
+pub mod recording;
 
 pub use error::{KinectError, Result, UsbError};
