@@ -148,9 +148,21 @@ impl Distortion {
         if self.is_zero() {
             return Some(Vector2::new(xd, yd));
         }
+        self.undistort_within(xd, yd, self.fold_radius())
+    }
+
+    /// [`Distortion::undistort`] with the fold radius already known (`fold` must be
+    /// [`Distortion::fold_radius`]): computing it once per camera instead of once per pixel
+    /// makes whole-image ray tables cheap.
+    pub fn undistort_within(&self, xd: f64, yd: f64, fold: Option<f64>) -> Option<Vector2<f64>> {
+        if !(xd.is_finite() && yd.is_finite()) {
+            return None;
+        }
+        if self.is_zero() {
+            return Some(Vector2::new(xd, yd));
+        }
         let target = Vector2::new(xd, yd);
         let mut p = target;
-        let fold = self.fold_radius();
         for _ in 0..UNDISTORT_MAX_ITERATIONS {
             let (d, j) = self.distort_with_jacobian(p.x, p.y);
             let residual = d - target;
@@ -349,9 +361,11 @@ impl CameraModel {
     /// then one multiply per coordinate.
     pub fn ray_table(&self) -> Vec<[f32; 2]> {
         let mut table = Vec::with_capacity(self.width * self.height);
+        let fold = self.distortion.fold_radius();
         for v in 0..self.height {
             for u in 0..self.width {
-                match self.unproject(u as f64, v as f64) {
+                let d = self.intrinsics.from_pixel(u as f64, v as f64);
+                match self.distortion.undistort_within(d.x, d.y, fold) {
                     Some(n) => table.push([n.x as f32, n.y as f32]),
                     None => table.push([f32::NAN, f32::NAN]),
                 }

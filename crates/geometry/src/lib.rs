@@ -20,10 +20,12 @@
 pub mod camera;
 pub mod cloud;
 pub mod error;
+pub mod fusion;
 pub mod image;
 pub mod io;
 pub mod pose;
 pub mod rig;
+pub mod synth;
 
 pub use camera::{CameraModel, DepthKind, Distortion, Intrinsics};
 pub use cloud::{Mesh, PointCloud};

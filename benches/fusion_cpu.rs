@@ -1,0 +1,132 @@
+//! CPU fusion benchmarks on a Kinect-size frame (512×424 depth → 1920×1080 colour), rendered
+//! by `geometry::synth::kinect_preset`.
+//!
+//! * `register+holes/single`: exact z-buffered registration (H1+H2+H7 fused) plus the H8
+//!   hole mask, one thread, no allocation: the number to compare with OpenCV's
+//!   `cv2.rgbd.registerDepth` and Open3D's `project_to_depth_image`
+//!   (`benches/peers/register_peers.py`). Goal: <= 2 ms.
+//! * `register+holes/rayon`: the same on all rayon threads (atomic-min z-buffer).
+//! * `stage/*`: every stage of `geometry::fusion::run` on its own, and `run` itself.
+//!
+//! `KFUSE_WRITE_PEER_FRAME=1 cargo bench --bench fusion_cpu` also writes the frame for the
+//! peers script to `$CARGO_TARGET_DIR/peer-frame/` (default `target/peer-frame/`):
+//! `depth.png` (16-bit, millimetres, 0 = no sample), `color.png`, `rig.json`.
+
+use std::hint::black_box;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicU32;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use geometry::fusion::{self, FusionOptions, HoleMasker};
+use geometry::synth;
+
+fn peer_frame_dir() -> PathBuf {
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target"));
+    target.join("peer-frame")
+}
+
+fn png_bytes<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Vec<u8>
+where
+    P::Subpixel: image::Primitive,
+    [P::Subpixel]: image::EncodableLayout,
+{
+    let mut bytes = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png).expect("PNG encoding of an in-memory image");
+    bytes
+}
+
+fn write_peer_frame(setup: &synth::SynthSetup, frame: &synth::SynthFrame) {
+    let dir = peer_frame_dir();
+    std::fs::create_dir_all(&dir).expect("create the peer-frame folder");
+    let (dw, dh) = frame.depth.size();
+    let depth_mm = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(dw as u32, dh as u32, |x, y| {
+        let z = *frame.depth.get(x as usize, y as usize);
+        image::Luma([if z.is_finite() { (z * 1000.0).round().clamp(0.0, 65535.0) as u16 } else { 0 }])
+    });
+    let (cw, ch) = frame.color.size();
+    let color = image::RgbImage::from_fn(cw as u32, ch as u32, |x, y| image::Rgb(*frame.color.get(x as usize, y as usize)));
+    let atomic = geometry::io::atomic::write_bytes_atomic;
+    atomic(&dir.join("depth.png"), &png_bytes(&depth_mm)).expect("write depth.png");
+    atomic(&dir.join("color.png"), &png_bytes(&color)).expect("write color.png");
+    atomic(&dir.join("rig.json"), setup.rig.to_json().as_bytes()).expect("write rig.json");
+    eprintln!("peer frame written to {}", dir.display());
+}
+
+fn benches(c: &mut Criterion) {
+    let setup = synth::kinect_preset(false);
+    let frame = synth::render(&setup);
+    if std::env::var_os("KFUSE_WRITE_PEER_FRAME").is_some() {
+        write_peer_frame(&setup, &frame);
+    }
+    let rig = &setup.rig;
+    let options = FusionOptions::default();
+    let proj = fusion::ColorProjection::from_rig(rig);
+    let rays = fusion::depth_ray_table(&rig.depth, frame.depth_kind);
+    let (cw, ch) = (rig.color.width, rig.color.height);
+    let radius = fusion::coverage_radius_px(rig, &options);
+    let grow = fusion::hole_grow_px(rig, &options);
+    let mut zbuffer = vec![0f32; cw * ch];
+    let mut mask = vec![false; cw * ch];
+    let mut masker = HoleMasker::new(cw, ch, radius, grow);
+    let atomic: Vec<AtomicU32> = (0..cw * ch).map(|_| AtomicU32::new(0)).collect();
+
+    let mut g = c.benchmark_group("register+holes");
+    g.bench_function("single", |b| {
+        b.iter(|| {
+            let n = fusion::register_depth(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer);
+            let holes = masker.compute(&zbuffer, &mut mask);
+            black_box((n, holes))
+        })
+    });
+    g.bench_function("rayon", |b| {
+        b.iter(|| {
+            let n = fusion::register_depth_parallel(black_box(frame.depth.data()), &rays, rig.depth.width, &proj, &atomic);
+            fusion::atomic_zbuffer_to_image(&atomic, &mut zbuffer);
+            let holes = masker.compute(&zbuffer, &mut mask);
+            black_box((n, holes))
+        })
+    });
+    g.finish();
+
+    let zb_image = fusion::zbuffer_from_samples(
+        &fusion::project_cloud(&fusion::backproject_cloud(&frame.depth, &rays).0.points, &proj),
+        proj.width,
+        proj.height,
+    );
+    let mut g = c.benchmark_group("stage");
+    g.sample_size(20);
+    g.bench_function("register_single", |b| {
+        b.iter(|| fusion::register_depth(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer))
+    });
+    g.bench_function("hole_mask_single", |b| b.iter(|| masker.compute(black_box(zb_image.data()), &mut mask)));
+    g.bench_function("h1_backproject", |b| b.iter(|| fusion::backproject_cloud(black_box(&frame.depth), &rays)));
+    let (cloud, _) = fusion::backproject_cloud(&frame.depth, &rays);
+    g.bench_function("h2_project", |b| b.iter(|| fusion::project_cloud(black_box(&cloud.points), &proj)));
+    let samples = fusion::project_cloud(&cloud.points, &proj);
+    g.bench_function("h7_zbuffer_from_samples", |b| {
+        b.iter(|| fusion::zbuffer_from_samples(black_box(&samples), proj.width, proj.height))
+    });
+    g.bench_function("h3_nearest_fill", |b| b.iter(|| fusion::nearest_fill(black_box(&zb_image), radius, options.depth_jump)));
+    let spacing = fusion::sample_spacing_px(rig);
+    g.bench_function("h3_linear", |b| {
+        b.iter(|| fusion::linear_resample(black_box(&samples), &zb_image, options.linear_max_edge_factor * spacing, options.depth_jump))
+    });
+    let nearest = fusion::nearest_fill(&zb_image, radius, options.depth_jump);
+    g.bench_function("h6_color_on_depth", |b| {
+        b.iter(|| fusion::color_on_depth(black_box(&frame.depth), &rays, &proj, &frame.color, Some(&nearest), options.color_occlusion_tolerance))
+    });
+    g.bench_function("h8_plane_fit", |b| b.iter(|| fusion::fit_plane_ransac(black_box(&nearest), &rig.color, &options.plane)));
+    let mesh = fusion::mesh_from_depth(&nearest, &rig.color, &frame.color, options.mesh_step);
+    g.bench_function("h4_mesh", |b| b.iter(|| fusion::mesh_from_depth(black_box(&nearest), &rig.color, &frame.color, options.mesh_step)));
+    g.bench_function("h5_stretched_faces", |b| b.iter(|| fusion::remove_stretched_faces(black_box(&mesh), options.stretch_ratio)));
+    g.sample_size(10);
+    g.bench_function("run_all", |b| {
+        b.iter(|| fusion::run(rig, black_box(&frame.depth), frame.depth_kind, &frame.color, &options).map(|o| o.summary))
+    });
+    g.finish();
+}
+
+criterion_group!(fusion_cpu, benches);
+criterion_main!(fusion_cpu);

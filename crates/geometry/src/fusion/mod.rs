@@ -1,0 +1,378 @@
+//! The CPU depth → colour fusion pipeline, stages H1–H8 of the lab handout.
+//!
+//! | stage | function | result |
+//! | --- | --- | --- |
+//! | H1 | [`backproject_cloud`] | depth pixels → points in the depth camera frame (z or range input) |
+//! | H2 | [`project_cloud`] | `X_c = R·X_d + T`, projected with the colour camera's distortion |
+//! | H3 | [`nearest_fill`], [`linear_resample`] | samples → colour pixel grid (nearest; Delaunay-linear) |
+//! | H4 | [`mesh_from_depth`] | textured triangle mesh from a colour-frame depth image |
+//! | H5 | [`remove_stretched_faces`] | faces at depth discontinuities dropped (face-normal test) |
+//! | H6 | [`color_on_depth`] | colour sampled onto the depth grid (bilinear) |
+//! | H7 | [`register_depth`], [`zbuffer_from_samples`] | nearest surface per colour pixel (exact min z) |
+//! | H8 | [`hole_mask`], [`fit_plane_ransac`], [`fill_holes_with_plane`] | disocclusion holes, plane fill |
+//!
+//! [`run`] chains them for one frame and is what the CLI and `fusion-gpu` call.
+//!
+//! # Conventions
+//!
+//! Those of the crate (pixel centres at integers, `color_from_depth`, metres). Depth images
+//! in the colour frame hold the colour camera's `z`; an empty pixel is NaN (H7 and H3 use the
+//! NaN with bits `0xFFFF_FFFF`, [`ZBUFFER_EMPTY`]).
+//!
+//! **Sample spacing** `s`: the distance in colour pixels between the projections of two
+//! neighbouring depth pixels at equal depth, `s = sqrt((fx_c/fx_d)·(fy_c/fy_d))` (Kinect v2:
+//! ~2.9 px). The **coverage radius** of H3's nearest fill and H8's mask is
+//! `max(hole_radius_factor · s, MIN_COVERAGE_RADIUS_PX)`: a colour pixel with no z-buffered
+//! sample within it is empty, and a hole if it also lies inside the samples' footprint
+//! (see [`HoleMasker`]).
+//!
+//! # GPU parity rules
+//!
+//! The per-pixel arithmetic lives in [`pixel`] as small `#[inline]` `f32` functions
+//! ([`backproject_pixel`], [`transform_point`], [`project_color_point`], [`zbuffer_index`],
+//! [`zbuffer_min`]), plus [`nearest_fill_pixel`] (with [`disc_offsets`]),
+//! [`plane_depth_pixel`] and [`bilinear_rgb`]; `fusion-gpu`'s WGSL mirrors them line by line.
+//! See [`pixel`] for the exact rules: evaluation order, validity test, the rounding rule
+//! `(floor(u + 0.5), floor(v + 0.5))` and the z-buffer's empty value.
+
+mod color;
+mod holes;
+mod mesh;
+pub mod pixel;
+mod register;
+mod resample;
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+pub use color::{bilinear_rgb, color_on_depth};
+pub use holes::{fill_holes_with_plane, fit_plane_ransac, hole_mask, plane_depth_pixel, HoleMasker, PlaneFit, PlaneFitOptions};
+pub use mesh::{face_normal, is_stretched, mesh_from_depth, remove_stretched_faces};
+pub use pixel::{
+    backproject_pixel, depth_ray_table, project_color_point, project_point, register_pixel, transform_point,
+    zbuffer_index, zbuffer_min, ColorProjection, ZBUFFER_EMPTY,
+};
+pub use register::{
+    atomic_zbuffer_to_image, backproject_cloud, project_cloud, register_depth, register_depth_parallel,
+    zbuffer_from_samples, ColorSample,
+};
+pub use resample::{disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel, LinearStats};
+
+use crate::{DepthKind, GeometryError, Image, Mesh, PointCloud, Rig};
+
+/// Smallest coverage radius, pixels: below 1.5 px a colour camera no sharper than the depth
+/// camera would call the diagonal gaps of a square sample lattice holes.
+pub const MIN_COVERAGE_RADIUS_PX: f32 = 1.5;
+
+/// Which colour-frame depth image H4 meshes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshSource {
+    /// H3 nearest fill.
+    Nearest,
+    /// H3 Delaunay-linear (falls back to nearest when linear is off).
+    Linear,
+    /// Nearest fill with H8's plane-filled holes.
+    #[default]
+    Filled,
+}
+
+/// Every knob of [`run`]. `Default` is what the lab handout does, tuned for a Kinect v2.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FusionOptions {
+    /// Coverage radius of H3 nearest and H8 holes, in sample spacings (see the module docs).
+    /// 1.2: covers the diagonal gap of a square lattice (0.71 s) on surfaces tilted up to
+    /// ~55° (stretch 1.7), and is small enough to keep a 52 mm-baseline Kinect's
+    /// disocclusions (≥ 5 px at 1 m depth difference) open.
+    pub hole_radius_factor: f32,
+    /// Relative depth difference that separates two surfaces (H3 nearest's "nearest
+    /// surface", H3 linear's edge test). 5 %: ten times the Kinect's depth noise, well below
+    /// object/background gaps.
+    pub depth_jump: f32,
+    /// Compute H3's Delaunay-linear resampling (the slowest stage, ~0.2 s per Kinect frame).
+    pub linear: bool,
+    /// Longest triangle edge H3 linear fills, in sample spacings: 3 bridges stretched
+    /// samples on slanted surfaces but not disocclusion holes wider than ~3 samples.
+    pub linear_max_edge_factor: f32,
+    /// Which depth H4 meshes.
+    pub mesh_source: MeshSource,
+    /// H4 grid step in colour pixels: 2 gives ~1 vertex per depth sample at Kinect scale.
+    pub mesh_step: usize,
+    /// H5 threshold: a face is removed when `|n_xy| > stretch_ratio · |n_z|`. 1.0 is the
+    /// handout's "in-plane component larger than the depth component" (45°).
+    pub stretch_ratio: f32,
+    /// H6: a depth pixel's colour is rejected as occluded when its point is farther than the
+    /// surface the colour camera sees there by more than this fraction. 2 %: above nearest
+    /// fill's depth steps on slanted surfaces, below object/background gaps.
+    pub color_occlusion_tolerance: f32,
+    /// H8 plane fit.
+    pub plane: PlaneFitOptions,
+    /// Fill H8's holes from the plane (otherwise `filled` = `nearest`).
+    pub fill_holes: bool,
+    /// Record wall-clock time per stage in the summary.
+    pub record_timings: bool,
+}
+
+impl Default for FusionOptions {
+    fn default() -> Self {
+        Self {
+            hole_radius_factor: 1.2,
+            depth_jump: 0.05,
+            linear: true,
+            linear_max_edge_factor: 3.0,
+            mesh_source: MeshSource::Filled,
+            mesh_step: 2,
+            stretch_ratio: 1.0,
+            color_occlusion_tolerance: 0.02,
+            plane: PlaneFitOptions::default(),
+            fill_holes: true,
+            record_timings: false,
+        }
+    }
+}
+
+/// Milliseconds per stage.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct StageTimings {
+    /// H1 back-projection.
+    pub h1_ms: f64,
+    /// H2 projection.
+    pub h2_ms: f64,
+    /// H7 z-buffer.
+    pub h7_ms: f64,
+    /// H3 nearest fill.
+    pub h3_nearest_ms: f64,
+    /// H3 Delaunay-linear.
+    pub h3_linear_ms: f64,
+    /// H8 mask, plane fit and fill.
+    pub h8_ms: f64,
+    /// H6 colour on depth.
+    pub h6_ms: f64,
+    /// H4 mesh.
+    pub h4_ms: f64,
+    /// H5 stretched-face removal.
+    pub h5_ms: f64,
+}
+
+/// Counts of every stage of one [`run`] (serialisable as the CLI's JSON report).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FusionSummary {
+    /// Depth image size.
+    pub depth_size: [usize; 2],
+    /// Colour image size.
+    pub color_size: [usize; 2],
+    /// Depth kind of the input.
+    pub depth_kind: DepthKind,
+    /// Depth pixels with a sample.
+    pub valid_depth_pixels: usize,
+    /// H1 points.
+    pub points: usize,
+    /// H2 samples landing on the colour image in front of the camera.
+    pub samples_in_view: usize,
+    /// H7 colour pixels holding a sample.
+    pub zbuffer_pixels: usize,
+    /// Sample spacing in colour pixels.
+    pub sample_spacing_px: f32,
+    /// Coverage radius of H3 nearest / H8, pixels.
+    pub coverage_radius_px: f32,
+    /// H3 nearest: colour pixels with a value.
+    pub nearest_pixels: usize,
+    /// H3 linear statistics (when computed).
+    pub linear: Option<LinearStats>,
+    /// H4 vertices.
+    pub mesh_vertices: usize,
+    /// H4 faces (before H5).
+    pub faces_before: usize,
+    /// Faces kept by H5.
+    pub faces_after: usize,
+    /// H6 depth pixels with a trusted colour.
+    pub color_on_depth_pixels: usize,
+    /// H8 hole pixels.
+    pub hole_pixels: usize,
+    /// H8 pixels filled from the plane.
+    pub filled_pixels: usize,
+    /// H8 plane (colour frame), when one was found.
+    pub plane: Option<PlaneFit>,
+    /// Per-stage timings, when requested.
+    pub timings_ms: Option<StageTimings>,
+}
+
+/// Everything [`run`] computes. Colour-frame depth images are colour-sized, NaN = empty.
+#[derive(Debug, Clone)]
+pub struct FusionOutput {
+    /// H1 points (depth camera frame) with H6 colours (black where the colour is not
+    /// trusted, see [`FusionOutput::color_on_depth_valid`]).
+    pub cloud: PointCloud,
+    /// Row-major depth pixel index of every cloud point.
+    pub cloud_pixels: Vec<u32>,
+    /// H2 samples in the colour image (`point` indexes `cloud`).
+    pub samples: Vec<ColorSample>,
+    /// H7 z-buffer (sparse: one sample per pixel at most).
+    pub zbuffer: Image<f32>,
+    /// H3 nearest fill of the z-buffer.
+    pub nearest: Image<f32>,
+    /// H3 Delaunay-linear (when [`FusionOptions::linear`]).
+    pub linear: Option<Image<f32>>,
+    /// H8 hole mask (colour-sized).
+    pub hole_mask: Image<bool>,
+    /// H3 nearest with H8's holes filled from the plane.
+    pub filled: Image<f32>,
+    /// H6 colour on the depth grid.
+    pub color_on_depth: Image<[u8; 3]>,
+    /// H6 validity per depth pixel.
+    pub color_on_depth_valid: Image<bool>,
+    /// H4 mesh (colour camera frame).
+    pub mesh: Mesh,
+    /// H5: `mesh` without stretched faces.
+    pub mesh_clean: Mesh,
+    /// Counts and timings.
+    pub summary: FusionSummary,
+}
+
+/// The sample spacing of a rig in colour pixels (see the module docs).
+pub fn sample_spacing_px(rig: &Rig) -> f32 {
+    let sx = rig.color.intrinsics.fx / rig.depth.intrinsics.fx;
+    let sy = rig.color.intrinsics.fy / rig.depth.intrinsics.fy;
+    (sx * sy).sqrt() as f32
+}
+
+/// The coverage radius for `rig` and `options` (see the module docs).
+pub fn coverage_radius_px(rig: &Rig, options: &FusionOptions) -> f32 {
+    (options.hole_radius_factor * sample_spacing_px(rig)).max(MIN_COVERAGE_RADIUS_PX)
+}
+
+/// How far H8 grows the hole cores back: `coverage radius - spacing / 2` (see [`HoleMasker`]).
+pub fn hole_grow_px(rig: &Rig, options: &FusionOptions) -> f32 {
+    (coverage_radius_px(rig, options) - 0.5 * sample_spacing_px(rig)).max(0.0)
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Runs H1–H8 on one frame. `depth` is depth-camera-sized (metres, kind `kind`, NaN / 0 =
+/// no sample), `color` colour-camera-sized.
+///
+/// Errors: [`GeometryError::SizeMismatch`] when an image does not match its camera in
+/// `rig`, [`GeometryError::InvalidParameter`] for an invalid rig,
+/// [`GeometryError::InvalidInput`] when no depth pixel has a sample.
+pub fn run(
+    rig: &Rig,
+    depth: &Image<f32>,
+    kind: DepthKind,
+    color: &Image<[u8; 3]>,
+    options: &FusionOptions,
+) -> Result<FusionOutput, GeometryError> {
+    rig.validate()?;
+    depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
+    color.expect_size("colour image", rig.color.width, rig.color.height)?;
+    let valid_depth_pixels = depth.data().iter().filter(|&&z| z > 0.0 && z < f32::INFINITY).count();
+    if valid_depth_pixels == 0 {
+        return Err(GeometryError::InvalidInput(format!(
+            "the {}x{} depth image has no valid sample (all NaN, zero, negative or infinite); \
+             check the depth file and its units",
+            depth.width(),
+            depth.height()
+        )));
+    }
+    let mut timings = StageTimings::default();
+    let proj = ColorProjection::from_rig(rig);
+    let (cw, ch) = (rig.color.width, rig.color.height);
+
+    let t = Instant::now();
+    let rays = depth_ray_table(&rig.depth, kind);
+    let (mut cloud, cloud_pixels) = backproject_cloud(depth, &rays);
+    timings.h1_ms = ms(t);
+
+    let t = Instant::now();
+    let samples = project_cloud(&cloud.points, &proj);
+    timings.h2_ms = ms(t);
+
+    let t = Instant::now();
+    let zbuffer = zbuffer_from_samples(&samples, cw as u32, ch as u32);
+    timings.h7_ms = ms(t);
+
+    let spacing = sample_spacing_px(rig);
+    let radius = coverage_radius_px(rig, options);
+    let t = Instant::now();
+    let nearest = nearest_fill(&zbuffer, radius, options.depth_jump);
+    timings.h3_nearest_ms = ms(t);
+
+    let t = Instant::now();
+    let (linear, linear_stats) = if options.linear {
+        let (img, stats) = linear_resample(&samples, &zbuffer, options.linear_max_edge_factor * spacing, options.depth_jump)?;
+        (Some(img), Some(stats))
+    } else {
+        (None, None)
+    };
+    timings.h3_linear_ms = ms(t);
+
+    let t = Instant::now();
+    let mask = hole_mask(&zbuffer, radius, hole_grow_px(rig, options));
+    let hole_pixels = mask.data().iter().filter(|&&m| m).count();
+    let plane = if options.fill_holes { fit_plane_ransac(&nearest, &rig.color, &options.plane) } else { None };
+    let (filled, filled_pixels) = match &plane {
+        Some(p) => fill_holes_with_plane(&nearest, &mask, &rig.color, p),
+        None => (nearest.clone(), 0),
+    };
+    timings.h8_ms = ms(t);
+
+    let t = Instant::now();
+    let (color_img, color_valid) = color_on_depth(depth, &rays, &proj, color, Some(&nearest), options.color_occlusion_tolerance);
+    cloud.colors = cloud_pixels
+        .iter()
+        .map(|&i| if color_valid.data()[i as usize] { color_img.data()[i as usize] } else { [0, 0, 0] })
+        .collect();
+    timings.h6_ms = ms(t);
+
+    let t = Instant::now();
+    let mesh_depth = match options.mesh_source {
+        MeshSource::Nearest => &nearest,
+        MeshSource::Linear => linear.as_ref().unwrap_or(&nearest),
+        MeshSource::Filled => &filled,
+    };
+    let mesh = mesh_from_depth(mesh_depth, &rig.color, color, options.mesh_step);
+    timings.h4_ms = ms(t);
+    let t = Instant::now();
+    let mesh_clean = remove_stretched_faces(&mesh, options.stretch_ratio);
+    timings.h5_ms = ms(t);
+
+    let count = |img: &Image<f32>| img.data().iter().filter(|z| z.is_finite()).count();
+    let summary = FusionSummary {
+        depth_size: [depth.width(), depth.height()],
+        color_size: [cw, ch],
+        depth_kind: kind,
+        valid_depth_pixels,
+        points: cloud.len(),
+        samples_in_view: samples.len(),
+        zbuffer_pixels: count(&zbuffer),
+        sample_spacing_px: spacing,
+        coverage_radius_px: radius,
+        nearest_pixels: count(&nearest),
+        linear: linear_stats,
+        mesh_vertices: mesh.vertices.len(),
+        faces_before: mesh.faces.len(),
+        faces_after: mesh_clean.faces.len(),
+        color_on_depth_pixels: color_valid.data().iter().filter(|&&v| v).count(),
+        hole_pixels,
+        filled_pixels,
+        plane,
+        timings_ms: options.record_timings.then_some(timings),
+    };
+    Ok(FusionOutput {
+        cloud,
+        cloud_pixels,
+        samples,
+        zbuffer,
+        nearest,
+        linear,
+        hole_mask: mask,
+        filled,
+        color_on_depth: color_img,
+        color_on_depth_valid: color_valid,
+        mesh,
+        mesh_clean,
+        summary,
+    })
+}

@@ -1,0 +1,124 @@
+//! H1 back-projection, H2 projection into the colour camera and H7 z-buffering.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use rayon::prelude::*;
+
+use super::pixel::{
+    backproject_pixel, project_point, register_pixel, zbuffer_index, zbuffer_min, ColorProjection, ZBUFFER_EMPTY,
+};
+use crate::{Image, PointCloud};
+
+/// One depth sample seen by the colour camera (H2): where it lands and how far it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColorSample {
+    /// Colour pixel column (sub-pixel, distortion applied).
+    pub u: f32,
+    /// Colour pixel row.
+    pub v: f32,
+    /// Depth along the colour camera's optical axis, metres.
+    pub z: f32,
+    /// Index of the point in the H1 cloud.
+    pub point: u32,
+}
+
+/// H1: every valid depth pixel as a 3D point in the depth camera's frame (row-major order),
+/// and the row-major index of the pixel each point came from. Pixels without a sample
+/// (`NaN`, `0`, negative, infinite) or without a ray (lens fold) give no point.
+pub fn backproject_cloud(depth: &Image<f32>, rays: &[[f32; 3]]) -> (PointCloud, Vec<u32>) {
+    let mut cloud = PointCloud::default();
+    let mut pixels = Vec::new();
+    for (i, (&value, &ray)) in depth.data().iter().zip(rays).enumerate() {
+        if let Some(p) = backproject_pixel(ray, value) {
+            if p.iter().all(|c| c.is_finite()) {
+                cloud.points.push(p);
+                pixels.push(i as u32);
+            }
+        }
+    }
+    (cloud, pixels)
+}
+
+/// H2: the points that land on the colour image (by the rounding rule of
+/// [`zbuffer_index`]) and lie in front of the colour camera.
+pub fn project_cloud(points: &[[f32; 3]], proj: &ColorProjection) -> Vec<ColorSample> {
+    points
+        .iter()
+        .enumerate()
+        .filter_map(|(i, &p)| {
+            let [u, v, z] = project_point(proj, p)?;
+            zbuffer_index(u, v, proj.width, proj.height)?;
+            Some(ColorSample { u, v, z, point: i as u32 })
+        })
+        .collect()
+}
+
+/// H7 from H2's samples: the smallest `z` per colour pixel, [`ZBUFFER_EMPTY`] elsewhere.
+pub fn zbuffer_from_samples(samples: &[ColorSample], width: u32, height: u32) -> Image<f32> {
+    let mut img = Image::filled(width as usize, height as usize, ZBUFFER_EMPTY);
+    let data = img.data_mut();
+    for s in samples {
+        if let Some(i) = zbuffer_index(s.u, s.v, width, height) {
+            zbuffer_min(&mut data[i], s.z);
+        }
+    }
+    img
+}
+
+/// H1 + H2 + H7 fused, single thread, no allocation: clears `zbuffer` (colour-sized,
+/// row-major) to [`ZBUFFER_EMPTY`] and z-buffers every depth pixel into it.
+/// `depth` and `rays` are depth-sized and row-major. Returns the number of samples that
+/// landed on the colour image.
+pub fn register_depth(depth: &[f32], rays: &[[f32; 3]], proj: &ColorProjection, zbuffer: &mut [f32]) -> usize {
+    zbuffer.fill(ZBUFFER_EMPTY);
+    let mut landed = 0;
+    for (&value, &ray) in depth.iter().zip(rays) {
+        if let Some([u, v, z]) = register_pixel(proj, ray, value) {
+            if let Some(i) = zbuffer_index(u, v, proj.width, proj.height) {
+                zbuffer_min(&mut zbuffer[i], z);
+                landed += 1;
+            }
+        }
+    }
+    landed
+}
+
+/// [`register_depth`] on all rayon threads: blocks of depth rows in parallel, an atomic
+/// minimum on the `f32` bit patterns (exactly what the GPU does), so the result is
+/// bit-identical to the single-thread version. `zbuffer` holds the bit patterns
+/// (colour-sized, row-major); read it with [`atomic_zbuffer_to_image`].
+pub fn register_depth_parallel(
+    depth: &[f32],
+    rays: &[[f32; 3]],
+    depth_width: usize,
+    proj: &ColorProjection,
+    zbuffer: &[AtomicU32],
+) -> usize {
+    /// Depth rows per rayon task: 8 rows (~4k pixels) amortise the task overhead.
+    const ROWS_PER_TASK: usize = 8;
+    zbuffer.par_chunks(1 << 16).for_each(|c| c.iter().for_each(|a| a.store(u32::MAX, Ordering::Relaxed)));
+    let chunk = depth_width.max(1) * ROWS_PER_TASK;
+    depth
+        .par_chunks(chunk)
+        .zip(rays.par_chunks(chunk))
+        .map(|(d, r)| {
+            let mut n = 0;
+            for (&value, &ray) in d.iter().zip(r) {
+                if let Some([u, v, z]) = register_pixel(proj, ray, value) {
+                    if let Some(i) = zbuffer_index(u, v, proj.width, proj.height) {
+                        zbuffer[i].fetch_min(z.to_bits(), Ordering::Relaxed);
+                        n += 1;
+                    }
+                }
+            }
+            n
+        })
+        .sum()
+}
+
+/// Copies an atomic z-buffer (bit patterns) into an image of `f32`.
+pub fn atomic_zbuffer_to_image(zbuffer: &[AtomicU32], out: &mut [f32]) {
+    out.par_chunks_mut(1 << 16)
+        .zip(zbuffer.par_chunks(1 << 16))
+        .for_each(|(o, b)| o.iter_mut().zip(b).for_each(|(o, a)| *o = f32::from_bits(a.load(Ordering::Relaxed))));
+}
