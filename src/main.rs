@@ -3,6 +3,8 @@
 
 use clap::{Parser, Subcommand};
 
+mod cmd_capture;
+
 /// Kinect v2 capture, calibration and RGB-D fusion.
 #[derive(Parser)]
 #[command(name = "kfuse", version, about, long_about = None)]
@@ -15,6 +17,10 @@ struct Cli {
 enum Command {
     /// Print the camera conventions kfuse uses (pixels, frames, units).
     Conventions,
+    /// List connected Kinect v2 sensors.
+    Devices(cmd_capture::DevicesArgs),
+    /// Capture from a Kinect v2: calibration shots, scenes, raw recordings.
+    Capture(cmd_capture::CaptureArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -25,6 +31,8 @@ fn main() -> anyhow::Result<()> {
             println!("frames: x right, y down, z forward; the depth camera is the reference");
             println!("poses: color_from_depth maps X_depth to X_color = R X_depth + T (metres)");
         }
+        Command::Devices(a) => cmd_capture::run_devices(a)?,
+        Command::Capture(a) => cmd_capture::run_capture(a)?,
     }
     Ok(())
 }

@@ -127,3 +127,48 @@ pub trait UsbBackend: Send {
     /// Cancels a stream and waits at most `max_wait` for its transfers.
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError>;
 }
+
+impl<T: UsbBackend + ?Sized> UsbBackend for Box<T> {
+    fn active_config(&mut self) -> Result<u8, UsbError> {
+        (**self).active_config()
+    }
+    fn set_config(&mut self, cfg: u8) -> Result<(), UsbError> {
+        (**self).set_config(cfg)
+    }
+    fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
+        (**self).reset()
+    }
+    fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
+        (**self).claim(iface)
+    }
+    fn release(&mut self, iface: u8) -> Result<(), UsbError> {
+        (**self).release(iface)
+    }
+    fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError> {
+        (**self).set_alt(iface, alt)
+    }
+    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+        (**self).control_out(req_type, req, value, index, data, timeout)
+    }
+    fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+        (**self).bulk_out(ep, data, timeout)
+    }
+    fn bulk_in(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> Result<usize, UsbError> {
+        (**self).bulk_in(ep, buf, timeout)
+    }
+    fn clear_halt(&mut self, ep: u8) -> Result<(), UsbError> {
+        (**self).clear_halt(ep)
+    }
+    fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError> {
+        (**self).iso_bytes_per_interval(ep, alt)
+    }
+    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
+        (**self).start_stream(spec)
+    }
+    fn next_event(&mut self, timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+        (**self).next_event(timeout)
+    }
+    fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
+        (**self).stop_stream(h, max_wait)
+    }
+}

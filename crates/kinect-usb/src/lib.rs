@@ -13,9 +13,10 @@
 //! * All protocol fields are little-endian. Timestamps are in units of 0.125 ms.
 //! * Internally the decoder works in *processing* rows `y = 423 − r` (spec §9.8).
 //!
-//! This crate depends on nothing else of kfuse. `unsafe` is confined to the libusb transfer
-//! module (feature `libusb`).
+//! This crate depends on nothing else of kfuse. `unsafe` is confined to the private
+//! `transfer` module (libusb isochronous/bulk transfers).
 #![deny(missing_docs)]
+#![deny(unsafe_code)]
 
 pub mod error;
 pub mod raw;
@@ -30,5 +31,7 @@ pub mod backend;
 pub mod device;
 pub mod sim;
 pub mod recording;
+mod transfer;
+pub mod usb;
 
 pub use error::{KinectError, Result, UsbError};

@@ -60,6 +60,40 @@ impl SimProfile {
         })
     }
 
+    /// A self-contained profile for given depth intrinsics: smooth synthetic P0 tables and
+    /// pinhole-like colour parameters (colour focal length `color_f`, principal point at the
+    /// image centre, the real devices' `shift_d = 863`, `shift_m = 52`).
+    pub fn synthetic(depth: DepthParams, color_f: f32) -> Self {
+        let base = [11_418.0f64, 2_284.0, 17_128.0];
+        let tables = std::array::from_fn(|k| {
+            (0..PIXELS)
+                .map(|i| {
+                    let (x, y) = ((i % 512) as f64 / 511.0 - 0.5, (i / 512) as f64 / 423.0 - 0.5);
+                    (base[k] + 900.0 * x - 600.0 * y + 1200.0 * (x * x + y * y)).round() as u16
+                })
+                .collect()
+        });
+        // Polynomial coefficients of a pinhole mapping (spec §11.1 inverted for x, y linear).
+        const QD: f32 = 0.01;
+        const QC: f32 = 0.002199;
+        let (shift_d, shift_m) = (863.0f32, 52.0f32);
+        let mut mx = [0f32; 10];
+        let mut my = [0f32; 10];
+        mx[7] = color_f * QC / (QD * depth.fx);
+        mx[9] = shift_m / shift_d * color_f * QC;
+        my[8] = color_f * QC / (QD * depth.fy);
+        SimProfile {
+            firmware: [(1, 0, 0, 0), (2, 0, 0, 0), (3, 0, 0, 0), (4, 0, 3912, 0), (0, 0, 0, 0), (0, 0, 0, 0), (0, 0, 0, 0)],
+            hardware_info: vec![0u8; 92],
+            serial: "000000000001".into(),
+            depth_params: depth,
+            p0: P0Tables { tables },
+            color_params: ColorParams { f: color_f, cx: 959.5, cy: 539.5, shift_d, shift_m, mx, my },
+            status_words: vec![1024, 9729, 9731],
+            bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
+        }
+    }
+
     fn firmware_bytes(&self) -> Vec<u8> {
         let mut v = vec![0u8; 0x200];
         for (i, &(maj, min, rev, build)) in self.firmware.iter().enumerate() {
