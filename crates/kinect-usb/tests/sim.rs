@@ -125,6 +125,7 @@ fn simulated_stream_decodes_to_the_scene() {
     errs.sort_by(f32::total_cmp);
     let median = errs[errs.len() / 2];
     let max = *errs.last().unwrap();
+    eprintln!("sim round trip: {} pixels, median {median} mm, max {max} mm", errs.len());
     assert!(errs.len() > 200_000);
     assert!(median <= 0.2 && max <= 8.0, "median {median} max {max}");
 }
@@ -159,6 +160,7 @@ fn five_percent_iso_loss_drops_and_counts_whole_frames() {
     let Some(dir) = vectors_or_skip("five_percent_iso_loss_drops_and_counts_whole_frames") else { return };
     let periods = 60;
     let (seqs, c, periods) = lossy_run(&dir, 0.05, 0.01, periods);
+    eprintln!("5 % loss: {periods} frame periods, {c:?}");
     assert_eq!(c.depth_frames as usize, seqs.len());
     let accounted = c.depth_frames + c.depth_incomplete;
     // The last one or two periods may still be queued / in progress when the loop stops.
