@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 
 mod cmd_calibrate;
 mod cmd_undistort;
+mod cmd_capture;
 
 /// Kinect v2 capture, calibration and RGB-D fusion.
 #[derive(Parser)]
@@ -33,6 +34,10 @@ enum Command {
     Undistort(cmd_undistort::UndistortArgs),
     /// Open the viewer: 2D panes, 3D cloud and mesh, live fusion switches.
     View(cmd_view::ViewArgs),
+    /// List connected Kinect v2 sensors.
+    Devices(cmd_capture::DevicesArgs),
+    /// Capture from a Kinect v2: calibration shots, scenes, raw recordings.
+    Capture(cmd_capture::CaptureArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -68,6 +73,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Demo(args) => cmd_demo::run(&args)?,
         Command::View(args) => cmd_view::run(&args)?,
+        Command::Devices(a) => cmd_capture::run_devices(a)?,
+        Command::Capture(a) => cmd_capture::run_capture(a)?,
     }
     Ok(())
 }

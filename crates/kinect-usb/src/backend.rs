@@ -1,0 +1,174 @@
+//! The transport abstraction (spec §14.1). The protocol layer, the parsers and the decoder see
+//! only this trait and byte slices.
+//!
+//! Deviation from the spec's sketch: streaming events are *pulled* with
+//! [`UsbBackend::next_event`] instead of being pushed on a channel. A libusb backend fills an
+//! internal queue from its event thread; the simulated device generates events on demand,
+//! which keeps it deterministic and single-threaded.
+
+use std::time::Duration;
+
+use crate::error::UsbError;
+
+/// Result of a port reset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ResetOutcome {
+    /// The device is still there.
+    Ok,
+    /// The device re-enumerated (libusb `NOT_FOUND`): reopen it.
+    Reenumerated,
+}
+
+/// What to stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StreamSpec {
+    /// Bulk IN stream (colour).
+    Bulk {
+        /// Endpoint.
+        ep: u8,
+        /// Transfers in flight.
+        transfers: usize,
+        /// Bytes per transfer.
+        size: usize,
+    },
+    /// Isochronous IN stream (depth).
+    Iso {
+        /// Endpoint.
+        ep: u8,
+        /// Transfers in flight.
+        transfers: usize,
+        /// Packets per transfer.
+        packets: usize,
+        /// Bytes per packet.
+        packet_size: usize,
+    },
+}
+
+/// Completion status of one transfer or iso packet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum XferStatus {
+    /// Completed (data valid).
+    Completed,
+    /// Error (data invalid).
+    Error,
+    /// Timed out.
+    TimedOut,
+    /// Cancelled.
+    Cancelled,
+}
+
+/// Why a stream stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    /// Stopped on request.
+    Requested,
+    /// The device disappeared.
+    Disconnected,
+    /// Resubmission failed for another reason.
+    Stalled,
+}
+
+/// Identifies a running stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct StreamHandle(pub u32);
+
+/// One streaming event.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StreamEvent {
+    /// One completed bulk transfer.
+    Bulk {
+        /// Status.
+        status: XferStatus,
+        /// `actual_length` bytes.
+        data: Vec<u8>,
+    },
+    /// One isochronous packet descriptor (in order).
+    IsoPacket {
+        /// Status.
+        status: XferStatus,
+        /// `actual_length` bytes.
+        data: Vec<u8>,
+    },
+    /// The stream ended.
+    Stopped {
+        /// Why.
+        reason: StopReason,
+    },
+}
+
+/// A USB transport to one opened Kinect v2.
+pub trait UsbBackend: Send {
+    /// Active configuration value.
+    fn active_config(&mut self) -> Result<u8, UsbError>;
+    /// Sets the configuration.
+    fn set_config(&mut self, cfg: u8) -> Result<(), UsbError>;
+    /// USB port reset.
+    fn reset(&mut self) -> Result<ResetOutcome, UsbError>;
+    /// Claims an interface.
+    fn claim(&mut self, iface: u8) -> Result<(), UsbError>;
+    /// Releases an interface.
+    fn release(&mut self, iface: u8) -> Result<(), UsbError>;
+    /// Selects an alternate setting.
+    fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError>;
+    /// Standard/host-to-device control request.
+    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> Result<usize, UsbError>;
+    /// Bulk OUT.
+    fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<usize, UsbError>;
+    /// Bulk IN.
+    fn bulk_in(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> Result<usize, UsbError>;
+    /// Clears a halt (STALL) on an endpoint.
+    fn clear_halt(&mut self, ep: u8) -> Result<(), UsbError>;
+    /// `wBytesPerInterval` of the SuperSpeed companion descriptor of `ep` in alt setting `alt`.
+    fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError>;
+    /// Starts continuous streaming.
+    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError>;
+    /// Next streaming event of any stream, or `Ok(None)` after `timeout` without one.
+    fn next_event(&mut self, timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError>;
+    /// Cancels a stream and waits at most `max_wait` for its transfers.
+    fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError>;
+}
+
+impl<T: UsbBackend + ?Sized> UsbBackend for Box<T> {
+    fn active_config(&mut self) -> Result<u8, UsbError> {
+        (**self).active_config()
+    }
+    fn set_config(&mut self, cfg: u8) -> Result<(), UsbError> {
+        (**self).set_config(cfg)
+    }
+    fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
+        (**self).reset()
+    }
+    fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
+        (**self).claim(iface)
+    }
+    fn release(&mut self, iface: u8) -> Result<(), UsbError> {
+        (**self).release(iface)
+    }
+    fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError> {
+        (**self).set_alt(iface, alt)
+    }
+    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+        (**self).control_out(req_type, req, value, index, data, timeout)
+    }
+    fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+        (**self).bulk_out(ep, data, timeout)
+    }
+    fn bulk_in(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> Result<usize, UsbError> {
+        (**self).bulk_in(ep, buf, timeout)
+    }
+    fn clear_halt(&mut self, ep: u8) -> Result<(), UsbError> {
+        (**self).clear_halt(ep)
+    }
+    fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError> {
+        (**self).iso_bytes_per_interval(ep, alt)
+    }
+    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
+        (**self).start_stream(spec)
+    }
+    fn next_event(&mut self, timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+        (**self).next_event(timeout)
+    }
+    fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
+        (**self).stop_stream(h, max_wait)
+    }
+}

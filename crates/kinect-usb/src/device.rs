@@ -1,0 +1,421 @@
+//! The session state machine (spec §5): open, start streaming, frames, stop, close — over any
+//! [`UsbBackend`].
+
+use std::time::{Duration, Instant};
+
+use crate::backend::{StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend, XferStatus};
+use crate::error::{KinectError, Result, UsbError};
+use crate::params::{ColorParams, DepthParams, P0Tables};
+use crate::protocol::{
+    self, Command, MIN_BYTES_PER_INTERVAL, MODE_OFF, MODE_ON, MODE_ON_100, STATUS_REGISTER, ep,
+};
+use crate::stream::{ColorAssembler, ColorMeta, DepthAssembler, RawDepthFrame};
+
+/// Timeout of every control and command transfer (spec §2.1, §3.2).
+pub const COMMAND_TIMEOUT: Duration = Duration::from_millis(1000);
+/// Status polls before giving up waiting for readiness (spec §5.2 step 10).
+pub const STATUS_POLLS: usize = 50;
+/// Sleep between not-ready status polls.
+pub const STATUS_POLL_INTERVAL: Duration = Duration::from_millis(100);
+/// Bound on waiting for cancelled transfers at stop (the reference waits forever).
+pub const STOP_WAIT: Duration = Duration::from_secs(2);
+/// Colour transfers in flight × size (Linux default, spec §5.5).
+pub const COLOR_STREAM: StreamSpec = StreamSpec::Bulk { ep: ep::COLOR_IN, transfers: 20, size: 16_384 };
+/// Depth transfers in flight × packets × packet size (Linux default, spec §5.5).
+pub const DEPTH_STREAM: StreamSpec = StreamSpec::Iso { ep: ep::DEPTH_IN, transfers: 60, packets: 8, packet_size: 33_792 };
+
+/// Session state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum State {
+    /// Opened and configured, not streaming.
+    Open,
+    /// Streaming.
+    Streaming,
+    /// Closed.
+    Closed,
+}
+
+/// Everything read from the device at start.
+#[derive(Debug, Clone)]
+pub struct DeviceInfo {
+    /// Firmware version (record 3), e.g. `4.0.3912.0`.
+    pub firmware: String,
+    /// Serial number.
+    pub serial: String,
+    /// Raw 92-byte hardware info.
+    pub hardware_info: Vec<u8>,
+    /// Depth camera intrinsics.
+    pub depth_params: DepthParams,
+    /// P0 tables.
+    pub p0: P0Tables,
+    /// Colour camera parameters.
+    pub color_params: ColorParams,
+    /// The raw responses (depth params, P0, colour params), kept for recordings.
+    pub raw_depth_params: Vec<u8>,
+    /// Raw P0 response.
+    pub raw_p0: Vec<u8>,
+    /// Raw colour parameter response.
+    pub raw_color_params: Vec<u8>,
+}
+
+/// Which stream an event belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StreamKind {
+    /// Depth (isochronous).
+    Depth,
+    /// Colour (bulk).
+    Color,
+}
+
+/// A frame produced by [`KinectDevice::next_frame`], borrowing the device's buffers.
+#[derive(Debug)]
+pub enum Frame<'a> {
+    /// A complete raw depth frame.
+    Depth(RawDepthFrame<'a>),
+    /// A colour JPEG and its metadata.
+    Color(&'a [u8], ColorMeta),
+}
+
+/// Stream counters reported to users.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StreamCounters {
+    /// Complete depth frames.
+    pub depth_frames: u64,
+    /// Depth frames lost (sequence gaps).
+    pub depth_dropped: u64,
+    /// Depth frames started but incomplete.
+    pub depth_incomplete: u64,
+    /// Iso packets with an error status.
+    pub iso_errors: u64,
+    /// Colour frames.
+    pub color_frames: u64,
+    /// Colour packets dropped.
+    pub color_dropped: u64,
+}
+
+/// An opened Kinect v2 session over a backend.
+pub struct KinectDevice<B: UsbBackend> {
+    backend: B,
+    seq: u32,
+    state: State,
+    info: Option<DeviceInfo>,
+    depth: DepthAssembler,
+    color: ColorAssembler,
+    depth_h: Option<StreamHandle>,
+    color_h: Option<StreamHandle>,
+    iso_errors: u64,
+    /// Non-fatal protocol warnings (sequence mismatches, status never ready…).
+    pub warnings: Vec<String>,
+    /// Treat a completion sequence mismatch as an error.
+    pub strict_sequence: bool,
+}
+
+impl<B: UsbBackend> KinectDevice<B> {
+    /// Opens the device (spec §5.1 steps 2–9) on an already-opened backend handle.
+    pub fn open(mut backend: B) -> Result<Self> {
+        let b = &mut backend;
+        b.reset().map_err(|e| KinectError::usb("port reset", e))?;
+        if b.active_config().map_err(|e| KinectError::usb("reading configuration", e))? != 1 {
+            b.set_config(1).map_err(|e| KinectError::usb("set configuration 1", e))?;
+        }
+        for iface in [0, 1] {
+            b.claim(iface).map_err(|e| KinectError::usb(format!("claim interface {iface}"), e))?;
+        }
+        let t = COMMAND_TIMEOUT;
+        b.control_out(0x00, 0x31, 40, 0, &[], t).map_err(|e| KinectError::usb("SET_ISOCH_DELAY", e))?;
+        b.set_alt(1, 0).map_err(|e| KinectError::usb("interface 1 alt 0", e))?;
+        b.control_out(0x00, 0x03, 48, 0, &[], t).map_err(|e| KinectError::usb("U1_ENABLE", e))?;
+        b.control_out(0x00, 0x03, 49, 0, &[], t).map_err(|e| KinectError::usb("U2_ENABLE", e))?;
+        b.control_out(0x01, 0x03, 0, 3 << 8, &[], t).map_err(|e| KinectError::usb("function suspend", e))?;
+        let bpi = b.iso_bytes_per_interval(ep::DEPTH_IN, 1).map_err(|e| KinectError::usb("reading endpoint 0x84 descriptor", e))?;
+        if bpi < MIN_BYTES_PER_INTERVAL {
+            let _ = b.release(0);
+            let _ = b.release(1);
+            return Err(KinectError::InsufficientBandwidth { got: bpi, need: MIN_BYTES_PER_INTERVAL });
+        }
+        Ok(KinectDevice {
+            backend,
+            seq: 0,
+            state: State::Open,
+            info: None,
+            depth: DepthAssembler::new(),
+            color: ColorAssembler::new(),
+            depth_h: None,
+            color_h: None,
+            iso_errors: 0,
+            warnings: Vec::new(),
+            strict_sequence: false,
+        })
+    }
+
+    /// Current state.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// Device information (available after [`Self::start`]).
+    pub fn info(&self) -> Option<&DeviceInfo> {
+        self.info.as_ref()
+    }
+
+    /// The backend (e.g. to inspect a simulated device's transcript).
+    pub fn backend(&self) -> &B {
+        &self.backend
+    }
+
+    /// Sends one command and returns its data phase (spec §3.2).
+    pub fn command(&mut self, cmd: Command) -> Result<Vec<u8>> {
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        let name = cmd.name();
+        let msg = cmd.encode(seq);
+        let n = self.usb(ep::COMMAND_OUT, &name, |b| b.bulk_out(ep::COMMAND_OUT, &msg, COMMAND_TIMEOUT))?;
+        if n != msg.len() {
+            return Err(KinectError::Protocol { what: name, detail: format!("short write {n} of {}", msg.len()) });
+        }
+        let mut data = Vec::new();
+        if cmd.max_response_len() > 0 {
+            data = vec![0u8; cmd.max_response_len() as usize];
+            let got = self.usb(ep::COMMAND_IN, &name, |b| b.bulk_in(ep::COMMAND_IN, &mut data, COMMAND_TIMEOUT))?;
+            data.truncate(got);
+            if protocol::is_completion(&data) {
+                return Err(KinectError::Protocol { what: name, detail: "premature completion (device ended the command without data)".into() });
+            }
+            if got < cmd.min_response_len() {
+                return Err(KinectError::Protocol { what: name, detail: format!("short response: {got} bytes, need {}", cmd.min_response_len()) });
+            }
+        }
+        let mut c = [0u8; 16];
+        let got = self.usb(ep::COMMAND_IN, &name, |b| b.bulk_in(ep::COMMAND_IN, &mut c, COMMAND_TIMEOUT))?;
+        let cseq = protocol::parse_completion(&c[..got], &name)?;
+        if cseq != seq {
+            let msg = format!("{name}: completion sequence {cseq}, expected {seq}");
+            if self.strict_sequence {
+                return Err(KinectError::Protocol { what: name, detail: msg });
+            }
+            self.warnings.push(msg);
+        }
+        Ok(data)
+    }
+
+    fn usb<T>(&mut self, endpoint: u8, what: &str, f: impl FnOnce(&mut B) -> std::result::Result<T, UsbError>) -> Result<T> {
+        match f(&mut self.backend) {
+            Ok(v) => Ok(v),
+            Err(UsbError::Stall) => {
+                // Clear the halt so the next command can proceed (spec §3.2).
+                let _ = self.backend.clear_halt(endpoint);
+                Err(KinectError::usb(what, UsbError::Stall))
+            }
+            Err(e) => Err(KinectError::usb(what, e)),
+        }
+    }
+
+    /// Starts streaming (spec §5.2). On failure, rolls back best-effort and stays Open.
+    pub fn start(&mut self, color: bool, depth: bool) -> Result<&DeviceInfo> {
+        if self.state != State::Open {
+            return Err(KinectError::State { op: "start".into(), state: format!("{:?}", self.state) });
+        }
+        match self.start_inner(color, depth) {
+            Ok(()) => {
+                self.state = State::Streaming;
+                self.info.as_ref().ok_or_else(|| KinectError::Invalid("no device info".into()))
+            }
+            Err(e) => {
+                self.state = State::Streaming;
+                let _ = self.stop();
+                Err(e)
+            }
+        }
+    }
+
+    fn start_inner(&mut self, color: bool, depth: bool) -> Result<()> {
+        let t = COMMAND_TIMEOUT;
+        self.usb(0, "function resume", |b| b.control_out(0x01, 0x03, 0, 0, &[], t))?;
+        let fw = protocol::parse_firmware(&self.command(Command::ReadFirmwareVersions)?)?;
+        let hardware_info = self.command(Command::ReadHardwareInfo)?;
+        let serial = protocol::parse_serial(&self.command(Command::ReadDataPage(1))?);
+        let raw_depth_params = self.command(Command::ReadDataPage(3))?;
+        let depth_params = DepthParams::from_response(&raw_depth_params)?;
+        let raw_p0 = self.command(Command::ReadDataPage(2))?;
+        let p0 = P0Tables::from_response(&raw_p0)?;
+        let raw_color_params = self.command(Command::ReadDataPage(4))?;
+        let color_params = ColorParams::from_response(&raw_color_params)?;
+        self.command(Command::SetMode(MODE_ON_100))?;
+        self.command(Command::SetMode(MODE_OFF))?;
+        let mut ready = false;
+        for _ in 0..STATUS_POLLS {
+            let s = protocol::parse_status(&self.command(Command::ReadStatus(STATUS_REGISTER))?)?;
+            if s & 1 == 1 {
+                ready = true;
+                break;
+            }
+            std::thread::sleep(STATUS_POLL_INTERVAL);
+        }
+        if !ready {
+            self.warnings.push(format!("sensor never reported ready after {STATUS_POLLS} status polls; continuing"));
+        }
+        self.command(Command::InitStreams)?;
+        self.usb(0, "interface 1 alt 1", |b| b.set_alt(1, 1))?;
+        self.command(Command::ReadStatus(STATUS_REGISTER))?;
+        self.command(Command::SetStreaming(true))?;
+        self.info = Some(DeviceInfo {
+            firmware: protocol::user_firmware_version(&fw).map(|v| v.to_string()).unwrap_or_else(|| "unknown".into()),
+            serial,
+            hardware_info,
+            depth_params,
+            p0,
+            color_params,
+            raw_depth_params,
+            raw_p0,
+            raw_color_params,
+        });
+        if color {
+            self.color_h = Some(self.usb(ep::COLOR_IN, "start colour stream", |b| b.start_stream(COLOR_STREAM))?);
+        }
+        if depth {
+            self.depth_h = Some(self.usb(ep::DEPTH_IN, "start depth stream", |b| b.start_stream(DEPTH_STREAM))?);
+        }
+        Ok(())
+    }
+
+    /// Waits for the next complete frame, at most `timeout`. `tap` sees every raw stream event
+    /// (for recordings). Returns `Ok(None)` on timeout; `Err(Disconnected)` when the device
+    /// went away.
+    pub fn next_frame(&mut self, timeout: Duration, tap: &mut dyn FnMut(StreamKind, &StreamEvent)) -> Result<Option<Frame<'_>>> {
+        if self.state != State::Streaming {
+            return Err(KinectError::State { op: "next_frame".into(), state: format!("{:?}", self.state) });
+        }
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let ev = match self.backend.next_event(left) {
+                Ok(Some(ev)) => ev,
+                Ok(None) => return Ok(None),
+                Err(UsbError::NoDevice) => return Err(KinectError::Disconnected { what: "streaming".into() }),
+                Err(e) => return Err(KinectError::usb("streaming", e)),
+            };
+            let (h, ev) = ev;
+            let kind = if Some(h) == self.depth_h { StreamKind::Depth } else { StreamKind::Color };
+            tap(kind, &ev);
+            match ev {
+                StreamEvent::Stopped { reason: StopReason::Disconnected } => {
+                    return Err(KinectError::Disconnected { what: "streaming".into() });
+                }
+                StreamEvent::Stopped { reason: StopReason::Requested } => return Err(KinectError::EndOfStream),
+                StreamEvent::Stopped { reason } => {
+                    return Err(KinectError::Protocol { what: format!("{kind:?} stream"), detail: format!("stream stopped: {reason:?}") });
+                }
+                StreamEvent::IsoPacket { status, data } => {
+                    if status != XferStatus::Completed {
+                        self.iso_errors += 1;
+                        continue;
+                    }
+                    // Re-borrow dance: check completion first, then return the borrowed frame.
+                    if self.depth.push(&data).is_some() {
+                        return Ok(self.depth_last());
+                    }
+                }
+                StreamEvent::Bulk { status, data } => {
+                    if status != XferStatus::Completed {
+                        continue;
+                    }
+                    if self.color.push(&data).is_some() {
+                        return Ok(self.color_last());
+                    }
+                }
+            }
+            if Instant::now() >= deadline {
+                return Ok(None);
+            }
+        }
+    }
+
+    fn depth_last(&self) -> Option<Frame<'_>> {
+        self.depth.last_frame().map(Frame::Depth)
+    }
+
+    fn color_last(&self) -> Option<Frame<'_>> {
+        self.color.last_frame().map(|(j, m)| Frame::Color(j, m))
+    }
+
+    /// Stream counters so far.
+    pub fn counters(&self) -> StreamCounters {
+        StreamCounters {
+            depth_frames: self.depth.stats.frames,
+            depth_dropped: self.depth.stats.skipped_frames,
+            depth_incomplete: self.depth.stats.incomplete_frames,
+            iso_errors: self.iso_errors,
+            color_frames: self.color.stats.frames,
+            color_dropped: self.color.stats.dropped,
+        }
+    }
+
+    /// Stops streaming (spec §5.3), best effort: every step runs, errors are aggregated.
+    pub fn stop(&mut self) -> Result<()> {
+        if self.state != State::Streaming {
+            return Ok(());
+        }
+        let mut errors = Vec::new();
+        for h in [self.color_h.take(), self.depth_h.take()].into_iter().flatten() {
+            if let Err(e) = self.backend.stop_stream(h, STOP_WAIT) {
+                errors.push(format!("cancel stream: {e}"));
+            }
+        }
+        if let Err(e) = self.backend.set_alt(1, 0) {
+            errors.push(format!("interface 1 alt 0: {e}"));
+        }
+        let cmds = [
+            Command::SetMode(MODE_ON_100),
+            Command::SetMode(MODE_OFF),
+            Command::Stop,
+            Command::SetStreaming(false),
+            Command::SetMode(MODE_ON),
+            Command::SetMode(MODE_OFF),
+            Command::SetMode(MODE_ON),
+            Command::SetMode(MODE_OFF),
+        ];
+        for c in cmds {
+            if let Err(e) = self.command(c) {
+                errors.push(e.to_string());
+                if matches!(e, KinectError::Disconnected { .. }) {
+                    break;
+                }
+            }
+        }
+        if let Err(e) = self.backend.control_out(0x01, 0x03, 0, 3 << 8, &[], COMMAND_TIMEOUT) {
+            errors.push(format!("function suspend: {e}"));
+        }
+        self.state = State::Open;
+        if errors.is_empty() {
+            Ok(())
+        } else {
+            Err(KinectError::Protocol { what: "stop".into(), detail: errors.join("; ") })
+        }
+    }
+
+    /// Closes the session (spec §5.4), best effort.
+    pub fn close(&mut self) -> Result<()> {
+        if self.state == State::Closed {
+            return Ok(());
+        }
+        let r = self.stop();
+        if !self.is_gone(&r) {
+            let _ = self.command(Command::SetMode(MODE_ON_100));
+            let _ = self.command(Command::SetMode(MODE_OFF));
+        }
+        let _ = self.backend.release(0);
+        let _ = self.backend.release(1);
+        self.state = State::Closed;
+        r
+    }
+
+    fn is_gone(&self, r: &Result<()>) -> bool {
+        matches!(r, Err(KinectError::Protocol { detail, .. }) if detail.contains("disappeared"))
+    }
+}
+
+impl<B: UsbBackend> Drop for KinectDevice<B> {
+    fn drop(&mut self) {
+        let _ = self.close();
+    }
+}

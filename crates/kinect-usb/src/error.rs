@@ -1,0 +1,143 @@
+//! The crate's single error type.
+
+use std::path::PathBuf;
+
+/// Transport-level failure of one USB operation (mirrors libusb's error classes so callers can
+/// say what to do).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum UsbError {
+    /// The operation did not finish within its timeout.
+    #[error("USB timeout")]
+    Timeout,
+    /// The endpoint stalled (halt condition).
+    #[error("USB endpoint stalled")]
+    Stall,
+    /// Another process owns the device or interface.
+    #[error("device busy (claimed by another program)")]
+    Busy,
+    /// The device is gone (unplugged or re-enumerated).
+    #[error("no device (unplugged?)")]
+    NoDevice,
+    /// The device sent more data than the buffer holds.
+    #[error("USB overflow")]
+    Overflow,
+    /// Permission denied opening the device node.
+    #[error("access denied (udev rule / permissions)")]
+    Access,
+    /// Any other I/O error.
+    #[error("USB I/O error")]
+    Io,
+    /// The operation is not supported by this backend or platform.
+    #[error("operation not supported")]
+    NotSupported,
+}
+
+/// Every error of `kinect-usb`.
+#[derive(Debug, thiserror::Error)]
+pub enum KinectError {
+    /// A USB operation failed during `what`.
+    #[error("USB error during {what}: {source}")]
+    Usb {
+        /// What the driver was doing.
+        what: String,
+        /// The transport error.
+        source: UsbError,
+    },
+    /// The sensor is in use by another program.
+    #[error(
+        "device busy: another program (e.g. another kfuse, Protonect, a ROS node) has claimed the Kinect v2; close it and retry"
+    )]
+    Busy,
+    /// No Kinect v2 is connected or visible.
+    #[error(
+        "no Kinect v2 found. Check: the sensor's power supply is on; it is plugged into a USB 3 (blue, SuperSpeed) port; \
+         on Linux a udev rule grants access (e.g. /etc/udev/rules.d/90-kinect2.rules with \
+         SUBSYSTEM==\"usb\", ATTR{{idVendor}}==\"045e\", ATTR{{idProduct}}==\"02d8\", MODE=\"0666\"); \
+         your user may open /dev/bus/usb/*"
+    )]
+    NotFound,
+    /// USB is not available at all on this machine (no `/dev/bus/usb`, libusb init failed).
+    #[error("USB is not available on this machine ({0}); no Kinect v2 can be found")]
+    NoUsb(String),
+    /// The device was unplugged.
+    #[error("the Kinect v2 disappeared (unplugged or lost power) while {what}")]
+    Disconnected {
+        /// What the driver was doing.
+        what: String,
+    },
+    /// The isochronous bandwidth is too small (USB 2 port or a bad hub).
+    #[error(
+        "insufficient USB bandwidth: endpoint 0x84 offers {got} bytes per interval, need {need}; use a USB 3 port without hubs"
+    )]
+    InsufficientBandwidth {
+        /// Bytes per interval reported by the device.
+        got: u32,
+        /// Required bytes per interval.
+        need: u32,
+    },
+    /// A protocol rule was violated by the device (or the simulated device by the host).
+    #[error("protocol error in {what}: {detail}")]
+    Protocol {
+        /// The command or stream concerned.
+        what: String,
+        /// What was wrong.
+        detail: String,
+    },
+    /// A command is not legal in the current session state.
+    #[error("{op} is not allowed in state {state}")]
+    State {
+        /// The operation attempted.
+        op: String,
+        /// The state the session was in.
+        state: String,
+    },
+    /// A buffer or file had the wrong size.
+    #[error("{what}: expected {expected} bytes, got {got}")]
+    Size {
+        /// What was being read.
+        what: String,
+        /// Required size.
+        expected: usize,
+        /// Actual size.
+        got: usize,
+    },
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// A recording file is malformed or truncated.
+    #[error("recording {path}: {detail} (at byte {offset}); re-record or pass the intact prefix")]
+    Recording {
+        /// The file.
+        path: PathBuf,
+        /// Byte offset where the problem was found.
+        offset: u64,
+        /// What is wrong.
+        detail: String,
+    },
+    /// The stream ended normally (end of a replayed recording).
+    #[error("end of stream (recording exhausted)")]
+    EndOfStream,
+    /// Invalid parameter given by the caller.
+    #[error("invalid parameter: {0}")]
+    Invalid(String),
+}
+
+impl KinectError {
+    /// Wraps a transport error with context; `NoDevice` becomes [`KinectError::Disconnected`]
+    /// and `Busy` becomes [`KinectError::Busy`].
+    pub fn usb(what: impl Into<String>, source: UsbError) -> Self {
+        match source {
+            UsbError::NoDevice => KinectError::Disconnected { what: what.into() },
+            UsbError::Busy => KinectError::Busy,
+            _ => KinectError::Usb { what: what.into(), source },
+        }
+    }
+}
+
+/// Result alias of this crate.
+pub type Result<T> = std::result::Result<T, KinectError>;

@@ -1,0 +1,37 @@
+//! Kinect v2 (Kinect for Xbox One) driver core of kfuse: USB protocol, simulated device, stream
+//! parsers, CPU depth decoder, registration and raw recordings.
+//!
+//! Implements `shared/docs/kinect-v2-protocol.md` (cited as "spec §n").
+//!
+//! # Conventions
+//!
+//! * Depth/IR images are 512 × 424 `f32`, row-major, **upright** (row 0 = top, the orientation
+//!   libfreenect2 delivers); pixel `(c, r)` = (column, row), integer coordinates are pixel centres.
+//! * Depth is in **millimetres** along the optical axis (z); `0` (or −0.0) means invalid.
+//!   IR is decoder amplitude in `[0, 65535]`.
+//! * Colour frames are 1920 × 1080 baseline JPEG as sent by the sensor.
+//! * All protocol fields are little-endian. Timestamps are in units of 0.125 ms.
+//! * Internally the decoder works in *processing* rows `y = 423 − r` (spec §9.8).
+//!
+//! This crate depends on nothing else of kfuse. `unsafe` is confined to the private
+//! `transfer` module (libusb isochronous/bulk transfers).
+#![deny(missing_docs)]
+#![deny(unsafe_code)]
+
+pub mod error;
+pub mod raw;
+pub mod params;
+pub mod decoder;
+pub mod testdata;
+pub mod registration;
+pub mod stream;
+pub mod forward;
+pub mod protocol;
+pub mod backend;
+pub mod device;
+pub mod sim;
+pub mod recording;
+mod transfer;
+pub mod usb;
+
+pub use error::{KinectError, Result, UsbError};

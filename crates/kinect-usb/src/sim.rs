@@ -1,0 +1,592 @@
+//! A simulated Kinect v2 behind [`UsbBackend`] (spec §14.1): enforces the protocol, answers
+//! every command from a [`SimProfile`], streams depth frames built with the forward model from a
+//! caller-supplied [`SimScene`] and colour packets from caller-supplied JPEGs, and injects
+//! seeded faults.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::backend::{ResetOutcome, StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend, XferStatus};
+use crate::decoder::DecoderParams;
+use crate::error::UsbError;
+use crate::forward::forward_frame;
+use crate::params::{ColorParams, DepthParams, P0Tables, XzTables};
+use crate::protocol::{self, CommandMessage, ep};
+use crate::raw::PIXELS;
+use crate::stream::{ColorMeta, build_color_packet, packetize_depth_frame};
+
+/// Timestamp increment per frame (0.125 ms units, 30 Hz).
+const TICKS_PER_FRAME: u32 = 267;
+
+/// What the simulated device answers to commands.
+#[derive(Debug, Clone)]
+pub struct SimProfile {
+    /// Firmware records (record 3 is shown to users).
+    pub firmware: [(u16, u16, u32, u32); 7],
+    /// 92 bytes of hardware info.
+    pub hardware_info: Vec<u8>,
+    /// Serial number.
+    pub serial: String,
+    /// Depth intrinsics.
+    pub depth_params: DepthParams,
+    /// P0 tables.
+    pub p0: P0Tables,
+    /// Colour parameters.
+    pub color_params: ColorParams,
+    /// Status words returned by successive polls (the last one repeats).
+    pub status_words: Vec<u32>,
+    /// `wBytesPerInterval` of endpoint 0x84.
+    pub bytes_per_interval: u32,
+}
+
+impl SimProfile {
+    /// A profile from the vectors' inputs (real factory intrinsics, synthetic P0 and colour
+    /// parameters) with a real-looking firmware version and status sequence.
+    pub fn from_vectors(dir: &std::path::Path) -> crate::Result<Self> {
+        use crate::testdata::read_bytes;
+        let hw = read_bytes(&dir.join("real/protocol/hardware_info_response.bin"))?;
+        Ok(SimProfile {
+            firmware: [(1, 0, 0, 0), (2, 0, 0, 0), (3, 0, 0, 0), (4, 0, 3912, 0), (0, 0, 0, 0), (0, 0, 0, 0), (0, 0, 0, 0)],
+            hardware_info: hw,
+            serial: "016293740947".into(),
+            depth_params: DepthParams::from_response(&read_bytes(&dir.join("inputs/depth_camera_params_response.bin"))?)?,
+            p0: P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin"))?)?,
+            color_params: ColorParams::from_response(&read_bytes(&dir.join("inputs/rgb_camera_params_response.bin"))?)?,
+            status_words: vec![1024, 9729, 9731],
+            bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
+        })
+    }
+
+    /// A self-contained profile for given depth intrinsics: smooth synthetic P0 tables and
+    /// pinhole-like colour parameters (colour focal length `color_f`, principal point at the
+    /// image centre, the real devices' `shift_d = 863`, `shift_m = 52`).
+    pub fn synthetic(depth: DepthParams, color_f: f32) -> Self {
+        let base = [11_418.0f64, 2_284.0, 17_128.0];
+        let tables = std::array::from_fn(|k| {
+            (0..PIXELS)
+                .map(|i| {
+                    let (x, y) = ((i % 512) as f64 / 511.0 - 0.5, (i / 512) as f64 / 423.0 - 0.5);
+                    (base[k] + 900.0 * x - 600.0 * y + 1200.0 * (x * x + y * y)).round() as u16
+                })
+                .collect()
+        });
+        // Polynomial coefficients of a pinhole mapping (spec §11.1 inverted for x, y linear).
+        const QD: f32 = 0.01;
+        const QC: f32 = 0.002199;
+        let (shift_d, shift_m) = (863.0f32, 52.0f32);
+        let mut mx = [0f32; 10];
+        let mut my = [0f32; 10];
+        mx[7] = color_f * QC / (QD * depth.fx);
+        mx[9] = shift_m / shift_d * color_f * QC;
+        my[8] = color_f * QC / (QD * depth.fy);
+        SimProfile {
+            firmware: [(1, 0, 0, 0), (2, 0, 0, 0), (3, 0, 0, 0), (4, 0, 3912, 0), (0, 0, 0, 0), (0, 0, 0, 0), (0, 0, 0, 0)],
+            hardware_info: vec![0u8; 92],
+            serial: "000000000001".into(),
+            depth_params: depth,
+            p0: P0Tables { tables },
+            color_params: ColorParams { f: color_f, cx: 959.5, cy: 539.5, shift_d, shift_m, mx, my },
+            status_words: vec![1024, 9729, 9731],
+            bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
+        }
+    }
+
+    fn firmware_bytes(&self) -> Vec<u8> {
+        let mut v = vec![0u8; 0x200];
+        for (i, &(maj, min, rev, build)) in self.firmware.iter().enumerate() {
+            let r = &mut v[16 * i..16 * i + 16];
+            r[0..4].copy_from_slice(&(((maj as u32) << 16) | min as u32).to_le_bytes());
+            r[4..8].copy_from_slice(&rev.to_le_bytes());
+            r[8..12].copy_from_slice(&build.to_le_bytes());
+        }
+        v
+    }
+}
+
+/// What the simulated sensor sees. Frames cycle.
+#[derive(Debug, Clone, Default)]
+pub struct SimScene {
+    /// Depth frames: (depth in mm, IR amplitude), each 512 × 424 upright.
+    pub depth_frames: Vec<(Vec<f32>, Vec<f32>)>,
+    /// Colour frames as JPEG bitstreams (any bytes starting FF D8 and ending FF D9).
+    pub color_jpegs: Vec<Vec<u8>>,
+}
+
+/// Seeded fault injection.
+#[derive(Debug, Clone, Default)]
+pub struct SimFaults {
+    /// Seed of every random decision.
+    pub seed: u64,
+    /// Claiming an interface fails with Busy.
+    pub busy: bool,
+    /// Command id whose OUT transfer stalls (once).
+    pub stall_command: Option<u32>,
+    /// Command id whose response read times out (once).
+    pub timeout_command: Option<u32>,
+    /// Command id answered with a premature completion (once).
+    pub premature_completion: Option<u32>,
+    /// Completions echo a wrong sequence number.
+    pub wrong_completion_sequence: bool,
+    /// Status never reports ready.
+    pub status_never_ready: bool,
+    /// Fraction of iso packets lost (error status, no data).
+    pub iso_drop_rate: f64,
+    /// Fraction of iso packets delivered short (truncated data).
+    pub iso_short_rate: f64,
+    /// Fraction of colour transfers that stall (error status).
+    pub bulk_error_rate: f64,
+    /// The device disappears after this many frame periods.
+    pub unplug_after_frames: Option<u64>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    Data,
+    Completion,
+}
+
+/// The simulated device.
+pub struct SimDevice {
+    profile: SimProfile,
+    scene: SimScene,
+    /// Faults to inject.
+    pub faults: SimFaults,
+    rng: ChaCha8Rng,
+    /// Every operation, in order (for asserting exact start/stop/close sequences).
+    pub transcript: Vec<String>,
+    /// Protocol rules the host broke (must stay empty).
+    pub violations: Vec<String>,
+    config: u8,
+    claimed: [bool; 2],
+    alt1: u8,
+    suspended: bool,
+    streaming_on: bool,
+    status_ready_seen: bool,
+    status_polls: usize,
+    expected_seq: u32,
+    pending: Option<(CommandMessage, Vec<u8>, Phase)>,
+    halted_out: bool,
+    gone: bool,
+    iso: Option<(StreamHandle, usize)>,
+    bulk: Option<(StreamHandle, usize)>,
+    next_handle: u32,
+    queue: VecDeque<(StreamHandle, StreamEvent)>,
+    raw_frames: Vec<Vec<u8>>,
+    /// Frame periods generated so far.
+    pub frame_index: u64,
+    /// Sequence number of the next depth frame (wraps at 2^16).
+    pub depth_sequence: u32,
+    timestamp: u32,
+    replay: Option<std::vec::IntoIter<crate::recording::RecordedEvent>>,
+}
+
+impl SimDevice {
+    /// A device that answers commands from a recording's metadata and streams its recorded
+    /// events (the replay path: identical code from the backend up). The streams end with
+    /// `Stopped { Requested }` when the recording is exhausted.
+    pub fn replay(rec: crate::recording::Recording) -> crate::Result<Self> {
+        let m = &rec.meta;
+        let mut fw = [(0u16, 0u16, 0u32, 0u32); 7];
+        let parts: Vec<u32> = m.firmware.split('.').filter_map(|p| p.parse().ok()).collect();
+        if parts.len() >= 4 {
+            fw[3] = (parts[0] as u16, parts[1] as u16, parts[2], parts[3]);
+        }
+        let mut hw = m.hardware_info.clone();
+        hw.resize(92, 0);
+        let profile = SimProfile {
+            firmware: fw,
+            hardware_info: hw,
+            serial: m.serial.clone(),
+            depth_params: DepthParams::from_response(&m.depth_params)?,
+            p0: P0Tables::from_response(&m.p0)?,
+            color_params: ColorParams::from_response(&m.color_params)?,
+            status_words: vec![1],
+            bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
+        };
+        let mut d = SimDevice::new(profile, SimScene::default(), SimFaults::default());
+        d.replay = Some(rec.events.into_iter());
+        Ok(d)
+    }
+
+    /// A device with the given profile, scene and faults.
+    pub fn new(profile: SimProfile, scene: SimScene, faults: SimFaults) -> Self {
+        let rng = ChaCha8Rng::seed_from_u64(faults.seed);
+        SimDevice {
+            profile,
+            scene,
+            faults,
+            rng,
+            transcript: Vec::new(),
+            violations: Vec::new(),
+            config: 0,
+            claimed: [false; 2],
+            alt1: 0,
+            suspended: false,
+            streaming_on: false,
+            status_ready_seen: false,
+            status_polls: 0,
+            expected_seq: 0,
+            pending: None,
+            halted_out: false,
+            gone: false,
+            iso: None,
+            bulk: None,
+            next_handle: 1,
+            queue: VecDeque::new(),
+            raw_frames: Vec::new(),
+            frame_index: 0,
+            depth_sequence: 0,
+            timestamp: 1000,
+            replay: None,
+        }
+    }
+
+    /// The raw depth frames the device streams (forward model of the scene), built on demand.
+    pub fn raw_frames(&mut self) -> &[Vec<u8>] {
+        if self.raw_frames.is_empty() {
+            let xz = XzTables::from_params(&self.profile.depth_params);
+            let p = DecoderParams::default();
+            self.raw_frames = self
+                .scene
+                .depth_frames
+                .iter()
+                .filter(|(d, i)| d.len() == PIXELS && i.len() == PIXELS)
+                .map(|(d, i)| forward_frame(d, i, &xz, &self.profile.p0, &p))
+                .collect();
+        }
+        &self.raw_frames
+    }
+
+    fn check(&mut self) -> Result<(), UsbError> {
+        if self.gone { Err(UsbError::NoDevice) } else { Ok(()) }
+    }
+
+    fn respond(&mut self, m: &CommandMessage) -> Vec<u8> {
+        let p = &self.profile;
+        match (m.id, m.params.first().copied()) {
+            (0x02, _) => p.firmware_bytes(),
+            (0x14, _) => p.hardware_info.clone(),
+            (0x22, Some(1)) => protocol::encode_serial(&p.serial),
+            (0x22, Some(2)) => p.p0.to_response(),
+            (0x22, Some(3)) => p.depth_params.to_response(),
+            (0x22, Some(4)) => p.color_params.to_response(),
+            (0x16, _) => {
+                let w = if self.faults.status_never_ready {
+                    0
+                } else {
+                    p.status_words.get(self.status_polls).or(p.status_words.last()).copied().unwrap_or(1)
+                };
+                self.status_polls += 1;
+                if w & 1 == 1 {
+                    self.status_ready_seen = true;
+                }
+                w.to_le_bytes().to_vec()
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    fn generate_frame_period(&mut self) {
+        if let Some(it) = self.replay.as_mut() {
+            use crate::device::StreamKind;
+            let (iso, bulk) = (self.iso.map(|s| s.0), self.bulk.map(|s| s.0));
+            for e in it.by_ref() {
+                let h = if e.kind == StreamKind::Depth { iso } else { bulk };
+                if let Some(h) = h {
+                    self.queue.push_back((h, e.to_event()));
+                }
+            }
+            for h in [iso, bulk].into_iter().flatten() {
+                self.queue.push_back((h, StreamEvent::Stopped { reason: StopReason::Requested }));
+            }
+            return;
+        }
+        if let Some(n) = self.faults.unplug_after_frames
+            && self.frame_index >= n
+        {
+            self.gone = true;
+            for h in [self.iso.map(|s| s.0), self.bulk.map(|s| s.0)].into_iter().flatten() {
+                self.queue.push_back((h, StreamEvent::Stopped { reason: StopReason::Disconnected }));
+            }
+            return;
+        }
+        let mut depth_events = Vec::new();
+        let iso_ok = self.alt1 == 1 && self.streaming_on && !self.suspended;
+        if let Some((h, psize)) = self.iso
+            && iso_ok
+        {
+            let nframes = self.raw_frames().len();
+            if nframes > 0 {
+                let idx = (self.frame_index % nframes as u64) as usize;
+                let mut gaps = [0usize; 10];
+                for g in gaps.iter_mut() {
+                    *g = self.rng.random_range(1..=3);
+                }
+                let packets = packetize_depth_frame(&self.raw_frames[idx], self.depth_sequence, self.timestamp, psize, gaps);
+                for mut pk in packets {
+                    let r: f64 = self.rng.random();
+                    let status = if r < self.faults.iso_drop_rate {
+                        pk.clear();
+                        XferStatus::Error
+                    } else {
+                        if r < self.faults.iso_drop_rate + self.faults.iso_short_rate && pk.len() > 1 {
+                            let keep = self.rng.random_range(0..pk.len());
+                            pk.truncate(keep);
+                        }
+                        XferStatus::Completed
+                    };
+                    depth_events.push((h, StreamEvent::IsoPacket { status, data: pk }));
+                }
+            }
+        }
+        let mut color_events = Vec::new();
+        if let Some((h, size)) = self.bulk
+            && !self.scene.color_jpegs.is_empty()
+        {
+            let idx = (self.frame_index % self.scene.color_jpegs.len() as u64) as usize;
+            let jpeg = &self.scene.color_jpegs[idx];
+            let pad = (4 - jpeg.len() % 4) % 4;
+            let filler = 4 * self.rng.random_range(0..64usize);
+            let meta = ColorMeta { sequence: self.frame_index as u32, timestamp: self.timestamp, exposure: 10.0, gain: 1.0, gamma: 1.0 };
+            let packet = build_color_packet(jpeg, &meta, pad, filler);
+            for chunk in packet.chunks(size.max(1)) {
+                let r: f64 = self.rng.random();
+                let status = if r < self.faults.bulk_error_rate { XferStatus::Error } else { XferStatus::Completed };
+                color_events.push((h, StreamEvent::Bulk { status, data: if status == XferStatus::Completed { chunk.to_vec() } else { Vec::new() } }));
+            }
+        }
+        // Interleave the two streams over the frame period.
+        let (nd, nc) = (depth_events.len(), color_events.len());
+        let mut di = depth_events.into_iter();
+        let mut ci = color_events.into_iter();
+        let total = nd + nc;
+        let (mut sent_d, mut sent_c) = (0usize, 0usize);
+        for _ in 0..total {
+            // Keep both streams proportionally advanced.
+            let take_depth = nc == 0 || (nd > 0 && sent_d * nc <= sent_c * nd);
+            if take_depth {
+                if let Some(e) = di.next() {
+                    self.queue.push_back(e);
+                    sent_d += 1;
+                    continue;
+                }
+            }
+            if let Some(e) = ci.next() {
+                self.queue.push_back(e);
+                sent_c += 1;
+            } else if let Some(e) = di.next() {
+                self.queue.push_back(e);
+                sent_d += 1;
+            }
+        }
+        self.frame_index += 1;
+        self.depth_sequence = (self.depth_sequence + 1) % (1 << 16);
+        self.timestamp = self.timestamp.wrapping_add(TICKS_PER_FRAME);
+    }
+
+    /// Sets the next depth sequence number (to test wrap-around).
+    pub fn set_depth_sequence(&mut self, s: u32) {
+        self.depth_sequence = s % (1 << 16);
+    }
+}
+
+impl UsbBackend for SimDevice {
+    fn active_config(&mut self) -> Result<u8, UsbError> {
+        self.check()?;
+        Ok(self.config)
+    }
+
+    fn set_config(&mut self, cfg: u8) -> Result<(), UsbError> {
+        self.check()?;
+        self.transcript.push(format!("set_config {cfg}"));
+        self.config = cfg;
+        Ok(())
+    }
+
+    fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
+        self.check()?;
+        self.transcript.push("reset".into());
+        Ok(ResetOutcome::Ok)
+    }
+
+    fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
+        self.check()?;
+        if self.faults.busy {
+            return Err(UsbError::Busy);
+        }
+        self.transcript.push(format!("claim {iface}"));
+        self.claimed[iface as usize & 1] = true;
+        Ok(())
+    }
+
+    fn release(&mut self, iface: u8) -> Result<(), UsbError> {
+        self.check()?;
+        self.transcript.push(format!("release {iface}"));
+        self.claimed[iface as usize & 1] = false;
+        Ok(())
+    }
+
+    fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError> {
+        self.check()?;
+        self.transcript.push(format!("set_alt {iface} {alt}"));
+        if iface == 1 {
+            self.alt1 = alt;
+        }
+        Ok(())
+    }
+
+    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, _data: &[u8], _t: Duration) -> Result<usize, UsbError> {
+        self.check()?;
+        self.transcript.push(format!("control {req_type:02x} {req:02x} {value} {index:#x}"));
+        if req_type == 0x01 && req == 0x03 {
+            self.suspended = (index >> 8) & 1 == 1;
+        }
+        Ok(0)
+    }
+
+    fn bulk_out(&mut self, ep_: u8, data: &[u8], _t: Duration) -> Result<usize, UsbError> {
+        self.check()?;
+        if ep_ != ep::COMMAND_OUT {
+            return Err(UsbError::NotSupported);
+        }
+        if self.halted_out {
+            return Err(UsbError::Stall);
+        }
+        if !self.claimed[0] {
+            self.violations.push("command before claiming interface 0".into());
+        }
+        let m = match protocol::parse_command(data) {
+            Ok(m) => m,
+            Err(e) => {
+                self.violations.push(e.to_string());
+                self.halted_out = true;
+                return Err(UsbError::Stall);
+            }
+        };
+        self.transcript.push(format!("cmd {:#04x} seq {} {:?}", m.id, m.sequence, m.params));
+        if self.faults.stall_command == Some(m.id) {
+            self.faults.stall_command = None;
+            self.halted_out = true;
+            return Err(UsbError::Stall);
+        }
+        let led = m.id == 0x3E;
+        if !led {
+            if m.sequence != self.expected_seq {
+                self.violations.push(format!("command {:#x}: sequence {} expected {}", m.id, m.sequence, self.expected_seq));
+            }
+            self.expected_seq = m.sequence.wrapping_add(1);
+        }
+        if m.id == 0x09 && !self.status_ready_seen && !self.faults.status_never_ready {
+            self.violations.push("InitStreams before the status poll reported ready".into());
+        }
+        if m.id == 0x2B {
+            self.streaming_on = m.params.first() == Some(&1);
+        }
+        let resp = self.respond(&m);
+        let phase = if m.max_response_len > 0 { Phase::Data } else { Phase::Completion };
+        self.pending = Some((m, resp, phase));
+        Ok(data.len())
+    }
+
+    fn bulk_in(&mut self, ep_: u8, buf: &mut [u8], _t: Duration) -> Result<usize, UsbError> {
+        self.check()?;
+        if ep_ != ep::COMMAND_IN {
+            return Err(UsbError::NotSupported);
+        }
+        let Some((m, resp, phase)) = self.pending.take() else {
+            return Err(UsbError::Timeout);
+        };
+        if self.faults.timeout_command == Some(m.id) {
+            self.faults.timeout_command = None;
+            return Err(UsbError::Timeout);
+        }
+        let seq = if self.faults.wrong_completion_sequence { m.sequence.wrapping_add(7) } else { m.sequence };
+        match phase {
+            Phase::Data if self.faults.premature_completion == Some(m.id) => {
+                self.faults.premature_completion = None;
+                let c = protocol::encode_completion(seq);
+                let n = c.len().min(buf.len());
+                buf[..n].copy_from_slice(&c[..n]);
+                Ok(n)
+            }
+            Phase::Data => {
+                if buf.len() > m.max_response_len as usize {
+                    self.violations.push(format!("read of {} bytes exceeds max_response_len {}", buf.len(), m.max_response_len));
+                }
+                let n = resp.len().min(buf.len());
+                buf[..n].copy_from_slice(&resp[..n]);
+                self.pending = Some((m, Vec::new(), Phase::Completion));
+                Ok(n)
+            }
+            Phase::Completion => {
+                let c = protocol::encode_completion(seq);
+                let n = c.len().min(buf.len());
+                buf[..n].copy_from_slice(&c[..n]);
+                Ok(n)
+            }
+        }
+    }
+
+    fn clear_halt(&mut self, ep_: u8) -> Result<(), UsbError> {
+        self.check()?;
+        self.transcript.push(format!("clear_halt {ep_:#04x}"));
+        if ep_ == ep::COMMAND_OUT {
+            self.halted_out = false;
+        }
+        self.pending = None;
+        Ok(())
+    }
+
+    fn iso_bytes_per_interval(&mut self, _ep: u8, _alt: u8) -> Result<u32, UsbError> {
+        self.check()?;
+        Ok(self.profile.bytes_per_interval)
+    }
+
+    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
+        self.check()?;
+        let h = StreamHandle(self.next_handle);
+        self.next_handle += 1;
+        match spec {
+            StreamSpec::Iso { packet_size, .. } => {
+                if self.alt1 != 1 || !self.streaming_on || self.suspended {
+                    self.violations.push("iso stream started before alt 1 + streaming on".into());
+                }
+                self.transcript.push("start_stream iso".into());
+                // Build the forward-modelled frames now, not inside a frame wait.
+                self.raw_frames();
+                self.iso = Some((h, packet_size));
+            }
+            StreamSpec::Bulk { size, .. } => {
+                self.transcript.push("start_stream bulk".into());
+                self.bulk = Some((h, size));
+            }
+        }
+        Ok(h)
+    }
+
+    fn next_event(&mut self, _timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+        if self.queue.is_empty() {
+            self.check()?;
+            if self.iso.is_none() && self.bulk.is_none() {
+                return Ok(None);
+            }
+            self.generate_frame_period();
+        }
+        Ok(self.queue.pop_front())
+    }
+
+    fn stop_stream(&mut self, h: StreamHandle, _max_wait: Duration) -> Result<(), UsbError> {
+        self.transcript.push("stop_stream".into());
+        if self.iso.map(|s| s.0) == Some(h) {
+            self.iso = None;
+        }
+        if self.bulk.map(|s| s.0) == Some(h) {
+            self.bulk = None;
+        }
+        self.queue.retain(|(hh, _)| *hh != h);
+        self.check()
+    }
+}

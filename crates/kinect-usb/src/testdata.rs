@@ -1,0 +1,47 @@
+//! Locating and loading the shared Kinect v2 test vectors (used by tests, benches and the
+//! CLI's simulated device). Not part of the driver proper.
+
+use std::path::{Path, PathBuf};
+
+use crate::error::{KinectError, Result};
+
+/// Environment variable overriding the shared data folder.
+pub const DATA_ENV: &str = "KFUSE_SHARED_DATA";
+
+/// The vectors folder `<shared data>/kinect-v2-vectors`, if present. Uses `KFUSE_SHARED_DATA`
+/// or `<workspace>/../shared/data` (from this crate's manifest directory).
+pub fn vectors_dir() -> Option<PathBuf> {
+    let base = match std::env::var_os(DATA_ENV) {
+        Some(v) => PathBuf::from(v),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+    };
+    let d = base.join("kinect-v2-vectors");
+    d.is_dir().then_some(d)
+}
+
+/// Returns the vectors folder or, if absent, prints a SKIP line for `test` and returns `None`
+/// (panics instead when `KFUSE_REQUIRE_SHARED_DATA=1`).
+pub fn vectors_or_skip(test: &str) -> Option<PathBuf> {
+    let d = vectors_dir();
+    if d.is_none() {
+        if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
+            panic!("{test}: shared data required but not found (set {DATA_ENV})");
+        }
+        eprintln!("SKIP {test}: shared data not found (set {DATA_ENV})");
+    }
+    d
+}
+
+/// Reads a whole file.
+pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|source| KinectError::File { path: path.to_path_buf(), source })
+}
+
+/// Reads a little-endian f32 file.
+pub fn read_f32(path: &Path) -> Result<Vec<f32>> {
+    let b = read_bytes(path)?;
+    if b.len() % 4 != 0 {
+        return Err(KinectError::Size { what: path.display().to_string(), expected: b.len() / 4 * 4, got: b.len() });
+    }
+    Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+}

@@ -1,0 +1,136 @@
+//! Property tests of the bit layout and the stream parsers (spec §14.3).
+
+use std::path::Path;
+
+use kinect_usb::raw::{PIXELS, RAW_FRAME_BYTES, pack_frame, unpack_sub_image};
+use kinect_usb::recording::read_recording;
+use kinect_usb::stream::{
+    ColorAssembler, ColorMeta, DEPTH_FOOTER_BYTES, DepthAssembler, DepthFooter, build_color_packet,
+};
+use kinect_usb::raw::SUB_IMAGE_BYTES;
+use proptest::prelude::*;
+
+fn frame_with(tag: u8) -> Vec<u8> {
+    (0..RAW_FRAME_BYTES).map(|i| ((i * 7 + tag as usize * 13) % 251) as u8).collect()
+}
+
+/// Splits each sub-packet of `raw` at the given cut fractions, with `zeros[s]` zero-length
+/// packets after sub-packet s.
+fn split(raw: &[u8], seq: u32, cuts: &[Vec<f64>], zeros: &[usize], order: &[usize]) -> Vec<Vec<u8>> {
+    let mut out = Vec::new();
+    for &s in order {
+        let mut sub = raw[s * SUB_IMAGE_BYTES..][..SUB_IMAGE_BYTES].to_vec();
+        sub.extend_from_slice(&DepthFooter { timestamp: 7, sequence: seq, subsequence: s as u32, length: SUB_IMAGE_BYTES as u32 }.to_bytes());
+        let mut pts: Vec<usize> = cuts[s].iter().map(|f| (f * sub.len() as f64) as usize).filter(|&p| p > 0 && p < sub.len()).collect();
+        pts.sort();
+        pts.dedup();
+        let mut prev = 0;
+        for p in pts.into_iter().chain([sub.len()]) {
+            out.push(sub[prev..p].to_vec());
+            prev = p;
+        }
+        out.extend(std::iter::repeat_n(Vec::new(), zeros[s]));
+    }
+    out
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
+
+    /// Any split (each sub-packet ending on a packet boundary), any zero-length packets and any
+    /// sub-packet order within a frame reassemble to the original frame.
+    #[test]
+    fn any_split_reassembles(cuts in prop::collection::vec(prop::collection::vec(0.0f64..1.0, 0..12), 10),
+                             zeros in prop::collection::vec(0usize..3, 10),
+                             order in Just((0..10).collect::<Vec<usize>>()).prop_shuffle()) {
+        let raw = frame_with(3);
+        let mut a = DepthAssembler::new();
+        let mut got = None;
+        for p in split(&raw, 41, &cuts, &zeros, &order) {
+            if let Some(f) = a.push(&p) { got = Some((f.sequence, f.data == raw.as_slice())); }
+        }
+        prop_assert_eq!(got, Some((41, true)));
+    }
+
+    /// Dropping any one non-empty packet of frame 1 drops exactly that frame; frames 0 and 2 survive.
+    #[test]
+    fn dropping_one_packet_drops_exactly_that_frame(drop_idx in 0usize..200, cut in 0.01f64..0.99) {
+        let cuts = vec![vec![cut, 0.5]; 10];
+        let zeros = vec![1; 10];
+        let order: Vec<usize> = (0..10).collect();
+        let raws = [frame_with(0), frame_with(1), frame_with(2)];
+        let mut a = DepthAssembler::new();
+        let mut seqs = Vec::new();
+        for (n, raw) in raws.iter().enumerate() {
+            let mut pk = split(raw, n as u32, &cuts, &zeros, &order);
+            if n == 1 {
+                let nonempty: Vec<usize> = (0..pk.len()).filter(|&i| !pk[i].is_empty()).collect();
+                pk.remove(nonempty[drop_idx % nonempty.len()]);
+            }
+            for p in pk {
+                if let Some(f) = a.push(&p) {
+                    prop_assert!(f.data == raws[f.sequence as usize].as_slice());
+                    seqs.push(f.sequence);
+                }
+            }
+        }
+        prop_assert_eq!(seqs, vec![0, 2]);
+        prop_assert_eq!(a.stats.skipped_frames, 1);
+    }
+
+    /// Random packet sequences never panic in any parser.
+    #[test]
+    fn random_packets_never_panic(pkts in prop::collection::vec(
+        prop_oneof![
+            Just(0usize), 1usize..200, Just(DEPTH_FOOTER_BYTES), 30_000usize..34_000, 298_000usize..298_700
+        ], 0..40), seed in any::<u8>()) {
+        let mut a = DepthAssembler::new();
+        let mut c = ColorAssembler::new();
+        for (i, n) in pkts.into_iter().enumerate() {
+            let p: Vec<u8> = (0..n).map(|k| (k as u8).wrapping_mul(seed).wrapping_add(i as u8)).collect();
+            let _ = a.push(&p);
+            let _ = c.push(&p);
+        }
+    }
+
+    /// Random bytes never panic the recording reader.
+    #[test]
+    fn recording_reader_never_panics(b in prop::collection::vec(any::<u8>(), 0..400), keep in any::<bool>()) {
+        let mut bytes = b"KFUSEREC\x01\0\0\0".to_vec();
+        bytes.extend(b);
+        let _ = read_recording(&bytes, Path::new("random.kfrec"), keep);
+    }
+
+    /// Colour packets with random JPEG length, 0..3 pad bytes, random filler and random
+    /// transfer size parse back to the exact JPEG; a corrupted magic drops only that packet.
+    #[test]
+    fn color_packets_roundtrip(len in 0usize..5000, pad in 0usize..4, filler in 0usize..300, xfer in 512usize..4096, corrupt in any::<bool>()) {
+        let mut jpeg = vec![0xFF, 0xD8];
+        jpeg.extend((0..len).map(|i| (i % 200) as u8));
+        jpeg.extend([0xFF, 0xD9]);
+        let meta = |s| ColorMeta { sequence: s, timestamp: 100 + s, exposure: 5.0, gain: 1.25, gamma: 2.0 };
+        let mut c = ColorAssembler::new();
+        let mut got = Vec::new();
+        for s in 0..3u32 {
+            let mut p = build_color_packet(&jpeg, &meta(s), pad, filler);
+            if corrupt && s == 1 { p[5] ^= 0xFF; }
+            for ch in p.chunks(xfer) {
+                if let Some((j, m)) = c.push(ch) { got.push((m.sequence, j == jpeg.as_slice(), m == meta(m.sequence))); }
+            }
+        }
+        let want: Vec<(u32, bool, bool)> = (0..3).filter(|&s| !(corrupt && s == 1)).map(|s| (s, true, true)).collect();
+        prop_assert_eq!(got, want);
+    }
+
+    /// pack ∘ unpack is the identity on random 11-bit code images.
+    #[test]
+    fn pack_unpack_roundtrip(seed in any::<u64>()) {
+        let mut x = seed | 1;
+        let codes: Vec<Vec<u16>> = (0..10).map(|_| (0..PIXELS).map(|_| { x ^= x << 13; x ^= x >> 7; x ^= x << 17; (x & 0x7FF) as u16 }).collect()).collect();
+        let mut raw = vec![0u8; RAW_FRAME_BYTES];
+        pack_frame(&codes, &mut raw);
+        for s in [0usize, 4, 9] {
+            prop_assert!(unpack_sub_image(&raw, s) == codes[s]);
+        }
+    }
+}
