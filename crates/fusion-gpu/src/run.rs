@@ -4,9 +4,8 @@
 use std::time::Instant;
 
 use geometry::fusion::{
-    coverage_radius_px, fit_plane_ransac, hole_grow_px, linear_resample, mesh_from_depth, remove_stretched_faces,
-    sample_spacing_px, zbuffer_index, ColorSample, FusionOptions, FusionOutput, FusionSummary, MeshSource,
-    StageTimings,
+    coverage_radius_px, finish, fit_plane_ransac, hole_grow_px, linear_resample, sample_spacing_px, zbuffer_index,
+    ColorSample, FusionOptions, FusionOutput, PixelStages, StageTimings,
 };
 use geometry::{DepthKind, GeometryError, Image, PointCloud, Rig};
 
@@ -108,7 +107,6 @@ impl FusionContext {
         timings.h3_linear_ms = ms(t);
 
         let t = Instant::now();
-        let hole_pixels = mask.data().iter().filter(|&&m| m).count();
         let plane = if options.fill_holes { fit_plane_ransac(&nearest, &rig.color, &options.plane) } else { None };
         let (filled, filled_pixels) = match &plane {
             Some(p) => {
@@ -119,55 +117,22 @@ impl FusionContext {
         };
         timings.h8_ms = ms(t);
 
-        let t = Instant::now();
-        let mesh_depth = match options.mesh_source {
-            MeshSource::Nearest => &nearest,
-            MeshSource::Linear => linear.as_ref().unwrap_or(&nearest),
-            MeshSource::Filled => &filled,
-        };
-        let mesh = mesh_from_depth(mesh_depth, &rig.color, color, options.mesh_step);
-        timings.h4_ms = ms(t);
-        let t = Instant::now();
-        let mesh_clean = remove_stretched_faces(&mesh, options.stretch_ratio);
-        timings.h5_ms = ms(t);
-
-        let count = |img: &Image<f32>| img.data().iter().filter(|z| z.is_finite()).count();
-        let summary = FusionSummary {
-            depth_size: [depth.width(), depth.height()],
-            color_size: [cw, ch],
-            depth_kind: kind,
-            valid_depth_pixels,
-            points: cloud.len(),
-            samples_in_view: samples.len(),
-            zbuffer_pixels: count(&zbuffer),
-            sample_spacing_px: spacing,
-            coverage_radius_px: radius,
-            nearest_pixels: count(&nearest),
-            linear: linear_stats,
-            mesh_vertices: mesh.vertices.len(),
-            faces_before: mesh.faces.len(),
-            faces_after: mesh_clean.faces.len(),
-            color_on_depth_pixels: color_valid.data().iter().filter(|&&v| v).count(),
-            hole_pixels,
-            filled_pixels,
-            plane,
-            timings_ms: options.record_timings.then_some(timings),
-        };
-        Ok(FusionOutput {
+        let stages = PixelStages {
             cloud,
             cloud_pixels,
             samples,
             zbuffer,
             nearest,
             linear,
+            linear_stats,
             hole_mask: mask,
             filled,
+            filled_pixels,
+            plane,
             color_on_depth: color_img,
             color_on_depth_valid: color_valid,
-            mesh,
-            mesh_clean,
-            summary,
-        })
+        };
+        Ok(finish(rig, kind, color, options, valid_depth_pixels, stages, timings))
     }
 }
 

@@ -311,7 +311,6 @@ pub fn run(
 
     let t = Instant::now();
     let mask = hole_mask(&zbuffer, radius, hole_grow_px(rig, options));
-    let hole_pixels = mask.data().iter().filter(|&&m| m).count();
     let plane = if options.fill_holes { fit_plane_ransac(&nearest, &rig.color, &options.plane) } else { None };
     let (filled, filled_pixels) = match &plane {
         Some(p) => fill_holes_with_plane(&nearest, &mask, &rig.color, p),
@@ -327,6 +326,84 @@ pub fn run(
         .collect();
     timings.h6_ms = ms(t);
 
+    let stages = PixelStages {
+        cloud,
+        cloud_pixels,
+        samples,
+        zbuffer,
+        nearest,
+        linear,
+        linear_stats,
+        hole_mask: mask,
+        filled,
+        filled_pixels,
+        plane,
+        color_on_depth: color_img,
+        color_on_depth_valid: color_valid,
+    };
+    Ok(finish(rig, kind, color, options, valid_depth_pixels, stages, timings))
+}
+
+/// What the per-pixel stages (H1–H3, H6–H8) produced. [`finish`] adds the H4/H5 meshes and
+/// the summary; the CPU pipeline and `fusion-gpu` both end with it, so their outputs are
+/// assembled the same way.
+#[derive(Debug, Clone)]
+pub struct PixelStages {
+    /// H1 cloud (depth frame) with H6 colours.
+    pub cloud: PointCloud,
+    /// Depth pixel index of every cloud point.
+    pub cloud_pixels: Vec<u32>,
+    /// H2 samples inside the colour image.
+    pub samples: Vec<ColorSample>,
+    /// H7 z-buffer.
+    pub zbuffer: Image<f32>,
+    /// H3 nearest fill.
+    pub nearest: Image<f32>,
+    /// H3 Delaunay-linear resampling, when enabled.
+    pub linear: Option<Image<f32>>,
+    /// Statistics of the linear resampling.
+    pub linear_stats: Option<LinearStats>,
+    /// H8 hole mask.
+    pub hole_mask: Image<bool>,
+    /// H8 plane-filled depth.
+    pub filled: Image<f32>,
+    /// Hole pixels given a depth by the plane.
+    pub filled_pixels: usize,
+    /// The fitted plane, if any.
+    pub plane: Option<PlaneFit>,
+    /// H6 colour on the depth grid.
+    pub color_on_depth: Image<[u8; 3]>,
+    /// Where H6 colour is trustworthy.
+    pub color_on_depth_valid: Image<bool>,
+}
+
+/// H4 mesh, H5 face removal and the summary on top of the per-pixel stages.
+/// `valid_depth_pixels` counts the input's samples; `timings` holds H1–H3, H6–H8 (H4 and H5
+/// are timed here).
+pub fn finish(
+    rig: &Rig,
+    kind: DepthKind,
+    color: &Image<[u8; 3]>,
+    options: &FusionOptions,
+    valid_depth_pixels: usize,
+    stages: PixelStages,
+    mut timings: StageTimings,
+) -> FusionOutput {
+    let PixelStages {
+        cloud,
+        cloud_pixels,
+        samples,
+        zbuffer,
+        nearest,
+        linear,
+        linear_stats,
+        hole_mask,
+        filled,
+        filled_pixels,
+        plane,
+        color_on_depth,
+        color_on_depth_valid,
+    } = stages;
     let t = Instant::now();
     let mesh_depth = match options.mesh_source {
         MeshSource::Nearest => &nearest,
@@ -341,39 +418,39 @@ pub fn run(
 
     let count = |img: &Image<f32>| img.data().iter().filter(|z| z.is_finite()).count();
     let summary = FusionSummary {
-        depth_size: [depth.width(), depth.height()],
-        color_size: [cw, ch],
+        depth_size: [rig.depth.width, rig.depth.height],
+        color_size: [rig.color.width, rig.color.height],
         depth_kind: kind,
         valid_depth_pixels,
         points: cloud.len(),
         samples_in_view: samples.len(),
         zbuffer_pixels: count(&zbuffer),
-        sample_spacing_px: spacing,
-        coverage_radius_px: radius,
+        sample_spacing_px: sample_spacing_px(rig),
+        coverage_radius_px: coverage_radius_px(rig, options),
         nearest_pixels: count(&nearest),
         linear: linear_stats,
         mesh_vertices: mesh.vertices.len(),
         faces_before: mesh.faces.len(),
         faces_after: mesh_clean.faces.len(),
-        color_on_depth_pixels: color_valid.data().iter().filter(|&&v| v).count(),
-        hole_pixels,
+        color_on_depth_pixels: color_on_depth_valid.data().iter().filter(|&&v| v).count(),
+        hole_pixels: hole_mask.data().iter().filter(|&&m| m).count(),
         filled_pixels,
         plane,
         timings_ms: options.record_timings.then_some(timings),
     };
-    Ok(FusionOutput {
+    FusionOutput {
         cloud,
         cloud_pixels,
         samples,
         zbuffer,
         nearest,
         linear,
-        hole_mask: mask,
+        hole_mask,
         filled,
-        color_on_depth: color_img,
-        color_on_depth_valid: color_valid,
+        color_on_depth,
+        color_on_depth_valid,
         mesh,
         mesh_clean,
         summary,
-    })
+    }
 }
