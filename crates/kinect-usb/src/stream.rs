@@ -67,7 +67,9 @@ pub struct DepthStats {
     pub frames: u64,
     /// Frames started but never completed (a sub-image was lost).
     pub incomplete_frames: u64,
-    /// Frames never seen at all (gaps in the sequence numbers).
+    /// Frames of which not one sub-packet arrived (gaps in the sequence numbers of the
+    /// sub-packets seen). `frames + incomplete_frames + skipped_frames` accounts for every
+    /// frame the sensor sent, but the one still in assembly.
     pub skipped_frames: u64,
     /// Sub-packets dropped (wrong length or overflow).
     pub dropped_subpackets: u64,
@@ -80,7 +82,7 @@ pub struct DepthAssembler {
     mask: u16,
     current_seq: Option<u32>,
     first_timestamp: u32,
-    last_emitted_seq: Option<u32>,
+    last_seen_seq: Option<u32>,
     last: Option<(u32, u32)>,
     /// Stream counters.
     pub stats: DepthStats,
@@ -112,7 +114,7 @@ impl DepthAssembler {
             mask: 0,
             current_seq: None,
             first_timestamp: 0,
-            last_emitted_seq: None,
+            last_seen_seq: None,
             last: None,
             stats: DepthStats::default(),
         }
@@ -154,6 +156,7 @@ impl DepthAssembler {
             if self.current_seq.is_some() && self.mask != 0 {
                 self.stats.incomplete_frames += 1;
             }
+            self.note_sequence(f.sequence);
             self.current_seq = Some(f.sequence);
             self.mask = 0;
         }
@@ -167,18 +170,30 @@ impl DepthAssembler {
         if self.mask == COMPLETE_MASK {
             self.mask = 0;
             self.current_seq = None;
-            if let Some(prev) = self.last_emitted_seq {
-                let gap = f.sequence.wrapping_sub(prev) % DEPTH_SEQ_MODULUS;
-                if gap > 1 {
-                    self.stats.skipped_frames += (gap - 1) as u64;
-                }
-            }
-            self.last_emitted_seq = Some(f.sequence);
             self.stats.frames += 1;
             self.last = Some((f.sequence, self.first_timestamp));
             return Some(RawDepthFrame { sequence: f.sequence, timestamp: self.first_timestamp, data: &self.frame });
         }
         None
+    }
+
+    /// Counts the frames skipped between the last sequence seen and `sequence` (modulo 2¹⁶,
+    /// so the wrap is not a loss). A sequence behind the last one (a late sub-packet of an
+    /// older frame) is neither a loss nor the new reference.
+    fn note_sequence(&mut self, sequence: u32) {
+        let forward = match self.last_seen_seq {
+            None => true,
+            Some(prev) => {
+                let gap = sequence.wrapping_sub(prev) % DEPTH_SEQ_MODULUS;
+                if gap > 1 && gap < DEPTH_SEQ_MODULUS / 2 {
+                    self.stats.skipped_frames += (gap - 1) as u64;
+                }
+                gap != 0 && gap < DEPTH_SEQ_MODULUS / 2
+            }
+        };
+        if forward {
+            self.last_seen_seq = Some(sequence);
+        }
     }
 
     /// The frame completed by the latest [`Self::push`], if that push completed one.
