@@ -127,6 +127,9 @@ impl Default for DecoderConfig {
 /// Stage-1 result per pixel: (a, b, A) for each of the three frequencies.
 type Stage1 = [f32; 9];
 
+/// Per-pixel bilateral terms: (a·g, b·g, a² + b²) for each of the three frequencies.
+type Unit = [f32; 9];
+
 /// The CPU depth decoder with its precomputed tables and working buffers.
 pub struct DepthDecoder {
     params: DecoderParams,
@@ -138,6 +141,9 @@ pub struct DepthDecoder {
     xtable: Vec<f32>,
     ztable: Vec<f32>,
     stage1: Vec<Stage1>,
+    /// Per pixel and frequency, the bilateral-filter terms that only depend on that pixel:
+    /// [a·g, b·g, a² + b²] with g = 1/√(a² + b²) (spec §9.5), computed once per frame.
+    unit: Vec<Unit>,
     depth_pre: Vec<f32>,
     ir_sum: Vec<f32>,
     edge_ok: Vec<bool>,
@@ -177,6 +183,7 @@ impl DepthDecoder {
             xtable: xz.x.clone(),
             ztable: xz.z.clone(),
             stage1: vec![[0f32; 9]; PIXELS],
+            unit: vec![[0f32; 9]; PIXELS],
             depth_pre: vec![0f32; PIXELS],
             ir_sum: vec![0f32; PIXELS],
             edge_ok: vec![true; PIXELS],
@@ -205,18 +212,24 @@ impl DepthDecoder {
 
         // Pass 1: stage 1 per processing row.
         {
-            let f = |(y, row): (usize, &mut [Stage1])| stage1_row(raw, y, row, lut, trig, ztable, &p);
+            let f = |(y, (row, urow)): (usize, (&mut [Stage1], &mut [Unit]))| {
+                stage1_row(raw, y, row, lut, trig, ztable, &p);
+                if cfg.bilateral {
+                    unit_row(row, urow);
+                }
+            };
             if cfg.parallel {
-                self.stage1.par_chunks_mut(WIDTH).enumerate().for_each(f);
+                self.stage1.par_chunks_mut(WIDTH).zip(self.unit.par_chunks_mut(WIDTH)).enumerate().for_each(f);
             } else {
-                self.stage1.chunks_mut(WIDTH).enumerate().for_each(f);
+                self.stage1.chunks_mut(WIDTH).zip(self.unit.chunks_mut(WIDTH)).enumerate().for_each(f);
             }
         }
         // Pass 2: bilateral (optional) + stage 2 per processing row.
         {
             let s1 = &self.stage1;
+            let un = &self.unit;
             let f = |(y, ((d, s), e)): (usize, ((&mut [f32], &mut [f32]), &mut [bool]))| {
-                stage2_row(s1, y, d, s, e, xtable, ztable, &p, cfg.bilateral)
+                stage2_row(s1, un, y, d, s, e, xtable, ztable, &p, cfg.bilateral)
             };
             if cfg.parallel {
                 self.depth_pre
@@ -300,6 +313,20 @@ fn stage1_row(
     }
 }
 
+/// Per-pixel bilateral terms of one row (see [`Unit`]).
+fn unit_row(s1: &[Stage1], out: &mut [Unit]) {
+    for (o, st) in out.iter_mut().zip(s1) {
+        for k in 0..3 {
+            let (a, b) = (st[3 * k], st[3 * k + 1]);
+            let n2 = a * a + b * b;
+            let g = inv_norm(n2);
+            o[3 * k] = a * g;
+            o[3 * k + 1] = b * g;
+            o[3 * k + 2] = n2;
+        }
+    }
+}
+
 #[inline]
 fn inv_norm(n2: f32) -> f32 {
     let g = 1.0f32 / n2.sqrt();
@@ -309,51 +336,63 @@ fn inv_norm(n2: f32) -> f32 {
 /// Joint bilateral filter (spec §9.5) of pixel (x, y) (not on the border). Returns the six
 /// filtered phasor components and `edge_ok`.
 #[inline]
-fn bilateral(s1: &[Stage1], x: usize, y: usize, p: &DecoderParams) -> ([f32; 6], bool) {
+fn bilateral(s1: &[Stage1], un: &[Unit], x: usize, y: usize, p: &DecoderParams) -> ([f32; 6], bool) {
     let mut out = [0f32; 6];
     let mut edge_ok = true;
-    let centre = &s1[y * WIDTH + x];
+    let n = y * WIDTH + x;
+    let centre = &s1[n];
+    let cu = &un[n];
+    // Neighbour indices in kernel order (centre skipped), all in bounds: not on the border.
+    let up = &s1[n - WIDTH - 1..n - WIDTH + 2];
+    let mid = &s1[n - 1..n + 2];
+    let dn = &s1[n + WIDTH - 1..n + WIDTH + 2];
+    let uup = &un[n - WIDTH - 1..n - WIDTH + 2];
+    let umid = &un[n - 1..n + 2];
+    let udn = &un[n + WIDTH - 1..n + WIDTH + 2];
+    let gk = &p.gaussian_kernel;
+    let tau0 = (p.joint_bilateral_ab_threshold * p.joint_bilateral_ab_threshold) / (p.ab_multiplier * p.ab_multiplier);
     for k in 0..3 {
         let (a, b) = (centre[3 * k], centre[3 * k + 1]);
-        let n2 = a * a + b * b;
-        let g = inv_norm(n2);
-        let (ua, ub) = (a * g, b * g);
-        let mut tau = (p.joint_bilateral_ab_threshold * p.joint_bilateral_ab_threshold)
-            / (p.ab_multiplier * p.ab_multiplier);
+        let (ua, ub, n2) = (cu[3 * k], cu[3 * k + 1], cu[3 * k + 2]);
+        let mut tau = tau0;
         let mut e = p.joint_bilateral_exp;
         if n2 < tau {
             tau = 0.0;
             e = 0.0;
         }
+        let ce = -1.442695f32 * e;
         let (mut w_acc, mut sa, mut sb, mut d_acc) = (0f32, 0f32, 0f32, 0f32);
-        let mut j = 0;
-        for dy in [-1isize, 0, 1] {
-            let yy = (y as isize + dy) as usize;
-            for dx in [-1isize, 0, 1] {
-                let w = p.gaussian_kernel[j];
-                j += 1;
-                if dy == 0 && dx == 0 {
-                    w_acc += w;
-                    sa += w * a;
-                    sb += w * b;
-                    continue;
-                }
-                let xx = (x as isize + dx) as usize;
-                let o = &s1[yy * WIDTH + xx];
+        // One neighbour, in the reference's operation order.
+        macro_rules! nb {
+            ($w:expr, $o:expr, $u:expr) => {{
+                let (o, u): (&Stage1, &Unit) = ($o, $u);
                 let (a1, b1) = (o[3 * k], o[3 * k + 1]);
-                let n12 = a1 * a1 + b1 * b1;
-                let g1 = inv_norm(n12);
-                let dist = ((-(a1 * g1 * ua + b1 * g1 * ub)) + 1.0) * 0.5;
+                let (ua1, ub1, n12) = (u[3 * k], u[3 * k + 1], u[3 * k + 2]);
+                let dist = ((-(ua1 * ua + ub1 * ub)) + 1.0f32) * 0.5f32;
                 let mut weight = 0.0f32;
                 if n12 >= tau {
-                    weight = w * ((-1.442695f32 * e) * dist).exp();
+                    weight = $w * (ce * dist).exp();
                     d_acc += dist;
                 }
                 sa += weight * a1;
                 sb += weight * b1;
                 w_acc += weight;
-            }
+            }};
         }
+        nb!(gk[0], &up[0], &uup[0]);
+        nb!(gk[1], &up[1], &uup[1]);
+        nb!(gk[2], &up[2], &uup[2]);
+        nb!(gk[3], &mid[0], &umid[0]);
+        {
+            let w = gk[4];
+            w_acc += w;
+            sa += w * a;
+            sb += w * b;
+        }
+        nb!(gk[5], &mid[2], &umid[2]);
+        nb!(gk[6], &dn[0], &udn[0]);
+        nb!(gk[7], &dn[1], &udn[1]);
+        nb!(gk[8], &dn[2], &udn[2]);
         edge_ok = edge_ok && d_acc < p.joint_bilateral_max_edge;
         if w_acc > 0.0 {
             out[2 * k] = sa / w_acc;
@@ -368,18 +407,9 @@ fn bilateral(s1: &[Stage1], x: usize, y: usize, p: &DecoderParams) -> ([f32; 6],
 fn stage2_pixel(ab: &[f32; 6], xt: f32, zt: f32, p: &DecoderParams) -> (f32, f32) {
     use std::f64::consts::PI;
     let two_pi = 2.0 * PI;
-    let mut phi = [0f32; 3];
     let mut alpha = [0f32; 3];
     for k in 0..3 {
         let (a, b) = (ab[2 * k], ab[2 * k + 1]);
-        let mut f = b.atan2(a);
-        if f < 0.0 {
-            f = ((f as f64) + two_pi) as f32;
-        }
-        if f.is_nan() {
-            f = 0.0;
-        }
-        phi[k] = f;
         alpha[k] = (a * a + b * b).sqrt() * p.ab_multiplier;
     }
     let s = alpha[0] + alpha[1] + alpha[2];
@@ -387,6 +417,20 @@ fn stage2_pixel(ab: &[f32; 6], xt: f32, zt: f32, p: &DecoderParams) -> (f32, f32
     let amax = fmax(fmax(alpha[0], alpha[1]), alpha[2]);
     let mut phase = 0.0f32;
     if !(amin < p.individual_ab_threshold || s < p.ab_threshold) {
+        // The phases are only needed past the amplitude gate (same values as computing them
+        // for every pixel: atan2f has no side effects).
+        let mut phi = [0f32; 3];
+        for k in 0..3 {
+            let (a, b) = (ab[2 * k], ab[2 * k + 1]);
+            let mut f = b.atan2(a);
+            if f < 0.0 {
+                f = ((f as f64) + two_pi) as f32;
+            }
+            if f.is_nan() {
+                f = 0.0;
+            }
+            phi[k] = f;
+        }
         let t0 = ((phi[0] as f64) / two_pi * 3.0) as f32;
         let t1 = ((phi[1] as f64) / two_pi * 15.0) as f32;
         let t2 = ((phi[2] as f64) / two_pi * 2.0) as f32;
@@ -442,6 +486,7 @@ fn fmax(a: f32, b: f32) -> f32 {
 #[allow(clippy::too_many_arguments)]
 fn stage2_row(
     s1: &[Stage1],
+    un: &[Unit],
     y: usize,
     depth: &mut [f32],
     ir_sum: &mut [f32],
@@ -456,7 +501,7 @@ fn stage2_row(
         let c = &s1[n];
         let border = x == 0 || x == WIDTH - 1 || y == 0 || y == HEIGHT - 1;
         let (ab, ok) = if bilateral_on && !border {
-            bilateral(s1, x, y, p)
+            bilateral(s1, un, x, y, p)
         } else {
             ([c[0], c[1], c[3], c[4], c[6], c[7]], true)
         };
