@@ -130,6 +130,13 @@ type Stage1 = [f32; 9];
 /// Per-pixel bilateral terms: (a·g, b·g, a² + b²) for each of the three frequencies.
 type Unit = [f32; 9];
 
+/// Bilateral range weights `expf(−1.442695·e·dist)` of the four "forward" neighbours of a pixel
+/// (right, down-left, down, down-right), index `4·k + direction`. `dist` is symmetric bit for
+/// bit (products commute in IEEE arithmetic), so one value serves both ends of the pair; it is
+/// only filled (and only read) when both ends pass the amplitude threshold, where both use the
+/// same exponent `e`.
+type EdgeExp = [f32; 12];
+
 /// The CPU depth decoder with its precomputed tables and working buffers.
 pub struct DepthDecoder {
     params: DecoderParams,
@@ -144,6 +151,7 @@ pub struct DepthDecoder {
     /// Per pixel and frequency, the bilateral-filter terms that only depend on that pixel:
     /// [a·g, b·g, a² + b²] with g = 1/√(a² + b²) (spec §9.5), computed once per frame.
     unit: Vec<Unit>,
+    edge_exp: Vec<EdgeExp>,
     depth_pre: Vec<f32>,
     ir_sum: Vec<f32>,
     edge_ok: Vec<bool>,
@@ -184,6 +192,7 @@ impl DepthDecoder {
             ztable: xz.z.clone(),
             stage1: vec![[0f32; 9]; PIXELS],
             unit: vec![[0f32; 9]; PIXELS],
+            edge_exp: vec![[0f32; 12]; PIXELS],
             depth_pre: vec![0f32; PIXELS],
             ir_sum: vec![0f32; PIXELS],
             edge_ok: vec![true; PIXELS],
@@ -224,12 +233,23 @@ impl DepthDecoder {
                 self.stage1.chunks_mut(WIDTH).zip(self.unit.chunks_mut(WIDTH)).enumerate().for_each(f);
             }
         }
+        // Pass 1b: shared bilateral range weights (only with the bilateral filter).
+        if cfg.bilateral {
+            let un = &self.unit;
+            let f = |(y, row): (usize, &mut [EdgeExp])| edge_exp_row(un, y, row, &p);
+            if cfg.parallel {
+                self.edge_exp.par_chunks_mut(WIDTH).enumerate().for_each(f);
+            } else {
+                self.edge_exp.chunks_mut(WIDTH).enumerate().for_each(f);
+            }
+        }
         // Pass 2: bilateral (optional) + stage 2 per processing row.
         {
             let s1 = &self.stage1;
             let un = &self.unit;
+            let ee = &self.edge_exp;
             let f = |(y, ((d, s), e)): (usize, ((&mut [f32], &mut [f32]), &mut [bool]))| {
-                stage2_row(s1, un, y, d, s, e, xtable, ztable, &p, cfg.bilateral)
+                stage2_row(s1, un, ee, y, d, s, e, xtable, ztable, &p, cfg.bilateral)
             };
             if cfg.parallel {
                 self.depth_pre
@@ -327,6 +347,53 @@ fn unit_row(s1: &[Stage1], out: &mut [Unit]) {
     }
 }
 
+/// Bilateral amplitude threshold τ on a² + b² (spec §9.5).
+#[inline]
+fn bilateral_tau(p: &DecoderParams) -> f32 {
+    (p.joint_bilateral_ab_threshold * p.joint_bilateral_ab_threshold) / (p.ab_multiplier * p.ab_multiplier)
+}
+
+/// Range distance of two unit phasors (spec §9.5), in the reference's operation order with the
+/// neighbour's factor first; symmetric bit for bit since each product commutes.
+#[inline(always)]
+fn range_dist(ua1: f32, ub1: f32, ua: f32, ub: f32) -> f32 {
+    ((-(ua1 * ua + ub1 * ub)) + 1.0f32) * 0.5f32
+}
+
+/// Forward range weights of processing row `y` (see [`EdgeExp`]).
+fn edge_exp_row(un: &[Unit], y: usize, out: &mut [EdgeExp], p: &DecoderParams) {
+    let tau = bilateral_tau(p);
+    let ce = -1.442695f32 * p.joint_bilateral_exp;
+    let row = &un[y * WIDTH..(y + 1) * WIDTH];
+    let next = if y + 1 < HEIGHT { Some(&un[(y + 1) * WIDTH..(y + 2) * WIDTH]) } else { None };
+    for (x, o) in out.iter_mut().enumerate() {
+        let c = &row[x];
+        for k in 0..3 {
+            let (ua, ub, n2) = (c[3 * k], c[3 * k + 1], c[3 * k + 2]);
+            if !(n2 >= tau) {
+                continue;
+            }
+            let mut w = |d: usize, q: &Unit| {
+                if q[3 * k + 2] >= tau {
+                    o[4 * k + d] = (ce * range_dist(q[3 * k], q[3 * k + 1], ua, ub)).exp();
+                }
+            };
+            if x + 1 < WIDTH {
+                w(0, &row[x + 1]);
+            }
+            if let Some(nx) = next {
+                if x >= 1 {
+                    w(1, &nx[x - 1]);
+                }
+                w(2, &nx[x]);
+                if x + 1 < WIDTH {
+                    w(3, &nx[x + 1]);
+                }
+            }
+        }
+    }
+}
+
 #[inline]
 fn inv_norm(n2: f32) -> f32 {
     let g = 1.0f32 / n2.sqrt();
@@ -336,7 +403,7 @@ fn inv_norm(n2: f32) -> f32 {
 /// Joint bilateral filter (spec §9.5) of pixel (x, y) (not on the border). Returns the six
 /// filtered phasor components and `edge_ok`.
 #[inline]
-fn bilateral(s1: &[Stage1], un: &[Unit], x: usize, y: usize, p: &DecoderParams) -> ([f32; 6], bool) {
+fn bilateral(s1: &[Stage1], un: &[Unit], ee: &[EdgeExp], x: usize, y: usize, p: &DecoderParams) -> ([f32; 6], bool) {
     let mut out = [0f32; 6];
     let mut edge_ok = true;
     let n = y * WIDTH + x;
@@ -350,7 +417,10 @@ fn bilateral(s1: &[Stage1], un: &[Unit], x: usize, y: usize, p: &DecoderParams) 
     let umid = &un[n - 1..n + 2];
     let udn = &un[n + WIDTH - 1..n + WIDTH + 2];
     let gk = &p.gaussian_kernel;
-    let tau0 = (p.joint_bilateral_ab_threshold * p.joint_bilateral_ab_threshold) / (p.ab_multiplier * p.ab_multiplier);
+    let tau0 = bilateral_tau(p);
+    // Shared weights: the pixel's own forward edges and the backward edges of the row above
+    // and the left neighbour.
+    let (e_ul, e_u, e_ur, e_l, e_c) = (&ee[n - WIDTH - 1], &ee[n - WIDTH], &ee[n - WIDTH + 1], &ee[n - 1], &ee[n]);
     for k in 0..3 {
         let (a, b) = (centre[3 * k], centre[3 * k + 1]);
         let (ua, ub, n2) = (cu[3 * k], cu[3 * k + 1], cu[3 * k + 2]);
@@ -361,17 +431,20 @@ fn bilateral(s1: &[Stage1], un: &[Unit], x: usize, y: usize, p: &DecoderParams) 
             e = 0.0;
         }
         let ce = -1.442695f32 * e;
+        // Both ends above τ: the weight was computed once in `edge_exp_row` (same `e`, same
+        // argument bits).
+        let shared = n2 >= tau0;
         let (mut w_acc, mut sa, mut sb, mut d_acc) = (0f32, 0f32, 0f32, 0f32);
         // One neighbour, in the reference's operation order.
         macro_rules! nb {
-            ($w:expr, $o:expr, $u:expr) => {{
+            ($w:expr, $o:expr, $u:expr, $e:expr) => {{
                 let (o, u): (&Stage1, &Unit) = ($o, $u);
                 let (a1, b1) = (o[3 * k], o[3 * k + 1]);
                 let (ua1, ub1, n12) = (u[3 * k], u[3 * k + 1], u[3 * k + 2]);
-                let dist = ((-(ua1 * ua + ub1 * ub)) + 1.0f32) * 0.5f32;
+                let dist = range_dist(ua1, ub1, ua, ub);
                 let mut weight = 0.0f32;
                 if n12 >= tau {
-                    weight = $w * (ce * dist).exp();
+                    weight = $w * if shared { $e } else { (ce * dist).exp() };
                     d_acc += dist;
                 }
                 sa += weight * a1;
@@ -379,20 +452,20 @@ fn bilateral(s1: &[Stage1], un: &[Unit], x: usize, y: usize, p: &DecoderParams) 
                 w_acc += weight;
             }};
         }
-        nb!(gk[0], &up[0], &uup[0]);
-        nb!(gk[1], &up[1], &uup[1]);
-        nb!(gk[2], &up[2], &uup[2]);
-        nb!(gk[3], &mid[0], &umid[0]);
+        nb!(gk[0], &up[0], &uup[0], e_ul[4 * k + 3]);
+        nb!(gk[1], &up[1], &uup[1], e_u[4 * k + 2]);
+        nb!(gk[2], &up[2], &uup[2], e_ur[4 * k + 1]);
+        nb!(gk[3], &mid[0], &umid[0], e_l[4 * k]);
         {
             let w = gk[4];
             w_acc += w;
             sa += w * a;
             sb += w * b;
         }
-        nb!(gk[5], &mid[2], &umid[2]);
-        nb!(gk[6], &dn[0], &udn[0]);
-        nb!(gk[7], &dn[1], &udn[1]);
-        nb!(gk[8], &dn[2], &udn[2]);
+        nb!(gk[5], &mid[2], &umid[2], e_c[4 * k]);
+        nb!(gk[6], &dn[0], &udn[0], e_c[4 * k + 1]);
+        nb!(gk[7], &dn[1], &udn[1], e_c[4 * k + 2]);
+        nb!(gk[8], &dn[2], &udn[2], e_c[4 * k + 3]);
         edge_ok = edge_ok && d_acc < p.joint_bilateral_max_edge;
         if w_acc > 0.0 {
             out[2 * k] = sa / w_acc;
@@ -487,6 +560,7 @@ fn fmax(a: f32, b: f32) -> f32 {
 fn stage2_row(
     s1: &[Stage1],
     un: &[Unit],
+    ee: &[EdgeExp],
     y: usize,
     depth: &mut [f32],
     ir_sum: &mut [f32],
@@ -501,7 +575,7 @@ fn stage2_row(
         let c = &s1[n];
         let border = x == 0 || x == WIDTH - 1 || y == 0 || y == HEIGHT - 1;
         let (ab, ok) = if bilateral_on && !border {
-            bilateral(s1, un, x, y, p)
+            bilateral(s1, un, ee, x, y, p)
         } else {
             ([c[0], c[1], c[3], c[4], c[6], c[7]], true)
         };
