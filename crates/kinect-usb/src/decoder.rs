@@ -569,7 +569,8 @@ fn floor(x: f32) -> f32 {
         return x;
     }
     let t = (x as i32) as f32;
-    let f = if t > x { t - 1.0f32 } else { t };
+    // Branch-free (the comparison is data dependent): t − 1 or t − 0 (t − 0 = t exactly).
+    let f = t - ((t > x) as i32 as f32);
     f.copysign(x)
 }
 
