@@ -4,10 +4,10 @@
 use std::time::Instant;
 
 use geometry::fusion::{
-    coverage_radius_px, finish, fit_plane_ransac, hole_grow_px, linear_resample, sample_spacing_px, zbuffer_index,
+    check_inputs, coverage_radius_px, finish, fit_plane_ransac, hole_grow_px, linear_resample, sample_spacing_px, zbuffer_index,
     ColorSample, FusionOptions, FusionOutput, PixelStages, StageTimings,
 };
-use geometry::{DepthKind, GeometryError, Image, PointCloud, Rig};
+use geometry::{DepthKind, Image, PointCloud, Rig};
 
 use crate::{FramePlan, FusionContext, GpuError, StageOptions};
 
@@ -36,19 +36,7 @@ impl FusionContext {
         color: &Image<[u8; 3]>,
         options: &FusionOptions,
     ) -> Result<FusionOutput, GpuError> {
-        rig.validate()?;
-        depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
-        color.expect_size("colour image", rig.color.width, rig.color.height)?;
-        let valid_depth_pixels = depth.data().iter().filter(|&&z| z > 0.0 && z < f32::INFINITY).count();
-        if valid_depth_pixels == 0 {
-            return Err(GeometryError::InvalidInput(format!(
-                "the {}x{} depth image has no valid sample (all NaN, zero, negative or infinite); \
-                 check the depth file and its units",
-                depth.width(),
-                depth.height()
-            ))
-            .into());
-        }
+        let valid_depth_pixels = check_inputs(rig, depth, color)?;
         let (cw, ch) = (rig.color.width, rig.color.height);
         let spacing = sample_spacing_px(rig);
         let radius = coverage_radius_px(rig, options);

@@ -252,6 +252,28 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
+/// Checks a frame against its rig before any stage runs (the CPU pipeline and `fusion-gpu`
+/// share it) and returns the number of valid depth samples.
+///
+/// Errors: [`GeometryError::InvalidParameter`] for an invalid rig,
+/// [`GeometryError::SizeMismatch`] when an image does not match its camera,
+/// [`GeometryError::InvalidInput`] when no depth pixel has a sample.
+pub fn check_inputs(rig: &Rig, depth: &Image<f32>, color: &Image<[u8; 3]>) -> Result<usize, GeometryError> {
+    rig.validate()?;
+    depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
+    color.expect_size("colour image", rig.color.width, rig.color.height)?;
+    let valid_depth_pixels = depth.data().iter().filter(|&&z| z > 0.0 && z < f32::INFINITY).count();
+    if valid_depth_pixels == 0 {
+        return Err(GeometryError::InvalidInput(format!(
+            "the {}x{} depth image has no valid sample (all NaN, zero, negative or infinite); \
+             check the depth file and its units",
+            depth.width(),
+            depth.height()
+        )));
+    }
+    Ok(valid_depth_pixels)
+}
+
 /// Runs H1–H8 on one frame. `depth` is depth-camera-sized (metres, kind `kind`, NaN / 0 =
 /// no sample), `color` colour-camera-sized.
 ///
@@ -265,18 +287,7 @@ pub fn run(
     color: &Image<[u8; 3]>,
     options: &FusionOptions,
 ) -> Result<FusionOutput, GeometryError> {
-    rig.validate()?;
-    depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
-    color.expect_size("colour image", rig.color.width, rig.color.height)?;
-    let valid_depth_pixels = depth.data().iter().filter(|&&z| z > 0.0 && z < f32::INFINITY).count();
-    if valid_depth_pixels == 0 {
-        return Err(GeometryError::InvalidInput(format!(
-            "the {}x{} depth image has no valid sample (all NaN, zero, negative or infinite); \
-             check the depth file and its units",
-            depth.width(),
-            depth.height()
-        )));
-    }
+    let valid_depth_pixels = check_inputs(rig, depth, color)?;
     let mut timings = StageTimings::default();
     let proj = ColorProjection::from_rig(rig);
     let (cw, ch) = (rig.color.width, rig.color.height);
