@@ -7,7 +7,8 @@ use crate::backend::{StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBacke
 use crate::error::{KinectError, Result, UsbError};
 use crate::params::{ColorParams, DepthParams, P0Tables};
 use crate::protocol::{
-    self, Command, MIN_BYTES_PER_INTERVAL, MODE_OFF, MODE_ON, MODE_ON_100, STATUS_REGISTER, ep,
+    self, ColorSettingCode, ColorSettingResponse, Command, Exposure, ExposureMode, LedSetting, MIN_BYTES_PER_INTERVAL,
+    MODE_OFF, MODE_ON, MODE_ON_100, STATUS_REGISTER, ValueKind, ep,
 };
 use crate::stream::{ColorAssembler, ColorMeta, DepthAssembler, RawDepthFrame};
 
@@ -163,10 +164,28 @@ impl<B: UsbBackend> KinectDevice<B> {
         &self.backend
     }
 
+    /// Sequence number the next sequenced command will carry (spec §3.3). Colour settings and
+    /// LED commands neither use nor advance it.
+    pub fn sequence(&self) -> u32 {
+        self.seq
+    }
+
     /// Sends one command and returns its data phase (spec §3.2).
     pub fn command(&mut self, cmd: Command) -> Result<Vec<u8>> {
-        let seq = self.seq;
-        self.seq = self.seq.wrapping_add(1);
+        self.transact(cmd).map(|(data, _)| data)
+    }
+
+    /// One transaction; returns the data phase and the completion's status word.
+    /// Colour settings and the LED API go out with sequence 0 and leave the counter alone
+    /// (spec §3.3); every other command takes the counter and post-increments it.
+    fn transact(&mut self, cmd: Command) -> Result<(Vec<u8>, u32)> {
+        let seq = if cmd.is_unsequenced() {
+            0
+        } else {
+            let s = self.seq;
+            self.seq = self.seq.wrapping_add(1);
+            s
+        };
         let name = cmd.name();
         let msg = cmd.encode(seq);
         let n = self.usb(ep::COMMAND_OUT, &name, |b| b.bulk_out(ep::COMMAND_OUT, &msg, COMMAND_TIMEOUT))?;
@@ -187,7 +206,7 @@ impl<B: UsbBackend> KinectDevice<B> {
         }
         let mut c = [0u8; 16];
         let got = self.usb(ep::COMMAND_IN, &name, |b| b.bulk_in(ep::COMMAND_IN, &mut c, COMMAND_TIMEOUT))?;
-        let cseq = protocol::parse_completion(&c[..got], &name)?;
+        let (cseq, status) = protocol::parse_completion_status(&c[..got], &name)?;
         if cseq != seq {
             let msg = format!("{name}: completion sequence {cseq}, expected {seq}");
             if self.strict_sequence {
@@ -195,7 +214,163 @@ impl<B: UsbBackend> KinectDevice<B> {
             }
             self.warnings.push(msg);
         }
-        Ok(data)
+        Ok((data, status))
+    }
+
+    fn require_open(&self, op: &str) -> Result<()> {
+        if self.state == State::Closed {
+            return Err(KinectError::State { op: op.into(), state: format!("{:?}", self.state) });
+        }
+        Ok(())
+    }
+
+    /// Sends one 0x3E colour-camera setting (spec §4.10) and returns its parsed response.
+    /// A non-zero `status` in the response is returned as [`KinectError::Rejected`].
+    /// Prefer the typed methods ([`Self::set_exposure`], [`Self::integration_time_ms`], …).
+    pub fn color_setting(&mut self, code: ColorSettingCode, value: u32) -> Result<ColorSettingResponse> {
+        self.require_open("colour setting")?;
+        if let ColorSettingCode::SetMeteringZoneWeight(z) = code
+            && z >= protocol::METERING_ZONES
+        {
+            return Err(KinectError::Invalid(format!("metering zone {z} (zones are 0..{})", protocol::METERING_ZONES - 1)));
+        }
+        let cmd = Command::ColorSetting { code: code.code(), value };
+        let name = cmd.name();
+        let data = self.command(cmd)?;
+        let r = protocol::parse_color_setting_response(&data)
+            .map_err(|e| KinectError::Protocol { what: name.clone(), detail: e.to_string() })?;
+        if r.status != 0 {
+            return Err(KinectError::Rejected { what: name, status: r.status, detail: format!("response {r:?}") });
+        }
+        Ok(r)
+    }
+
+    /// Sets an f32-valued colour setting (validated only for finiteness; use the typed
+    /// setters for range checks).
+    pub fn set_color_f32(&mut self, code: ColorSettingCode, v: f32) -> Result<()> {
+        if code.is_get() || code.value_kind() != ValueKind::F32 || !v.is_finite() {
+            return Err(KinectError::Invalid(format!("{code:?} takes no finite f32 value ({v})")));
+        }
+        self.color_setting(code, v.to_bits()).map(|_| ())
+    }
+
+    /// Sets a u32-valued colour setting.
+    pub fn set_color_u32(&mut self, code: ColorSettingCode, v: u32) -> Result<()> {
+        if code.is_get() || code.value_kind() != ValueKind::U32 {
+            return Err(KinectError::Invalid(format!("{code:?} takes no u32 value")));
+        }
+        self.color_setting(code, v).map(|_| ())
+    }
+
+    /// Reads a GET code's value word.
+    pub fn get_color_raw(&mut self, code: ColorSettingCode) -> Result<u32> {
+        if !code.is_get() {
+            return Err(KinectError::Invalid(format!("{code:?} is not a GET code")));
+        }
+        Ok(self.color_setting(code, 0)?.data)
+    }
+
+    fn get_color_f32(&mut self, code: ColorSettingCode) -> Result<f32> {
+        let v = f32::from_bits(self.get_color_raw(code)?);
+        if !v.is_finite() {
+            return Err(KinectError::Protocol { what: format!("colour setting {code:?}"), detail: format!("device returned a non-finite value {v}") });
+        }
+        Ok(v)
+    }
+
+    /// Applies an exposure preset (spec §4.10), after validating its values. The commands are
+    /// sent in the preset's order; the first failure stops and is returned.
+    pub fn set_exposure(&mut self, e: Exposure) -> Result<()> {
+        self.require_open("set exposure")?;
+        for (code, value) in e.settings()? {
+            self.color_setting(code, value)?;
+        }
+        Ok(())
+    }
+
+    /// Sets the white-balance mode (code 10). The spec does not document the values
+    /// [UNSURE]; libfreenect2 clients use 1 = auto and 3 = manual.
+    pub fn set_white_balance_mode(&mut self, mode: u32) -> Result<()> {
+        self.set_color_u32(ColorSettingCode::SetWhiteBalanceMode, mode)
+    }
+
+    /// Sets the red, green and blue channel gains (codes 11–13), each `(0, MAX_CHANNEL_GAIN]`.
+    pub fn set_rgb_gains(&mut self, red: f32, green: f32, blue: f32) -> Result<()> {
+        for (w, g) in [("red gain", red), ("green gain", green), ("blue gain", blue)] {
+            protocol::validate_channel_gain(w, g)?;
+        }
+        use ColorSettingCode::*;
+        for (c, g) in [(SetRedGain, red), (SetGreenGain, green), (SetBlueGain, blue)] {
+            self.set_color_f32(c, g)?;
+        }
+        Ok(())
+    }
+
+    /// Sets the digital gain (code 19), `(0, MAX_CHANNEL_GAIN]`.
+    pub fn set_digital_gain(&mut self, g: f32) -> Result<()> {
+        protocol::validate_channel_gain("digital gain", g)?;
+        self.set_color_f32(ColorSettingCode::SetDigitalGain, g)
+    }
+
+    /// Current exposure mode (code 80).
+    pub fn exposure_mode(&mut self) -> Result<ExposureMode> {
+        Ok(ExposureMode::from_value(self.get_color_raw(ColorSettingCode::GetExposureMode)?))
+    }
+
+    /// Integration time in ms (code 2).
+    pub fn integration_time_ms(&mut self) -> Result<f32> {
+        self.get_color_f32(ColorSettingCode::GetIntegrationTime)
+    }
+
+    /// Analog gain (code 22).
+    pub fn analog_gain(&mut self) -> Result<f32> {
+        self.get_color_f32(ColorSettingCode::GetAnalogGain)
+    }
+
+    /// Semi-auto pseudo exposure time in ms (code 18).
+    pub fn exposure_time_ms(&mut self) -> Result<f32> {
+        self.get_color_f32(ColorSettingCode::GetExposureTime)
+    }
+
+    /// Exposure compensation in EV (code 24).
+    pub fn exposure_compensation(&mut self) -> Result<f32> {
+        self.get_color_f32(ColorSettingCode::GetExposureCompensation)
+    }
+
+    /// Digital gain (code 20).
+    pub fn digital_gain(&mut self) -> Result<f32> {
+        self.get_color_f32(ColorSettingCode::GetDigitalGain)
+    }
+
+    /// Red, green and blue channel gains (codes 14–16).
+    pub fn rgb_gains(&mut self) -> Result<[f32; 3]> {
+        use ColorSettingCode::*;
+        Ok([self.get_color_f32(GetRedGain)?, self.get_color_f32(GetGreenGain)?, self.get_color_f32(GetBlueGain)?])
+    }
+
+    /// White-balance mode (code 81), raw value.
+    pub fn white_balance_mode(&mut self) -> Result<u32> {
+        self.get_color_raw(ColorSettingCode::GetWhiteBalanceMode)
+    }
+
+    /// Frame-rate setting (code 83), raw value (encoding not documented by the spec).
+    pub fn frame_rate_raw(&mut self) -> Result<u32> {
+        self.get_color_raw(ColorSettingCode::GetFrameRate)
+    }
+
+    /// Sets an LED (spec §4.9) after validating the setting. Sent with sequence 0 without
+    /// advancing the counter; a non-zero completion status is returned as
+    /// [`KinectError::Rejected`].
+    pub fn set_led(&mut self, led: LedSetting) -> Result<()> {
+        self.require_open("set LED")?;
+        led.validate()?;
+        let cmd = Command::Led(led);
+        let name = cmd.name();
+        let (_, status) = self.transact(cmd)?;
+        if status != 0 {
+            return Err(KinectError::Rejected { what: name, status, detail: "completion status".into() });
+        }
+        Ok(())
     }
 
     fn usb<T>(&mut self, endpoint: u8, what: &str, f: impl FnOnce(&mut B) -> std::result::Result<T, UsbError>) -> Result<T> {

@@ -122,6 +122,16 @@ pub enum KinectError {
     /// The stream ended normally (end of a replayed recording).
     #[error("end of stream (recording exhausted)")]
     EndOfStream,
+    /// The device answered a setting command with a non-zero status.
+    #[error("the Kinect v2 rejected {what}: status {status:#x} ({detail}); check the value against the documented range")]
+    Rejected {
+        /// The command, with its value.
+        what: String,
+        /// The status word.
+        status: u32,
+        /// Where the status came from / the full response.
+        detail: String,
+    },
     /// Invalid parameter given by the caller.
     #[error("invalid parameter: {0}")]
     Invalid(String),
