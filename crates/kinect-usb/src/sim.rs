@@ -14,12 +14,119 @@ use crate::decoder::DecoderParams;
 use crate::error::UsbError;
 use crate::forward::forward_frame;
 use crate::params::{ColorParams, DepthParams, P0Tables, XzTables};
-use crate::protocol::{self, CommandMessage, ep};
+use crate::protocol::{
+    self, ANALOG_GAIN_RANGE, COLOR_SETTING_ID, COLOR_SETTING_RESPONSE_LEN, ColorSettingCode, ColorSettingResponse, CommandMessage,
+    EXPOSURE_COMPENSATION_RANGE, ExposureMode, LedSetting, MAX_EXPOSURE_MS, SET_MODE_ID, ep,
+};
 use crate::raw::PIXELS;
 use crate::stream::{ColorMeta, build_color_packet, packetize_depth_frame};
 
 /// Timestamp increment per frame (0.125 ms units, 30 Hz).
 const TICKS_PER_FRAME: u32 = 267;
+
+/// Status the simulated device puts in a 0x3E response (or an LED completion) when a value is
+/// out of range. The real status codes are not documented (spec §4.10); the sim's convention:
+/// 0 = accepted, [`SIM_STATUS_INVALID_VALUE`], [`SIM_STATUS_UNKNOWN_CODE`],
+/// [`SIM_STATUS_BAD_REQUEST`].
+pub const SIM_STATUS_INVALID_VALUE: u32 = 1;
+/// Status for a setting code the spec does not list.
+pub const SIM_STATUS_UNKNOWN_CODE: u32 = 2;
+/// Status for a malformed 0x3E request (setting count ≠ 1 or setting sequence id ≠ 0).
+pub const SIM_STATUS_BAD_REQUEST: u32 = 3;
+/// Exposure time (ms) the simulated auto-exposure settles on at compensation 0; the colour
+/// footer reports `AUTO_EXPOSURE_MS × 2^compensation` in auto mode.
+pub const SIM_AUTO_EXPOSURE_MS: f32 = 10.0;
+
+/// The simulated colour camera's settings registers (spec §4.10), keyed by SET code.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SimColorSettings {
+    regs: std::collections::BTreeMap<u32, u32>,
+}
+
+impl Default for SimColorSettings {
+    /// Power-on values: auto exposure, compensation 0, 10 ms, gains 1.
+    fn default() -> Self {
+        use ColorSettingCode::*;
+        let mut regs = std::collections::BTreeMap::new();
+        regs.insert(SetExposureMode.code(), ExposureMode::Auto.value());
+        for (c, v) in [
+            (SetIntegrationTime, SIM_AUTO_EXPOSURE_MS),
+            (SetExposureTime, SIM_AUTO_EXPOSURE_MS),
+            (SetAnalogGain, 1.0),
+            (SetDigitalGain, 1.0),
+            (SetRedGain, 1.0),
+            (SetGreenGain, 1.0),
+            (SetBlueGain, 1.0),
+            (SetExposureCompensation, 0.0),
+        ] {
+            regs.insert(c.code(), v.to_bits());
+        }
+        SimColorSettings { regs }
+    }
+}
+
+impl SimColorSettings {
+    /// Stored value word of a SET code (a GET code reads its SET code's value).
+    pub fn get(&self, code: ColorSettingCode) -> u32 {
+        let set = code.set_of_get().unwrap_or(code);
+        self.regs.get(&set.code()).copied().unwrap_or(0)
+    }
+
+    /// Stored value of an f32 setting.
+    pub fn get_f32(&self, code: ColorSettingCode) -> f32 {
+        f32::from_bits(self.get(code))
+    }
+
+    /// Current exposure mode.
+    pub fn exposure_mode(&self) -> ExposureMode {
+        ExposureMode::from_value(self.get(ColorSettingCode::SetExposureMode))
+    }
+
+    /// `(exposure ms, gain)` the colour footer reports for these settings.
+    pub fn footer_exposure_gain(&self) -> (f32, f32) {
+        use ColorSettingCode::*;
+        match self.exposure_mode() {
+            ExposureMode::Manual => (self.get_f32(SetIntegrationTime), self.get_f32(SetAnalogGain)),
+            ExposureMode::SemiAuto => (self.get_f32(SetExposureTime), 1.0),
+            _ => (SIM_AUTO_EXPOSURE_MS * self.get_f32(SetExposureCompensation).exp2(), 1.0),
+        }
+    }
+
+    /// Applies one 0x3E request `[count, setting seq id, code, value]`, validating it as the
+    /// sensor is assumed to: returns the response.
+    fn apply(&mut self, params: &[u32]) -> ColorSettingResponse {
+        let reply = |status: u32, data: u32| ColorSettingResponse { num_status: 1, command_list_status: 0, status, data };
+        let [count, sub_seq, code, value] = match params {
+            &[a, b, c, d] => [a, b, c, d],
+            _ => return reply(SIM_STATUS_BAD_REQUEST, 0),
+        };
+        if count != 1 || sub_seq != 0 {
+            return reply(SIM_STATUS_BAD_REQUEST, 0);
+        }
+        let Some(c) = ColorSettingCode::from_code(code) else {
+            return reply(SIM_STATUS_UNKNOWN_CODE, 0);
+        };
+        if c.is_get() {
+            return reply(0, self.get(c));
+        }
+        use ColorSettingCode::*;
+        let f = f32::from_bits(value);
+        let in_range = |lo: f32, lo_incl: bool, hi: f32| f.is_finite() && (if lo_incl { f >= lo } else { f > lo }) && f <= hi;
+        let ok = match c {
+            SetExposureMode => matches!(ExposureMode::from_value(value), ExposureMode::Auto | ExposureMode::SemiAuto | ExposureMode::Manual),
+            SetIntegrationTime | SetExposureTime => in_range(0.0, false, MAX_EXPOSURE_MS),
+            SetAnalogGain => in_range(*ANALOG_GAIN_RANGE.start(), true, *ANALOG_GAIN_RANGE.end()),
+            SetExposureCompensation => in_range(*EXPOSURE_COMPENSATION_RANGE.start(), true, *EXPOSURE_COMPENSATION_RANGE.end()),
+            SetRedGain | SetGreenGain | SetBlueGain | SetDigitalGain => in_range(0.0, false, protocol::MAX_CHANNEL_GAIN),
+            _ => true,
+        };
+        if !ok {
+            return reply(SIM_STATUS_INVALID_VALUE, 0);
+        }
+        self.regs.insert(code, value);
+        reply(0, 0)
+    }
+}
 
 /// What the simulated device answers to commands.
 #[derive(Debug, Clone)]
@@ -140,6 +247,8 @@ pub struct SimFaults {
     pub bulk_error_rate: f64,
     /// The device disappears after this many frame periods.
     pub unplug_after_frames: Option<u64>,
+    /// Command id whose data phase is cut to half its length (once).
+    pub short_response: Option<u32>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -167,7 +276,13 @@ pub struct SimDevice {
     status_ready_seen: bool,
     status_polls: usize,
     expected_seq: u32,
-    pending: Option<(CommandMessage, Vec<u8>, Phase)>,
+    pending: Option<(CommandMessage, Vec<u8>, Phase, u32)>,
+    /// The last 0x4B at sequence 0 could have been either the first sequenced command or the
+    /// LED API (spec §3.3 ambiguity at the session's start): accept either numbering next.
+    led_ambiguous: bool,
+    color: SimColorSettings,
+    leds: [Option<LedSetting>; 2],
+    led_api: Vec<LedSetting>,
     halted_out: bool,
     gone: bool,
     iso: Option<(StreamHandle, usize)>,
@@ -230,6 +345,10 @@ impl SimDevice {
             status_polls: 0,
             expected_seq: 0,
             pending: None,
+            led_ambiguous: false,
+            color: SimColorSettings::default(),
+            leds: [None; 2],
+            led_api: Vec::new(),
             halted_out: false,
             gone: false,
             iso: None,
@@ -285,8 +404,46 @@ impl SimDevice {
                 }
                 w.to_le_bytes().to_vec()
             }
+            (COLOR_SETTING_ID, _) => self.color.apply(&m.params).to_bytes().to_vec(),
             _ => Vec::new(),
         }
+    }
+
+    /// Records an LED setting from 0x4B words; returns the completion status (non-zero when
+    /// an LED API request is invalid). Start/stop "mode" words are recorded when they decode as
+    /// LED settings (spec §4.9) and never rejected.
+    fn apply_led(&mut self, params: &[u32], api: bool) -> u32 {
+        let words = match params {
+            &[a, b, c, d] => [a, b, c, d],
+            _ => return SIM_STATUS_BAD_REQUEST,
+        };
+        match LedSetting::from_words(words) {
+            Ok(l) => {
+                self.leds[l.id as usize & 1] = Some(l);
+                if api {
+                    self.led_api.push(l);
+                }
+                0
+            }
+            Err(_) if api => SIM_STATUS_INVALID_VALUE,
+            Err(_) => 0,
+        }
+    }
+
+    /// The colour camera's settings as the device holds them.
+    pub fn color_settings(&self) -> &SimColorSettings {
+        &self.color
+    }
+
+    /// Current state of LED `id` (from LED API and start/stop mode commands alike); `None`
+    /// before any 0x4B addressed it.
+    pub fn led(&self, id: u16) -> Option<LedSetting> {
+        self.leds.get(id as usize).copied().flatten()
+    }
+
+    /// Every accepted LED API request (sequence 0), in order.
+    pub fn led_api_log(&self) -> &[LedSetting] {
+        &self.led_api
     }
 
     fn generate_frame_period(&mut self) {
@@ -350,7 +507,8 @@ impl SimDevice {
             let jpeg = &self.scene.color_jpegs[idx];
             let pad = (4 - jpeg.len() % 4) % 4;
             let filler = 4 * self.rng.random_range(0..64usize);
-            let meta = ColorMeta { sequence: self.frame_index as u32, timestamp: self.timestamp, exposure: 10.0, gain: 1.0, gamma: 1.0 };
+            let (exposure, gain) = self.color.footer_exposure_gain();
+            let meta = ColorMeta { sequence: self.frame_index as u32, timestamp: self.timestamp, exposure, gain, gamma: 1.0 };
             let packet = build_color_packet(jpeg, &meta, pad, filler);
             for chunk in packet.chunks(size.max(1)) {
                 let r: f64 = self.rng.random();
@@ -472,12 +630,42 @@ impl UsbBackend for SimDevice {
             self.halted_out = true;
             return Err(UsbError::Stall);
         }
-        let led = m.id == 0x3E;
-        if !led {
-            if m.sequence != self.expected_seq {
-                self.violations.push(format!("command {:#x}: sequence {} expected {}", m.id, m.sequence, self.expected_seq));
+        let mut completion_status = 0;
+        match m.id {
+            COLOR_SETTING_ID => {
+                // Colour settings always carry sequence 0 and do not advance it (spec §3.3).
+                if m.sequence != 0 {
+                    self.violations.push(format!("colour setting (0x3E) with sequence {}, must be 0", m.sequence));
+                }
+                if m.max_response_len != COLOR_SETTING_RESPONSE_LEN as u32 {
+                    self.violations.push(format!("colour setting (0x3E) max_response_len {}, must be 16", m.max_response_len));
+                }
             }
-            self.expected_seq = m.sequence.wrapping_add(1);
+            SET_MODE_ID if m.sequence != self.expected_seq && !(self.led_ambiguous && m.sequence == self.expected_seq + 1) => {
+                // Out of the counter: the LED API (sequence 0, spec §4.9).
+                if m.sequence != 0 {
+                    self.violations.push(format!("command 0x4b: sequence {} expected {} (or 0 for the LED API)", m.sequence, self.expected_seq));
+                }
+                completion_status = self.apply_led(&m.params, true);
+            }
+            _ => {
+                let ok = m.sequence == self.expected_seq || (self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1));
+                if !ok {
+                    self.violations.push(format!("command {:#x}: sequence {} expected {}", m.id, m.sequence, self.expected_seq));
+                }
+                // A 0x4B at sequence 0 when the counter is also at 0: LED API or first command?
+                let ambiguous = m.id == SET_MODE_ID && m.sequence == 0 && self.expected_seq == 0;
+                if ambiguous {
+                    self.led_ambiguous = true;
+                    completion_status = self.apply_led(&m.params, true);
+                } else {
+                    self.led_ambiguous = false;
+                    self.expected_seq = m.sequence.wrapping_add(1);
+                    if m.id == SET_MODE_ID {
+                        self.apply_led(&m.params, false);
+                    }
+                }
+            }
         }
         if m.id == 0x09 && !self.status_ready_seen && !self.faults.status_never_ready {
             self.violations.push("InitStreams before the status poll reported ready".into());
@@ -487,7 +675,7 @@ impl UsbBackend for SimDevice {
         }
         let resp = self.respond(&m);
         let phase = if m.max_response_len > 0 { Phase::Data } else { Phase::Completion };
-        self.pending = Some((m, resp, phase));
+        self.pending = Some((m, resp, phase, completion_status));
         Ok(data.len())
     }
 
@@ -496,7 +684,7 @@ impl UsbBackend for SimDevice {
         if ep_ != ep::COMMAND_IN {
             return Err(UsbError::NotSupported);
         }
-        let Some((m, resp, phase)) = self.pending.take() else {
+        let Some((m, mut resp, phase, cstatus)) = self.pending.take() else {
             return Err(UsbError::Timeout);
         };
         if self.faults.timeout_command == Some(m.id) {
@@ -513,16 +701,20 @@ impl UsbBackend for SimDevice {
                 Ok(n)
             }
             Phase::Data => {
+                if self.faults.short_response == Some(m.id) {
+                    self.faults.short_response = None;
+                    resp.truncate(resp.len() / 2);
+                }
                 if buf.len() > m.max_response_len as usize {
                     self.violations.push(format!("read of {} bytes exceeds max_response_len {}", buf.len(), m.max_response_len));
                 }
                 let n = resp.len().min(buf.len());
                 buf[..n].copy_from_slice(&resp[..n]);
-                self.pending = Some((m, Vec::new(), Phase::Completion));
+                self.pending = Some((m, Vec::new(), Phase::Completion, cstatus));
                 Ok(n)
             }
             Phase::Completion => {
-                let c = protocol::encode_completion(seq);
+                let c = protocol::encode_completion_with_status(seq, cstatus);
                 let n = c.len().min(buf.len());
                 buf[..n].copy_from_slice(&c[..n]);
                 Ok(n)
