@@ -2,7 +2,7 @@
 
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc;
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -13,6 +13,7 @@ use kinect_usb::backend::UsbBackend;
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DepthDecoder};
 use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamKind};
 use kinect_usb::params::{DepthParams, XzTables};
+use kinect_usb::protocol::{self, Exposure, ExposureMode, LedMode, LedSetting};
 use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
 use kinect_usb::recording::{RecordingMeta, RecordingWriter, read_recording_file};
 use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
@@ -23,6 +24,21 @@ const FRAME_TIMEOUT: Duration = Duration::from_secs(3);
 /// Scale from the synthetic scene's amplitude (albedo·cos/r², ≈0.05–0.6) to decoder IR units
 /// (≈1 000–12 000, well above the decoder's amplitude gates).
 const SIM_IR_SCALE: f32 = 20_000.0;
+
+/// The colour-camera and LED options' help, shared by every capture mode.
+macro_rules! settings_help {
+    () => {
+        "\n\nColour camera and LED (applied right after start-up; not with --replay):\n  \
+         --exposure auto              automatic exposure (default of the sensor)\n  \
+         --exposure auto:-1           automatic, one stop darker (compensation -2..2)\n  \
+         --exposure semi:20           semi-automatic, 20 ms pseudo exposure time (0..66 ms)\n  \
+         --exposure manual:20,2       manual: 20 ms integration time, analog gain 2 (gain 1..4)\n  \
+         --led on:500                 LED 0 at level 500 of 1000 (--led-id 1 for LED 1)\n  \
+         --led blink:250              LED 0 blinking every 250 ms; --led off / --led on\n  \
+         kfuse capture calib --out shots --interval 2 --exposure manual:20,2 --led blink:500\n\
+         A fixed manual exposure keeps colour brightness constant between calibration shots."
+    };
+}
 
 /// Which transport to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -64,6 +80,85 @@ pub struct CommonArgs {
     /// Simulated device: fraction of isochronous packets lost.
     #[arg(long, hide = true, default_value_t = 0.0)]
     sim_iso_drop: f64,
+    /// Simulated device: write its colour settings, LED state and protocol violations as JSON
+    /// to this file when the capture ends.
+    #[arg(long, hide = true, value_name = "FILE")]
+    sim_report: Option<PathBuf>,
+    /// Colour exposure: `auto[:COMP]` (COMP in -2..2), `semi:MS` (0..66 ms) or
+    /// `manual:MS,GAIN` (0..66 ms, gain 1..4).
+    #[arg(long, value_name = "MODE", value_parser = parse_exposure, conflicts_with = "replay")]
+    exposure: Option<Exposure>,
+    /// LED: `off`, `on`, `on:LEVEL` (0..1000) or `blink:MS` (blink interval in ms).
+    #[arg(long, value_name = "STATE", value_parser = parse_led, conflicts_with = "replay")]
+    led: Option<LedArg>,
+    /// Which LED `--led` drives (the sensor has LEDs 0 and 1).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..2), requires = "led")]
+    led_id: u16,
+}
+
+/// `--led` value before the LED id is known.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LedArg {
+    /// Off.
+    Off,
+    /// Constant at a level 0..=1000.
+    On(u16),
+    /// Blinking with an interval in ms.
+    Blink(u32),
+}
+
+impl LedArg {
+    fn setting(self, id: u16) -> LedSetting {
+        match self {
+            LedArg::Off => LedSetting::off(id),
+            LedArg::On(level) => LedSetting::on(id, level),
+            LedArg::Blink(ms) => LedSetting::blink(id, ms),
+        }
+    }
+}
+
+fn parse_f32(s: &str, what: &str) -> std::result::Result<f32, String> {
+    s.trim().parse::<f32>().map_err(|_| format!("{what} `{s}` is not a number"))
+}
+
+/// Parses `--exposure`: `auto`, `auto:COMP`, `semi:MS`, `manual:MS,GAIN`; values are checked
+/// against the ranges of `kinect_usb::protocol`.
+pub fn parse_exposure(s: &str) -> std::result::Result<Exposure, String> {
+    const FORMS: &str = "expected auto, auto:COMP, semi:MS or manual:MS,GAIN (e.g. manual:20,2)";
+    let (mode, rest) = match s.split_once(':') {
+        Some((m, r)) => (m, Some(r)),
+        None => (s, None),
+    };
+    let e = match (mode.trim().to_ascii_lowercase().as_str(), rest) {
+        ("auto", None) => Exposure::Auto { compensation: 0.0 },
+        ("auto", Some(c)) => Exposure::Auto { compensation: parse_f32(c, "compensation")? },
+        ("semi" | "semi-auto", Some(ms)) => Exposure::SemiAuto { exposure_ms: parse_f32(ms, "exposure time")? },
+        ("manual", Some(r)) => {
+            let (ms, gain) = r.split_once(',').ok_or_else(|| format!("manual needs MS,GAIN; {FORMS}"))?;
+            Exposure::Manual { integration_ms: parse_f32(ms, "integration time")?, analog_gain: parse_f32(gain, "analog gain")? }
+        }
+        _ => return Err(format!("`{s}`: {FORMS}")),
+    };
+    e.validate().map_err(|err| err.to_string())?;
+    Ok(e)
+}
+
+/// Parses `--led`: `off`, `on`, `on:LEVEL`, `blink:MS`.
+pub fn parse_led(s: &str) -> std::result::Result<LedArg, String> {
+    const FORMS: &str = "expected off, on, on:LEVEL (0..1000) or blink:MS";
+    let (mode, rest) = match s.split_once(':') {
+        Some((m, r)) => (m, Some(r.trim())),
+        None => (s, None),
+    };
+    let arg = match (mode.trim().to_ascii_lowercase().as_str(), rest) {
+        ("off", None) => LedArg::Off,
+        ("on", None) => LedArg::On(protocol::LED_MAX_LEVEL),
+        ("on", Some(l)) => LedArg::On(l.parse().map_err(|_| format!("LED level `{l}` is not a whole number; {FORMS}"))?),
+        ("blink", Some(ms)) => LedArg::Blink(ms.parse().map_err(|_| format!("blink interval `{ms}` is not a whole number of ms; {FORMS}"))?),
+        _ => return Err(format!("`{s}`: {FORMS}")),
+    };
+    arg.setting(0).validate().map_err(|e| e.to_string())?;
+    Ok(arg)
 }
 
 /// `kfuse capture`.
@@ -76,11 +171,11 @@ pub struct CaptureArgs {
 #[derive(Subcommand, Debug)]
 enum CaptureMode {
     /// Capture checkerboard image pairs for calibration (colour JPEG + IR + depth per shot).
-    #[command(after_help = "Examples:\n  kfuse capture calib --out calib_shots --count 20            # press Enter for each shot\n  \
+    #[command(after_help = concat!("Examples:\n  kfuse capture calib --out calib_shots --count 20            # press Enter for each shot\n  \
         kfuse capture calib --out calib_shots --count 20 --interval 2   # a shot every 2 s\n  \
         kfuse capture calib --replay session.kfrec --out shots --interval 0\n\n\
         Writes color_NNNN.jpg, ir_NNNN.png (16-bit), depth_NNNN.png (16-bit, mm, 0 = invalid)\n\
-        and kinect_params.json (factory intrinsics of both cameras). Move the board between shots.")]
+        and kinect_params.json (factory intrinsics of both cameras). Move the board between shots.", settings_help!()))]
     Calib {
         /// Output folder.
         #[arg(long, default_value = "calib_capture")]
@@ -98,9 +193,9 @@ enum CaptureMode {
         common: CommonArgs,
     },
     /// Save the colour, IR and depth of a scene when you press Enter.
-    #[command(after_help = "Examples:\n  kfuse capture scene --out lab --name desk         # press Enter to save\n  \
+    #[command(after_help = concat!("Examples:\n  kfuse capture scene --out lab --name desk         # press Enter to save\n  \
         kfuse capture scene --out lab --name desk --interval 0   # save immediately\n\n\
-        Writes NAME_color.jpg, NAME_ir.png, NAME_depth.png (mm) and kinect_params.json.")]
+        Writes NAME_color.jpg, NAME_ir.png, NAME_depth.png (mm) and kinect_params.json.", settings_help!()))]
     Scene {
         /// Output folder.
         #[arg(long, default_value = "scene_capture")]
@@ -121,9 +216,9 @@ enum CaptureMode {
         common: CommonArgs,
     },
     /// Record raw USB stream packets and the device metadata for later replay.
-    #[command(after_help = "Examples:\n  kfuse capture record --output session.kfrec --frames 300\n  \
+    #[command(after_help = concat!("Examples:\n  kfuse capture record --output session.kfrec --frames 300\n  \
         kfuse capture calib --replay session.kfrec --interval 0 --count 5 --out shots\n\n\
-        The recording holds every isochronous and bulk packet, so replay runs the same parsers and decoder.")]
+        The recording holds every isochronous and bulk packet, so replay runs the same parsers and decoder.", settings_help!()))]
     Record {
         /// Recording file.
         #[arg(long, default_value = "capture.kfrec")]
@@ -186,8 +281,10 @@ pub fn run_capture(args: CaptureArgs) -> Result<()> {
 }
 
 type Device = KinectDevice<Box<dyn UsbBackend>>;
+type SimHandle = Arc<Mutex<SimDevice>>;
 
-fn open(common: &CommonArgs) -> Result<Device> {
+fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
+    let mut sim = None;
     let backend: Box<dyn UsbBackend> = if let Some(path) = &common.replay {
         let rec = read_recording_file(path, common.allow_truncated)?;
         if !rec.complete {
@@ -196,14 +293,87 @@ fn open(common: &CommonArgs) -> Result<Device> {
         Box::new(SimDevice::replay(rec)?)
     } else {
         match common.backend {
-            Backend::Sim => Box::new(sim_device(common)),
+            Backend::Sim => {
+                let h = Arc::new(Mutex::new(sim_device(common)));
+                sim = Some(h.clone());
+                Box::new(h)
+            }
             Backend::Usb => Box::new(usb::open_first().map_err(not_found_hint)?),
         }
     };
-    KinectDevice::open(backend).map_err(|e| match e {
+    let dev = KinectDevice::open(backend).map_err(|e| match e {
         KinectError::Busy => anyhow::anyhow!("{e}\nhint: run `kfuse devices` to see which sensors are free"),
         e => not_found_hint(e),
-    })
+    })?;
+    Ok((dev, sim))
+}
+
+fn exposure_text(e: &Exposure) -> String {
+    match *e {
+        Exposure::Auto { compensation } => format!("auto:{compensation}"),
+        Exposure::SemiAuto { exposure_ms } => format!("semi:{exposure_ms}"),
+        Exposure::Manual { integration_ms, analog_gain } => format!("manual:{integration_ms},{analog_gain}"),
+    }
+}
+
+/// Applies `--exposure` and `--led` on a started device and reports what the sensor reads
+/// back. A refused setting is an error (the user asked for it); a failed read-back only warns.
+fn apply_settings(dev: &mut Device, common: &CommonArgs) -> Result<()> {
+    if let Some(e) = &common.exposure {
+        dev.set_exposure(*e).with_context(|| format!("applying --exposure {}", exposure_text(e)))?;
+        let readback = (|| -> kinect_usb::Result<String> {
+            Ok(match dev.exposure_mode()? {
+                ExposureMode::Manual => {
+                    format!("manual, integration time {} ms, analog gain {}", dev.integration_time_ms()?, dev.analog_gain()?)
+                }
+                ExposureMode::SemiAuto => format!("semi-auto, exposure time {} ms", dev.exposure_time_ms()?),
+                ExposureMode::Auto => format!("auto, compensation {}", dev.exposure_compensation()?),
+                ExposureMode::Other(v) => format!("mode {v}"),
+            })
+        })();
+        match readback {
+            Ok(t) => eprintln!("colour exposure: {t} (read back from the sensor)"),
+            Err(err) => eprintln!("warning: --exposure was applied but reading it back failed: {err}"),
+        }
+    }
+    if let Some(l) = common.led {
+        let setting = l.setting(common.led_id);
+        dev.set_led(setting).with_context(|| format!("applying --led (LED {})", common.led_id))?;
+        let what = match setting.mode {
+            LedMode::Constant if setting.start_level == 0 => "off".to_string(),
+            LedMode::Constant => format!("on at level {}/{}", setting.start_level, protocol::LED_MAX_LEVEL),
+            LedMode::Blink => format!("blinking every {} ms", setting.interval_ms),
+        };
+        eprintln!("LED {}: {what}", common.led_id);
+    }
+    Ok(())
+}
+
+/// Writes `--sim-report`: the simulated device's colour settings, LEDs and protocol violations.
+fn write_sim_report(common: &CommonArgs, sim: &Option<SimHandle>) -> Result<()> {
+    let (Some(path), Some(sim)) = (&common.sim_report, sim) else { return Ok(()) };
+    let s = sim.lock().unwrap_or_else(|p| p.into_inner());
+    use kinect_usb::protocol::ColorSettingCode as C;
+    let c = s.color_settings();
+    let led = |l: &LedSetting| {
+        serde_json::json!({ "id": l.id, "blink": l.mode == LedMode::Blink, "start_level": l.start_level,
+                            "stop_level": l.stop_level, "interval_ms": l.interval_ms })
+    };
+    let v = serde_json::json!({
+        "exposure_mode": c.get(C::SetExposureMode),
+        "integration_time_ms": c.get_f32(C::SetIntegrationTime),
+        "analog_gain": c.get_f32(C::SetAnalogGain),
+        "exposure_time_ms": c.get_f32(C::SetExposureTime),
+        "exposure_compensation": c.get_f32(C::SetExposureCompensation),
+        "led_api": s.led_api_log().iter().map(led).collect::<Vec<_>>(),
+        "violations": s.violations,
+        "commands": s.transcript.iter().filter(|l| l.starts_with("cmd")).collect::<Vec<_>>(),
+    });
+    write_atomic(path, |w| {
+        serde_json::to_writer_pretty(&mut *w, &v)?;
+        w.write_all(b"\n")
+    })?;
+    Ok(())
 }
 
 /// The simulated device used by `--backend sim`: `geometry::synth`'s Kinect preset scene.
@@ -361,8 +531,13 @@ fn shots(out: &Path, names: &[String], kind: &str, interval: Option<f64>, overwr
         }
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let mut dev = open(common)?;
+    let (mut dev, sim) = open(common)?;
     let info = dev.start(true, true)?.clone();
+    if let Err(e) = apply_settings(&mut dev, common) {
+        let _ = dev.close();
+        write_sim_report(common, &sim)?;
+        return Err(e);
+    }
     write_params_json(out, &info)?;
     let mut dec = decoder_for(&info, common.no_filters)?;
     let trigger = Trigger::new(interval);
@@ -410,6 +585,7 @@ fn shots(out: &Path, names: &[String], kind: &str, interval: Option<f64>, overwr
     bar.finish_and_clear();
     report_counters(&dev);
     let _ = dev.close();
+    write_sim_report(common, &sim)?;
     match outcome {
         Ok(()) => {
             eprintln!("saved {saved} shot(s) in {}", out.display());
@@ -442,8 +618,13 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     if output.exists() && !overwrite {
         bail!("{} already exists; pass --overwrite to replace it", output.display());
     }
-    let mut dev = open(common)?;
+    let (mut dev, sim) = open(common)?;
     let info = dev.start(true, true)?.clone();
+    if let Err(e) = apply_settings(&mut dev, common) {
+        let _ = dev.close();
+        write_sim_report(common, &sim)?;
+        return Err(e);
+    }
     let meta = RecordingMeta::from_info(&info);
     let bar = ProgressBar::new(frames);
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} depth frames").unwrap_or_else(|_| ProgressStyle::default_bar()));
@@ -478,6 +659,7 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     bar.finish_and_clear();
     report_counters(&dev);
     let _ = dev.close();
+    write_sim_report(common, &sim)?;
     match stop {
         None => {
             eprintln!("recorded {got} depth frames to {}", output.display());

@@ -172,3 +172,55 @@ impl<T: UsbBackend + ?Sized> UsbBackend for Box<T> {
         (**self).stop_stream(h, max_wait)
     }
 }
+
+/// A backend shared with an observer (e.g. a test or the CLI inspecting a simulated device
+/// while a [`crate::device::KinectDevice`] owns it). A poisoned lock is used as is: the
+/// backends keep no invariants that a panic half-way could break.
+impl<T: UsbBackend> UsbBackend for std::sync::Arc<std::sync::Mutex<T>> {
+    fn active_config(&mut self) -> Result<u8, UsbError> {
+        lock(self).active_config()
+    }
+    fn set_config(&mut self, cfg: u8) -> Result<(), UsbError> {
+        lock(self).set_config(cfg)
+    }
+    fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
+        lock(self).reset()
+    }
+    fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
+        lock(self).claim(iface)
+    }
+    fn release(&mut self, iface: u8) -> Result<(), UsbError> {
+        lock(self).release(iface)
+    }
+    fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError> {
+        lock(self).set_alt(iface, alt)
+    }
+    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+        lock(self).control_out(req_type, req, value, index, data, timeout)
+    }
+    fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+        lock(self).bulk_out(ep, data, timeout)
+    }
+    fn bulk_in(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> Result<usize, UsbError> {
+        lock(self).bulk_in(ep, buf, timeout)
+    }
+    fn clear_halt(&mut self, ep: u8) -> Result<(), UsbError> {
+        lock(self).clear_halt(ep)
+    }
+    fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError> {
+        lock(self).iso_bytes_per_interval(ep, alt)
+    }
+    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
+        lock(self).start_stream(spec)
+    }
+    fn next_event(&mut self, timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+        lock(self).next_event(timeout)
+    }
+    fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
+        lock(self).stop_stream(h, max_wait)
+    }
+}
+
+fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}

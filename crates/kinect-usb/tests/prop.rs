@@ -136,3 +136,72 @@ proptest! {
         }
     }
 }
+
+/// A simulated device with a synthetic profile (no shared data needed).
+fn settings_sim() -> kinect_usb::sim::SimDevice {
+    use kinect_usb::params::DepthParams;
+    use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
+    let depth = DepthParams { fx: 365.0, fy: 365.0, cx: 255.5, cy: 211.5, k1: 0.0, k2: 0.0, k3: 0.0, p1: 0.0, p2: 0.0 };
+    SimDevice::new(SimProfile::synthetic(depth, 1060.0), SimScene::default(), SimFaults::default())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    /// Random 0x3E responses never panic the parser; it accepts exactly the 16-byte answers
+    /// that are not a completion, and those round-trip to the same bytes.
+    #[test]
+    fn color_setting_responses_never_panic(b in prop::collection::vec(any::<u8>(), 0..40), as_completion in any::<bool>()) {
+        use kinect_usb::protocol::{encode_completion, is_completion, parse_color_setting_response};
+        let b = if as_completion && b.len() >= 4 { encode_completion(b[0] as u32).to_vec() } else { b };
+        match parse_color_setting_response(&b) {
+            Ok(r) => {
+                prop_assert!(b.len() == 16 && !is_completion(&b));
+                prop_assert_eq!(r.to_bytes().to_vec(), b);
+            }
+            Err(_) => prop_assert!(b.len() != 16 || is_completion(&b)),
+        }
+    }
+
+    /// Random 0x3E requests (any count, sub-sequence, code, value) sent to the simulated device
+    /// never panic it, always produce a parseable 16-byte response and a completion with
+    /// sequence 0, and an accepted SET is read back bit for bit by its GET code.
+    #[test]
+    fn sim_answers_random_color_settings(reqs in prop::collection::vec(
+        (prop_oneof![Just(1u32), any::<u32>()], prop_oneof![Just(0u32), any::<u32>()], 0u32..100, any::<u32>()), 1..24)) {
+        use kinect_usb::backend::UsbBackend;
+        use kinect_usb::protocol::{ColorSettingCode, Command, ep, parse_color_setting_response, parse_completion_status};
+        use std::time::Duration;
+        let t = Duration::from_millis(10);
+        let mut s = settings_sim();
+        s.claim(0).unwrap();
+        let mut send = |s: &mut kinect_usb::sim::SimDevice, words: [u32; 4]| {
+            let mut msg = Command::ColorSetting { code: words[2], value: words[3] }.encode(0);
+            for (i, w) in words.iter().enumerate() {
+                msg[20 + 4 * i..24 + 4 * i].copy_from_slice(&w.to_le_bytes());
+            }
+            s.bulk_out(ep::COMMAND_OUT, &msg, t).unwrap();
+            let mut data = [0u8; 16];
+            let n = s.bulk_in(ep::COMMAND_IN, &mut data, t).unwrap();
+            let r = parse_color_setting_response(&data[..n]).unwrap();
+            let mut c = [0u8; 16];
+            let n = s.bulk_in(ep::COMMAND_IN, &mut c, t).unwrap();
+            assert_eq!(parse_completion_status(&c[..n], "0x3E").unwrap().0, 0);
+            r
+        };
+        for (count, sub, code, value) in reqs {
+            let r = send(&mut s, [count, sub, code, value]);
+            let known = ColorSettingCode::from_code(code);
+            if count != 1 || sub != 0 || known.is_none() {
+                prop_assert!(r.status != 0);
+                continue;
+            }
+            let c = known.unwrap_or(ColorSettingCode::GetFrameRate);
+            if r.status == 0 && !c.is_get() && let Some(get) = (0..100).filter_map(ColorSettingCode::from_code).find(|g| g.set_of_get() == Some(c)) {
+                let back = send(&mut s, [1, 0, get.code(), 0]);
+                prop_assert_eq!((back.status, back.data), (0, value));
+            }
+        }
+        prop_assert!(s.violations.is_empty(), "{:?}", s.violations);
+    }
+}
