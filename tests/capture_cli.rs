@@ -158,3 +158,67 @@ fn devices_without_sensor_says_not_found() {
     let err = String::from_utf8_lossy(&st.stderr);
     assert!(err.contains("no Kinect v2 found") && err.contains("USB 3") && err.contains("udev"), "{err}");
 }
+
+/// `--exposure manual:MS,GAIN` and `--led blink:MS` reach the simulated sensor after start-up
+/// through the real CLI path: the sim's registers hold the exact f32 values, the 0x3E/0x4B
+/// commands went out with sequence 0 between "streaming on" (seq 12) and the stop sequence
+/// (which still starts at seq 13), and the read-back is printed.
+#[test]
+fn exposure_and_led_options_reach_the_sim() {
+    let dir = tempfile::tempdir().unwrap();
+    let report = dir.path().join("sim.json");
+    let st = kfuse()
+        .args(["capture", "scene", "--backend", "sim", "--interval", "0", "--exposure", "manual:20,2", "--led", "blink:250"])
+        .arg("--sim-report")
+        .arg(&report)
+        .arg("--out")
+        .arg(dir.path().join("s"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(st.status.success(), "{err}");
+    assert!(err.contains("colour exposure: manual, integration time 20 ms, analog gain 2 (read back from the sensor)"), "{err}");
+    assert!(err.contains("LED 0: blinking every 250 ms"), "{err}");
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(r["exposure_mode"], 4);
+    assert_eq!(r["integration_time_ms"].as_f64().unwrap() as f32, 20.0);
+    assert_eq!(r["analog_gain"].as_f64().unwrap() as f32, 2.0);
+    assert_eq!(r["led_api"], serde_json::json!([{ "id": 0, "blink": true, "start_level": 1000, "stop_level": 0, "interval_ms": 250 }]));
+    assert_eq!(r["violations"], serde_json::json!([]));
+    let cmds: Vec<&str> = r["commands"].as_array().unwrap().iter().map(|c| c.as_str().unwrap()).collect();
+    let at = |l: &str| cmds.iter().position(|c| *c == l).unwrap_or_else(|| panic!("{l} not in {cmds:?}"));
+    // 20.0f32 = 0x41A00000 = 1101004800, 2.0f32 = 0x40000000 = 1073741824.
+    let manual = [
+        at("cmd 0x3e seq 0 [1, 0, 25, 0]"),
+        at("cmd 0x3e seq 0 [1, 0, 0, 4]"),
+        at("cmd 0x3e seq 0 [1, 0, 1, 1101004800]"),
+        at("cmd 0x3e seq 0 [1, 0, 21, 1073741824]"),
+    ];
+    assert!(manual.windows(2).all(|w| w[0] < w[1]), "{cmds:?}");
+    let led = at("cmd 0x4b seq 0 [65536, 1000, 250, 0]");
+    let (on, stop) = (at("cmd 0x2b seq 12 [1]"), at("cmd 0x4b seq 13 [1, 6553700, 0, 0]"));
+    assert!(on < manual[0] && manual[3] < led && led < stop, "{cmds:?}");
+}
+
+/// Bad `--exposure` / `--led` values fail before any capture, naming the range or the forms.
+#[test]
+fn bad_exposure_and_led_values_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, want) in [
+        (vec!["--exposure", "manual:20,9"], "analog gain 9 is outside [1, 4]"),
+        (vec!["--exposure", "manual:20"], "manual needs MS,GAIN"),
+        (vec!["--exposure", "semi:100"], "outside (0, 66]"),
+        (vec!["--exposure", "auto:3"], "compensation 3 is outside [-2, 2]"),
+        (vec!["--exposure", "bright"], "expected auto, auto:COMP, semi:MS or manual:MS,GAIN"),
+        (vec!["--led", "on:1500"], "LED start level 1500 is above 1000"),
+        (vec!["--led", "blink:0"], "blink interval must be at least 1 ms"),
+        (vec!["--led", "on", "--led-id", "2"], "--led-id"),
+        (vec!["--exposure", "auto", "--replay", "x.kfrec"], "cannot be used with"),
+    ] {
+        let st = kfuse().args(["capture", "scene", "--backend", "sim", "--interval", "0"]).args(&args).arg("--out").arg(dir.path()).output().unwrap();
+        let err = String::from_utf8_lossy(&st.stderr);
+        assert!(!st.status.success(), "{args:?}");
+        assert!(err.contains(want), "{args:?}: {err}");
+    }
+    assert!(!dir.path().join("scene_depth.png").exists());
+}

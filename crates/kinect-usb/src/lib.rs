@@ -12,6 +12,9 @@
 //! * Colour frames are 1920 × 1080 baseline JPEG as sent by the sensor.
 //! * All protocol fields are little-endian. Timestamps are in units of 0.125 ms.
 //! * Internally the decoder works in *processing* rows `y = 423 − r` (spec §9.8).
+//! * Colour-camera settings (0x3E) and the LED API (0x4B) go out with sequence 0 and leave the
+//!   per-device counter alone (spec §3.3); every other command post-increments it. Their value
+//!   ranges are the named constants of [`protocol`] (e.g. [`protocol::ANALOG_GAIN_RANGE`]).
 //!
 //! This crate depends on nothing else of kfuse. `unsafe` is confined to the private
 //! `transfer` module (libusb isochronous/bulk transfers).

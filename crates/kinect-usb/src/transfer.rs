@@ -53,6 +53,96 @@ fn status_of(s: c_int) -> XferStatus {
     }
 }
 
+/// What a completion callback does with a transfer that came back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Disposition {
+    /// The device is gone: retire the transfer and report `Disconnected`.
+    Disconnected,
+    /// Cancelled, or the pool is stopping: retire silently.
+    Retire,
+    /// Hand its data over and resubmit.
+    Deliver,
+}
+
+fn disposition(status: c_int, stopping: bool) -> Disposition {
+    if status == LIBUSB_TRANSFER_NO_DEVICE {
+        Disposition::Disconnected
+    } else if status == LIBUSB_TRANSFER_CANCELLED || stopping {
+        Disposition::Retire
+    } else {
+        Disposition::Deliver
+    }
+}
+
+/// Why a stream stops when resubmission returned libusb error `rc` (spec §5.5 [QUIRK]: the
+/// reference silently lets the stream die; kfuse reports it).
+fn resubmit_failure(rc: c_int) -> StopReason {
+    if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE { StopReason::Disconnected } else { StopReason::Stalled }
+}
+
+/// One isochronous packet descriptor as libusb reports it on completion.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct IsoDesc {
+    status: c_int,
+    actual_length: c_uint,
+}
+
+/// The isochronous bookkeeping of spec §5.5: one event per descriptor, in order; packet `i`'s
+/// data starts at the **nominal** offset `i × packet_size` whatever happened to earlier packets
+/// (the reference's [QUIRK] of advancing only past completed packets is not reproduced); its
+/// length is `actual_length` clamped to the packet size and to the buffer; only completed
+/// packets carry data.
+fn iso_events(buffer: &[u8], descs: &[IsoDesc], packet_size: usize) -> Vec<StreamEvent> {
+    descs
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let status = status_of(d.status);
+            let data = if status == XferStatus::Completed {
+                let start = i.saturating_mul(packet_size).min(buffer.len());
+                let len = (d.actual_length as usize).min(packet_size).min(buffer.len() - start);
+                buffer[start..start + len].to_vec()
+            } else {
+                Vec::new()
+            };
+            StreamEvent::IsoPacket { status, data }
+        })
+        .collect()
+}
+
+/// A bulk transfer's event: its first `actual_length` bytes (clamped to the buffer) when
+/// completed, nothing otherwise.
+fn bulk_event(status: c_int, buffer: &[u8], actual_length: c_int) -> StreamEvent {
+    let status = status_of(status);
+    let data = if status == XferStatus::Completed { buffer[..(actual_length.max(0) as usize).min(buffer.len())].to_vec() } else { Vec::new() };
+    StreamEvent::Bulk { status, data }
+}
+
+/// Reads a completed transfer's buffer and descriptors and turns them into events.
+///
+/// # Safety
+/// `tr.buffer` must point to `tr.length` readable bytes and, for an isochronous transfer,
+/// `tr.num_iso_packets` descriptors must follow the struct (as `libusb_alloc_transfer(n)`
+/// with `n ≥ num_iso_packets` provides).
+unsafe fn transfer_events(tr: &ffi::libusb_transfer, iso: bool, packet_size: usize) -> Vec<StreamEvent> {
+    let len = tr.length.max(0) as usize;
+    let buffer: &[u8] = if tr.buffer.is_null() || len == 0 {
+        &[]
+    } else {
+        // SAFETY: the caller guarantees `length` readable bytes at `buffer`.
+        unsafe { std::slice::from_raw_parts(tr.buffer, len) }
+    };
+    if iso {
+        let n = tr.num_iso_packets.max(0) as usize;
+        // SAFETY: the caller guarantees `n` descriptors in the flexible array member.
+        let descs = unsafe { std::slice::from_raw_parts(tr.iso_packet_desc.as_ptr(), n) };
+        let descs: Vec<IsoDesc> = descs.iter().map(|d| IsoDesc { status: d.status, actual_length: d.actual_length }).collect();
+        iso_events(buffer, &descs, packet_size)
+    } else {
+        vec![bulk_event(tr.status, buffer, tr.actual_length)]
+    }
+}
+
 extern "system" fn on_complete(t: *mut ffi::libusb_transfer) {
     // SAFETY: libusb calls this with a transfer we allocated and submitted; it stays allocated
     // until `TransferPool::drop` frees it, which only happens after `in_flight` reached zero,
@@ -61,49 +151,29 @@ extern "system" fn on_complete(t: *mut ffi::libusb_transfer) {
     // SAFETY: `user_data` is `Arc::as_ptr` of the pool's `Shared`; the pool holds that Arc for
     // as long as any transfer can call back (see `Drop`).
     let shared = unsafe { &*(tr.user_data as *const Shared) };
-    if tr.status == LIBUSB_TRANSFER_NO_DEVICE {
-        shared.in_flight.fetch_sub(1, Ordering::SeqCst);
-        shared.send(StreamEvent::Stopped { reason: StopReason::Disconnected });
-        return;
-    }
-    if tr.status == LIBUSB_TRANSFER_CANCELLED || shared.stopping.load(Ordering::SeqCst) {
-        shared.in_flight.fetch_sub(1, Ordering::SeqCst);
-        return;
-    }
-    if shared.iso {
-        let n = tr.num_iso_packets.max(0) as usize;
-        for i in 0..n {
-            // SAFETY: the transfer was allocated with `n` iso packet descriptors that follow the
-            // struct in memory (`iso_packet_desc` is the C flexible array member).
-            let d = unsafe { &*tr.iso_packet_desc.as_ptr().add(i) };
-            let status = status_of(d.status);
-            let len = (d.actual_length as usize).min(shared.packet_size);
-            let data = if status == XferStatus::Completed {
-                // SAFETY: the buffer holds `n × packet_size` bytes; packet i starts at
-                // `i × packet_size` (always the nominal offset, spec §5.5) and `len` ≤ packet_size.
-                unsafe { std::slice::from_raw_parts(tr.buffer.add(i * shared.packet_size), len) }.to_vec()
-            } else {
-                Vec::new()
-            };
-            shared.send(StreamEvent::IsoPacket { status, data });
+    match disposition(tr.status, shared.stopping.load(Ordering::SeqCst)) {
+        Disposition::Disconnected => {
+            shared.in_flight.fetch_sub(1, Ordering::SeqCst);
+            shared.send(StreamEvent::Stopped { reason: StopReason::Disconnected });
+            return;
         }
-    } else {
-        let status = status_of(tr.status);
-        let len = (tr.actual_length.max(0) as usize).min(tr.length.max(0) as usize);
-        let data = if status == XferStatus::Completed {
-            // SAFETY: the buffer holds `length` bytes, `actual_length` ≤ `length`.
-            unsafe { std::slice::from_raw_parts(tr.buffer, len) }.to_vec()
-        } else {
-            Vec::new()
-        };
-        shared.send(StreamEvent::Bulk { status, data });
+        Disposition::Retire => {
+            shared.in_flight.fetch_sub(1, Ordering::SeqCst);
+            return;
+        }
+        Disposition::Deliver => {}
+    }
+    // SAFETY: the pool filled this transfer with a buffer of `length` = packets × packet_size
+    // bytes (or `packet_size` for bulk) that it owns until the transfer is freed, and allocated
+    // it with `num_iso_packets` descriptors.
+    for ev in unsafe { transfer_events(tr, shared.iso, shared.packet_size) } {
+        shared.send(ev);
     }
     // SAFETY: resubmitting a transfer from its own completion callback is allowed by libusb.
     let rc = unsafe { ffi::libusb_submit_transfer(t) };
     if rc != 0 {
         shared.in_flight.fetch_sub(1, Ordering::SeqCst);
-        let reason = if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE { StopReason::Disconnected } else { StopReason::Stalled };
-        shared.send(StreamEvent::Stopped { reason });
+        shared.send(StreamEvent::Stopped { reason: resubmit_failure(rc) });
     }
 }
 
@@ -213,5 +283,157 @@ impl Drop for TransferPool {
             // SAFETY: every transfer came back (in_flight == 0) and is never used again.
             unsafe { ffi::libusb_free_transfer(t) };
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The libusb-side bookkeeping without a device: synthetic descriptors, and real
+    //! `libusb_transfer` structs (allocation needs no device or context) filled by hand.
+    use super::*;
+    use crate::raw::RAW_FRAME_BYTES;
+    use crate::stream::{DepthAssembler, packetize_depth_frame};
+    use rusb::ffi::constants::{LIBUSB_ERROR_IO, LIBUSB_TRANSFER_ERROR, LIBUSB_TRANSFER_OVERFLOW, LIBUSB_TRANSFER_STALL};
+
+    const OK: c_int = LIBUSB_TRANSFER_COMPLETED;
+
+    fn d(status: c_int, actual_length: c_uint) -> IsoDesc {
+        IsoDesc { status, actual_length }
+    }
+
+    fn iso(status: XferStatus, data: &[u8]) -> StreamEvent {
+        StreamEvent::IsoPacket { status, data: data.to_vec() }
+    }
+
+    /// Packet i's bytes are `i * 16 + k`: the expected slices are written out by hand.
+    #[test]
+    fn iso_events_use_nominal_offsets_and_statuses() {
+        let buf: Vec<u8> = (0..64u8).collect();
+        let descs = [d(OK, 16), d(LIBUSB_TRANSFER_ERROR, 16), d(OK, 5), d(LIBUSB_TRANSFER_TIMED_OUT, 16)];
+        let ev = iso_events(&buf, &descs, 16);
+        assert_eq!(
+            ev,
+            [
+                iso(XferStatus::Completed, &(0..16).collect::<Vec<u8>>()),
+                iso(XferStatus::Error, &[]),
+                // After a failed packet the next one still starts at 2 × 16, not at 16.
+                iso(XferStatus::Completed, &[32, 33, 34, 35, 36]),
+                iso(XferStatus::TimedOut, &[]),
+            ]
+        );
+        // Stall, overflow and cancelled map to Error / Cancelled without data.
+        let ev = iso_events(&buf, &[d(LIBUSB_TRANSFER_STALL, 3), d(LIBUSB_TRANSFER_OVERFLOW, 3), d(LIBUSB_TRANSFER_CANCELLED, 3)], 16);
+        assert_eq!(ev, [iso(XferStatus::Error, &[]), iso(XferStatus::Error, &[]), iso(XferStatus::Cancelled, &[])]);
+        // Zero-length completed packets (the gaps between depth sub-packets) stay empty.
+        assert_eq!(iso_events(&buf, &[d(OK, 0)], 16), [iso(XferStatus::Completed, &[])]);
+    }
+
+    /// Lengths a misbehaving host controller could report never read outside the packet or
+    /// the buffer.
+    #[test]
+    fn iso_events_clamp_lengths() {
+        let buf: Vec<u8> = (0..40u8).collect();
+        // actual_length above the packet size is clamped to it; the third packet's slot is
+        // cut by the end of the buffer (40 bytes for 3 × 16); the fourth lies beyond it.
+        let ev = iso_events(&buf, &[d(OK, 999), d(OK, 16), d(OK, 16), d(OK, 16)], 16);
+        assert_eq!(
+            ev,
+            [
+                iso(XferStatus::Completed, &(0..16).collect::<Vec<u8>>()),
+                iso(XferStatus::Completed, &(16..32).collect::<Vec<u8>>()),
+                iso(XferStatus::Completed, &(32..40).collect::<Vec<u8>>()),
+                iso(XferStatus::Completed, &[]),
+            ]
+        );
+        assert_eq!(iso_events(&buf, &[d(OK, 5)], 0), [iso(XferStatus::Completed, &[])]);
+        assert_eq!(iso_events(&[], &[d(OK, 5)], 16), [iso(XferStatus::Completed, &[])]);
+    }
+
+    #[test]
+    fn bulk_event_takes_actual_length() {
+        let buf: Vec<u8> = (0..10u8).collect();
+        assert_eq!(bulk_event(OK, &buf, 4), StreamEvent::Bulk { status: XferStatus::Completed, data: vec![0, 1, 2, 3] });
+        assert_eq!(bulk_event(OK, &buf, 99), StreamEvent::Bulk { status: XferStatus::Completed, data: buf.clone() });
+        assert_eq!(bulk_event(OK, &buf, -1), StreamEvent::Bulk { status: XferStatus::Completed, data: vec![] });
+        assert_eq!(bulk_event(LIBUSB_TRANSFER_ERROR, &buf, 4), StreamEvent::Bulk { status: XferStatus::Error, data: vec![] });
+        assert_eq!(bulk_event(LIBUSB_TRANSFER_TIMED_OUT, &buf, 4), StreamEvent::Bulk { status: XferStatus::TimedOut, data: vec![] });
+    }
+
+    #[test]
+    fn disposition_and_resubmit_failure() {
+        assert_eq!(disposition(LIBUSB_TRANSFER_NO_DEVICE, false), Disposition::Disconnected);
+        assert_eq!(disposition(LIBUSB_TRANSFER_NO_DEVICE, true), Disposition::Disconnected);
+        assert_eq!(disposition(LIBUSB_TRANSFER_CANCELLED, false), Disposition::Retire);
+        assert_eq!(disposition(OK, true), Disposition::Retire);
+        for s in [OK, LIBUSB_TRANSFER_ERROR, LIBUSB_TRANSFER_TIMED_OUT, LIBUSB_TRANSFER_STALL] {
+            assert_eq!(disposition(s, false), Disposition::Deliver, "{s}");
+        }
+        assert_eq!(resubmit_failure(ffi::constants::LIBUSB_ERROR_NO_DEVICE), StopReason::Disconnected);
+        assert_eq!(resubmit_failure(LIBUSB_ERROR_IO), StopReason::Stalled);
+    }
+
+    /// Packets laid out as a host controller fills real `libusb_transfer`s (8 descriptors of
+    /// 33 792 bytes each, data at the nominal offsets), with an extra failed descriptor holding
+    /// garbage in the middle of frame 1, go through the same unsafe extraction as the callback
+    /// and the depth assembler: all three frames come out bit-exact. Reading from the wrong
+    /// offset after the failed packet (the reference's quirk) would corrupt frame 1.
+    #[test]
+    fn real_transfer_structs_reassemble_frames() {
+        const PACKETS: usize = 8;
+        const PS: usize = 33_792;
+        let frames: Vec<Vec<u8>> = (0..3u32).map(|f| (0..RAW_FRAME_BYTES).map(|i| ((i * 7 + f as usize * 101) % 251) as u8).collect()).collect();
+        // (status, bytes) per descriptor slot.
+        let mut slots: Vec<(c_int, Vec<u8>)> = Vec::new();
+        for (f, raw) in frames.iter().enumerate() {
+            let packets = packetize_depth_frame(raw, f as u32, 1000 + 267 * f as u32, PS, [1, 2, 3, 1, 2, 3, 1, 2, 3, 1]);
+            for (k, p) in packets.into_iter().enumerate() {
+                if f == 1 && k == 20 {
+                    slots.push((LIBUSB_TRANSFER_ERROR, vec![0xEE; PS]));
+                }
+                slots.push((OK, p));
+            }
+        }
+        let mut asm = DepthAssembler::new();
+        let mut got = Vec::new();
+        let mut errors = 0;
+        for chunk in slots.chunks(PACKETS) {
+            let mut buf = vec![0u8; PACKETS * PS];
+            // SAFETY: allocation only; checked for null below, freed at the end of this block.
+            let t = unsafe { ffi::libusb_alloc_transfer(PACKETS as c_int) };
+            assert!(!t.is_null());
+            // SAFETY: `t` has room for PACKETS descriptors; `buf` outlives every use of `t`.
+            let events = unsafe {
+                let tr = &mut *t;
+                tr.buffer = buf.as_mut_ptr();
+                tr.length = (PACKETS * PS) as c_int;
+                tr.num_iso_packets = chunk.len() as c_int;
+                tr.status = OK;
+                for (i, (status, data)) in chunk.iter().enumerate() {
+                    buf[i * PS..i * PS + data.len()].copy_from_slice(data);
+                    let desc = &mut *tr.iso_packet_desc.as_mut_ptr().add(i);
+                    desc.length = PS as c_uint;
+                    desc.status = *status;
+                    desc.actual_length = if *status == OK { data.len() as c_uint } else { 0 };
+                }
+                let ev = transfer_events(tr, true, PS);
+                ffi::libusb_free_transfer(t);
+                ev
+            };
+            assert_eq!(events.len(), chunk.len());
+            for ev in events {
+                match ev {
+                    StreamEvent::IsoPacket { status: XferStatus::Completed, data } => {
+                        if let Some(f) = asm.push(&data) {
+                            got.push((f.sequence, f.data == frames[f.sequence as usize].as_slice()));
+                        }
+                    }
+                    StreamEvent::IsoPacket { .. } => errors += 1,
+                    e => panic!("unexpected {e:?}"),
+                }
+            }
+        }
+        assert_eq!(errors, 1);
+        assert_eq!(got, [(0, true), (1, true), (2, true)]);
+        assert_eq!((asm.stats.incomplete_frames, asm.stats.skipped_frames), (0, 0));
     }
 }
