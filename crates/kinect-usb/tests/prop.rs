@@ -175,7 +175,7 @@ proptest! {
         let t = Duration::from_millis(10);
         let mut s = settings_sim();
         s.claim(0).unwrap();
-        let mut send = |s: &mut kinect_usb::sim::SimDevice, words: [u32; 4]| {
+        let send = |s: &mut kinect_usb::sim::SimDevice, words: [u32; 4]| {
             let mut msg = Command::ColorSetting { code: words[2], value: words[3] }.encode(0);
             for (i, w) in words.iter().enumerate() {
                 msg[20 + 4 * i..24 + 4 * i].copy_from_slice(&w.to_le_bytes());
