@@ -641,7 +641,7 @@ impl UsbBackend for SimDevice {
                     self.violations.push(format!("colour setting (0x3E) max_response_len {}, must be 16", m.max_response_len));
                 }
             }
-            SET_MODE_ID if m.sequence != self.expected_seq && !(self.led_ambiguous && m.sequence == self.expected_seq + 1) => {
+            SET_MODE_ID if m.sequence != self.expected_seq && !(self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1)) => {
                 // Out of the counter: the LED API (sequence 0, spec §4.9).
                 if m.sequence != 0 {
                     self.violations.push(format!("command 0x4b: sequence {} expected {} (or 0 for the LED API)", m.sequence, self.expected_seq));
