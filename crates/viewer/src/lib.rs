@@ -15,10 +15,14 @@
 #![deny(missing_docs)]
 
 mod app;
+pub mod calib_page;
+pub mod calibration;
 pub mod camera3d;
+pub mod capture;
 pub mod data;
 mod error;
 pub mod panes;
+pub mod live;
 pub mod pipeline;
 pub mod render3d;
 pub mod view2d;
