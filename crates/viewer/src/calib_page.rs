@@ -186,7 +186,7 @@ impl CalibPage {
                 for (i, im) in cam.images.iter().enumerate() {
                     let rms = im.rms_px.map_or("—".to_string(), |r| format!("{r:.4}"));
                     let text = match &im.rejected {
-                        Some(_) => egui::RichText::new(format!("✗ {}  {rms}", im.name)).color(Color32::from_rgb(220, 90, 90)),
+                        Some(_) => egui::RichText::new(format!("X {}  {rms}", im.name)).color(Color32::from_rgb(220, 90, 90)),
                         None => egui::RichText::new(format!("{}  {rms}", im.name)),
                     };
                     let r = ui.selectable_label(self.image == i, text);
@@ -231,7 +231,7 @@ impl CalibPage {
             let ymax = list.iter().filter_map(|b| b.rms_px).fold(limit, f64::max) * 1.15;
             let y_of = |v: f64| area.max.y - (v / ymax) as f32 * area.height();
             painter.text(Pos2::new(area.min.x, area.min.y - 20.0), egui::Align2::LEFT_TOP,
-                format!("{label} camera: RMS per image, px (red line: handout bar {limit} px; grey ✗: rejected)"), egui::FontId::proportional(14.0), text);
+                format!("{label} camera: RMS per image, px (red line: handout bar {limit} px; grey X: rejected)"), egui::FontId::proportional(14.0), text);
             painter.line_segment([area.left_bottom(), area.right_bottom()], Stroke::new(1.0, Color32::GRAY));
             painter.line_segment([area.left_bottom(), area.left_top()], Stroke::new(1.0, Color32::GRAY));
             for k in 0..=4 {
@@ -255,7 +255,7 @@ impl CalibPage {
                     painter.rect_filled(bar, 0.0, colour);
                 }
                 if b.rejected {
-                    painter.text(Pos2::new(slot.center().x, area.max.y - 10.0), egui::Align2::CENTER_CENTER, "✗", egui::FontId::proportional(16.0), Color32::from_rgb(220, 60, 60));
+                    painter.text(Pos2::new(slot.center().x, area.max.y - 10.0), egui::Align2::CENTER_CENTER, "X", egui::FontId::proportional(16.0), Color32::from_rgb(220, 60, 60));
                 }
                 if self.camera == ci && self.image == i {
                     painter.rect_stroke(slot, 0.0, Stroke::new(1.5, Color32::YELLOW), egui::StrokeKind::Inside);
@@ -304,7 +304,7 @@ impl CalibPage {
         let tex = self.texture(ui.ctx());
         let size = [cam.model.width, cam.model.height];
         ui.label(format!(
-            "{}: {} corners detected (red: corner 0 → x axis){}",
+            "{}: {} corners detected (red: corner 0 -> x axis){}",
             im.name,
             im.detected.len(),
             im.rejected.as_deref().map_or(String::new(), |w| format!(" — view rejected: {w}"))
@@ -357,7 +357,7 @@ impl CalibPage {
         let gain = residual_gain(&cam);
         let largest = cam.images.iter().flat_map(|i| &i.residuals).map(|r| r[3].hypot(r[4])).fold(0.0, f64::max);
         ui.label(format!(
-            "{} camera: residual vectors (observed − projected) of every used corner, magnified ×{gain:.0}; largest {largest:.3} px; selected image highlighted",
+            "{} camera: residual vectors (observed - projected) of every used corner, magnified ×{gain:.0}; largest {largest:.3} px; selected image highlighted",
             cam.label
         ));
         let rect = ui.available_rect_before_wrap().shrink(8.0);
@@ -462,7 +462,7 @@ impl CalibPage {
             for k in 0..4 {
                 line(pts[k], pts[(k + 1) % 4], Stroke::new(width, colour));
             }
-            // Corner 0 → x axis, as in the corner view.
+            // Corner 0 -> x axis, as in the corner view.
             line(pts[0], pose.apply(&Vector3::new(bw * 0.25, 0.0, 0.0)), Stroke::new(width + 1.0, Color32::RED));
             if let Some(p) = project(pose.apply(&Vector3::new(bw * 0.5, bh * 0.5, 0.0))) {
                 painter.text(p, egui::Align2::CENTER_CENTER, format!("{}", i + 1), egui::FontId::proportional(12.0), colour);

@@ -461,7 +461,7 @@ impl LivePage {
         }
         egui::Panel::top("kfuse-live-status").show(ui, |ui| {
             ui.horizontal(|ui| {
-                ui.strong(if self.streaming() { "● streaming" } else { "■ stopped" });
+                ui.strong(if self.streaming() { "LIVE" } else { "STOPPED" });
                 ui.separator();
                 ui.label(format!("frames: {}", self.frames));
                 ui.separator();
