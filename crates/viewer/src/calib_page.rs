@@ -365,7 +365,7 @@ impl CalibPage {
         let size = [cam.model.width, cam.model.height];
         let frame = View2d::default().image_rect(Rect::from_min_max(rect.min, Pos2::new(rect.max.x, rect.max.y - 30.0)), size);
         let painter = ui.painter_at(rect);
-        painter.rect_stroke(frame, 0.0, Stroke::new(1.0, Color32::GRAY), egui::StrokeKind::Outside);
+        painter.rect_stroke(frame, 0.0, Stroke::new(1.0, Color32::GRAY), egui::StrokeKind::Inside);
         let s = frame.width() / size[0] as f32;
         let at = |x: f64, y: f64| frame.min + Vec2::new((x as f32 + 0.5) * s, (y as f32 + 0.5) * s);
         let mut drawn = 0;
@@ -473,22 +473,33 @@ impl CalibPage {
     }
 
     fn parameters_ui(&mut self, ui: &mut egui::Ui) {
+        fn table(ui: &mut egui::Ui, id: usize, title: &str, rows: &[crate::calibration::ParamRow]) {
+            ui.strong(title);
+            egui::Grid::new(format!("kfuse-calib-params-{id}")).striped(true).num_columns(3).show(ui, |ui| {
+                for (name, v, e, unit) in rows {
+                    ui.label(name);
+                    ui.monospace(format!("{v:>14.6}"));
+                    ui.monospace(match e {
+                        Some(e) => format!("± {e:.6} {unit}"),
+                        None => format!("fixed {unit}"),
+                    });
+                    ui.end_row();
+                }
+            });
+        }
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.label("Intervals are ±3σ (3 × the report's 1σ, comparable with Bouguet's *_error); fixed parameters show none.");
-            for (gi, (title, rows)) in self.report.parameter_rows().into_iter().enumerate() {
-                ui.add_space(6.0);
-                ui.strong(title);
-                egui::Grid::new(format!("kfuse-calib-params-{gi}")).striped(true).num_columns(3).show(ui, |ui| {
-                    for (name, v, e, unit) in rows {
-                        ui.label(name);
-                        ui.monospace(format!("{v:>14.6}"));
-                        ui.monospace(match e {
-                            Some(e) => format!("± {e:.6} {unit}"),
-                            None => format!("fixed {unit}"),
-                        });
-                        ui.end_row();
-                    }
-                });
+            let groups = self.report.parameter_rows();
+            let cams = self.report.cameras.len().min(groups.len());
+            // The cameras side by side, the stereo extrinsics below.
+            ui.columns(cams.max(1), |cols| {
+                for (i, (title, rows)) in groups.iter().take(cams).enumerate() {
+                    table(&mut cols[i], i, title, rows);
+                }
+            });
+            for (i, (title, rows)) in groups.iter().enumerate().skip(cams) {
+                ui.add_space(8.0);
+                table(ui, i, title, rows);
             }
         });
     }

@@ -127,19 +127,27 @@ fn rejected_view_is_marked_on_the_kinect_lab_session() {
     let m = calibrate_mono("IR camera", &board, &views, &CalibFlags::bouguet(), None).unwrap();
     let mut v: Value = serde_json::from_str(&camera_json(&m, &board, "depth")).unwrap();
     add_detections(&mut v["calibration"], &views, &files);
-    let tmp = tempfile::tempdir().unwrap();
-    let file = tmp.path().join("ir.json");
+    // A fixed folder: the page shows the path, and the snapshot below must not depend on it.
+    let dir = std::env::temp_dir().join("kfuse-viewer-test-calib-lab");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("ir.json");
     std::fs::write(&file, v.to_string()).unwrap();
     let app = ViewerApp::open(&file, BackendChoice::Cpu);
     assert!(app.error.is_none(), "{:?}", app.error);
     let page = app.calib.as_ref().unwrap();
-    let bars = &page.error_bars()[0].1;
+    let bars = page.error_bars()[0].1.clone();
     let rejected: Vec<&str> = bars.iter().filter(|b| b.rejected).map(|b| b.name.as_str()).collect();
     // ir_23 shows no board (the CLI test says the same); the other views are used.
     assert_eq!(rejected, vec!["ir_23.bmp"]);
     assert_eq!(bars.iter().filter(|b| !b.rejected).count(), m.views.iter().filter(|v| v.rejected.is_none()).count());
     // Single camera: the boards are in the camera's frame, one per used view.
     assert_eq!(page.board_poses().len(), bars.len() - 1);
+    let Some(mut h) = harness("rejected_view_is_marked_on_the_kinect_lab_session", app) else { return };
+    h.get_by_label_contains("X ir_23.bmp");
+    h.snapshot_options("calib_errors_rejected", &options());
+    h.get_by_label(CalibView::Poses.label()).click();
+    h.run();
+    assert_eq!(h.state().calib.as_ref().unwrap().boards_drawn, bars.len() - 1);
 }
 
 #[test]
