@@ -66,6 +66,9 @@ fn stereo_report(test: &str) -> Option<&'static Path> {
         let dir = std::env::temp_dir().join("kfuse-viewer-test-calib-report");
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(cal).unwrap()).unwrap();
+        // The rig file `kfuse calibrate --out` writes, in a folder of its own.
+        std::fs::create_dir_all(dir.join("rig")).unwrap();
+        std::fs::write(dir.join("rig/rig.json"), rig.to_json()).unwrap();
         dir
     }))
 }
@@ -246,4 +249,36 @@ fn corrupt_report_shows_the_error_panel() {
     let Some(h) = harness("corrupt_report_shows_the_error_panel", ViewerApp::open(tmp.path(), BackendChoice::Cpu)) else { return };
     h.get_by_label("Error");
     h.get_by_label_contains("report.json: not valid JSON");
+}
+
+#[test]
+fn rig_file_folder_opens_with_the_rigs_cameras() {
+    let Some(dir) = stereo_report("rig_file_folder_opens_with_the_rigs_cameras") else { return };
+    let from_rig = ViewerApp::open(&dir.join("rig"), BackendChoice::Cpu);
+    assert!(from_rig.error.is_none(), "{:?}", from_rig.error);
+    let from_report = ViewerApp::open(dir, BackendChoice::Cpu);
+    let (a, b) = (&from_rig.calib.as_ref().unwrap().report, &from_report.calib.as_ref().unwrap().report);
+    // Both files carry the same numbers (the rig's cameras are the report's, exactly).
+    assert_eq!(a.cameras, b.cameras);
+    assert_eq!(a.stereo, b.stereo);
+    assert_eq!(a.depth_from_board, b.depth_from_board);
+    let rig = geometry::io::rig::read_rig(&dir.join("rig/rig.json")).unwrap();
+    assert_eq!(a.cameras[0].model, rig.depth);
+    assert_eq!(a.cameras[1].model, rig.color);
+}
+
+#[test]
+fn missing_image_is_named_in_the_corner_view() {
+    let Some(dir) = stereo_report("missing_image_is_named_in_the_corner_view") else { return };
+    let mut json = read_json(&dir.join("report.json"));
+    json["depth_single_camera"]["images"][0]["image"] = Value::from("/nonexistent/ir_01.png");
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(tmp.path().join("report.json"), json.to_string()).unwrap();
+    let Some(mut h) = harness("missing_image_is_named_in_the_corner_view", ViewerApp::open(tmp.path(), BackendChoice::Cpu)) else { return };
+    h.get_by_label(CalibView::Corners.label()).click();
+    h.run();
+    h.run();
+    h.get_by_label_contains("image not shown: /nonexistent/ir_01.png");
+    // The corners are still drawn, on a blank canvas.
+    assert_eq!(h.state().calib.as_ref().unwrap().markers_drawn, 35);
 }
