@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use calib::detect::{align_pair, detect_views_with_progress};
-use calib::files::{camera_json, opencv_yaml_camera, opencv_yaml_rig, stereo_rig, write_text, COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX};
+use calib::files::{add_detections, camera_json, opencv_yaml_camera, opencv_yaml_rig, stereo_rig, write_text, COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX};
 use calib::{calibrate_mono, calibrate_stereo, Board, CalibError, CalibFlags, MonoCalibration, StereoOptions, ViewCorners};
 use geometry::io::atomic::StagedDir;
 use geometry::io::images::write_color_png;
@@ -281,7 +281,12 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         if s.color_rms_px > COLOR_RMS_LIMIT_PX {
             println!("  WARNING: colour RMS after stereo {:.3} px is above the handout's {COLOR_RMS_LIMIT_PX} px", s.color_rms_px);
         }
-        let rig = stereo_rig(&s, &board);
+        let mut rig = stereo_rig(&s, &board);
+        if let Some(cal) = rig.calibration.as_mut() {
+            // Corners and image paths for `kfuse view` (the calibration page).
+            add_detections(&mut cal["depth_single_camera"], &ir_views, &ir_files);
+            add_detections(&mut cal["color_single_camera"], &color_views, &color_files);
+        }
         report = rig.calibration.clone().unwrap_or_default();
         outputs.push((args.out.clone(), rig.to_json()));
         if let Some(y) = &args.opencv_yaml {
@@ -290,15 +295,23 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         figs.cameras.push(("IR", s.depth, s.depth_mono.clone(), DEPTH_RMS_LIMIT_PX));
         figs.cameras.push(("colour", s.color, s.color_mono.clone(), COLOR_RMS_LIMIT_PX));
     } else {
-        let (name, views, limit) = if ir_files.is_empty() {
-            ("colour", &color_views, COLOR_RMS_LIMIT_PX)
+        let (name, views, files, limit) = if ir_files.is_empty() {
+            ("colour", &color_views, &color_files, COLOR_RMS_LIMIT_PX)
         } else {
-            ("IR", &ir_views, DEPTH_RMS_LIMIT_PX)
+            ("IR", &ir_views, &ir_files, DEPTH_RMS_LIMIT_PX)
         };
         let m = calibrate_mono(&format!("{name} camera"), &board, views, &flags, None)?;
         print_mono(&format!("{name} camera"), &m, limit);
-        let text = camera_json(&m, &board, if name == "IR" { "depth" } else { "color" });
-        report = serde_json::from_str(&text).unwrap_or_default();
+        let mut text = camera_json(&m, &board, if name == "IR" { "depth" } else { "color" });
+        report = match serde_json::from_str::<serde_json::Value>(&text) {
+            Ok(mut v) => {
+                // Corners and image paths for `kfuse view` (the calibration page).
+                add_detections(&mut v["calibration"], views, files);
+                text = serde_json::to_string_pretty(&v)?;
+                v
+            }
+            Err(_) => serde_json::Value::default(),
+        };
         outputs.push((args.out.clone(), text));
         if let Some(y) = &args.opencv_yaml {
             outputs.push((y.clone(), opencv_yaml_camera(&m.camera)));

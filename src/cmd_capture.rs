@@ -10,20 +10,17 @@ use clap::{Args, Subcommand, ValueEnum};
 use geometry::io::atomic::write_atomic;
 use indicatif::{ProgressBar, ProgressStyle};
 use kinect_usb::backend::UsbBackend;
-use kinect_usb::decoder::{DecoderConfig, DecoderParams, DepthDecoder};
+use kinect_usb::decoder::DepthDecoder;
 use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamKind};
-use kinect_usb::params::{DepthParams, XzTables};
 use kinect_usb::protocol::{self, Exposure, ExposureMode, LedMode, LedSetting};
 use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
 use kinect_usb::recording::{RecordingMeta, RecordingWriter, read_recording_file};
-use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
+use kinect_usb::sim::{SimDevice, SimFaults};
 use kinect_usb::{KinectError, usb};
+use viewer::capture::{self, ShotKind};
 
 /// How long to wait for one frame before giving up (a live sensor delivers every 33 ms).
 const FRAME_TIMEOUT: Duration = Duration::from_secs(3);
-/// Scale from the synthetic scene's amplitude (albedo·cos/r², ≈0.05–0.6) to decoder IR units
-/// (≈1 000–12 000, well above the decoder's amplitude gates).
-const SIM_IR_SCALE: f32 = 20_000.0;
 
 /// The colour-camera and LED options' help, shared by every capture mode.
 macro_rules! settings_help {
@@ -378,7 +375,7 @@ fn write_sim_report(common: &CommonArgs, sim: &Option<SimHandle>) -> Result<()> 
 
 /// The simulated device used by `--backend sim`: `geometry::synth`'s Kinect preset scene.
 pub fn sim_device(common: &CommonArgs) -> SimDevice {
-    let (scene, profile) = sim_scene();
+    let (scene, profile) = capture::sim_scene();
     let faults = SimFaults {
         seed: 1,
         busy: common.sim_busy,
@@ -389,71 +386,16 @@ pub fn sim_device(common: &CommonArgs) -> SimDevice {
     SimDevice::new(profile, scene, faults)
 }
 
-/// The simulated scene (depth in mm, IR) and device profile; public so tests compare against
-/// exactly what the sim shows.
-pub fn sim_scene() -> (SimScene, SimProfile) {
-    let setup = geometry::synth::kinect_preset(false);
-    let frame = geometry::synth::render(&setup);
-    let depth_mm: Vec<f32> = frame.depth.data().iter().map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 }).collect();
-    let ir: Vec<f32> = frame.amplitude.data().iter().map(|&a| a * SIM_IR_SCALE).collect();
-    let (cw, ch) = frame.color.size();
-    let rgb: Vec<u8> = frame.color.data().iter().flat_map(|p| p.iter().copied()).collect();
-    let mut jpeg = Vec::new();
-    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90);
-    let ok = image::ImageEncoder::write_image(enc, &rgb, cw as u32, ch as u32, image::ExtendedColorType::Rgb8).is_ok();
-    let d = &setup.rig.depth;
-    let params = DepthParams {
-        fx: d.intrinsics.fx as f32,
-        fy: d.intrinsics.fy as f32,
-        cx: d.intrinsics.cx as f32,
-        cy: d.intrinsics.cy as f32,
-        k1: d.distortion.k1 as f32,
-        k2: d.distortion.k2 as f32,
-        k3: d.distortion.k3 as f32,
-        p1: d.distortion.p1 as f32,
-        p2: d.distortion.p2 as f32,
-    };
-    let profile = SimProfile::synthetic(params, setup.rig.color.intrinsics.fx as f32);
-    let scene = SimScene { depth_frames: vec![(depth_mm, ir)], color_jpegs: if ok { vec![jpeg] } else { vec![] } };
-    (scene, profile)
-}
-
 fn decoder_for(info: &DeviceInfo, no_filters: bool) -> Result<DepthDecoder> {
-    let xz = XzTables::from_params(&info.depth_params);
-    let cfg = DecoderConfig { bilateral: !no_filters, edge_aware: !no_filters, parallel: true };
-    Ok(DepthDecoder::new(DecoderParams::default(), cfg, &xz, &info.p0)?)
+    Ok(capture::decoder_for(info, no_filters)?)
 }
 
 fn write_params_json(out: &Path, info: &DeviceInfo) -> Result<()> {
-    let d = &info.depth_params;
-    let c = &info.color_params;
-    let v = serde_json::json!({
-        "format": "kfuse-kinect-params",
-        "version": 1,
-        "serial": info.serial,
-        "firmware": info.firmware,
-        "units": "pixels; shift_d and shift_m in millimetres",
-        "depth": { "width": WIDTH, "height": HEIGHT, "fx": d.fx, "fy": d.fy, "cx": d.cx, "cy": d.cy,
-                   "k1": d.k1, "k2": d.k2, "k3": d.k3, "p1": d.p1, "p2": d.p2 },
-        "color": { "width": 1920, "height": 1080, "fx": c.f, "fy": c.f, "cx": c.cx, "cy": c.cy,
-                   "shift_d": c.shift_d, "shift_m": c.shift_m, "mx": c.mx, "my": c.my },
-    });
-    let path = out.join("kinect_params.json");
-    write_atomic(&path, |w| {
-        serde_json::to_writer_pretty(&mut *w, &v)?;
-        w.write_all(b"\n")
-    })?;
-    Ok(())
+    Ok(capture::write_params_json(out, info)?)
 }
 
 fn write_png16(path: &Path, values: &[f32], width: usize, height: usize) -> Result<()> {
-    let px: Vec<u16> = values.iter().map(|&v| if v.is_finite() && v > 0.0 { v.round().min(65535.0) as u16 } else { 0 }).collect();
-    let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(width as u32, height as u32, px)
-        .context("image buffer size")?;
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut bytes, image::ImageFormat::Png)?;
-    write_atomic(path, |w| w.write_all(bytes.get_ref()))?;
-    Ok(())
+    Ok(capture::write_png16(path, values, width, height)?)
 }
 
 /// Waits for the trigger of the next shot: `interval` seconds, or one line on stdin.
@@ -516,15 +458,8 @@ fn fresh_pair(dev: &mut Device, dec: &mut DepthDecoder, latest: &mut Latest, sin
 }
 
 fn shots(out: &Path, names: &[String], kind: &str, interval: Option<f64>, overwrite: bool, common: &CommonArgs) -> Result<()> {
-    let files = |n: &str| {
-        let stem = if kind == "scene" { format!("{n}_") } else { String::new() };
-        let suffix = if kind == "scene" { String::new() } else { format!("_{n}") };
-        [
-            out.join(format!("{stem}color{suffix}.jpg")),
-            out.join(format!("{stem}ir{suffix}.png")),
-            out.join(format!("{stem}depth{suffix}.png")),
-        ]
-    };
+    let kind = if kind == "scene" { ShotKind::Scene } else { ShotKind::Calib };
+    let files = |n: &str| capture::shot_files(out, n, kind);
     if !overwrite {
         if let Some(p) = names.iter().flat_map(|n| files(n)).find(|p| p.exists()) {
             bail!("{} already exists; pass --overwrite to replace, or choose another --out", p.display());

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, anyhow, bail};
 use clap::{Args, ValueEnum};
+use viewer::live::{LiveBackend, LivePage};
 use viewer::{BackendChoice, ViewerApp};
 
 /// Where the fusion runs.
@@ -18,6 +19,15 @@ pub enum FusionBackendArg {
     Gpu,
 }
 
+/// Which sensor live mode streams from.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LiveBackendArg {
+    /// A real Kinect v2 over libusb.
+    Usb,
+    /// The simulated Kinect v2 (synthetic scene).
+    Sim,
+}
+
 /// Open the viewer.
 #[derive(Args, Debug, Clone)]
 #[command(after_help = "\
@@ -26,15 +36,23 @@ Examples:
   kfuse view kfuse-demo/fused    # a `kfuse fuse` output folder (re-fuses its inputs)
   kfuse view kfuse-demo/input    # a capture folder: rig.json, color.png, depth.png [, ir.png]
   kfuse view DIR --fusion cpu    # keep the GPU for the display only
+  kfuse view calib/report        # a `kfuse calibrate --report` folder (or its rig.json)
+  kfuse view --backend usb --out shots   # live mode on a connected Kinect v2
+  kfuse view --backend sim       # live mode on the simulated Kinect v2
 
 Pages: 2D images (colour, depth + legend, IR, blend and checkerboard overlays, hole mask,
 colour on depth; scroll = zoom, drag = pan, the status bar shows pixel, depth in mm and the
 3D point), 3D view (drag = orbit, right-drag = pan, scroll = zoom; switches re-run the fusion:
 nearest/Delaunay, z-buffer, edge-face removal and threshold, hole filling), Summary.
+Calibration: per-image RMS bars (rejected views marked), detected corners over each image,
+residual vectors (scale shown), board poses around the cameras in 3D, parameters ±3σ.
+Live: colour, depth and IR as they stream, frame count, fps and drops; press C to save a
+calibration pair (color_NNNN.jpg, ir_NNNN.png, depth_NNNN.png) and S to save a scene
+(scene_NNNN_*) into --out, the files `kfuse capture` writes.
 A folder with missing or corrupt files opens on an error panel naming the file.")]
 pub struct ViewArgs {
     /// Folder to open (a `kfuse fuse` output or a capture folder).
-    #[arg(value_name = "DIR", required_unless_present = "demo", conflicts_with = "demo")]
+    #[arg(value_name = "DIR", required_unless_present_any = ["demo", "backend"], conflicts_with_all = ["demo", "backend"])]
     pub dir: Option<PathBuf>,
     /// Open the bundled synthetic Kinect v2 scene instead of a folder.
     #[arg(long)]
@@ -42,6 +60,15 @@ pub struct ViewArgs {
     /// Where the fusion runs.
     #[arg(long, value_enum, default_value_t = FusionBackendArg::Auto)]
     pub fusion: FusionBackendArg,
+    /// Live mode: stream from a sensor (usb) or the simulated one (sim).
+    #[arg(long, value_enum, conflicts_with = "demo")]
+    pub backend: Option<LiveBackendArg>,
+    /// Live mode: folder for the shots saved with C and S.
+    #[arg(long, default_value = "kfuse-live", requires = "backend")]
+    pub out: PathBuf,
+    /// Simulated device: unplug after this many frame periods.
+    #[arg(long, hide = true)]
+    pub sim_unplug_after: Option<u64>,
 }
 
 /// Runs `kfuse view` (blocks until the window closes).
@@ -51,6 +78,16 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         FusionBackendArg::Cpu => BackendChoice::Cpu,
         FusionBackendArg::Gpu => BackendChoice::Gpu,
     };
+    if let Some(b) = args.backend {
+        let backend = match b {
+            LiveBackendArg::Usb => LiveBackend::Usb,
+            LiveBackendArg::Sim => LiveBackend::Sim { unplug_after: args.sim_unplug_after },
+        };
+        // Open the sensor before the window: no sensor is a plain CLI error.
+        let page = LivePage::open(backend, &args.out).map_err(|e| anyhow!("{e}"))?;
+        eprintln!("{}: streaming; press C (calibration pair) or S (scene) to save into {}", page.title(), args.out.display());
+        return run_window(ViewerApp::live(page));
+    }
     let app = match (&args.dir, args.demo) {
         (_, true) => {
             eprintln!("rendering and fusing the synthetic Kinect v2 scene ...");
@@ -63,6 +100,10 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         // The window shows it too; say it on the terminal for scripts.
         eprintln!("error: {e}");
     }
+    run_window(app)
+}
+
+fn run_window(app: ViewerApp) -> Result<()> {
     let options = eframe::NativeOptions {
         viewport: egui::ViewportBuilder::default().with_inner_size([1280.0, 800.0]).with_title("kfuse view"),
         renderer: eframe::Renderer::Wgpu,

@@ -10,7 +10,7 @@ use geometry::{CameraModel, Rig, RigidTransform};
 use serde_json::{json, Value};
 
 use crate::mono::{IntrinsicsStd, MonoCalibration};
-use crate::{Board, CalibError, StereoCalibration};
+use crate::{Board, CalibError, StereoCalibration, ViewCorners};
 
 /// Handout thresholds (lab L2): colour RMS must stay below 0.2 px, IR below 0.4 px.
 pub const COLOR_RMS_LIMIT_PX: f64 = 0.2;
@@ -22,18 +22,26 @@ fn std_json(s: &IntrinsicsStd) -> Value {
            "k1": s.k1, "k2": s.k2, "p1": s.p1, "p2": s.p2, "k3": s.k3})
 }
 
-/// The report of one camera's calibration (JSON).
+/// The report of one camera's calibration (JSON). Per image: name, RMS, corners used, tilt,
+/// rejection reason, and (for the viewer's calibration page) `camera_from_board` (metres,
+/// `null` for a rejected view) and `residuals_px`: `[id, x, y, ex, ey]` per used corner, the
+/// observed position and the error vector observed − projected, px.
 pub fn mono_report(m: &MonoCalibration) -> Value {
+    let residuals = |view: usize| -> Vec<[f64; 5]> {
+        m.residuals.iter().filter(|r| r.0 == view).map(|(_, id, p, e)| [*id as f64, p.x, p.y, e.x, e.y]).collect()
+    };
     json!({
         "rms_px": m.rms_px,
         "sigma_px": m.sigma_px,
         "std_1sigma": std_json(&m.std),
         "flags": m.flags,
         "fold_radius_normalised": m.camera.distortion.fold_radius(),
-        "images": m.views.iter().map(|v| json!({
+        "images": m.views.iter().enumerate().map(|(i, v)| json!({
             "name": v.name, "rms_px": if v.rms_px.is_finite() { json!(v.rms_px) } else { Value::Null },
             "corners": v.n_corners, "tilt_deg": if v.tilt_deg.is_finite() { json!(v.tilt_deg) } else { Value::Null },
             "rejected": v.rejected,
+            "camera_from_board": v.camera_from_board.filter(|_| v.rejected.is_none()),
+            "residuals_px": residuals(i),
         })).collect::<Vec<_>>(),
         "rejected_corners": m.rejected_corners,
     })
@@ -67,10 +75,31 @@ pub fn stereo_rig(s: &StereoCalibration, board: &Board) -> Rig {
         })).collect::<Vec<_>>(),
         "rejected_views": s.rejected_views.iter().map(|(i, why)| json!({"pair": i, "reason": why})).collect::<Vec<_>>(),
         "rejected_corners": s.rejected_corners,
+        "depth_camera": s.depth,
+        "color_camera": s.color,
+        "color_from_depth": s.color_from_depth,
+        "depth_from_board": s.depth_from_board,
         "depth_single_camera": mono_report(&s.depth_mono),
         "color_single_camera": mono_report(&s.color_mono),
     }));
     rig
+}
+
+/// Adds what the detector found to a camera's report (the `images` array of
+/// [`mono_report`], in the same order as `views`): per image `detected_corners`
+/// (`[id, x, y]`, px, every corner found, outliers included) and `image`, the file the
+/// corners were found in (`files[i]`, made absolute when it exists so that the report can be
+/// opened from any folder). Views beyond `files` get no path.
+pub fn add_detections(report: &mut Value, views: &[ViewCorners], files: &[std::path::PathBuf]) {
+    let Some(images) = report.get_mut("images").and_then(Value::as_array_mut) else { return };
+    for (i, (entry, v)) in images.iter_mut().zip(views).enumerate() {
+        entry["detected_corners"] = json!(v.corners.iter().map(|c| [c.id as f64, c.px.x, c.px.y]).collect::<Vec<_>>());
+        entry["image_size"] = json!([v.width, v.height]);
+        if let Some(f) = files.get(i) {
+            let f = std::fs::canonicalize(f).unwrap_or_else(|_| f.clone());
+            entry["image"] = json!(f.to_string_lossy());
+        }
+    }
 }
 
 /// A single-camera calibration file (`format: kfuse-camera`).

@@ -57,6 +57,9 @@ pub struct StereoCalibration {
     pub rejected_views: Vec<(usize, String)>,
     /// Corners rejected in the joint fit.
     pub rejected_corners: Vec<RejectedCorner>,
+    /// Per pair: the board pose in the depth camera's frame after the joint fit, metres
+    /// (`None` where the pair was not used or was rejected).
+    pub depth_from_board: Vec<Option<RigidTransform>>,
     /// The single-camera calibrations the joint fit started from.
     pub depth_mono: MonoCalibration,
     /// The single-camera calibrations the joint fit started from.
@@ -209,6 +212,9 @@ pub fn calibrate_stereo(
         pairs_used: pairs.into_iter().filter(|i| views_idx.iter().position(|v| v == i).is_some_and(|vi| p.view_active[vi])).collect(),
         rejected_views: rejected.into_iter().map(|(v, why)| (views_idx[v], why)).collect(),
         rejected_corners,
+        depth_from_board: (0..depth_views.len())
+            .map(|i| views_idx.iter().position(|&v| v == i).filter(|&vi| p.view_active[vi]).map(|vi| p.ref_from_board[vi]))
+            .collect(),
         depth_mono,
         color_mono,
     })

@@ -134,3 +134,44 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
     assert!(dt <= cv_dt && dr <= cv_dr, "OpenCV: {cv_dt} mm, {cv_dr}°");
     assert_eq!(r.pairs_used.len(), 15);
 }
+
+/// The report's per-image fields for the viewer: the residual vectors reproduce each image's
+/// RMS, every detected corner is listed, and the joint fit's board poses match the truth.
+#[test]
+fn report_holds_residuals_detections_and_board_poses() {
+    let Some(data) = shared_data("report_holds_residuals_detections_and_board_poses") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let (ir, color) = views(&data);
+    let r = calibrate_stereo(&board(), ir, color, &StereoOptions::default(), None, None).unwrap();
+    let mut rig = calib::files::stereo_rig(&r, &board());
+    let files: Vec<std::path::PathBuf> = (1..=15).map(|i| data.join(format!("synthetic-calib/ir/ir_{i:02}.png"))).collect();
+    let report = rig.calibration.as_mut().unwrap();
+    calib::files::add_detections(&mut report["depth_single_camera"], ir, &files);
+    for (key, views) in [("depth_single_camera", ir), ("color_single_camera", color)] {
+        let images = report[key]["images"].as_array().unwrap();
+        assert_eq!(images.len(), 15);
+        for (im, v) in images.iter().zip(views.iter()) {
+            let res = im["residuals_px"].as_array().unwrap();
+            assert_eq!(res.len() as u64, im["corners"].as_u64().unwrap());
+            // RMS from the listed error vectors: the same sums in another order, 1e-12 px.
+            let rms = (res.iter().map(|e| f(&e[3]).powi(2) + f(&e[4]).powi(2)).sum::<f64>() / res.len() as f64).sqrt();
+            assert!((rms - f(&im["rms_px"])).abs() < 1e-12, "{key} {}: {rms} vs {}", v.name, im["rms_px"]);
+            if key == "depth_single_camera" {
+                assert_eq!(im["detected_corners"].as_array().unwrap().len(), v.corners.len());
+                assert!(std::path::Path::new(im["image"].as_str().unwrap()).is_file());
+            }
+            assert!(im["camera_from_board"].is_object());
+        }
+    }
+    let poses = report["depth_from_board"].as_array().unwrap();
+    assert_eq!(poses.len(), 15);
+    for (i, p) in poses.iter().enumerate() {
+        let p: geometry::RigidTransform = serde_json::from_value(p.clone()).unwrap();
+        // The board's first inner corner where the truth puts it, allowing the board's 180°
+        // symmetry (the detector may label from the opposite corner): within 2 mm at 0.45–0.9 m.
+        let truth = gt_pose(&gt, i, "ir");
+        let far = board().object_point(board().len() - 1);
+        let d = (p.translation - truth.translation).norm().min((p.translation - truth.apply(&far)).norm());
+        assert!(d < 2e-3, "pair {i}: board origin {d} m from the truth");
+    }
+}

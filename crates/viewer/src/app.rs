@@ -6,7 +6,9 @@ use std::sync::Arc;
 
 use egui::{Color32, Pos2, Rect, Sense, Stroke, TextureHandle, TextureOptions, Vec2};
 
+use crate::calib_page::CalibPage;
 use crate::camera3d::OrbitCamera;
+use crate::live::LivePage;
 use crate::data::{self, Frame};
 use crate::panes::{self, Pane, Probe};
 use crate::pipeline::{self, Backend, Fused, Resampling, Toggles};
@@ -23,10 +25,14 @@ pub enum Page {
     View3d,
     /// The fusion's counts and parameters.
     Summary,
+    /// A `kfuse calibrate` report.
+    Calibration,
+    /// The sensor's live streams.
+    Live,
 }
 
 impl Page {
-    /// All pages in tab order.
+    /// The pages of a fused frame, in tab order.
     pub const ALL: [Page; 3] = [Page::Images, Page::View3d, Page::Summary];
 
     /// Tab label.
@@ -35,6 +41,8 @@ impl Page {
             Page::Images => "2D images",
             Page::View3d => "3D view",
             Page::Summary => "Summary",
+            Page::Calibration => "Calibration",
+            Page::Live => "Live",
         }
     }
 }
@@ -76,6 +84,10 @@ pub struct ViewerApp {
     pub probe: Option<Probe>,
     /// Note about the backend (e.g. why the GPU is not used).
     pub backend_note: String,
+    /// The calibration page, when a calibration report is open.
+    pub calib: Option<CalibPage>,
+    /// The live page, when a sensor (or the simulator) is streaming.
+    pub live: Option<LivePage>,
     gpu: Option<fusion_gpu::FusionContext>,
     generation: u64,
     geometry: Option<Arc<Geometry3d>>,
@@ -113,6 +125,8 @@ impl ViewerApp {
             show_mesh: true,
             probe: None,
             backend_note,
+            calib: None,
+            live: None,
             gpu,
             generation: 0,
             geometry: None,
@@ -142,8 +156,48 @@ impl ViewerApp {
         Self::with_frame(data::demo_frame(), backend)
     }
 
-    /// The app on a folder; a folder that cannot be opened gives an app showing the error.
+    /// The app on a `kfuse calibrate` output (report folder, rig file or camera file); a
+    /// report that cannot be read gives an app showing the error.
+    pub fn open_calibration(path: &Path) -> Self {
+        let mut app = Self::empty(BackendChoice::Cpu);
+        app.page = Page::Calibration;
+        match crate::calibration::open_calibration(path) {
+            Ok(report) => app.calib = Some(CalibPage::new(report)),
+            Err(e) => app.error = Some(e),
+        }
+        app
+    }
+
+    /// The app on the live streams of `session`.
+    pub fn live(page: LivePage) -> Self {
+        let mut app = Self::empty(BackendChoice::Cpu);
+        app.page = Page::Live;
+        app.live = Some(page);
+        app
+    }
+
+    /// The pages this app can show, in tab order.
+    pub fn pages(&self) -> Vec<Page> {
+        let mut pages = Vec::new();
+        if self.frame.is_some() {
+            pages.extend(Page::ALL);
+        }
+        if self.calib.is_some() {
+            pages.push(Page::Calibration);
+        }
+        if self.live.is_some() {
+            pages.push(Page::Live);
+        }
+        pages
+    }
+
+    /// The app on a folder (or a calibration file): a `kfuse calibrate` output opens the
+    /// calibration page, anything else is opened as a frame; a folder that cannot be opened
+    /// gives an app showing the error.
     pub fn open(dir: &Path, backend: BackendChoice) -> Self {
+        if dir.is_file() || crate::calibration::is_calibration_folder(dir) {
+            return Self::open_calibration(dir);
+        }
         match data::open_folder(dir) {
             Ok(frame) => Self::with_frame(frame, backend),
             Err(e) => {
@@ -221,13 +275,15 @@ impl ViewerApp {
             ui.horizontal(|ui| {
                 ui.strong("kfuse view");
                 ui.separator();
-                for page in Page::ALL {
+                for page in self.pages() {
                     ui.selectable_value(&mut self.page, page, page.label());
                 }
                 ui.separator();
-                match &self.frame {
-                    Some(f) => ui.label(format!("{} · {}", f.name, self.backend_note)),
-                    None => ui.label("nothing open"),
+                match (&self.frame, &self.calib, &self.live) {
+                    (Some(f), _, _) => ui.label(format!("{} · {}", f.name, self.backend_note)),
+                    (_, Some(c), _) => ui.label(c.report.source.display().to_string()),
+                    (_, _, Some(l)) => ui.label(l.title()),
+                    _ => ui.label("nothing open"),
                 };
             });
         });
@@ -238,9 +294,21 @@ impl ViewerApp {
                 ui.label(msg);
             });
         }
+        if self.page == Page::Calibration
+            && let Some(c) = self.calib.as_mut()
+        {
+            c.ui(ui);
+            return;
+        }
+        if self.page == Page::Live
+            && let Some(l) = self.live.as_mut()
+        {
+            l.ui(ui);
+            return;
+        }
         if self.frame.is_none() || self.fused.is_none() {
             egui::CentralPanel::default().show(ui, |ui| {
-                ui.label("Open a `kfuse fuse` output folder or a capture folder: kfuse view DIR (or kfuse view --demo).");
+                ui.label("Open a `kfuse fuse` output folder, a capture folder or a `kfuse calibrate` report: kfuse view DIR (or kfuse view --demo, kfuse view --backend sim).");
             });
             return;
         }
@@ -248,6 +316,7 @@ impl ViewerApp {
             Page::Images => self.images_page(ui),
             Page::View3d => self.view3d_page(ui),
             Page::Summary => self.summary_page(ui),
+            Page::Calibration | Page::Live => {}
         }
     }
 

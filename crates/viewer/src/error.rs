@@ -58,4 +58,18 @@ pub enum ViewerError {
         /// The pipeline's message.
         message: String,
     },
+    /// A shot or parameter file could not be written.
+    #[error("{path}: cannot write ({message}); check that the output folder is writable (--out)")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// The sensor could not be opened or streamed.
+    #[error("{message}")]
+    Device {
+        /// The driver's message (names the problem and the fix).
+        message: String,
+    },
 }

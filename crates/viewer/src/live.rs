@@ -1,0 +1,528 @@
+//! Live mode: a Kinect v2 (or the simulated one) streaming on a background thread that feeds
+//! the UI through a channel; `C` saves a calibration pair, `S` a scene, with the same files as
+//! `kfuse capture` ([`crate::capture`]).
+//!
+//! The capture thread opens nothing itself: [`LiveSession::open`] opens and starts the device
+//! on the caller's thread (so "no Kinect v2 found" is an ordinary error), then moves it to the
+//! thread, which decodes every depth frame, keeps the newest colour JPEG and sends one
+//! [`LiveFrame`] per depth frame. When the UI lags, only the newest frame waits in the channel
+//! (older ones are counted as not shown, never queued without bound). The thread ends when the
+//! session is dropped (window closed), on unplug or on a stream error, with a message the page
+//! shows. Frame rate is measured from the sensor's timestamps (0.125 ms units), not the wall
+//! clock.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use egui::{Color32, Key, Pos2, Rect, TextureHandle, TextureOptions};
+use geometry::Image;
+use kinect_usb::backend::UsbBackend;
+use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamCounters};
+use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
+use kinect_usb::sim::{SimDevice, SimFaults};
+use kinect_usb::{usb, KinectError};
+
+use crate::capture::{self, ShotKind};
+use crate::panes;
+use crate::ViewerError;
+
+/// How long one wait for a frame may block the capture thread, so that a closed window stops
+/// it within this time.
+pub const POLL: Duration = Duration::from_millis(100);
+/// The simulator delivers frames as fast as they are asked for; the thread paces it to the
+/// sensor's 30 Hz so the page behaves as with a real Kinect.
+pub const SIM_FRAME_PERIOD: Duration = Duration::from_micros(33_333);
+/// Depth colour-map range, metres: the Kinect v2's specified working range (0.5–4.5 m), fixed
+/// so colours do not flicker from frame to frame.
+pub const DEPTH_RANGE_M: (f32, f32) = (0.5, 4.5);
+/// Frames over which the rate is measured: one second at 30 Hz.
+pub const FPS_WINDOW: usize = 30;
+/// Sensor timestamp units per second (0.125 ms).
+const TICKS_PER_SECOND: f64 = 8000.0;
+
+/// Which sensor to stream from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LiveBackend {
+    /// A real Kinect v2 over libusb.
+    Usb,
+    /// The simulated Kinect v2 (`kfuse capture --backend sim`'s scene); optionally it is
+    /// unplugged after this many frame periods.
+    Sim {
+        /// Frame periods before the simulated unplug.
+        unplug_after: Option<u64>,
+    },
+}
+
+/// One depth frame with everything the page shows and saves.
+#[derive(Clone)]
+pub struct LiveFrame {
+    /// Depth frames received since the stream started (1 for the first).
+    pub number: u64,
+    /// Sensor timestamp of the depth frame, 0.125 ms units.
+    pub timestamp: u32,
+    /// Decoded depth, millimetres, 512 × 424 upright, 0 = invalid.
+    pub depth_mm: Arc<Vec<f32>>,
+    /// Decoded IR amplitude, 512 × 424.
+    pub ir: Arc<Vec<f32>>,
+    /// The newest colour JPEG as the sensor sent it (`None` before the first colour frame).
+    pub color_jpeg: Option<Arc<Vec<u8>>>,
+    /// The colour image at half size for display.
+    pub color_rgb: Option<Arc<Image<[u8; 3]>>>,
+    /// Depth colour-mapped over [`DEPTH_RANGE_M`].
+    pub depth_rgb: Arc<Image<[u8; 3]>>,
+    /// IR as grey (square-root scaled over its 2nd–98th percentile).
+    pub ir_rgb: Arc<Image<[u8; 3]>>,
+    /// The driver's stream counters at this frame.
+    pub counters: StreamCounters,
+}
+
+enum LiveEvent {
+    Frame(Box<LiveFrame>),
+    Stopped(String),
+}
+
+/// A streaming sensor and its capture thread. Dropping it stops the thread and closes the
+/// device.
+pub struct LiveSession {
+    /// What the device reported when it started.
+    pub info: DeviceInfo,
+    /// "simulated Kinect v2" or "Kinect v2".
+    pub name: String,
+    rx: Option<Receiver<LiveEvent>>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+    repaint: Arc<Mutex<Option<egui::Context>>>,
+}
+
+fn device_error(e: KinectError) -> ViewerError {
+    ViewerError::Device { message: e.to_string() }
+}
+
+impl LiveSession {
+    /// Opens and starts the sensor, then streams on a background thread. The UI's context,
+    /// once given to [`LiveSession::set_repaint`], is woken for every frame.
+    pub fn open(backend: LiveBackend) -> Result<Self, ViewerError> {
+        let (dev_backend, name, paced): (Box<dyn UsbBackend>, &str, bool) = match backend {
+            LiveBackend::Usb => {
+                let b = usb::open_first().map_err(|e| match e {
+                    KinectError::NoUsb(_) => ViewerError::Device { message: format!("{e}\n{}", KinectError::NotFound) },
+                    e => device_error(e),
+                })?;
+                (Box::new(b), "Kinect v2", false)
+            }
+            LiveBackend::Sim { unplug_after } => {
+                let (scene, profile) = capture::sim_scene();
+                let faults = SimFaults { seed: 1, unplug_after_frames: unplug_after, ..SimFaults::default() };
+                (Box::new(SimDevice::new(profile, scene, faults)), "simulated Kinect v2", true)
+            }
+        };
+        let mut dev = KinectDevice::open(dev_backend).map_err(device_error)?;
+        let info = dev.start(true, true).map_err(device_error)?.clone();
+        let decoder = capture::decoder_for(&info, false).map_err(device_error)?;
+        // Capacity 1: at most the newest frame waits for the UI.
+        let (tx, rx) = mpsc::sync_channel(1);
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let repaint = Arc::new(Mutex::new(None));
+        let repaint2 = repaint.clone();
+        let thread = std::thread::Builder::new()
+            .name("kfuse-live".into())
+            .spawn(move || capture_loop(dev, decoder, tx, stop2, repaint2, paced))
+            .map_err(|e| ViewerError::Device { message: format!("cannot start the capture thread: {e}") })?;
+        Ok(Self { info, name: name.to_string(), rx: Some(rx), stop, thread: Some(thread), repaint })
+    }
+
+    /// The UI context to wake for every frame.
+    pub fn set_repaint(&self, ctx: &egui::Context) {
+        if let Ok(mut r) = self.repaint.lock()
+            && r.is_none()
+        {
+            *r = Some(ctx.clone());
+        }
+    }
+
+    /// True while the capture thread runs.
+    pub fn is_running(&self) -> bool {
+        self.thread.as_ref().is_some_and(|t| !t.is_finished())
+    }
+}
+
+impl Drop for LiveSession {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        // Drop the receiver first so a thread blocked on sending wakes up with an error.
+        self.rx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn half_size(rgb: &image::RgbImage) -> Image<[u8; 3]> {
+    let (w, h) = (rgb.width() as usize / 2, rgb.height() as usize / 2);
+    Image::from_fn(w, h, |x, y| {
+        let mut acc = [0u32; 3];
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let p = rgb.get_pixel((2 * x + dx) as u32, (2 * y + dy) as u32).0;
+            for k in 0..3 {
+                acc[k] += p[k] as u32;
+            }
+        }
+        acc.map(|a| ((a + 2) / 4) as u8)
+    })
+}
+
+fn ir_grey(ir: &[f32]) -> Image<[u8; 3]> {
+    let (lo, hi) = panes::robust_range(ir.iter().copied()).unwrap_or((0.0, 1.0));
+    let data = ir.iter().map(|&a| if a.is_finite() { [(((a - lo) / (hi - lo)).clamp(0.0, 1.0).sqrt() * 255.0) as u8; 3] } else { [0; 3] }).collect();
+    Image::from_vec(WIDTH, HEIGHT, data).unwrap_or_else(|_| Image::filled(WIDTH, HEIGHT, [0; 3]))
+}
+
+fn capture_loop(
+    mut dev: KinectDevice<Box<dyn UsbBackend>>,
+    mut decoder: kinect_usb::decoder::DepthDecoder,
+    tx: SyncSender<LiveEvent>,
+    stop: Arc<AtomicBool>,
+    repaint: Arc<Mutex<Option<egui::Context>>>,
+    paced: bool,
+) {
+    let mut depth = vec![0.0f32; PIXELS];
+    let mut ir = vec![0.0f32; PIXELS];
+    let mut color_jpeg: Option<Arc<Vec<u8>>> = None;
+    let mut color_rgb: Option<Arc<Image<[u8; 3]>>> = None;
+    let mut number = 0u64;
+    let mut pending: Option<LiveEvent> = None;
+    let mut next_due = Instant::now();
+    let wake = || {
+        if let Ok(r) = repaint.lock()
+            && let Some(c) = r.as_ref()
+        {
+            c.request_repaint();
+        }
+    };
+    let end = loop {
+        if stop.load(Ordering::Relaxed) {
+            break None;
+        }
+        // Hand the waiting frame over if the UI took the previous one.
+        if let Some(ev) = pending.take() {
+            match tx.try_send(ev) {
+                Ok(()) => wake(),
+                Err(TrySendError::Full(ev)) => pending = Some(ev),
+                Err(TrySendError::Disconnected(_)) => break None,
+            }
+        }
+        let got = dev.next_frame(POLL, &mut |_, _| {});
+        match got {
+            Ok(Some(Frame::Depth(f))) => {
+                let timestamp = f.timestamp;
+                if let Err(e) = decoder.decode(f.data, &mut depth, &mut ir) {
+                    break Some(format!("depth decoding failed: {e}"));
+                }
+                number += 1;
+                let frame = LiveFrame {
+                    number,
+                    timestamp,
+                    depth_rgb: Arc::new(panes::depth_colors(
+                        &Image::from_vec(WIDTH, HEIGHT, depth.iter().map(|&d| d * 1e-3).collect()).unwrap_or_else(|_| Image::filled(WIDTH, HEIGHT, 0.0)),
+                        DEPTH_RANGE_M,
+                    )),
+                    ir_rgb: Arc::new(ir_grey(&ir)),
+                    depth_mm: Arc::new(depth.clone()),
+                    ir: Arc::new(ir.clone()),
+                    color_jpeg: color_jpeg.clone(),
+                    color_rgb: color_rgb.clone(),
+                    counters: dev.counters(),
+                };
+                // A newer frame replaces one the UI has not taken yet.
+                pending = Some(LiveEvent::Frame(Box::new(frame)));
+                if paced {
+                    next_due += SIM_FRAME_PERIOD;
+                    let now = Instant::now();
+                    if next_due > now {
+                        std::thread::sleep(next_due - now);
+                    } else {
+                        next_due = now;
+                    }
+                }
+            }
+            Ok(Some(Frame::Color(jpeg, _))) => {
+                let jpeg = jpeg.to_vec();
+                // A colour frame that does not decode is still saved as sent; only the display skips it.
+                if let Ok(img) = image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg) {
+                    color_rgb = Some(Arc::new(half_size(&img.to_rgb8())));
+                }
+                color_jpeg = Some(Arc::new(jpeg));
+            }
+            Ok(None) => {}
+            Err(KinectError::Disconnected { .. }) => {
+                break Some(format!(
+                    "the sensor was unplugged after {number} depth frames; the frames shown and the shots saved are intact. Reconnect it (USB 3 port, power) and start kfuse view again"
+                ));
+            }
+            Err(KinectError::EndOfStream) => break Some(format!("the stream ended after {number} depth frames")),
+            Err(e) => break Some(format!("streaming stopped after {number} depth frames: {e}")),
+        }
+    };
+    let _ = dev.close();
+    // The last frame and the reason reach the UI unless it is gone (blocking sends: the UI
+    // drains the channel, and a dropped receiver ends them with an error).
+    if let Some(ev) = pending.take() {
+        let _ = tx.send(ev);
+    }
+    if let Some(msg) = end {
+        let _ = tx.send(LiveEvent::Stopped(msg));
+    }
+    wake();
+}
+
+/// A save the page made, for its log.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SavedShot {
+    /// Calibration pair or scene.
+    pub kind: ShotKind,
+    /// The three files (colour, IR, depth).
+    pub files: [PathBuf; 3],
+    /// The depth frame number saved.
+    pub frame: u64,
+}
+
+/// State of the live page.
+pub struct LivePage {
+    session: Option<LiveSession>,
+    /// The device's identity.
+    pub info: DeviceInfo,
+    /// "simulated Kinect v2" or "Kinect v2".
+    pub name: String,
+    /// The newest frame received.
+    pub latest: Option<LiveFrame>,
+    /// Depth frames received by the capture thread (the newest frame's number).
+    pub frames: u64,
+    /// Frames the capture thread decoded that the UI never showed (it lagged).
+    pub not_shown: u64,
+    /// Why streaming stopped (unplug, error), once it has.
+    pub stopped: Option<String>,
+    /// Where shots go.
+    pub out_dir: PathBuf,
+    /// Shots saved so far.
+    pub saved: Vec<SavedShot>,
+    /// The last save error.
+    pub save_error: Option<String>,
+    timestamps: std::collections::VecDeque<u32>,
+    textures: [Option<(u64, TextureHandle)>; 3],
+}
+
+impl LivePage {
+    /// Opens the sensor and starts streaming; shots go to `out_dir`.
+    pub fn open(backend: LiveBackend, out_dir: &Path) -> Result<Self, ViewerError> {
+        let session = LiveSession::open(backend)?;
+        Ok(Self {
+            info: session.info.clone(),
+            name: session.name.clone(),
+            session: Some(session),
+            latest: None,
+            frames: 0,
+            not_shown: 0,
+            stopped: None,
+            out_dir: out_dir.to_path_buf(),
+            saved: Vec::new(),
+            save_error: None,
+            timestamps: std::collections::VecDeque::new(),
+            textures: [None, None, None],
+        })
+    }
+
+    /// The title bar text.
+    pub fn title(&self) -> String {
+        format!("{} (serial {}, firmware {})", self.name, self.info.serial, self.info.firmware)
+    }
+
+    /// Takes what the capture thread sent; returns true when a new frame arrived.
+    pub fn poll(&mut self) -> bool {
+        let Some(rx) = self.session.as_ref().and_then(|s| s.rx.as_ref()) else { return false };
+        let mut events = Vec::new();
+        while let Ok(ev) = rx.try_recv() {
+            events.push(ev);
+        }
+        let mut fresh = false;
+        for ev in events {
+            match ev {
+                LiveEvent::Frame(f) => {
+                    self.not_shown += f.number.saturating_sub(self.frames + 1);
+                    self.frames = f.number;
+                    if self.timestamps.len() == FPS_WINDOW {
+                        self.timestamps.pop_front();
+                    }
+                    self.timestamps.push_back(f.timestamp);
+                    self.latest = Some(*f);
+                    fresh = true;
+                }
+                LiveEvent::Stopped(msg) => {
+                    self.stopped = Some(msg);
+                }
+            }
+        }
+        if self.stopped.is_some() && self.session.as_ref().is_some_and(|s| !s.is_running()) {
+            // The thread has ended; join it now.
+            self.session = None;
+        }
+        fresh
+    }
+
+    /// Polls until the capture thread has stopped (unplug, end of stream) or `limit` passes (a
+    /// guard against hanging, not a timing). Returns true when it stopped.
+    pub fn wait_until_stopped(&mut self, limit: Duration) -> bool {
+        let until = Instant::now() + limit;
+        while Instant::now() < until {
+            self.poll();
+            if self.stopped.is_some() && self.session.is_none() {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        false
+    }
+
+    /// True while the sensor streams.
+    pub fn streaming(&self) -> bool {
+        self.stopped.is_none() && self.session.is_some()
+    }
+
+    /// Frame rate from the sensor's timestamps over the last [`FPS_WINDOW`] frames.
+    pub fn fps(&self) -> Option<f64> {
+        let (first, last) = (self.timestamps.front()?, self.timestamps.back()?);
+        let ticks = last.wrapping_sub(*first) as f64;
+        (self.timestamps.len() > 1 && ticks > 0.0).then(|| (self.timestamps.len() - 1) as f64 * TICKS_PER_SECOND / ticks)
+    }
+
+    fn next_name(&self, kind: ShotKind) -> String {
+        // The first number whose files are all free: never overwrite earlier shots.
+        (1..)
+            .map(|i| match kind {
+                ShotKind::Calib => format!("{i:04}"),
+                ShotKind::Scene => format!("scene_{i:04}"),
+            })
+            .find(|n| capture::shot_files(&self.out_dir, n, kind).iter().all(|p| !p.exists()))
+            .unwrap_or_default()
+    }
+
+    /// Saves the newest frame as a calibration pair or a scene (the key presses `C` and `S`).
+    pub fn save(&mut self, kind: ShotKind) -> Result<SavedShot, ViewerError> {
+        let frame = self.latest.as_ref().ok_or_else(|| ViewerError::Device { message: "no frame yet: wait for the first depth frame".into() })?;
+        let jpeg = frame.color_jpeg.clone().ok_or_else(|| ViewerError::Device { message: "no colour frame yet: wait for the colour stream".into() })?;
+        std::fs::create_dir_all(&self.out_dir).map_err(|e| ViewerError::Write { path: self.out_dir.clone(), message: e.to_string() })?;
+        if !self.out_dir.join("kinect_params.json").exists() {
+            capture::write_params_json(&self.out_dir, &self.info)?;
+        }
+        let files = capture::shot_files(&self.out_dir, &self.next_name(kind), kind);
+        capture::write_shot(&files, &jpeg, &frame.ir, &frame.depth_mm)?;
+        let shot = SavedShot { kind, files, frame: frame.number };
+        self.saved.push(shot.clone());
+        Ok(shot)
+    }
+
+    fn texture(&mut self, ctx: &egui::Context, k: usize, img: &Image<[u8; 3]>, number: u64) -> TextureHandle {
+        if let Some((n, t)) = &self.textures[k]
+            && *n == number
+        {
+            return t.clone();
+        }
+        let bytes: Vec<u8> = img.data().iter().flatten().copied().collect();
+        let color = egui::ColorImage::from_rgb([img.width(), img.height()], &bytes);
+        let t = match self.textures[k].take() {
+            Some((_, mut t)) => {
+                t.set(color, TextureOptions::LINEAR);
+                t
+            }
+            None => ctx.load_texture(format!("live-{k}"), color, TextureOptions::LINEAR),
+        };
+        self.textures[k] = Some((number, t.clone()));
+        t
+    }
+
+    /// Draws the page (and handles `C` / `S`).
+    pub fn ui(&mut self, ui: &mut egui::Ui) {
+        if let Some(s) = &self.session {
+            s.set_repaint(ui.ctx());
+        }
+        self.poll();
+        let (c, s) = ui.input(|i| (i.key_pressed(Key::C), i.key_pressed(Key::S)));
+        for (pressed, kind) in [(c, ShotKind::Calib), (s, ShotKind::Scene)] {
+            if pressed {
+                match self.save(kind) {
+                    Ok(_) => self.save_error = None,
+                    Err(e) => self.save_error = Some(e.to_string()),
+                }
+            }
+        }
+        egui::Panel::top("kfuse-live-status").show(ui, |ui| {
+            ui.horizontal(|ui| {
+                ui.strong(if self.streaming() { "LIVE" } else { "STOPPED" });
+                ui.separator();
+                ui.label(format!("frames: {}", self.frames));
+                ui.separator();
+                ui.label(match self.fps() {
+                    Some(f) => format!("{f:.1} fps (sensor clock)"),
+                    None => "— fps".to_string(),
+                });
+                ui.separator();
+                let c = self.latest.as_ref().map(|f| f.counters).unwrap_or_default();
+                ui.label(format!(
+                    "dropped: depth {} (incomplete {}), colour {}, iso errors {}, not shown {}",
+                    c.depth_dropped, c.depth_incomplete, c.color_dropped, c.iso_errors, self.not_shown
+                ));
+            });
+            ui.label(format!("C: save a calibration pair · S: save a scene · into {}", self.out_dir.display()));
+            if let Some(msg) = &self.stopped {
+                ui.colored_label(Color32::from_rgb(230, 80, 80), msg);
+            }
+            if let Some(e) = &self.save_error {
+                ui.colored_label(Color32::from_rgb(230, 80, 80), format!("not saved: {e}"));
+            }
+            if let Some(last) = self.saved.last() {
+                let what = if last.kind == ShotKind::Calib { "calibration pair" } else { "scene" };
+                let names: Vec<String> = last.files.iter().filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())).collect();
+                ui.label(format!("saved {} shot(s); last: {what} of frame {}: {}", self.saved.len(), last.frame, names.join(", ")));
+            }
+        });
+        egui::CentralPanel::default().show(ui, |ui| {
+            let Some(frame) = self.latest.clone() else {
+                ui.label("waiting for the first frame ...");
+                return;
+            };
+            let rect = ui.available_rect_before_wrap();
+            // Colour on the left half; depth over IR on the right half.
+            let half = rect.width() * 0.5;
+            let left = Rect::from_min_max(rect.min, Pos2::new(rect.min.x + half - 4.0, rect.max.y));
+            let right_top = Rect::from_min_max(Pos2::new(rect.min.x + half + 4.0, rect.min.y), Pos2::new(rect.max.x, rect.center().y - 4.0));
+            let right_bottom = Rect::from_min_max(Pos2::new(rect.min.x + half + 4.0, rect.center().y + 4.0), rect.max);
+            let panes = [
+                (0, frame.color_rgb.clone(), left, "colour"),
+                (1, Some(frame.depth_rgb.clone()), right_top, "depth (0.5–4.5 m)"),
+                (2, Some(frame.ir_rgb.clone()), right_bottom, "IR"),
+            ];
+            for (k, img, area, label) in panes {
+                let painter = ui.painter_at(area);
+                match img {
+                    Some(img) => {
+                        let t = self.texture(ui.ctx(), k, &img, frame.number);
+                        let fit = crate::view2d::View2d::default().image_rect(area, [img.width(), img.height()]);
+                        painter.image(t.id(), fit, Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)), Color32::WHITE);
+                    }
+                    None => {
+                        painter.rect_filled(area, 0.0, Color32::from_gray(30));
+                    }
+                }
+                painter.text(area.min + egui::vec2(6.0, 6.0), egui::Align2::LEFT_TOP, label, egui::FontId::proportional(14.0), Color32::YELLOW);
+            }
+        });
+        if self.streaming() {
+            // The capture thread wakes the UI per frame; this also catches the stop message.
+            ui.ctx().request_repaint_after(Duration::from_millis(100));
+        }
+    }
+}

@@ -1,0 +1,159 @@
+//! Live mode on the simulated Kinect v2: frames counted, shots saved with the same files as
+//! `kfuse capture`, unplug and window close end the capture thread cleanly, `--backend usb`
+//! without a sensor fails with the driver's message; a snapshot of the page (wgpu, lavapipe).
+
+mod common;
+
+use std::path::Path;
+use std::time::Duration;
+
+use egui_kittest::kittest::Queryable;
+use egui_kittest::wgpu::{create_render_state, default_wgpu_setup, WgpuTestRenderer};
+use egui_kittest::{Harness, SnapshotOptions};
+use viewer::capture::{shot_files, ShotKind};
+use viewer::live::{LiveBackend, LivePage};
+use viewer::{Page, ViewerApp};
+
+/// Frame periods before the simulated unplug: enough for colour and depth to both arrive and
+/// for a rate to be measured, short enough to keep the test well under a second of streaming.
+const FRAMES: u64 = 6;
+/// A guard against a hung capture thread, not a timing: the sim needs ~0.2 s for 6 frames.
+const HANG_GUARD: Duration = Duration::from_secs(120);
+/// The sim's frame period in sensor ticks (0.125 ms): 267, i.e. 29.96 Hz.
+const SIM_FPS: f64 = 8000.0 / 267.0;
+
+fn read_png16(path: &Path) -> Vec<u16> {
+    image::open(path).unwrap().into_luma16().into_raw()
+}
+
+fn stopped_page(out: &Path) -> LivePage {
+    let mut page = LivePage::open(LiveBackend::Sim { unplug_after: Some(FRAMES) }, out).unwrap();
+    assert!(page.wait_until_stopped(HANG_GUARD), "the capture thread did not stop after the simulated unplug");
+    page
+}
+
+#[test]
+fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("shots");
+    let mut page = stopped_page(&out);
+    assert_eq!(page.frames, FRAMES);
+    let latest = page.latest.clone().expect("frames arrived");
+    assert_eq!(latest.number, FRAMES);
+    assert!(page.stopped.as_deref().is_some_and(|m| m.contains(&format!("unplugged after {FRAMES} depth frames"))), "{:?}", page.stopped);
+    assert!(!page.streaming());
+    // Sensor-clock rate: the sim's 267-tick period exactly (f64 arithmetic, 1e-9).
+    assert!((page.fps().unwrap() - SIM_FPS).abs() < 1e-9, "{:?}", page.fps());
+    assert_eq!(latest.counters.depth_dropped + latest.counters.color_dropped + latest.counters.iso_errors, 0);
+
+    // S: a scene, with kfuse capture's names and writers.
+    let shot = page.save(ShotKind::Scene).unwrap();
+    assert_eq!(shot.files, shot_files(&out, "scene_0001", ShotKind::Scene));
+    assert_eq!(shot.frame, FRAMES);
+    let depth = read_png16(&shot.files[2]);
+    let want: Vec<u16> = latest.depth_mm.iter().map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 }).collect();
+    // Exact: the file holds the frame's depth in whole millimetres.
+    assert_eq!(depth, want);
+    let ir = read_png16(&shot.files[1]);
+    let want_ir: Vec<u16> = latest.ir.iter().map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 }).collect();
+    assert_eq!(ir, want_ir);
+    assert_eq!(std::fs::read(&shot.files[0]).unwrap(), **latest.color_jpeg.as_ref().unwrap());
+    assert!(out.join("kinect_params.json").is_file());
+
+    // The frame is the sim's scene: where the scene is flat the depth is within kfuse
+    // capture's bound (forward-model quantisation ≤ 8 mm + 0.5 mm rounding).
+    let (scene, _) = viewer::capture::sim_scene();
+    let truth = &scene.depth_frames[0].0;
+    let mut checked = 0;
+    for r in 2..422usize {
+        for c in 2..510usize {
+            let i = r * 512 + c;
+            let flat = (-2i32..=2).all(|dr| (-2i32..=2).all(|dc| {
+                let j = ((r as i32 + dr) * 512 + c as i32 + dc) as usize;
+                (truth[j] - truth[i]).abs() < 30.0 && truth[j] > 0.0
+            }));
+            if flat && depth[i] > 0 {
+                checked += 1;
+                assert!((depth[i] as f32 - truth[i]).abs() <= 8.5, "pixel ({c},{r}): {} vs {}", depth[i], truth[i]);
+            }
+        }
+    }
+    assert!(checked > 100_000, "{checked} flat pixels");
+
+    // C twice: numbered calibration pairs, never overwriting.
+    let a = page.save(ShotKind::Calib).unwrap();
+    let b = page.save(ShotKind::Calib).unwrap();
+    assert_eq!(a.files, shot_files(&out, "0001", ShotKind::Calib));
+    assert_eq!(b.files, shot_files(&out, "0002", ShotKind::Calib));
+    assert_eq!(read_png16(&b.files[2]), want);
+}
+
+#[test]
+fn closing_stops_the_capture_thread() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut page = LivePage::open(LiveBackend::Sim { unplug_after: None }, tmp.path()).unwrap();
+    let until = std::time::Instant::now() + HANG_GUARD;
+    while page.frames < 2 && std::time::Instant::now() < until {
+        page.poll();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(page.frames >= 2 && page.streaming());
+    // Dropping the page (the window closing) joins the thread: this returns.
+    drop(page);
+}
+
+#[test]
+fn usb_backend_without_a_sensor_fails_cleanly() {
+    let tmp = tempfile::tempdir().unwrap();
+    match LivePage::open(LiveBackend::Usb, tmp.path()) {
+        Err(e) => assert!(e.to_string().contains("no Kinect v2 found"), "{e}"),
+        // A machine with a Kinect attached streams instead.
+        Ok(page) => eprintln!("a Kinect v2 is attached ({}): nothing to check", page.title()),
+    }
+}
+
+#[test]
+fn save_before_any_frame_is_an_error_not_a_panic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut page = LivePage::open(LiveBackend::Sim { unplug_after: Some(0) }, tmp.path()).unwrap();
+    assert!(page.wait_until_stopped(HANG_GUARD));
+    assert_eq!(page.frames, 0);
+    let e = page.save(ShotKind::Scene).unwrap_err();
+    assert!(e.to_string().contains("no frame yet"), "{e}");
+    assert!(!tmp.path().join("scene_0001_depth.png").exists());
+}
+
+#[test]
+fn live_page_snapshot_and_key_presses() {
+    if !common::gpu_available("live_page_snapshot_and_key_presses") {
+        return;
+    }
+    // A fixed folder: the page shows it, and the snapshot must not depend on a temp name.
+    let out = std::env::temp_dir().join("kfuse-viewer-test-live");
+    let _ = std::fs::remove_dir_all(&out);
+    let page = stopped_page(&out);
+    let app = ViewerApp::live(page);
+    assert_eq!(app.pages(), vec![Page::Live]);
+    let state = create_render_state(default_wgpu_setup(), egui_wgpu::RendererOptions::PREDICTABLE);
+    let mut h = Harness::builder()
+        .with_size(egui::Vec2::new(1000.0, 620.0))
+        .renderer(WgpuTestRenderer::from_render_state(state))
+        .build_ui_state(|ui, app: &mut ViewerApp| app.ui(ui), app);
+    h.run();
+    h.get_by_label(&format!("frames: {FRAMES}"));
+    h.get_by_label_contains("unplugged after");
+    h.key_press(egui::Key::S);
+    h.run();
+    h.key_press(egui::Key::C);
+    h.run();
+    let live = h.state().live.as_ref().unwrap();
+    assert_eq!(live.saved.len(), 2);
+    assert_eq!(live.saved[0].kind, ShotKind::Scene);
+    assert_eq!(live.saved[1].kind, ShotKind::Calib);
+    for f in shot_files(&out, "scene_0001", ShotKind::Scene).iter().chain(&shot_files(&out, "0001", ShotKind::Calib)) {
+        assert!(f.is_file(), "{} missing", f.display());
+    }
+    h.get_by_label_contains("saved 2 shot(s)");
+    // Same tolerances as ui.rs.
+    h.snapshot_options("live", &SnapshotOptions::new().threshold(2.0).max_failed_pixels(1240));
+}
