@@ -1,6 +1,6 @@
 //! Golden tests: the CPU decoder against every oracle run of the vectors' manifest.
 
-use kinect_usb::decoder::{DecoderConfig, DecoderParams, DepthDecoder};
+use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
 use kinect_usb::params::{P0Tables, XzTables};
 use kinect_usb::raw::PIXELS;
 use kinect_usb::testdata::{read_bytes, read_f32, vectors_or_skip};
@@ -34,24 +34,113 @@ fn decoder_matches_every_oracle_run_bit_for_bit() {
     let mut ir = vec![0f32; PIXELS];
     let mut failures = Vec::new();
     let mut checked = 0;
-    for &(frame, bil, edge, xt, zt, dref, iref) in RUNS {
-        let xz = XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap()).unwrap();
-        let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel: true };
-        let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap();
-        let raw = read_bytes(&dir.join(frame)).unwrap();
-        dec.decode(&raw, &mut depth, &mut ir).unwrap();
-        for (name, got, path) in [("depth", &depth, dref), ("ir", &ir, iref)] {
-            let want = read_f32(&dir.join(path)).unwrap();
-            let (n, first) = mismatches(got, &want);
-            checked += 1;
-            if n > 0 {
-                failures.push(format!(
-                    "{path} ({name}, bilateral={bil}, edge={edge}): {n} pixels differ, first at {first}: got {} want {}",
-                    got[first], want[first]
-                ));
+    // Both the row-band (parallel) and the single-band (sequential) schedule.
+    for parallel in [true, false] {
+        for &(frame, bil, edge, xt, zt, dref, iref) in RUNS {
+            let xz = XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap()).unwrap();
+            let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel };
+            let mut dec =
+                DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap().with_precision(DecoderPrecision::Exact);
+            let raw = read_bytes(&dir.join(frame)).unwrap();
+            dec.decode(&raw, &mut depth, &mut ir).unwrap();
+            for (name, got, path) in [("depth", &depth, dref), ("ir", &ir, iref)] {
+                let want = read_f32(&dir.join(path)).unwrap();
+                let (n, first) = mismatches(got, &want);
+                checked += 1;
+                if n > 0 {
+                    failures.push(format!(
+                        "{path} ({name}, bilateral={bil}, edge={edge}, parallel={parallel}): {n} pixels differ, first at {first}: got {} want {}",
+                        got[first], want[first]
+                    ));
+                }
             }
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
-    assert_eq!(checked, 16);
+    assert_eq!(checked, 32);
+}
+
+/// Spec §9.9 test policy, largest depth difference for pixels valid (non-zero) in both.
+const MAX_DEPTH_DIFF_MM: f32 = 0.01;
+/// Spec §9.9 test policy, "at most a handful of pixels flipping between 0 and non-zero"
+/// (threshold decisions near equality); read as at most 5 of the 217 088 pixels per file.
+const MAX_VALIDITY_FLIPS: usize = 5;
+/// Spec §9.9 reports 90–99.9 % bit-identical pixels for a decoder with other (numpy)
+/// transcendental functions; a Fast decoder below 90 % would differ more than that one did.
+const MIN_BIT_IDENTICAL: f64 = 0.90;
+
+/// Per-file comparison of a decoded depth image with the oracle.
+struct DepthDiff {
+    max_abs_mm: f32,
+    bit_identical: f64,
+    flips: usize,
+}
+
+fn depth_diff(got: &[f32], want: &[f32]) -> DepthDiff {
+    let mut d = DepthDiff { max_abs_mm: 0.0, bit_identical: 0.0, flips: 0 };
+    let mut same = 0usize;
+    for (&g, &w) in got.iter().zip(want) {
+        same += (g.to_bits() == w.to_bits()) as usize;
+        match (g != 0.0, w != 0.0) {
+            (true, true) => d.max_abs_mm = d.max_abs_mm.max((g - w).abs()),
+            (false, false) => {}
+            _ => d.flips += 1,
+        }
+    }
+    d.bit_identical = same as f64 / got.len() as f64;
+    d
+}
+
+/// The Fast decoder (own f32 exp/ln/atan2, `decoder::fastmath`) against every oracle run.
+/// Tolerance per file: spec §9.9's fallback policy ([`MAX_DEPTH_DIFF_MM`],
+/// [`MAX_VALIDITY_FLIPS`], [`MIN_BIT_IDENTICAL`]) for depth; IR is computed before any
+/// transcendental function and must stay bit-identical.
+///
+/// Measured (Linux x86-64, 2026-11-22):
+///
+/// | depth oracle | max abs diff mm | bit-identical | validity flips |
+/// | --- | --- | --- | --- |
+/// | scene_filt_depth | 0.00098 | 97.18 % | 0 |
+/// | scene_nofilt_depth | 0.00049 | 97.16 % | 0 |
+/// | scene_bilonly_depth | 0.00098 | 97.16 % | 0 |
+/// | random_nofilt_depth | 0.00195 | 99.85 % | 0 |
+/// | edge_cases_filt_depth | 0.00049 | 99.68 % | 0 |
+/// | edge_cases_nofilt_depth | 0.00293 | 99.00 % | 0 |
+/// | scene_realtables_filt_depth | 0.00098 | 97.13 % | 0 |
+/// | scene_realtables_nofilt_depth | 0.00073 | 97.05 % | 0 |
+///
+/// (`cargo test -p kinect-usb --test oracle -- --nocapture` prints the table.) The largest
+/// difference, 0.003 mm, is a few f32 ulp at these depths.
+#[test]
+fn fast_decoder_within_spec_tolerance_of_every_oracle_run() {
+    let Some(dir) = vectors_or_skip("fast_decoder_within_spec_tolerance_of_every_oracle_run") else { return };
+    let p0 = P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap()).unwrap();
+    let mut depth = vec![0f32; PIXELS];
+    let mut ir = vec![0f32; PIXELS];
+    let mut failures = Vec::new();
+    for &(frame, bil, edge, xt, zt, dref, iref) in RUNS {
+        let xz = XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap()).unwrap();
+        let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel: true };
+        let mut dec =
+            DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap().with_precision(DecoderPrecision::Fast);
+        dec.decode(&read_bytes(&dir.join(frame)).unwrap(), &mut depth, &mut ir).unwrap();
+        let d = depth_diff(&depth, &read_f32(&dir.join(dref)).unwrap());
+        eprintln!(
+            "| {dref} | {:.5} | {:.2} % | {} |",
+            d.max_abs_mm,
+            100.0 * d.bit_identical,
+            d.flips
+        );
+        if !(d.max_abs_mm <= MAX_DEPTH_DIFF_MM && d.flips <= MAX_VALIDITY_FLIPS && d.bit_identical >= MIN_BIT_IDENTICAL) {
+            failures.push(format!(
+                "{dref}: max |Δ| {} mm (bar {MAX_DEPTH_DIFF_MM}), {} flips (bar {MAX_VALIDITY_FLIPS}), {:.4} bit-identical (bar {MIN_BIT_IDENTICAL})",
+                d.max_abs_mm, d.flips, d.bit_identical
+            ));
+        }
+        let (n, first) = mismatches(&ir, &read_f32(&dir.join(iref)).unwrap());
+        if n > 0 {
+            failures.push(format!("{iref}: {n} IR pixels differ, first at {first}"));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
