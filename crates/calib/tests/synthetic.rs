@@ -116,6 +116,7 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
             "{cam}: fx err {:.4}% (OpenCV {:.4}%), fy {:.4}% ({:.4}%), pp err ({:.3}, {:.3}) px (OpenCV ({:.3}, {:.3}))",
             100.0 * efx, 100.0 * cv_fx, 100.0 * efy, 100.0 * cv_fy, epp.x, epp.y, cv_pp.x, cv_pp.y
         );
+        eprintln!("DBG {cam} err px fx {:.4} fy {:.4} σ {:.4} {:.4} {:.4} {:.4}", k.fx - t.fx, k.fy - t.fy, std.fx, std.fy, std.cx, std.cy);
         // Honest uncertainty on the rendered images: the truth within ±3σ.
         for (e, s) in [(k.fx - t.fx, std.fx), (k.fy - t.fy, std.fy), (k.cx - t.cx, std.cx), (k.cy - t.cy, std.cy)] {
             assert!(e.abs() < 3.0 * s, "{cam}: error {e} vs σ {s}");
