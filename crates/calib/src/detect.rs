@@ -7,8 +7,9 @@
 //!    local maxima above a small fraction of the strongest response are kept.
 //! 2. **Sub-pixel**: OpenCV's `cornerSubPix` normal equations (gradient ⟂ (corner − pixel),
 //!    Gaussian-weighted window), iterated to 1e-4 px; the same estimator that Bouguet's
-//!    toolbox uses. Once the grid is known, each corner is refined again with a window sized
-//!    to its local grid step (more pixels, less noise; see `FINAL_WINDOW_FRACTION_*`).
+//!    toolbox uses. With [`Refinement::CornerSubPix`] each corner is refined again, once the
+//!    grid is known, with a window sized to its local grid step (more pixels, less noise; see
+//!    `FINAL_WINDOW_FRACTION_*`); with the default junction fit that is only its fallback.
 //! 5. **Final sub-pixel fit** ([`Refinement::JunctionFit`], the default): the maximum-likelihood
 //!    fit of a blurred X-junction model to every pixel within 0.45 grid steps
 //!    ([`fit_junction`]), started from step 2 with the edge directions of the labelled grid.
@@ -975,7 +976,7 @@ mod tests {
         // such images is several times that; the fit starts 0.4 px away).
         for (cx, cy, angle, skew) in [(31.3, 30.7, 0.2, 0.0), (32.45, 31.1, -0.5, 0.3), (30.8, 32.25, 1.0, -0.4)] {
             let img = junction(cx, cy, angle, skew);
-            let dirs = [Vector2::new(angle.cos(), angle.sin()), Vector2::new((angle + 1.5708 + skew).cos(), (angle + 1.5708 + skew).sin())];
+            let dirs = [Vector2::new(angle.cos(), angle.sin()), Vector2::new((angle + std::f64::consts::FRAC_PI_2 + skew).cos(), (angle + std::f64::consts::FRAC_PI_2 + skew).sin())];
             let start = Vector2::new(cx + 0.3, cy - 0.25);
             let (p, std) = fit_junction_with_std(&img, start, dirs, 12.0).expect("fits");
             let err = (p - Vector2::new(cx, cy)).norm();

@@ -130,8 +130,10 @@ fn real_ir_boards_match_the_labs_bouguet_corners() {
     eprintln!("{mode}: found {found} / 11, correctly labelled (checked) {correct}, mean distance to Bouguet {mean:.4} px over {n} corners");
     // Acceptance: found and correctly labelled in ≥ 10 of 11 (ir_7 has no reference and
     // counts only as found), mean distance to Bouguet's corners ≤ 0.15 px with Bouguet's
-    // estimator. The junction fit's corners stay within 0.3 px of the toolbox's: twice the
-    // toolbox's estimator noise on these images, never a mislabelled or shifted corner.
+    // estimator. The junction fit's distance (0.21 px measured) is bounded at 0.3 px: its
+    // floor is the scatter of the toolbox's own corners (OpenCV's RMS on them is 0.365 px
+    // against 0.198 px on ours, same views and model), and 0.3 leaves room for that but not
+    // for a systematically shifted estimator.
     assert!(found >= 10 && correct >= 9, "{mode}: found {found}, correct {correct}");
     let bar = if mode == "cornerSubPix" { 0.15 } else { 0.3 };
     assert!(mean <= bar, "{mode}: mean {mean}");
