@@ -109,3 +109,78 @@ fn undistort_writes_rect_images() {
     let changed = rect.data().iter().zip(input.data()).filter(|(a, b)| a != b).count();
     assert!(changed > 10_000, "{changed} pixels changed");
 }
+
+/// A sharp pinhole rendering (3x3 supersampling) of the 7x5-corner, 40 mm board of DESIGN.md
+/// (8x6 squares, top-left black, 30 mm white margin) on a grey background, 512x424, f = 365 px.
+/// `rz` turns the board about the optical axis, `tilt` about the board's x axis (radians);
+/// `t` is the board origin (first inner corner) in the camera frame, metres.
+fn render_board(rz: f64, tilt: f64, t: [f64; 3]) -> image::GrayImage {
+    let (w, h, f, cx, cy) = (512u32, 424u32, 365.0, 255.5, 211.5);
+    let (cz, sz, ct, st) = (rz.cos(), rz.sin(), tilt.cos(), tilt.sin());
+    // R = Rz(rz)·Rx(tilt): columns are the board's x, y and normal axes in the camera frame.
+    let r = [[cz, -sz * ct, sz * st], [sz, cz * ct, -cz * st], [0.0, st, ct]];
+    let col = |j: usize| [r[0][j], r[1][j], r[2][j]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let (ex, ey, n) = (col(0), col(1), col(2));
+    let sample = |u: f64, v: f64| -> f64 {
+        let d = [(u - cx) / f, (v - cy) / f, 1.0];
+        let s = dot(n, t) / dot(n, d);
+        let x = [s * d[0] - t[0], s * d[1] - t[1], s * d[2] - t[2]];
+        let (bx, by) = (dot(ex, x) * 1000.0, dot(ey, x) * 1000.0); // mm
+        let (sx, sy) = (((bx + 40.0) / 40.0).floor(), ((by + 40.0) / 40.0).floor());
+        if (0.0..8.0).contains(&sx) && (0.0..6.0).contains(&sy) {
+            if (sx + sy) as i64 % 2 == 0 { 30.0 } else { 220.0 }
+        } else if (-70.0..=310.0).contains(&bx) && (-70.0..=230.0).contains(&by) {
+            220.0
+        } else {
+            90.0
+        }
+    };
+    image::GrayImage::from_fn(w, h, |x, y| {
+        let mut acc = 0.0;
+        for i in 0..3 {
+            for j in 0..3 {
+                acc += sample(x as f64 + (i as f64 - 1.0) / 3.0, y as f64 + (j as f64 - 1.0) / 3.0);
+            }
+        }
+        image::Luma([(acc / 9.0).round() as u8])
+    })
+}
+
+#[test]
+fn fronto_parallel_boards_are_refused_with_the_fix() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("imgs");
+    std::fs::create_dir_all(&dir).unwrap();
+    // Five boards turned only about the optical axis, at different places and distances:
+    // every homography is a similarity, so the focal length is unobservable (Zhang).
+    let poses = [(0.0, [-0.12, -0.08, 0.60]), (0.35, [-0.08, -0.12, 0.65]), (-0.3, [-0.16, -0.02, 0.70]), (0.15, [-0.14, -0.10, 0.55]), (-0.1, [-0.10, -0.06, 0.75])];
+    for (i, (rz, t)) in poses.iter().enumerate() {
+        render_board(*rz, 0.0, *t).save(dir.join(format!("ir_{}.png", i + 1))).unwrap();
+    }
+    let out = tmp.path().join("rig.json");
+    let report = tmp.path().join("report");
+    let pattern = format!("{}/ir_*.png", dir.display());
+    let (ok, text) = kfuse(&["calibrate", "--ir", &pattern, "--out", out.to_str().unwrap(), "--report", report.to_str().unwrap()]);
+    assert!(!ok, "fronto-parallel boards must fail:\n{text}");
+    // The message names the degeneracy and the fix.
+    assert!(text.contains("fronto-parallel") && text.contains("tilt the board 20–45°"), "{text}");
+    // All five boards were found: the failure is the geometry, not the detection.
+    assert!(!text.contains("REJECTED"), "{text}");
+    // Nothing half-written: no rig file, no report folder, no staging folder.
+    assert!(!out.exists() && !report.exists(), "{text}");
+    let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("imgs")], "{text}");
+    // The same boards tilted by 30° about their x axis (alternating sign) calibrate: the
+    // refusal above is the geometry's, not the renderer's.
+    for (i, (rz, t)) in poses.iter().enumerate() {
+        let tilt = if i % 2 == 0 { 0.52 } else { -0.52 };
+        render_board(*rz, tilt, *t).save(dir.join(format!("ir_{}.png", i + 1))).unwrap();
+    }
+    let (ok, text) = kfuse(&["calibrate", "--ir", &pattern, "--out", out.to_str().unwrap()]);
+    assert!(ok, "{text}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let fx = v["camera"]["fx"].as_f64().unwrap();
+    // Sharp, noise-free pinhole images: the rendered f = 365 px within 0.5 %.
+    assert!((fx - 365.0).abs() < 0.005 * 365.0, "fx {fx}\n{text}");
+}
