@@ -41,6 +41,7 @@ mod mesh;
 pub mod pixel;
 mod register;
 mod resample;
+mod stream;
 
 use std::time::Instant;
 
@@ -57,6 +58,7 @@ pub use register::{
     atomic_zbuffer_to_image, backproject_cloud, project_cloud, register_depth, register_depth_parallel,
     zbuffer_from_samples, register_depth_marking, ColorSample,
 };
+pub use stream::Registration;
 pub use resample::{disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel, LinearStats};
 
 use crate::{DepthKind, GeometryError, Image, Mesh, PointCloud, Rig};

@@ -1,0 +1,371 @@
+//! H1 + H2 + H7 + H8's mask for a stream of frames: [`Registration`] keeps every buffer and
+//! every per-pixel constant between frames.
+//!
+//! The per-pixel arithmetic is [`super::pixel`]'s, unchanged (so the z-buffer is
+//! bit-identical to [`super::register_depth`], [`super::zbuffer_from_samples`] and the GPU);
+//! what differs is the loop around it:
+//!
+//! * the ray table is stored as three planes (`x`, `y`, `s`), so the projection of a block of
+//!   pixels vectorises without shuffles;
+//! * the rounding and bounds test of [`super::zbuffer_pixel`] is evaluated branch-free in the
+//!   same vector pass, in the equivalent form `0 <= u + 0.5 < width` (for an integer `width`,
+//!   `floor(t) < width ⇔ t < width` and `floor(t) >= 0 ⇔ t >= 0`), leaving the scatter loop
+//!   nothing but the z-test;
+//! * the colour-sized z-buffer (8 MB at 1920×1080) is not cleared up front: a depth frame's
+//!   rows land on the colour image roughly top to bottom, so each colour row is cleared just
+//!   before the first sample that lands in it (rows are cleared in order, each once, and a
+//!   row is never written before it is cleared), and the rows no sample reached are cleared at
+//!   the end. The clear then warms the cache lines the scatter is about to hit instead of
+//!   pushing 8 MB through the cache a second time. The order only affects speed: any input
+//!   (random samples included) gives the same result.
+//! * [`Registration::register_parallel`] splits the *colour* image into horizontal bands,
+//!   one per task, so that no two tasks write the same pixel: no atomics, and the minimum is
+//!   order-independent, so the result is bit-identical to one thread.
+
+use rayon::prelude::*;
+
+use super::holes::HoleMasker;
+use super::pixel::{transform_point, ColorProjection, ZBUFFER_EMPTY};
+use super::{coverage_radius_px, depth_ray_table, hole_grow_px, FusionOptions};
+use crate::{DepthKind, GeometryError, Image, Rig};
+
+/// Pixels per block of the two-pass loop: 256 × 3 words stay in L1.
+const BLOCK: usize = 256;
+
+/// Marks "no pixel" in the column plane of a projected block.
+const NO_PIXEL: u32 = u32::MAX;
+
+/// Depth rows per task of the parallel projection pass: 8 rows (4k pixels at 512 columns)
+/// amortise rayon's per-task cost (~1 µs) over ~40 µs of work.
+const ROWS_PER_TASK: usize = 8;
+
+/// Where one depth pixel lands: column (or [`NO_PIXEL`]), row, colour-frame `z`.
+#[derive(Clone)]
+struct Projected {
+    px: Vec<u32>,
+    py: Vec<u32>,
+    z: Vec<f32>,
+}
+
+/// Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask of one depth frame after
+/// another, with no allocation per frame.
+///
+/// ```
+/// # use geometry::{fusion::{FusionOptions, Registration}, synth};
+/// let setup = synth::kinect_preset(false);
+/// let frame = synth::render(&setup);
+/// let mut reg = Registration::new(&setup.rig, frame.depth_kind, &FusionOptions::default());
+/// let mut mask = vec![false; reg.zbuffer().len()];
+/// // per frame:
+/// let landed = reg.register(&frame.depth).unwrap();
+/// let holes = reg.hole_mask(&mut mask);
+/// assert!(landed > 150_000 && holes > 0);
+/// ```
+#[derive(Debug, Clone)]
+pub struct Registration {
+    proj: ColorProjection,
+    depth_width: usize,
+    depth_height: usize,
+    ray_x: Vec<f32>,
+    ray_y: Vec<f32>,
+    ray_s: Vec<f32>,
+    zbuffer: Vec<f32>,
+    masker: HoleMasker,
+    /// Depth-sized projection planes of [`Registration::register_parallel`] (empty until used).
+    projected: Option<Projected>,
+    /// Per task of the parallel projection: smallest and largest colour row landed on.
+    task_rows: Vec<(u32, u32)>,
+}
+
+impl std::fmt::Debug for Projected {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Projected({} pixels)", self.z.len())
+    }
+}
+
+/// Projects one block (≤ [`BLOCK`] pixels): column, row and `z` of every pixel, column
+/// [`NO_PIXEL`] where [`super::register_pixel`] gives `None` or [`super::zbuffer_pixel`]
+/// rejects the pixel. Same arithmetic as [`super::register_pixel`] operation for operation.
+#[inline(always)]
+fn project_block(
+    p: &ColorProjection,
+    depth: &[f32],
+    rx: &[f32],
+    ry: &[f32],
+    rs: &[f32],
+    px: &mut [u32],
+    py: &mut [u32],
+    pz: &mut [f32],
+) {
+    let n = depth.len();
+    let (rx, ry, rs) = (&rx[..n], &ry[..n], &rs[..n]);
+    let (px, py, pz) = (&mut px[..n], &mut py[..n], &mut pz[..n]);
+    let (wf, hf) = (p.width as f32, p.height as f32);
+    for i in 0..n {
+        let value = depth[i];
+        let valid = value > 0.0 && value < f32::INFINITY;
+        // backproject_pixel
+        let zd = value * rs[i];
+        let xd = [rx[i] * zd, ry[i] * zd, zd];
+        // project_point
+        let xc = transform_point(p, xd);
+        let zc = xc[2];
+        let xn = xc[0] / zc;
+        let yn = xc[1] / zc;
+        let r2 = xn * xn + yn * yn;
+        let radial = 1.0 + r2 * (p.k1 + r2 * (p.k2 + r2 * p.k3));
+        let xy = xn * yn;
+        let xdist = xn * radial + 2.0 * p.p1 * xy + p.p2 * (r2 + 2.0 * xn * xn);
+        let ydist = yn * radial + p.p1 * (r2 + 2.0 * yn * yn) + 2.0 * p.p2 * xy;
+        let u = p.fx * xdist + p.skew * ydist + p.cx;
+        let v = p.fy * ydist + p.cy;
+        // zbuffer_pixel, branch-free (see the module docs for the equivalence).
+        let tu = u + 0.5;
+        let tv = v + 0.5;
+        let ok = valid & (zc > 0.0) & (tu >= 0.0) & (tu < wf) & (tv >= 0.0) & (tv < hf);
+        let cu = floor_to_u32(if ok { tu } else { 0.0 });
+        let cv = floor_to_u32(if ok { tv } else { 0.0 });
+        px[i] = if ok { cu } else { NO_PIXEL };
+        py[i] = if ok { cv } else { 0 };
+        pz[i] = zc;
+    }
+}
+
+/// 2^23: from there on every `f32` is an integer, and `t + 2^23` rounds `t` to an integer.
+const TWO_POW_23: f32 = 8_388_608.0;
+
+/// `floor(t)` as an integer for `0 <= t < 2^23`, in float operations only (a saturating
+/// `as` cast keeps the loop from vectorising on x86-64's SSE2 baseline): `(t + 2^23) - 2^23`
+/// rounds `t` to the nearest integer exactly, one less if that overshot, and the bits of
+/// `n + 2^23` minus those of `2^23` are the integer `n`.
+#[inline(always)]
+pub(crate) fn floor_to_u32(t: f32) -> u32 {
+    let r = (t + TWO_POW_23) - TWO_POW_23;
+    let f = if r > t { r - 1.0 } else { r };
+    (f + TWO_POW_23).to_bits().wrapping_sub(TWO_POW_23.to_bits())
+}
+
+/// The scatter half of the loop for one projected block: the z-test into `zbuffer`
+/// (`width` columns), marking `occupancy` (`words` 64-bit words per row). Rows
+/// `cleared..` of both are cleared on first use (see the module docs); `row0` is the colour
+/// row of `zbuffer[0]` (a band's first row). Only samples with `row0 <= row < row0 + rows`
+/// are taken. Returns the number of samples z-tested.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn scatter_block(
+    px: &[u32],
+    py: &[u32],
+    pz: &[f32],
+    zbuffer: &mut [f32],
+    occupancy: &mut [u64],
+    width: usize,
+    words: usize,
+    row0: u32,
+    cleared: &mut usize,
+) -> usize {
+    let rows = occupancy.len() / words.max(1);
+    let mut landed = 0;
+    // The occupancy word being marked, kept in a register: consecutive samples mostly share
+    // a word, and an OR into memory per sample would chain them through store forwarding.
+    let (mut word, mut bits) = (usize::MAX, 0u64);
+    for ((&x, &y), &z) in px.iter().zip(py).zip(pz) {
+        if x == NO_PIXEL {
+            continue;
+        }
+        let y = y.wrapping_sub(row0) as usize;
+        if y >= rows {
+            continue;
+        }
+        if y >= *cleared {
+            clear_rows(zbuffer, occupancy, width, words, *cleared, y + 1);
+            *cleared = y + 1;
+        }
+        let x = x as usize;
+        let slot = &mut zbuffer[y * width + x];
+        // zbuffer_min
+        if !(*slot <= z) {
+            *slot = z;
+        }
+        let w = y * words + x / 64;
+        if w != word {
+            if word != usize::MAX {
+                occupancy[word] |= bits;
+            }
+            (word, bits) = (w, 0);
+        }
+        bits |= 1u64 << (x % 64);
+        landed += 1;
+    }
+    if word != usize::MAX {
+        occupancy[word] |= bits;
+    }
+    landed
+}
+
+/// Clears rows `from..to` of the z-buffer and the occupancy bits.
+#[cold]
+#[inline(never)]
+fn clear_rows(zbuffer: &mut [f32], occupancy: &mut [u64], width: usize, words: usize, from: usize, to: usize) {
+    zbuffer[from * width..to * width].fill(ZBUFFER_EMPTY);
+    occupancy[from * words..to * words].fill(0);
+}
+
+impl Registration {
+    /// Buffers and per-pixel constants for `rig`, depth images of kind `kind`, and H8's radii
+    /// from `options` ([`coverage_radius_px`], [`hole_grow_px`]).
+    pub fn new(rig: &Rig, kind: DepthKind, options: &FusionOptions) -> Self {
+        let rays = depth_ray_table(&rig.depth, kind);
+        Self::from_parts(
+            ColorProjection::from_rig(rig),
+            &rays,
+            rig.depth.width,
+            coverage_radius_px(rig, options),
+            hole_grow_px(rig, options),
+        )
+    }
+
+    /// The same from a projection, a depth ray table ([`depth_ray_table`], row-major,
+    /// `depth_width` columns) and the two radii of [`HoleMasker::new`] in colour pixels.
+    pub fn from_parts(proj: ColorProjection, rays: &[[f32; 3]], depth_width: usize, radius_px: f32, grow_px: f32) -> Self {
+        let (cw, ch) = (proj.width as usize, proj.height as usize);
+        let depth_width = depth_width.max(1);
+        Self {
+            proj,
+            depth_width,
+            depth_height: rays.len() / depth_width,
+            ray_x: rays.iter().map(|r| r[0]).collect(),
+            ray_y: rays.iter().map(|r| r[1]).collect(),
+            ray_s: rays.iter().map(|r| r[2]).collect(),
+            zbuffer: vec![ZBUFFER_EMPTY; cw * ch],
+            masker: HoleMasker::new(cw, ch, radius_px, grow_px),
+            projected: None,
+            task_rows: Vec::new(),
+        }
+    }
+
+    /// The colour projection in use.
+    pub fn projection(&self) -> &ColorProjection {
+        &self.proj
+    }
+
+    fn check(&self, depth: &Image<f32>) -> Result<(), GeometryError> {
+        depth.expect_size("depth image", self.depth_width, self.depth_height)
+    }
+
+    /// Registers one depth frame (depth-camera-sized, the kind given to
+    /// [`Registration::new`]) on one thread: afterwards [`Registration::zbuffer`] holds the
+    /// smallest colour-frame `z` per colour pixel ([`ZBUFFER_EMPTY`] elsewhere), bit-identical
+    /// to [`super::register_depth`]. Returns the number of samples that landed on the colour
+    /// image. Error: [`GeometryError::SizeMismatch`] for a depth image of another size.
+    pub fn register(&mut self, depth: &Image<f32>) -> Result<usize, GeometryError> {
+        self.check(depth)?;
+        let (cw, ch) = (self.proj.width as usize, self.proj.height as usize);
+        let words = self.masker.words_per_row();
+        let occupancy = self.masker.occupancy_mut();
+        let mut cleared = 0;
+        let mut landed = 0;
+        let (mut bx, mut by, mut bz) = ([0u32; BLOCK], [0u32; BLOCK], [0f32; BLOCK]);
+        let chunks = depth.data().chunks(BLOCK).zip(self.ray_x.chunks(BLOCK)).zip(self.ray_y.chunks(BLOCK)).zip(self.ray_s.chunks(BLOCK));
+        for (((d, rx), ry), rs) in chunks {
+            project_block(&self.proj, d, rx, ry, rs, &mut bx, &mut by, &mut bz);
+            let n = d.len();
+            landed += scatter_block(&bx[..n], &by[..n], &bz[..n], &mut self.zbuffer, occupancy, cw, words, 0, &mut cleared);
+        }
+        if cleared < ch {
+            clear_rows(&mut self.zbuffer, occupancy, cw, words, cleared, ch);
+        }
+        Ok(landed)
+    }
+
+    /// [`Registration::register`] on all rayon threads, bit-identical to it. Pass 1 projects
+    /// blocks of depth rows in parallel into depth-sized planes and notes the colour rows each
+    /// block reaches; pass 2 gives every task a band of colour rows and z-buffers the blocks
+    /// that reach it, so that every pixel has one writer.
+    pub fn register_parallel(&mut self, depth: &Image<f32>) -> Result<usize, GeometryError> {
+        self.check(depth)?;
+        let (cw, ch) = (self.proj.width as usize, self.proj.height as usize);
+        let n = depth.data().len();
+        let projected = self.projected.get_or_insert_with(|| Projected { px: vec![0; n], py: vec![0; n], z: vec![0.0; n] });
+        let chunk = self.depth_width * ROWS_PER_TASK;
+        let tasks = n.div_ceil(chunk);
+        self.task_rows.resize(tasks, (0, 0));
+        let proj = &self.proj;
+        // Pass 1: projection.
+        projected
+            .px
+            .par_chunks_mut(chunk)
+            .zip(projected.py.par_chunks_mut(chunk))
+            .zip(projected.z.par_chunks_mut(chunk))
+            .zip(depth.data().par_chunks(chunk))
+            .zip(self.ray_x.par_chunks(chunk).zip(self.ray_y.par_chunks(chunk)).zip(self.ray_s.par_chunks(chunk)))
+            .zip(self.task_rows.par_iter_mut())
+            .for_each(|(((((px, py), pz), d), ((rx, ry), rs)), rows)| {
+                let mut lo = u32::MAX;
+                let mut hi = 0;
+                for start in (0..d.len()).step_by(BLOCK) {
+                    let end = (start + BLOCK).min(d.len());
+                    let (bx, by) = (&mut px[start..end], &mut py[start..end]);
+                    project_block(proj, &d[start..end], &rx[start..end], &ry[start..end], &rs[start..end], bx, by, &mut pz[start..end]);
+                    for (&x, &y) in bx.iter().zip(by.iter()) {
+                        if x != NO_PIXEL {
+                            lo = lo.min(y);
+                            hi = hi.max(y);
+                        }
+                    }
+                }
+                *rows = (lo, hi);
+            });
+        // Pass 2: bands of colour rows, one writer per pixel.
+        let words = self.masker.words_per_row();
+        let bands = rayon::current_num_threads().max(1);
+        let band_rows = ch.div_ceil(bands).max(1);
+        let projected = &*projected;
+        let task_rows = &self.task_rows;
+        let landed = self
+            .zbuffer
+            .par_chunks_mut(band_rows * cw)
+            .zip(self.masker.occupancy_mut().par_chunks_mut(band_rows * words))
+            .enumerate()
+            .map(|(b, (zb, occ))| {
+                let row0 = (b * band_rows) as u32;
+                let rows = occ.len() / words.max(1);
+                let row1 = row0 + rows as u32;
+                let mut cleared = 0;
+                let mut landed = 0;
+                for (t, &(lo, hi)) in task_rows.iter().enumerate() {
+                    if lo > hi || hi < row0 || lo >= row1 {
+                        continue;
+                    }
+                    let r = t * chunk..((t + 1) * chunk).min(n);
+                    let (px, py, pz) = (&projected.px[r.clone()], &projected.py[r.clone()], &projected.z[r]);
+                    landed += scatter_block(px, py, pz, zb, occ, cw, words, row0, &mut cleared);
+                }
+                if cleared < rows {
+                    clear_rows(zb, occ, cw, words, cleared, rows);
+                }
+                landed
+            })
+            .sum();
+        Ok(landed)
+    }
+
+    /// The z-buffer of the last registered frame (colour-sized, row-major, [`ZBUFFER_EMPTY`]
+    /// where no sample landed).
+    pub fn zbuffer(&self) -> &[f32] {
+        &self.zbuffer
+    }
+
+    /// The z-buffer as an image.
+    pub fn zbuffer_image(&self) -> Image<f32> {
+        let w = self.proj.width as usize;
+        Image::from_fn(w, self.proj.height as usize, |x, y| self.zbuffer[y * w + x])
+    }
+
+    /// H8's hole mask of the last registered frame into `mask` (colour-sized, row-major; the
+    /// same as [`HoleMasker::compute`] on [`Registration::zbuffer`]); returns the number of
+    /// hole pixels. Reads the occupancy bits the registration marked instead of scanning the
+    /// z-buffer.
+    pub fn hole_mask(&mut self, mask: &mut [bool]) -> usize {
+        self.masker.compute_from_occupancy(mask)
+    }
+}
