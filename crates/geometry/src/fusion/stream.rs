@@ -369,3 +369,41 @@ impl Registration {
         self.masker.compute_from_occupancy(mask)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::floor_f32;
+
+    #[test]
+    fn float_floor_equals_floor_on_the_whole_range_the_rounding_uses() {
+        // Every f32 in [0, 2^12) near an integer or a half (the values where a rounding
+        // error would show), and a sweep of the rest up to 2^23: the trick must equal
+        // floor_f32 exactly (it replaces it inside the bounds test).
+        let mut checked = 0;
+        for k in 0..4096u32 {
+            for base in [k as f32, k as f32 + 0.5] {
+                let mut x = base;
+                let mut y = base;
+                for _ in 0..8 {
+                    for t in [x, y] {
+                        if (0.0..TWO_POW_23).contains(&t) {
+                            assert_eq!(floor_to_u32(t) as f32, floor_f32(t), "floor({t:e})");
+                            checked += 1;
+                        }
+                    }
+                    x = x.next_up();
+                    y = y.next_down();
+                }
+            }
+        }
+        let mut t = 0.0f32;
+        while t < TWO_POW_23 {
+            assert_eq!(floor_to_u32(t) as f32, floor_f32(t), "floor({t:e})");
+            assert_eq!(floor_to_u32(t.next_down().max(0.0)) as f32, floor_f32(t.next_down().max(0.0)));
+            t = t * 1.001 + 1e-3;
+            checked += 2;
+        }
+        assert!(checked > 100_000);
+    }
+}
