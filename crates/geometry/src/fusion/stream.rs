@@ -39,11 +39,11 @@ const NO_PIXEL: u32 = u32::MAX;
 /// amortise rayon's per-task cost (~1 µs) over ~40 µs of work.
 const ROWS_PER_TASK: usize = 8;
 
-/// Where one depth pixel lands: column (or [`NO_PIXEL`]), row, colour-frame `z`.
+/// Where every depth pixel lands: pixel index (or [`NO_PIXEL`]), occupancy bit, colour-frame `z`.
 #[derive(Clone)]
 struct Projected {
-    px: Vec<u32>,
-    py: Vec<u32>,
+    index: Vec<u32>,
+    bit: Vec<u32>,
     z: Vec<f32>,
 }
 
@@ -83,9 +83,12 @@ impl std::fmt::Debug for Projected {
     }
 }
 
-/// Projects one block (≤ [`BLOCK`] pixels): column, row and `z` of every pixel, column
-/// [`NO_PIXEL`] where [`super::register_pixel`] gives `None` or [`super::zbuffer_pixel`]
-/// rejects the pixel. Same arithmetic as [`super::register_pixel`] operation for operation.
+/// Projects one block (≤ [`BLOCK`] pixels): for every pixel the row-major index of its
+/// colour pixel (`row * width + column`, [`NO_PIXEL`] where [`super::register_pixel`] gives
+/// `None` or [`super::zbuffer_pixel`] rejects the pixel), its bit in an occupancy image of
+/// `bits_per_row` bits per row (`row * bits_per_row + column`, meaningless for
+/// [`NO_PIXEL`]) and its `z`. Same arithmetic as [`super::register_pixel`] operation for
+/// operation.
 #[inline(always)]
 fn project_block(
     p: &ColorProjection,
@@ -93,14 +96,16 @@ fn project_block(
     rx: &[f32],
     ry: &[f32],
     rs: &[f32],
-    px: &mut [u32],
-    py: &mut [u32],
+    bits_per_row: u32,
+    pj: &mut [u32],
+    po: &mut [u32],
     pz: &mut [f32],
 ) {
     let n = depth.len();
     let (rx, ry, rs) = (&rx[..n], &ry[..n], &rs[..n]);
-    let (px, py, pz) = (&mut px[..n], &mut py[..n], &mut pz[..n]);
+    let (pj, po, pz) = (&mut pj[..n], &mut po[..n], &mut pz[..n]);
     let (wf, hf) = (p.width as f32, p.height as f32);
+    let w = p.width;
     for i in 0..n {
         let value = depth[i];
         let valid = value > 0.0 && value < f32::INFINITY;
@@ -125,8 +130,8 @@ fn project_block(
         let ok = valid & (zc > 0.0) & (tu >= 0.0) & (tu < wf) & (tv >= 0.0) & (tv < hf);
         let cu = floor_to_u32(if ok { tu } else { 0.0 });
         let cv = floor_to_u32(if ok { tv } else { 0.0 });
-        px[i] = if ok { cu } else { NO_PIXEL };
-        py[i] = if ok { cv } else { 0 };
+        pj[i] = if ok { cv.wrapping_mul(w).wrapping_add(cu) } else { NO_PIXEL };
+        po[i] = cv.wrapping_mul(bits_per_row).wrapping_add(cu);
         pz[i] = zc;
     }
 }
@@ -146,59 +151,63 @@ pub(crate) fn floor_to_u32(t: f32) -> u32 {
 }
 
 /// The scatter half of the loop for one projected block: the z-test into `zbuffer`
-/// (`width` columns), marking `occupancy` (`words` 64-bit words per row). Rows
-/// `cleared..` of both are cleared on first use (see the module docs); `row0` is the colour
-/// row of `zbuffer[0]` (a band's first row). Only samples with `row0 <= row < row0 + rows`
-/// are taken. Returns the number of samples z-tested.
+/// (`width` columns), marking `occupancy` (`words` 64-bit words per row). Both hold a band of
+/// rows starting at colour row `row0` (0 and the whole image on one thread); samples outside
+/// the band are skipped. Rows `cleared..` of the band are cleared on first use (see the
+/// module docs). Returns the number of samples z-tested.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn scatter_block(
-    px: &[u32],
-    py: &[u32],
+    pj: &[u32],
+    po: &[u32],
     pz: &[f32],
     zbuffer: &mut [f32],
     occupancy: &mut [u64],
     width: usize,
     words: usize,
-    row0: u32,
+    row0: usize,
     cleared: &mut usize,
 ) -> usize {
     let rows = occupancy.len() / words.max(1);
+    let (j0, w0) = ((row0 * width) as u32, row0 * words);
+    let len = zbuffer.len();
+    // Samples below this index are in rows already cleared.
+    let mut limit = *cleared * width;
     let mut landed = 0;
     // The occupancy word being marked, kept in a register: consecutive samples mostly share
     // a word, and an OR into memory per sample would chain them through store forwarding.
     let (mut word, mut bits) = (usize::MAX, 0u64);
-    for ((&x, &y), &z) in px.iter().zip(py).zip(pz) {
-        if x == NO_PIXEL {
+    for ((&j, &o), &z) in pj.iter().zip(po).zip(pz) {
+        // NO_PIXEL and samples of other bands wrap to >= len.
+        let j = j.wrapping_sub(j0) as usize;
+        if j >= len {
             continue;
         }
-        let y = y.wrapping_sub(row0) as usize;
-        if y >= rows {
-            continue;
-        }
-        if y >= *cleared {
+        if j >= limit {
+            let y = j / width;
             clear_rows(zbuffer, occupancy, width, words, *cleared, y + 1);
             *cleared = y + 1;
+            limit = *cleared * width;
         }
-        let x = x as usize;
-        let slot = &mut zbuffer[y * width + x];
+        let slot = &mut zbuffer[j];
         // zbuffer_min
         if !(*slot <= z) {
             *slot = z;
         }
-        let w = y * words + x / 64;
+        let w = (o / 64) as usize - w0;
         if w != word {
             if word != usize::MAX {
                 occupancy[word] |= bits;
             }
             (word, bits) = (w, 0);
         }
-        bits |= 1u64 << (x % 64);
+        bits |= 1u64 << (o % 64);
         landed += 1;
     }
     if word != usize::MAX {
         occupancy[word] |= bits;
     }
+    debug_assert!(*cleared <= rows);
     landed
 }
 
@@ -264,12 +273,13 @@ impl Registration {
         let occupancy = self.masker.occupancy_mut();
         let mut cleared = 0;
         let mut landed = 0;
-        let (mut bx, mut by, mut bz) = ([0u32; BLOCK], [0u32; BLOCK], [0f32; BLOCK]);
+        let bits_per_row = (words * 64) as u32;
+        let (mut bj, mut bo, mut bz) = ([0u32; BLOCK], [0u32; BLOCK], [0f32; BLOCK]);
         let chunks = depth.data().chunks(BLOCK).zip(self.ray_x.chunks(BLOCK)).zip(self.ray_y.chunks(BLOCK)).zip(self.ray_s.chunks(BLOCK));
         for (((d, rx), ry), rs) in chunks {
-            project_block(&self.proj, d, rx, ry, rs, &mut bx, &mut by, &mut bz);
+            project_block(&self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
             let n = d.len();
-            landed += scatter_block(&bx[..n], &by[..n], &bz[..n], &mut self.zbuffer, occupancy, cw, words, 0, &mut cleared);
+            landed += scatter_block(&bj[..n], &bo[..n], &bz[..n], &mut self.zbuffer, occupancy, cw, words, 0, &mut cleared);
         }
         if cleared < ch {
             clear_rows(&mut self.zbuffer, occupancy, cw, words, cleared, ch);
@@ -285,38 +295,39 @@ impl Registration {
         self.check(depth)?;
         let (cw, ch) = (self.proj.width as usize, self.proj.height as usize);
         let n = depth.data().len();
-        let projected = self.projected.get_or_insert_with(|| Projected { px: vec![0; n], py: vec![0; n], z: vec![0.0; n] });
+        let projected = self.projected.get_or_insert_with(|| Projected { index: vec![0; n], bit: vec![0; n], z: vec![0.0; n] });
         let chunk = self.depth_width * ROWS_PER_TASK;
         let tasks = n.div_ceil(chunk);
         self.task_rows.resize(tasks, (0, 0));
         let proj = &self.proj;
+        let words = self.masker.words_per_row();
+        let bits_per_row = (words * 64) as u32;
         // Pass 1: projection.
         projected
-            .px
+            .index
             .par_chunks_mut(chunk)
-            .zip(projected.py.par_chunks_mut(chunk))
+            .zip(projected.bit.par_chunks_mut(chunk))
             .zip(projected.z.par_chunks_mut(chunk))
             .zip(depth.data().par_chunks(chunk))
             .zip(self.ray_x.par_chunks(chunk).zip(self.ray_y.par_chunks(chunk)).zip(self.ray_s.par_chunks(chunk)))
             .zip(self.task_rows.par_iter_mut())
-            .for_each(|(((((px, py), pz), d), ((rx, ry), rs)), rows)| {
-                let mut lo = u32::MAX;
-                let mut hi = 0;
+            .for_each(|(((((pj, po), pz), d), ((rx, ry), rs)), rows)| {
+                // Smallest and largest pixel index: their rows bound the rows reached.
+                let (mut lo, mut hi) = (u32::MAX, 0);
                 for start in (0..d.len()).step_by(BLOCK) {
                     let end = (start + BLOCK).min(d.len());
-                    let (bx, by) = (&mut px[start..end], &mut py[start..end]);
-                    project_block(proj, &d[start..end], &rx[start..end], &ry[start..end], &rs[start..end], bx, by, &mut pz[start..end]);
-                    for (&x, &y) in bx.iter().zip(by.iter()) {
-                        if x != NO_PIXEL {
-                            lo = lo.min(y);
-                            hi = hi.max(y);
+                    let (bj, bo) = (&mut pj[start..end], &mut po[start..end]);
+                    project_block(proj, &d[start..end], &rx[start..end], &ry[start..end], &rs[start..end], bits_per_row, bj, bo, &mut pz[start..end]);
+                    for &j in bj.iter() {
+                        if j != NO_PIXEL {
+                            lo = lo.min(j);
+                            hi = hi.max(j);
                         }
                     }
                 }
-                *rows = (lo, hi);
+                *rows = if lo > hi { (1, 0) } else { (lo / cw as u32, hi / cw as u32) };
             });
         // Pass 2: bands of colour rows, one writer per pixel.
-        let words = self.masker.words_per_row();
         let bands = rayon::current_num_threads().max(1);
         let band_rows = ch.div_ceil(bands).max(1);
         let projected = &*projected;
@@ -327,18 +338,18 @@ impl Registration {
             .zip(self.masker.occupancy_mut().par_chunks_mut(band_rows * words))
             .enumerate()
             .map(|(b, (zb, occ))| {
-                let row0 = (b * band_rows) as u32;
+                let row0 = b * band_rows;
                 let rows = occ.len() / words.max(1);
-                let row1 = row0 + rows as u32;
+                let (row0_u, row1) = (row0 as u32, (row0 + rows) as u32);
                 let mut cleared = 0;
                 let mut landed = 0;
                 for (t, &(lo, hi)) in task_rows.iter().enumerate() {
-                    if lo > hi || hi < row0 || lo >= row1 {
+                    if lo > hi || hi < row0_u || lo >= row1 {
                         continue;
                     }
                     let r = t * chunk..((t + 1) * chunk).min(n);
-                    let (px, py, pz) = (&projected.px[r.clone()], &projected.py[r.clone()], &projected.z[r]);
-                    landed += scatter_block(px, py, pz, zb, occ, cw, words, row0, &mut cleared);
+                    let (pj, po, pz) = (&projected.index[r.clone()], &projected.bit[r.clone()], &projected.z[r]);
+                    landed += scatter_block(pj, po, pz, zb, occ, cw, words, row0, &mut cleared);
                 }
                 if cleared < rows {
                     clear_rows(zb, occ, cw, words, cleared, rows);
