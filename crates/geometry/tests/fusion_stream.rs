@@ -81,6 +81,11 @@ fn assert_matches(reg: &mut Registration, depth: &Image<f32>, rays: &[[f32; 3]],
         let holes = reg.hole_mask(&mut mask);
         assert_eq!(holes, want_holes, "{what} (parallel: {parallel}): hole count");
         assert!(mask == want_mask, "{what} (parallel: {parallel}): hole mask differs");
+        let (w, words) = (proj.width as usize, (proj.width as usize).div_ceil(64));
+        let (bit_holes, bits) = reg.hole_bits();
+        assert_eq!(bit_holes, want_holes, "{what}: hole count of the bit mask");
+        let unpacked: Vec<bool> = (0..want_mask.len()).map(|i| bits[(i / w) * words + (i % w) / 64] >> (i % w % 64) & 1 == 1).collect();
+        assert!(unpacked == want_mask, "{what} (parallel: {parallel}): bit mask differs");
     }
     (want_n, want_holes)
 }

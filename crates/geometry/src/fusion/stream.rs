@@ -393,6 +393,14 @@ impl Registration {
     pub fn hole_mask(&mut self, mask: &mut [bool]) -> usize {
         self.masker.compute_from_occupancy(mask)
     }
+
+    /// [`Registration::hole_mask`] as bits only, without writing a `bool` image: returns the
+    /// number of hole pixels and the mask (bit `x % 64` of word `y * words + x / 64`, with
+    /// `words = ceil(width / 64)`; [`HoleMasker::hole_bits`]).
+    pub fn hole_bits(&mut self) -> (usize, &[u64]) {
+        let n = self.masker.compute_bits_from_occupancy();
+        (n, self.masker.hole_bits())
+    }
 }
 
 #[cfg(test)]
