@@ -79,6 +79,8 @@ pub struct Registration {
     projected: Option<Projected>,
     /// Per task of the parallel projection: smallest and largest colour row landed on.
     task_rows: Vec<(u32, u32)>,
+    /// Whether [`project_block`] may form the indices in `f32` ([`fits_float_index`]).
+    float_index: bool,
 }
 
 impl std::fmt::Debug for Projected {
@@ -93,8 +95,13 @@ impl std::fmt::Debug for Projected {
 /// `bits_per_row` bits per row (`row * bits_per_row + column`, meaningless for
 /// [`NO_PIXEL`]) and its `z`. Same arithmetic as [`super::register_pixel`] operation for
 /// operation.
+///
+/// With `FLOAT_INDEX` the two indices are formed in `f32` (`floor(v) * width + floor(u)`,
+/// exact integers) and converted by [`float_to_u32`], which saves the emulated 32-bit integer
+/// multiply of x86-64's baseline SSE2; only valid when `width * height` and
+/// `bits_per_row * height` are at most 2^23 ([`fits_float_index`]).
 #[inline(always)]
-fn project_block(
+fn project_block<const FLOAT_INDEX: bool>(
     p: &ColorProjection,
     depth: &[f32],
     rx: &[f32],
@@ -110,6 +117,7 @@ fn project_block(
     let (pj, po, pz) = (&mut pj[..n], &mut po[..n], &mut pz[..n]);
     let (wf, hf) = (p.width as f32, p.height as f32);
     let w = p.width;
+    let bprf = bits_per_row as f32;
     for i in 0..n {
         let value = depth[i];
         let valid = value > 0.0 && value < f32::INFINITY;
@@ -132,10 +140,18 @@ fn project_block(
         let tu = u + 0.5;
         let tv = v + 0.5;
         let ok = valid & (zc > 0.0) & (tu >= 0.0) & (tu < wf) & (tv >= 0.0) & (tv < hf);
-        let cu = floor_to_u32(if ok { tu } else { 0.0 });
-        let cv = floor_to_u32(if ok { tv } else { 0.0 });
-        pj[i] = if ok { cv.wrapping_mul(w).wrapping_add(cu) } else { NO_PIXEL };
-        po[i] = cv.wrapping_mul(bits_per_row).wrapping_add(cu);
+        if FLOAT_INDEX {
+            // Garbage in the lanes that are not `ok`; they become NO_PIXEL.
+            let (fu, fv) = (floor_small(tu), floor_small(tv));
+            let j = float_to_u32(fv * wf + fu);
+            pj[i] = if ok { j } else { NO_PIXEL };
+            po[i] = float_to_u32(fv * bprf + fu);
+        } else {
+            let cu = floor_to_u32(if ok { tu } else { 0.0 });
+            let cv = floor_to_u32(if ok { tv } else { 0.0 });
+            pj[i] = if ok { cv.wrapping_mul(w).wrapping_add(cu) } else { NO_PIXEL };
+            po[i] = cv.wrapping_mul(bits_per_row).wrapping_add(cu);
+        }
         pz[i] = zc;
     }
 }
@@ -149,9 +165,28 @@ const TWO_POW_23: f32 = 8_388_608.0;
 /// `n + 2^23` minus those of `2^23` are the integer `n`.
 #[inline(always)]
 pub(crate) fn floor_to_u32(t: f32) -> u32 {
+    float_to_u32(floor_small(t))
+}
+
+/// `floor(t)` for `0 <= t < 2^23` (see [`floor_to_u32`]); anything for other `t`.
+#[inline(always)]
+fn floor_small(t: f32) -> f32 {
     let r = (t + TWO_POW_23) - TWO_POW_23;
-    let f = if r > t { r - 1.0 } else { r };
-    (f + TWO_POW_23).to_bits().wrapping_sub(TWO_POW_23.to_bits())
+    if r > t { r - 1.0 } else { r }
+}
+
+/// The integer `n` for an integer-valued `0 <= n < 2^23` (see [`floor_to_u32`]); anything
+/// (no panic) for other values.
+#[inline(always)]
+fn float_to_u32(n: f32) -> u32 {
+    (n + TWO_POW_23).to_bits().wrapping_sub(TWO_POW_23.to_bits())
+}
+
+/// Whether [`project_block`]'s `FLOAT_INDEX` form is exact for this colour image: every pixel
+/// index and occupancy bit index below 2^23.
+fn fits_float_index(width: usize, height: usize, bits_per_row: usize) -> bool {
+    const LIMIT: usize = 1 << 23;
+    width.saturating_mul(height) <= LIMIT && bits_per_row.saturating_mul(height) <= LIMIT
 }
 
 /// The scatter half of the loop for one projected block: the z-test into `zbuffer`
@@ -263,6 +298,7 @@ impl Registration {
             masker: HoleMasker::new(cw, ch, radius_px, grow_px),
             projected: None,
             task_rows: Vec::new(),
+            float_index: fits_float_index(cw, ch, cw.div_ceil(64).max(1) * 64),
         }
     }
 
@@ -288,10 +324,15 @@ impl Registration {
         let mut cleared = 0;
         let mut landed = 0;
         let bits_per_row = (words * 64) as u32;
+        let float_index = self.float_index;
         let (mut bj, mut bo, mut bz) = ([0u32; BLOCK], [0u32; BLOCK], [0f32; BLOCK]);
         let chunks = depth.data().chunks(BLOCK).zip(self.ray_x.chunks(BLOCK)).zip(self.ray_y.chunks(BLOCK)).zip(self.ray_s.chunks(BLOCK));
         for (((d, rx), ry), rs) in chunks {
-            project_block(&self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
+            if float_index {
+                project_block::<true>(&self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
+            } else {
+                project_block::<false>(&self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
+            }
             let n = d.len();
             landed += scatter_block(&bj[..n], &bo[..n], &bz[..n], &mut self.zbuffer, occupancy, cw, words, 0, &mut cleared);
         }
@@ -316,6 +357,7 @@ impl Registration {
         let proj = &self.proj;
         let words = self.masker.words_per_row();
         let bits_per_row = (words * 64) as u32;
+        let float_index = self.float_index;
         // Pass 1: projection.
         projected
             .index
@@ -331,7 +373,12 @@ impl Registration {
                 for start in (0..d.len()).step_by(BLOCK) {
                     let end = (start + BLOCK).min(d.len());
                     let (bj, bo) = (&mut pj[start..end], &mut po[start..end]);
-                    project_block(proj, &d[start..end], &rx[start..end], &ry[start..end], &rs[start..end], bits_per_row, bj, bo, &mut pz[start..end]);
+                    let (d, rx, ry, rs, bz) = (&d[start..end], &rx[start..end], &ry[start..end], &rs[start..end], &mut pz[start..end]);
+                    if float_index {
+                        project_block::<true>(proj, d, rx, ry, rs, bits_per_row, bj, bo, bz);
+                    } else {
+                        project_block::<false>(proj, d, rx, ry, rs, bits_per_row, bj, bo, bz);
+                    }
                     for &j in bj.iter() {
                         if j != NO_PIXEL {
                             lo = lo.min(j);
@@ -438,5 +485,30 @@ mod tests {
             checked += 2;
         }
         assert!(checked > 100_000);
+    }
+
+    #[test]
+    fn float_and_integer_index_forms_agree() {
+        // The Kinect preset (noisy) and a second frame through the same workspace: the f32
+        // index form must give the same z-buffer and occupancy bits as the integer form.
+        let setup = crate::synth::kinect_preset(true);
+        let frame = crate::synth::render(&setup);
+        let mut a = Registration::new(&setup.rig, frame.depth_kind, &FusionOptions::default());
+        assert!(a.float_index, "1920x1080 fits the f32 index form");
+        let mut b = a.clone();
+        b.float_index = false;
+        let scaled = frame.depth.map(|z| z * 0.7);
+        for depth in [&frame.depth, &scaled] {
+            for parallel in [false, true] {
+                let run = |r: &mut Registration| if parallel { r.register_parallel(depth) } else { r.register(depth) }.unwrap();
+                let (na, nb) = (run(&mut a), run(&mut b));
+                assert_eq!(na, nb);
+                assert!(na > 100_000);
+                assert!(a.zbuffer.iter().zip(&b.zbuffer).all(|(x, y)| x.to_bits() == y.to_bits()));
+                assert!(a.masker.occupancy_mut() == b.masker.occupancy_mut());
+            }
+        }
+        assert!(!fits_float_index(3841, 2185, 3904), "2^23 limit");
+        assert!(fits_float_index(3840, 2160, 3840));
     }
 }
