@@ -81,6 +81,9 @@ pub struct Registration {
     task_rows: Vec<(u32, u32)>,
     /// Whether [`project_block`] may form the indices in `f32` ([`fits_float_index`]).
     float_index: bool,
+    /// Whether the occupancy rows are exactly `width` bits (`width % 64 == 0`), so that a
+    /// pixel's bit index is its pixel index and needs no plane of its own.
+    same_stride: bool,
 }
 
 impl std::fmt::Debug for Projected {
@@ -101,7 +104,7 @@ impl std::fmt::Debug for Projected {
 /// multiply of x86-64's baseline SSE2; only valid when `width * height` and
 /// `bits_per_row * height` are at most 2^23 ([`fits_float_index`]).
 #[inline(always)]
-fn project_block<const FLOAT_INDEX: bool>(
+fn project_block<const FLOAT_INDEX: bool, const SAME_STRIDE: bool>(
     p: &ColorProjection,
     depth: &[f32],
     rx: &[f32],
@@ -145,12 +148,16 @@ fn project_block<const FLOAT_INDEX: bool>(
             let (fu, fv) = (floor_small(tu), floor_small(tv));
             let j = float_to_u32(fv * wf + fu);
             pj[i] = if ok { j } else { NO_PIXEL };
-            po[i] = float_to_u32(fv * bprf + fu);
+            if !SAME_STRIDE {
+                po[i] = float_to_u32(fv * bprf + fu);
+            }
         } else {
             let cu = floor_to_u32(if ok { tu } else { 0.0 });
             let cv = floor_to_u32(if ok { tv } else { 0.0 });
             pj[i] = if ok { cv.wrapping_mul(w).wrapping_add(cu) } else { NO_PIXEL };
-            po[i] = cv.wrapping_mul(bits_per_row).wrapping_add(cu);
+            if !SAME_STRIDE {
+                po[i] = cv.wrapping_mul(bits_per_row).wrapping_add(cu);
+            }
         }
         pz[i] = zc;
     }
@@ -196,7 +203,7 @@ fn fits_float_index(width: usize, height: usize, bits_per_row: usize) -> bool {
 /// module docs). Returns the number of samples z-tested.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn scatter_block(
+fn scatter_block<const SAME_STRIDE: bool>(
     pj: &[u32],
     po: &[u32],
     pz: &[f32],
@@ -216,9 +223,13 @@ fn scatter_block(
     // The occupancy word being marked, kept in a register: consecutive samples mostly share
     // a word, and an OR into memory per sample would chain them through store forwarding.
     let (mut word, mut bits) = (usize::MAX, 0u64);
-    for ((&j, &o), &z) in pj.iter().zip(po).zip(pz) {
+    let n = pj.len();
+    let (po, pz) = (&po[..if SAME_STRIDE { 0 } else { n }], &pz[..n]);
+    for i in 0..n {
+        let (jj, z) = (pj[i], pz[i]);
+        let o = if SAME_STRIDE { jj } else { po[i] };
         // NO_PIXEL and samples of other bands wrap to >= len.
-        let j = j.wrapping_sub(j0) as usize;
+        let j = jj.wrapping_sub(j0) as usize;
         if j >= len {
             continue;
         }
@@ -248,6 +259,52 @@ fn scatter_block(
     }
     debug_assert!(*cleared <= rows);
     landed
+}
+
+/// [`project_block`] in the form `float_index` / `same_stride` allow.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn project_any(
+    float_index: bool,
+    same_stride: bool,
+    p: &ColorProjection,
+    depth: &[f32],
+    rx: &[f32],
+    ry: &[f32],
+    rs: &[f32],
+    bits_per_row: u32,
+    pj: &mut [u32],
+    po: &mut [u32],
+    pz: &mut [f32],
+) {
+    match (float_index, same_stride) {
+        (true, true) => project_block::<true, true>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
+        (true, false) => project_block::<true, false>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
+        (false, true) => project_block::<false, true>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
+        (false, false) => project_block::<false, false>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
+    }
+}
+
+/// [`scatter_block`] reading the bit index from the pixel index when `same_stride`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn scatter_any(
+    same_stride: bool,
+    pj: &[u32],
+    po: &[u32],
+    pz: &[f32],
+    zbuffer: &mut [f32],
+    occupancy: &mut [u64],
+    width: usize,
+    words: usize,
+    row0: usize,
+    cleared: &mut usize,
+) -> usize {
+    if same_stride {
+        scatter_block::<true>(pj, po, pz, zbuffer, occupancy, width, words, row0, cleared)
+    } else {
+        scatter_block::<false>(pj, po, pz, zbuffer, occupancy, width, words, row0, cleared)
+    }
 }
 
 /// Clears rows `from..to` of the z-buffer and the occupancy bits. Relies on the invariant
@@ -299,6 +356,7 @@ impl Registration {
             projected: None,
             task_rows: Vec::new(),
             float_index: fits_float_index(cw, ch, cw.div_ceil(64).max(1) * 64),
+            same_stride: cw % 64 == 0,
         }
     }
 
@@ -324,17 +382,12 @@ impl Registration {
         let mut cleared = 0;
         let mut landed = 0;
         let bits_per_row = (words * 64) as u32;
-        let float_index = self.float_index;
         let (mut bj, mut bo, mut bz) = ([0u32; BLOCK], [0u32; BLOCK], [0f32; BLOCK]);
         let chunks = depth.data().chunks(BLOCK).zip(self.ray_x.chunks(BLOCK)).zip(self.ray_y.chunks(BLOCK)).zip(self.ray_s.chunks(BLOCK));
         for (((d, rx), ry), rs) in chunks {
-            if float_index {
-                project_block::<true>(&self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
-            } else {
-                project_block::<false>(&self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
-            }
+            project_any(self.float_index, self.same_stride, &self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
             let n = d.len();
-            landed += scatter_block(&bj[..n], &bo[..n], &bz[..n], &mut self.zbuffer, occupancy, cw, words, 0, &mut cleared);
+            landed += scatter_any(self.same_stride, &bj[..n], &bo[..n], &bz[..n], &mut self.zbuffer, occupancy, cw, words, 0, &mut cleared);
         }
         if cleared < ch {
             clear_rows(&mut self.zbuffer, occupancy, cw, words, cleared, ch);
@@ -357,7 +410,7 @@ impl Registration {
         let proj = &self.proj;
         let words = self.masker.words_per_row();
         let bits_per_row = (words * 64) as u32;
-        let float_index = self.float_index;
+        let (float_index, same_stride) = (self.float_index, self.same_stride);
         // Pass 1: projection.
         projected
             .index
@@ -374,11 +427,7 @@ impl Registration {
                     let end = (start + BLOCK).min(d.len());
                     let (bj, bo) = (&mut pj[start..end], &mut po[start..end]);
                     let (d, rx, ry, rs, bz) = (&d[start..end], &rx[start..end], &ry[start..end], &rs[start..end], &mut pz[start..end]);
-                    if float_index {
-                        project_block::<true>(proj, d, rx, ry, rs, bits_per_row, bj, bo, bz);
-                    } else {
-                        project_block::<false>(proj, d, rx, ry, rs, bits_per_row, bj, bo, bz);
-                    }
+                    project_any(float_index, same_stride, proj, d, rx, ry, rs, bits_per_row, bj, bo, bz);
                     for &j in bj.iter() {
                         if j != NO_PIXEL {
                             lo = lo.min(j);
@@ -410,7 +459,7 @@ impl Registration {
                     }
                     let r = t * chunk..((t + 1) * chunk).min(n);
                     let (pj, po, pz) = (&projected.index[r.clone()], &projected.bit[r.clone()], &projected.z[r]);
-                    landed += scatter_block(pj, po, pz, zb, occ, cw, words, row0, &mut cleared);
+                    landed += scatter_any(same_stride, pj, po, pz, zb, occ, cw, words, row0, &mut cleared);
                 }
                 if cleared < rows {
                     clear_rows(zb, occ, cw, words, cleared, rows);
@@ -488,24 +537,29 @@ mod tests {
     }
 
     #[test]
-    fn float_and_integer_index_forms_agree() {
+    fn all_index_forms_agree() {
         // The Kinect preset (noisy) and a second frame through the same workspace: the f32
-        // index form must give the same z-buffer and occupancy bits as the integer form.
+        // index form must give the same z-buffer and occupancy bits as the integer form, and
+        // the shared pixel/bit index (1920 = 30 * 64) the same as a separate bit index.
         let setup = crate::synth::kinect_preset(true);
         let frame = crate::synth::render(&setup);
         let mut a = Registration::new(&setup.rig, frame.depth_kind, &FusionOptions::default());
         assert!(a.float_index, "1920x1080 fits the f32 index form");
         let mut b = a.clone();
         b.float_index = false;
+        let mut c = a.clone();
+        c.same_stride = false;
         let scaled = frame.depth.map(|z| z * 0.7);
         for depth in [&frame.depth, &scaled] {
             for parallel in [false, true] {
                 let run = |r: &mut Registration| if parallel { r.register_parallel(depth) } else { r.register(depth) }.unwrap();
-                let (na, nb) = (run(&mut a), run(&mut b));
-                assert_eq!(na, nb);
+                let (na, nb, nc) = (run(&mut a), run(&mut b), run(&mut c));
+                assert_eq!((na, na), (nb, nc));
                 assert!(na > 100_000);
-                assert!(a.zbuffer.iter().zip(&b.zbuffer).all(|(x, y)| x.to_bits() == y.to_bits()));
-                assert!(a.masker.occupancy_mut() == b.masker.occupancy_mut());
+                for other in [&mut b, &mut c] {
+                    assert!(a.zbuffer.iter().zip(&other.zbuffer).all(|(x, y)| x.to_bits() == y.to_bits()));
+                    assert!(a.masker.occupancy_mut() == other.masker.occupancy_mut());
+                }
             }
         }
         assert!(!fits_float_index(3841, 2185, 3904), "2^23 limit");
