@@ -9,7 +9,8 @@
 //!   `project_to_depth_image` (`benches/peers/register_peers.py`). Goal: <= 2 ms.
 //! * `register+holes/single_bits`: the same with the mask left as bits (no `bool` image).
 //! * `register+holes/rayon`: `Registration::register_parallel` (projection in parallel, then
-//!   one band of colour rows per thread, no atomics), mask on one thread.
+//!   one band of colour rows per thread, no atomics) and `hole_mask_parallel` (bit mask on
+//!   one thread, the `bool` image written in parallel).
 //! * `register+holes/legacy_*`: the previous entry points (`register_depth_marking` +
 //!   `HoleMasker`, and the atomic-min `register_depth_parallel` + a z-buffer scan), kept for
 //!   comparison.
@@ -137,7 +138,7 @@ fn benches(c: &mut Criterion) {
     g.bench_function("rayon", |b| {
         b.iter(|| {
             let n = reg.register_parallel(black_box(&frame.depth)).expect("the preset's depth matches its rig");
-            black_box((n, reg.hole_mask(&mut mask)))
+            black_box((n, reg.hole_mask_parallel(&mut mask)))
         })
     });
     g.bench_function("legacy_single", |b| {

@@ -78,7 +78,7 @@ fn assert_matches(reg: &mut Registration, depth: &Image<f32>, rays: &[[f32; 3]],
         let got: Vec<u32> = reg.zbuffer().iter().map(|z| z.to_bits()).collect();
         let diff = got.iter().zip(&want_z).filter(|(a, b)| a != b).count();
         assert_eq!(diff, 0, "{what} (parallel: {parallel}): z-buffer pixels differing from the reference");
-        let holes = reg.hole_mask(&mut mask);
+        let holes = if parallel { reg.hole_mask_parallel(&mut mask) } else { reg.hole_mask(&mut mask) };
         assert_eq!(holes, want_holes, "{what} (parallel: {parallel}): hole count");
         assert!(mask == want_mask, "{what} (parallel: {parallel}): hole mask differs");
         let (w, words) = (proj.width as usize, (proj.width as usize).div_ceil(64));

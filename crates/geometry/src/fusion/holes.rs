@@ -121,6 +121,23 @@ fn dilate_stream(
     }
 }
 
+/// Writes one bit row (bit `x % 64` of word `x / 64`) into `out` as `bool`s; returns the
+/// number of bits set.
+pub(crate) fn unpack_bits_row(bits: &[u64], out: &mut [bool]) -> usize {
+    let mut count = 0;
+    for (chunk, &bits) in out.chunks_mut(64).zip(bits) {
+        if bits == 0 {
+            chunk.fill(false);
+            continue;
+        }
+        count += bits.count_ones() as usize;
+        for (b, m) in chunk.iter_mut().enumerate() {
+            *m = bits >> b & 1 == 1;
+        }
+    }
+    count
+}
+
 /// Bits of word `i` (pixels `64 i .. 64 i + 63`) strictly between pixels `first` and `last`.
 #[inline]
 fn span_bits(i: usize, first: usize, last: usize) -> u64 {
@@ -209,19 +226,7 @@ impl HoleMasker {
     pub fn compute_from_occupancy(&mut self, mask: &mut [bool]) -> usize {
         let w = self.width;
         let mut count = 0;
-        self.compute_bits(|y, bits| {
-            let out = &mut mask[y * w..(y + 1) * w];
-            for (chunk, &bits) in out.chunks_mut(64).zip(bits) {
-                if bits == 0 {
-                    chunk.fill(false);
-                    continue;
-                }
-                count += bits.count_ones() as usize;
-                for (b, m) in chunk.iter_mut().enumerate() {
-                    *m = bits >> b & 1 == 1;
-                }
-            }
-        });
+        self.compute_bits(|y, bits| count += unpack_bits_row(bits, &mut mask[y * w..(y + 1) * w]));
         count
     }
 

@@ -28,7 +28,7 @@
 
 use rayon::prelude::*;
 
-use super::holes::HoleMasker;
+use super::holes::{unpack_bits_row, HoleMasker};
 use super::pixel::{transform_point, ColorProjection, ZBUFFER_EMPTY};
 use super::{coverage_radius_px, depth_ray_table, hole_grow_px, FusionOptions};
 use crate::{DepthKind, GeometryError, Image, Rig};
@@ -488,6 +488,21 @@ impl Registration {
     /// z-buffer.
     pub fn hole_mask(&mut self, mask: &mut [bool]) -> usize {
         self.masker.compute_from_occupancy(mask)
+    }
+
+    /// [`Registration::hole_mask`] with the `bool` image written on all rayon threads (the
+    /// bit mask itself is made on one: its two passes run down and up the whole image).
+    pub fn hole_mask_parallel(&mut self, mask: &mut [bool]) -> usize {
+        /// Rows per task: 32 rows of 1920 `bool`s = 60 kB each.
+        const ROWS: usize = 32;
+        let (w, words) = (self.proj.width as usize, self.masker.words_per_row());
+        let (n, bits) = self.hole_bits();
+        mask.par_chunks_mut(w * ROWS).zip(bits.par_chunks(words * ROWS)).for_each(|(m, b)| {
+            for (m, b) in m.chunks_mut(w).zip(b.chunks(words)) {
+                unpack_bits_row(b, m);
+            }
+        });
+        n
     }
 
     /// [`Registration::hole_mask`] as bits only, without writing a `bool` image: returns the
