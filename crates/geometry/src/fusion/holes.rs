@@ -90,7 +90,7 @@ fn dilate_stream(
     let slots = 2 * k + 1;
     let padded = words + 2;
     let stride = levels * padded;
-    let tail_mask = if width % 64 == 0 { u64::MAX } else { (1u64 << (width % 64)) - 1 };
+    let tail_mask = if width.is_multiple_of(64) { u64::MAX } else { (1u64 << (width % 64)) - 1 };
     // Every row's pad words are zero and are never written.
     ring.clear();
     ring.resize(slots * stride, 0);

@@ -104,6 +104,7 @@ impl std::fmt::Debug for Projected {
 /// multiply of x86-64's baseline SSE2; only valid when `width * height` and
 /// `bits_per_row * height` are at most 2^23 ([`fits_float_index`]).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn project_block<const FLOAT_INDEX: bool, const SAME_STRIDE: bool>(
     p: &ColorProjection,
     depth: &[f32],
