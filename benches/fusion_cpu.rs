@@ -2,12 +2,18 @@
 //! by `geometry::synth::kinect_preset`.
 //!
 //! * `register+holes/single`: exact z-buffered registration (H1+H2+H7 fused, marking the
-//!   occupancy bits as it goes) plus the H8 hole mask, one thread, no allocation: the number to compare with OpenCV's
-//!   `cv2.rgbd.registerDepth` and Open3D's `project_to_depth_image`
-//!   (`benches/peers/register_peers.py`). Goal: <= 2 ms.
-//! * `register+holes/single_scan`: the same, the mask reading the z-buffer back instead.
-//! * `register+holes/rayon`: registration on all rayon threads (atomic-min z-buffer), mask
-//!   on one.
+//!   occupancy bits as it goes) plus the H8 hole mask as a `bool` image, one thread, through a
+//!   `geometry::fusion::Registration` workspace reused from frame to frame (what a streaming
+//!   user does: buffers and per-pixel constants are made once, no allocation per frame). The
+//!   number to compare with OpenCV's `cv2.rgbd.registerDepth` and Open3D's
+//!   `project_to_depth_image` (`benches/peers/register_peers.py`). Goal: <= 2 ms.
+//! * `register+holes/single_bits`: the same with the mask left as bits (no `bool` image).
+//! * `register+holes/rayon`: `Registration::register_parallel` (projection in parallel, then
+//!   one band of colour rows per thread, no atomics) and `hole_mask_parallel` (bit mask on
+//!   one thread, the `bool` image written in parallel).
+//! * `register+holes/legacy_*`: the previous entry points (`register_depth_marking` +
+//!   `HoleMasker`, and the atomic-min `register_depth_parallel` + a z-buffer scan), kept for
+//!   comparison.
 //! * `stage/*`: every stage of `geometry::fusion::run` on its own, and `run` itself.
 //!
 //! `KFUSE_WRITE_PEER_FRAME=1 cargo bench --bench fusion_cpu` also writes the frame for the
@@ -19,7 +25,7 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicU32;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use geometry::fusion::{self, FusionOptions, HoleMasker};
+use geometry::fusion::{self, FusionOptions, HoleMasker, Registration};
 use geometry::synth;
 
 fn peer_frame_dir() -> PathBuf {
@@ -92,16 +98,26 @@ fn benches(c: &mut Criterion) {
     let mut masker = HoleMasker::new(cw, ch, radius, grow);
     let atomic: Vec<AtomicU32> = (0..cw * ch).map(|_| AtomicU32::new(0)).collect();
 
+    let mut reg = Registration::new(rig, frame.depth_kind, &options);
+
     report_cpu_time("register+holes/single", 200, || {
+        let n = reg.register(&frame.depth).expect("the preset's depth matches its rig");
+        black_box((n, reg.hole_mask(&mut mask)));
+    });
+    report_cpu_time("register+holes/single_bits", 200, || {
+        let n = reg.register(&frame.depth).expect("the preset's depth matches its rig");
+        black_box((n, reg.hole_bits().0));
+    });
+    report_cpu_time("stage/register_single", 200, || {
+        black_box(reg.register(&frame.depth).expect("the preset's depth matches its rig"));
+    });
+    report_cpu_time("stage/hole_mask_from_occupancy", 200, || {
+        black_box(reg.hole_mask(&mut mask));
+    });
+    report_cpu_time("register+holes/legacy_single", 200, || {
         let words = masker.words_per_row();
         let n = fusion::register_depth_marking(frame.depth.data(), &rays, &proj, &mut zbuffer, masker.occupancy_mut(), words);
         black_box((n, masker.compute_from_occupancy(&mut mask)));
-    });
-    report_cpu_time("stage/register_single", 200, || {
-        black_box(fusion::register_depth(frame.depth.data(), &rays, &proj, &mut zbuffer));
-    });
-    report_cpu_time("stage/hole_mask_from_occupancy", 200, || {
-        black_box(masker.compute_from_occupancy(&mut mask));
     });
     if std::env::var_os("KFUSE_CPU_TIME_ONLY").is_some() {
         return;
@@ -109,20 +125,31 @@ fn benches(c: &mut Criterion) {
     let mut g = c.benchmark_group("register+holes");
     g.bench_function("single", |b| {
         b.iter(|| {
+            let n = reg.register(black_box(&frame.depth)).expect("the preset's depth matches its rig");
+            black_box((n, reg.hole_mask(&mut mask)))
+        })
+    });
+    g.bench_function("single_bits", |b| {
+        b.iter(|| {
+            let n = reg.register(black_box(&frame.depth)).expect("the preset's depth matches its rig");
+            black_box((n, reg.hole_bits().0))
+        })
+    });
+    g.bench_function("rayon", |b| {
+        b.iter(|| {
+            let n = reg.register_parallel(black_box(&frame.depth)).expect("the preset's depth matches its rig");
+            black_box((n, reg.hole_mask_parallel(&mut mask)))
+        })
+    });
+    g.bench_function("legacy_single", |b| {
+        b.iter(|| {
             let words = masker.words_per_row();
             let n = fusion::register_depth_marking(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer, masker.occupancy_mut(), words);
             let holes = masker.compute_from_occupancy(&mut mask);
             black_box((n, holes))
         })
     });
-    g.bench_function("single_scan", |b| {
-        b.iter(|| {
-            let n = fusion::register_depth(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer);
-            let holes = masker.compute(&zbuffer, &mut mask);
-            black_box((n, holes))
-        })
-    });
-    g.bench_function("rayon", |b| {
+    g.bench_function("legacy_rayon", |b| {
         b.iter(|| {
             let n = fusion::register_depth_parallel(black_box(frame.depth.data()), &rays, rig.depth.width, &proj, &atomic);
             fusion::atomic_zbuffer_to_image(&atomic, &mut zbuffer);

@@ -23,6 +23,11 @@ use crate::{CameraModel, Image};
 /// every side; step 4 gives that back. A hole's true edge lies about half a sample spacing
 /// `s` beyond its last sample, so `grow = radius - s/2` restores it ([`run`] does this).
 ///
+/// Both dilations stream: the horizontally dilated rows live in a ring of `2·floor(r) + 1`
+/// rows (a few kB), so one pass top-down (step 2, noting for every row what lies above it)
+/// and one bottom-up (steps 3 and 4, the core rows fed to the second dilation as they are
+/// made) touch nothing bigger than the bit planes and the output.
+///
 /// [`run`]: super::run
 #[derive(Debug, Clone)]
 pub struct HoleMasker {
@@ -31,13 +36,17 @@ pub struct HoleMasker {
     words: usize,
     radius: f32,
     grow: f32,
-    levels: Vec<u64>,
+    radius_widths: Vec<usize>,
+    grow_widths: Vec<usize>,
+    ring: Vec<u64>,
+    row: Vec<u64>,
     occupied: Vec<u64>,
     covered: Vec<u64>,
-    core: Vec<u64>,
-    holes: Vec<u64>,
-    below: Vec<u64>,
+    /// Row `y`: OR of the covered rows above `y`.
     above: Vec<u64>,
+    /// OR of the covered rows below the row being made (bottom-up pass).
+    below: Vec<u64>,
+    holes: Vec<u64>,
 }
 
 /// `floor(sqrt(r² - dy²))` for `dy = 0..=floor(r)`.
@@ -46,71 +55,134 @@ fn half_widths(r: f32) -> Vec<usize> {
     (0..=r.floor() as usize).map(|dy| (r * r - (dy * dy) as f32).max(0.0).sqrt().floor() as usize).collect()
 }
 
-/// `out = src` dilated by a Euclidean disc of radius `r` (bit rows of `words` words).
-fn dilate_disc(src: &[u64], out: &mut [u64], levels: &mut Vec<u64>, width: usize, height: usize, words: usize, r: f32) {
-    let hw = half_widths(r);
-    let nlevels = hw[0] + 1;
-    let plane = height * words;
-    let tail_mask = if width % 64 == 0 { u64::MAX } else { (1u64 << (width % 64)) - 1 };
-    levels.resize(nlevels * plane, 0);
-    levels[..plane].copy_from_slice(src);
-    for level in 1..nlevels {
-        let (prev, next) = levels.split_at_mut(level * plane);
-        let prev = &prev[(level - 1) * plane..];
-        let next = &mut next[..plane];
-        for y in 0..height {
-            let p = &prev[y * words..(y + 1) * words];
-            let n = &mut next[y * words..(y + 1) * words];
-            for i in 0..words {
-                let left_carry = if i > 0 { p[i - 1] >> 63 } else { 0 };
-                let right_carry = if i + 1 < words { p[i + 1] << 63 } else { 0 };
-                n[i] = p[i] | (p[i] << 1) | left_carry | (p[i] >> 1) | right_carry;
+/// `dst` = `src` dilated horizontally by one pixel. Both rows carry one zero word on each
+/// side (`words + 2` words), so the carries between words need no branch and the loop
+/// vectorises; bits beyond the width are cleared with `tail_mask`.
+#[inline]
+fn dilate_row_once(src: &[u64], dst: &mut [u64], tail_mask: u64) {
+    let n = src.len() - 2;
+    let (l, m, r) = (&src[..n], &src[1..n + 1], &src[2..n + 2]);
+    let d = &mut dst[1..n + 1];
+    for i in 0..n {
+        d[i] = m[i] | (m[i] << 1) | (l[i] >> 63) | (m[i] >> 1) | (r[i] << 63);
+    }
+    d[n - 1] &= tail_mask;
+}
+
+/// Streaming disc dilation (see [`HoleMasker`]): `source(y, row)` writes source row `y`
+/// (called once per row, in order: top-down, or bottom-up when `reverse`), and
+/// `emit(y, row)` receives dilated row `y` (in the same order, `floor(r)` rows behind).
+/// `hw` = [`half_widths`] of the radius.
+#[allow(clippy::too_many_arguments)]
+fn dilate_stream(
+    height: usize,
+    words: usize,
+    width: usize,
+    hw: &[usize],
+    ring: &mut Vec<u64>,
+    out: &mut Vec<u64>,
+    reverse: bool,
+    mut source: impl FnMut(usize, &mut [u64]),
+    mut emit: impl FnMut(usize, &[u64]),
+) {
+    let k = hw.len() - 1;
+    let levels = hw[0] + 1;
+    let slots = 2 * k + 1;
+    let padded = words + 2;
+    let stride = levels * padded;
+    let tail_mask = if width.is_multiple_of(64) { u64::MAX } else { (1u64 << (width % 64)) - 1 };
+    // Every row's pad words are zero and are never written.
+    ring.clear();
+    ring.resize(slots * stride, 0);
+    out.resize(words, 0);
+    let row_at = |step: usize| if reverse { height - 1 - step } else { step };
+    for step in 0..height + k {
+        if step < height {
+            let s = row_at(step);
+            let slot = &mut ring[(s % slots) * stride..][..stride];
+            source(s, &mut slot[1..words + 1]);
+            for level in 1..levels {
+                let (prev, next) = slot.split_at_mut(level * padded);
+                dilate_row_once(&prev[(level - 1) * padded..], &mut next[..padded], tail_mask);
             }
-            n[words - 1] &= tail_mask;
+        }
+        if step >= k {
+            let y = row_at(step - k);
+            out.fill(0);
+            for sy in y.saturating_sub(k)..=(y + k).min(height - 1) {
+                let level = hw[sy.abs_diff(y)];
+                let src = &ring[(sy % slots) * stride + level * padded + 1..][..words];
+                for (o, s) in out.iter_mut().zip(src) {
+                    *o |= s;
+                }
+            }
+            emit(y, out);
         }
     }
-    let k = hw.len() as isize - 1;
-    for y in 0..height {
-        let c = &mut out[y * words..(y + 1) * words];
-        c.fill(0);
-        for dy in -k..=k {
-            let sy = y as isize + dy;
-            if sy < 0 || sy >= height as isize {
-                continue;
-            }
-            let src = &levels[hw[dy.unsigned_abs()] * plane + sy as usize * words..][..words];
-            for i in 0..words {
-                c[i] |= src[i];
-            }
+}
+
+/// Writes one bit row (bit `x % 64` of word `x / 64`) into `out` as `bool`s; returns the
+/// number of bits set.
+pub(crate) fn unpack_bits_row(bits: &[u64], out: &mut [bool]) -> usize {
+    let mut count = 0;
+    for (chunk, &bits) in out.chunks_mut(64).zip(bits) {
+        if bits == 0 {
+            chunk.fill(false);
+            continue;
+        }
+        count += bits.count_ones() as usize;
+        for (b, m) in chunk.iter_mut().enumerate() {
+            *m = bits >> b & 1 == 1;
         }
     }
+    count
+}
+
+/// Bits of word `i` (pixels `64 i .. 64 i + 63`) strictly between pixels `first` and `last`.
+#[inline]
+fn span_bits(i: usize, first: usize, last: usize) -> u64 {
+    let lo = i * 64;
+    if last <= lo || first >= lo + 63 {
+        return 0;
+    }
+    let from = (first + 1).max(lo) - lo;
+    let to = last.min(lo + 64) - lo; // exclusive
+    if to <= from { 0 } else { (u64::MAX >> (64 - (to - from))) << from }
 }
 
 impl HoleMasker {
     /// Buffers for a `width × height` z-buffer, a coverage radius and a growth radius in
     /// pixels (see the type's docs).
     pub fn new(width: usize, height: usize, radius_px: f32, grow_px: f32) -> Self {
-        let words = width.div_ceil(64);
+        let words = width.div_ceil(64).max(1);
         let plane = height * words;
+        let (radius, grow) = (radius_px.max(0.0), grow_px.max(0.0));
         Self {
             width,
             height,
             words,
-            radius: radius_px.max(0.0),
-            grow: grow_px.max(0.0),
-            levels: Vec::with_capacity((radius_px.max(grow_px).max(0.0) as usize + 1) * plane),
+            radius,
+            grow,
+            radius_widths: half_widths(radius),
+            grow_widths: half_widths(grow),
+            ring: Vec::new(),
+            row: vec![0; words],
             occupied: vec![0; plane],
             covered: vec![0; plane],
-            core: vec![0; plane],
+            above: vec![0; plane],
+            below: vec![0; words],
             holes: vec![0; plane],
-            below: vec![0; plane],
-            above: vec![0; words],
         }
     }
 
     /// The coverage radius in pixels.
     pub fn radius(&self) -> f32 {
         self.radius
+    }
+
+    /// The growth radius in pixels.
+    pub fn grow(&self) -> f32 {
+        self.grow
     }
 
     /// 64-bit words per bit row.
@@ -122,6 +194,12 @@ impl HoleMasker {
     /// word `y * words_per_row + x / 64`), e.g. for [`super::register_depth_marking`].
     pub fn occupancy_mut(&mut self) -> &mut [u64] {
         &mut self.occupied
+    }
+
+    /// The hole mask of the last computation as bits (bit `x % 64` of word
+    /// `y * words_per_row + x / 64`; bits beyond the width are clear).
+    pub fn hole_bits(&self) -> &[u64] {
+        &self.holes
     }
 
     /// Computes the hole mask of `zbuffer` (row-major, `NaN` = empty) into `mask`; returns the
@@ -143,64 +221,92 @@ impl HoleMasker {
         self.compute_from_occupancy(mask)
     }
 
-    /// Steps 2–4 on the occupancy already in [`HoleMasker::occupancy_mut`].
+    /// Steps 2–4 on the occupancy already in [`HoleMasker::occupancy_mut`], into `mask`
+    /// (`width × height`, row-major); returns the number of hole pixels.
     pub fn compute_from_occupancy(&mut self, mask: &mut [bool]) -> usize {
-        let (w, h, words) = (self.width, self.height, self.words);
-        // 2. covered.
-        dilate_disc(&self.occupied, &mut self.covered, &mut self.levels, w, h, words, self.radius);
-        // 3. core: not covered, between covered pixels in the row and in the column.
-        for i in 0..words {
-            self.below[(h - 1) * words + i] = 0;
-        }
-        for y in (0..h.saturating_sub(1)).rev() {
-            for i in 0..words {
-                self.below[y * words + i] = self.below[(y + 1) * words + i] | self.covered[(y + 1) * words + i];
-            }
-        }
-        self.above.fill(0);
-        for y in 0..h {
-            let c = &self.covered[y * words..(y + 1) * words];
-            let core = &mut self.core[y * words..(y + 1) * words];
-            core.fill(0);
-            let first = c.iter().position(|&b| b != 0).map(|i| i * 64 + c[i].trailing_zeros() as usize);
-            let last = c.iter().rposition(|&b| b != 0).map(|i| i * 64 + 63 - c[i].leading_zeros() as usize);
-            if let (Some(first), Some(last)) = (first, last) {
-                for i in 0..words {
-                    // Bits strictly between `first` and `last`.
-                    let lo = i * 64;
-                    let span = if last <= lo || first >= lo + 63 {
-                        0
-                    } else {
-                        let from = (first + 1).max(lo) - lo;
-                        let to = (last.min(lo + 64)) - lo; // exclusive
-                        if to <= from { 0 } else { (u64::MAX >> (64 - (to - from))) << from }
-                    };
-                    core[i] = !c[i] & span & self.above[i] & self.below[y * words + i];
-                }
-            }
-            for i in 0..words {
-                self.above[i] |= c[i];
-            }
-        }
-        // 4. grow back, minus occupied pixels.
-        dilate_disc(&self.core, &mut self.holes, &mut self.levels, w, h, words, self.grow);
+        let w = self.width;
         let mut count = 0;
-        for y in 0..h {
-            let out = &mut mask[y * w..(y + 1) * w];
-            for (wi, chunk) in out.chunks_mut(64).enumerate() {
-                let i = y * words + wi;
-                let bits = self.holes[i] & !self.occupied[i];
-                if bits == 0 {
-                    chunk.fill(false);
-                    continue;
-                }
-                count += bits.count_ones() as usize;
-                for (b, m) in chunk.iter_mut().enumerate() {
-                    *m = bits >> b & 1 == 1;
-                }
-            }
-        }
+        self.compute_bits(|y, bits| count += unpack_bits_row(bits, &mut mask[y * w..(y + 1) * w]));
         count
+    }
+
+    /// Steps 2–4 on the occupancy already in [`HoleMasker::occupancy_mut`], into
+    /// [`HoleMasker::hole_bits`] only (no `bool` image); returns the number of hole pixels.
+    pub fn compute_bits_from_occupancy(&mut self) -> usize {
+        let mut count = 0;
+        self.compute_bits(|_, bits| count += bits.iter().map(|b| b.count_ones() as usize).sum::<usize>());
+        count
+    }
+
+    /// Steps 2–4; `row(y, bits)` receives every hole row (bottom-up) as it is made.
+    fn compute_bits(&mut self, mut row: impl FnMut(usize, &[u64])) {
+        let (w, h, words) = (self.width, self.height, self.words);
+        if h == 0 || w == 0 {
+            return;
+        }
+        let Self { radius_widths, grow_widths, ring, row: out, occupied, covered, above, below, holes, .. } = self;
+        // 2. covered, top-down; `above` of every row on the way.
+        below.fill(0); // the running OR of the rows above, for now
+        dilate_stream(
+            h,
+            words,
+            w,
+            radius_widths,
+            ring,
+            out,
+            false,
+            |s, dst| dst.copy_from_slice(&occupied[s * words..(s + 1) * words]),
+            |y, c| {
+                covered[y * words..(y + 1) * words].copy_from_slice(c);
+                above[y * words..(y + 1) * words].copy_from_slice(below);
+                for (a, c) in below.iter_mut().zip(c) {
+                    *a |= c;
+                }
+            },
+        );
+        // 3. + 4. bottom-up: core rows (between covered pixels in the row and in the column)
+        // feed the growth dilation, whose rows minus the occupied pixels are the holes.
+        below.fill(0);
+        dilate_stream(
+            h,
+            words,
+            w,
+            grow_widths,
+            ring,
+            out,
+            true,
+            |y, core| {
+                let c = &covered[y * words..(y + 1) * words];
+                let a = &above[y * words..(y + 1) * words];
+                let first = c.iter().position(|&b| b != 0).map(|i| i * 64 + c[i].trailing_zeros() as usize);
+                let last = c.iter().rposition(|&b| b != 0).map(|i| i * 64 + 63 - c[i].leading_zeros() as usize);
+                match (first, last) {
+                    (Some(first), Some(last)) => {
+                        for (((k, c), a), b) in core.iter_mut().zip(c).zip(a).zip(below.iter()) {
+                            *k = !c & a & b;
+                        }
+                        // Only between the row's first and last covered pixel.
+                        let (fw, lw) = (first / 64, last / 64);
+                        core[..fw].fill(0);
+                        core[lw + 1..].fill(0);
+                        core[fw] &= span_bits(fw, first, last);
+                        core[lw] &= span_bits(lw, first, last);
+                    }
+                    _ => core.fill(0),
+                }
+                for (b, c) in below.iter_mut().zip(c) {
+                    *b |= c;
+                }
+            },
+            |y, grown| {
+                let o = &occupied[y * words..(y + 1) * words];
+                let hrow = &mut holes[y * words..(y + 1) * words];
+                for ((hb, g), o) in hrow.iter_mut().zip(grown).zip(o) {
+                    *hb = g & !o;
+                }
+                row(y, hrow);
+            },
+        );
     }
 }
 

@@ -11,7 +11,10 @@
 //! | H7 | [`register_depth`], [`zbuffer_from_samples`] | nearest surface per colour pixel (exact min z) |
 //! | H8 | [`hole_mask`], [`fit_plane_ransac`], [`fill_holes_with_plane`] | disocclusion holes, plane fill |
 //!
-//! [`run`] chains them for one frame and is what the CLI and `fusion-gpu` call.
+//! [`run`] chains them for one frame and is what the CLI and `fusion-gpu` call. For a stream
+//! of frames, [`Registration`] does H1 + H2 + H7 and H8's mask with buffers and per-pixel
+//! constants kept between frames (bit-identical to the stages above; the fast path of the
+//! `register+holes` benchmark).
 //!
 //! # Conventions
 //!
@@ -41,6 +44,7 @@ mod mesh;
 pub mod pixel;
 mod register;
 mod resample;
+mod stream;
 
 use std::time::Instant;
 
@@ -57,6 +61,7 @@ pub use register::{
     atomic_zbuffer_to_image, backproject_cloud, project_cloud, register_depth, register_depth_parallel,
     zbuffer_from_samples, register_depth_marking, ColorSample,
 };
+pub use stream::Registration;
 pub use resample::{disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel, LinearStats};
 
 use crate::{DepthKind, GeometryError, Image, Mesh, PointCloud, Rig};
