@@ -372,17 +372,7 @@ impl ViewerApp {
             let avail = ui.available_rect_before_wrap();
             let rect = Rect::from_min_max(avail.min, Pos2::new(avail.max.x, avail.max.y - legend_h));
             let resp = ui.allocate_rect(rect, Sense::click_and_drag());
-            if resp.hovered() {
-                let scroll = ui.input(|i| i.smooth_scroll_delta.y);
-                if scroll != 0.0
-                    && let Some(pos) = resp.hover_pos()
-                {
-                    self.view2d.zoom_at(rect, size, pos, (scroll * crate::view2d::ZOOM_PER_POINT).exp());
-                }
-            }
-            if resp.dragged() {
-                self.view2d.pan(rect, size, resp.drag_delta());
-            }
+            self.view2d.handle_input(ui, &resp, rect, size);
             self.probe = resp.hover_pos().and_then(|pos| {
                 let [x, y] = self.view2d.screen_to_pixel(rect, size, pos);
                 panes::probe(pane, &frame, fused, x, y)

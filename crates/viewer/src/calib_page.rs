@@ -314,17 +314,7 @@ impl CalibPage {
         }
         let rect = ui.available_rect_before_wrap();
         let resp = ui.allocate_rect(rect, Sense::click_and_drag());
-        if resp.hovered() {
-            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
-            if scroll != 0.0
-                && let Some(pos) = resp.hover_pos()
-            {
-                self.view2d.zoom_at(rect, size, pos, (scroll * crate::view2d::ZOOM_PER_POINT).exp());
-            }
-        }
-        if resp.dragged() {
-            self.view2d.pan(rect, size, resp.drag_delta());
-        }
+        self.view2d.handle_input(ui, &resp, rect, size);
         let painter = ui.painter_at(rect);
         let img_rect = self.view2d.image_rect(rect, size);
         match &tex {

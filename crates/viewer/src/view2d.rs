@@ -61,6 +61,22 @@ impl View2d {
         self.center = Some([c.x, c.y]);
     }
 
+    /// Applies the mouse input on `resp` (the view's area `rect`): scroll zooms about the
+    /// cursor, drag pans.
+    pub fn handle_input(&mut self, ui: &egui::Ui, resp: &egui::Response, rect: Rect, size: [usize; 2]) {
+        if resp.hovered() {
+            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+            if scroll != 0.0
+                && let Some(pos) = resp.hover_pos()
+            {
+                self.zoom_at(rect, size, pos, (scroll * ZOOM_PER_POINT).exp());
+            }
+        }
+        if resp.dragged() {
+            self.pan(rect, size, resp.drag_delta());
+        }
+    }
+
     /// Moves the image by `delta` screen points.
     pub fn pan(&mut self, rect: Rect, size: [usize; 2], delta: Vec2) {
         let s = self.scale(rect, size);

@@ -135,16 +135,24 @@ pub fn project_color_point(p: &ColorProjection, xc: [f32; 3]) -> Option<[f32; 3]
     if !(z > 0.0) {
         return None;
     }
-    let xn = xc[0] / z;
-    let yn = xc[1] / z;
+    let [u, v] = distort_to_pixel(p, xc);
+    Some([u, v, z])
+}
+
+/// The colour pixel `[u, v]` of a colour-frame point, without the `z > 0` test (a point
+/// behind the camera gives a meaningless pixel; callers mask it). The one copy of H2's
+/// arithmetic: the scalar path, the vectorised loops of [`super::stream`] and
+/// [`super::register`], and the WGSL shader all evaluate exactly this.
+#[inline(always)]
+pub fn distort_to_pixel(p: &ColorProjection, xc: [f32; 3]) -> [f32; 2] {
+    let xn = xc[0] / xc[2];
+    let yn = xc[1] / xc[2];
     let r2 = xn * xn + yn * yn;
     let radial = 1.0 + r2 * (p.k1 + r2 * (p.k2 + r2 * p.k3));
     let xy = xn * yn;
     let xd = xn * radial + 2.0 * p.p1 * xy + p.p2 * (r2 + 2.0 * xn * xn);
     let yd = yn * radial + p.p1 * (r2 + 2.0 * yn * yn) + 2.0 * p.p2 * xy;
-    let u = p.fx * xd + p.skew * yd + p.cx;
-    let v = p.fy * yd + p.cy;
-    Some([u, v, z])
+    [p.fx * xd + p.skew * yd + p.cx, p.fy * yd + p.cy]
 }
 
 /// H2 for one depth-camera point: [`transform_point`] then [`project_color_point`].

@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use rayon::prelude::*;
 
 use super::pixel::{
-    backproject_pixel, project_point, transform_point, zbuffer_index, zbuffer_min, zbuffer_pixel, ColorProjection, ZBUFFER_EMPTY,
+    backproject_pixel, distort_to_pixel, project_point, transform_point, zbuffer_index, zbuffer_min, zbuffer_pixel, ColorProjection, ZBUFFER_EMPTY,
 };
 use crate::{Image, PointCloud};
 
@@ -80,15 +80,7 @@ fn project_block(p: &ColorProjection, depth: &[f32], rays: &[[f32; 3]], u: &mut 
         let zd = value * ray[2];
         let xc = transform_point(p, [ray[0] * zd, ray[1] * zd, zd]);
         let zc = xc[2];
-        let xn = xc[0] / zc;
-        let yn = xc[1] / zc;
-        let r2 = xn * xn + yn * yn;
-        let radial = 1.0 + r2 * (p.k1 + r2 * (p.k2 + r2 * p.k3));
-        let xy = xn * yn;
-        let xdist = xn * radial + 2.0 * p.p1 * xy + p.p2 * (r2 + 2.0 * xn * xn);
-        let ydist = yn * radial + p.p1 * (r2 + 2.0 * yn * yn) + 2.0 * p.p2 * xy;
-        let uu = p.fx * xdist + p.skew * ydist + p.cx;
-        let vv = p.fy * ydist + p.cy;
+        let [uu, vv] = distort_to_pixel(p, xc);
         let ok = valid && zc > 0.0;
         u[i] = if ok { uu } else { f32::NAN };
         v[i] = vv;

@@ -29,7 +29,7 @@
 use rayon::prelude::*;
 
 use super::holes::{unpack_bits_row, HoleMasker};
-use super::pixel::{transform_point, ColorProjection, ZBUFFER_EMPTY};
+use super::pixel::{distort_to_pixel, transform_point, ColorProjection, ZBUFFER_EMPTY};
 use super::{coverage_radius_px, depth_ray_table, hole_grow_px, FusionOptions};
 use crate::{DepthKind, GeometryError, Image, Rig};
 
@@ -131,15 +131,7 @@ fn project_block<const FLOAT_INDEX: bool, const SAME_STRIDE: bool>(
         // project_point
         let xc = transform_point(p, xd);
         let zc = xc[2];
-        let xn = xc[0] / zc;
-        let yn = xc[1] / zc;
-        let r2 = xn * xn + yn * yn;
-        let radial = 1.0 + r2 * (p.k1 + r2 * (p.k2 + r2 * p.k3));
-        let xy = xn * yn;
-        let xdist = xn * radial + 2.0 * p.p1 * xy + p.p2 * (r2 + 2.0 * xn * xn);
-        let ydist = yn * radial + p.p1 * (r2 + 2.0 * yn * yn) + 2.0 * p.p2 * xy;
-        let u = p.fx * xdist + p.skew * ydist + p.cx;
-        let v = p.fy * ydist + p.cy;
+        let [u, v] = distort_to_pixel(p, xc);
         // zbuffer_pixel, branch-free (see the module docs for the equivalence).
         let tu = u + 0.5;
         let tv = v + 0.5;
