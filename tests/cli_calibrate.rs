@@ -1,21 +1,8 @@
 //! End-to-end tests of `kfuse calibrate` and `kfuse undistort` on the shared data.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-
-fn shared(test: &str) -> Option<PathBuf> {
-    let dir = std::env::var("KFUSE_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    if dir.join("README.md").exists() {
-        return Some(dir);
-    }
-    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
-        panic!("{test}: shared data required but not found at {}", dir.display());
-    }
-    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
-    None
-}
+use geometry::testdata::shared_data_or_skip as shared;
 
 fn kfuse(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("kfuse runs");

@@ -8,6 +8,7 @@ use geometry::io::mat::{MatValue, write_mat};
 use geometry::io::{images, rig as rigio};
 use geometry::{CameraModel, Distortion, Image, Intrinsics, Rig, RigidTransform};
 use nalgebra::Vector3;
+use geometry::testdata::shared_data_or_skip as shared_data;
 
 fn kfuse(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("run kfuse")
@@ -18,20 +19,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
-}
-
-fn shared_data(test: &str) -> Option<PathBuf> {
-    let dir = std::env::var_os("KFUSE_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
-        panic!("{test}: shared data not found at {} (KFUSE_REQUIRE_SHARED_DATA=1)", dir.display());
-    }
-    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
-    None
 }
 
 fn stderr(o: &Output) -> String {

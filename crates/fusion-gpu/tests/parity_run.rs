@@ -11,6 +11,7 @@ mod common;
 use common::{context_or_skip, course, kinect};
 use geometry::fusion::{run, FusionOptions, FusionOutput};
 use geometry::{DepthKind, Image};
+use geometry::testdata::shared_data_or_skip as shared_data;
 
 fn differing_bits(a: &Image<f32>, b: &Image<f32>) -> usize {
     a.data().iter().zip(b.data()).filter(|(x, y)| x.to_bits() != y.to_bits()).count()
@@ -111,22 +112,6 @@ fn fuse_entry_point_reports_the_engine() {
             eprintln!("SKIP {test} (GPU half): {reason}");
         }
     }
-}
-
-/// The shared data folder (`KFUSE_SHARED_DATA`, else `<workspace>/../shared/data`), or `None`
-/// after printing SKIP; with `KFUSE_REQUIRE_SHARED_DATA=1` (CI) a missing folder panics.
-fn shared_data(test: &str) -> Option<std::path::PathBuf> {
-    let dir = std::env::var_os("KFUSE_SHARED_DATA")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
-        panic!("{test}: shared data not found at {} (KFUSE_REQUIRE_SHARED_DATA=1)", dir.display());
-    }
-    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
-    None
 }
 
 #[test]

@@ -4,6 +4,7 @@
 //!   [`fusion::run`].
 //! * [`synth`]: analytic synthetic scenes rendered through a rig, with the ground truths the
 //!   fusion tests are checked against.
+//! * [`testdata`]: where every crate's tests find `../shared/data` (and when they skip).
 //!
 //! # Conventions (the same as `DESIGN.md`; every module of this crate follows them)
 //!
@@ -31,6 +32,7 @@ pub mod io;
 pub mod pose;
 pub mod rig;
 pub mod synth;
+pub mod testdata;
 
 pub use camera::{CameraModel, DepthKind, Distortion, Intrinsics};
 pub use cloud::{Mesh, PointCloud};

@@ -17,26 +17,13 @@ use egui_kittest::{Harness, SnapshotOptions};
 use serde_json::Value;
 use viewer::calib_page::CalibView;
 use viewer::{BackendChoice, Page, ViewerApp, ViewerError};
+use geometry::testdata::shared_data_or_skip as shared;
 
 const SIZE: egui::Vec2 = egui::Vec2::new(1000.0, 620.0);
 /// As in ui.rs: colour distance 2 absorbs lavapipe vs GPU rasterisation differences.
 const PIXEL_THRESHOLD: f32 = 2.0;
 /// As in ui.rs: 0.2 % of the window.
 const FAILED_PIXELS: usize = 1240;
-
-fn shared(test: &str) -> Option<PathBuf> {
-    let dir = std::env::var("KFUSE_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").is_ok_and(|v| v == "1") {
-        panic!("{test}: KFUSE_REQUIRE_SHARED_DATA=1 but {} is missing", dir.display());
-    }
-    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
-    None
-}
 
 fn images(dir: &Path, prefix: &str) -> (Vec<PathBuf>, Vec<(String, geometry::Image<u8>)>) {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(prefix)).collect();

@@ -8,21 +8,7 @@ use calib::{Board, Corner, ViewCorners};
 use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
 use nalgebra::{Vector2, Vector3};
 use serde_json::Value;
-
-/// The shared data folder, or `None` (with a visible SKIP line) when it is absent.
-pub fn shared_data(test: &str) -> Option<PathBuf> {
-    let dir = std::env::var("KFUSE_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    if dir.join("README.md").exists() {
-        return Some(dir);
-    }
-    if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
-        panic!("{test}: shared data required but not found at {}", dir.display());
-    }
-    eprintln!("SKIP {test}: shared data not found at {}", dir.display());
-    None
-}
+pub use geometry::testdata::shared_data_or_skip as shared_data;
 
 pub fn json(path: PathBuf) -> Value {
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));

@@ -239,7 +239,7 @@ pub fn read_kinect_data(path: &Path) -> Result<KinectLabData, GeometryError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::shared_data;
+    use crate::testdata::shared_data_or_skip as shared_data;
     use nalgebra::SymmetricEigen;
 
     /// Iterations of the fit-and-reject plane fit (the objects cover ~6 % of the image; three

@@ -1178,7 +1178,7 @@ mod tests {
         assert!(err.contains("junk.mat") && err.contains("not a MATLAB v5"), "{err}");
     }
 
-    use crate::io::shared_data;
+    use crate::testdata::shared_data_or_skip as shared_data;
 
     #[test]
     fn bouguet_left_calibration_matches_its_readme() {
