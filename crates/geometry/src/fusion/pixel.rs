@@ -211,24 +211,11 @@ pub fn register_pixel(p: &ColorProjection, ray: [f32; 3], value: f32) -> Option<
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{CameraModel, DepthKind, Distortion, Intrinsics, Rig, RigidTransform};
-    use nalgebra::Vector3;
+    use crate::{DepthKind, Rig};
 
+    /// The Kinect preset's rig (factory depth distortion, mild colour distortion).
     fn rig() -> Rig {
-        let depth = CameraModel::new(
-            512,
-            424,
-            Intrinsics::new(368.096588, 368.096588, 261.696594, 202.522202),
-            Distortion { k1: 0.084061, k2: -0.271582, p1: 0.0, p2: 0.0, k3: 0.101907 },
-        );
-        let color = CameraModel::new(
-            1920,
-            1080,
-            Intrinsics::new(1060.0, 1058.0, 959.5, 539.5),
-            Distortion { k1: 0.02, k2: -0.01, p1: 0.0005, p2: -0.0003, k3: 0.0 },
-        );
-        let t = RigidTransform::from_axis_angle(Vector3::new(0.002, -0.003, 0.001), Vector3::new(0.052, 0.001, -0.002));
-        Rig::new(depth, color, t)
+        crate::synth::kinect_rig()
     }
 
     #[test]
