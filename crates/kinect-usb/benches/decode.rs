@@ -1,9 +1,9 @@
 //! Decoding one raw frame (`frames/scene.raw` of the shared vectors), for both decoder
-//! precisions: filters on (bilateral + edge-aware) on one thread and on a two-thread rayon pool,
+//! precisions (and for Fast, both kernel widths): filters on (bilateral + edge-aware) on one thread and on a two-thread rayon pool,
 //! and filters off on one thread. Goals (issue 4): ≤ 10 ms single-threaded, ≤ 6 ms on two cores.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
+use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder, Kernels};
 use kinect_usb::params::{P0Tables, XzTables};
 use kinect_usb::raw::PIXELS;
 use kinect_usb::testdata::{read_bytes, read_f32, vectors_dir};
@@ -56,9 +56,20 @@ fn bench(c: &mut Criterion) {
     let mut ir = vec![0f32; PIXELS];
     let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
     let mut g = c.benchmark_group("decode_frame");
-    for (name, precision) in [("fast", DecoderPrecision::Fast), ("exact", DecoderPrecision::Exact)] {
+    // "fast": the default decoder (AVX2 kernels where the CPU has them); "fast_portable": the
+    // four-lane kernels every x86-64 CPU runs.
+    let configurations = [
+        ("fast", DecoderPrecision::Fast, Kernels::detect()),
+        ("fast_portable", DecoderPrecision::Fast, Kernels::Portable),
+        ("exact", DecoderPrecision::Exact, Kernels::Portable),
+    ];
+    eprintln!("decode bench: default kernels on this CPU: {:?}", Kernels::detect());
+    for (name, precision, kernels) in configurations {
         let single = DecoderConfig { parallel: false, ..DecoderConfig::default() };
-        let mut dec = DepthDecoder::new(DecoderParams::default(), single, &xz, &p0).unwrap().with_precision(precision);
+        let mut dec = DepthDecoder::new(DecoderParams::default(), single, &xz, &p0)
+            .unwrap()
+            .with_precision(precision)
+            .with_kernels(kernels);
         cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_on_1_thread"));
         dec.config.parallel = true;
         pool.install(|| cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_on_2_threads")));

@@ -40,6 +40,8 @@
 #![allow(clippy::approx_constant)]
 
 pub mod fastmath;
+#[cfg(target_arch = "x86_64")]
+mod lanes8;
 
 use rayon::prelude::*;
 use wide::{f32x4, f64x2};
@@ -163,6 +165,28 @@ pub enum DecoderPrecision {
     /// fast as `Exact`.
     #[default]
     Fast,
+}
+
+/// Vector width of the [`DecoderPrecision::Fast`] kernels. Both give the same bits (the
+/// eight-lane kernels do the same IEEE operations in the same order); only speed differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kernels {
+    /// Four lanes (SSE2 on x86-64, `wide`'s portable lanes elsewhere): every CPU.
+    Portable,
+    /// Eight lanes (AVX2) for the hottest loops of `Fast`; chosen by [`DepthDecoder::new`]
+    /// when the CPU has AVX2 (Intel since 2013, AMD since 2015). `Exact` never uses them.
+    Avx2,
+}
+
+impl Kernels {
+    /// The widest kernels this CPU runs.
+    pub fn detect() -> Kernels {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Kernels::Avx2;
+        }
+        Kernels::Portable
+    }
 }
 
 const W: usize = WIDTH;
@@ -400,6 +424,9 @@ pub struct DepthDecoder {
     pub config: DecoderConfig,
     /// Transcendental functions used by [`DepthDecoder::decode`] (default [`DecoderPrecision::Fast`]).
     pub precision: DecoderPrecision,
+    /// Vector width; only [`DepthDecoder::with_kernels`] changes it, so `Avx2` implies the
+    /// CPU has AVX2.
+    kernels: Kernels,
     tables: Tables,
     work: Vec<Box<Workspace>>,
     /// Stage-2 depth before the edge-aware filter, by processing pixel.
@@ -439,6 +466,7 @@ impl DepthDecoder {
             params,
             config,
             precision: DecoderPrecision::default(),
+            kernels: Kernels::detect(),
             tables: Tables { lut: lut().map(f32::from), trig, x: rows(&xz.x), z: rows(&xz.z) },
             work: (0..BANDS).map(|_| Workspace::boxed()).collect(),
             depth_pre: vec![0f32; PIXELS],
@@ -454,6 +482,18 @@ impl DepthDecoder {
         self
     }
 
+    /// The same decoder with other [`Kernels`]; `Avx2` on a CPU without AVX2 falls back to
+    /// `Portable` (see [`DepthDecoder::kernels`]).
+    pub fn with_kernels(mut self, kernels: Kernels) -> Self {
+        self.kernels = if kernels == Kernels::Avx2 { Kernels::detect() } else { kernels };
+        self
+    }
+
+    /// The kernels [`DepthDecoder::decode`] uses for [`DecoderPrecision::Fast`].
+    pub fn kernels(&self) -> Kernels {
+        self.kernels
+    }
+
     /// The decoder constants.
     pub fn params(&self) -> &DecoderParams {
         &self.params
@@ -467,7 +507,7 @@ impl DepthDecoder {
         if depth.len() != PIXELS || ir.len() != PIXELS {
             return Err(KinectError::Size { what: "depth/IR output".into(), expected: PIXELS, got: depth.len().min(ir.len()) });
         }
-        let ctx = Ctx { raw, t: &self.tables, p: &self.params, cfg: self.config, fast: self.precision == DecoderPrecision::Fast };
+        let ctx = Ctx { raw, t: &self.tables, p: &self.params, cfg: self.config, fast: self.precision == DecoderPrecision::Fast, lanes8: self.precision == DecoderPrecision::Fast && self.kernels == Kernels::Avx2 };
         // Pass 1: stage 1, bilateral, stage 2 per band; IR written directly (output rows of a
         // band are the band's processing rows flipped, hence the reversed output chunks).
         let chunk = BAND_ROWS * W;
@@ -513,6 +553,8 @@ struct Ctx<'a> {
     p: &'a DecoderParams,
     cfg: DecoderConfig,
     fast: bool,
+    /// Run the eight-lane kernels (Fast on an AVX2 CPU, see [`Kernels`]).
+    lanes8: bool,
 }
 
 /// Pass-1 outputs of a band of processing rows `y0..y1`: `dp` (stride [`W`]), `lo`, `hi`, `is`
@@ -525,8 +567,32 @@ struct BandOut<'a> {
     ir: &'a mut [f32],
 }
 
-/// Pass 1 over processing rows `y0..y1`.
+/// Pass 1 over processing rows `y0..y1`, with the eight-lane kernels when `c.lanes8`.
 fn band(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, out: BandOut) {
+    #[cfg(target_arch = "x86_64")]
+    if c.lanes8 {
+        // SAFETY: `lanes8` is only set for `Kernels::Avx2`, which `DepthDecoder` holds only
+        // after `is_x86_feature_detected!("avx2")` returned true on this CPU.
+        #[allow(unsafe_code)]
+        unsafe {
+            band_avx2(c, ws, y0, y1, out)
+        };
+        return;
+    }
+    band_with::<false>(c, ws, y0, y1, out)
+}
+
+/// [`band_with`] compiled for AVX2, so that the eight-lane kernels it inlines vectorise to
+/// 256-bit registers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn band_avx2(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, out: BandOut) {
+    band_with::<true>(c, ws, y0, y1, out)
+}
+
+/// Pass 1 over processing rows `y0..y1`; `L8` selects the eight-lane kernels of [`lanes8`].
+#[inline(always)]
+fn band_with<const L8: bool>(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, out: BandOut) {
     let BandOut { dp, lo, hi, is, ir } = out;
     let bil = c.cfg.bilateral;
     if bil {
@@ -535,7 +601,7 @@ fn band(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, out: BandOut) {
         }
         stage1_row(c, y0, &mut ws.m, &mut ws.cur, true);
         if y0 > 0 {
-            edge_weights(c, &ws.prev, &ws.cur, &mut ws.e_prev);
+            edge_weights::<L8>(c, &ws.prev, &ws.cur, &mut ws.e_prev);
         }
     }
     for y in y0..y1 {
@@ -543,7 +609,7 @@ fn band(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, out: BandOut) {
         if bil {
             if y + 1 < H {
                 stage1_row(c, y + 1, &mut ws.m, &mut ws.next, true);
-                edge_weights(c, &ws.cur, &ws.next, &mut ws.e_cur);
+                edge_weights::<L8>(c, &ws.cur, &ws.next, &mut ws.e_cur);
             }
             if y == 0 || y == H - 1 {
                 copy_unfiltered(&ws.cur, &mut ws.fa, &mut ws.fb, &mut ws.ok);
@@ -558,7 +624,16 @@ fn band(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, out: BandOut) {
         }
         ir_row(&ws.cur, c.p, &mut ir[(y1 - 1 - y) * W..][..W]);
         let os = (y - y0) * SW + PAD;
-        stage2_row(c, y, ws, &mut dp[o..o + W], &mut lo[os..os + W], &mut hi[os..os + W], &mut is[os..os + W]);
+        let (dpr, lor, hir, isr) = (&mut dp[o..o + W], &mut lo[os..os + W], &mut hi[os..os + W], &mut is[os..os + W]);
+        #[cfg(target_arch = "x86_64")]
+        if L8 {
+            let scratch = lanes8::Stage2Scratch { astar: &mut ws.astar, gate: &mut ws.gate, phi: &mut ws.phi, conf: &mut ws.conf };
+            lanes8::stage2_row(c.p, &ws.fa, &ws.fb, &ws.ok, &c.t.x[y], &c.t.z[y], scratch, dpr, lor, hir, isr);
+        } else {
+            stage2_row(c, y, ws, dpr, lor, hir, isr);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        stage2_row(c, y, ws, dpr, lor, hir, isr);
         if bil {
             // Rotate the ring: prev ← cur ← next, e_prev ← e_cur.
             std::mem::swap(&mut ws.prev, &mut ws.cur);
@@ -571,7 +646,7 @@ fn band(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, out: BandOut) {
 /// Unpacks the 512 11-bit codes of one 704-byte stored row through the LUT into image-column
 /// order (spec §8). Slots `8g .. 8g + 8` occupy the 11 bytes from `11g`; slot `q` holds column
 /// `4·(q mod 128) + q div 128`. Columns 0 and 511 are never read by the decoder: 0.
-#[inline]
+#[inline(always)]
 fn unpack_row(row: &[u8], lut: &[f32; 2048], out: &mut Plane) {
     for g in 0..64 {
         let o = 11 * g;
@@ -592,6 +667,7 @@ fn unpack_row(row: &[u8], lut: &[f32; 2048], out: &mut Plane) {
 }
 
 /// Stage 1 (spec §9.4) of processing row `y`, plus the bilateral per-pixel terms if `unit`.
+#[inline(always)]
 fn stage1_row(c: &Ctx, y: usize, m: &mut [Plane; 9], out: &mut Row1, unit: bool) {
     let stored = stored_row_of_processing_row(y);
     for (s, ms) in m.iter_mut().enumerate() {
@@ -633,6 +709,7 @@ fn stage1_row(c: &Ctx, y: usize, m: &mut [Plane; 9], out: &mut Row1, unit: bool)
 }
 
 /// IR output (spec §9.6 step 5) of one row from the stage-1 amplitudes.
+#[inline(always)]
 fn ir_row(r: &Row1, p: &DecoderParams, out: &mut [f32]) {
     let (third, mult, max) = (sp(0.3333333), sp(p.ab_output_multiplier), sp(65535.0));
     for x in (0..W / 4).map(|g| 4 * g) {
@@ -657,13 +734,23 @@ fn range_dist(ua1: V, ub1: V, ua: V, ub: V) -> V {
 /// Forward range weights (see [`RowE`]) of row `r` with its lower neighbour row `n`, both the
 /// weight and the distance set to 0 unless both ends pass the amplitude threshold (the only
 /// case in which the bilateral filter reads them).
-fn edge_weights(c: &Ctx, r: &Row1, n: &Row1, out: &mut RowE) {
+#[inline(always)]
+fn edge_weights<const L8: bool>(c: &Ctx, r: &Row1, n: &Row1, out: &mut RowE) {
     for k in 0..3 {
         let this = (&r.ua[k], &r.ub[k], &r.n2[k]);
         let below = (&n.ua[k], &n.ub[k], &n.n2[k]);
         let [er, edl, ed, edr] = &mut out.e[k];
         let [dr, ddl, dd, ddr] = &mut out.d[k];
         // Other end: (row, column offset) = (this, +1), (below, −1), (below, 0), (below, +1).
+        #[cfg(target_arch = "x86_64")]
+        if L8 {
+            let (ce, tau0) = (-1.442695f32 * c.p.joint_bilateral_exp, bilateral_tau(c.p));
+            lanes8::pair_row::<1>(ce, tau0, this, this, er, dr);
+            lanes8::pair_row::<-1>(ce, tau0, this, below, edl, ddl);
+            lanes8::pair_row::<0>(ce, tau0, this, below, ed, dd);
+            lanes8::pair_row::<1>(ce, tau0, this, below, edr, ddr);
+            continue;
+        }
         if c.fast {
             pair_row::<true, 1>(c.p, this, this, er, dr);
             pair_row::<true, -1>(c.p, this, below, edl, ddl);
@@ -709,6 +796,7 @@ fn pair_row<const FAST: bool, const OFF: isize>(p: &DecoderParams, this: UnitPla
 }
 
 /// Border rows, and all pixels without the bilateral filter: unfiltered phasors, `edge_ok` true.
+#[inline(always)]
 fn copy_unfiltered(r: &Row1, fa: &mut [Plane; 3], fb: &mut [Plane; 3], ok: &mut Plane) {
     for k in 0..3 {
         fa[k].copy_from_slice(&r.a[k][PAD..PAD + W]);
@@ -721,6 +809,7 @@ fn copy_unfiltered(r: &Row1, fa: &mut [Plane; 3], fb: &mut [Plane; 3], ok: &mut 
 /// writes the filtered phasor to `fa`, `fb` and ANDs this frequency's edge test into `ok`
 /// (k = 0 starts it). Border columns are copied with `edge_ok` true.
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn bilateral_k(
     p: &DecoderParams,
     k: usize,
@@ -863,6 +952,7 @@ fn conf_arg(p: &DecoderParams, ln_astar: f32) -> f32 {
 /// `ws.ok`: writes the depth, its `lo`/`hi` forms for the edge-aware filter (see
 /// [`DepthDecoder`]'s fields) and the amplitude sum, in three passes over the row: amplitudes,
 /// phases and confidence (libm only past the gate for Exact), unwrapping and depth.
+#[inline(always)]
 fn stage2_row(c: &Ctx, y: usize, ws: &mut Workspace, dp: &mut [f32], lo: &mut [f32], hi: &mut [f32], is: &mut [f32]) {
     let p = c.p;
     let zero = sp(0.0);

@@ -17,7 +17,8 @@
 //!   ranges are the named constants of [`protocol`] (e.g. [`protocol::ANALOG_GAIN_RANGE`]).
 //!
 //! This crate depends on nothing else of kfuse. `unsafe` is confined to the private
-//! `transfer` module (libusb isochronous/bulk transfers).
+//! `transfer` module (libusb isochronous/bulk transfers) and to the one call by which the
+//! depth decoder enters its AVX2 kernels after checking that the CPU has AVX2.
 #![deny(missing_docs)]
 #![deny(unsafe_code)]
 

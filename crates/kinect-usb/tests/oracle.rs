@@ -1,6 +1,6 @@
 //! Golden tests: the CPU decoder against every oracle run of the vectors' manifest.
 
-use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
+use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder, Kernels};
 use kinect_usb::params::{P0Tables, XzTables};
 use kinect_usb::raw::PIXELS;
 use kinect_usb::testdata::{read_bytes, read_f32, vectors_or_skip};
@@ -143,4 +143,46 @@ fn fast_decoder_within_spec_tolerance_of_every_oracle_run() {
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Tolerance: none. `Fast`'s eight-lane AVX2 kernels do the four-lane kernels' IEEE
+/// operations in the same order, so every depth and IR pixel of every oracle run (both
+/// schedules) must be bit-identical between the two; the four-lane path is thereby held to
+/// the same oracle bars as the default on a machine whose CPU picks AVX2.
+#[test]
+fn avx2_kernels_equal_the_portable_kernels_bit_for_bit() {
+    let test = "avx2_kernels_equal_the_portable_kernels_bit_for_bit";
+    let Some(dir) = vectors_or_skip(test) else { return };
+    if Kernels::detect() != Kernels::Avx2 {
+        eprintln!("SKIP {test}: this CPU has no AVX2 (only the portable kernels run here)");
+        return;
+    }
+    let p0 = P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap()).unwrap();
+    let mut out = [[vec![0f32; PIXELS], vec![0f32; PIXELS]], [vec![0f32; PIXELS], vec![0f32; PIXELS]]];
+    let mut failures = Vec::new();
+    let mut compared = 0;
+    for parallel in [true, false] {
+        for &(frame, bil, edge, xt, zt, dref, _) in RUNS {
+            let xz = XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap()).unwrap();
+            let raw = read_bytes(&dir.join(frame)).unwrap();
+            let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel };
+            for (kernels, [depth, ir]) in [Kernels::Portable, Kernels::Avx2].into_iter().zip(out.iter_mut()) {
+                let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap().with_kernels(kernels);
+                assert_eq!(dec.kernels(), kernels);
+                dec.decode(&raw, depth, ir).unwrap();
+            }
+            for (name, i) in [("depth", 0), ("ir", 1)] {
+                let (n, first) = mismatches(&out[1][i], &out[0][i]);
+                compared += 1;
+                if n > 0 {
+                    failures.push(format!(
+                        "{dref} ({name}, parallel={parallel}): {n} pixels differ, first at {first}: AVX2 {} portable {}",
+                        out[1][i][first], out[0][i][first]
+                    ));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    assert_eq!(compared, 32);
 }

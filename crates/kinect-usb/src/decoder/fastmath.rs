@@ -137,9 +137,102 @@ pub fn atan2(y: f32x4, x: f32x4) -> f32x4 {
     a.copysign(y)
 }
 
+/// One-lane versions of the functions above, operation for operation (same constants, same
+/// order, same results bit for bit): loops over them vectorise to any lane width, which is
+/// how the decoder's eight-lane kernels use them.
+pub mod scalar {
+    use super::{ATAN_P, EXP_P, LN2_HI, LN2_LO, PI_HI, PI_LO, PIO2_HI, PIO2_LO, PIO4_HI, PIO4_LO, ROUND_MAGIC, SQRT_2, TAN_PI_8};
+
+    /// [`super::exp`] of one value.
+    #[inline(always)]
+    pub fn exp(x: f32) -> f32 {
+        let x = if x < -87.0 { -87.0 } else { x };
+        let x = if x > 88.0 { 88.0 } else { x };
+        exp_unclamped(x)
+    }
+
+    /// [`super::exp_unclamped`] of one value. The integer `n` is read from the low mantissa
+    /// bits of `x·log2 e + 1.5·2²³` (exact for |n| < 2²²) instead of converting the float,
+    /// which vectorises where Rust's saturating `as i32` would not; for the finite inputs of
+    /// the domain it equals the four-lane truncation.
+    #[inline(always)]
+    pub fn exp_unclamped(x: f32) -> f32 {
+        let t = x * std::f32::consts::LOG2_E + ROUND_MAGIC;
+        let n = t - ROUND_MAGIC;
+        let r = (x - n * LN2_HI) - n * LN2_LO;
+        let mut p = EXP_P[6];
+        for c in [EXP_P[5], EXP_P[4], EXP_P[3], EXP_P[2], EXP_P[1], EXP_P[0]] {
+            p = p * r + c;
+        }
+        let ni = (t.to_bits() as i32).wrapping_sub(ROUND_MAGIC.to_bits() as i32);
+        p * f32::from_bits((ni.wrapping_add(127) << 23) as u32)
+    }
+
+    /// [`super::ln`] of one value.
+    #[inline(always)]
+    pub fn ln(x: f32) -> f32 {
+        let bits = x.to_bits() as i32;
+        let e = ((bits >> 23) & 0xff) - 127;
+        let m = f32::from_bits(((bits & 0x007f_ffff) | 0x3f80_0000) as u32);
+        let big = m > SQRT_2;
+        let m = if big { m * 0.5 } else { m };
+        let e = e as f32 + if big { 1.0 } else { 0.0 };
+        let s = (m - 1.0) / (m + 1.0);
+        let z = s * s;
+        let mut q = 1.0f32 / 9.0;
+        for c in [1.0f32 / 7.0, 1.0f32 / 5.0, 1.0f32 / 3.0] {
+            q = q * z + c;
+        }
+        let s2 = 2.0 * s;
+        let lnm = s2 + s2 * (z * q);
+        let r = e * LN2_HI + (lnm + e * LN2_LO);
+        if x.is_nan() { x } else { r }
+    }
+
+    /// [`super::atan2`] of one pair.
+    #[inline(always)]
+    pub fn atan2(y: f32, x: f32) -> f32 {
+        let (ax, ay) = (x.abs(), y.abs());
+        let swap = ay > ax;
+        let num = if swap { ax } else { ay };
+        let den = if swap { ay } else { ax };
+        let big = num > TAN_PI_8 * den;
+        let u = (if big { num - den } else { num }) / (if big { num + den } else { den });
+        let z = u * u;
+        let mut p = ATAN_P[4];
+        for c in [ATAN_P[3], ATAN_P[2], ATAN_P[1], ATAN_P[0]] {
+            p = p * z + c;
+        }
+        let a = u + u * (z * p);
+        let a = if big { PIO4_HI + (a + PIO4_LO) } else { a };
+        let a = if swap { PIO2_HI - (a - PIO2_LO) } else { a };
+        let a = if x < 0.0 { PI_HI - (a - PI_LO) } else { a };
+        a.copysign(y)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Tolerance: none. The one-lane functions must return the four-lane functions' bits for
+    /// every input the decoder can produce (and NaN for NaN): a sweep over f32 bit patterns.
+    #[test]
+    fn scalar_versions_equal_the_four_lane_versions_bit_for_bit() {
+        let lane = |f: &dyn Fn(f32x4) -> f32x4, x: f32| f(f32x4::splat(x)).to_array()[0];
+        let same = |a: f32, b: f32| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+        for bits in (0..u32::MAX).step_by(9_973) {
+            let x = f32::from_bits(bits);
+            assert!(same(scalar::exp(x), lane(&exp, x)), "exp({x:e})");
+            assert!(same(scalar::ln(x), lane(&ln, x)), "ln({x:e})");
+            if (-87.0..=88.0).contains(&x) {
+                assert!(same(scalar::exp_unclamped(x), lane(&exp_unclamped, x)), "exp_unclamped({x:e})");
+            }
+            let y = f32::from_bits(bits.rotate_left(7));
+            let want = atan2(f32x4::splat(y), f32x4::splat(x)).to_array()[0];
+            assert!(same(scalar::atan2(y, x), want), "atan2({y:e}, {x:e})");
+        }
+    }
 
     fn atan2_1(y: f32, x: f32) -> f32 {
         atan2(f32x4::splat(y), f32x4::splat(x)).to_array()[0]
