@@ -13,9 +13,10 @@
 //! stage 2, multiplies by f64 constants where the reference divides, so that every stage runs
 //! in SIMD lanes. Against every oracle file it stays far inside spec §9.9's test policy: at
 //! most 0.003 mm depth difference (bar 0.01 mm), no pixel changing validity, 97–99.9 % of the
-//! pixels bit-identical, IR bit-identical (asserted per file in `tests/oracle.rs`). It needs
-//! about 134 M instructions per frame with both filters instead of 299 M (Exact) and 610 M
-//! (the previous decoder): 8–10 ms of one core instead of 18–20 ms (see BENCHMARKS.md). That
+//! pixels bit-identical, IR bit-identical (asserted per file in `tests/oracle.rs`). Its
+//! four-lane path needs about 134 M instructions per frame with both filters instead of 299 M
+//! (Exact) and 610 M (the previous decoder); with the AVX2 kernels below a frame takes about
+//! 8 ms of one core instead of 19 ms (Exact; see BENCHMARKS.md). That
 //! is what lets `kfuse capture` decode at the sensor's 30 Hz (33 ms per frame) with time left
 //! for JPEG decoding and writing files, which is why it is the default; the differences are
 //! far below the sensor's noise. Use `Exact` (`kfuse capture --exact-decoder`) to reproduce
@@ -32,6 +33,15 @@
 //! over whole rows with selects instead of branches, which LLVM vectorises; per-pixel floating
 //! point sums keep the reference order (vectorising across pixels reorders nothing within a
 //! pixel). With [`DecoderConfig::parallel`] the bands run on the caller's current rayon pool.
+//!
+//! # Kernels
+//!
+//! On a CPU with AVX2 (checked once at run time, [`Kernels::detect`]) `Fast` runs its two
+//! heaviest parts — the bilateral pair weights and stage 2 — as eight-lane loops compiled for
+//! AVX2 (module `lanes8`); elsewhere, and for `Exact`, the four-lane `wide` code runs. Both do
+//! the same IEEE operations in the same order, so the output is **bit-identical** either way
+//! (`tests/oracle.rs` compares them on every vector file); [`DepthDecoder::with_kernels`]
+//! forces the portable path. The default build needs no `-C target-cpu`.
 //!
 //! All working buffers live in [`DepthDecoder`]; [`DepthDecoder::decode`] allocates nothing.
 
