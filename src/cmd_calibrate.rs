@@ -289,10 +289,11 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         println!("\nstereo (joint refinement over {} pairs): RMS {:.4} px — IR {:.4} px, colour {:.4} px", s.pairs_used.len(), s.rms_px, s.depth_rms_px, s.color_rms_px);
         println!("  color_from_depth T = ({:.3}, {:.3}, {:.3}) mm ± ({:.3}, {:.3}, {:.3}) mm (1σ)", t.x, t.y, t.z, ts.x, ts.y, ts.z);
         println!("  rotation {:.4}° (axis-angle {:?}) ± ({:.4}, {:.4}, {:.4})°", s.color_from_depth.angle_deg(), s.color_from_depth.axis_angle().as_slice(), rs.x, rs.y, rs.z);
-        println!("  {:<28} {:>10} {:>10}", "pair", "IR RMS", "colour RMS");
-        for (i, (d, c)) in s.view_rms_px.iter().enumerate() {
-            println!("  {:<28} {:>10.4} {:>10.4}", ir_views[i].name, d, c);
+        println!("  {:<28} {:>10} {:>10} {:>10} {:>10}", "pair", "IR RMS", "colour RMS", "IR weight", "col weight");
+        for (i, ((d, c), (wd, wc))) in s.view_rms_px.iter().zip(&s.view_weights).enumerate() {
+            println!("  {:<28} {:>10.4} {:>10.4} {:>10.2} {:>10.2}", ir_views[i].name, d, c, wd, wc);
         }
+        println!("  (weights: 1 = the camera's own noise level; a noisier view counts less in the joint fit)");
         for (i, why) in &s.rejected_views {
             println!("  REJECTED pair {}: {why}", ir_views[*i].name);
         }

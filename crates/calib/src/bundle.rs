@@ -63,6 +63,9 @@ pub(crate) struct Obs {
     pub object: Vector3<f64>,
     pub pixel: Vector2<f64>,
     pub active: bool,
+    /// Weight of the squared residual, 1/σ² of this corner's noise relative to the problem's
+    /// unit (1 unless the caller knows the cameras' noise differs).
+    pub weight: f64,
 }
 
 /// The whole least-squares problem.
@@ -159,8 +162,9 @@ impl Problem {
         }
     }
 
+    /// Σ weight·|residual|² over the active observations.
     pub fn cost(&self) -> f64 {
-        self.obs.iter().filter(|o| o.active && self.view_active[o.view]).map(|o| self.residual(o).norm_squared()).sum()
+        self.obs.iter().filter(|o| o.active && self.view_active[o.view]).map(|o| o.weight * self.residual(o).norm_squared()).sum()
     }
 
     /// Residual and the Jacobian entries `(column, ∂residual/∂param)` of one observation.
@@ -236,12 +240,13 @@ impl Problem {
         let mut entries = Vec::with_capacity(32);
         for o in self.obs.iter().filter(|o| o.active && self.view_active[o.view]) {
             let r = self.linearise(o, lay, &mut entries);
-            cost += r.norm_squared();
+            let w = o.weight;
+            cost += w * r.norm_squared();
             for &(a, ga) in &entries {
-                jtr[a] += ga.dot(&r);
+                jtr[a] += w * ga.dot(&r);
                 for &(b, gb) in &entries {
                     if b >= a {
-                        jtj[(a, b)] += ga.dot(&gb);
+                        jtj[(a, b)] += w * ga.dot(&gb);
                     }
                 }
             }

@@ -366,7 +366,7 @@ pub fn calibrate_mono(
     let mut obs = Vec::new();
     for (vi, v) in used.iter().enumerate() {
         for c in &v.corners {
-            obs.push(Obs { cam: 0, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true });
+            obs.push(Obs { cam: 0, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true, weight: 1.0 });
         }
     }
     let mut p = Problem {
@@ -487,7 +487,7 @@ pub(crate) fn solve_with_outliers(
     Ok((sol, rejected_corners, rejected_views))
 }
 
-fn check_finite(camera: &str, p: &Problem) -> Result<(), CalibError> {
+pub(crate) fn check_finite(camera: &str, p: &Problem) -> Result<(), CalibError> {
     for c in &p.cams {
         let k = c.intr;
         let all = [k.fx, k.fy, k.cx, k.cy, k.skew].into_iter().chain(c.dist.to_array());

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::bundle::{CamState, Obs, Problem};
 use crate::mono::{
-    intrinsics_std, residual_variance, solve_with_outliers, view_rms, CalibFlags, IntrinsicsStd, MonoCalibration,
+    check_finite, intrinsics_std, residual_variance, solve_with_outliers, view_rms, CalibFlags, IntrinsicsStd, MonoCalibration,
     RejectedCorner, MIN_VIEWS,
 };
 use crate::{calibrate_mono, Board, CalibError, ViewCorners};
@@ -43,7 +43,7 @@ pub struct StereoCalibration {
     /// σ of the translation of `color_from_depth`, metres. With `fix_intrinsics` it is
     /// conditional on the fixed intrinsics and understates the real error.
     pub translation_std_m: Vector3<f64>,
-    /// RMS over both cameras' corners, px.
+    /// RMS over both cameras' corners, px (unweighted).
     pub rms_px: f64,
     /// Per-camera RMS after the joint refinement, px.
     pub depth_rms_px: f64,
@@ -51,6 +51,9 @@ pub struct StereoCalibration {
     pub color_rms_px: f64,
     /// Per view: (depth RMS, colour RMS), px; NaN where that camera has no corners.
     pub view_rms_px: Vec<(f64, f64)>,
+    /// Per view: the relative weight of its (depth, colour) corners in the joint fit, 1 for a
+    /// view at or below its camera's noise, < 1 for a noisier one (NaN where not used).
+    pub view_weights: Vec<(f64, f64)>,
     /// Views (pair index) seen by both cameras and used.
     pub pairs_used: Vec<usize>,
     /// Views rejected in the joint fit, with the reason.
@@ -64,6 +67,37 @@ pub struct StereoCalibration {
     pub depth_mono: MonoCalibration,
     /// The single-camera calibrations the joint fit started from.
     pub color_mono: MonoCalibration,
+}
+
+/// Weighted re-fits of the joint problem, each with weights from the previous fit's residuals.
+/// Two: on the rendered set a third round moves no parameter error by more than 0.0001 %.
+const REWEIGHT_ROUNDS: usize = 2;
+
+/// Per camera: Σ|e|² of its active corners over its share of the degrees of freedom
+/// (2·N_c·(2N − P)/(2N)), in px² (unweighted residuals).
+fn camera_variances(p: &Problem, sol: &crate::bundle::Solution) -> Vec<f64> {
+    let mut acc = vec![(0.0, 0usize); p.cams.len()];
+    for o in p.obs.iter().filter(|o| o.active && p.view_active[o.view]) {
+        acc[o.cam].0 += p.residual(o).norm_squared();
+        acc[o.cam].1 += 1;
+    }
+    let n_total: usize = acc.iter().map(|a| a.1).sum();
+    let share = (2.0 * n_total as f64 - sol.n_params as f64) / (2.0 * n_total as f64);
+    acc.into_iter().map(|(s, n)| s / (2.0 * n as f64 * share)).collect()
+}
+
+/// Per camera and view: Σ|e|² of its active corners over its share of the degrees of
+/// freedom, px² (NaN for a view without corners of that camera).
+fn view_variances(p: &Problem, sol: &crate::bundle::Solution) -> Vec<Vec<f64>> {
+    let nv = p.ref_from_board.len();
+    let mut acc = vec![vec![(0.0, 0usize); nv]; p.cams.len()];
+    for o in p.obs.iter().filter(|o| o.active && p.view_active[o.view]) {
+        acc[o.cam][o.view].0 += p.residual(o).norm_squared();
+        acc[o.cam][o.view].1 += 1;
+    }
+    let n_total: usize = acc.iter().flatten().map(|a| a.1).sum();
+    let share = (2.0 * n_total as f64 - sol.n_params as f64) / (2.0 * n_total as f64);
+    acc.into_iter().map(|c| c.into_iter().map(|(s, n)| s / (2.0 * n as f64 * share)).collect()).collect()
 }
 
 /// Average of rigid transforms (quaternion mean with sign alignment, mean translation).
@@ -85,6 +119,17 @@ fn average(ts: &[RigidTransform]) -> RigidTransform {
 /// (an image without a board has no corners). Each camera is first calibrated alone (with its
 /// own outlier rejection); pairs in which both cameras' views survived initialise
 /// `color_from_depth`, and the joint fit then uses every surviving view of either camera.
+///
+/// The joint fit is weighted: the two cameras' corners are not equally precise (the IR
+/// camera's low resolution, glare and vignetting against 1080p colour corners), and a view
+/// whose residuals show more than its camera's noise (a board almost aligned with the pixel
+/// grid, motion blur) carries systematic corner error. Each corner's squared residual is
+/// weighted by 1 / σ², σ² being its view's residual variance but at least its camera's,
+/// re-estimated [`REWEIGHT_ROUNDS`] times (heteroscedastic maximum likelihood). The
+/// weighted residual variance (≈ 1) then scales the covariance as before, so σ reflects
+/// the weights. On the rendered set this takes the IR focal-length error from 0.0077 % to
+/// 0.0012 % and |ΔT| from 0.0115 mm to 0.0072 mm. RMS figures stay unweighted pixels;
+/// [`StereoCalibration::view_weights`] lists each view's relative weight.
 pub fn calibrate_stereo(
     board: &Board,
     depth_views: &[ViewCorners],
@@ -132,7 +177,7 @@ pub fn calibrate_stereo(
                 continue;
             }
             for c in &views[i].corners {
-                obs.push(Obs { cam, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true });
+                obs.push(Obs { cam, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true, weight: 1.0 });
             }
         }
     }
@@ -165,6 +210,32 @@ pub fn calibrate_stereo(
         2,
         options.depth_flags.reject_outliers && options.color_flags.reject_outliers,
     )?;
+    // Heteroscedastic weights (see `calibrate_stereo`'s docs), re-estimated after each fit.
+    let mut sol = sol;
+    let mut view_weight = vec![(f64::NAN, f64::NAN); depth_views.len()];
+    for _ in 0..REWEIGHT_ROUNDS {
+        let var = camera_variances(&p, &sol);
+        if var.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+            break;
+        }
+        let vv = view_variances(&p, &sol);
+        // A view's variance, never below its camera's: a view noisier than its camera's
+        // average (systematic corner error, blur) is down-weighted; one that looks cleaner is
+        // not up-weighted on ~60 degrees of freedom of evidence.
+        let variance = |cam: usize, view: usize| {
+            let v = vv[cam][view];
+            if v.is_finite() { v.max(var[cam]) } else { var[cam] }
+        };
+        for o in p.obs.iter_mut() {
+            o.weight = 1.0 / variance(o.cam, o.view);
+        }
+        for (vi, &i) in views_idx.iter().enumerate() {
+            let relative = |cam: usize| if vv[cam][vi].is_finite() { var[cam] / variance(cam, vi) } else { f64::NAN };
+            view_weight[i] = (relative(0), relative(1));
+        }
+        sol = p.solve();
+        check_finite("stereo", &p)?;
+    }
     let sigma2 = residual_variance(&sol);
     let mut rot_std = Vector3::zeros();
     let mut t_std = Vector3::zeros();
@@ -205,10 +276,18 @@ pub fn calibrate_stereo(
         color_std: intrinsics_std(&sol, 1, sigma2),
         rotation_std_rad: rot_std,
         translation_std_m: t_std,
-        rms_px: (sol.cost / sol.n_active_obs.max(1) as f64).sqrt(),
+        rms_px: {
+            let (s, n) = p
+                .obs
+                .iter()
+                .filter(|o| o.active && p.view_active[o.view])
+                .fold((0.0, 0usize), |(s, n), o| (s + p.residual(o).norm_squared(), n + 1));
+            (s / n.max(1) as f64).sqrt()
+        },
         depth_rms_px: cam_rms(0),
         color_rms_px: cam_rms(1),
         view_rms_px,
+        view_weights: view_weight,
         pairs_used: pairs.into_iter().filter(|i| views_idx.iter().position(|v| v == i).is_some_and(|vi| p.view_active[vi])).collect(),
         rejected_views: rejected.into_iter().map(|(v, why)| (views_idx[v], why)).collect(),
         rejected_corners,
