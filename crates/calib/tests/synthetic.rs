@@ -113,7 +113,7 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
         let cv_fy = (f(&c["fy"]) / t.fy - 1.0).abs();
         let cv_pp = Vector2::new(f(&c["cx"]) - t.cx, f(&c["cy"]) - t.cy);
         eprintln!(
-            "{cam}: fx err {:.4}% (OpenCV {:.4}%), fy {:.4}% ({:.4}%), pp err ({:.3}, {:.3}) px (OpenCV ({:.3}, {:.3}))",
+            "{cam}: fx err {:.4}% (OpenCV {:.4}%), fy {:.4}% ({:.4}%), pp err ({:.4}, {:.4}) px (OpenCV ({:.4}, {:.4}))",
             100.0 * efx, 100.0 * cv_fx, 100.0 * efy, 100.0 * cv_fy, epp.x, epp.y, cv_pp.x, cv_pp.y
         );
         // Honest uncertainty on the rendered images: the truth within ±3σ.
