@@ -225,3 +225,57 @@ fn a_misdetected_real_corner_is_caught_not_absorbed() {
         assert!(d < 1e-3 * clean.std.fx);
     }
 }
+
+/// The real IR + colour stereo pair: our joint (weighted) stereo fit on the corners the lab
+/// stored for both cameras (`Calib_Results_left/right.mat`, the 9 active pairs; the colour
+/// images themselves are not in the data set), with the lab's settings, against the lab's
+/// Bouguet stereo result. Tolerance: the lab's own `T_error`, `om_error` (Bouguet's 3σ), and
+/// our 3σ must cover the difference too.
+#[test]
+fn real_stereo_from_the_labs_corners_matches_bouguets_stereo() {
+    let Some(data) = shared_data("real_stereo_from_the_labs_corners_matches_bouguets_stereo") else { return };
+    let lab = data.join("kinect-lab");
+    let left = import_mono(&lab.join("Calib_Results_left.mat")).unwrap();
+    let right = import_mono(&lab.join("Calib_Results_right.mat")).unwrap();
+    let stereo = geometry::io::mat::MatFile::read(&lab.join("Calib_Results_stereo.mat")).unwrap();
+    let vec3 = |name: &str| {
+        let m = stereo.matrix(name).unwrap();
+        nalgebra::Vector3::new(m.data[0], m.data[1], m.data[2])
+    };
+    let (t_lab, t_err, om_lab, om_err) = (vec3("T"), vec3("T_error"), vec3("om"), vec3("om_error"));
+    // Bouguet's board: 5 corners per row, 40 mm squares. Our ids from its board points.
+    let board = calib::Board::new(5, 7, 0.04).unwrap();
+    let relabel = |views: &[Option<ViewCorners>], points: &[Option<Vec<nalgebra::Vector3<f64>>>], i: usize| {
+        let (v, x) = (views[i].clone().unwrap(), points[i].clone().unwrap());
+        let corners = v
+            .corners
+            .iter()
+            .map(|c| {
+                let p = x[c.id] / 0.04;
+                calib::Corner { id: (p.x.round() as usize) + 5 * (p.y.round() as usize), px: c.px }
+            })
+            .collect();
+        ViewCorners { corners, ..v }
+    };
+    let active = [1, 2, 3, 5, 6, 8, 9, 10, 11];
+    let ir: Vec<ViewCorners> = active.iter().map(|&i| relabel(&left.views, &left.board_points, i - 1)).collect();
+    let color: Vec<ViewCorners> = active.iter().map(|&i| relabel(&right.views, &right.board_points, i - 1)).collect();
+    let options = calib::StereoOptions { depth_flags: CalibFlags::bouguet(), color_flags: CalibFlags::bouguet(), fix_intrinsics: false };
+    let r = calib::calibrate_stereo(&board, &ir, &color, &options, None, None).unwrap();
+    let t = r.color_from_depth.translation * 1000.0;
+    let om = r.color_from_depth.axis_angle();
+    let t_std = r.translation_std_m * 1000.0;
+    eprintln!(
+        "real stereo: T ({:.3}, {:.3}, {:.3}) mm ± ({:.3}, {:.3}, {:.3}) 1σ; Bouguet ({:.3}, {:.3}, {:.3}) ± ({:.3}, {:.3}, {:.3}) 3σ",
+        t.x, t.y, t.z, t_std.x, t_std.y, t_std.z, t_lab.x, t_lab.y, t_lab.z, t_err.x, t_err.y, t_err.z
+    );
+    eprintln!("real stereo: om {:?} vs Bouguet {:?} ± {:?}; RMS IR {:.4} px, colour {:.4} px; weights {:?}", om.as_slice(), om_lab.as_slice(), om_err.as_slice(), r.depth_rms_px, r.color_rms_px, r.view_weights);
+    assert_eq!(r.pairs_used.len(), 9, "rejected: {:?}", r.rejected_views);
+    for j in 0..3 {
+        let d = (t[j] - t_lab[j]).abs();
+        assert!(d < t_err[j] && d < 3.0 * t_std[j], "T[{j}]: {} vs Bouguet {} ± {}", t[j], t_lab[j], t_err[j]);
+        assert!((om[j] - om_lab[j]).abs() < om_err[j], "om[{j}]: {} vs Bouguet {} ± {}", om[j], om_lab[j], om_err[j]);
+    }
+    // The handout's user story: about 50 mm along x, almost no rotation.
+    assert!((t.x + 52.0).abs() < 1.0 && r.color_from_depth.angle_deg() < 2.0);
+}
