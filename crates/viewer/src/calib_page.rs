@@ -185,14 +185,19 @@ impl CalibPage {
             egui::ScrollArea::vertical().show(ui, |ui| {
                 for (i, im) in cam.images.iter().enumerate() {
                     let rms = im.rms_px.map_or("—".to_string(), |r| format!("{r:.4}"));
+                    // A view the stereo joint fit down-weighted shows its weight.
+                    let weight = im.joint_weight.filter(|w| *w < 1.0).map_or(String::new(), |w| format!("  w {w:.2}"));
                     let text = match &im.rejected {
                         Some(_) => egui::RichText::new(format!("X {}  {rms}", im.name)).color(Color32::from_rgb(220, 90, 90)),
-                        None => egui::RichText::new(format!("{}  {rms}", im.name)),
+                        None => egui::RichText::new(format!("{}  {rms}{weight}", im.name)),
                     };
                     let r = ui.selectable_label(self.image == i, text);
-                    let r = match &im.rejected {
-                        Some(why) => r.on_hover_text(format!("rejected: {why}")),
-                        None => r,
+                    let r = match (&im.rejected, im.joint_weight) {
+                        (Some(why), _) => r.on_hover_text(format!("rejected: {why}")),
+                        (None, Some(w)) => r.on_hover_text(format!(
+                            "weight {w:.2} in the stereo joint fit (1 = this camera's own noise level; a noisier view counts less)"
+                        )),
+                        (None, None) => r,
                     };
                     if r.clicked() {
                         pick = Some(i);

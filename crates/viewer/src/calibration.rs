@@ -41,6 +41,10 @@ pub struct CalibImage {
     pub camera_from_board: Option<RigidTransform>,
     /// The image file the corners were found in, if the report names it.
     pub image: Option<PathBuf>,
+    /// Relative weight of this view's corners in the stereo joint fit (1 = the camera's own
+    /// noise level, less for a noisier view; `None` for a single-camera report or an unused
+    /// pair).
+    pub joint_weight: Option<f64>,
 }
 
 /// One calibrated camera.
@@ -209,6 +213,14 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
         let color_mono = report.get("color_single_camera").ok_or_else(|| bad(file, "no \"color_single_camera\" report"))?;
         cameras.push(camera(file, "IR", depth, report.get("depth_std_1sigma"), num(report, "depth_rms_px")?, depth_mono, calib::files::DEPTH_RMS_LIMIT_PX)?);
         cameras.push(camera(file, "colour", color, report.get("color_std_1sigma"), num(report, "color_rms_px")?, color_mono, calib::files::COLOR_RMS_LIMIT_PX)?);
+        // Per pair (image order): the joint fit's weights (reports before they existed: none).
+        if let Some(weights) = report.get("per_pair_weight").and_then(Value::as_array) {
+            for (cam, key) in cameras.iter_mut().zip(["depth", "color"]) {
+                for (im, w) in cam.images.iter_mut().zip(weights) {
+                    im.joint_weight = w.get(key).and_then(Value::as_f64);
+                }
+            }
+        }
         let cfd = match json.get("calibration") {
             Some(_) => json.get("color_from_depth"),
             None => report.get("color_from_depth"),
@@ -294,6 +306,7 @@ fn camera(
                 residuals: rows::<5>(file, im.get("residuals_px"), &format!("{name}: residuals_px"))?,
                 camera_from_board: im.get("camera_from_board").filter(|p| !p.is_null()).and_then(|p| serde_json::from_value(p.clone()).ok()),
                 image: im.get("image").and_then(Value::as_str).map(PathBuf::from),
+                joint_weight: None,
             })
         })
         .collect::<Result<Vec<_>, ViewerError>>()?;

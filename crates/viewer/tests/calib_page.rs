@@ -104,6 +104,14 @@ fn page_lists_the_reports_per_image_rms_and_corners() {
     assert!((tx.1 + 52.0).abs() < 0.2, "Tx {} mm", tx.1);
     // The boards of the joint fit: one per pair, all used.
     assert_eq!(page.board_poses().len(), json["pairs_used"].as_array().unwrap().len());
+    // The joint fit's per-view weights, as written (tolerance 0), and some views below 1.
+    let weights = json["per_pair_weight"].as_array().unwrap();
+    for (cam, key) in page.report.cameras.iter().zip(["depth", "color"]) {
+        for (im, w) in cam.images.iter().zip(weights) {
+            assert_eq!(im.joint_weight, w[key].as_f64(), "{} {}", cam.label, im.name);
+        }
+    }
+    assert!(page.report.cameras[0].images.iter().any(|i| i.joint_weight.is_some_and(|w| w < 1.0)));
 }
 
 #[test]
