@@ -24,8 +24,9 @@ use plotters::prelude::*;
     kfuse calibrate --ir 'kinect-lab/ir_*.bmp' --lab-settings --out ir.json
 
 The handout's bars: RMS below 0.2 px (colour) and 0.4 px (IR); a warning is printed above them.
-Views and corners rejected as outliers are always listed. Outputs are written atomically: a run
-that fails leaves no file behind.")]
+Views and corners rejected as outliers are always listed. The stereo joint fit weights each
+view by its own noise (never above its camera's level): the table's weight column shows which
+views counted less. Outputs are written atomically: a run that fails leaves no file behind.")]
 pub struct CalibrateArgs {
     /// Colour-camera images: a glob pattern (quote it) or a file; repeatable.
     #[arg(long, value_name = "GLOB")]
