@@ -77,6 +77,7 @@ pub fn stereo_rig(s: &StereoCalibration, board: &Board) -> Rig {
             "depth": if d.is_finite() { json!(d) } else { Value::Null },
             "color": if c.is_finite() { json!(c) } else { Value::Null },
         })).collect::<Vec<_>>(),
+        "per_pair_joint_residuals_px": s.joint_residuals_px.iter().map(|(d, c)| json!({"depth": d, "color": c})).collect::<Vec<_>>(),
         "rejected_views": s.rejected_views.iter().map(|(i, why)| json!({"pair": i, "reason": why})).collect::<Vec<_>>(),
         "rejected_corners": s.rejected_corners,
         "depth_camera": s.depth,

@@ -13,6 +13,9 @@ use crate::mono::{
 };
 use crate::{calibrate_mono, Board, CalibError, ViewCorners};
 
+/// Residual rows of one view of one camera: `[corner id, observed x, observed y, ex, ey]`, px.
+pub type ResidualRows = Vec<[f64; 5]>;
+
 /// Options of [`calibrate_stereo`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct StereoOptions {
@@ -51,6 +54,9 @@ pub struct StereoCalibration {
     pub color_rms_px: f64,
     /// Per view: (depth RMS, colour RMS), px; NaN where that camera has no corners.
     pub view_rms_px: Vec<(f64, f64)>,
+    /// Per view: the (depth, colour) corners of the joint fit as `[id, x, y, ex, ey]` px, with
+    /// `(ex, ey)` = observed − projected after the joint fit (empty where not used).
+    pub joint_residuals_px: Vec<(ResidualRows, ResidualRows)>,
     /// Per view: the relative weight of its (depth, colour) corners in the joint fit, 1 for a
     /// view at or below its camera's noise, < 1 for a noisier one (NaN where not used).
     pub view_weights: Vec<(f64, f64)>,
@@ -266,6 +272,13 @@ pub fn calibrate_stereo(
             );
         }
     }
+    let mut joint_residuals_px = vec![(Vec::new(), Vec::new()); depth_views.len()];
+    for o in p.obs.iter().filter(|o| o.active && p.view_active[o.view]) {
+        let e = -p.residual(o);
+        let row = [o.id as f64, o.pixel.x, o.pixel.y, e.x, e.y];
+        let pair = &mut joint_residuals_px[views_idx[o.view]];
+        if o.cam == 0 { pair.0.push(row) } else { pair.1.push(row) }
+    }
     let d = &p.cams[0];
     let c = &p.cams[1];
     Ok(StereoCalibration {
@@ -288,6 +301,7 @@ pub fn calibrate_stereo(
         color_rms_px: cam_rms(1),
         view_rms_px,
         view_weights: view_weight,
+        joint_residuals_px,
         pairs_used: pairs.into_iter().filter(|i| views_idx.iter().position(|v| v == i).is_some_and(|vi| p.view_active[vi])).collect(),
         rejected_views: rejected.into_iter().map(|(v, why)| (views_idx[v], why)).collect(),
         rejected_corners,

@@ -139,6 +139,14 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
         }
     }
     assert!(r.view_weights.iter().any(|w| w.0 == 1.0) && r.view_weights.iter().any(|w| w.0 < 0.8));
+    // The joint residual rows reproduce the per-pair RMS (to rounding) and list every corner.
+    for (i, ((d, c), (rd, rc))) in r.joint_residuals_px.iter().zip(&r.view_rms_px).enumerate() {
+        for (rows, rms) in [(d, rd), (c, rc)] {
+            assert_eq!(rows.len(), 35, "pair {i}");
+            let got = (rows.iter().map(|e| e[3] * e[3] + e[4] * e[4]).sum::<f64>() / rows.len() as f64).sqrt();
+            assert!((got - rms).abs() < 1e-12, "pair {i}: {got} vs {rms}");
+        }
+    }
     let st = r.translation_std_m * 1000.0;
     let et = (r.color_from_depth.translation - truth_cfd.translation) * 1000.0;
     for j in 0..3 {

@@ -76,6 +76,9 @@ pub struct CalibPage {
     pub markers_drawn: usize,
     /// Residual arrows painted in the last frame of the residual view.
     pub arrows_drawn: usize,
+    /// The residual view shows the stereo joint fit's residuals (when the report has them;
+    /// the default) rather than the single-camera fit's.
+    pub joint_residuals: bool,
     /// Board outlines painted in the last frame of the pose view.
     pub boards_drawn: usize,
     home: OrbitCamera,
@@ -105,6 +108,7 @@ impl CalibPage {
             orbit: home,
             markers_drawn: 0,
             arrows_drawn: 0,
+            joint_residuals: true,
             boards_drawn: 0,
             home,
             textures: HashMap::new(),
@@ -349,10 +353,18 @@ impl CalibPage {
 
     fn residuals_ui(&mut self, ui: &mut egui::Ui) {
         let Some(cam) = self.selected_camera().cloned() else { return };
-        let gain = residual_gain(&cam);
-        let largest = cam.images.iter().flat_map(|i| &i.residuals).map(|r| r[3].hypot(r[4])).fold(0.0, f64::max);
+        let joint = self.joint_residuals && cam.has_joint_residuals();
+        if cam.has_joint_residuals() {
+            ui.horizontal(|ui| {
+                ui.selectable_value(&mut self.joint_residuals, true, "stereo joint fit");
+                ui.selectable_value(&mut self.joint_residuals, false, "single-camera fit");
+            });
+        }
+        let gain = residual_gain(&cam, joint);
+        let largest = cam.images.iter().flat_map(|i| i.residual_rows(joint)).map(|r| r[3].hypot(r[4])).fold(0.0, f64::max);
+        let fit = if joint { "stereo joint fit" } else if self.report.stereo.is_some() { "single-camera fit" } else { "fit" };
         ui.label(format!(
-            "{} camera: residual vectors (observed - projected) of every used corner, magnified ×{gain:.0}; largest {largest:.3} px; selected image highlighted",
+            "{} camera, {fit}: residual vectors (observed - projected) of every used corner, magnified ×{gain:.0}; largest {largest:.3} px; selected image highlighted",
             cam.label
         ));
         let rect = ui.available_rect_before_wrap().shrink(8.0);
@@ -367,7 +379,7 @@ impl CalibPage {
         for (i, im) in cam.images.iter().enumerate() {
             let selected = i == self.image;
             let colour = if selected { Color32::YELLOW } else { Color32::from_rgb(90, 160, 230) };
-            for r in &im.residuals {
+            for r in im.residual_rows(joint) {
                 let p = at(r[1], r[2]);
                 let v = Vec2::new((r[3] * gain) as f32 * s, (r[4] * gain) as f32 * s);
                 painter.arrow(p, v, Stroke::new(if selected { 1.6 } else { 1.0 }, colour));

@@ -41,10 +41,27 @@ pub struct CalibImage {
     pub camera_from_board: Option<RigidTransform>,
     /// The image file the corners were found in, if the report names it.
     pub image: Option<PathBuf>,
+    /// The same rows after the stereo joint fit (empty for a single-camera report, an unused
+    /// pair or a report written before they were added).
+    pub joint_residuals: Vec<[f64; 5]>,
     /// Relative weight of this view's corners in the stereo joint fit (1 = the camera's own
     /// noise level, less for a noisier view; `None` for a single-camera report or an unused
     /// pair).
     pub joint_weight: Option<f64>,
+}
+
+impl CalibImage {
+    /// The joint fit's residual rows when `joint`, else the single-camera fit's.
+    pub fn residual_rows(&self, joint: bool) -> &[[f64; 5]] {
+        if joint { &self.joint_residuals } else { &self.residuals }
+    }
+}
+
+impl CalibCamera {
+    /// Whether the report carries the stereo joint fit's residuals for this camera.
+    pub fn has_joint_residuals(&self) -> bool {
+        self.images.iter().any(|i| !i.joint_residuals.is_empty())
+    }
 }
 
 /// One calibrated camera.
@@ -221,6 +238,13 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
                 }
             }
         }
+        if let Some(pairs) = report.get("per_pair_joint_residuals_px").and_then(Value::as_array) {
+            for (cam, key) in cameras.iter_mut().zip(["depth", "color"]) {
+                for (im, pair) in cam.images.iter_mut().zip(pairs) {
+                    im.joint_residuals = rows::<5>(file, pair.get(key), &format!("{}: joint residuals", im.name))?;
+                }
+            }
+        }
         let cfd = match json.get("calibration") {
             Some(_) => json.get("color_from_depth"),
             None => report.get("color_from_depth"),
@@ -307,6 +331,7 @@ fn camera(
                 camera_from_board: im.get("camera_from_board").filter(|p| !p.is_null()).and_then(|p| serde_json::from_value(p.clone()).ok()),
                 image: im.get("image").and_then(Value::as_str).map(PathBuf::from),
                 joint_weight: None,
+                joint_residuals: Vec::new(),
             })
         })
         .collect::<Result<Vec<_>, ViewerError>>()?;
@@ -315,8 +340,8 @@ fn camera(
 
 /// The magnification of the residual arrows: the largest residual is drawn
 /// [`RESIDUAL_ARROW_FRACTION`] of the image width long (1 when there are no residuals).
-pub fn residual_gain(cam: &CalibCamera) -> f64 {
-    let max = cam.images.iter().flat_map(|i| &i.residuals).map(|r| r[3].hypot(r[4])).fold(0.0, f64::max);
+pub fn residual_gain(cam: &CalibCamera, joint: bool) -> f64 {
+    let max = cam.images.iter().flat_map(|i| i.residual_rows(joint)).map(|r| r[3].hypot(r[4])).fold(0.0, f64::max);
     if max > 0.0 { RESIDUAL_ARROW_FRACTION * cam.model.width as f64 / max } else { 1.0 }
 }
 

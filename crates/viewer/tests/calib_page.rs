@@ -112,6 +112,15 @@ fn page_lists_the_reports_per_image_rms_and_corners() {
         }
     }
     assert!(page.report.cameras[0].images.iter().any(|i| i.joint_weight.is_some_and(|w| w < 1.0)));
+    // The joint fit's residual rows reproduce its per-pair RMS (JSON round trip: 1e-12 px).
+    let rms = json["per_pair_rms_px"].as_array().unwrap();
+    for (cam, key) in page.report.cameras.iter().zip(["depth", "color"]) {
+        for (im, r) in cam.images.iter().zip(rms) {
+            let rows = &im.joint_residuals;
+            let got = (rows.iter().map(|e| e[3] * e[3] + e[4] * e[4]).sum::<f64>() / rows.len() as f64).sqrt();
+            assert!((got - r[key].as_f64().unwrap()).abs() < 1e-12, "{} {}", cam.label, im.name);
+        }
+    }
 }
 
 #[test]
@@ -207,11 +216,21 @@ fn calibration_page_snapshots() {
 
     h.get_by_label(CalibView::Residuals.label()).click();
     h.run();
+    // A stereo report opens on the joint fit's residuals; the toggle shows the single-camera
+    // fit's. Every used corner gets one arrow either way.
+    let page = h.state().calib.as_ref().unwrap();
+    let joint: usize = page.report.cameras[1].images.iter().map(|i| i.joint_residuals.len()).sum();
+    assert_eq!((page.arrows_drawn, joint), (15 * 35, 15 * 35));
+    h.get_by_label_contains("stereo joint fit: residual vectors");
+    h.snapshot_options("calib_residuals", &options());
+    h.get_by_label("single-camera fit").click();
+    h.run();
     let page = h.state().calib.as_ref().unwrap();
     let used: usize = page.report.cameras[1].images.iter().map(|i| i.residuals.len()).sum();
     assert_eq!(page.arrows_drawn, used);
-    h.get_by_label_contains("magnified ×");
-    h.snapshot_options("calib_residuals", &options());
+    h.get_by_label_contains("single-camera fit: residual vectors");
+    h.get_by_label("stereo joint fit").click();
+    h.run();
 
     h.get_by_label(CalibView::Poses.label()).click();
     h.run();
