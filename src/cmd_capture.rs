@@ -10,7 +10,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use geometry::io::atomic::write_atomic;
 use indicatif::{ProgressBar, ProgressStyle};
 use kinect_usb::backend::UsbBackend;
-use kinect_usb::decoder::{DecoderPrecision, DepthDecoder};
+use kinect_usb::decoder::{DecoderPrecision, DepthDecoder, Kernels};
 use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamKind};
 use kinect_usb::protocol::{self, Exposure, ExposureMode, LedMode, LedSetting};
 use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
@@ -392,7 +392,14 @@ pub fn sim_device(common: &CommonArgs) -> SimDevice {
 
 fn decoder_for(info: &DeviceInfo, no_filters: bool, exact: bool) -> Result<DepthDecoder> {
     let precision = if exact { DecoderPrecision::Exact } else { DecoderPrecision::Fast };
-    Ok(capture::decoder_for(info, no_filters)?.with_precision(precision))
+    let dec = capture::decoder_for(info, no_filters)?.with_precision(precision);
+    let what = match (precision, dec.kernels()) {
+        (DecoderPrecision::Exact, _) => "exact (bit-identical to libfreenect2's CPU decoder)",
+        (DecoderPrecision::Fast, Kernels::Avx2) => "fast (eight-lane AVX2 kernels)",
+        (DecoderPrecision::Fast, Kernels::Portable) => "fast (four-lane kernels: this CPU has no AVX2)",
+    };
+    eprintln!("depth decoder: {what}");
+    Ok(dec)
 }
 
 fn write_params_json(out: &Path, info: &DeviceInfo) -> Result<()> {

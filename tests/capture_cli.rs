@@ -30,6 +30,12 @@ fn calib_capture_on_sim_reproduces_scene_depth() {
         .output()
         .unwrap();
     assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    // The decoder in use is named: the default fast decoder, with this CPU's kernels.
+    let kernels = match kinect_usb::decoder::Kernels::detect() {
+        kinect_usb::decoder::Kernels::Avx2 => "depth decoder: fast (eight-lane AVX2 kernels)",
+        kinect_usb::decoder::Kernels::Portable => "depth decoder: fast (four-lane kernels",
+    };
+    assert!(String::from_utf8_lossy(&st.stderr).contains(kernels), "{}", String::from_utf8_lossy(&st.stderr));
     for n in ["0001", "0002"] {
         assert!(out.join(format!("color_{n}.jpg")).exists());
         assert!(out.join(format!("ir_{n}.png")).exists());
