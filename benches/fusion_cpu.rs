@@ -24,7 +24,7 @@ use std::hint::black_box;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicU32;
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::fusion::{self, FusionOptions, HoleMasker, Registration};
 use geometry::synth;
 
@@ -41,7 +41,8 @@ where
     [P::Subpixel]: image::EncodableLayout,
 {
     let mut bytes = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png).expect("PNG encoding of an in-memory image");
+    img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .expect("PNG encoding of an in-memory image");
     bytes
 }
 
@@ -49,12 +50,19 @@ fn write_peer_frame(setup: &synth::SynthSetup, frame: &synth::SynthFrame) {
     let dir = peer_frame_dir();
     std::fs::create_dir_all(&dir).expect("create the peer-frame folder");
     let (dw, dh) = frame.depth.size();
-    let depth_mm = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(dw as u32, dh as u32, |x, y| {
-        let z = *frame.depth.get(x as usize, y as usize);
-        image::Luma([if z.is_finite() { (z * 1000.0).round().clamp(0.0, 65535.0) as u16 } else { 0 }])
-    });
+    let depth_mm =
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(dw as u32, dh as u32, |x, y| {
+            let z = *frame.depth.get(x as usize, y as usize);
+            image::Luma([if z.is_finite() {
+                (z * 1000.0).round().clamp(0.0, 65535.0) as u16
+            } else {
+                0
+            }])
+        });
     let (cw, ch) = frame.color.size();
-    let color = image::RgbImage::from_fn(cw as u32, ch as u32, |x, y| image::Rgb(*frame.color.get(x as usize, y as usize)));
+    let color = image::RgbImage::from_fn(cw as u32, ch as u32, |x, y| {
+        image::Rgb(*frame.color.get(x as usize, y as usize))
+    });
     let atomic = geometry::io::atomic::write_bytes_atomic;
     atomic(&dir.join("depth.png"), &png_bytes(&depth_mm)).expect("write depth.png");
     atomic(&dir.join("color.png"), &png_bytes(&color)).expect("write color.png");
@@ -64,7 +72,12 @@ fn write_peer_frame(setup: &synth::SynthSetup, frame: &synth::SynthFrame) {
 
 /// Nanoseconds this thread has run on a CPU (`/proc/thread-self/schedstat`, Linux), or `None`.
 fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
 }
 
 /// CPU time per call of `f` over `iters` calls: on a machine shared with other jobs the
@@ -77,7 +90,10 @@ fn report_cpu_time(name: &str, iters: u32, mut f: impl FnMut()) {
     }
     let Some(t1) = thread_cpu_ns() else { return };
     let wall = w0.elapsed().as_secs_f64() * 1e3 / iters as f64;
-    eprintln!("cpu-time {name}: {:.3} ms per call on one core ({wall:.3} ms wall)", (t1 - t0) as f64 / 1e6 / iters as f64);
+    eprintln!(
+        "cpu-time {name}: {:.3} ms per call on one core ({wall:.3} ms wall)",
+        (t1 - t0) as f64 / 1e6 / iters as f64
+    );
 }
 
 fn benches(c: &mut Criterion) {
@@ -116,7 +132,14 @@ fn benches(c: &mut Criterion) {
     });
     report_cpu_time("register+holes/legacy_single", 200, || {
         let words = masker.words_per_row();
-        let n = fusion::register_depth_marking(frame.depth.data(), &rays, &proj, &mut zbuffer, masker.occupancy_mut(), words);
+        let n = fusion::register_depth_marking(
+            frame.depth.data(),
+            &rays,
+            &proj,
+            &mut zbuffer,
+            masker.occupancy_mut(),
+            words,
+        );
         black_box((n, masker.compute_from_occupancy(&mut mask)));
     });
     if std::env::var_os("KFUSE_CPU_TIME_ONLY").is_some() {
@@ -125,33 +148,50 @@ fn benches(c: &mut Criterion) {
     let mut g = c.benchmark_group("register+holes");
     g.bench_function("single", |b| {
         b.iter(|| {
-            let n = reg.register(black_box(&frame.depth)).expect("the preset's depth matches its rig");
+            let n =
+                reg.register(black_box(&frame.depth)).expect("the preset's depth matches its rig");
             black_box((n, reg.hole_mask(&mut mask)))
         })
     });
     g.bench_function("single_bits", |b| {
         b.iter(|| {
-            let n = reg.register(black_box(&frame.depth)).expect("the preset's depth matches its rig");
+            let n =
+                reg.register(black_box(&frame.depth)).expect("the preset's depth matches its rig");
             black_box((n, reg.hole_bits().0))
         })
     });
     g.bench_function("rayon", |b| {
         b.iter(|| {
-            let n = reg.register_parallel(black_box(&frame.depth)).expect("the preset's depth matches its rig");
+            let n = reg
+                .register_parallel(black_box(&frame.depth))
+                .expect("the preset's depth matches its rig");
             black_box((n, reg.hole_mask_parallel(&mut mask)))
         })
     });
     g.bench_function("legacy_single", |b| {
         b.iter(|| {
             let words = masker.words_per_row();
-            let n = fusion::register_depth_marking(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer, masker.occupancy_mut(), words);
+            let n = fusion::register_depth_marking(
+                black_box(frame.depth.data()),
+                &rays,
+                &proj,
+                &mut zbuffer,
+                masker.occupancy_mut(),
+                words,
+            );
             let holes = masker.compute_from_occupancy(&mut mask);
             black_box((n, holes))
         })
     });
     g.bench_function("legacy_rayon", |b| {
         b.iter(|| {
-            let n = fusion::register_depth_parallel(black_box(frame.depth.data()), &rays, rig.depth.width, &proj, &atomic);
+            let n = fusion::register_depth_parallel(
+                black_box(frame.depth.data()),
+                &rays,
+                rig.depth.width,
+                &proj,
+                &atomic,
+            );
             fusion::atomic_zbuffer_to_image(&atomic, &mut zbuffer);
             let holes = masker.compute(&zbuffer, &mut mask);
             black_box((n, holes))
@@ -169,30 +209,70 @@ fn benches(c: &mut Criterion) {
     g.bench_function("register_single", |b| {
         b.iter(|| fusion::register_depth(black_box(frame.depth.data()), &rays, &proj, &mut zbuffer))
     });
-    g.bench_function("hole_mask_single", |b| b.iter(|| masker.compute(black_box(zb_image.data()), &mut mask)));
-    g.bench_function("h1_backproject", |b| b.iter(|| fusion::backproject_cloud(black_box(&frame.depth), &rays)));
+    g.bench_function("hole_mask_single", |b| {
+        b.iter(|| masker.compute(black_box(zb_image.data()), &mut mask))
+    });
+    g.bench_function("h1_backproject", |b| {
+        b.iter(|| fusion::backproject_cloud(black_box(&frame.depth), &rays))
+    });
     let (cloud, _) = fusion::backproject_cloud(&frame.depth, &rays);
-    g.bench_function("h2_project", |b| b.iter(|| fusion::project_cloud(black_box(&cloud.points), &proj)));
+    g.bench_function("h2_project", |b| {
+        b.iter(|| fusion::project_cloud(black_box(&cloud.points), &proj))
+    });
     let samples = fusion::project_cloud(&cloud.points, &proj);
     g.bench_function("h7_zbuffer_from_samples", |b| {
         b.iter(|| fusion::zbuffer_from_samples(black_box(&samples), proj.width, proj.height))
     });
-    g.bench_function("h3_nearest_fill", |b| b.iter(|| fusion::nearest_fill(black_box(&zb_image), radius, options.depth_jump)));
+    g.bench_function("h3_nearest_fill", |b| {
+        b.iter(|| fusion::nearest_fill(black_box(&zb_image), radius, options.depth_jump))
+    });
     let spacing = fusion::sample_spacing_px(rig);
     g.bench_function("h3_linear", |b| {
-        b.iter(|| fusion::linear_resample(black_box(&samples), &zb_image, options.linear_max_edge_factor * spacing, options.depth_jump))
+        b.iter(|| {
+            fusion::linear_resample(
+                black_box(&samples),
+                &zb_image,
+                options.linear_max_edge_factor * spacing,
+                options.depth_jump,
+            )
+        })
     });
     let nearest = fusion::nearest_fill(&zb_image, radius, options.depth_jump);
     g.bench_function("h6_color_on_depth", |b| {
-        b.iter(|| fusion::color_on_depth(black_box(&frame.depth), &rays, &proj, &frame.color, Some(&nearest), options.color_occlusion_tolerance))
+        b.iter(|| {
+            fusion::color_on_depth(
+                black_box(&frame.depth),
+                &rays,
+                &proj,
+                &frame.color,
+                Some(&nearest),
+                options.color_occlusion_tolerance,
+            )
+        })
     });
-    g.bench_function("h8_plane_fit", |b| b.iter(|| fusion::fit_plane_ransac(black_box(&nearest), &rig.color, &options.plane)));
+    g.bench_function("h8_plane_fit", |b| {
+        b.iter(|| fusion::fit_plane_ransac(black_box(&nearest), &rig.color, &options.plane))
+    });
     let mesh = fusion::mesh_from_depth(&nearest, &rig.color, &frame.color, options.mesh_step);
-    g.bench_function("h4_mesh", |b| b.iter(|| fusion::mesh_from_depth(black_box(&nearest), &rig.color, &frame.color, options.mesh_step)));
-    g.bench_function("h5_stretched_faces", |b| b.iter(|| fusion::remove_stretched_faces(black_box(&mesh), options.stretch_ratio)));
+    g.bench_function("h4_mesh", |b| {
+        b.iter(|| {
+            fusion::mesh_from_depth(
+                black_box(&nearest),
+                &rig.color,
+                &frame.color,
+                options.mesh_step,
+            )
+        })
+    });
+    g.bench_function("h5_stretched_faces", |b| {
+        b.iter(|| fusion::remove_stretched_faces(black_box(&mesh), options.stretch_ratio))
+    });
     g.sample_size(10);
     g.bench_function("run_all", |b| {
-        b.iter(|| fusion::run(rig, black_box(&frame.depth), frame.depth_kind, &frame.color, &options).map(|o| o.summary))
+        b.iter(|| {
+            fusion::run(rig, black_box(&frame.depth), frame.depth_kind, &frame.color, &options)
+                .map(|o| o.summary)
+        })
     });
     g.finish();
 }

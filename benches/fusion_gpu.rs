@@ -7,12 +7,13 @@
 use std::hint::black_box;
 use std::sync::atomic::AtomicU32;
 
-use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use fusion_gpu::{FramePlan, FusionContext, GpuPolicy, StageOptions};
 use geometry::fusion::{
-    backproject_cloud, color_on_depth, coverage_radius_px, depth_ray_table, fill_holes_with_plane, hole_grow_px, hole_mask,
-    nearest_fill, project_cloud, register_depth, register_depth_parallel, run, zbuffer_from_samples, ColorProjection,
-    FusionOptions, PlaneFit,
+    ColorProjection, FusionOptions, PlaneFit, backproject_cloud, color_on_depth,
+    coverage_radius_px, depth_ray_table, fill_holes_with_plane, hole_grow_px, hole_mask,
+    nearest_fill, project_cloud, register_depth, register_depth_parallel, run,
+    zbuffer_from_samples,
 };
 use geometry::synth;
 use geometry::{DepthKind, Image};
@@ -36,28 +37,37 @@ fn bench(c: &mut Criterion) {
     let (cloud, _) = backproject_cloud(depth, &rays);
     g.bench_function("h2_project", |b| b.iter(|| black_box(project_cloud(&cloud.points, &proj))));
     let samples = project_cloud(&cloud.points, &proj);
-    g.bench_function("h7_zbuffer", |b| b.iter(|| black_box(zbuffer_from_samples(&samples, cw as u32, ch as u32))));
+    g.bench_function("h7_zbuffer", |b| {
+        b.iter(|| black_box(zbuffer_from_samples(&samples, cw as u32, ch as u32)))
+    });
     let mut zb = vec![0f32; cw * ch];
     g.bench_function("h1_h2_h7_fused_single_thread", |b| {
         b.iter(|| black_box(register_depth(depth.data(), &rays, &proj, &mut zb)))
     });
     let atomic: Vec<AtomicU32> = (0..cw * ch).map(|_| AtomicU32::new(0)).collect();
     g.bench_function("h1_h2_h7_fused_rayon", |b| {
-        b.iter(|| black_box(register_depth_parallel(depth.data(), &rays, rig.depth.width, &proj, &atomic)))
+        b.iter(|| {
+            black_box(register_depth_parallel(depth.data(), &rays, rig.depth.width, &proj, &atomic))
+        })
     });
     let zbuffer = zbuffer_from_samples(&samples, cw as u32, ch as u32);
     let radius = coverage_radius_px(rig, &FusionOptions::default());
     let grow = hole_grow_px(rig, &FusionOptions::default());
-    g.bench_function("h3_nearest_fill", |b| b.iter(|| black_box(nearest_fill(&zbuffer, radius, 0.05))));
+    g.bench_function("h3_nearest_fill", |b| {
+        b.iter(|| black_box(nearest_fill(&zbuffer, radius, 0.05)))
+    });
     let nearest_cpu = nearest_fill(&zbuffer, radius, 0.05);
     g.bench_function("h8_hole_mask", |b| b.iter(|| black_box(hole_mask(&zbuffer, radius, grow))));
     let mask_cpu = hole_mask(&zbuffer, radius, grow);
-    let plane = PlaneFit { normal: [0.0, 0.0, 1.0], offset: 3.0, inliers: 0, samples: 0, rms_m: 0.0 };
+    let plane =
+        PlaneFit { normal: [0.0, 0.0, 1.0], offset: 3.0, inliers: 0, samples: 0, rms_m: 0.0 };
     g.bench_function("h8_plane_fill", |b| {
         b.iter(|| black_box(fill_holes_with_plane(&nearest_cpu, &mask_cpu, &rig.color, &plane)))
     });
     g.bench_function("h6_color_on_depth", |b| {
-        b.iter(|| black_box(color_on_depth(depth, &rays, &proj, &frame.color, Some(&nearest_cpu), 0.02)))
+        b.iter(|| {
+            black_box(color_on_depth(depth, &rays, &proj, &frame.color, Some(&nearest_cpu), 0.02))
+        })
     });
     g.finish();
 
@@ -66,11 +76,15 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("end_to_end");
     // Frames of 10-200 ms: 10 samples keep the run within minutes on lavapipe.
     g.sample_size(10);
-    g.bench_function("cpu_run", |b| b.iter(|| black_box(run(rig, depth, kind, &frame.color, &options).expect("CPU run"))));
+    g.bench_function("cpu_run", |b| {
+        b.iter(|| black_box(run(rig, depth, kind, &frame.color, &options).expect("CPU run")))
+    });
     let gpu_ctx = FusionContext::new(GpuPolicy::Required);
     if let Ok(mut ctx) = gpu_ctx {
         g.bench_function("gpu_run", |b| {
-            b.iter(|| black_box(ctx.run(rig, depth, kind, &frame.color, &options).expect("GPU run")))
+            b.iter(|| {
+                black_box(ctx.run(rig, depth, kind, &frame.color, &options).expect("GPU run"))
+            })
         });
     }
     g.finish();
@@ -98,17 +112,25 @@ fn bench(c: &mut Criterion) {
         b.iter(|| black_box(ctx.register(rig, depth, kind, false).expect("GPU frame")))
     });
     g.bench_function("h1_h2_h7_h3_h8mask_h6_with_upload_readback", |b| {
-        b.iter(|| black_box(ctx.frame(rig, depth, kind, Some(&frame.color), all).expect("GPU frame")))
+        b.iter(|| {
+            black_box(ctx.frame(rig, depth, kind, Some(&frame.color), all).expect("GPU frame"))
+        })
     });
     let full = ctx.frame(rig, depth, kind, Some(&frame.color), all).expect("GPU frame");
     let (nearest, holes) = (full.nearest.expect("nearest"), full.holes.expect("holes"));
     g.bench_function("h8_plane_fill_with_upload_readback", |b| {
-        b.iter(|| black_box(ctx.fill_holes_with_plane(&rig.color, &nearest, &holes, [0.0, 0.0, 1.0], 3.0).expect("fill")))
+        b.iter(|| {
+            black_box(
+                ctx.fill_holes_with_plane(&rig.color, &nearest, &holes, [0.0, 0.0, 1.0], 3.0)
+                    .expect("fill"),
+            )
+        })
     });
     g.finish();
 
     // Streaming throughput: STREAM_FRAMES frames through two slots vs one at a time.
-    let depths: Vec<Image<f32>> = (0..STREAM_FRAMES).map(|k| depth.map(|&z| z * (1.0 + 0.01 * k as f32))).collect();
+    let depths: Vec<Image<f32>> =
+        (0..STREAM_FRAMES).map(|k| depth.map(|&z| z * (1.0 + 0.01 * k as f32))).collect();
     let mut g = c.benchmark_group("gpu_stream");
     g.sample_size(10);
     g.throughput(Throughput::Elements(STREAM_FRAMES as u64));

@@ -3,10 +3,16 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result, bail};
 use calib::detect::{Refinement, align_pair, detect_views_with};
-use calib::files::{add_detections, camera_json, opencv_yaml_camera, opencv_yaml_rig, stereo_rig, write_text, COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX};
-use calib::{calibrate_mono, calibrate_stereo, Board, CalibError, CalibFlags, MonoCalibration, StereoOptions, ViewCorners};
+use calib::files::{
+    COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX, add_detections, camera_json, opencv_yaml_camera,
+    opencv_yaml_rig, stereo_rig, write_text,
+};
+use calib::{
+    Board, CalibError, CalibFlags, MonoCalibration, StereoOptions, ViewCorners, calibrate_mono,
+    calibrate_stereo,
+};
 use geometry::io::atomic::StagedDir;
 use geometry::io::images::write_color_png;
 use geometry::{CameraModel, Image};
@@ -120,7 +126,8 @@ fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<Boar
     } else {
         bail!("--square '{square}': give a unit, e.g. 40mm, 4cm or 0.04m")
     };
-    let v: f64 = num.trim().parse().with_context(|| format!("--square '{square}': not a number"))?;
+    let v: f64 =
+        num.trim().parse().with_context(|| format!("--square '{square}': not a number"))?;
     let mut b = Board::new(c, r, v * scale)?;
     b.top_left_black = top_left.map(|t| t == "black");
     Ok(b)
@@ -168,12 +175,21 @@ pub fn expand(patterns: &[String], what: &str) -> Result<Vec<PathBuf>> {
 
 fn bar(len: usize, msg: &str) -> ProgressBar {
     let pb = ProgressBar::new(len as u64);
-    pb.set_style(ProgressStyle::with_template("{msg:>18} [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
+    pb.set_style(
+        ProgressStyle::with_template("{msg:>18} [{bar:30}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
     pb.set_message(msg.to_string());
     pb
 }
 
-fn load_and_detect(files: &[PathBuf], board: &Board, camera: &str, refinement: Refinement) -> Result<(Vec<ViewCorners>, Vec<Image<u8>>, Board)> {
+fn load_and_detect(
+    files: &[PathBuf],
+    board: &Board,
+    camera: &str,
+    refinement: Refinement,
+) -> Result<(Vec<ViewCorners>, Vec<Image<u8>>, Board)> {
     use rayon::prelude::*;
     let pb = bar(files.len(), &format!("reading {camera}"));
     let images: Vec<Image<u8>> = files
@@ -185,8 +201,13 @@ fn load_and_detect(files: &[PathBuf], board: &Board, camera: &str, refinement: R
         })
         .collect::<Result<_, _>>()?;
     pb.finish();
-    let names: Vec<(String, &Image<u8>)> =
-        files.iter().zip(&images).map(|(f, i)| (f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(), i)).collect();
+    let names: Vec<(String, &Image<u8>)> = files
+        .iter()
+        .zip(&images)
+        .map(|(f, i)| {
+            (f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(), i)
+        })
+        .collect();
     let pb = bar(files.len(), &format!("detecting {camera}"));
     let (views, board) = detect_views_with(&names, board, refinement, &|| pb.inc(1));
     pb.finish();
@@ -207,9 +228,18 @@ fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
     let k = m.camera.intrinsics;
     let d = m.camera.distortion;
     let s = m.std;
-    println!("\n{camera}: {}x{}, RMS {:.4} px (σ per axis {:.4} px)", m.camera.width, m.camera.height, m.rms_px, m.sigma_px);
-    println!("  fx {:.3} ± {:.3}  fy {:.3} ± {:.3}  cx {:.3} ± {:.3}  cy {:.3} ± {:.3}   (1σ)", k.fx, s.fx, k.fy, s.fy, k.cx, s.cx, k.cy, s.cy);
-    println!("  k1 {:.5} ± {:.5}  k2 {:.5} ± {:.5}  p1 {:.6} ± {:.6}  p2 {:.6} ± {:.6}  k3 {:.5} ± {:.5}", d.k1, s.k1, d.k2, s.k2, d.p1, s.p1, d.p2, s.p2, d.k3, s.k3);
+    println!(
+        "\n{camera}: {}x{}, RMS {:.4} px (σ per axis {:.4} px)",
+        m.camera.width, m.camera.height, m.rms_px, m.sigma_px
+    );
+    println!(
+        "  fx {:.3} ± {:.3}  fy {:.3} ± {:.3}  cx {:.3} ± {:.3}  cy {:.3} ± {:.3}   (1σ)",
+        k.fx, s.fx, k.fy, s.fy, k.cx, s.cx, k.cy, s.cy
+    );
+    println!(
+        "  k1 {:.5} ± {:.5}  k2 {:.5} ± {:.5}  p1 {:.6} ± {:.6}  p2 {:.6} ± {:.6}  k3 {:.5} ± {:.5}",
+        d.k1, s.k1, d.k2, s.k2, d.p1, s.p1, d.p2, s.p2, d.k3, s.k3
+    );
     if let Some((r, fraction)) = calib::undistort::fold_inside_image(&m.camera) {
         println!(
             "  note: the distortion model folds inside the image (undistorted radius {r:.3}): {:.2} % of the pixels, near the corners, see no valid ray; undistortion masks them",
@@ -223,10 +253,16 @@ fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
             None if v.rms_px > limit => format!("WARNING: above the handout's {limit} px"),
             None => "ok".into(),
         };
-        println!("  {:<28} {:>8} {:>8.4} {:>8.1}  {status}", v.name, v.n_corners, v.rms_px, v.tilt_deg);
+        println!(
+            "  {:<28} {:>8} {:>8.4} {:>8.1}  {status}",
+            v.name, v.n_corners, v.rms_px, v.tilt_deg
+        );
     }
     for c in &m.rejected_corners {
-        println!("  rejected corner {} of {}: error {:.2} px > {:.2} px", c.id, c.view, c.error_px, c.threshold_px);
+        println!(
+            "  rejected corner {} of {}: error {:.2} px > {:.2} px",
+            c.id, c.view, c.error_px, c.threshold_px
+        );
     }
     if m.rms_px > limit {
         println!("  WARNING: {camera} RMS {:.3} px is above the handout's {limit} px", m.rms_px);
@@ -250,9 +286,16 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         );
     }
     let flags = flags(&args);
-    let (ir_views, ir_images, board) = if ir_files.is_empty() { (vec![], vec![], board) } else { load_and_detect(&ir_files, &board, "IR", args.corners.into())? };
-    let (mut color_views, color_images, board) =
-        if color_files.is_empty() { (vec![], vec![], board) } else { load_and_detect(&color_files, &board, "colour", args.corners.into())? };
+    let (ir_views, ir_images, board) = if ir_files.is_empty() {
+        (vec![], vec![], board)
+    } else {
+        load_and_detect(&ir_files, &board, "IR", args.corners.into())?
+    };
+    let (mut color_views, color_images, board) = if color_files.is_empty() {
+        (vec![], vec![], board)
+    } else {
+        load_and_detect(&color_files, &board, "colour", args.corners.into())?
+    };
 
     // Output staging: nothing is written unless everything succeeds.
     let mut outputs: Vec<(PathBuf, String)> = Vec::new();
@@ -280,32 +323,69 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
                 color_views[i] = align_pair(&ir_views[i], &color_views[i], &board);
             }
         }
-        let options = StereoOptions { depth_flags: flags, color_flags: flags, fix_intrinsics: args.fix_intrinsics };
+        let options = StereoOptions {
+            depth_flags: flags,
+            color_flags: flags,
+            fix_intrinsics: args.fix_intrinsics,
+        };
         let s = calibrate_stereo(&board, &ir_views, &color_views, &options, None, None)?;
         print_mono("IR camera (alone)", &s.depth_mono, DEPTH_RMS_LIMIT_PX);
         print_mono("colour camera (alone)", &s.color_mono, COLOR_RMS_LIMIT_PX);
         let t = s.color_from_depth.translation * 1000.0;
         let ts = s.translation_std_m * 1000.0;
         let rs = s.rotation_std_rad.map(f64::to_degrees);
-        println!("\nstereo (joint refinement over {} pairs): RMS {:.4} px — IR {:.4} px, colour {:.4} px", s.pairs_used.len(), s.rms_px, s.depth_rms_px, s.color_rms_px);
-        println!("  color_from_depth T = ({:.3}, {:.3}, {:.3}) mm ± ({:.3}, {:.3}, {:.3}) mm (1σ)", t.x, t.y, t.z, ts.x, ts.y, ts.z);
-        println!("  rotation {:.4}° (axis-angle {:?}) ± ({:.4}, {:.4}, {:.4})°", s.color_from_depth.angle_deg(), s.color_from_depth.axis_angle().as_slice(), rs.x, rs.y, rs.z);
-        println!("  {:<28} {:>10} {:>10} {:>10} {:>10}", "pair", "IR RMS", "colour RMS", "IR weight", "col weight");
+        println!(
+            "\nstereo (joint refinement over {} pairs): RMS {:.4} px — IR {:.4} px, colour {:.4} px",
+            s.pairs_used.len(),
+            s.rms_px,
+            s.depth_rms_px,
+            s.color_rms_px
+        );
+        println!(
+            "  color_from_depth T = ({:.3}, {:.3}, {:.3}) mm ± ({:.3}, {:.3}, {:.3}) mm (1σ)",
+            t.x, t.y, t.z, ts.x, ts.y, ts.z
+        );
+        println!(
+            "  rotation {:.4}° (axis-angle {:?}) ± ({:.4}, {:.4}, {:.4})°",
+            s.color_from_depth.angle_deg(),
+            s.color_from_depth.axis_angle().as_slice(),
+            rs.x,
+            rs.y,
+            rs.z
+        );
+        println!(
+            "  {:<28} {:>10} {:>10} {:>10} {:>10}",
+            "pair", "IR RMS", "colour RMS", "IR weight", "col weight"
+        );
         for (i, ((d, c), (wd, wc))) in s.view_rms_px.iter().zip(&s.view_weights).enumerate() {
-            println!("  {:<28} {:>10.4} {:>10.4} {:>10.2} {:>10.2}", ir_views[i].name, d, c, wd, wc);
+            println!(
+                "  {:<28} {:>10.4} {:>10.4} {:>10.2} {:>10.2}",
+                ir_views[i].name, d, c, wd, wc
+            );
         }
-        println!("  (weights: 1 = the camera's own noise level; a noisier view counts less in the joint fit)");
+        println!(
+            "  (weights: 1 = the camera's own noise level; a noisier view counts less in the joint fit)"
+        );
         for (i, why) in &s.rejected_views {
             println!("  REJECTED pair {}: {why}", ir_views[*i].name);
         }
         for c in &s.rejected_corners {
-            println!("  rejected corner {} of {}: error {:.2} px > {:.2} px", c.id, c.view, c.error_px, c.threshold_px);
+            println!(
+                "  rejected corner {} of {}: error {:.2} px > {:.2} px",
+                c.id, c.view, c.error_px, c.threshold_px
+            );
         }
         if s.depth_rms_px > DEPTH_RMS_LIMIT_PX {
-            println!("  WARNING: IR RMS after stereo {:.3} px is above the handout's {DEPTH_RMS_LIMIT_PX} px", s.depth_rms_px);
+            println!(
+                "  WARNING: IR RMS after stereo {:.3} px is above the handout's {DEPTH_RMS_LIMIT_PX} px",
+                s.depth_rms_px
+            );
         }
         if s.color_rms_px > COLOR_RMS_LIMIT_PX {
-            println!("  WARNING: colour RMS after stereo {:.3} px is above the handout's {COLOR_RMS_LIMIT_PX} px", s.color_rms_px);
+            println!(
+                "  WARNING: colour RMS after stereo {:.3} px is above the handout's {COLOR_RMS_LIMIT_PX} px",
+                s.color_rms_px
+            );
         }
         let mut rig = stereo_rig(&s, &board);
         if let Some(cal) = rig.calibration.as_mut() {
@@ -398,15 +478,28 @@ impl Figures<'_> {
         pb.finish();
         errors_figure(&dir.join("per_image_error.png"), &self.cameras)?;
         for (name, cam, m, _) in &self.cameras {
-            residuals_figure(&dir.join(format!("residuals_{}.png", name.to_lowercase())), name, cam, m)?;
-            poses_figure(&dir.join(format!("board_poses_{}.png", name.to_lowercase())), name, m, self.board.as_ref())?;
+            residuals_figure(
+                &dir.join(format!("residuals_{}.png", name.to_lowercase())),
+                name,
+                cam,
+                m,
+            )?;
+            poses_figure(
+                &dir.join(format!("board_poses_{}.png", name.to_lowercase())),
+                name,
+                m,
+                self.board.as_ref(),
+            )?;
         }
         Ok(())
     }
 }
 
 fn stem(name: &str) -> String {
-    Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string())
+    Path::new(name)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| name.to_string())
 }
 
 /// The image with its detected corners: a circle per corner, corner 0 and the x axis marked.
@@ -425,37 +518,71 @@ fn corners_figure(path: &Path, img: &Image<u8>, v: &ViewCorners) -> Result<()> {
         if let (Some(a), Some(b)) = (v.get(0), v.get(1)) {
             root.draw(&PathElement::new(vec![pt(a), pt(b)], RED.stroke_width(3)))?;
         }
-        let status = if v.corners.is_empty() { "no board found".to_string() } else { format!("{} corners (red: corner 0 → x axis)", v.corners.len()) };
+        let status = if v.corners.is_empty() {
+            "no board found".to_string()
+        } else {
+            format!("{} corners (red: corner 0 → x axis)", v.corners.len())
+        };
         root.draw(&Text::new(format!("{}: {status}", v.name), (10, 10), font))?;
         root.present()?;
     }
     save_rgb(path, buf, w, h)
 }
 
-fn errors_figure(path: &Path, cams: &[(&'static str, CameraModel, MonoCalibration, f64)]) -> Result<()> {
+fn errors_figure(
+    path: &Path,
+    cams: &[(&'static str, CameraModel, MonoCalibration, f64)],
+) -> Result<()> {
     let (w, h) = (1000usize, 300 * cams.len().max(1) + 40);
     let mut buf = vec![255u8; w * h * 3];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
         let (title, body) = root.split_vertically(40);
-        title.draw(&Text::new("Per-image reprojection error (RMS, px)", (10, 8), (FONT_NAME, 22).into_font()))?;
+        title.draw(&Text::new(
+            "Per-image reprojection error (RMS, px)",
+            (10, 8),
+            (FONT_NAME, 22).into_font(),
+        ))?;
         let areas = body.split_evenly((cams.len().max(1), 1));
         for ((name, _, m, limit), area) in cams.iter().zip(areas) {
-            let vals: Vec<(usize, f64, bool)> =
-                m.views.iter().enumerate().filter(|(_, v)| v.rms_px.is_finite()).map(|(i, v)| (i, v.rms_px, v.rejected.is_some())).collect();
+            let vals: Vec<(usize, f64, bool)> = m
+                .views
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| v.rms_px.is_finite())
+                .map(|(i, v)| (i, v.rms_px, v.rejected.is_some()))
+                .collect();
             let ymax = vals.iter().map(|v| v.1).fold(*limit, f64::max) * 1.15;
             let mut chart = ChartBuilder::on(&area)
-                .caption(format!("{name} camera (line: handout limit {limit} px; grey: rejected)"), (FONT_NAME, 16))
+                .caption(
+                    format!("{name} camera (line: handout limit {limit} px; grey: rejected)"),
+                    (FONT_NAME, 16),
+                )
                 .margin(8)
                 .x_label_area_size(30)
                 .y_label_area_size(50)
                 .build_cartesian_2d(0f64..m.views.len() as f64, 0f64..ymax)?;
-            chart.configure_mesh().disable_x_mesh().x_desc("image index").y_desc("RMS px").label_style((FONT_NAME, 12)).draw()?;
+            chart
+                .configure_mesh()
+                .disable_x_mesh()
+                .x_desc("image index")
+                .y_desc("RMS px")
+                .label_style((FONT_NAME, 12))
+                .draw()?;
             chart.draw_series(vals.iter().map(|&(i, e, rej)| {
-                let colour = if rej { RGBColor(160, 160, 160) } else if e > *limit { RED } else { BLUE };
+                let colour = if rej {
+                    RGBColor(160, 160, 160)
+                } else if e > *limit {
+                    RED
+                } else {
+                    BLUE
+                };
                 Rectangle::new([(i as f64 + 0.15, 0.0), (i as f64 + 0.85, e)], colour.filled())
             }))?;
-            chart.draw_series(LineSeries::new([(0.0, *limit), (m.views.len() as f64, *limit)], RED.stroke_width(2)))?;
+            chart.draw_series(LineSeries::new(
+                [(0.0, *limit), (m.views.len() as f64, *limit)],
+                RED.stroke_width(2),
+            ))?;
         }
         root.present()?;
     }
@@ -471,16 +598,27 @@ fn residuals_figure(path: &Path, name: &str, cam: &CameraModel, m: &MonoCalibrat
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
         let mut chart = ChartBuilder::on(&root)
-            .caption(format!("{name}: residual vectors ×{gain:.0} (largest {max:.3} px), RMS {:.3} px", m.rms_px), (FONT_NAME, 18))
+            .caption(
+                format!(
+                    "{name}: residual vectors ×{gain:.0} (largest {max:.3} px), RMS {:.3} px",
+                    m.rms_px
+                ),
+                (FONT_NAME, 18),
+            )
             .margin(10)
             .x_label_area_size(25)
             .y_label_area_size(45)
             .build_cartesian_2d(0f64..cam.width as f64, cam.height as f64..0f64)?;
         chart.configure_mesh().disable_mesh().label_style((FONT_NAME, 12)).draw()?;
         chart.draw_series(m.residuals.iter().map(|(_, _, p, e)| {
-            PathElement::new(vec![(p.x, p.y), (p.x + gain * e.x, p.y + gain * e.y)], BLUE.stroke_width(2))
+            PathElement::new(
+                vec![(p.x, p.y), (p.x + gain * e.x, p.y + gain * e.y)],
+                BLUE.stroke_width(2),
+            )
         }))?;
-        chart.draw_series(m.residuals.iter().map(|(_, _, p, _)| Circle::new((p.x, p.y), 2, BLACK.filled())))?;
+        chart.draw_series(
+            m.residuals.iter().map(|(_, _, p, _)| Circle::new((p.x, p.y), 2, BLACK.filled())),
+        )?;
         root.present()?;
     }
     save_rgb(path, buf, w, h)
@@ -488,10 +626,13 @@ fn residuals_figure(path: &Path, name: &str, cam: &CameraModel, m: &MonoCalibrat
 
 /// Board positions seen from above (x–z plane of the camera frame, metres).
 fn poses_figure(path: &Path, name: &str, m: &MonoCalibration, board: Option<&Board>) -> Result<()> {
-    let (bw, bh) = board.map(|b| (b.square_m * (b.cols - 1) as f64, b.square_m * (b.rows - 1) as f64)).unwrap_or((0.24, 0.16));
+    let (bw, bh) = board
+        .map(|b| (b.square_m * (b.cols - 1) as f64, b.square_m * (b.rows - 1) as f64))
+        .unwrap_or((0.24, 0.16));
     let (w, h) = (900usize, 700usize);
     let mut buf = vec![255u8; w * h * 3];
-    let poses: Vec<_> = m.views.iter().filter_map(|v| v.camera_from_board.map(|p| (v.name.clone(), p))).collect();
+    let poses: Vec<_> =
+        m.views.iter().filter_map(|v| v.camera_from_board.map(|p| (v.name.clone(), p))).collect();
     let pts: Vec<Vec<(f64, f64)>> = poses
         .iter()
         .map(|(_, p)| {
@@ -510,12 +651,20 @@ fn poses_figure(path: &Path, name: &str, m: &MonoCalibration, board: Option<&Boa
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
         let mut chart = ChartBuilder::on(&root)
-            .caption(format!("{name}: board poses seen from above (camera at the origin)"), (FONT_NAME, 18))
+            .caption(
+                format!("{name}: board poses seen from above (camera at the origin)"),
+                (FONT_NAME, 18),
+            )
             .margin(10)
             .x_label_area_size(35)
             .y_label_area_size(50)
             .build_cartesian_2d((xmin - 0.1)..(xmax + 0.1), 0f64..(zmax * 1.1))?;
-        chart.configure_mesh().x_desc("x (m)").y_desc("z (m)").label_style((FONT_NAME, 12)).draw()?;
+        chart
+            .configure_mesh()
+            .x_desc("x (m)")
+            .y_desc("z (m)")
+            .label_style((FONT_NAME, 12))
+            .draw()?;
         for (i, outline) in pts.iter().enumerate() {
             let colour = Palette99::pick(i).to_rgba();
             chart.draw_series(LineSeries::new(outline.clone(), colour.stroke_width(2)))?;

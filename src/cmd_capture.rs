@@ -133,10 +133,16 @@ pub fn parse_exposure(s: &str) -> std::result::Result<Exposure, String> {
     let e = match (mode.trim().to_ascii_lowercase().as_str(), rest) {
         ("auto", None) => Exposure::Auto { compensation: 0.0 },
         ("auto", Some(c)) => Exposure::Auto { compensation: parse_f32(c, "compensation")? },
-        ("semi" | "semi-auto", Some(ms)) => Exposure::SemiAuto { exposure_ms: parse_f32(ms, "exposure time")? },
+        ("semi" | "semi-auto", Some(ms)) => {
+            Exposure::SemiAuto { exposure_ms: parse_f32(ms, "exposure time")? }
+        }
         ("manual", Some(r)) => {
-            let (ms, gain) = r.split_once(',').ok_or_else(|| format!("manual needs MS,GAIN; {FORMS}"))?;
-            Exposure::Manual { integration_ms: parse_f32(ms, "integration time")?, analog_gain: parse_f32(gain, "analog gain")? }
+            let (ms, gain) =
+                r.split_once(',').ok_or_else(|| format!("manual needs MS,GAIN; {FORMS}"))?;
+            Exposure::Manual {
+                integration_ms: parse_f32(ms, "integration time")?,
+                analog_gain: parse_f32(gain, "analog gain")?,
+            }
         }
         _ => return Err(format!("`{s}`: {FORMS}")),
     };
@@ -151,13 +157,18 @@ pub fn parse_led(s: &str) -> std::result::Result<LedArg, String> {
         Some((m, r)) => (m, Some(r.trim())),
         None => (s, None),
     };
-    let arg = match (mode.trim().to_ascii_lowercase().as_str(), rest) {
-        ("off", None) => LedArg::Off,
-        ("on", None) => LedArg::On(protocol::LED_MAX_LEVEL),
-        ("on", Some(l)) => LedArg::On(l.parse().map_err(|_| format!("LED level `{l}` is not a whole number; {FORMS}"))?),
-        ("blink", Some(ms)) => LedArg::Blink(ms.parse().map_err(|_| format!("blink interval `{ms}` is not a whole number of ms; {FORMS}"))?),
-        _ => return Err(format!("`{s}`: {FORMS}")),
-    };
+    let arg =
+        match (mode.trim().to_ascii_lowercase().as_str(), rest) {
+            ("off", None) => LedArg::Off,
+            ("on", None) => LedArg::On(protocol::LED_MAX_LEVEL),
+            ("on", Some(l)) => LedArg::On(
+                l.parse().map_err(|_| format!("LED level `{l}` is not a whole number; {FORMS}"))?,
+            ),
+            ("blink", Some(ms)) => LedArg::Blink(ms.parse().map_err(|_| {
+                format!("blink interval `{ms}` is not a whole number of ms; {FORMS}")
+            })?),
+            _ => return Err(format!("`{s}`: {FORMS}")),
+        };
     arg.setting(0).validate().map_err(|e| e.to_string())?;
     Ok(arg)
 }
@@ -259,7 +270,9 @@ pub fn run_devices(args: DevicesArgs) -> Result<()> {
 
 fn not_found_hint(e: KinectError) -> anyhow::Error {
     match e {
-        KinectError::NoUsb(_) | KinectError::NotFound => anyhow::anyhow!("{}\n{}", e, KinectError::NotFound),
+        KinectError::NoUsb(_) | KinectError::NotFound => {
+            anyhow::anyhow!("{}\n{}", e, KinectError::NotFound)
+        }
         KinectError::Busy => anyhow::anyhow!("{e}"),
         e => anyhow::Error::new(e),
     }
@@ -273,11 +286,16 @@ pub fn run_capture(args: CaptureArgs) -> Result<()> {
             shots(&out, &names, "", interval, overwrite, &common)
         }
         CaptureMode::Scene { out, name, count, interval, overwrite, common } => {
-            let names: Vec<String> =
-                if count == 1 { vec![name.clone()] } else { (1..=count).map(|i| format!("{name}_{i:04}")).collect() };
+            let names: Vec<String> = if count == 1 {
+                vec![name.clone()]
+            } else {
+                (1..=count).map(|i| format!("{name}_{i:04}")).collect()
+            };
             shots(&out, &names, "scene", interval, overwrite, &common)
         }
-        CaptureMode::Record { output, frames, overwrite, common } => record(&output, frames, overwrite, &common),
+        CaptureMode::Record { output, frames, overwrite, common } => {
+            record(&output, frames, overwrite, &common)
+        }
     }
 }
 
@@ -289,7 +307,11 @@ fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
     let backend: Box<dyn UsbBackend> = if let Some(path) = &common.replay {
         let rec = read_recording_file(path, common.allow_truncated)?;
         if !rec.complete {
-            eprintln!("warning: {} is truncated; replaying its {} intact packets", path.display(), rec.events.len());
+            eprintln!(
+                "warning: {} is truncated; replaying its {} intact packets",
+                path.display(),
+                rec.events.len()
+            );
         }
         Box::new(SimDevice::replay(rec)?)
     } else {
@@ -303,7 +325,9 @@ fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
         }
     };
     let dev = KinectDevice::open(backend).map_err(|e| match e {
-        KinectError::Busy => anyhow::anyhow!("{e}\nhint: run `kfuse devices` to see which sensors are free"),
+        KinectError::Busy => {
+            anyhow::anyhow!("{e}\nhint: run `kfuse devices` to see which sensors are free")
+        }
         e => not_found_hint(e),
     })?;
     Ok((dev, sim))
@@ -313,7 +337,9 @@ fn exposure_text(e: &Exposure) -> String {
     match *e {
         Exposure::Auto { compensation } => format!("auto:{compensation}"),
         Exposure::SemiAuto { exposure_ms } => format!("semi:{exposure_ms}"),
-        Exposure::Manual { integration_ms, analog_gain } => format!("manual:{integration_ms},{analog_gain}"),
+        Exposure::Manual { integration_ms, analog_gain } => {
+            format!("manual:{integration_ms},{analog_gain}")
+        }
     }
 }
 
@@ -321,20 +347,31 @@ fn exposure_text(e: &Exposure) -> String {
 /// back. A refused setting is an error (the user asked for it); a failed read-back only warns.
 fn apply_settings(dev: &mut Device, common: &CommonArgs) -> Result<()> {
     if let Some(e) = &common.exposure {
-        dev.set_exposure(*e).with_context(|| format!("applying --exposure {}", exposure_text(e)))?;
+        dev.set_exposure(*e)
+            .with_context(|| format!("applying --exposure {}", exposure_text(e)))?;
         let readback = (|| -> kinect_usb::Result<String> {
             Ok(match dev.exposure_mode()? {
                 ExposureMode::Manual => {
-                    format!("manual, integration time {} ms, analog gain {}", dev.integration_time_ms()?, dev.analog_gain()?)
+                    format!(
+                        "manual, integration time {} ms, analog gain {}",
+                        dev.integration_time_ms()?,
+                        dev.analog_gain()?
+                    )
                 }
-                ExposureMode::SemiAuto => format!("semi-auto, exposure time {} ms", dev.exposure_time_ms()?),
-                ExposureMode::Auto => format!("auto, compensation {}", dev.exposure_compensation()?),
+                ExposureMode::SemiAuto => {
+                    format!("semi-auto, exposure time {} ms", dev.exposure_time_ms()?)
+                }
+                ExposureMode::Auto => {
+                    format!("auto, compensation {}", dev.exposure_compensation()?)
+                }
                 ExposureMode::Other(v) => format!("mode {v}"),
             })
         })();
         match readback {
             Ok(t) => eprintln!("colour exposure: {t} (read back from the sensor)"),
-            Err(err) => eprintln!("warning: --exposure was applied but reading it back failed: {err}"),
+            Err(err) => {
+                eprintln!("warning: --exposure was applied but reading it back failed: {err}")
+            }
         }
     }
     if let Some(l) = common.led {
@@ -342,7 +379,9 @@ fn apply_settings(dev: &mut Device, common: &CommonArgs) -> Result<()> {
         dev.set_led(setting).with_context(|| format!("applying --led (LED {})", common.led_id))?;
         let what = match setting.mode {
             LedMode::Constant if setting.start_level == 0 => "off".to_string(),
-            LedMode::Constant => format!("on at level {}/{}", setting.start_level, protocol::LED_MAX_LEVEL),
+            LedMode::Constant => {
+                format!("on at level {}/{}", setting.start_level, protocol::LED_MAX_LEVEL)
+            }
             LedMode::Blink => format!("blinking every {} ms", setting.interval_ms),
         };
         eprintln!("LED {}: {what}", common.led_id);
@@ -396,7 +435,9 @@ fn decoder_for(info: &DeviceInfo, no_filters: bool, exact: bool) -> Result<Depth
     let what = match (precision, dec.kernels()) {
         (DecoderPrecision::Exact, _) => "exact (bit-identical to libfreenect2's CPU decoder)",
         (DecoderPrecision::Fast, Kernels::Avx2) => "fast (eight-lane AVX2 kernels)",
-        (DecoderPrecision::Fast, Kernels::Portable) => "fast (four-lane kernels: this CPU has no AVX2)",
+        (DecoderPrecision::Fast, Kernels::Portable) => {
+            "fast (four-lane kernels: this CPU has no AVX2)"
+        }
     };
     eprintln!("depth decoder: {what}");
     Ok(dec)
@@ -444,7 +485,12 @@ struct Latest {
 }
 
 /// Pulls frames until both a depth and a colour frame newer than `since` are in `latest`.
-fn fresh_pair(dev: &mut Device, dec: &mut DepthDecoder, latest: &mut Latest, since: Instant) -> kinect_usb::Result<()> {
+fn fresh_pair(
+    dev: &mut Device,
+    dec: &mut DepthDecoder,
+    latest: &mut Latest,
+    since: Instant,
+) -> kinect_usb::Result<()> {
     let deadline = Instant::now() + FRAME_TIMEOUT;
     loop {
         let fresh = |t: Option<Instant>| t.is_some_and(|t| t >= since);
@@ -452,7 +498,10 @@ fn fresh_pair(dev: &mut Device, dec: &mut DepthDecoder, latest: &mut Latest, sin
             return Ok(());
         }
         if Instant::now() > deadline {
-            return Err(KinectError::Protocol { what: "capture".into(), detail: format!("no complete frame pair within {FRAME_TIMEOUT:?}") });
+            return Err(KinectError::Protocol {
+                what: "capture".into(),
+                detail: format!("no complete frame pair within {FRAME_TIMEOUT:?}"),
+            });
         }
         match dev.next_frame(FRAME_TIMEOUT, &mut |_, _| {})? {
             Some(Frame::Depth(f)) => {
@@ -469,13 +518,21 @@ fn fresh_pair(dev: &mut Device, dec: &mut DepthDecoder, latest: &mut Latest, sin
     }
 }
 
-fn shots(out: &Path, names: &[String], kind: &str, interval: Option<f64>, overwrite: bool, common: &CommonArgs) -> Result<()> {
+fn shots(
+    out: &Path,
+    names: &[String],
+    kind: &str,
+    interval: Option<f64>,
+    overwrite: bool,
+    common: &CommonArgs,
+) -> Result<()> {
     let kind = if kind == "scene" { ShotKind::Scene } else { ShotKind::Calib };
     let files = |n: &str| capture::shot_files(out, n, kind);
-    if !overwrite {
-        if let Some(p) = names.iter().flat_map(|n| files(n)).find(|p| p.exists()) {
-            bail!("{} already exists; pass --overwrite to replace, or choose another --out", p.display());
-        }
+    if !overwrite && let Some(p) = names.iter().flat_map(|n| files(n)).find(|p| p.exists()) {
+        bail!(
+            "{} already exists; pass --overwrite to replace, or choose another --out",
+            p.display()
+        );
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (mut dev, sim) = open(common)?;
@@ -492,8 +549,17 @@ fn shots(out: &Path, names: &[String], kind: &str, interval: Option<f64>, overwr
         eprintln!("Press Enter to take each of {} shots (Ctrl-D to stop early).", names.len());
     }
     let bar = ProgressBar::new(names.len() as u64);
-    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} shots {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-    let mut latest = Latest { depth: vec![0.0; PIXELS], ir: vec![0.0; PIXELS], color: Vec::new(), depth_at: None, color_at: None };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} shots {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut latest = Latest {
+        depth: vec![0.0; PIXELS],
+        ir: vec![0.0; PIXELS],
+        color: Vec::new(),
+        depth_at: None,
+        color_at: None,
+    };
     let mut saved = 0usize;
     let mut outcome: Result<()> = Ok(());
     for n in names {
@@ -539,9 +605,13 @@ fn shots(out: &Path, names: &[String], kind: &str, interval: Option<f64>, overwr
             Ok(())
         }
         Err(e) => {
-            let disconnected = matches!(e.downcast_ref::<KinectError>(), Some(KinectError::Disconnected { .. }));
+            let disconnected =
+                matches!(e.downcast_ref::<KinectError>(), Some(KinectError::Disconnected { .. }));
             if disconnected {
-                bail!("{e}\ncapture stopped: {saved} complete shot(s) were saved in {} and are intact; reconnect the sensor (USB 3 port, power) and run again", out.display());
+                bail!(
+                    "{e}\ncapture stopped: {saved} complete shot(s) were saved in {} and are intact; reconnect the sensor (USB 3 port, power) and run again",
+                    out.display()
+                );
             }
             if matches!(e.downcast_ref::<KinectError>(), Some(KinectError::EndOfStream)) {
                 bail!("the recording ended after {saved} shot(s) (saved in {})", out.display());
@@ -556,7 +626,12 @@ fn report_counters(dev: &Device) {
     if c.depth_dropped + c.depth_incomplete + c.color_dropped > 0 || c.iso_errors > 0 {
         eprintln!(
             "stream: {} depth frames, {} dropped (incomplete {}), {} iso packet errors; {} colour frames, {} dropped",
-            c.depth_frames, c.depth_dropped, c.depth_incomplete, c.iso_errors, c.color_frames, c.color_dropped
+            c.depth_frames,
+            c.depth_dropped,
+            c.depth_incomplete,
+            c.iso_errors,
+            c.color_frames,
+            c.color_dropped
         );
     }
 }
@@ -574,7 +649,10 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     }
     let meta = RecordingMeta::from_info(&info);
     let bar = ProgressBar::new(frames);
-    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} depth frames").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} depth frames")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
     let mut stop: Option<KinectError> = None;
     let mut got = 0u64;
     write_atomic(output, |w| {
@@ -613,7 +691,10 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             Ok(())
         }
         Some(e @ KinectError::Disconnected { .. }) => {
-            bail!("{e}\nrecording stopped: {got} complete depth frames were saved in {} (a valid, replayable file)", output.display())
+            bail!(
+                "{e}\nrecording stopped: {got} complete depth frames were saved in {} (a valid, replayable file)",
+                output.display()
+            )
         }
         Some(KinectError::EndOfStream) => {
             eprintln!("source recording ended: {got} depth frames written to {}", output.display());

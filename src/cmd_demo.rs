@@ -45,7 +45,10 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     images::write_depth_png16(&staged.join("depth.png"), &frame.depth)?;
     rigio::write_rig(&staged.join("rig.json"), &setup.rig)?;
     let input_dir = staged.commit()?;
-    println!("inputs written to {}/ (color.png, depth.png = 16-bit mm, rig.json)", input_dir.display());
+    println!(
+        "inputs written to {}/ (color.png, depth.png = 16-bit mm, rig.json)",
+        input_dir.display()
+    );
     let fuse = FuseArgs {
         rig: Some(input_dir.join("rig.json")),
         color: Some(input_dir.join("color.png")),

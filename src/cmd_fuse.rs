@@ -138,7 +138,13 @@ pub struct Inputs {
     pub description: serde_json::Value,
 }
 
-fn check_size(what: &str, path: &Path, got: (usize, usize), want: (usize, usize), rig_path: &Path) -> Result<()> {
+fn check_size(
+    what: &str,
+    path: &Path,
+    got: (usize, usize),
+    want: (usize, usize),
+    rig_path: &Path,
+) -> Result<()> {
     if got != want {
         bail!(
             "{what} {} is {}x{}, but the rig {} says that camera is {}x{}; pass the {what} of that camera or the rig it was calibrated with",
@@ -168,14 +174,28 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
             color: data.color,
         });
     }
-    let (Some(rig_path), Some(color_path), Some(depth_path)) = (&args.rig, &args.color, &args.depth) else {
+    let (Some(rig_path), Some(color_path), Some(depth_path)) =
+        (&args.rig, &args.color, &args.depth)
+    else {
         bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
     };
     let rig = rigio::read_rig(rig_path)?;
     let color = images::read_color(color_path)?;
-    check_size("colour image", color_path, color.size(), (rig.color.width, rig.color.height), rig_path)?;
+    check_size(
+        "colour image",
+        color_path,
+        color.size(),
+        (rig.color.width, rig.color.height),
+        rig_path,
+    )?;
     let depth = images::read_depth(depth_path, args.depth_scale)?;
-    check_size("depth image", depth_path, depth.size(), (rig.depth.width, rig.depth.height), rig_path)?;
+    check_size(
+        "depth image",
+        depth_path,
+        depth.size(),
+        (rig.depth.width, rig.depth.height),
+        rig_path,
+    )?;
     let kind = match args.depth_kind {
         DepthKindArg::Z => DepthKind::Z,
         DepthKindArg::Range => DepthKind::Range,
@@ -263,12 +283,23 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
                 GpuArg::On => fusion_gpu::GpuPolicy::Required,
                 GpuArg::Auto => fusion_gpu::GpuPolicy::Auto,
             };
-            let (output, engine) = fusion_gpu::fuse(policy, &inputs.rig, &inputs.depth, inputs.kind, &inputs.color, &options)
-                .with_context(|| format!("fusing {} on the GPU", input_names(args)))?;
+            let (output, engine) = fusion_gpu::fuse(
+                policy,
+                &inputs.rig,
+                &inputs.depth,
+                inputs.kind,
+                &inputs.color,
+                &options,
+            )
+            .with_context(|| format!("fusing {} on the GPU", input_names(args)))?;
             match engine {
                 // Printed beside the progress bar (which is hidden when stderr is not a terminal).
                 fusion_gpu::Engine::Gpu { adapter, software } => bar.suspend(|| {
-                    let note = if software { " (software Vulkan: exact, but slower than the CPU path)" } else { "" };
+                    let note = if software {
+                        " (software Vulkan: exact, but slower than the CPU path)"
+                    } else {
+                        ""
+                    };
                     eprintln!("GPU adapter: {adapter}{note}");
                 }),
                 fusion_gpu::Engine::CpuFallback { reason } => {
@@ -325,7 +356,12 @@ fn input_names(args: &FuseArgs) -> String {
     }
 }
 
-fn write_depth_pair(staged: &StagedDir, name: &str, depth: &Image<f32>, files: &mut Vec<String>) -> Result<()> {
+fn write_depth_pair(
+    staged: &StagedDir,
+    name: &str,
+    depth: &Image<f32>,
+    files: &mut Vec<String>,
+) -> Result<()> {
     images::write_depth_png16(&staged.join(format!("{name}.png")), depth)?;
     images::write_depth_exr(&staged.join(format!("{name}.exr")), depth)?;
     files.push(format!("{name}.png"));
@@ -333,7 +369,12 @@ fn write_depth_pair(staged: &StagedDir, name: &str, depth: &Image<f32>, files: &
     Ok(())
 }
 
-fn write_data(staged: &StagedDir, _inputs: &Inputs, out: &FusionOutput, files: &mut Vec<String>) -> Result<()> {
+fn write_data(
+    staged: &StagedDir,
+    _inputs: &Inputs,
+    out: &FusionOutput,
+    files: &mut Vec<String>,
+) -> Result<()> {
     ply::write_cloud_ply(&staged.join("cloud.ply"), &out.cloud, "depth camera")?;
     files.push("cloud.ply".into());
     write_depth_pair(staged, "depth_zbuffer", &out.zbuffer, files)?;
@@ -349,10 +390,20 @@ fn write_data(staged: &StagedDir, _inputs: &Inputs, out: &FusionOutput, files: &
     Ok(())
 }
 
-fn write_meshes(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files: &mut Vec<String>) -> Result<()> {
+fn write_meshes(
+    staged: &StagedDir,
+    inputs: &Inputs,
+    out: &FusionOutput,
+    files: &mut Vec<String>,
+) -> Result<()> {
     for (name, mesh) in [("mesh", &out.mesh), ("mesh_clean", &out.mesh_clean)] {
         let texture = format!("{name}_texture.png");
-        ply::write_mesh_ply(&staged.join(format!("{name}.ply")), mesh, "colour camera", Some(&texture))?;
+        ply::write_mesh_ply(
+            &staged.join(format!("{name}.ply")),
+            mesh,
+            "colour camera",
+            Some(&texture),
+        )?;
         obj::write_textured_obj(&staged.join(format!("{name}.obj")), mesh, Some(&inputs.color))?;
         for ext in [".ply", ".obj", ".mtl", "_texture.png"] {
             files.push(format!("{name}{ext}"));
@@ -367,7 +418,12 @@ const MESH_RENDER_WIDTH: usize = 960;
 /// the stretched faces along them are visible.
 const MESH_VIEW_DEG: (f64, f64) = (25.0, -12.0);
 
-fn write_figures(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files: &mut Vec<String>) -> Result<()> {
+fn write_figures(
+    staged: &StagedDir,
+    inputs: &Inputs,
+    out: &FusionOutput,
+    files: &mut Vec<String>,
+) -> Result<()> {
     let (cw, ch) = inputs.color.size();
     let mut save = |n: usize| {
         let name = format!("task{n}.png");
@@ -382,13 +438,22 @@ fn write_figures(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files:
     let mut task3 = vec![Panel::new("nearest", figures::depth_colors(&out.nearest, range))];
     match &out.linear {
         Some(l) => task3.push(Panel::new("Delaunay-linear", figures::depth_colors(l, range))),
-        None => task3.push(Panel::new("Delaunay-linear: not computed (--resample nearest)", Image::filled(cw, ch, [255, 255, 255]))),
+        None => task3.push(Panel::new(
+            "Delaunay-linear: not computed (--resample nearest)",
+            Image::filled(cw, ch, [255, 255, 255]),
+        )),
     }
     figures::save_panels(&save(3), titles::TASK3, &task3, 2)?;
     let mh = MESH_RENDER_WIDTH * ch / cw.max(1);
     for (n, title, mesh) in [(4, titles::TASK4, &out.mesh), (5, titles::TASK5, &out.mesh_clean)] {
-        let view = figures::render_mesh(mesh, MESH_RENDER_WIDTH, mh, MESH_VIEW_DEG.0, MESH_VIEW_DEG.1);
-        let caption = format!("{} triangles, turned {}° / {}°", mesh.faces.len(), MESH_VIEW_DEG.0, MESH_VIEW_DEG.1);
+        let view =
+            figures::render_mesh(mesh, MESH_RENDER_WIDTH, mh, MESH_VIEW_DEG.0, MESH_VIEW_DEG.1);
+        let caption = format!(
+            "{} triangles, turned {}° / {}°",
+            mesh.faces.len(),
+            MESH_VIEW_DEG.0,
+            MESH_VIEW_DEG.1
+        );
         figures::save_panels(&save(n), title, &[Panel::new(caption, view)], 1)?;
     }
     let depth_range = figures::robust_range(inputs.depth.data().iter().copied());
@@ -397,7 +462,10 @@ fn write_figures(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files:
         titles::TASK6,
         &[
             Panel::new("colour sampled on the depth grid", out.color_on_depth.clone()),
-            Panel::new("input depth (depth camera)", figures::depth_colors(&inputs.depth, depth_range)),
+            Panel::new(
+                "input depth (depth camera)",
+                figures::depth_colors(&inputs.depth, depth_range),
+            ),
         ],
         2,
     )?;
@@ -407,21 +475,34 @@ fn write_figures(staged: &StagedDir, inputs: &Inputs, out: &FusionOutput, files:
         &[
             Panel::new(
                 "z-buffer (nearest surface per colour pixel)",
-                figures::depth_colors(&figures::downsample_depth_min(&out.zbuffer, cw.div_ceil(figures::PANEL_WIDTH)), range),
+                figures::depth_colors(
+                    &figures::downsample_depth_min(&out.zbuffer, cw.div_ceil(figures::PANEL_WIDTH)),
+                    range,
+                ),
             ),
-            Panel::new("filled depth over the colour image", figures::depth_overlay(&inputs.color, &out.filled, 0.55)),
+            Panel::new(
+                "filled depth over the colour image",
+                figures::depth_overlay(&inputs.color, &out.filled, 0.55),
+            ),
         ],
         2,
     )?;
     let plane = match &out.summary.plane {
-        Some(p) => format!("filled from plane ({} px, RMS {:.1} mm)", out.summary.filled_pixels, p.rms_m * 1e3),
+        Some(p) => format!(
+            "filled from plane ({} px, RMS {:.1} mm)",
+            out.summary.filled_pixels,
+            p.rms_m * 1e3
+        ),
         None => "no plane found: holes left empty".into(),
     };
     figures::save_panels(
         &save(8),
         titles::TASK8,
         &[
-            Panel::new(format!("disocclusion holes ({} px)", out.summary.hole_pixels), figures::mask_colors(&out.hole_mask)),
+            Panel::new(
+                format!("disocclusion holes ({} px)", out.summary.hole_pixels),
+                figures::mask_colors(&out.hole_mask),
+            ),
             Panel::new(plane, figures::depth_colors(&out.filled, range)),
         ],
         2,
@@ -435,7 +516,12 @@ pub fn report(result: &FuseResult) {
     println!("fused {} depth samples into {} points", s.valid_depth_pixels, s.points);
     println!(
         "  colour view: {} samples, z-buffer {} px, holes {} px (filled {}), mesh {} -> {} faces after H5",
-        s.samples_in_view, s.zbuffer_pixels, s.hole_pixels, s.filled_pixels, s.faces_before, s.faces_after
+        s.samples_in_view,
+        s.zbuffer_pixels,
+        s.hole_pixels,
+        s.filled_pixels,
+        s.faces_before,
+        s.faces_after
     );
     let out = result.out.display();
     println!("results in {out}/");

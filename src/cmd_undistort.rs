@@ -2,10 +2,12 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result, bail};
 use calib::undistort::UndistortMap;
-use geometry::io::images::{read_color, read_depth, write_color_png, write_depth_png16, MILLIMETRES};
 use geometry::Rig;
+use geometry::io::images::{
+    MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Arguments of `kfuse undistort`.
@@ -35,31 +37,59 @@ pub struct UndistortArgs {
 
 /// Runs the command.
 pub fn run(args: UndistortArgs) -> Result<()> {
-    let text = std::fs::read_to_string(&args.rig).with_context(|| format!("reading rig file {}", args.rig.display()))?;
+    let text = std::fs::read_to_string(&args.rig)
+        .with_context(|| format!("reading rig file {}", args.rig.display()))?;
     let rig = Rig::from_json(&text, &args.rig)?;
     let cam = if args.camera == "color" { rig.color } else { rig.depth };
     let map = UndistortMap::new(&cam);
     if let Some(r) = cam.distortion.fold_radius() {
-        println!("note: the {} model folds at undistorted radius {r:.3}; {:.2} % of the output is masked", args.camera, 100.0 * map.masked_fraction());
+        println!(
+            "note: the {} model folds at undistorted radius {r:.3}; {:.2} % of the output is masked",
+            args.camera,
+            100.0 * map.masked_fraction()
+        );
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
     let pb = ProgressBar::new(args.images.len() as u64);
-    pb.set_style(ProgressStyle::with_template("undistorting [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    pb.set_style(
+        ProgressStyle::with_template("undistorting [{bar:30}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
     for path in &args.images {
-        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "image".into());
         let out = args.out.join(format!("{stem}_rect.png"));
         let eight_bit = calib::io::is_8bit(path)?;
         if eight_bit {
             let img = read_color(path)?;
             if img.size() != (cam.width, cam.height) {
-                bail!("{}: image is {}x{} but the rig's {} camera is {}x{}", path.display(), img.width(), img.height(), args.camera, cam.width, cam.height);
+                bail!(
+                    "{}: image is {}x{} but the rig's {} camera is {}x{}",
+                    path.display(),
+                    img.width(),
+                    img.height(),
+                    args.camera,
+                    cam.width,
+                    cam.height
+                );
             }
             let (rect, _) = map.remap_bilinear(&img);
             write_color_png(&out, &rect)?;
         } else {
             let depth = read_depth(path, MILLIMETRES)?;
             if depth.size() != (cam.width, cam.height) {
-                bail!("{}: image is {}x{} but the rig's {} camera is {}x{}", path.display(), depth.width(), depth.height(), args.camera, cam.width, cam.height);
+                bail!(
+                    "{}: image is {}x{} but the rig's {} camera is {}x{}",
+                    path.display(),
+                    depth.width(),
+                    depth.height(),
+                    args.camera,
+                    cam.width,
+                    cam.height
+                );
             }
             let rect = map.remap_nearest(&depth, f32::NAN);
             write_depth_png16(&out, &rect)?;

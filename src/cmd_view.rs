@@ -85,7 +85,11 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         };
         // Open the sensor before the window: no sensor is a plain CLI error.
         let page = LivePage::open(backend, &args.out).map_err(|e| anyhow!("{e}"))?;
-        eprintln!("{}: streaming; press C (calibration pair) or S (scene) to save into {}", page.title(), args.out.display());
+        eprintln!(
+            "{}: streaming; press C (calibration pair) or S (scene) to save into {}",
+            page.title(),
+            args.out.display()
+        );
         return run_window(ViewerApp::live(page));
     }
     let app = match (&args.dir, args.demo) {
@@ -105,7 +109,9 @@ pub fn run(args: &ViewArgs) -> Result<()> {
 
 fn run_window(app: ViewerApp) -> Result<()> {
     let options = eframe::NativeOptions {
-        viewport: egui::ViewportBuilder::default().with_inner_size([1280.0, 800.0]).with_title("kfuse view"),
+        viewport: egui::ViewportBuilder::default()
+            .with_inner_size([1280.0, 800.0])
+            .with_title("kfuse view"),
         renderer: eframe::Renderer::Wgpu,
         ..Default::default()
     };

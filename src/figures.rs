@@ -86,8 +86,13 @@ fn draw_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
 /// `t` in 0..1.
 pub fn colormap(t: f32) -> [u8; 3] {
     // Viridis anchors at t = 0, .25, .5, .75, 1.
-    const STOPS: [[f32; 3]; 5] =
-        [[68.0, 1.0, 84.0], [59.0, 82.0, 139.0], [33.0, 145.0, 140.0], [94.0, 201.0, 98.0], [253.0, 231.0, 37.0]];
+    const STOPS: [[f32; 3]; 5] = [
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
+    ];
     let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
     let x = t * 4.0;
     let i = (x.floor() as usize).min(3);
@@ -111,7 +116,8 @@ pub fn robust_range(values: impl Iterator<Item = f32>) -> Option<(f32, f32)> {
 
 /// Depth (metres) as colours: near = dark blue, far = yellow; `NaN` = black.
 pub fn depth_colors(depth: &Image<f32>, range: Option<(f32, f32)>) -> Image<[u8; 3]> {
-    let (lo, hi) = range.or_else(|| robust_range(depth.data().iter().copied())).unwrap_or((0.0, 1.0));
+    let (lo, hi) =
+        range.or_else(|| robust_range(depth.data().iter().copied())).unwrap_or((0.0, 1.0));
     depth.map(|&d| if d.is_finite() { colormap((d - lo) / (hi - lo)) } else { [0, 0, 0] })
 }
 
@@ -165,16 +171,22 @@ fn scaled(img: &Image<[u8; 3]>, width: usize) -> Image<[u8; 3]> {
     let height = (h * width).div_ceil(w).max(1);
     // Area-free nearest sampling: exact for the integer downscales used here, and it keeps
     // depth edges crisp (no blending of foreground and background).
-    Image::from_fn(width, height, |x, y| *img.get((x * w / width).min(w - 1), (y * h / height).min(h - 1)))
+    Image::from_fn(width, height, |x, y| {
+        *img.get((x * w / width).min(w - 1), (y * h / height).min(h - 1))
+    })
 }
 
 /// Saves image panels side by side (up to `columns` per row) under a title.
 pub fn save_panels(path: &Path, title: &str, panels: &[Panel], columns: usize) -> Result<()> {
     register_font();
     let columns = columns.clamp(1, panels.len().max(1));
-    let scaled: Vec<Image<[u8; 3]>> = panels.iter().map(|p| scaled(&p.image, PANEL_WIDTH)).collect();
+    let scaled: Vec<Image<[u8; 3]>> =
+        panels.iter().map(|p| scaled(&p.image, PANEL_WIDTH)).collect();
     let rows: Vec<&[Image<[u8; 3]>]> = scaled.chunks(columns).collect();
-    let row_heights: Vec<usize> = rows.iter().map(|r| r.iter().map(|i| i.height()).max().unwrap_or(0) + CAPTION_BAR).collect();
+    let row_heights: Vec<usize> = rows
+        .iter()
+        .map(|r| r.iter().map(|i| i.height()).max().unwrap_or(0) + CAPTION_BAR)
+        .collect();
     let w = columns * PANEL_WIDTH + (columns + 1) * GAP;
     let h = TITLE_BAR + row_heights.iter().sum::<usize>() + (rows.len() + 1) * GAP;
     let mut buf = vec![255u8; w * h * 3];
@@ -199,7 +211,8 @@ pub fn save_panels(path: &Path, title: &str, panels: &[Panel], columns: usize) -
         root.draw_text(title, &title_style, (GAP as i32, 12)).map_err(draw_err)?;
         let caption_style = TextStyle::from((FONT_NAME, 18).into_font()).color(&BLACK);
         for (p, (x0, y0)) in panels.iter().zip(&origins) {
-            root.draw_text(&p.caption, &caption_style, (*x0 as i32, *y0 as i32 + 6)).map_err(draw_err)?;
+            root.draw_text(&p.caption, &caption_style, (*x0 as i32, *y0 as i32 + 6))
+                .map_err(draw_err)?;
         }
         root.present().map_err(draw_err)?;
     }
@@ -219,10 +232,13 @@ pub fn save_cloud_3d(path: &Path, title: &str, cloud: &PointCloud) -> Result<()>
     register_font();
     let (w, h) = PLOT_SIZE;
     let mut buf = vec![255u8; (w * h * 3) as usize];
-    let idx: Vec<usize> = subsample(cloud.len(), MAX_SCATTER_POINTS).filter(|&i| cloud.points[i].iter().all(|v| v.is_finite())).collect();
+    let idx: Vec<usize> = subsample(cloud.len(), MAX_SCATTER_POINTS)
+        .filter(|&i| cloud.points[i].iter().all(|v| v.is_finite()))
+        .collect();
     let bound = |k: usize| -> (f64, f64) {
         let vals = idx.iter().map(|&i| cloud.points[i][k] as f64);
-        let (lo, hi) = vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        let (lo, hi) =
+            vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
         if lo.is_finite() && hi > lo { (lo, hi) } else { (0.0, 1.0) }
     };
     let (x, y, z) = (bound(0), bound(1), bound(2));
@@ -252,8 +268,16 @@ pub fn save_cloud_3d(path: &Path, title: &str, cloud: &PointCloud) -> Result<()>
         chart
             .draw_series(idx.iter().map(|&i| {
                 let p = cloud.points[i];
-                let c = if colored { cloud.colors[i] } else { colormap((p[2] - z.0 as f32) / (z.1 - z.0) as f32) };
-                Circle::new((p[0] as f64, -(p[1] as f64), p[2] as f64), 1, RGBColor(c[0], c[1], c[2]).filled())
+                let c = if colored {
+                    cloud.colors[i]
+                } else {
+                    colormap((p[2] - z.0 as f32) / (z.1 - z.0) as f32)
+                };
+                Circle::new(
+                    (p[0] as f64, -(p[1] as f64), p[2] as f64),
+                    1,
+                    RGBColor(c[0], c[1], c[2]).filled(),
+                )
             }))
             .map_err(draw_err)?;
         root.present().map_err(draw_err)?;
@@ -263,7 +287,13 @@ pub fn save_cloud_3d(path: &Path, title: &str, cloud: &PointCloud) -> Result<()>
 
 /// Scatter of projected samples `(u, v, z)` over the `width × height` image frame (v down),
 /// coloured by `z` (metres) with a colour-bar label.
-pub fn save_projected_scatter(path: &Path, title: &str, samples: &[[f32; 3]], width: usize, height: usize) -> Result<()> {
+pub fn save_projected_scatter(
+    path: &Path,
+    title: &str,
+    samples: &[[f32; 3]],
+    width: usize,
+    height: usize,
+) -> Result<()> {
     register_font();
     let (w, h) = PLOT_SIZE;
     let mut buf = vec![255u8; (w * h * 3) as usize];
@@ -298,7 +328,11 @@ pub fn save_projected_scatter(path: &Path, title: &str, samples: &[[f32; 3]], wi
             .map_err(draw_err)?;
         let legend = TextStyle::from((FONT_NAME, 15).into_font()).color(&BLACK);
         root.draw_text(
-            &format!("colour = z: dark blue {lo:.2} m → yellow {hi:.2} m ({} of {} samples shown)", idx.len(), samples.len()),
+            &format!(
+                "colour = z: dark blue {lo:.2} m → yellow {hi:.2} m ({} of {} samples shown)",
+                idx.len(),
+                samples.len()
+            ),
             &legend,
             (80, h as i32 - 22),
         )
@@ -315,7 +349,13 @@ const LIGHT: [f64; 3] = [-0.4, -0.5, -0.77];
 /// Renders a mesh (vertex colours, Lambert-shaded by face normal) seen from a virtual camera
 /// that looks at the mesh's centre from the original camera's side, turned by `yaw_deg`
 /// about the vertical and `pitch_deg` about the horizontal axis; z-buffered.
-pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch_deg: f64) -> Image<[u8; 3]> {
+pub fn render_mesh(
+    mesh: &Mesh,
+    width: usize,
+    height: usize,
+    yaw_deg: f64,
+    pitch_deg: f64,
+) -> Image<[u8; 3]> {
     let mut img = Image::filled(width, height, [255u8, 255, 255]);
     let finite: Vec<Vector3<f64>> = mesh
         .vertices
@@ -331,14 +371,16 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
     let mut dists: Vec<f64> = finite.iter().map(|v| (v - centre).norm()).collect();
     dists.sort_by(f64::total_cmp);
     let radius = dists[dists.len() * 9 / 10].max(1e-6);
-    let rot: Matrix3<f64> = *(Rotation3::from_axis_angle(&Vector3::x_axis(), pitch_deg.to_radians())
-        * Rotation3::from_axis_angle(&Vector3::y_axis(), yaw_deg.to_radians()))
-    .matrix();
+    let rot: Matrix3<f64> =
+        *(Rotation3::from_axis_angle(&Vector3::x_axis(), pitch_deg.to_radians())
+            * Rotation3::from_axis_angle(&Vector3::y_axis(), yaw_deg.to_radians()))
+        .matrix();
     // Virtual pinhole at 3 radii from the centre; the radius spans 55 % of the smaller side.
     let dist = 3.0 * radius;
     let f = 0.55 * width.min(height) as f64 * dist / radius;
     let view = |v: [f32; 3]| -> Option<(f64, f64, f64)> {
-        let p = rot * (Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64) - centre) + Vector3::new(0.0, 0.0, dist);
+        let p = rot * (Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64) - centre)
+            + Vector3::new(0.0, 0.0, dist);
         if p.z.is_nan() || p.z <= 1e-9 {
             return None;
         }
@@ -353,7 +395,8 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
         let pb = Vector3::new(vs[1][0] as f64, vs[1][1] as f64, vs[1][2] as f64);
         let pc = Vector3::new(vs[2][0] as f64, vs[2][1] as f64, vs[2][2] as f64);
         let n = rot * (pb - pa).cross(&(pc - pa));
-        let shade = if n.norm() > 0.0 { 0.35 + 0.65 * n.normalize().dot(&light).abs() } else { 1.0 };
+        let shade =
+            if n.norm() > 0.0 { 0.35 + 0.65 * n.normalize().dot(&light).abs() } else { 1.0 };
         let color = |k: usize| -> [f64; 3] {
             match mesh.colors.get(face[k] as usize) {
                 Some(c) => [c[0] as f64, c[1] as f64, c[2] as f64],
@@ -361,12 +404,19 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
             }
         };
         let (ca, cb, cc) = (color(0), color(1), color(2));
-        let plot = |img: &mut Image<[u8; 3]>, zbuf: &mut [f64], x: usize, y: usize, z: f64, w: [f64; 3]| {
+        let plot = |img: &mut Image<[u8; 3]>,
+                    zbuf: &mut [f64],
+                    x: usize,
+                    y: usize,
+                    z: f64,
+                    w: [f64; 3]| {
             let k = y * width + x;
             if z < zbuf[k] {
                 zbuf[k] = z;
-                *img.get_mut(x, y) =
-                    [0, 1, 2].map(|i| ((w[0] * ca[i] + w[1] * cb[i] + w[2] * cc[i]) * shade).round().clamp(0.0, 255.0) as u8);
+                *img.get_mut(x, y) = [0, 1, 2].map(|i| {
+                    ((w[0] * ca[i] + w[1] * cb[i] + w[2] * cc[i]) * shade).round().clamp(0.0, 255.0)
+                        as u8
+                });
             }
         };
         let area = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
@@ -400,7 +450,14 @@ pub fn render_mesh(mesh: &Mesh, width: usize, height: usize, yaw_deg: f64, pitch
         if !covered {
             let (cx, cy) = ((a.0 + b.0 + c.0) / 3.0, (a.1 + b.1 + c.1) / 3.0);
             if cx >= 0.0 && cy >= 0.0 && (cx as usize) < width && (cy as usize) < height {
-                plot(&mut img, &mut zbuf, cx as usize, cy as usize, (a.2 + b.2 + c.2) / 3.0, [1.0 / 3.0; 3]);
+                plot(
+                    &mut img,
+                    &mut zbuf,
+                    cx as usize,
+                    cy as usize,
+                    (a.2 + b.2 + c.2) / 3.0,
+                    [1.0 / 3.0; 3],
+                );
             }
         }
     }
@@ -420,7 +477,9 @@ mod tests {
 
     /// Counts pixels of `img` within 40 (sum of channel differences) of `c`.
     fn count_near(img: &image::RgbImage, c: [u8; 3]) -> usize {
-        img.pixels().filter(|p| (0..3).map(|k| (p.0[k] as i32 - c[k] as i32).abs()).sum::<i32>() < 40).count()
+        img.pixels()
+            .filter(|p| (0..3).map(|k| (p.0[k] as i32 - c[k] as i32).abs()).sum::<i32>() < 40)
+            .count()
     }
 
     #[test]
@@ -429,14 +488,23 @@ mod tests {
         let red = Image::filled(320, 240, [250u8, 0, 0]);
         let blue = Image::filled(64, 48, [0u8, 0, 250]);
         let path = dir.join("p.png");
-        save_panels(&path, titles::TASK3, &[Panel::new("nearest", red), Panel::new("linear", blue)], 2).unwrap();
+        save_panels(
+            &path,
+            titles::TASK3,
+            &[Panel::new("nearest", red), Panel::new("linear", blue)],
+            2,
+        )
+        .unwrap();
         let img = image::open(&path).unwrap().into_rgb8();
         // Two 640-wide panels scaled 2× and 10×: each covers 640 × 480 pixels.
         assert_eq!(img.width() as usize, 2 * PANEL_WIDTH + 3 * GAP);
         assert_eq!(count_near(&img, [250, 0, 0]), 640 * 480);
         assert_eq!(count_near(&img, [0, 0, 250]), 640 * 480);
         // Text was rendered: dark pixels exist in the title bar.
-        let dark = (0..TITLE_BAR as u32).flat_map(|y| (0..img.width()).map(move |x| (x, y))).filter(|&(x, y)| img.get_pixel(x, y).0[0] < 100).count();
+        let dark = (0..TITLE_BAR as u32)
+            .flat_map(|y| (0..img.width()).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.get_pixel(x, y).0[0] < 100)
+            .count();
         assert!(dark > 200, "title text missing ({dark} dark pixels)");
     }
 
@@ -452,7 +520,15 @@ mod tests {
         let img = render_mesh(&mesh, 200, 200, 0.0, 0.0);
         // Centre pixel is the square's colour, shaded by the light (|n·l| = 0.77 → 0.85).
         let c = img.get(100, 100);
-        assert!(c[1] == 0 && c[2] == 0 && (c[0] as f64 - 200.0 * (0.35 + 0.65 * 0.77 / (0.4f64 * 0.4 + 0.25 + 0.77 * 0.77).sqrt())).abs() <= 1.0, "{c:?}");
+        assert!(
+            c[1] == 0
+                && c[2] == 0
+                && (c[0] as f64
+                    - 200.0 * (0.35 + 0.65 * 0.77 / (0.4f64 * 0.4 + 0.25 + 0.77 * 0.77).sqrt()))
+                .abs()
+                    <= 1.0,
+            "{c:?}"
+        );
         // Corner is background.
         assert_eq!(*img.get(2, 2), [255, 255, 255]);
     }
@@ -461,11 +537,17 @@ mod tests {
     fn scatter_figures_render() {
         let dir = scratch("scatter");
         let cloud = PointCloud {
-            points: (0..500).map(|i| [(i % 25) as f32 * 0.1, (i / 25) as f32 * 0.1, 2.0 + (i % 7) as f32 * 0.05]).collect(),
+            points: (0..500)
+                .map(|i| {
+                    [(i % 25) as f32 * 0.1, (i / 25) as f32 * 0.1, 2.0 + (i % 7) as f32 * 0.05]
+                })
+                .collect(),
             colors: (0..500).map(|i| [(i % 255) as u8, 100, 50]).collect(),
         };
         save_cloud_3d(&dir.join("c.png"), titles::TASK1, &cloud).unwrap();
-        let samples: Vec<[f32; 3]> = (0..500).map(|i| [(i % 25) as f32 * 20.0, (i / 25) as f32 * 20.0, 1.0 + i as f32 * 0.01]).collect();
+        let samples: Vec<[f32; 3]> = (0..500)
+            .map(|i| [(i % 25) as f32 * 20.0, (i / 25) as f32 * 20.0, 1.0 + i as f32 * 0.01])
+            .collect();
         save_projected_scatter(&dir.join("s.png"), titles::TASK2, &samples, 640, 480).unwrap();
         for name in ["c.png", "s.png"] {
             let img = image::open(dir.join(name)).unwrap().into_rgb8();

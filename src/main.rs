@@ -9,8 +9,8 @@ mod figures;
 use clap::{Parser, Subcommand};
 
 mod cmd_calibrate;
-mod cmd_undistort;
 mod cmd_capture;
+mod cmd_undistort;
 
 /// Kinect v2 capture, calibration and RGB-D fusion.
 #[derive(Parser)]

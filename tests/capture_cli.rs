@@ -14,7 +14,11 @@ fn read_png16(p: &Path) -> Vec<u16> {
 /// The scene the sim shows: `geometry::synth::kinect_preset(false)` depth in mm.
 fn scene_mm() -> Vec<f32> {
     let f = geometry::synth::render(&geometry::synth::kinect_preset(false));
-    f.depth.data().iter().map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 }).collect()
+    f.depth
+        .data()
+        .iter()
+        .map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 })
+        .collect()
 }
 
 /// Calibration capture through the real CLI path (sim → USB protocol → iso parser → decoder →
@@ -25,7 +29,18 @@ fn calib_capture_on_sim_reproduces_scene_depth() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("calib");
     let st = kfuse()
-        .args(["capture", "calib", "--backend", "sim", "--count", "2", "--interval", "0", "--no-filters", "--out"])
+        .args([
+            "capture",
+            "calib",
+            "--backend",
+            "sim",
+            "--count",
+            "2",
+            "--interval",
+            "0",
+            "--no-filters",
+            "--out",
+        ])
         .arg(&out)
         .output()
         .unwrap();
@@ -35,12 +50,17 @@ fn calib_capture_on_sim_reproduces_scene_depth() {
         kinect_usb::decoder::Kernels::Avx2 => "depth decoder: fast (eight-lane AVX2 kernels)",
         kinect_usb::decoder::Kernels::Portable => "depth decoder: fast (four-lane kernels",
     };
-    assert!(String::from_utf8_lossy(&st.stderr).contains(kernels), "{}", String::from_utf8_lossy(&st.stderr));
+    assert!(
+        String::from_utf8_lossy(&st.stderr).contains(kernels),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
     for n in ["0001", "0002"] {
         assert!(out.join(format!("color_{n}.jpg")).exists());
         assert!(out.join(format!("ir_{n}.png")).exists());
     }
-    let params: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("kinect_params.json")).unwrap()).unwrap();
+    let params: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("kinect_params.json")).unwrap()).unwrap();
     assert!((params["depth"]["fx"].as_f64().unwrap() - 368.096588).abs() < 1e-3);
     let depth = read_png16(&out.join("depth_0002.png"));
     let truth = scene_mm();
@@ -63,7 +83,11 @@ fn calib_capture_on_sim_reproduces_scene_depth() {
     // Dim far pixels may fall below the decoder's amplitude gates; allow 0.5 %.
     assert!(missing * 200 <= n, "{missing} of {n} valid pixels lost");
     // Overwrite protection.
-    let st = kfuse().args(["capture", "calib", "--backend", "sim", "--count", "1", "--interval", "0", "--out"]).arg(&out).output().unwrap();
+    let st = kfuse()
+        .args(["capture", "calib", "--backend", "sim", "--count", "1", "--interval", "0", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
     assert!(!st.status.success());
     assert!(String::from_utf8_lossy(&st.stderr).contains("--overwrite"));
 }
@@ -93,13 +117,20 @@ fn scene_capture_on_keypress_via_stdin() {
     for r in 2..422 {
         for c in 2..510 {
             let i = r * 512 + c;
-            let flat = (-2i32..=2).all(|dr| (-2i32..=2).all(|dc| {
-                let j = ((r as i32 + dr) * 512 + c as i32 + dc) as usize;
-                (truth[j] - truth[i]).abs() < 30.0 && truth[j] > 0.0
-            }));
+            let flat = (-2i32..=2).all(|dr| {
+                (-2i32..=2).all(|dc| {
+                    let j = ((r as i32 + dr) * 512 + c as i32 + dc) as usize;
+                    (truth[j] - truth[i]).abs() < 30.0 && truth[j] > 0.0
+                })
+            });
             if flat && depth[i] > 0 {
                 checked += 1;
-                assert!((depth[i] as f32 - truth[i]).abs() <= 8.5, "pixel ({c},{r}): {} vs {}", depth[i], truth[i]);
+                assert!(
+                    (depth[i] as f32 - truth[i]).abs() <= 8.5,
+                    "pixel ({c},{r}): {} vs {}",
+                    depth[i],
+                    truth[i]
+                );
             }
         }
     }
@@ -113,12 +144,23 @@ fn scene_capture_on_keypress_via_stdin() {
 fn record_replay_unplug_busy() {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("s.kfrec");
-    let st = kfuse().args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"]).arg(&rec).output().unwrap();
+    let st = kfuse()
+        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"])
+        .arg(&rec)
+        .output()
+        .unwrap();
     assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
     let a = dir.path().join("a");
     let b = dir.path().join("b");
-    for (out, extra) in [(&a, vec!["--backend", "sim"]), (&b, vec!["--replay", rec.to_str().unwrap()])] {
-        let st = kfuse().args(["capture", "scene", "--interval", "0", "--out"]).arg(out).args(extra).output().unwrap();
+    for (out, extra) in
+        [(&a, vec!["--backend", "sim"]), (&b, vec!["--replay", rec.to_str().unwrap()])]
+    {
+        let st = kfuse()
+            .args(["capture", "scene", "--interval", "0", "--out"])
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
         assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
     }
     for f in ["scene_depth.png", "scene_ir.png", "scene_color.jpg"] {
@@ -128,14 +170,32 @@ fn record_replay_unplug_busy() {
     let bytes = std::fs::read(&rec).unwrap();
     let cut = dir.path().join("cut.kfrec");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let st = kfuse().args(["capture", "scene", "--interval", "0", "--replay"]).arg(&cut).arg("--out").arg(dir.path().join("c")).output().unwrap();
+    let st = kfuse()
+        .args(["capture", "scene", "--interval", "0", "--replay"])
+        .arg(&cut)
+        .arg("--out")
+        .arg(dir.path().join("c"))
+        .output()
+        .unwrap();
     assert!(!st.status.success());
     assert!(String::from_utf8_lossy(&st.stderr).contains("truncated"));
 
     // Unplug after 3 frame periods while 5 shots were asked: 2+ shots saved, clear message.
     let u = dir.path().join("u");
     let st = kfuse()
-        .args(["capture", "calib", "--backend", "sim", "--sim-unplug-after", "3", "--count", "5", "--interval", "0", "--out"])
+        .args([
+            "capture",
+            "calib",
+            "--backend",
+            "sim",
+            "--sim-unplug-after",
+            "3",
+            "--count",
+            "5",
+            "--interval",
+            "0",
+            "--out",
+        ])
         .arg(&u)
         .output()
         .unwrap();
@@ -143,12 +203,16 @@ fn record_replay_unplug_busy() {
     assert!(!st.status.success());
     assert!(err.contains("disappeared") && err.contains("were saved"), "{err}");
     let saved = (1..=5).filter(|i| u.join(format!("depth_{i:04}.png")).exists()).count();
-    assert!(saved >= 1 && saved < 5, "{saved}");
+    assert!((1..5).contains(&saved), "{saved}");
     for i in 1..=saved {
         assert_eq!(read_png16(&u.join(format!("depth_{i:04}.png"))).len(), 512 * 424);
     }
 
-    let st = kfuse().args(["capture", "scene", "--backend", "sim", "--sim-busy", "--interval", "0", "--out"]).arg(dir.path().join("busy")).output().unwrap();
+    let st = kfuse()
+        .args(["capture", "scene", "--backend", "sim", "--sim-busy", "--interval", "0", "--out"])
+        .arg(dir.path().join("busy"))
+        .output()
+        .unwrap();
     assert!(!st.status.success());
     assert!(String::from_utf8_lossy(&st.stderr).contains("device busy"));
 }
@@ -162,7 +226,10 @@ fn devices_without_sensor_says_not_found() {
         return;
     }
     let err = String::from_utf8_lossy(&st.stderr);
-    assert!(err.contains("no Kinect v2 found") && err.contains("USB 3") && err.contains("udev"), "{err}");
+    assert!(
+        err.contains("no Kinect v2 found") && err.contains("USB 3") && err.contains("udev"),
+        "{err}"
+    );
 }
 
 /// `--exposure manual:MS,GAIN` and `--led blink:MS` reach the simulated sensor after start-up
@@ -174,7 +241,18 @@ fn exposure_and_led_options_reach_the_sim() {
     let dir = tempfile::tempdir().unwrap();
     let report = dir.path().join("sim.json");
     let st = kfuse()
-        .args(["capture", "scene", "--backend", "sim", "--interval", "0", "--exposure", "manual:20,2", "--led", "blink:250"])
+        .args([
+            "capture",
+            "scene",
+            "--backend",
+            "sim",
+            "--interval",
+            "0",
+            "--exposure",
+            "manual:20,2",
+            "--led",
+            "blink:250",
+        ])
         .arg("--sim-report")
         .arg(&report)
         .arg("--out")
@@ -189,10 +267,16 @@ fn exposure_and_led_options_reach_the_sim() {
     assert_eq!(r["exposure_mode"], 4);
     assert_eq!(r["integration_time_ms"].as_f64().unwrap() as f32, 20.0);
     assert_eq!(r["analog_gain"].as_f64().unwrap() as f32, 2.0);
-    assert_eq!(r["led_api"], serde_json::json!([{ "id": 0, "blink": true, "start_level": 1000, "stop_level": 0, "interval_ms": 250 }]));
+    assert_eq!(
+        r["led_api"],
+        serde_json::json!([{ "id": 0, "blink": true, "start_level": 1000, "stop_level": 0, "interval_ms": 250 }])
+    );
     assert_eq!(r["violations"], serde_json::json!([]));
-    let cmds: Vec<&str> = r["commands"].as_array().unwrap().iter().map(|c| c.as_str().unwrap()).collect();
-    let at = |l: &str| cmds.iter().position(|c| *c == l).unwrap_or_else(|| panic!("{l} not in {cmds:?}"));
+    let cmds: Vec<&str> =
+        r["commands"].as_array().unwrap().iter().map(|c| c.as_str().unwrap()).collect();
+    let at = |l: &str| {
+        cmds.iter().position(|c| *c == l).unwrap_or_else(|| panic!("{l} not in {cmds:?}"))
+    };
     // 20.0f32 = 0x41A00000 = 1101004800, 2.0f32 = 0x40000000 = 1073741824.
     let manual = [
         at("cmd 0x3e seq 0 [1, 0, 25, 0]"),
@@ -221,7 +305,13 @@ fn bad_exposure_and_led_values_are_named() {
         (vec!["--led", "on", "--led-id", "2"], "--led-id"),
         (vec!["--exposure", "auto", "--replay", "x.kfrec"], "cannot be used with"),
     ] {
-        let st = kfuse().args(["capture", "scene", "--backend", "sim", "--interval", "0"]).args(&args).arg("--out").arg(dir.path()).output().unwrap();
+        let st = kfuse()
+            .args(["capture", "scene", "--backend", "sim", "--interval", "0"])
+            .args(&args)
+            .arg("--out")
+            .arg(dir.path())
+            .output()
+            .unwrap();
         let err = String::from_utf8_lossy(&st.stderr);
         assert!(!st.status.success(), "{args:?}");
         assert!(err.contains(want), "{args:?}: {err}");

@@ -1,12 +1,13 @@
 //! End-to-end tests of `kfuse calibrate` and `kfuse undistort` on the shared data.
 
+use geometry::testdata::shared_data_or_skip as shared;
 use std::path::Path;
 use std::process::Command;
-use geometry::testdata::shared_data_or_skip as shared;
 
 fn kfuse(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("kfuse runs");
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let text =
+        format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     (out.status.success(), text)
 }
 
@@ -17,15 +18,32 @@ fn calibrates_the_real_ir_session_and_writes_the_report() {
     let out = tmp.path().join("ir.json");
     let report = tmp.path().join("report");
     let pattern = format!("{}/kinect-lab/ir_*.bmp", data.display());
-    let (ok, text) = kfuse(&["calibrate", "--ir", &pattern, "--lab-settings", "--out", out.to_str().unwrap(), "--report", report.to_str().unwrap()]);
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--ir",
+        &pattern,
+        "--lab-settings",
+        "--out",
+        out.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
     assert!(ok, "{text}");
     // ir_23 has no board and is reported as such; the other 11 are used.
     assert!(text.contains("ir_23.bmp") && text.contains("REJECTED"), "{text}");
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     let fx = v["camera"]["fx"].as_f64().unwrap();
     // The lab's fc(1) = 364.126 ± 2.62 (3σ).
     assert!((fx - 364.126).abs() < 2.62, "fx {fx}");
-    for f in ["report.json", "per_image_error.png", "residuals_ir.png", "board_poses_ir.png", "corners_ir_1.png", "corners_ir_23.png"] {
+    for f in [
+        "report.json",
+        "per_image_error.png",
+        "residuals_ir.png",
+        "board_poses_ir.png",
+        "corners_ir_1.png",
+        "corners_ir_23.png",
+    ] {
         assert!(report.join(f).is_file(), "{f} missing");
     }
 }
@@ -39,7 +57,8 @@ fn bad_inputs_fail_clearly_and_write_nothing() {
     let lab = data.join("kinect-lab");
     let syn = data.join("synthetic-calib");
     // No board in any image.
-    let (ok, text) = kfuse(&["calibrate", "--ir", lab.join("ir_23.bmp").to_str().unwrap(), "--out", o]);
+    let (ok, text) =
+        kfuse(&["calibrate", "--ir", lab.join("ir_23.bmp").to_str().unwrap(), "--out", o]);
     assert!(!ok && text.contains("no 7x5 checkerboard found"), "{text}");
     // Fewer than 3 usable views.
     let two = format!("{}/kinect-lab/ir_1?.bmp", data.display()); // ir_10, ir_11
@@ -47,19 +66,39 @@ fn bad_inputs_fail_clearly_and_write_nothing() {
     assert!(!ok && text.contains("at least 3 are needed"), "{text}");
     // Mixed image sizes within one camera.
     let (ok, text) = kfuse(&[
-        "calibrate", "--ir", lab.join("ir_1.bmp").to_str().unwrap(), "--ir", lab.join("ir_3.bmp").to_str().unwrap(),
-        "--ir", syn.join("color/color_01.png").to_str().unwrap(), "--out", o,
+        "calibrate",
+        "--ir",
+        lab.join("ir_1.bmp").to_str().unwrap(),
+        "--ir",
+        lab.join("ir_3.bmp").to_str().unwrap(),
+        "--ir",
+        syn.join("color/color_01.png").to_str().unwrap(),
+        "--out",
+        o,
     ]);
     assert!(!ok && text.contains("must have the same size"), "{text}");
     // A pair where only the colour image shows the board.
     let dir = tmp.path().join("pairs");
     std::fs::create_dir_all(&dir).unwrap();
     for i in 1..=4 {
-        std::fs::copy(syn.join(format!("color/color_{i:02}.png")), dir.join(format!("color_{i}.png"))).unwrap();
+        std::fs::copy(
+            syn.join(format!("color/color_{i:02}.png")),
+            dir.join(format!("color_{i}.png")),
+        )
+        .unwrap();
         let ir = if i == 4 { lab.join("ir_23.bmp") } else { syn.join(format!("ir/ir_{i:02}.png")) };
-        std::fs::copy(ir, dir.join(format!("ir_{i}.{}", if i == 4 { "bmp" } else { "png" }))).unwrap();
+        std::fs::copy(ir, dir.join(format!("ir_{i}.{}", if i == 4 { "bmp" } else { "png" })))
+            .unwrap();
     }
-    let (ok, text) = kfuse(&["calibrate", "--color", &format!("{}/color_*", dir.display()), "--ir", &format!("{}/ir_*", dir.display()), "--out", o]);
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--color",
+        &format!("{}/color_*", dir.display()),
+        "--ir",
+        &format!("{}/ir_*", dir.display()),
+        "--out",
+        o,
+    ]);
     assert!(!ok && text.contains("pair 4") && text.contains("--allow-unpaired"), "{text}");
     // A pattern matching nothing.
     let (ok, text) = kfuse(&["calibrate", "--ir", "/nonexistent/ir_*.png", "--out", o]);
@@ -85,7 +124,16 @@ fn undistort_writes_rect_images() {
     .unwrap();
     let out = tmp.path().join("rect");
     let img = data.join("kinect-lab/ir_1.bmp");
-    let (ok, text) = kfuse(&["undistort", "--rig", rig.to_str().unwrap(), "--camera", "depth", img.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let (ok, text) = kfuse(&[
+        "undistort",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--camera",
+        "depth",
+        img.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(ok, "{text}");
     let rect = calib::io::read_gray(&out.join("ir_1_rect.png")).unwrap();
     let input = calib::io::read_gray(&img).unwrap();
@@ -141,14 +189,28 @@ fn fronto_parallel_boards_are_refused_with_the_fix() {
     std::fs::create_dir_all(&dir).unwrap();
     // Five boards turned only about the optical axis, at different places and distances:
     // every homography is a similarity, so the focal length is unobservable (Zhang).
-    let poses = [(0.0, [-0.12, -0.08, 0.60]), (0.35, [-0.08, -0.12, 0.65]), (-0.3, [-0.16, -0.02, 0.70]), (0.15, [-0.14, -0.10, 0.55]), (-0.1, [-0.10, -0.06, 0.75])];
+    let poses = [
+        (0.0, [-0.12, -0.08, 0.60]),
+        (0.35, [-0.08, -0.12, 0.65]),
+        (-0.3, [-0.16, -0.02, 0.70]),
+        (0.15, [-0.14, -0.10, 0.55]),
+        (-0.1, [-0.10, -0.06, 0.75]),
+    ];
     for (i, (rz, t)) in poses.iter().enumerate() {
         render_board(*rz, 0.0, *t).save(dir.join(format!("ir_{}.png", i + 1))).unwrap();
     }
     let out = tmp.path().join("rig.json");
     let report = tmp.path().join("report");
     let pattern = format!("{}/ir_*.png", dir.display());
-    let (ok, text) = kfuse(&["calibrate", "--ir", &pattern, "--out", out.to_str().unwrap(), "--report", report.to_str().unwrap()]);
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--ir",
+        &pattern,
+        "--out",
+        out.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
     assert!(!ok, "fronto-parallel boards must fail:\n{text}");
     // The message names the degeneracy and the fix.
     assert!(text.contains("fronto-parallel") && text.contains("tilt the board 20–45°"), "{text}");
@@ -156,7 +218,8 @@ fn fronto_parallel_boards_are_refused_with_the_fix() {
     assert!(!text.contains("REJECTED"), "{text}");
     // Nothing half-written: no rig file, no report folder, no staging folder.
     assert!(!out.exists() && !report.exists(), "{text}");
-    let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let left: Vec<_> =
+        std::fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(left, vec![std::ffi::OsString::from("imgs")], "{text}");
     // The same boards tilted by 30° about their x axis (alternating sign) calibrate: the
     // refusal above is the geometry's, not the renderer's.
@@ -166,7 +229,8 @@ fn fronto_parallel_boards_are_refused_with_the_fix() {
     }
     let (ok, text) = kfuse(&["calibrate", "--ir", &pattern, "--out", out.to_str().unwrap()]);
     assert!(ok, "{text}");
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     let fx = v["camera"]["fx"].as_f64().unwrap();
     // Sharp, noise-free pinhole images: the rendered f = 365 px within 0.5 %.
     assert!((fx - 365.0).abs() < 0.005 * 365.0, "fx {fx}\n{text}");
@@ -174,18 +238,37 @@ fn fronto_parallel_boards_are_refused_with_the_fix() {
 
 /// Mean distance (px) from every corner in `report.json`'s `detected_corners` to the nearest
 /// of the lab's Bouguet corners of the same image, over the images both have.
-fn mean_distance_to_bouguet(report: &Path, bouguet: &calib::bouguet::BouguetCamera) -> (f64, usize) {
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap()).unwrap();
+fn mean_distance_to_bouguet(
+    report: &Path,
+    bouguet: &calib::bouguet::BouguetCamera,
+) -> (f64, usize) {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
+            .unwrap();
     let (mut sum, mut n) = (0.0, 0usize);
     // A single-camera report is the camera file itself, with the report under `calibration`.
     for img in v["calibration"]["images"].as_array().expect("report lists images") {
-        let name = Path::new(img["image"].as_str().unwrap_or_default()).file_name().unwrap().to_string_lossy().into_owned();
+        let name = Path::new(img["image"].as_str().unwrap_or_default())
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
         // ir_N.bmp is the lab's view N.
-        let Some(k) = name.strip_prefix("ir_").and_then(|s| s.strip_suffix(".bmp")).and_then(|s| s.parse::<usize>().ok()) else { continue };
+        let Some(k) = name
+            .strip_prefix("ir_")
+            .and_then(|s| s.strip_suffix(".bmp"))
+            .and_then(|s| s.parse::<usize>().ok())
+        else {
+            continue;
+        };
         let Some(Some(lab)) = bouguet.views.get(k - 1) else { continue };
         for c in img["detected_corners"].as_array().into_iter().flatten() {
             let (x, y) = (c[1].as_f64().unwrap(), c[2].as_f64().unwrap());
-            let d = lab.corners.iter().map(|l| ((l.px.x - x).powi(2) + (l.px.y - y).powi(2)).sqrt()).fold(f64::INFINITY, f64::min);
+            let d = lab
+                .corners
+                .iter()
+                .map(|l| ((l.px.x - x).powi(2) + (l.px.y - y).powi(2)).sqrt())
+                .fold(f64::INFINITY, f64::min);
             sum += d;
             n += 1;
         }
@@ -195,8 +278,13 @@ fn mean_distance_to_bouguet(report: &Path, bouguet: &calib::bouguet::BouguetCame
 
 #[test]
 fn corners_flag_selects_the_estimator_and_subpix_matches_the_labs_toolbox() {
-    let Some(data) = shared("corners_flag_selects_the_estimator_and_subpix_matches_the_labs_toolbox") else { return };
-    let bouguet = calib::bouguet::import_mono(&data.join("kinect-lab/Calib_Results_left.mat")).unwrap();
+    let Some(data) =
+        shared("corners_flag_selects_the_estimator_and_subpix_matches_the_labs_toolbox")
+    else {
+        return;
+    };
+    let bouguet =
+        calib::bouguet::import_mono(&data.join("kinect-lab/Calib_Results_left.mat")).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     let pattern = format!("{}/kinect-lab/ir_*.bmp", data.display());
     let mut means = Vec::new();
@@ -204,7 +292,16 @@ fn corners_flag_selects_the_estimator_and_subpix_matches_the_labs_toolbox() {
         let out = tmp.path().join(format!("{mode}.json"));
         let report = tmp.path().join(format!("report-{mode}"));
         let (ok, text) = kfuse(&[
-            "calibrate", "--ir", &pattern, "--lab-settings", "--corners", mode, "--out", out.to_str().unwrap(), "--report", report.to_str().unwrap(),
+            "calibrate",
+            "--ir",
+            &pattern,
+            "--lab-settings",
+            "--corners",
+            mode,
+            "--out",
+            out.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
         ]);
         assert!(ok, "{mode}: {text}");
         let (mean, n) = mean_distance_to_bouguet(&report, &bouguet);

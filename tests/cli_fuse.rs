@@ -6,9 +6,9 @@ use std::process::{Command, Output};
 
 use geometry::io::mat::{MatValue, write_mat};
 use geometry::io::{images, rig as rigio};
+use geometry::testdata::shared_data_or_skip as shared_data;
 use geometry::{CameraModel, Distortion, Image, Intrinsics, Rig, RigidTransform};
 use nalgebra::Vector3;
-use geometry::testdata::shared_data_or_skip as shared_data;
 
 fn kfuse(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("run kfuse")
@@ -48,7 +48,9 @@ fn demo_outputs_open_in_third_party_readers() {
     let valid: Vec<u16> = depth.pixels().map(|p| p.0[0]).filter(|&d| d > 0).collect();
     assert!(valid.len() > 150_000, "{} valid depth pixels", valid.len());
     assert!(valid.iter().all(|&d| (900..=4500).contains(&d)), "depth outside 0.9-4.5 m");
-    let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("input/rig.json")).unwrap()).unwrap();
+    let rig: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("input/rig.json")).unwrap())
+            .unwrap();
     assert_eq!(rig["format"], "kfuse-rig");
 
     let fused = out.join("fused");
@@ -61,14 +63,26 @@ fn demo_outputs_open_in_third_party_readers() {
 
     // cloud.ply: ply-rs reads the same number of coloured points.
     let mut f = std::io::BufReader::new(std::fs::File::open(fused.join("cloud.ply")).unwrap());
-    let ply = ply_rs::parser::Parser::<ply_rs::ply::DefaultElement>::new().read_ply(&mut f).unwrap();
+    let ply =
+        ply_rs::parser::Parser::<ply_rs::ply::DefaultElement>::new().read_ply(&mut f).unwrap();
     let vertices = &ply.payload["vertex"];
     assert_eq!(vertices.len(), points);
-    assert!(matches!(vertices[0].get("red"), Some(ply_rs::ply::Property::UChar(_))), "cloud has no colours");
+    assert!(
+        matches!(vertices[0].get("red"), Some(ply_rs::ply::Property::UChar(_))),
+        "cloud has no colours"
+    );
     let coloured = vertices
         .iter()
-        .filter(|v| !matches!((v.get("red"), v.get("green"), v.get("blue")),
-            (Some(ply_rs::ply::Property::UChar(0)), Some(ply_rs::ply::Property::UChar(0)), Some(ply_rs::ply::Property::UChar(0)))))
+        .filter(|v| {
+            !matches!(
+                (v.get("red"), v.get("green"), v.get("blue")),
+                (
+                    Some(ply_rs::ply::Property::UChar(0)),
+                    Some(ply_rs::ply::Property::UChar(0)),
+                    Some(ply_rs::ply::Property::UChar(0))
+                )
+            )
+        })
         .count();
     assert!(coloured > points / 2, "only {coloured} of {points} points got a colour");
 
@@ -89,7 +103,8 @@ fn demo_outputs_open_in_third_party_readers() {
     let png = image::open(fused.join("depth_filled.png")).unwrap();
     let png = png.as_luma16().unwrap();
     assert_eq!(png.dimensions(), (1920, 1080));
-    let exr = exr::prelude::read_first_flat_layer_from_file(fused.join("depth_filled.exr")).unwrap();
+    let exr =
+        exr::prelude::read_first_flat_layer_from_file(fused.join("depth_filled.exr")).unwrap();
     let ch = &exr.layer_data.channel_data.list[0];
     let mut compared = 0;
     for (i, p) in png.pixels().enumerate().step_by(97) {
@@ -97,17 +112,33 @@ fn demo_outputs_open_in_third_party_readers() {
         if p.0[0] == 0 {
             assert!(m.is_nan());
         } else {
-            assert!((p.0[0] as f32 * 1e-3 - m).abs() <= 0.5e-3 + 1e-6, "pixel {i}: {} mm vs {m} m", p.0[0]);
+            assert!(
+                (p.0[0] as f32 * 1e-3 - m).abs() <= 0.5e-3 + 1e-6,
+                "pixel {i}: {} mm vs {m} m",
+                p.0[0]
+            );
             compared += 1;
         }
     }
     assert!(compared > 10_000);
-    for name in ["hole_mask.png", "color_on_depth.png", "depth_linear.png", "depth_zbuffer.exr", "mesh.ply", "mesh.mtl"] {
+    for name in [
+        "hole_mask.png",
+        "color_on_depth.png",
+        "depth_linear.png",
+        "depth_zbuffer.exr",
+        "mesh.ply",
+        "mesh.mtl",
+    ] {
         assert!(fused.join(name).is_file(), "{name} missing");
     }
     for n in 1..=8 {
         let fig = image::open(fused.join(format!("task{n}.png"))).unwrap();
-        assert!(fig.width() >= 600 && fig.height() >= 400, "task{n}.png is {}x{}", fig.width(), fig.height());
+        assert!(
+            fig.width() >= 600 && fig.height() >= 400,
+            "task{n}.png is {}x{}",
+            fig.width(),
+            fig.height()
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -118,7 +149,14 @@ fn fuse_reads_the_course_mat_file() {
     let dir = scratch("course");
     let out = dir.join("fused");
     let mat = data.join("course/synthdata.mat");
-    let o = kfuse(&["fuse", "--mat", mat.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-figures"]);
+    let o = kfuse(&[
+        "fuse",
+        "--mat",
+        mat.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--no-figures",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let s = summary(&out);
     assert_eq!(s["summary"]["depth_kind"], "range");
@@ -135,7 +173,11 @@ fn fuse_reads_the_course_mat_file() {
 fn small_rig() -> Rig {
     let depth = CameraModel::new(64, 48, Intrinsics::new(60.0, 60.0, 31.5, 23.5), Distortion::NONE);
     let color = CameraModel::new(96, 72, Intrinsics::new(90.0, 90.0, 47.5, 35.5), Distortion::NONE);
-    Rig::new(depth, color, RigidTransform::new(nalgebra::Rotation3::identity(), Vector3::new(-0.05, 0.0, 0.0)))
+    Rig::new(
+        depth,
+        color,
+        RigidTransform::new(nalgebra::Rotation3::identity(), Vector3::new(-0.05, 0.0, 0.0)),
+    )
 }
 
 struct Case {
@@ -150,9 +192,11 @@ fn small_case(name: &str) -> Case {
     let rig = dir.join("rig.json");
     rigio::write_rig(&rig, &small_rig()).unwrap();
     let color = dir.join("color.png");
-    images::write_color_png(&color, &Image::from_fn(96, 72, |x, y| [x as u8, y as u8, 100])).unwrap();
+    images::write_color_png(&color, &Image::from_fn(96, 72, |x, y| [x as u8, y as u8, 100]))
+        .unwrap();
     let depth = dir.join("depth.png");
-    images::write_depth_png16(&depth, &Image::from_fn(64, 48, |x, _| 1.5 + 0.01 * x as f32)).unwrap();
+    images::write_depth_png16(&depth, &Image::from_fn(64, 48, |x, _| 1.5 + 0.01 * x as f32))
+        .unwrap();
     Case { dir, rig, color, depth }
 }
 
@@ -177,7 +221,10 @@ fn assert_clean_failure(o: &Output, out: &Path, file: &str, also: &str) {
     let err = stderr(o);
     assert!(!o.status.success(), "expected failure, got success");
     assert!(err.contains(file), "error does not name {file}: {err}");
-    assert!(err.to_lowercase().contains(&also.to_lowercase()), "error does not say '{also}': {err}");
+    assert!(
+        err.to_lowercase().contains(&also.to_lowercase()),
+        "error does not say '{also}': {err}"
+    );
     assert!(!out.exists(), "output folder left behind");
     let leftovers: Vec<_> = std::fs::read_dir(out.parent().unwrap())
         .unwrap()

@@ -4,9 +4,9 @@
 
 use std::path::PathBuf;
 
-use calib::detect::{detect, detect_views, to_f32, DetectorParams};
-use calib::{calibrate_mono, calibrate_stereo, Board, CalibFlags, StereoOptions, ViewCorners};
-use criterion::{criterion_group, criterion_main, Criterion};
+use calib::detect::{DetectorParams, detect, detect_views, to_f32};
+use calib::{Board, CalibFlags, StereoOptions, ViewCorners, calibrate_mono, calibrate_stereo};
+use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::Image;
 
 fn data() -> Option<PathBuf> {
@@ -22,7 +22,8 @@ fn data() -> Option<PathBuf> {
 }
 
 fn load(dir: &std::path::Path, cam: &str, i: usize) -> Image<u8> {
-    calib::io::read_gray(&dir.join(format!("synthetic-calib/{cam}/{cam}_{:02}.png", i % 15 + 1))).expect("readable test image")
+    calib::io::read_gray(&dir.join(format!("synthetic-calib/{cam}/{cam}_{:02}.png", i % 15 + 1)))
+        .expect("readable test image")
 }
 
 fn benches(c: &mut Criterion) {
@@ -40,25 +41,35 @@ fn benches(c: &mut Criterion) {
     // 25 pairs (the 15 rendered poses, cycled).
     let irs: Vec<Image<u8>> = (0..25).map(|i| load(&dir, "ir", i)).collect();
     let colors: Vec<Image<u8>> = (0..25).map(|i| load(&dir, "color", i)).collect();
-    let irn: Vec<(String, &Image<u8>)> = irs.iter().enumerate().map(|(i, im)| (format!("ir{i}"), im)).collect();
-    let coln: Vec<(String, &Image<u8>)> = colors.iter().enumerate().map(|(i, im)| (format!("c{i}"), im)).collect();
+    let irn: Vec<(String, &Image<u8>)> =
+        irs.iter().enumerate().map(|(i, im)| (format!("ir{i}"), im)).collect();
+    let coln: Vec<(String, &Image<u8>)> =
+        colors.iter().enumerate().map(|(i, im)| (format!("c{i}"), im)).collect();
     let (dv, _) = detect_views(&irn, &board);
     let (cv, _) = detect_views(&coln, &board);
-    let cv: Vec<ViewCorners> = dv.iter().zip(&cv).map(|(d, c)| calib::detect::align_pair(d, c, &board)).collect();
+    let cv: Vec<ViewCorners> =
+        dv.iter().zip(&cv).map(|(d, c)| calib::detect::align_pair(d, c, &board)).collect();
     let mut g = c.benchmark_group("calibration");
     g.sample_size(10);
     g.bench_function("mono 25 views (IR corners)", |b| {
-        b.iter(|| calibrate_mono("ir", &board, &dv, &CalibFlags::default(), None).expect("calibrates"))
+        b.iter(|| {
+            calibrate_mono("ir", &board, &dv, &CalibFlags::default(), None).expect("calibrates")
+        })
     });
     g.bench_function("stereo 25 pairs from corners", |b| {
-        b.iter(|| calibrate_stereo(&board, &dv, &cv, &StereoOptions::default(), None, None).expect("calibrates"))
+        b.iter(|| {
+            calibrate_stereo(&board, &dv, &cv, &StereoOptions::default(), None, None)
+                .expect("calibrates")
+        })
     });
     g.bench_function("end to end: detect 25 IR + 25 colour 1080p, stereo", |b| {
         b.iter(|| {
             let (d, _) = detect_views(&irn, &board);
             let (c, _) = detect_views(&coln, &board);
-            let c: Vec<ViewCorners> = d.iter().zip(&c).map(|(d, c)| calib::detect::align_pair(d, c, &board)).collect();
-            calibrate_stereo(&board, &d, &c, &StereoOptions::default(), None, None).expect("calibrates")
+            let c: Vec<ViewCorners> =
+                d.iter().zip(&c).map(|(d, c)| calib::detect::align_pair(d, c, &board)).collect();
+            calibrate_stereo(&board, &d, &c, &StereoOptions::default(), None, None)
+                .expect("calibrates")
         })
     });
     g.finish();

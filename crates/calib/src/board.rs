@@ -37,7 +37,9 @@ impl Board {
             )));
         }
         if !(square_m.is_finite() && square_m > 0.0) {
-            return Err(CalibError::InvalidArgument(format!("square length {square_m} m must be positive")));
+            return Err(CalibError::InvalidArgument(format!(
+                "square length {square_m} m must be positive"
+            )));
         }
         Ok(Self { cols, rows, square_m, top_left_black: None })
     }

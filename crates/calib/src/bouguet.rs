@@ -10,7 +10,7 @@
 use std::path::Path;
 
 use geometry::io::mat::MatFile;
-use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform, Rig};
+use geometry::{CameraModel, Distortion, Intrinsics, Rig, RigidTransform};
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::{CalibError, Corner, IntrinsicsStd, ViewCorners};
@@ -48,14 +48,24 @@ fn vec_of(m: &MatFile, name: &str, n: usize) -> Result<Vec<f64>, CalibError> {
     Ok(mm.data)
 }
 
-fn camera_from(m: &MatFile, suffix: &str, width: usize, height: usize) -> Result<(CameraModel, IntrinsicsStd), CalibError> {
+fn camera_from(
+    m: &MatFile,
+    suffix: &str,
+    width: usize,
+    height: usize,
+) -> Result<(CameraModel, IntrinsicsStd), CalibError> {
     let fc = vec_of(m, &format!("fc{suffix}"), 2)?;
     let cc = vec_of(m, &format!("cc{suffix}"), 2)?;
     let kc = vec_of(m, &format!("kc{suffix}"), 5)?;
     let alpha = m.scalar(&format!("alpha_c{suffix}")).unwrap_or(0.0);
     let mut k = Intrinsics::new(fc[0], fc[1], cc[0], cc[1]);
     k.skew = alpha * fc[0];
-    let cam = CameraModel::new(width, height, k, Distortion::from_array([kc[0], kc[1], kc[2], kc[3], kc[4]]));
+    let cam = CameraModel::new(
+        width,
+        height,
+        k,
+        Distortion::from_array([kc[0], kc[1], kc[2], kc[3], kc[4]]),
+    );
     cam.validate().map_err(|e| fmt(m.path(), e.to_string()))?;
     let e = |name: &str, n: usize| vec_of(m, &format!("{name}{suffix}_error"), n).ok();
     let fe = e("fc", 2).unwrap_or(vec![0.0; 2]);
@@ -80,7 +90,12 @@ fn camera_from(m: &MatFile, suffix: &str, width: usize, height: usize) -> Result
 /// `Calib_Results.mat`).
 pub fn import_mono(path: &Path) -> Result<BouguetCamera, CalibError> {
     let m = MatFile::read(path)?;
-    let nx = m.scalar("nx").map_err(|_| fmt(path, "no 'nx': not a Bouguet Calib_Results file (save it with the toolbox's 'Save')".into()))? as usize;
+    let nx = m.scalar("nx").map_err(|_| {
+        fmt(
+            path,
+            "no 'nx': not a Bouguet Calib_Results file (save it with the toolbox's 'Save')".into(),
+        )
+    })? as usize;
     let ny = m.scalar("ny")? as usize;
     let (camera, std) = camera_from(&m, "", nx, ny)?;
     let n_ima = m.scalar("n_ima")? as usize;
@@ -90,13 +105,27 @@ pub fn import_mono(path: &Path) -> Result<BouguetCamera, CalibError> {
     let mut poses = Vec::with_capacity(n_ima);
     for i in 1..=n_ima {
         let on = active.get(i - 1).copied().unwrap_or(0.0) != 0.0;
-        let x = m.matrix(&format!("x_{i}")).ok().filter(|x| on && x.rows == 2 && x.cols >= 4 && x.data.iter().all(|v| v.is_finite()));
+        let x = m
+            .matrix(&format!("x_{i}"))
+            .ok()
+            .filter(|x| on && x.rows == 2 && x.cols >= 4 && x.data.iter().all(|v| v.is_finite()));
         let big_x = m.matrix(&format!("X_{i}")).ok().filter(|x| x.rows == 3);
         match (x, big_x) {
             (Some(x), Some(bx)) if bx.cols == x.cols => {
-                let corners = (0..x.cols).map(|c| Corner { id: c, px: Vector2::new(x.at(0, c), x.at(1, c)) }).collect();
-                views.push(Some(ViewCorners { name: format!("image {i}"), width: nx, height: ny, corners }));
-                board_points.push(Some((0..bx.cols).map(|c| Vector3::new(bx.at(0, c), bx.at(1, c), bx.at(2, c)) * MM).collect()));
+                let corners = (0..x.cols)
+                    .map(|c| Corner { id: c, px: Vector2::new(x.at(0, c), x.at(1, c)) })
+                    .collect();
+                views.push(Some(ViewCorners {
+                    name: format!("image {i}"),
+                    width: nx,
+                    height: ny,
+                    corners,
+                }));
+                board_points.push(Some(
+                    (0..bx.cols)
+                        .map(|c| Vector3::new(bx.at(0, c), bx.at(1, c), bx.at(2, c)) * MM)
+                        .collect(),
+                ));
             }
             _ => {
                 views.push(None);
@@ -106,12 +135,20 @@ pub fn import_mono(path: &Path) -> Result<BouguetCamera, CalibError> {
         let pose = (|| {
             let om = vec_of(&m, &format!("omc_{i}"), 3).ok()?;
             let t = vec_of(&m, &format!("Tc_{i}"), 3).ok()?;
-            (on && om.iter().chain(&t).all(|v| v.is_finite()))
-                .then(|| RigidTransform::from_axis_angle(Vector3::new(om[0], om[1], om[2]), Vector3::new(t[0], t[1], t[2]) * MM))
+            (on && om.iter().chain(&t).all(|v| v.is_finite())).then(|| {
+                RigidTransform::from_axis_angle(
+                    Vector3::new(om[0], om[1], om[2]),
+                    Vector3::new(t[0], t[1], t[2]) * MM,
+                )
+            })
         })();
         poses.push(pose);
     }
-    let err_std_px = m.matrix("err_std").ok().filter(|e| e.data.len() == 2).map(|e| Vector2::new(e.data[0], e.data[1]));
+    let err_std_px = m
+        .matrix("err_std")
+        .ok()
+        .filter(|e| e.data.len() == 2)
+        .map(|e| Vector2::new(e.data[0], e.data[1]));
     Ok(BouguetCamera { camera, std, views, board_points, poses, err_std_px })
 }
 

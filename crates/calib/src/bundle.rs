@@ -14,7 +14,8 @@ use nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, Rotation3, Vector2
 /// Intrinsic parameter order inside the solver.
 pub(crate) const N_INTR: usize = 10;
 /// Names of the intrinsic parameters in solver order.
-pub(crate) const INTR_NAMES: [&str; N_INTR] = ["fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3"];
+pub(crate) const INTR_NAMES: [&str; N_INTR] =
+    ["fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3"];
 
 /// Iteration cap of one LM run. A cold start from Zhang's estimate converges in 10–30.
 const LM_MAX_ITERATIONS: usize = 200;
@@ -167,11 +168,20 @@ impl Problem {
 
     /// Σ weight·|residual|² over the active observations.
     pub fn cost(&self) -> f64 {
-        self.obs.iter().filter(|o| o.active && self.view_active[o.view]).map(|o| o.weight * self.residual(o).norm_squared()).sum()
+        self.obs
+            .iter()
+            .filter(|o| o.active && self.view_active[o.view])
+            .map(|o| o.weight * self.residual(o).norm_squared())
+            .sum()
     }
 
     /// Residual and the Jacobian entries `(column, ∂residual/∂param)` of one observation.
-    fn linearise(&self, o: &Obs, lay: &Layout, out: &mut Vec<(usize, Vector2<f64>)>) -> Vector2<f64> {
+    fn linearise(
+        &self,
+        o: &Obs,
+        lay: &Layout,
+        out: &mut Vec<(usize, Vector2<f64>)>,
+    ) -> Vector2<f64> {
         out.clear();
         let rb = &self.ref_from_board[o.view];
         let cr = &self.cam_from_ref[o.cam];
@@ -333,7 +343,13 @@ impl Problem {
         }
         let covariance_unscaled = jtj.clone().cholesky().map(|c| c.inverse());
         let n_active_obs = self.obs.iter().filter(|o| o.active && self.view_active[o.view]).count();
-        Solution { cost, n_active_obs, n_params: lay.n, iterations, covariance_unscaled, layout: lay }
+        Solution {
+            cost,
+            n_active_obs,
+            n_params: lay.n,
+            iterations,
+            covariance_unscaled,
+            layout: lay,
+        }
     }
-
 }

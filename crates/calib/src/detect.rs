@@ -64,9 +64,19 @@ impl DetectorParams {
     /// reproduces the lab's Bouguet corners); larger images 11×11 with a wider ring.
     pub fn for_image(width: usize, _height: usize) -> Self {
         if width <= SMALL_IMAGE_WIDTH {
-            Self { ring_radius: 5, subpix_half_window: 4, min_response_fraction: 0.04, refinement: Refinement::default() }
+            Self {
+                ring_radius: 5,
+                subpix_half_window: 4,
+                min_response_fraction: 0.04,
+                refinement: Refinement::default(),
+            }
         } else {
-            Self { ring_radius: 7, subpix_half_window: 5, min_response_fraction: 0.04, refinement: Refinement::default() }
+            Self {
+                ring_radius: 7,
+                subpix_half_window: 5,
+                min_response_fraction: 0.04,
+                refinement: Refinement::default(),
+            }
         }
     }
 }
@@ -180,7 +190,11 @@ pub fn chess_response(img: &Image<f32>, radius: usize) -> Image<f32> {
 
 /// OpenCV's `cornerSubPix` estimator around `start`. `None` when it leaves the window or the
 /// image, or the gradient matrix is singular (no corner there).
-pub fn refine_corner(img: &Image<f32>, start: Vector2<f64>, half_window: usize) -> Option<Vector2<f64>> {
+pub fn refine_corner(
+    img: &Image<f32>,
+    start: Vector2<f64>,
+    half_window: usize,
+) -> Option<Vector2<f64>> {
     let hw = half_window as isize;
     let mut c = start;
     let (w, h) = (img.width() as f64, img.height() as f64);
@@ -195,7 +209,11 @@ pub fn refine_corner(img: &Image<f32>, start: Vector2<f64>, half_window: usize) 
     for _ in 0..SUBPIX_MAX_ITERATIONS {
         for (i, row) in patch.chunks_mut(n + 2).enumerate() {
             for (j, v) in row.iter_mut().enumerate() {
-                *v = bilinear(img, c.x + (j as isize - hw - 1) as f64, c.y + (i as isize - hw - 1) as f64);
+                *v = bilinear(
+                    img,
+                    c.x + (j as isize - hw - 1) as f64,
+                    c.y + (i as isize - hw - 1) as f64,
+                );
             }
         }
         let (mut a, mut b, mut cc, mut bb1, mut bb2) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -250,14 +268,11 @@ const FIT_MIN_PIXELS: usize = 30;
 #[inline]
 fn erf_with_gauss(x: f64, q: f64) -> f64 {
     const P: f64 = 0.327_591_1;
-    const A: [f64; 5] = [0.254_829_592, -0.284_496_736, 1.421_413_741, -1.453_152_027, 1.061_405_429];
+    const A: [f64; 5] =
+        [0.254_829_592, -0.284_496_736, 1.421_413_741, -1.453_152_027, 1.061_405_429];
     let t = 1.0 / (1.0 + P * x.abs());
     let y = 1.0 - t * (A[0] + t * (A[1] + t * (A[2] + t * (A[3] + t * A[4])))) * q;
-    if x < 0.0 {
-        -y
-    } else {
-        y
-    }
+    if x < 0.0 { -y } else { y }
 }
 
 /// Maximum-likelihood sub-pixel X-junction: fits the model of a blurred checker corner,
@@ -273,13 +288,23 @@ fn erf_with_gauss(x: f64, q: f64) -> f64 {
 /// mismatch is point-symmetric about the corner and does not move it. `dirs` are the image
 /// directions of the two grid lines (any sign). `None` when the fit fails or leaves the
 /// window's centre by more than 1 px.
-pub fn fit_junction(img: &Image<f32>, start: Vector2<f64>, dirs: [Vector2<f64>; 2], radius: f64) -> Option<Vector2<f64>> {
+pub fn fit_junction(
+    img: &Image<f32>,
+    start: Vector2<f64>,
+    dirs: [Vector2<f64>; 2],
+    radius: f64,
+) -> Option<Vector2<f64>> {
     fit_junction_with_std(img, start, dirs, radius).map(|f| f.0)
 }
 
 /// [`fit_junction`] with the corner's 1σ (px, the larger axis of its covariance), from the
 /// fit's Jacobian and residual variance.
-pub fn fit_junction_with_std(img: &Image<f32>, start: Vector2<f64>, dirs: [Vector2<f64>; 2], radius: f64) -> Option<(Vector2<f64>, f64)> {
+pub fn fit_junction_with_std(
+    img: &Image<f32>,
+    start: Vector2<f64>,
+    dirs: [Vector2<f64>; 2],
+    radius: f64,
+) -> Option<(Vector2<f64>, f64)> {
     use nalgebra::{SMatrix, SVector};
     let (w, h) = (img.width() as isize, img.height() as isize);
     let r = radius.floor() as isize;
@@ -300,18 +325,19 @@ pub fn fit_junction_with_std(img: &Image<f32>, start: Vector2<f64>, dirs: [Vecto
     let m0 = pix.iter().map(|p| p.2).sum::<f64>() / pix.len() as f64;
     let sign = |t: f64, x: f64, y: f64| {
         let d = -t.sin() * (x - start.x) + t.cos() * (y - start.y);
-        if d >= 0.0 {
-            1.0
-        } else {
-            -1.0
-        }
+        if d >= 0.0 { 1.0 } else { -1.0 }
     };
     let (t1, t2) = (th(dirs[0]), th(dirs[1]));
-    let a0 = pix.iter().map(|p| (p.2 - m0) * sign(t1, p.0, p.1) * sign(t2, p.0, p.1)).sum::<f64>() / pix.len() as f64;
+    let a0 = pix.iter().map(|p| (p.2 - m0) * sign(t1, p.0, p.1) * sign(t2, p.0, p.1)).sum::<f64>()
+        / pix.len() as f64;
     // p = [cx, cy, θ1, θ2, m, a, σ, gx, gy]
-    let p = SVector::<f64, 9>::from_column_slice(&[start.x, start.y, t1, t2, m0, a0, 1.0, 0.0, 0.0]);
+    let p =
+        SVector::<f64, 9>::from_column_slice(&[start.x, start.y, t1, t2, m0, a0, 1.0, 0.0, 0.0]);
     let sqrt_2_pi = (2.0 / std::f64::consts::PI).sqrt();
-    let eval = |pix: &[(f64, f64, f64)], p: &SVector<f64, 9>, jac: bool| -> (f64, SMatrix<f64, 9, 9>, SVector<f64, 9>) {
+    let eval = |pix: &[(f64, f64, f64)],
+                p: &SVector<f64, 9>,
+                jac: bool|
+     -> (f64, SMatrix<f64, 9, 9>, SVector<f64, 9>) {
         let (s1, c1, s2, c2) = (p[2].sin(), p[2].cos(), p[3].sin(), p[3].cos());
         let (m, a, sg, gx, gy) = (p[4], p[5], p[6], p[7], p[8]);
         let k = 1.0 / (std::f64::consts::SQRT_2 * sg);
@@ -354,7 +380,10 @@ pub fn fit_junction_with_std(img: &Image<f32>, start: Vector2<f64>, dirs: [Vecto
         }
         (cost, jtj, jtr)
     };
-    let lm = |pix: &[(f64, f64, f64)], mut p: SVector<f64, 9>, iterations: usize| -> Option<(SVector<f64, 9>, f64, SMatrix<f64, 9, 9>)> {
+    let lm = |pix: &[(f64, f64, f64)],
+              mut p: SVector<f64, 9>,
+              iterations: usize|
+     -> Option<(SVector<f64, 9>, f64, SMatrix<f64, 9, 9>)> {
         let mut lambda = 1e-3;
         let (mut cost, mut jtj, mut jtr) = eval(pix, &p, true);
         for _ in 0..iterations {
@@ -388,16 +417,28 @@ pub fn fit_junction_with_std(img: &Image<f32>, start: Vector2<f64>, dirs: [Vecto
         }
         Some((p, cost, jtj))
     };
-    let coarse: Vec<(f64, f64, f64)> =
-        pix.iter().copied().filter(|q| (q.0 - start.x).powi(2) + (q.1 - start.y).powi(2) <= FIT_COARSE_RADIUS * FIT_COARSE_RADIUS).collect();
-    let (p, cost, jtj) = if radius > FIT_COARSE_RADIUS && coarse.iter().filter(|q| q.2 < SATURATED).count() >= FIT_MIN_PIXELS {
+    let coarse: Vec<(f64, f64, f64)> = pix
+        .iter()
+        .copied()
+        .filter(|q| {
+            (q.0 - start.x).powi(2) + (q.1 - start.y).powi(2)
+                <= FIT_COARSE_RADIUS * FIT_COARSE_RADIUS
+        })
+        .collect();
+    let (p, cost, jtj) = if radius > FIT_COARSE_RADIUS
+        && coarse.iter().filter(|q| q.2 < SATURATED).count() >= FIT_MIN_PIXELS
+    {
         let (p1, _, _) = lm(&coarse, p, FIT_MAX_ITERATIONS)?;
         lm(&pix, p1, FIT_FINAL_ITERATIONS)?
     } else {
         lm(&pix, p, FIT_MAX_ITERATIONS)?
     };
     let c = Vector2::new(p[0], p[1]);
-    let ok = p.iter().all(|v| v.is_finite()) && (c - start).norm() <= 1.0 && p[6] > 0.1 && p[6] < radius && p[5].abs() > 0.0;
+    let ok = p.iter().all(|v| v.is_finite())
+        && (c - start).norm() <= 1.0
+        && p[6] > 0.1
+        && p[6] < radius
+        && p[5].abs() > 0.0;
     if !ok {
         return None;
     }
@@ -429,7 +470,12 @@ pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64
             'outer: for dy in -nms..=nms {
                 for dx in -nms..=nms {
                     let (xx, yy) = (x as isize + dx, y as isize + dy);
-                    if (dx, dy) == (0, 0) || xx < 0 || yy < 0 || xx >= w as isize || yy >= h as isize {
+                    if (dx, dy) == (0, 0)
+                        || xx < 0
+                        || yy < 0
+                        || xx >= w as isize
+                        || yy >= h as isize
+                    {
                         continue;
                     }
                     let o = *resp.get(xx as usize, yy as usize);
@@ -450,7 +496,8 @@ pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64
     let mut refined: Vec<(Vector2<f64>, f32)> = peaks
         .par_iter()
         .filter_map(|&(x, y, v)| {
-            refine_corner(img, Vector2::new(x as f64, y as f64), params.subpix_half_window).map(|p| (p, v))
+            refine_corner(img, Vector2::new(x as f64, y as f64), params.subpix_half_window)
+                .map(|p| (p, v))
         })
         .collect();
     // Two peaks refining onto one corner: keep the stronger.
@@ -483,8 +530,12 @@ fn nearest(pts: &[(Vector2<f64>, f32)], used: &[bool], p: Vector2<f64>, tol: f64
 /// Grows a grid from seed `s`; `None` if no seed cell exists there.
 fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
     let p = pts[s].0;
-    let mut by_dist: Vec<(usize, f64)> =
-        pts.iter().enumerate().filter(|(i, _)| *i != s).map(|(i, c)| (i, (c.0 - p).norm())).collect();
+    let mut by_dist: Vec<(usize, f64)> = pts
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != s)
+        .map(|(i, c)| (i, (c.0 - p).norm()))
+        .collect();
     by_dist.sort_by(|a, b| a.1.total_cmp(&b.1));
     by_dist.truncate(8);
     let all_used = vec![false; pts.len()];
@@ -527,7 +578,8 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
                         })
                     };
                     let Some(step) = step else { continue };
-                    if let Some(n) = nearest(pts, &used, here + step, GRID_TOLERANCE * step.norm()) {
+                    if let Some(n) = nearest(pts, &used, here + step, GRID_TOLERANCE * step.norm())
+                    {
                         grid.insert(key, n);
                         used[n] = true;
                         queue.push_back(key);
@@ -584,8 +636,10 @@ pub fn detect(img: &Image<f32>, board: &Board, params: &DetectorParams) -> Optio
 /// background line up with the grid): keep the board-sized window, in either orientation,
 /// with the most corners and then the strongest total response.
 fn trim(board: &Board, pts: &[(Vector2<f64>, f32)], grid: Grid) -> Grid {
-    let (imin, imax) = (grid.keys().map(|k| k.0).min().unwrap_or(0), grid.keys().map(|k| k.0).max().unwrap_or(0));
-    let (jmin, jmax) = (grid.keys().map(|k| k.1).min().unwrap_or(0), grid.keys().map(|k| k.1).max().unwrap_or(0));
+    let (imin, imax) =
+        (grid.keys().map(|k| k.0).min().unwrap_or(0), grid.keys().map(|k| k.0).max().unwrap_or(0));
+    let (jmin, jmax) =
+        (grid.keys().map(|k| k.1).min().unwrap_or(0), grid.keys().map(|k| k.1).max().unwrap_or(0));
     let (ni, nj) = (imax - imin + 1, jmax - jmin + 1);
     let (c, r) = (board.cols as i32, board.rows as i32);
     let fits = |a: i32, b: i32| (ni <= a && nj <= b) || (ni <= b && nj <= a);
@@ -602,7 +656,10 @@ fn trim(board: &Board, pts: &[(Vector2<f64>, f32)], grid: Grid) -> Grid {
                     .map(|(k, v)| (*k, *v))
                     .collect();
                 let score = (sub.len(), sub.values().map(|&n| pts[n].1).sum::<f32>());
-                if best.as_ref().is_none_or(|b| score.0 > b.0 .0 || (score.0 == b.0 .0 && score.1 > b.0 .1)) {
+                if best
+                    .as_ref()
+                    .is_none_or(|b| score.0 > b.0.0 || (score.0 == b.0.0 && score.1 > b.0.1))
+                {
                     best = Some((score, sub));
                 }
             }
@@ -612,18 +669,26 @@ fn trim(board: &Board, pts: &[(Vector2<f64>, f32)], grid: Grid) -> Grid {
 }
 
 /// Maps grid coordinates to board ids (see the module docs); `None` when not certain.
-fn label(img: &Image<f32>, board: &Board, pts: &[(Vector2<f64>, f32)], grid: &Grid, params: &DetectorParams) -> Option<Detection> {
+fn label(
+    img: &Image<f32>,
+    board: &Board,
+    pts: &[(Vector2<f64>, f32)],
+    grid: &Grid,
+    params: &DetectorParams,
+) -> Option<Detection> {
     let min_window = params.subpix_half_window;
     if grid.len() < MIN_PARTIAL_CORNERS {
         return None;
     }
     let imin = grid.keys().map(|k| k.0).min()?;
     let jmin = grid.keys().map(|k| k.1).min()?;
-    let g: Vec<((i32, i32), Vector2<f64>)> = grid.iter().map(|(&(i, j), &n)| ((i - imin, j - jmin), pts[n].0)).collect();
-    let ni = g.iter().map(|k| k.0 .0).max()? + 1;
-    let nj = g.iter().map(|k| k.0 .1).max()? + 1;
+    let g: Vec<((i32, i32), Vector2<f64>)> =
+        grid.iter().map(|(&(i, j), &n)| ((i - imin, j - jmin), pts[n].0)).collect();
+    let ni = g.iter().map(|k| k.0.0).max()? + 1;
+    let nj = g.iter().map(|k| k.0.1).max()? + 1;
     // Homography grid → image for predictions (cell centres, missing corners).
-    let plane: Vec<Vector2<f64>> = g.iter().map(|k| Vector2::new(k.0 .0 as f64, k.0 .1 as f64)).collect();
+    let plane: Vec<Vector2<f64>> =
+        g.iter().map(|k| Vector2::new(k.0.0 as f64, k.0.1 as f64)).collect();
     let pix: Vec<Vector2<f64>> = g.iter().map(|k| k.1).collect();
     let hgrid = homography(&plane, &pix)?;
     let map = |h: &Matrix3<f64>, x: f64, y: f64| {
@@ -636,7 +701,8 @@ fn label(img: &Image<f32>, board: &Board, pts: &[(Vector2<f64>, f32)], grid: &Gr
     for i in -1..ni {
         for j in -1..nj {
             let corners = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
-            let known: Vec<Vector2<f64>> = corners.iter().filter_map(|k| pos.get(k).copied()).collect();
+            let known: Vec<Vector2<f64>> =
+                corners.iter().filter_map(|k| pos.get(k).copied()).collect();
             let centre = if known.len() == 4 {
                 known.iter().sum::<Vector2<f64>>() / 4.0
             } else if i >= 0 && j >= 0 && i + 1 < ni && j + 1 < nj {
@@ -647,7 +713,11 @@ fn label(img: &Image<f32>, board: &Board, pts: &[(Vector2<f64>, f32)], grid: &Gr
             } else {
                 continue;
             };
-            if centre.x < 1.0 || centre.y < 1.0 || centre.x > img.width() as f64 - 2.0 || centre.y > img.height() as f64 - 2.0 {
+            if centre.x < 1.0
+                || centre.y < 1.0
+                || centre.x > img.width() as f64 - 2.0
+                || centre.y > img.height() as f64 - 2.0
+            {
                 continue;
             }
             cells.push(((i, j), sample_mean(img, centre)));
@@ -665,7 +735,10 @@ fn label(img: &Image<f32>, board: &Board, pts: &[(Vector2<f64>, f32)], grid: &Gr
         if !(i >= 0 && j >= 0 && i + 1 < ni && j + 1 < nj) {
             continue;
         }
-        let nb: Vec<f64> = [(i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)].iter().filter_map(|k| cell_map.get(k).copied()).collect();
+        let nb: Vec<f64> = [(i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)]
+            .iter()
+            .filter_map(|k| cell_map.get(k).copied())
+            .collect();
         if nb.is_empty() {
             continue;
         }
@@ -791,16 +864,27 @@ fn label(img: &Image<f32>, board: &Board, pts: &[(Vector2<f64>, f32)], grid: &Gr
     ok.sort_by(|a, b| dir_x(b).total_cmp(&dir_x(a)));
     let chosen = ok.first()?;
     // Certain only if every other survivor is the 180° twin of the chosen one.
-    let twin_ok = |c: &Cand| c.black == chosen.black && c.swap == chosen.swap && c.si == -chosen.si && c.sj == -chosen.sj;
+    let twin_ok = |c: &Cand| {
+        c.black == chosen.black && c.swap == chosen.swap && c.si == -chosen.si && c.sj == -chosen.sj
+    };
     let same = |c: &Cand| {
-        c.black == chosen.black && c.swap == chosen.swap && c.si == chosen.si && c.sj == chosen.sj && c.ox == chosen.ox && c.oy == chosen.oy
+        c.black == chosen.black
+            && c.swap == chosen.swap
+            && c.si == chosen.si
+            && c.sj == chosen.sj
+            && c.ox == chosen.ox
+            && c.oy == chosen.oy
     };
     if ok.iter().any(|c| !(same(c) || twin_ok(c))) {
         return None;
     }
     // Final refinement with a window fitted to the local grid step: more pixels average out
     // more noise, and the window stays clear of the neighbouring corners.
-    let factor = if img.width() > SMALL_IMAGE_WIDTH { FINAL_WINDOW_FRACTION_LARGE } else { FINAL_WINDOW_FRACTION_SMALL };
+    let factor = if img.width() > SMALL_IMAGE_WIDTH {
+        FINAL_WINDOW_FRACTION_LARGE
+    } else {
+        FINAL_WINDOW_FRACTION_SMALL
+    };
     let mut corners: Vec<Corner> = g
         .iter()
         .map(|&((i, j), p)| {
@@ -809,14 +893,26 @@ fn label(img: &Image<f32>, board: &Board, pts: &[(Vector2<f64>, f32)], grid: &Gr
                 .iter()
                 .filter_map(|(di, dj)| pos.get(&(i + di, j + dj)).map(|q| (q - p).norm()))
                 .fold(f64::INFINITY, f64::min);
-            let hw = (factor * step).floor().clamp(min_window as f64, FINAL_WINDOW_MAX as f64) as usize;
-            let subpix = || if hw > min_window { refine_corner(img, p, hw).filter(|q| (q - p).norm() < 1.0).unwrap_or(p) } else { p };
-            let dirs = [map(&hgrid, i as f64 + 1.0, j as f64) - map(&hgrid, i as f64, j as f64), map(&hgrid, i as f64, j as f64 + 1.0) - map(&hgrid, i as f64, j as f64)];
+            let hw =
+                (factor * step).floor().clamp(min_window as f64, FINAL_WINDOW_MAX as f64) as usize;
+            let subpix = || {
+                if hw > min_window {
+                    refine_corner(img, p, hw).filter(|q| (q - p).norm() < 1.0).unwrap_or(p)
+                } else {
+                    p
+                }
+            };
+            let dirs = [
+                map(&hgrid, i as f64 + 1.0, j as f64) - map(&hgrid, i as f64, j as f64),
+                map(&hgrid, i as f64, j as f64 + 1.0) - map(&hgrid, i as f64, j as f64),
+            ];
             let radius = (JUNCTION_FIT_FRACTION * step).min(JUNCTION_FIT_MAX_RADIUS);
             let px = match params.refinement {
                 // The fit converges from the first cornerSubPix estimate; the wide-window one
                 // is only the fallback.
-                Refinement::JunctionFit => fit_junction(img, p, dirs, radius).unwrap_or_else(subpix),
+                Refinement::JunctionFit => {
+                    fit_junction(img, p, dirs, radius).unwrap_or_else(subpix)
+                }
                 Refinement::CornerSubPix => subpix(),
             };
             Corner { id: (by * cols + bx) as usize, px }
@@ -856,7 +952,10 @@ pub fn detect_views_with(
     refinement: Refinement,
     progress: &(dyn Fn() + Sync),
 ) -> (Vec<ViewCorners>, Board) {
-    let params = |img: &Image<u8>| DetectorParams { refinement, ..DetectorParams::for_image(img.width(), img.height()) };
+    let params = |img: &Image<u8>| DetectorParams {
+        refinement,
+        ..DetectorParams::for_image(img.width(), img.height())
+    };
     use rayon::prelude::*;
     let first = |board: &Board| -> Vec<Option<Detection>> {
         images
@@ -869,15 +968,13 @@ pub fn detect_views_with(
             .collect()
     };
     let run = |board: &Board| -> Vec<Option<Detection>> {
-        images
-            .par_iter()
-            .map(|(_, img)| detect(&to_f32(img), board, &params(img)))
-            .collect()
+        images.par_iter().map(|(_, img)| detect(&to_f32(img), board, &params(img))).collect()
     };
     let mut dets = first(board);
     let mut board = *board;
     if board.top_left_black.is_none() {
-        let complete: Vec<bool> = dets.iter().flatten().filter(|d| d.complete).map(|d| d.top_left_black).collect();
+        let complete: Vec<bool> =
+            dets.iter().flatten().filter(|d| d.complete).map(|d| d.top_left_black).collect();
         if !complete.is_empty() {
             let black = 2 * complete.iter().filter(|&&b| b).count() >= complete.len();
             board.top_left_black = Some(black);
@@ -912,11 +1009,20 @@ pub fn rotate_180(view: &ViewCorners, board: &Board) -> ViewCorners {
 
 /// Direction of the board's x axis in the image (unit vector), from the corners.
 fn x_axis(view: &ViewCorners, board: &Board) -> Option<Vector2<f64>> {
-    let plane: Vec<Vector2<f64>> = view.corners.iter().map(|c| board.object_point(c.id).xy()).collect();
+    let plane: Vec<Vector2<f64>> =
+        view.corners.iter().map(|c| board.object_point(c.id).xy()).collect();
     let pix: Vec<Vector2<f64>> = view.corners.iter().map(|c| c.px).collect();
     let h = homography(&plane, &pix)?;
-    let c = h * Vector3::new(0.5 * board.square_m * board.cols as f64, 0.5 * board.square_m * board.rows as f64, 1.0);
-    let d = h * Vector3::new(0.5 * board.square_m * board.cols as f64 + board.square_m, 0.5 * board.square_m * board.rows as f64, 1.0);
+    let c = h * Vector3::new(
+        0.5 * board.square_m * board.cols as f64,
+        0.5 * board.square_m * board.rows as f64,
+        1.0,
+    );
+    let d = h * Vector3::new(
+        0.5 * board.square_m * board.cols as f64 + board.square_m,
+        0.5 * board.square_m * board.rows as f64,
+        1.0,
+    );
     let v = Vector2::new(d.x / d.z - c.x / c.z, d.y / d.z - c.y / c.z);
     Some(v.normalize())
 }
@@ -954,10 +1060,15 @@ mod tests {
             let ring: Vec<(isize, isize)> = (0..16)
                 .map(|n| {
                     let a = n as f64 * std::f64::consts::TAU / 16.0;
-                    ((radius as f64 * a.cos()).round() as isize, (radius as f64 * a.sin()).round() as isize)
+                    (
+                        (radius as f64 * a.cos()).round() as isize,
+                        (radius as f64 * a.sin()).round() as isize,
+                    )
                 })
                 .collect();
-            let at = |x: usize, y: usize, dx: isize, dy: isize| *img.get((x as isize + dx) as usize, (y as isize + dy) as usize);
+            let at = |x: usize, y: usize, dx: isize, dy: isize| {
+                *img.get((x as isize + dx) as usize, (y as isize + dy) as usize)
+            };
             for y in 0..h {
                 for x in 0..w {
                     let want = if x < radius || y < radius || x + radius >= w || y + radius >= h {
@@ -973,10 +1084,19 @@ mod tests {
                             diff += (s[n] - s[n + 8]).abs();
                         }
                         let mean = s.iter().sum::<f32>() / 16.0;
-                        let local = (at(x, y, 0, 0) + at(x, y, -1, 0) + at(x, y, 1, 0) + at(x, y, 0, -1) + at(x, y, 0, 1)) / 5.0;
+                        let local = (at(x, y, 0, 0)
+                            + at(x, y, -1, 0)
+                            + at(x, y, 1, 0)
+                            + at(x, y, 0, -1)
+                            + at(x, y, 0, 1))
+                            / 5.0;
                         sum - diff - 16.0 * (mean - local).abs()
                     };
-                    assert_eq!(got.get(x, y).to_bits(), want.to_bits(), "radius {radius}, ({x}, {y})");
+                    assert_eq!(
+                        got.get(x, y).to_bits(),
+                        want.to_bits(),
+                        "radius {radius}, ({x}, {y})"
+                    );
                 }
             }
         }
@@ -986,7 +1106,14 @@ mod tests {
     fn fast_erf_matches_tabulated_values() {
         // erf to 16 digits (Abramowitz & Stegun table 7.1 / any CAS); the approximation's
         // documented bound is 1.5e-7.
-        for (x, erf) in [(0.0, 0.0), (0.1, 0.112_462_916_018_284_9), (0.5, 0.520_499_877_813_046_5), (1.0, 0.842_700_792_949_714_9), (2.0, 0.995_322_265_018_952_7), (3.5, 0.999_999_256_901_627_7)] {
+        for (x, erf) in [
+            (0.0, 0.0),
+            (0.1, 0.112_462_916_018_284_9),
+            (0.5, 0.520_499_877_813_046_5),
+            (1.0, 0.842_700_792_949_714_9),
+            (2.0, 0.995_322_265_018_952_7),
+            (3.5, 0.999_999_256_901_627_7),
+        ] {
             for (x, erf) in [(x, erf), (-x, -erf)] {
                 let got = erf_with_gauss(x, (-x * x).exp());
                 assert!((got - erf).abs() < 1.5e-7, "erf({x}) = {got}, expected {erf}");
@@ -1002,8 +1129,12 @@ mod tests {
             let mut acc = 0.0;
             for i in 0..8 {
                 for j in 0..8 {
-                    let (u, v) = (x as f64 + (i as f64 + 0.5) / 8.0 - 0.5 - cx, y as f64 + (j as f64 + 0.5) / 8.0 - 0.5 - cy);
-                    let s = (-a1.sin() * u + a1.cos() * v).signum() * (-a2.sin() * u + a2.cos() * v).signum();
+                    let (u, v) = (
+                        x as f64 + (i as f64 + 0.5) / 8.0 - 0.5 - cx,
+                        y as f64 + (j as f64 + 0.5) / 8.0 - 0.5 - cy,
+                    );
+                    let s = (-a1.sin() * u + a1.cos() * v).signum()
+                        * (-a2.sin() * u + a2.cos() * v).signum();
                     acc += if s > 0.0 { 200.0 } else { 40.0 };
                 }
             }
@@ -1014,7 +1145,9 @@ mod tests {
             let mut acc = 0.0;
             for (dj, kj) in k.iter().enumerate() {
                 for (di, ki) in k.iter().enumerate() {
-                    acc += kj * ki * px(&sharp, x as isize + di as isize - 1, y as isize + dj as isize - 1);
+                    acc += kj
+                        * ki
+                        * px(&sharp, x as isize + di as isize - 1, y as isize + dj as isize - 1);
                 }
             }
             acc / 16.0
@@ -1026,9 +1159,17 @@ mod tests {
         // Noise-free, tilted and sheared junctions: the pattern is exact up to the 1/8 px
         // supersampling, so the fit must land within 0.01 px (cornerSubPix's own error on
         // such images is several times that; the fit starts 0.4 px away).
-        for (cx, cy, angle, skew) in [(31.3, 30.7, 0.2, 0.0), (32.45, 31.1, -0.5, 0.3), (30.8, 32.25, 1.0, -0.4)] {
+        for (cx, cy, angle, skew) in
+            [(31.3, 30.7, 0.2, 0.0), (32.45, 31.1, -0.5, 0.3), (30.8, 32.25, 1.0, -0.4)]
+        {
             let img = junction(cx, cy, angle, skew);
-            let dirs = [Vector2::new(angle.cos(), angle.sin()), Vector2::new((angle + std::f64::consts::FRAC_PI_2 + skew).cos(), (angle + std::f64::consts::FRAC_PI_2 + skew).sin())];
+            let dirs = [
+                Vector2::new(angle.cos(), angle.sin()),
+                Vector2::new(
+                    (angle + std::f64::consts::FRAC_PI_2 + skew).cos(),
+                    (angle + std::f64::consts::FRAC_PI_2 + skew).sin(),
+                ),
+            ];
             let start = Vector2::new(cx + 0.3, cy - 0.25);
             let (p, std) = fit_junction_with_std(&img, start, dirs, 12.0).expect("fits");
             let err = (p - Vector2::new(cx, cy)).norm();

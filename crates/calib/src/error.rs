@@ -8,7 +8,9 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum CalibError {
     /// Fewer usable views than a calibration needs.
-    #[error("{camera}: only {usable} usable view(s) with a detected board, at least {needed} are needed; add images that show the whole board at different tilts")]
+    #[error(
+        "{camera}: only {usable} usable view(s) with a detected board, at least {needed} are needed; add images that show the whole board at different tilts"
+    )]
     TooFewViews {
         /// Which camera ("colour", "depth/IR", "stereo pairs").
         camera: String,
@@ -18,7 +20,9 @@ pub enum CalibError {
         needed: usize,
     },
     /// The board was not found in any image.
-    #[error("{camera}: no {cols}x{rows} checkerboard found in any of the {images} image(s); check --board (inner corners, e.g. 7x5) and that the board is visible")]
+    #[error(
+        "{camera}: no {cols}x{rows} checkerboard found in any of the {images} image(s); check --board (inner corners, e.g. 7x5) and that the board is visible"
+    )]
     NoBoard {
         /// Which camera.
         camera: String,
@@ -31,7 +35,9 @@ pub enum CalibError {
     },
     /// The views do not constrain the focal length: every board is (nearly) parallel to the
     /// image plane.
-    #[error("{camera}: degenerate views — the boards are all (nearly) fronto-parallel (largest tilt {max_tilt_deg:.1}°, need ≥ {min_tilt_deg:.0}°); tilt the board 20–45° in several directions")]
+    #[error(
+        "{camera}: degenerate views — the boards are all (nearly) fronto-parallel (largest tilt {max_tilt_deg:.1}°, need ≥ {min_tilt_deg:.0}°); tilt the board 20–45° in several directions"
+    )]
     Degenerate {
         /// Which camera.
         camera: String,
@@ -41,7 +47,9 @@ pub enum CalibError {
         min_tilt_deg: f64,
     },
     /// Images of one camera do not all have the same size.
-    #[error("{camera}: image '{image}' is {got_w}x{got_h} but the first image is {want_w}x{want_h}; all images of one camera must have the same size")]
+    #[error(
+        "{camera}: image '{image}' is {got_w}x{got_h} but the first image is {want_w}x{want_h}; all images of one camera must have the same size"
+    )]
     MixedSizes {
         /// Which camera.
         camera: String,
@@ -57,7 +65,9 @@ pub enum CalibError {
         want_h: usize,
     },
     /// A colour/IR pair where only one image shows the board.
-    #[error("pair {pair}: the board is found in the {found} image '{found_image}' but not in the {missing} image '{missing_image}'; remove the pair or pass --allow-unpaired to use such images for that camera's intrinsics only")]
+    #[error(
+        "pair {pair}: the board is found in the {found} image '{found_image}' but not in the {missing} image '{missing_image}'; remove the pair or pass --allow-unpaired to use such images for that camera's intrinsics only"
+    )]
     UnpairedView {
         /// The pair's index (0-based) or name.
         pair: String,
@@ -71,7 +81,9 @@ pub enum CalibError {
         missing_image: String,
     },
     /// The optimisation did not produce finite parameters.
-    #[error("{camera}: the optimisation diverged ({message}); check the board size and square length")]
+    #[error(
+        "{camera}: the optimisation diverged ({message}); check the board size and square length"
+    )]
     Diverged {
         /// Which camera.
         camera: String,

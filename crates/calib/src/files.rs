@@ -7,7 +7,7 @@ use std::path::Path;
 
 use geometry::io::atomic::write_bytes_atomic;
 use geometry::{CameraModel, Rig, RigidTransform};
-use serde_json::{json, Value};
+use serde_json::{Value, json};
 
 use crate::mono::{IntrinsicsStd, MonoCalibration};
 use crate::{Board, CalibError, StereoCalibration, ViewCorners};
@@ -28,7 +28,11 @@ fn std_json(s: &IntrinsicsStd) -> Value {
 /// observed position and the error vector observed − projected, px.
 pub fn mono_report(m: &MonoCalibration) -> Value {
     let residuals = |view: usize| -> Vec<[f64; 5]> {
-        m.residuals.iter().filter(|r| r.0 == view).map(|(_, id, p, e)| [*id as f64, p.x, p.y, e.x, e.y]).collect()
+        m.residuals
+            .iter()
+            .filter(|r| r.0 == view)
+            .map(|(_, id, p, e)| [*id as f64, p.x, p.y, e.x, e.y])
+            .collect()
     };
     json!({
         "rms_px": m.rms_px,
@@ -98,7 +102,8 @@ pub fn stereo_rig(s: &StereoCalibration, board: &Board) -> Rig {
 pub fn add_detections(report: &mut Value, views: &[ViewCorners], files: &[std::path::PathBuf]) {
     let Some(images) = report.get_mut("images").and_then(Value::as_array_mut) else { return };
     for (i, (entry, v)) in images.iter_mut().zip(views).enumerate() {
-        entry["detected_corners"] = json!(v.corners.iter().map(|c| [c.id as f64, c.px.x, c.px.y]).collect::<Vec<_>>());
+        entry["detected_corners"] =
+            json!(v.corners.iter().map(|c| [c.id as f64, c.px.x, c.px.y]).collect::<Vec<_>>());
         entry["image_size"] = json!([v.width, v.height]);
         if let Some(f) = files.get(i) {
             let f = std::fs::canonicalize(f).unwrap_or_else(|_| f.clone());
@@ -122,7 +127,11 @@ pub fn camera_json(m: &MonoCalibration, board: &Board, role: &str) -> String {
 
 fn yaml_matrix(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
     let values: Vec<String> = data.iter().map(|v| format!("{v:.17e}")).collect();
-    let _ = writeln!(out, "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]", values.join(", "));
+    let _ = writeln!(
+        out,
+        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]",
+        values.join(", ")
+    );
 }
 
 fn k_of(c: &CameraModel) -> [f64; 9] {

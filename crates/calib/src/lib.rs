@@ -32,5 +32,5 @@ pub mod zhang;
 
 pub use board::{Board, Corner, ViewCorners};
 pub use error::CalibError;
-pub use mono::{calibrate_mono, CalibFlags, IntrinsicsStd, MonoCalibration};
-pub use stereo::{calibrate_stereo, StereoCalibration, StereoOptions};
+pub use mono::{CalibFlags, IntrinsicsStd, MonoCalibration, calibrate_mono};
+pub use stereo::{StereoCalibration, StereoOptions, calibrate_stereo};

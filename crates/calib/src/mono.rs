@@ -5,8 +5,10 @@ use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
 use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
 
-use crate::bundle::{CamState, Obs, Problem, Solution, INTR_NAMES, N_INTR};
-use crate::zhang::{focal_with_principal_point, homography, pose_from_homography, tilt_deg, zhang_intrinsics};
+use crate::bundle::{CamState, INTR_NAMES, N_INTR, Obs, Problem, Solution};
+use crate::zhang::{
+    focal_with_principal_point, homography, pose_from_homography, tilt_deg, zhang_intrinsics,
+};
 use crate::{Board, CalibError, ViewCorners};
 
 /// A calibration needs three views: two leave Zhang's system with no redundancy.
@@ -124,7 +126,18 @@ pub struct IntrinsicsStd {
 impl IntrinsicsStd {
     /// From solver order `fx, fy, cx, cy, skew, k1, k2, p1, p2, k3`.
     pub fn from_array(a: [f64; N_INTR]) -> Self {
-        Self { fx: a[0], fy: a[1], cx: a[2], cy: a[3], skew: a[4], k1: a[5], k2: a[6], p1: a[7], p2: a[8], k3: a[9] }
+        Self {
+            fx: a[0],
+            fy: a[1],
+            cx: a[2],
+            cy: a[3],
+            skew: a[4],
+            k1: a[5],
+            k2: a[6],
+            p1: a[7],
+            p2: a[8],
+            k3: a[9],
+        }
     }
     /// In solver order `fx, fy, cx, cy, skew, k1, k2, p1, p2, k3`.
     pub fn to_array(&self) -> [f64; N_INTR] {
@@ -208,7 +221,9 @@ pub(crate) fn initial_camera(
     let (mut intr, dist) = match guess.filter(|_| flags.use_intrinsic_guess) {
         Some(g) => (g.intrinsics, g.distortion),
         None => {
-            let zhang = (!flags.fix_principal_point).then(|| zhang_intrinsics(&valid, width, height)).flatten();
+            let zhang = (!flags.fix_principal_point)
+                .then(|| zhang_intrinsics(&valid, width, height))
+                .flatten();
             let k = match zhang {
                 Some(k) => k,
                 None => {
@@ -216,10 +231,12 @@ pub(crate) fn initial_camera(
                         Some(g) if flags.fix_principal_point => (g.intrinsics.cx, g.intrinsics.cy),
                         _ => centre,
                     };
-                    let (fx, fy) = focal_with_principal_point(&valid, cx, cy).ok_or_else(|| CalibError::Degenerate {
-                        camera: camera.into(),
-                        max_tilt_deg: 0.0,
-                        min_tilt_deg: MIN_MAX_TILT_DEG,
+                    let (fx, fy) = focal_with_principal_point(&valid, cx, cy).ok_or_else(|| {
+                        CalibError::Degenerate {
+                            camera: camera.into(),
+                            max_tilt_deg: 0.0,
+                            min_tilt_deg: MIN_MAX_TILT_DEG,
+                        }
                     })?;
                     Intrinsics::new(fx, fy, cx, cy)
                 }
@@ -234,23 +251,37 @@ pub(crate) fn initial_camera(
     }
     let mut poses = Vec::with_capacity(views.len());
     for (v, h) in views.iter().zip(&hs) {
-        let pose = h.as_ref().and_then(|h| pose_from_homography(h, &intr)).ok_or_else(|| CalibError::Diverged {
-            camera: camera.into(),
-            message: format!("no board pose for view '{}' from its homography", v.name),
+        let pose = h.as_ref().and_then(|h| pose_from_homography(h, &intr)).ok_or_else(|| {
+            CalibError::Diverged {
+                camera: camera.into(),
+                message: format!("no board pose for view '{}' from its homography", v.name),
+            }
         })?;
         poses.push(pose);
     }
     let max_tilt = poses.iter().map(tilt_deg).fold(0.0_f64, f64::max);
     if max_tilt < MIN_MAX_TILT_DEG || !(intr.fx.is_finite() && intr.fx > 0.0) {
-        return Err(CalibError::Degenerate { camera: camera.into(), max_tilt_deg: max_tilt, min_tilt_deg: MIN_MAX_TILT_DEG });
+        return Err(CalibError::Degenerate {
+            camera: camera.into(),
+            max_tilt_deg: max_tilt,
+            min_tilt_deg: MIN_MAX_TILT_DEG,
+        });
     }
     Ok((intr, dist, poses))
 }
 
 /// Checks sizes and counts, returns the image size and the usable views' indices.
-pub(crate) fn usable_views(camera: &str, board: &Board, views: &[ViewCorners]) -> Result<(usize, usize, Vec<usize>), CalibError> {
+pub(crate) fn usable_views(
+    camera: &str,
+    board: &Board,
+    views: &[ViewCorners],
+) -> Result<(usize, usize, Vec<usize>), CalibError> {
     let Some(first) = views.first() else {
-        return Err(CalibError::TooFewViews { camera: camera.into(), usable: 0, needed: MIN_VIEWS });
+        return Err(CalibError::TooFewViews {
+            camera: camera.into(),
+            usable: 0,
+            needed: MIN_VIEWS,
+        });
     };
     for v in views {
         if (v.width, v.height) != (first.width, first.height) {
@@ -264,12 +295,22 @@ pub(crate) fn usable_views(camera: &str, board: &Board, views: &[ViewCorners]) -
             });
         }
     }
-    let usable: Vec<usize> = (0..views.len()).filter(|&i| views[i].corners.len() >= MIN_CORNERS_PER_VIEW).collect();
+    let usable: Vec<usize> =
+        (0..views.len()).filter(|&i| views[i].corners.len() >= MIN_CORNERS_PER_VIEW).collect();
     if usable.is_empty() && views.iter().all(|v| v.corners.is_empty()) {
-        return Err(CalibError::NoBoard { camera: camera.into(), images: views.len(), cols: board.cols, rows: board.rows });
+        return Err(CalibError::NoBoard {
+            camera: camera.into(),
+            images: views.len(),
+            cols: board.cols,
+            rows: board.rows,
+        });
     }
     if usable.len() < MIN_VIEWS {
-        return Err(CalibError::TooFewViews { camera: camera.into(), usable: usable.len(), needed: MIN_VIEWS });
+        return Err(CalibError::TooFewViews {
+            camera: camera.into(),
+            usable: usable.len(),
+            needed: MIN_VIEWS,
+        });
     }
     Ok((first.width, first.height, usable))
 }
@@ -285,8 +326,16 @@ pub(crate) fn robust_sigma(errors: &mut [f64]) -> f64 {
 
 /// One round of corner outlier rejection on a solved problem: deactivates, per view, the worst
 /// corner above the threshold. Returns the rejected corners.
-pub(crate) fn reject_corner_outliers(p: &mut Problem, view_names: &dyn Fn(usize, usize) -> String) -> Vec<RejectedCorner> {
-    let mut errs: Vec<f64> = p.obs.iter().filter(|o| o.active && p.view_active[o.view]).map(|o| p.residual(o).norm()).collect();
+pub(crate) fn reject_corner_outliers(
+    p: &mut Problem,
+    view_names: &dyn Fn(usize, usize) -> String,
+) -> Vec<RejectedCorner> {
+    let mut errs: Vec<f64> = p
+        .obs
+        .iter()
+        .filter(|o| o.active && p.view_active[o.view])
+        .map(|o| p.residual(o).norm())
+        .collect();
     let sigma = robust_sigma(&mut errs);
     let threshold = (CORNER_OUTLIER_SIGMAS * sigma).max(CORNER_OUTLIER_MIN_PX);
     let mut worst: std::collections::BTreeMap<(usize, usize), (usize, f64)> = Default::default();
@@ -306,7 +355,12 @@ pub(crate) fn reject_corner_outliers(p: &mut Problem, view_names: &dyn Fn(usize,
         .values()
         .map(|&(i, e)| {
             p.obs[i].active = false;
-            RejectedCorner { view: view_names(p.obs[i].cam, p.obs[i].view), id: p.obs[i].id, error_px: e, threshold_px: threshold }
+            RejectedCorner {
+                view: view_names(p.obs[i].cam, p.obs[i].view),
+                id: p.obs[i].id,
+                error_px: e,
+                threshold_px: threshold,
+            }
         })
         .collect()
 }
@@ -366,7 +420,15 @@ pub fn calibrate_mono(
     let mut obs = Vec::new();
     for (vi, v) in used.iter().enumerate() {
         for c in &v.corners {
-            obs.push(Obs { cam: 0, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true, weight: 1.0 });
+            obs.push(Obs {
+                cam: 0,
+                view: vi,
+                id: c.id,
+                object: board.object_point(c.id),
+                pixel: c.px,
+                active: true,
+                weight: 1.0,
+            });
         }
     }
     let mut p = Problem {
@@ -378,7 +440,8 @@ pub fn calibrate_mono(
         obs,
     };
     let names: Vec<String> = used.iter().map(|v| v.name.clone()).collect();
-    let (sol, rejected_corners, view_rejections) = solve_with_outliers(camera, &mut p, &|_, v| names[v].clone(), 1, flags.reject_outliers)?;
+    let (sol, rejected_corners, view_rejections) =
+        solve_with_outliers(camera, &mut p, &|_, v| names[v].clone(), 1, flags.reject_outliers)?;
     let sigma2 = residual_variance(&sol);
     let std = intrinsics_std(&sol, 0, sigma2);
     let rms = view_rms(&p, 0);
@@ -458,7 +521,12 @@ pub(crate) fn solve_with_outliers(
         let mut worst: Option<(usize, f64, f64)> = None;
         for cam in 0..n_cams {
             let rms = view_rms(p, cam);
-            let mut vals: Vec<f64> = rms.iter().enumerate().filter(|(v, r)| p.view_active[*v] && r.1 > 0).map(|(_, r)| r.0).collect();
+            let mut vals: Vec<f64> = rms
+                .iter()
+                .enumerate()
+                .filter(|(v, r)| p.view_active[*v] && r.1 > 0)
+                .map(|(_, r)| r.0)
+                .collect();
             if vals.is_empty() {
                 continue;
             }
@@ -479,7 +547,9 @@ pub(crate) fn solve_with_outliers(
         p.view_active[v] = false;
         rejected_views.push((
             v,
-            format!("outlier view: RMS {rms:.3} px > {VIEW_OUTLIER_FACTOR} × median {median:.3} px"),
+            format!(
+                "outlier view: RMS {rms:.3} px > {VIEW_OUTLIER_FACTOR} × median {median:.3} px"
+            ),
         ));
         sol = p.solve();
         check_finite(camera, p)?;
@@ -492,7 +562,10 @@ pub(crate) fn check_finite(camera: &str, p: &Problem) -> Result<(), CalibError> 
         let k = c.intr;
         let all = [k.fx, k.fy, k.cx, k.cy, k.skew].into_iter().chain(c.dist.to_array());
         if all.into_iter().any(|v| !v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
-            return Err(CalibError::Diverged { camera: camera.into(), message: format!("intrinsics became {k:?}") });
+            return Err(CalibError::Diverged {
+                camera: camera.into(),
+                message: format!("intrinsics became {k:?}"),
+            });
         }
     }
     Ok(())

@@ -8,10 +8,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::bundle::{CamState, Obs, Problem};
 use crate::mono::{
-    check_finite, intrinsics_std, residual_variance, solve_with_outliers, view_rms, CalibFlags, IntrinsicsStd, MonoCalibration,
-    RejectedCorner, MIN_VIEWS,
+    CalibFlags, IntrinsicsStd, MIN_VIEWS, MonoCalibration, RejectedCorner, check_finite,
+    intrinsics_std, residual_variance, solve_with_outliers, view_rms,
 };
-use crate::{calibrate_mono, Board, CalibError, ViewCorners};
+use crate::{Board, CalibError, ViewCorners, calibrate_mono};
 
 /// Residual rows of one view of one camera: `[corner id, observed x, observed y, ex, ey]`, px.
 pub type ResidualRows = Vec<[f64; 5]>;
@@ -103,7 +103,9 @@ fn view_variances(p: &Problem, sol: &crate::bundle::Solution) -> Vec<Vec<f64>> {
     }
     let n_total: usize = acc.iter().flatten().map(|a| a.1).sum();
     let share = (2.0 * n_total as f64 - sol.n_params as f64) / (2.0 * n_total as f64);
-    acc.into_iter().map(|c| c.into_iter().map(|(s, n)| s / (2.0 * n as f64 * share)).collect()).collect()
+    acc.into_iter()
+        .map(|c| c.into_iter().map(|(s, n)| s / (2.0 * n as f64 * share)).collect())
+        .collect()
 }
 
 /// Average of rigid transforms (quaternion mean with sign alignment, mean translation).
@@ -151,13 +153,22 @@ pub fn calibrate_stereo(
             color_views.len()
         )));
     }
-    let depth_mono = calibrate_mono("depth/IR camera", board, depth_views, &options.depth_flags, depth_guess)?;
-    let color_mono = calibrate_mono("colour camera", board, color_views, &options.color_flags, color_guess)?;
-    let pose = |m: &MonoCalibration, i: usize| m.views[i].camera_from_board.filter(|_| m.views[i].rejected.is_none());
-    let pairs: Vec<usize> =
-        (0..depth_views.len()).filter(|&i| pose(&depth_mono, i).is_some() && pose(&color_mono, i).is_some()).collect();
+    let depth_mono =
+        calibrate_mono("depth/IR camera", board, depth_views, &options.depth_flags, depth_guess)?;
+    let color_mono =
+        calibrate_mono("colour camera", board, color_views, &options.color_flags, color_guess)?;
+    let pose = |m: &MonoCalibration, i: usize| {
+        m.views[i].camera_from_board.filter(|_| m.views[i].rejected.is_none())
+    };
+    let pairs: Vec<usize> = (0..depth_views.len())
+        .filter(|&i| pose(&depth_mono, i).is_some() && pose(&color_mono, i).is_some())
+        .collect();
     if pairs.len() < MIN_VIEWS {
-        return Err(CalibError::TooFewViews { camera: "stereo pairs (board seen by both cameras)".into(), usable: pairs.len(), needed: MIN_VIEWS });
+        return Err(CalibError::TooFewViews {
+            camera: "stereo pairs (board seen by both cameras)".into(),
+            usable: pairs.len(),
+            needed: MIN_VIEWS,
+        });
     }
     let estimates: Vec<RigidTransform> = pairs
         .iter()
@@ -178,12 +189,22 @@ pub fn calibrate_stereo(
     }
     let mut obs = Vec::new();
     for (vi, &i) in views_idx.iter().enumerate() {
-        for (cam, (views, mono)) in [(depth_views, &depth_mono), (color_views, &color_mono)].into_iter().enumerate() {
+        for (cam, (views, mono)) in
+            [(depth_views, &depth_mono), (color_views, &color_mono)].into_iter().enumerate()
+        {
             if pose(mono, i).is_none() {
                 continue;
             }
             for c in &views[i].corners {
-                obs.push(Obs { cam, view: vi, id: c.id, object: board.object_point(c.id), pixel: c.px, active: true, weight: 1.0 });
+                obs.push(Obs {
+                    cam,
+                    view: vi,
+                    id: c.id,
+                    object: board.object_point(c.id),
+                    pixel: c.px,
+                    active: true,
+                    weight: 1.0,
+                });
             }
         }
     }
@@ -198,7 +219,10 @@ pub fn calibrate_stereo(
         CamState { intr: m.camera.intrinsics, dist: m.camera.distortion, free, aspect }
     };
     let mut p = Problem {
-        cams: vec![state(&depth_mono, &options.depth_flags), state(&color_mono, &options.color_flags)],
+        cams: vec![
+            state(&depth_mono, &options.depth_flags),
+            state(&color_mono, &options.color_flags),
+        ],
         cam_from_ref: vec![RigidTransform::identity(), color_from_depth],
         extrinsics_free: true,
         view_active: vec![true; ref_from_board.len()],
@@ -236,7 +260,9 @@ pub fn calibrate_stereo(
             o.weight = 1.0 / variance(o.cam, o.view);
         }
         for (vi, &i) in views_idx.iter().enumerate() {
-            let relative = |cam: usize| if vv[cam][vi].is_finite() { var[cam] / variance(cam, vi) } else { f64::NAN };
+            let relative = |cam: usize| {
+                if vv[cam][vi].is_finite() { var[cam] / variance(cam, vi) } else { f64::NAN }
+            };
             view_weight[i] = (relative(0), relative(1));
         }
         sol = p.solve();
@@ -302,11 +328,20 @@ pub fn calibrate_stereo(
         view_rms_px,
         view_weights: view_weight,
         joint_residuals_px,
-        pairs_used: pairs.into_iter().filter(|i| views_idx.iter().position(|v| v == i).is_some_and(|vi| p.view_active[vi])).collect(),
+        pairs_used: pairs
+            .into_iter()
+            .filter(|i| views_idx.iter().position(|v| v == i).is_some_and(|vi| p.view_active[vi]))
+            .collect(),
         rejected_views: rejected.into_iter().map(|(v, why)| (views_idx[v], why)).collect(),
         rejected_corners,
         depth_from_board: (0..depth_views.len())
-            .map(|i| views_idx.iter().position(|&v| v == i).filter(|&vi| p.view_active[vi]).map(|vi| p.ref_from_board[vi]))
+            .map(|i| {
+                views_idx
+                    .iter()
+                    .position(|&v| v == i)
+                    .filter(|&vi| p.view_active[vi])
+                    .map(|vi| p.ref_from_board[vi])
+            })
             .collect(),
         depth_mono,
         color_mono,

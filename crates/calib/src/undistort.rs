@@ -32,13 +32,19 @@ impl UndistortMap {
 
     /// Fraction of output pixels that are masked.
     pub fn masked_fraction(&self) -> f64 {
-        self.map.data().iter().filter(|m| m.is_none()).count() as f64 / self.map.data().len().max(1) as f64
+        self.map.data().iter().filter(|m| m.is_none()).count() as f64
+            / self.map.data().len().max(1) as f64
     }
 
     /// Bilinear remap of a `C`-channel 8-bit image (colour, IR); masked pixels are 0.
-    pub fn remap_bilinear<const C: usize>(&self, img: &Image<[u8; C]>) -> (Image<[u8; C]>, Image<bool>) {
+    pub fn remap_bilinear<const C: usize>(
+        &self,
+        img: &Image<[u8; C]>,
+    ) -> (Image<[u8; C]>, Image<bool>) {
         let (w, h) = img.size();
-        let at = |x: isize, y: isize| img.get(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
+        let at = |x: isize, y: isize| {
+            img.get(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize)
+        };
         let out = self.map.map(|m| match m {
             None => [0u8; C],
             Some((x, y)) => {
@@ -114,7 +120,8 @@ mod tests {
         for v in (0..424).step_by(7) {
             for u in (0..512).step_by(7) {
                 if let Some((x, y)) = map.map.get(u, v) {
-                    let ray = Vector3::new((u as f64 - 255.5) / 365.0, (v as f64 - 211.5) / 365.0, 1.0);
+                    let ray =
+                        Vector3::new((u as f64 - 255.5) / 365.0, (v as f64 - 211.5) / 365.0, 1.0);
                     let p = cam.project(&ray).unwrap();
                     worst = worst.max((p.x - *x as f64).abs().max((p.y - *y as f64).abs()));
                 }

@@ -117,7 +117,10 @@ pub fn focal_with_principal_point(hs: &[Matrix3<f64>], cx: f64, cy: f64) -> Opti
         let (h1, h2) = (h1 * sc, h2 * sc);
         let eqs = [
             (Vector2::new(h1.x * h2.x, h1.y * h2.y), -h1.z * h2.z),
-            (Vector2::new(h1.x * h1.x - h2.x * h2.x, h1.y * h1.y - h2.y * h2.y), -(h1.z * h1.z - h2.z * h2.z)),
+            (
+                Vector2::new(h1.x * h1.x - h2.x * h2.x, h1.y * h1.y - h2.y * h2.y),
+                -(h1.z * h1.z - h2.z * h2.z),
+            ),
         ];
         for (a, b) in eqs {
             ata += a * a.transpose();
@@ -134,7 +137,8 @@ pub fn focal_with_principal_point(hs: &[Matrix3<f64>], cx: f64, cy: f64) -> Opti
 /// Board pose from a homography and intrinsics: `camera_from_board` (board plane z = 0).
 pub fn pose_from_homography(h: &Matrix3<f64>, k: &Intrinsics) -> Option<RigidTransform> {
     let m = k.matrix().try_inverse()? * h;
-    let (m1, m2, m3) = (m.column(0).into_owned(), m.column(1).into_owned(), m.column(2).into_owned());
+    let (m1, m2, m3) =
+        (m.column(0).into_owned(), m.column(1).into_owned(), m.column(2).into_owned());
     let mut lambda = 2.0 / (m1.norm() + m2.norm());
     if m3.z * lambda < 0.0 {
         lambda = -lambda;
@@ -150,7 +154,9 @@ pub fn pose_from_homography(h: &Matrix3<f64>, k: &Intrinsics) -> Option<RigidTra
         rot = -rot;
     }
     let t = m3 * lambda;
-    t.iter().all(|v| v.is_finite()).then(|| RigidTransform::new(Rotation3::from_matrix_unchecked(rot), t))
+    t.iter()
+        .all(|v| v.is_finite())
+        .then(|| RigidTransform::new(Rotation3::from_matrix_unchecked(rot), t))
 }
 
 /// Tilt of a board pose: angle between the board normal and the optical axis, degrees.

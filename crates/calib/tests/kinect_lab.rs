@@ -7,8 +7,8 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use calib::bouguet::{import_mono, import_stereo};
-use calib::detect::{detect_views, detect_views_with, Refinement};
-use calib::{calibrate_mono, CalibFlags, ViewCorners};
+use calib::detect::{Refinement, detect_views, detect_views_with};
+use calib::{CalibFlags, ViewCorners, calibrate_mono};
 use common::*;
 use geometry::Image;
 use nalgebra::Vector2;
@@ -19,8 +19,9 @@ fn load_gray(path: &Path) -> Image<u8> {
 }
 
 fn detect_lab(data: &Path, refinement: Refinement) -> Vec<ViewCorners> {
-    let imgs: Vec<(String, Image<u8>)> =
-        (1..=11).map(|i| (format!("ir_{i}.bmp"), load_gray(&data.join(format!("kinect-lab/ir_{i}.bmp"))))).collect();
+    let imgs: Vec<(String, Image<u8>)> = (1..=11)
+        .map(|i| (format!("ir_{i}.bmp"), load_gray(&data.join(format!("kinect-lab/ir_{i}.bmp")))))
+        .collect();
     let refs: Vec<(String, &Image<u8>)> = imgs.iter().map(|(n, i)| (n.clone(), i)).collect();
     detect_views_with(&refs, &board(), refinement, &|| {}).0
 }
@@ -48,12 +49,21 @@ fn bouguet_files_import_with_the_labs_numbers() {
     assert_eq!((left.camera.intrinsics.cx, left.camera.intrinsics.cy), (255.5, 211.5));
     assert!((left.camera.distortion.k2 + 0.220584793751968).abs() < 1e-12);
     assert!((left.std.fx - 2.623478617333947 / 3.0).abs() < 1e-9);
-    let active: Vec<usize> = left.views.iter().enumerate().filter(|(_, v)| v.is_some()).map(|(i, _)| i + 1).collect();
+    let active: Vec<usize> =
+        left.views.iter().enumerate().filter(|(_, v)| v.is_some()).map(|(i, _)| i + 1).collect();
     assert_eq!(active, vec![1, 2, 3, 5, 6, 8, 9, 10, 11]);
-    let rig = import_stereo(&lab.join("Calib_Results_stereo.mat"), &lab.join("Calib_Results_left.mat"), &lab.join("Calib_Results_right.mat")).unwrap();
+    let rig = import_stereo(
+        &lab.join("Calib_Results_stereo.mat"),
+        &lab.join("Calib_Results_left.mat"),
+        &lab.join("Calib_Results_right.mat"),
+    )
+    .unwrap();
     // opencv_reference.json → bouguet_reproduction.bouguet_stereo.T (mm).
     let t = rig.color_from_depth.translation * 1000.0;
-    assert!((t - nalgebra::Vector3::new(-52.19517617163978, -0.262, 0.625)).abs().max() < 2e-3, "{t}");
+    assert!(
+        (t - nalgebra::Vector3::new(-52.19517617163978, -0.262, 0.625)).abs().max() < 2e-3,
+        "{t}"
+    );
     assert!((rig.color_from_depth.angle_deg() - 1.4909272972377436).abs() < 1e-6);
     assert_eq!((rig.color.width, rig.color.height), (1920, 1080));
     assert!((rig.depth.intrinsics.fx - 364.2146819723449).abs() < 1e-9);
@@ -68,43 +78,68 @@ fn real_ir_boards_match_the_labs_bouguet_corners() {
     // Labelling is the same for both estimators; the distance bar applies to the toolbox's
     // estimator (the default junction fit is more accurate than Bouguet's own corners, see
     // `standard_model_rms_is_no_worse_than_opencvs_on_the_same_views`).
-    for (mode, dets) in [("junction fit", detections(&data)), ("cornerSubPix", toolbox_detections(&data))] {
-    eprintln!("-- {mode}");
-    let mut found = 0;
-    let mut correct = 0;
-    let (mut sum, mut n) = (0.0, 0usize);
-    for (i, det) in dets.iter().enumerate() {
-        let name = format!("ir_{}.bmp", i + 1);
-        if det.corners.len() < 6 {
-            eprintln!("{name}: not found");
-            continue;
-        }
-        found += 1;
-        // Reference: Bouguet's corners and board points when the lab used the image, else
-        // OpenCV's classic corners (ir_4; equal to Bouguet's to 0.001 px where both exist).
-        let (refc, refx): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = match (&bouguet.views[i], &bouguet.board_points[i]) {
-            (Some(v), Some(x)) => (v.corners.iter().map(|c| c.px).collect(), x.iter().map(|p| p.xy() / 0.04).collect()),
-            _ => match lab["corners_px"][&name]["classic"].as_array() {
-                Some(l) => (
-                    l.iter().map(|p| Vector2::new(f(&p[0]), f(&p[1]))).collect(),
-                    (0..35).map(|k| Vector2::new((k % 7) as f64, (k / 7) as f64)).collect(),
+    for (mode, dets) in
+        [("junction fit", detections(&data)), ("cornerSubPix", toolbox_detections(&data))]
+    {
+        eprintln!("-- {mode}");
+        let mut found = 0;
+        let mut correct = 0;
+        let (mut sum, mut n) = (0.0, 0usize);
+        for (i, det) in dets.iter().enumerate() {
+            let name = format!("ir_{}.bmp", i + 1);
+            if det.corners.len() < 6 {
+                eprintln!("{name}: not found");
+                continue;
+            }
+            found += 1;
+            // Reference: Bouguet's corners and board points when the lab used the image, else
+            // OpenCV's classic corners (ir_4; equal to Bouguet's to 0.001 px where both exist).
+            let (refc, refx): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = match (
+                &bouguet.views[i],
+                &bouguet.board_points[i],
+            ) {
+                (Some(v), Some(x)) => (
+                    v.corners.iter().map(|c| c.px).collect(),
+                    x.iter().map(|p| p.xy() / 0.04).collect(),
                 ),
-                None => {
-                    eprintln!("{name}: {} corners, no reference (the lab and OpenCV both skipped it)", det.corners.len());
-                    continue;
-                }
-            },
-        };
-        // Match by position; the labelling is correct when one grid isometry maps every one
-        // of our board coordinates onto the reference's, sending the board onto the board.
-        let mut dists = Vec::new();
-        let mut pairs = Vec::new();
-        for c in &det.corners {
-            let (k, d) = refc.iter().enumerate().map(|(k, r)| (k, (r - c.px).norm())).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
-            dists.push(d);
-            pairs.push((Vector2::new((c.id % 7) as f64, (c.id / 7) as f64), refx[k]));
-        }
-        let isometry = [(1., 0., 0., 1.), (-1., 0., 0., -1.), (0., -1., 1., 0.), (0., 1., -1., 0.), (1., 0., 0., -1.), (-1., 0., 0., 1.), (0., 1., 1., 0.), (0., -1., -1., 0.)]
+                _ => match lab["corners_px"][&name]["classic"].as_array() {
+                    Some(l) => (
+                        l.iter().map(|p| Vector2::new(f(&p[0]), f(&p[1]))).collect(),
+                        (0..35).map(|k| Vector2::new((k % 7) as f64, (k / 7) as f64)).collect(),
+                    ),
+                    None => {
+                        eprintln!(
+                            "{name}: {} corners, no reference (the lab and OpenCV both skipped it)",
+                            det.corners.len()
+                        );
+                        continue;
+                    }
+                },
+            };
+            // Match by position; the labelling is correct when one grid isometry maps every one
+            // of our board coordinates onto the reference's, sending the board onto the board.
+            let mut dists = Vec::new();
+            let mut pairs = Vec::new();
+            for c in &det.corners {
+                let (k, d) = refc
+                    .iter()
+                    .enumerate()
+                    .map(|(k, r)| (k, (r - c.px).norm()))
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .unwrap();
+                dists.push(d);
+                pairs.push((Vector2::new((c.id % 7) as f64, (c.id / 7) as f64), refx[k]));
+            }
+            let isometry = [
+                (1., 0., 0., 1.),
+                (-1., 0., 0., -1.),
+                (0., -1., 1., 0.),
+                (0., 1., -1., 0.),
+                (1., 0., 0., -1.),
+                (-1., 0., 0., 1.),
+                (0., 1., 1., 0.),
+                (0., -1., -1., 0.),
+            ]
             .iter()
             .find_map(|&(a, b, c, d)| {
                 let m = nalgebra::Matrix2::new(a, b, c, d);
@@ -115,28 +150,34 @@ fn real_ir_boards_match_the_labs_bouguet_corners() {
                 let on_board = ext.iter().all(|p| refx.iter().any(|r| (r - p).norm() < 1e-6));
                 (all && on_board).then_some(m)
             });
-        let mean = dists.iter().sum::<f64>() / dists.len() as f64;
-        let max = dists.iter().copied().fold(0.0, f64::max);
-        eprintln!("{name}: {} corners, mean {mean:.4} px, max {max:.3} px from the lab's, labelling {}", det.corners.len(), if isometry.is_some() { "correct" } else { "WRONG" });
-        if isometry.is_some() && max < 1.0 {
-            correct += 1;
+            let mean = dists.iter().sum::<f64>() / dists.len() as f64;
+            let max = dists.iter().copied().fold(0.0, f64::max);
+            eprintln!(
+                "{name}: {} corners, mean {mean:.4} px, max {max:.3} px from the lab's, labelling {}",
+                det.corners.len(),
+                if isometry.is_some() { "correct" } else { "WRONG" }
+            );
+            if isometry.is_some() && max < 1.0 {
+                correct += 1;
+            }
+            if bouguet.views[i].is_some() {
+                sum += dists.iter().sum::<f64>();
+                n += dists.len();
+            }
         }
-        if bouguet.views[i].is_some() {
-            sum += dists.iter().sum::<f64>();
-            n += dists.len();
-        }
-    }
-    let mean = sum / n as f64;
-    eprintln!("{mode}: found {found} / 11, correctly labelled (checked) {correct}, mean distance to Bouguet {mean:.4} px over {n} corners");
-    // Acceptance: found and correctly labelled in ≥ 10 of 11 (ir_7 has no reference and
-    // counts only as found), mean distance to Bouguet's corners ≤ 0.15 px with Bouguet's
-    // estimator. The junction fit's distance (0.21 px measured) is bounded at 0.3 px: its
-    // floor is the scatter of the toolbox's own corners (OpenCV's RMS on them is 0.365 px
-    // against 0.198 px on ours, same views and model), and 0.3 leaves room for that but not
-    // for a systematically shifted estimator.
-    assert!(found >= 10 && correct >= 9, "{mode}: found {found}, correct {correct}");
-    let bar = if mode == "cornerSubPix" { 0.15 } else { 0.3 };
-    assert!(mean <= bar, "{mode}: mean {mean}");
+        let mean = sum / n as f64;
+        eprintln!(
+            "{mode}: found {found} / 11, correctly labelled (checked) {correct}, mean distance to Bouguet {mean:.4} px over {n} corners"
+        );
+        // Acceptance: found and correctly labelled in ≥ 10 of 11 (ir_7 has no reference and
+        // counts only as found), mean distance to Bouguet's corners ≤ 0.15 px with Bouguet's
+        // estimator. The junction fit's distance (0.21 px measured) is bounded at 0.3 px: its
+        // floor is the scatter of the toolbox's own corners (OpenCV's RMS on them is 0.365 px
+        // against 0.198 px on ours, same views and model), and 0.3 leaves room for that but not
+        // for a systematically shifted estimator.
+        assert!(found >= 10 && correct >= 9, "{mode}: found {found}, correct {correct}");
+        let bar = if mode == "cornerSubPix" { 0.15 } else { 0.3 };
+        assert!(mean <= bar, "{mode}: mean {mean}");
     }
     // ir_23 has no board.
     let none = load_gray(&data.join("kinect-lab/ir_23.bmp"));
@@ -150,19 +191,28 @@ fn lab_settings_reproduce_bouguets_focal_lengths() {
     let bouguet = import_mono(&data.join("kinect-lab/Calib_Results_left.mat")).unwrap();
     let dets = detections(&data);
     // The lab's 9 images, our corners, the lab's settings.
-    let views: Vec<ViewCorners> = [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| dets[i - 1].clone()).collect();
+    let views: Vec<ViewCorners> =
+        [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| dets[i - 1].clone()).collect();
     let r = calibrate_mono("ir", &board(), &views, &CalibFlags::bouguet(), None).unwrap();
     let k = r.camera.intrinsics;
     let b = bouguet.camera.intrinsics;
     let fc_error = 3.0 * bouguet.std.fx; // the lab's reported (3σ) uncertainty
     eprintln!(
         "lab settings: fx {:.3} fy {:.3} (Bouguet {:.3} {:.3} ± {:.3} 3σ), rms {:.4} px, rejected corners {:?}, views {:?}",
-        k.fx, k.fy, b.fx, b.fy, fc_error, r.rms_px, r.rejected_corners, r.views.iter().map(|v| (v.rms_px, v.rejected.clone())).collect::<Vec<_>>()
+        k.fx,
+        k.fy,
+        b.fx,
+        b.fy,
+        fc_error,
+        r.rms_px,
+        r.rejected_corners,
+        r.views.iter().map(|v| (v.rms_px, v.rejected.clone())).collect::<Vec<_>>()
     );
     assert!((k.fx - b.fx).abs() < fc_error && (k.fy - b.fy).abs() < 3.0 * bouguet.std.fy);
     // The lab's IR model folds inside the image (corner pixels have no ray); so does ours.
     for cam in [&bouguet.camera, &r.camera] {
-        let (radius, fraction) = calib::undistort::fold_inside_image(cam).expect("folds inside the image");
+        let (radius, fraction) =
+            calib::undistort::fold_inside_image(cam).expect("folds inside the image");
         eprintln!("fold at r = {radius:.3}, {:.2} % of the pixels beyond it", 100.0 * fraction);
         assert!(radius > 0.9 && radius < 1.2 && fraction > 0.0 && fraction < 0.05);
     }
@@ -170,12 +220,16 @@ fn lab_settings_reproduce_bouguets_focal_lengths() {
 
 #[test]
 fn standard_model_rms_is_no_worse_than_opencvs_on_the_same_views() {
-    let Some(data) = shared_data("standard_model_rms_is_no_worse_than_opencvs_on_the_same_views") else { return };
+    let Some(data) = shared_data("standard_model_rms_is_no_worse_than_opencvs_on_the_same_views")
+    else {
+        return;
+    };
     let lab = json(data.join("kinect-lab/opencv_reference.json"));
     let dets = detections(&data);
     // OpenCV's 8 classic views; OpenCV's RMS with the standard 5-coefficient model.
     let reference = &lab["calibrations"]["ir_classic_all_standard5"];
-    let names: Vec<&str> = reference["view_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+    let names: Vec<&str> =
+        reference["view_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
     let views: Vec<ViewCorners> = names
         .iter()
         .map(|n| {
@@ -185,16 +239,27 @@ fn standard_model_rms_is_no_worse_than_opencvs_on_the_same_views() {
         .collect();
     let r = calibrate_mono("ir", &board(), &views, &CalibFlags::default(), None).unwrap();
     let theirs = f(&reference["rms_px"]);
-    eprintln!("standard model on OpenCV's 8 views: ours {:.4} px, OpenCV {theirs:.4} px; fx {:.3}", r.rms_px, r.camera.intrinsics.fx);
+    eprintln!(
+        "standard model on OpenCV's 8 views: ours {:.4} px, OpenCV {theirs:.4} px; fx {:.3}",
+        r.rms_px, r.camera.intrinsics.fx
+    );
     // Same corners to 0.002 px and the same minimum: equal within 1e-3 px, never worse.
     assert!(r.rms_px <= theirs + 1e-3);
     // On the lab's 9 views, against OpenCV fed Bouguet's corners.
-    let views: Vec<ViewCorners> = [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| dets[i - 1].clone()).collect();
+    let views: Vec<ViewCorners> =
+        [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| dets[i - 1].clone()).collect();
     let r = calibrate_mono("ir", &board(), &views, &CalibFlags::default(), None).unwrap();
-    let theirs = f(&lab["bouguet_reproduction"]["opencv_on_bouguet_corners"]["ir_standard5"]["rms_px"]);
-    let toolbox: Vec<ViewCorners> = [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| toolbox_detections(&data)[i - 1].clone()).collect();
+    let theirs =
+        f(&lab["bouguet_reproduction"]["opencv_on_bouguet_corners"]["ir_standard5"]["rms_px"]);
+    let toolbox: Vec<ViewCorners> = [1, 2, 3, 5, 6, 8, 9, 10, 11]
+        .iter()
+        .map(|&i| toolbox_detections(&data)[i - 1].clone())
+        .collect();
     let t = calibrate_mono("ir", &board(), &toolbox, &CalibFlags::default(), None).unwrap();
-    eprintln!("standard model on the lab's 9 views: ours {:.4} px (cornerSubPix corners {:.4} px), OpenCV on Bouguet's corners {theirs:.4} px", r.rms_px, t.rms_px);
+    eprintln!(
+        "standard model on the lab's 9 views: ours {:.4} px (cornerSubPix corners {:.4} px), OpenCV on Bouguet's corners {theirs:.4} px",
+        r.rms_px, t.rms_px
+    );
     assert!(r.rms_px <= theirs);
     // The junction fit against the toolbox's estimator on the same real views, same model:
     // a lower RMS means less corner noise (the evidence that it is the more accurate one).
@@ -203,24 +268,41 @@ fn standard_model_rms_is_no_worse_than_opencvs_on_the_same_views() {
 
 #[test]
 fn a_misdetected_real_corner_is_caught_not_absorbed() {
-    let Some(data) = shared_data("a_misdetected_real_corner_is_caught_not_absorbed") else { return };
+    let Some(data) = shared_data("a_misdetected_real_corner_is_caught_not_absorbed") else {
+        return;
+    };
     let dets = detections(&data);
-    let views: Vec<ViewCorners> = [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| dets[i - 1].clone()).collect();
+    let views: Vec<ViewCorners> =
+        [1, 2, 3, 5, 6, 8, 9, 10, 11].iter().map(|&i| dets[i - 1].clone()).collect();
     let clean = calibrate_mono("ir", &board(), &views, &CalibFlags::bouguet(), None).unwrap();
-    for (shift, view, corner) in [(Vector2::new(4.0, 0.0), 2, 12), (Vector2::new(-4.2, 4.2), 5, 30), (Vector2::new(0.0, 7.0), 7, 3)] {
+    for (shift, view, corner) in [
+        (Vector2::new(4.0, 0.0), 2, 12),
+        (Vector2::new(-4.2, 4.2), 5, 30),
+        (Vector2::new(0.0, 7.0), 7, 3),
+    ] {
         let mut bad = views.clone();
         bad[view].corners[corner].px += shift;
         let id = bad[view].corners[corner].id;
         let r = calibrate_mono("ir", &board(), &bad, &CalibFlags::bouguet(), None).unwrap();
         eprintln!("shift {:.1} px: rejected {:?}", shift.norm(), r.rejected_corners);
         assert_eq!(r.rejected_corners.len(), 1, "{:?}", r.rejected_corners);
-        assert_eq!((r.rejected_corners[0].view.as_str(), r.rejected_corners[0].id), (bad[view].name.as_str(), id));
+        assert_eq!(
+            (r.rejected_corners[0].view.as_str(), r.rejected_corners[0].id),
+            (bad[view].name.as_str(), id)
+        );
         // Not absorbed: the result equals the clean fit on the same corners minus that one.
         let mut minus = views.clone();
         minus[view].corners.remove(corner);
-        let expected = calibrate_mono("ir", &board(), &minus, &CalibFlags::bouguet(), None).unwrap();
+        let expected =
+            calibrate_mono("ir", &board(), &minus, &CalibFlags::bouguet(), None).unwrap();
         let d = (r.camera.intrinsics.fx - expected.camera.intrinsics.fx).abs();
-        eprintln!("  fx {:.4} vs {:.4} without the corner ({:.4}σ; the clean fit with it {:.4}σ away)", r.camera.intrinsics.fx, expected.camera.intrinsics.fx, d / clean.std.fx, (clean.camera.intrinsics.fx - expected.camera.intrinsics.fx).abs() / clean.std.fx);
+        eprintln!(
+            "  fx {:.4} vs {:.4} without the corner ({:.4}σ; the clean fit with it {:.4}σ away)",
+            r.camera.intrinsics.fx,
+            expected.camera.intrinsics.fx,
+            d / clean.std.fx,
+            (clean.camera.intrinsics.fx - expected.camera.intrinsics.fx).abs() / clean.std.fx
+        );
         // 1e-3σ: both fits converge to 1e-9 relative; the rejected corner must weigh nothing.
         assert!(d < 1e-3 * clean.std.fx);
     }
@@ -233,7 +315,10 @@ fn a_misdetected_real_corner_is_caught_not_absorbed() {
 /// our 3σ must cover the difference too.
 #[test]
 fn real_stereo_from_the_labs_corners_matches_bouguets_stereo() {
-    let Some(data) = shared_data("real_stereo_from_the_labs_corners_matches_bouguets_stereo") else { return };
+    let Some(data) = shared_data("real_stereo_from_the_labs_corners_matches_bouguets_stereo")
+    else {
+        return;
+    };
     let lab = data.join("kinect-lab");
     let left = import_mono(&lab.join("Calib_Results_left.mat")).unwrap();
     let right = import_mono(&lab.join("Calib_Results_right.mat")).unwrap();
@@ -245,7 +330,9 @@ fn real_stereo_from_the_labs_corners_matches_bouguets_stereo() {
     let (t_lab, t_err, om_lab, om_err) = (vec3("T"), vec3("T_error"), vec3("om"), vec3("om_error"));
     // Bouguet's board: 5 corners per row, 40 mm squares. Our ids from its board points.
     let board = calib::Board::new(5, 7, 0.04).unwrap();
-    let relabel = |views: &[Option<ViewCorners>], points: &[Option<Vec<nalgebra::Vector3<f64>>>], i: usize| {
+    let relabel = |views: &[Option<ViewCorners>],
+                   points: &[Option<Vec<nalgebra::Vector3<f64>>>],
+                   i: usize| {
         let (v, x) = (views[i].clone().unwrap(), points[i].clone().unwrap());
         let corners = v
             .corners
@@ -258,23 +345,60 @@ fn real_stereo_from_the_labs_corners_matches_bouguets_stereo() {
         ViewCorners { corners, ..v }
     };
     let active = [1, 2, 3, 5, 6, 8, 9, 10, 11];
-    let ir: Vec<ViewCorners> = active.iter().map(|&i| relabel(&left.views, &left.board_points, i - 1)).collect();
-    let color: Vec<ViewCorners> = active.iter().map(|&i| relabel(&right.views, &right.board_points, i - 1)).collect();
-    let options = calib::StereoOptions { depth_flags: CalibFlags::bouguet(), color_flags: CalibFlags::bouguet(), fix_intrinsics: false };
+    let ir: Vec<ViewCorners> =
+        active.iter().map(|&i| relabel(&left.views, &left.board_points, i - 1)).collect();
+    let color: Vec<ViewCorners> =
+        active.iter().map(|&i| relabel(&right.views, &right.board_points, i - 1)).collect();
+    let options = calib::StereoOptions {
+        depth_flags: CalibFlags::bouguet(),
+        color_flags: CalibFlags::bouguet(),
+        fix_intrinsics: false,
+    };
     let r = calib::calibrate_stereo(&board, &ir, &color, &options, None, None).unwrap();
     let t = r.color_from_depth.translation * 1000.0;
     let om = r.color_from_depth.axis_angle();
     let t_std = r.translation_std_m * 1000.0;
     eprintln!(
         "real stereo: T ({:.3}, {:.3}, {:.3}) mm ± ({:.3}, {:.3}, {:.3}) 1σ; Bouguet ({:.3}, {:.3}, {:.3}) ± ({:.3}, {:.3}, {:.3}) 3σ",
-        t.x, t.y, t.z, t_std.x, t_std.y, t_std.z, t_lab.x, t_lab.y, t_lab.z, t_err.x, t_err.y, t_err.z
+        t.x,
+        t.y,
+        t.z,
+        t_std.x,
+        t_std.y,
+        t_std.z,
+        t_lab.x,
+        t_lab.y,
+        t_lab.z,
+        t_err.x,
+        t_err.y,
+        t_err.z
     );
-    eprintln!("real stereo: om {:?} vs Bouguet {:?} ± {:?}; RMS IR {:.4} px, colour {:.4} px; weights {:?}", om.as_slice(), om_lab.as_slice(), om_err.as_slice(), r.depth_rms_px, r.color_rms_px, r.view_weights);
+    eprintln!(
+        "real stereo: om {:?} vs Bouguet {:?} ± {:?}; RMS IR {:.4} px, colour {:.4} px; weights {:?}",
+        om.as_slice(),
+        om_lab.as_slice(),
+        om_err.as_slice(),
+        r.depth_rms_px,
+        r.color_rms_px,
+        r.view_weights
+    );
     assert_eq!(r.pairs_used.len(), 9, "rejected: {:?}", r.rejected_views);
     for j in 0..3 {
         let d = (t[j] - t_lab[j]).abs();
-        assert!(d < t_err[j] && d < 3.0 * t_std[j], "T[{j}]: {} vs Bouguet {} ± {}", t[j], t_lab[j], t_err[j]);
-        assert!((om[j] - om_lab[j]).abs() < om_err[j], "om[{j}]: {} vs Bouguet {} ± {}", om[j], om_lab[j], om_err[j]);
+        assert!(
+            d < t_err[j] && d < 3.0 * t_std[j],
+            "T[{j}]: {} vs Bouguet {} ± {}",
+            t[j],
+            t_lab[j],
+            t_err[j]
+        );
+        assert!(
+            (om[j] - om_lab[j]).abs() < om_err[j],
+            "om[{j}]: {} vs Bouguet {} ± {}",
+            om[j],
+            om_lab[j],
+            om_err[j]
+        );
     }
     // The handout's user story: about 50 mm along x, almost no rotation.
     assert!((t.x + 52.0).abs() < 1.0 && r.color_from_depth.angle_deg() < 2.0);

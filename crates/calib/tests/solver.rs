@@ -3,7 +3,9 @@
 
 mod common;
 
-use calib::{calibrate_mono, calibrate_stereo, CalibError, CalibFlags, Corner, StereoOptions, ViewCorners};
+use calib::{
+    CalibError, CalibFlags, Corner, StereoOptions, ViewCorners, calibrate_mono, calibrate_stereo,
+};
 use common::*;
 use geometry::{CameraModel, RigidTransform};
 use nalgebra::{Vector2, Vector3};
@@ -11,7 +13,12 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// Projects the board through `cam` at `poses`, adding Gaussian noise of `sigma` px per axis.
-fn synth_views(cam: &CameraModel, poses: &[RigidTransform], sigma: f64, seed: u64) -> Vec<ViewCorners> {
+fn synth_views(
+    cam: &CameraModel,
+    poses: &[RigidTransform],
+    sigma: f64,
+    seed: u64,
+) -> Vec<ViewCorners> {
     let board = board();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut gauss = move || {
@@ -43,14 +50,24 @@ fn exact_rendered_corners_recover_ground_truth() {
     for cam in ["ir", "color"] {
         let truth = gt_camera(&gt, cam);
         let views: Vec<ViewCorners> = (0..15)
-            .map(|i| corners_from(&gt["views"][i][cam]["corners_px"], &format!("{cam}_{i}"), truth.width, truth.height))
+            .map(|i| {
+                corners_from(
+                    &gt["views"][i][cam]["corners_px"],
+                    &format!("{cam}_{i}"),
+                    truth.width,
+                    truth.height,
+                )
+            })
             .collect();
         let r = calibrate_mono(cam, &board(), &views, &CalibFlags::default(), None).unwrap();
         let k = r.camera.intrinsics;
         let t = truth.intrinsics;
         // The corners are exact to ~1e-12 px, so only the solver's convergence limits the
         // error: 1e-6 relative on f, 1e-4 px on the principal point.
-        assert!((k.fx / t.fx - 1.0).abs() < 1e-6 && (k.fy / t.fy - 1.0).abs() < 1e-6, "{cam}: {k:?}");
+        assert!(
+            (k.fx / t.fx - 1.0).abs() < 1e-6 && (k.fy / t.fy - 1.0).abs() < 1e-6,
+            "{cam}: {k:?}"
+        );
         assert!((k.cx - t.cx).abs() < 1e-4 && (k.cy - t.cy).abs() < 1e-4, "{cam}: {k:?}");
         for (a, b) in r.camera.distortion.to_array().iter().zip(truth.distortion.to_array()) {
             assert!((a - b).abs() < 1e-6, "{cam}: distortion {:?}", r.camera.distortion);
@@ -62,7 +79,9 @@ fn exact_rendered_corners_recover_ground_truth() {
 
 #[test]
 fn opencv_corners_give_opencv_results_and_uncertainties() {
-    let Some(data) = shared_data("opencv_corners_give_opencv_results_and_uncertainties") else { return };
+    let Some(data) = shared_data("opencv_corners_give_opencv_results_and_uncertainties") else {
+        return;
+    };
     let lab = json(data.join("kinect-lab/opencv_reference.json"));
     // Bouguet-like flags and the standard model on OpenCV's classic corners of the 8 images.
     for (key, flags) in [
@@ -72,18 +91,34 @@ fn opencv_corners_give_opencv_results_and_uncertainties() {
         // OpenCV rejects nothing; to compare like with like, neither do we.
         let flags = CalibFlags { reject_outliers: false, ..flags };
         let reference = &lab["calibrations"][key];
-        let names: Vec<&str> = reference["view_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
-        let views: Vec<ViewCorners> =
-            names.iter().map(|n| corners_from(&lab["corners_px"][*n]["classic"], n, 512, 424)).collect();
+        let names: Vec<&str> = reference["view_names"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_str().unwrap())
+            .collect();
+        let views: Vec<ViewCorners> = names
+            .iter()
+            .map(|n| corners_from(&lab["corners_px"][*n]["classic"], n, 512, 424))
+            .collect();
         let r = calibrate_mono("ir", &board(), &views, &flags, None).unwrap();
-        eprintln!("{key}: rejected {:?} views {:?}", r.rejected_corners, r.views.iter().map(|v| (v.rms_px, v.rejected.clone())).collect::<Vec<_>>());
+        eprintln!(
+            "{key}: rejected {:?} views {:?}",
+            r.rejected_corners,
+            r.views.iter().map(|v| (v.rms_px, v.rejected.clone())).collect::<Vec<_>>()
+        );
         let ours = r.camera.intrinsics;
         let want = &reference["intrinsics"];
         // Same corners, same model, same cost: the minimum is the same to LM precision. 0.02 px
         // on f allows for OpenCV's looser stopping rule (its criteria: 30 iterations / eps).
         assert!((ours.fx - f(&want["fx"])).abs() < 0.02, "{key}: fx {} vs {}", ours.fx, want["fx"]);
         assert!((ours.fy - f(&want["fy"])).abs() < 0.02, "{key}: fy {} vs {}", ours.fy, want["fy"]);
-        assert!((r.rms_px - f(&reference["rms_px"])).abs() < 1e-4, "{key}: rms {} vs {}", r.rms_px, reference["rms_px"]);
+        assert!(
+            (r.rms_px - f(&reference["rms_px"])).abs() < 1e-4,
+            "{key}: rms {} vs {}",
+            r.rms_px,
+            reference["rms_px"]
+        );
         // Acceptance: σ within 10 % of calibrateCameraExtended's on the same corners.
         let ours_std = r.std.to_array();
         for (i, name) in calib::mono::intrinsic_names().iter().enumerate() {
@@ -93,15 +128,24 @@ fn opencv_corners_give_opencv_results_and_uncertainties() {
                 continue;
             }
             let ratio = ours_std[i] / theirs;
-            eprintln!("{key}: σ {name} ours {:.6} opencv {theirs:.6} ratio {ratio:.4}", ours_std[i]);
-            assert!((ratio - 1.0).abs() < 0.10, "{key}: σ {name} ours {} opencv {theirs}", ours_std[i]);
+            eprintln!(
+                "{key}: σ {name} ours {:.6} opencv {theirs:.6} ratio {ratio:.4}",
+                ours_std[i]
+            );
+            assert!(
+                (ratio - 1.0).abs() < 0.10,
+                "{key}: σ {name} ours {} opencv {theirs}",
+                ours_std[i]
+            );
         }
     }
 }
 
 #[test]
 fn true_parameters_lie_within_three_sigma_across_seeds() {
-    let Some(data) = shared_data("true_parameters_lie_within_three_sigma_across_seeds") else { return };
+    let Some(data) = shared_data("true_parameters_lie_within_three_sigma_across_seeds") else {
+        return;
+    };
     let gt = json(data.join("synthetic-calib/ground_truth.json"));
     let truth = gt_camera(&gt, "ir");
     let poses: Vec<_> = (0..15).map(|i| gt_pose(&gt, i, "ir")).collect();
@@ -119,9 +163,15 @@ fn true_parameters_lie_within_three_sigma_across_seeds() {
         ]
         .into_iter()
         .chain(r.camera.distortion.to_array());
-        let tru = [truth.intrinsics.fx, truth.intrinsics.fy, truth.intrinsics.cx, truth.intrinsics.cy, 0.0]
-            .into_iter()
-            .chain(truth.distortion.to_array());
+        let tru = [
+            truth.intrinsics.fx,
+            truth.intrinsics.fy,
+            truth.intrinsics.cx,
+            truth.intrinsics.cy,
+            0.0,
+        ]
+        .into_iter()
+        .chain(truth.distortion.to_array());
         for ((i, (e, t)), s) in est.zip(tru).enumerate().zip(r.std.to_array()) {
             if i == 4 {
                 continue; // skew is fixed
@@ -154,7 +204,9 @@ fn a_misdetected_corner_is_caught_and_reported() {
 
 #[test]
 fn stereo_recovers_the_rendered_rig_from_noisy_corners() {
-    let Some(data) = shared_data("stereo_recovers_the_rendered_rig_from_noisy_corners") else { return };
+    let Some(data) = shared_data("stereo_recovers_the_rendered_rig_from_noisy_corners") else {
+        return;
+    };
     let gt = json(data.join("synthetic-calib/ground_truth.json"));
     let ir = gt_camera(&gt, "ir");
     let color = gt_camera(&gt, "color");
@@ -190,7 +242,8 @@ fn bad_inputs_give_clear_errors() {
     let e = calibrate_mono("ir", &board, &views[..2], &CalibFlags::default(), None).unwrap_err();
     assert!(matches!(e, CalibError::TooFewViews { usable: 2, needed: 3, .. }), "{e}");
     // No board anywhere.
-    let empty: Vec<_> = views.iter().map(|v| ViewCorners { corners: vec![], ..v.clone() }).collect();
+    let empty: Vec<_> =
+        views.iter().map(|v| ViewCorners { corners: vec![], ..v.clone() }).collect();
     let e = calibrate_mono("ir", &board, &empty, &CalibFlags::default(), None).unwrap_err();
     assert!(matches!(e, CalibError::NoBoard { images: 4, .. }), "{e}");
     // Mixed sizes.
@@ -217,10 +270,19 @@ fn bad_inputs_give_clear_errors() {
 fn rig_file_and_opencv_yaml_keep_the_calibration() {
     let Some(data) = shared_data("rig_file_and_opencv_yaml_keep_the_calibration") else { return };
     let gt = json(data.join("synthetic-calib/ground_truth.json"));
-    let (ir, color, cfd) = (gt_camera(&gt, "ir"), gt_camera(&gt, "color"), gt_color_from_depth(&gt));
+    let (ir, color, cfd) =
+        (gt_camera(&gt, "ir"), gt_camera(&gt, "color"), gt_color_from_depth(&gt));
     let poses: Vec<_> = (0..6).map(|i| gt_pose(&gt, i, "ir")).collect();
     let cposes: Vec<_> = poses.iter().map(|p| cfd.compose(p)).collect();
-    let r = calibrate_stereo(&board(), &synth_views(&ir, &poses, 0.07, 1), &synth_views(&color, &cposes, 0.05, 2), &StereoOptions::default(), None, None).unwrap();
+    let r = calibrate_stereo(
+        &board(),
+        &synth_views(&ir, &poses, 0.07, 1),
+        &synth_views(&color, &cposes, 0.05, 2),
+        &StereoOptions::default(),
+        None,
+        None,
+    )
+    .unwrap();
     let rig = calib::files::stereo_rig(&r, &board());
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("rig.json");
@@ -230,9 +292,14 @@ fn rig_file_and_opencv_yaml_keep_the_calibration() {
     let close = |a: &CameraModel, b: &CameraModel| {
         let v = |c: &CameraModel| {
             let k = c.intrinsics;
-            [k.fx, k.fy, k.cx, k.cy, k.skew].into_iter().chain(c.distortion.to_array()).collect::<Vec<_>>()
+            [k.fx, k.fy, k.cx, k.cy, k.skew]
+                .into_iter()
+                .chain(c.distortion.to_array())
+                .collect::<Vec<_>>()
         };
-        a.width == b.width && a.height == b.height && v(a).iter().zip(v(b)).all(|(x, y)| (x - y).abs() <= 1e-15 * x.abs().max(1.0))
+        a.width == b.width
+            && a.height == b.height
+            && v(a).iter().zip(v(b)).all(|(x, y)| (x - y).abs() <= 1e-15 * x.abs().max(1.0))
     };
     assert!(close(&back.depth, &rig.depth) && close(&back.color, &rig.color));
     assert!((back.color_from_depth.matrix() - rig.color_from_depth.matrix()).abs().max() < 1e-15);
@@ -244,18 +311,40 @@ fn rig_file_and_opencv_yaml_keep_the_calibration() {
     let data_of = |name: &str| -> Vec<f64> {
         let start = yaml.find(&format!("{name}: !!opencv-matrix")).unwrap();
         let line = yaml[start..].lines().find(|l| l.trim_start().starts_with("data:")).unwrap();
-        line.trim().trim_start_matches("data: [").trim_end_matches(']').split(',').map(|v| v.trim().parse().unwrap()).collect()
+        line.trim()
+            .trim_start_matches("data: [")
+            .trim_end_matches(']')
+            .split(',')
+            .map(|v| v.trim().parse().unwrap())
+            .collect()
     };
     let t = data_of("T");
-    assert_eq!(t, vec![rig.color_from_depth.translation.x, rig.color_from_depth.translation.y, rig.color_from_depth.translation.z]);
+    assert_eq!(
+        t,
+        vec![
+            rig.color_from_depth.translation.x,
+            rig.color_from_depth.translation.y,
+            rig.color_from_depth.translation.z
+        ]
+    );
     let m2 = data_of("M2");
-    assert_eq!((m2[0], m2[2], m2[4], m2[5]), (rig.color.intrinsics.fx, rig.color.intrinsics.cx, rig.color.intrinsics.fy, rig.color.intrinsics.cy));
+    assert_eq!(
+        (m2[0], m2[2], m2[4], m2[5]),
+        (
+            rig.color.intrinsics.fx,
+            rig.color.intrinsics.cx,
+            rig.color.intrinsics.fy,
+            rig.color.intrinsics.cy
+        )
+    );
     assert!(yaml.starts_with("%YAML:1.0\n---\n"));
 }
 
 #[test]
 fn opencv_rendered_corners_give_opencv_uncertainties() {
-    let Some(data) = shared_data("opencv_rendered_corners_give_opencv_uncertainties") else { return };
+    let Some(data) = shared_data("opencv_rendered_corners_give_opencv_uncertainties") else {
+        return;
+    };
     let cv = json(data.join("synthetic-calib/opencv_reference.json"));
     let mono = &cv["calibration_from_classic_corners"]["mono"];
     let bouguet_like = CalibFlags { use_intrinsic_guess: false, ..CalibFlags::bouguet() };
@@ -274,12 +363,21 @@ fn opencv_rendered_corners_give_opencv_uncertainties() {
         let flags = CalibFlags { reject_outliers: false, ..flags };
         let r = calibrate_mono(cam, &board(), &views, &flags, None).unwrap();
         let want = &mono[key]["intrinsics"];
-        assert!((r.camera.intrinsics.fx - f(&want["fx"])).abs() < 0.02, "{key}: fx {} vs {}", r.camera.intrinsics.fx, want["fx"]);
+        assert!(
+            (r.camera.intrinsics.fx - f(&want["fx"])).abs() < 0.02,
+            "{key}: fx {} vs {}",
+            r.camera.intrinsics.fx,
+            want["fx"]
+        );
         let ours = r.std.to_array();
         for (i, name) in calib::mono::intrinsic_names().iter().enumerate() {
             let Some(theirs) = want["std"][*name].as_f64().filter(|&t| t > 0.0) else { continue };
             // Acceptance: within 10 % of calibrateCameraExtended on the same corners.
-            assert!((ours[i] / theirs - 1.0).abs() < 0.10, "{key}: σ {name} ours {} opencv {theirs}", ours[i]);
+            assert!(
+                (ours[i] / theirs - 1.0).abs() < 0.10,
+                "{key}: σ {name} ours {} opencv {theirs}",
+                ours[i]
+            );
         }
     }
 }
@@ -288,15 +386,24 @@ fn opencv_rendered_corners_give_opencv_uncertainties() {
 fn flags_hold_what_they_fix() {
     let Some(data) = shared_data("flags_hold_what_they_fix") else { return };
     let gt = json(data.join("synthetic-calib/ground_truth.json"));
-    let (ir, color, cfd) = (gt_camera(&gt, "ir"), gt_camera(&gt, "color"), gt_color_from_depth(&gt));
+    let (ir, color, cfd) =
+        (gt_camera(&gt, "ir"), gt_camera(&gt, "color"), gt_color_from_depth(&gt));
     let poses: Vec<_> = (0..10).map(|i| gt_pose(&gt, i, "ir")).collect();
     let dv = synth_views(&ir, &poses, 0.05, 21);
     // Fixed aspect ratio (the truth has fx = fy), zero tangential, fixed k3.
-    let flags = CalibFlags { fix_aspect_ratio: true, zero_tangential: true, fix_k3: true, ..CalibFlags::default() };
+    let flags = CalibFlags {
+        fix_aspect_ratio: true,
+        zero_tangential: true,
+        fix_k3: true,
+        ..CalibFlags::default()
+    };
     let r = calibrate_mono("ir", &board(), &dv, &flags, None).unwrap();
     let k = r.camera.intrinsics;
     assert_eq!(k.fx, k.fy);
-    assert_eq!((r.camera.distortion.p1, r.camera.distortion.p2, r.camera.distortion.k3), (0.0, 0.0, 0.0));
+    assert_eq!(
+        (r.camera.distortion.p1, r.camera.distortion.p2, r.camera.distortion.k3),
+        (0.0, 0.0, 0.0)
+    );
     assert_eq!((r.std.fy, r.std.p1, r.std.k3), (0.0, 0.0, 0.0));
     // The truth has small p1, p2 (0.004, 0.0016): forcing them to 0 biases the principal
     // point, but f stays within 0.2 % (σ-level for this model error).
@@ -304,7 +411,15 @@ fn flags_hold_what_they_fix() {
     // Stereo with fixed intrinsics keeps each camera's single-camera result exactly.
     let cposes: Vec<_> = poses.iter().map(|p| cfd.compose(p)).collect();
     let cv = synth_views(&color, &cposes, 0.05, 22);
-    let s = calibrate_stereo(&board(), &dv, &cv, &StereoOptions { fix_intrinsics: true, ..StereoOptions::default() }, None, None).unwrap();
+    let s = calibrate_stereo(
+        &board(),
+        &dv,
+        &cv,
+        &StereoOptions { fix_intrinsics: true, ..StereoOptions::default() },
+        None,
+        None,
+    )
+    .unwrap();
     assert_eq!(s.depth, s.depth_mono.camera);
     assert_eq!(s.color, s.color_mono.camera);
     assert_eq!(s.depth_std.fx, 0.0);

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use calib::detect::{align_pair, detect_views, rotate_180};
-use calib::{calibrate_stereo, StereoOptions, ViewCorners};
+use calib::{StereoOptions, ViewCorners, calibrate_stereo};
 use common::*;
 use geometry::Image;
 use nalgebra::Vector2;
@@ -30,7 +30,8 @@ fn views(data: &Path) -> &'static (Vec<ViewCorners>, Vec<ViewCorners>) {
                     (name, img)
                 })
                 .collect();
-            let refs: Vec<(String, &Image<u8>)> = imgs.iter().map(|(n, i)| (n.clone(), i)).collect();
+            let refs: Vec<(String, &Image<u8>)> =
+                imgs.iter().map(|(n, i)| (n.clone(), i)).collect();
             detect_views(&refs, &board()).0
         };
         let ir = run("ir");
@@ -45,7 +46,9 @@ fn corner_error(views: &[ViewCorners], gt: &serde_json::Value, cam: &str) -> (f6
     let (mut sum, mut max, mut n) = (0.0, 0.0f64, 0);
     for (i, v) in views.iter().enumerate() {
         let truth = corners_from(&gt["views"][i][cam]["corners_px"], "", 0, 0);
-        let err = |v: &ViewCorners| v.corners.iter().map(|c| (c.px - truth.get(c.id).unwrap()).norm()).collect::<Vec<_>>();
+        let err = |v: &ViewCorners| {
+            v.corners.iter().map(|c| (c.px - truth.get(c.id).unwrap()).norm()).collect::<Vec<_>>()
+        };
         let a = err(v);
         let b = err(&rotate_180(v, &board()));
         let e = if a.iter().sum::<f64>() <= b.iter().sum::<f64>() { a } else { b };
@@ -63,10 +66,16 @@ fn rendered_corners_are_as_accurate_as_opencvs() {
     let cv = json(data.join("synthetic-calib/opencv_reference.json"));
     let (ir, color) = views(&data);
     for (cam, views, key) in [("ir", ir, "classic_ir"), ("color", color, "classic_color")] {
-        assert!(views.iter().all(|v| v.corners.len() == 35), "{cam}: {:?}", views.iter().map(|v| v.corners.len()).collect::<Vec<_>>());
+        assert!(
+            views.iter().all(|v| v.corners.len() == 35),
+            "{cam}: {:?}",
+            views.iter().map(|v| v.corners.len()).collect::<Vec<_>>()
+        );
         let (mean, max, n) = corner_error(views, &gt, cam);
         let theirs = f(&cv["detection_summary"][key]["mean_err_px"]);
-        eprintln!("{cam}: {n} corners, mean error {mean:.4} px (OpenCV classic {theirs:.4}), max {max:.3}");
+        eprintln!(
+            "{cam}: {n} corners, mean error {mean:.4} px (OpenCV classic {theirs:.4}), max {max:.3}"
+        );
         // The bar of synthetic-calib/README.md: OpenCV's classic corners' mean error.
         assert!(mean <= theirs, "{cam}: {mean} vs {theirs}");
     }
@@ -100,8 +109,13 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
     let dr = rotation_error_deg(&r.color_from_depth, &truth_cfd);
     let joint = &cv["calibration_from_classic_corners"]["stereo"]["joint_standard5"];
     let (cv_dt, cv_dr) = (f(&joint["T_error_norm_mm"]), f(&joint["rotation_error_deg"]));
-    eprintln!("stereo |dT| {dt:.4} mm (OpenCV {cv_dt:.4}), rotation {dr:.4}° (OpenCV {cv_dr:.4}), rms {:.4} / {:.4} px", r.depth_rms_px, r.color_rms_px);
-    for (cam, model, key, std) in [("ir", r.depth, "cam1", r.depth_std), ("color", r.color, "cam2", r.color_std)] {
+    eprintln!(
+        "stereo |dT| {dt:.4} mm (OpenCV {cv_dt:.4}), rotation {dr:.4}° (OpenCV {cv_dr:.4}), rms {:.4} / {:.4} px",
+        r.depth_rms_px, r.color_rms_px
+    );
+    for (cam, model, key, std) in
+        [("ir", r.depth, "cam1", r.depth_std), ("color", r.color, "cam2", r.color_std)]
+    {
         let truth = gt_camera(&gt, cam);
         let k = model.intrinsics;
         let t = truth.intrinsics;
@@ -114,10 +128,22 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
         let cv_pp = Vector2::new(f(&c["cx"]) - t.cx, f(&c["cy"]) - t.cy);
         eprintln!(
             "{cam}: fx err {:.4}% (OpenCV {:.4}%), fy {:.4}% ({:.4}%), pp err ({:.4}, {:.4}) px (OpenCV ({:.4}, {:.4}))",
-            100.0 * efx, 100.0 * cv_fx, 100.0 * efy, 100.0 * cv_fy, epp.x, epp.y, cv_pp.x, cv_pp.y
+            100.0 * efx,
+            100.0 * cv_fx,
+            100.0 * efy,
+            100.0 * cv_fy,
+            epp.x,
+            epp.y,
+            cv_pp.x,
+            cv_pp.y
         );
         // Honest uncertainty on the rendered images: the truth within ±3σ.
-        for (e, s) in [(k.fx - t.fx, std.fx), (k.fy - t.fy, std.fy), (k.cx - t.cx, std.cx), (k.cy - t.cy, std.cy)] {
+        for (e, s) in [
+            (k.fx - t.fx, std.fx),
+            (k.fy - t.fy, std.fy),
+            (k.cx - t.cx, std.cx),
+            (k.cy - t.cy, std.cy),
+        ] {
             assert!(e.abs() < 3.0 * s, "{cam}: error {e} vs σ {s}");
         }
         // Acceptance bars: 0.1 % on f, 0.5 px on the principal point.
@@ -125,7 +151,13 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
         assert!(epp.norm() < 0.5, "{cam}");
         // No larger than OpenCV's joint stereoCalibrate on the same images: each focal length,
         // and the principal point as a point (its distance to the truth).
-        eprintln!("{cam}: |pp err| {:.4} px (OpenCV {:.4}); fx err {:.4} px = {:.2}σ", epp.norm(), cv_pp.norm(), k.fx - t.fx, (k.fx - t.fx) / std.fx);
+        eprintln!(
+            "{cam}: |pp err| {:.4} px (OpenCV {:.4}); fx err {:.4} px = {:.2}σ",
+            epp.norm(),
+            cv_pp.norm(),
+            k.fx - t.fx,
+            (k.fx - t.fx) / std.fx
+        );
         assert!(efx <= cv_fx, "{cam} fx: {efx} vs OpenCV {cv_fx}");
         assert!(efy <= cv_fy, "{cam} fy: {efy} vs OpenCV {cv_fy}");
         assert!(epp.norm() <= cv_pp.norm(), "{cam} principal point: {epp} vs OpenCV {cv_pp}");
@@ -143,7 +175,9 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
     for (i, ((d, c), (rd, rc))) in r.joint_residuals_px.iter().zip(&r.view_rms_px).enumerate() {
         for (rows, rms) in [(d, rd), (c, rc)] {
             assert_eq!(rows.len(), 35, "pair {i}");
-            let got = (rows.iter().map(|e| e[3] * e[3] + e[4] * e[4]).sum::<f64>() / rows.len() as f64).sqrt();
+            let got = (rows.iter().map(|e| e[3] * e[3] + e[4] * e[4]).sum::<f64>()
+                / rows.len() as f64)
+                .sqrt();
             assert!((got - rms).abs() < 1e-12, "pair {i}: {got} vs {rms}");
         }
     }
@@ -162,12 +196,15 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
 /// RMS, every detected corner is listed, and the joint fit's board poses match the truth.
 #[test]
 fn report_holds_residuals_detections_and_board_poses() {
-    let Some(data) = shared_data("report_holds_residuals_detections_and_board_poses") else { return };
+    let Some(data) = shared_data("report_holds_residuals_detections_and_board_poses") else {
+        return;
+    };
     let gt = json(data.join("synthetic-calib/ground_truth.json"));
     let (ir, color) = views(&data);
     let r = calibrate_stereo(&board(), ir, color, &StereoOptions::default(), None, None).unwrap();
     let mut rig = calib::files::stereo_rig(&r, &board());
-    let files: Vec<std::path::PathBuf> = (1..=15).map(|i| data.join(format!("synthetic-calib/ir/ir_{i:02}.png"))).collect();
+    let files: Vec<std::path::PathBuf> =
+        (1..=15).map(|i| data.join(format!("synthetic-calib/ir/ir_{i:02}.png"))).collect();
     let report = rig.calibration.as_mut().unwrap();
     calib::files::add_detections(&mut report["depth_single_camera"], ir, &files);
     for (key, views) in [("depth_single_camera", ir), ("color_single_camera", color)] {
@@ -177,8 +214,15 @@ fn report_holds_residuals_detections_and_board_poses() {
             let res = im["residuals_px"].as_array().unwrap();
             assert_eq!(res.len() as u64, im["corners"].as_u64().unwrap());
             // RMS from the listed error vectors: the same sums in another order, 1e-12 px.
-            let rms = (res.iter().map(|e| f(&e[3]).powi(2) + f(&e[4]).powi(2)).sum::<f64>() / res.len() as f64).sqrt();
-            assert!((rms - f(&im["rms_px"])).abs() < 1e-12, "{key} {}: {rms} vs {}", v.name, im["rms_px"]);
+            let rms = (res.iter().map(|e| f(&e[3]).powi(2) + f(&e[4]).powi(2)).sum::<f64>()
+                / res.len() as f64)
+                .sqrt();
+            assert!(
+                (rms - f(&im["rms_px"])).abs() < 1e-12,
+                "{key} {}: {rms} vs {}",
+                v.name,
+                im["rms_px"]
+            );
             if key == "depth_single_camera" {
                 assert_eq!(im["detected_corners"].as_array().unwrap().len(), v.corners.len());
                 assert!(std::path::Path::new(im["image"].as_str().unwrap()).is_file());
@@ -194,7 +238,9 @@ fn report_holds_residuals_detections_and_board_poses() {
         // symmetry (the detector may label from the opposite corner): within 2 mm at 0.45–0.9 m.
         let truth = gt_pose(&gt, i, "ir");
         let far = board().object_point(board().len() - 1);
-        let d = (p.translation - truth.translation).norm().min((p.translation - truth.apply(&far)).norm());
+        let d = (p.translation - truth.translation)
+            .norm()
+            .min((p.translation - truth.apply(&far)).norm());
         assert!(d < 2e-3, "pair {i}: board origin {d} m from the truth");
     }
 }

@@ -6,13 +6,13 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 
 use bytemuck::{Pod, Zeroable};
-use geometry::fusion::{depth_ray_table, ColorProjection};
+use geometry::fusion::{ColorProjection, depth_ray_table};
 use geometry::{CameraModel, DepthKind, Image, Rig};
 
 use geometry::fusion::disc_offsets;
 
 use crate::tables::hole_half_widths;
-use crate::{shaders, GpuError};
+use crate::{GpuError, shaders};
 
 /// Invocations per workgroup of every kernel (the `@workgroup_size` in the shaders): 256 is a
 /// multiple of every vendor's SIMD width and within WebGPU's default limit.
@@ -276,7 +276,10 @@ impl FusionContext {
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
         }))
-        .map_err(|e| GpuError::RequestDevice { adapter: info.name.clone(), message: e.to_string() })?;
+        .map_err(|e| GpuError::RequestDevice {
+            adapter: info.name.clone(),
+            message: e.to_string(),
+        })?;
 
         // Validation and out-of-memory errors would panic in wgpu's default handler; collect
         // them instead and turn them into GpuError::Device after the frame.
@@ -328,7 +331,11 @@ impl FusionContext {
     pub fn adapter_summary(&self) -> String {
         format!(
             "{} ({:?}, {:?}, driver {} {})",
-            self.info.name, self.info.device_type, self.info.backend, self.info.driver, self.info.driver_info
+            self.info.name,
+            self.info.device_type,
+            self.info.backend,
+            self.info.driver,
+            self.info.driver_info
         )
     }
 
@@ -339,13 +346,17 @@ impl FusionContext {
 
     /// The largest storage-buffer binding of this adapter, bytes (lavapipe: 128 MiB).
     pub fn max_binding_bytes(&self) -> u64 {
-        (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size)
+        self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size)
     }
 
     /// Checks that frames of these sizes fit the adapter, without allocating anything.
     /// The largest bindings are the per-depth-pixel points (16 bytes a pixel) and the colour
     /// ray table (8 bytes a colour pixel).
-    pub fn check_frame_size(&self, depth: (usize, usize), color: (usize, usize)) -> Result<(), GpuError> {
+    pub fn check_frame_size(
+        &self,
+        depth: (usize, usize),
+        color: (usize, usize),
+    ) -> Result<(), GpuError> {
         let limit = self.max_binding_bytes();
         let needs: [(&'static str, (usize, usize), u64); 2] =
             [("per-depth-pixel point", depth, 16), ("colour ray table", color, 8)];
@@ -368,7 +379,13 @@ impl FusionContext {
 
     /// H1 + H2 + H7 for one depth frame: the colour-sized z-buffer (and H1/H2 per pixel when
     /// `read_intermediates`). Bit-identical to [`geometry::fusion::register_depth`].
-    pub fn register(&mut self, rig: &Rig, depth: &Image<f32>, kind: DepthKind, read_intermediates: bool) -> Result<GpuFrame, GpuError> {
+    pub fn register(
+        &mut self,
+        rig: &Rig,
+        depth: &Image<f32>,
+        kind: DepthKind,
+        read_intermediates: bool,
+    ) -> Result<GpuFrame, GpuError> {
         let plan = FramePlan { stages: None, read_intermediates };
         self.single(rig, depth, kind, None, plan)
     }
@@ -397,14 +414,23 @@ impl FusionContext {
         let mut out = None;
         let frames = std::iter::once((depth, color));
         self.stream(rig, kind, frames, plan, |_, frame| out = Some(frame))?;
-        out.ok_or_else(|| self.device_error("reading back the frame", "no result was produced".into()))
+        out.ok_or_else(|| {
+            self.device_error("reading back the frame", "no result was produced".into())
+        })
     }
 
     /// Streaming mode: runs `plan` on every `(depth, colour)` frame of `frames` (all of the
     /// rig's sizes), handing each result to `sink(frame_index, frame)` in order. Two frame
     /// slots alternate so that frame `k + 1` uploads and computes while frame `k` is read back
     /// (`map_async`). Returns the number of frames.
-    pub fn stream<'a, I, F>(&mut self, rig: &Rig, kind: DepthKind, frames: I, plan: FramePlan, mut sink: F) -> Result<usize, GpuError>
+    pub fn stream<'a, I, F>(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        frames: I,
+        plan: FramePlan,
+        mut sink: F,
+    ) -> Result<usize, GpuError>
     where
         I: IntoIterator<Item = (&'a Image<f32>, Option<&'a Image<[u8; 3]>>)>,
         F: FnMut(usize, GpuFrame),
@@ -418,9 +444,12 @@ impl FusionContext {
         let mut pending: VecDeque<Pending> = VecDeque::new();
         let mut count = 0;
         for (k, (depth, color)) in frames.into_iter().enumerate() {
-            let sizes = depth
-                .expect_size("depth image", depth_size.0, depth_size.1)
-                .and_then(|()| color.map_or(Ok(()), |c| c.expect_size("colour image", color_size.0, color_size.1)));
+            let sizes =
+                depth.expect_size("depth image", depth_size.0, depth_size.1).and_then(|()| {
+                    color.map_or(Ok(()), |c| {
+                        c.expect_size("colour image", color_size.0, color_size.1)
+                    })
+                });
             if let Err(e) = sizes {
                 // Let the frames in flight complete so their read-back buffers are unmapped
                 // and the context stays usable; their results are dropped with the error.
@@ -480,26 +509,39 @@ impl FusionContext {
         q.write_buffer(&s.nearest, 0, bytemuck::cast_slice(nearest.data()));
         let mask: Vec<u32> = holes.data().iter().map(|&b| b as u32).collect();
         q.write_buffer(&s.holes, 0, bytemuck::cast_slice(&mask));
-        let params = PlaneParams { size: [w as u32, h as u32, m, stride], plane: [normal[0], normal[1], normal[2], offset], opaque: [0; 4] };
+        let params = PlaneParams {
+            size: [w as u32, h as u32, m, stride],
+            plane: [normal[0], normal[1], normal[2], offset],
+            opaque: [0; 4],
+        };
         q.write_buffer(&s.uniforms[U_PLANE], 0, bytemuck::bytes_of(&params));
         let (rays, host_rays) = match &self.color_rays {
             Some((c, host)) => (&c.buffer, host),
-            None => return Err(self.device_error("filling holes", "colour ray table missing".into())),
+            None => {
+                return Err(self.device_error("filling holes", "colour ray table missing".into()));
+            }
         };
         // The count the CPU twin reports: hole pixels whose ray meets the plane in front.
         let filled = holes
             .data()
             .iter()
             .zip(host_rays)
-            .filter(|(m, ray)| **m && geometry::fusion::plane_depth_pixel(normal, offset, **ray).is_some())
+            .filter(|(m, ray)| {
+                **m && geometry::fusion::plane_depth_pixel(normal, offset, **ray).is_some()
+            })
             .count();
         let group = self.bind(
             &self.kernels.plane_fill,
             &[(0, &s.uniforms[U_PLANE]), (1, &s.nearest), (2, &s.holes), (3, rays), (4, &s.filled)],
         );
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("H8 fill") });
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("H8 fill") });
         {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("H8 fill"), timestamp_writes: None });
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("H8 fill"),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&self.kernels.plane_fill);
             pass.set_bind_group(0, &group, &[]);
             pass.dispatch_workgroups(gx, gy, 1);
@@ -521,7 +563,10 @@ impl FusionContext {
     }
 
     fn check_errors(&self, during: &'static str) -> Result<(), GpuError> {
-        let mut errors = self.errors.lock().map_err(|_| self.device_error(during, "error handler poisoned".into()))?;
+        let mut errors = self
+            .errors
+            .lock()
+            .map_err(|_| self.device_error(during, "error handler poisoned".into()))?;
         if errors.is_empty() {
             return Ok(());
         }
@@ -546,7 +591,8 @@ impl FusionContext {
         if self.color_rays.as_ref().is_none_or(|(c, _)| c.key != *camera) {
             let table = camera.ray_table();
             let buffer = self.upload("colour ray table", &table);
-            self.color_rays = Some((Cached { key: *camera, buffer, len: table.len() as u32 }, table));
+            self.color_rays =
+                Some((Cached { key: *camera, buffer, len: table.len() as u32 }, table));
         }
     }
 
@@ -557,27 +603,35 @@ impl FusionContext {
             let buffer = self.upload("depth ray table", &table);
             self.depth_rays = Some(Cached { key, buffer, len: table.len() as u32 });
         }
-        let (nearest_r, hole_r, grow_r) =
-            stages.map_or((0.0, 0.0, 0.0), |s| (s.nearest_radius_px, s.hole_radius_px, s.hole_grow_px));
+        let (nearest_r, hole_r, grow_r) = stages
+            .map_or((0.0, 0.0, 0.0), |s| (s.nearest_radius_px, s.hole_radius_px, s.hole_grow_px));
         if self.offsets.as_ref().is_none_or(|c| c.key != nearest_r.to_bits()) {
-            let table: Vec<[i32; 2]> = disc_offsets(nearest_r).into_iter().map(|(dx, dy, _)| [dx, dy]).collect();
+            let table: Vec<[i32; 2]> =
+                disc_offsets(nearest_r).into_iter().map(|(dx, dy, _)| [dx, dy]).collect();
             let buffer = self.upload("disc offsets", &table);
-            self.offsets = Some(Cached { key: nearest_r.to_bits(), buffer, len: table.len() as u32 });
+            self.offsets =
+                Some(Cached { key: nearest_r.to_bits(), buffer, len: table.len() as u32 });
         }
         if self.half_widths.as_ref().is_none_or(|c| c.key != hole_r.to_bits()) {
             let table = hole_half_widths(hole_r);
             let buffer = self.upload("hole half widths", &table);
-            self.half_widths = Some(Cached { key: hole_r.to_bits(), buffer, len: table.len() as u32 });
+            self.half_widths =
+                Some(Cached { key: hole_r.to_bits(), buffer, len: table.len() as u32 });
         }
         if self.grow_half_widths.as_ref().is_none_or(|c| c.key != grow_r.to_bits()) {
             let table = hole_half_widths(grow_r);
             let buffer = self.upload("hole grow half widths", &table);
-            self.grow_half_widths = Some(Cached { key: grow_r.to_bits(), buffer, len: table.len() as u32 });
+            self.grow_half_widths =
+                Some(Cached { key: grow_r.to_bits(), buffer, len: table.len() as u32 });
         }
     }
 
     fn ensure_slot(&mut self, slot: usize, depth_size: (usize, usize), color_size: (usize, usize)) {
-        if self.slots.get(slot).is_some_and(|s| s.depth_size == depth_size && s.color_size == color_size) {
+        if self
+            .slots
+            .get(slot)
+            .is_some_and(|s| s.depth_size == depth_size && s.color_size == color_size)
+        {
             return;
         }
         let s = self.new_slot(depth_size, color_size);
@@ -606,7 +660,9 @@ impl FusionContext {
         FrameSlot {
             depth_size,
             color_size,
-            uniforms: (0..UNIFORM_COUNT).map(|_| buf("params", size_of::<ProjectParams>() as u64, U::UNIFORM | U::COPY_DST)).collect(),
+            uniforms: (0..UNIFORM_COUNT)
+                .map(|_| buf("params", size_of::<ProjectParams>() as u64, U::UNIFORM | U::COPY_DST))
+                .collect(),
             depth: buf("depth", n * 4, storage),
             points: buf("points", n * 16, storage),
             samples: buf("samples", n * 16, storage),
@@ -642,10 +698,17 @@ impl FusionContext {
         (x, y, x * workgroup)
     }
 
-    fn bind(&self, pipe: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
+    fn bind(
+        &self,
+        pipe: &wgpu::ComputePipeline,
+        entries: &[(u32, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
         let entries: Vec<wgpu::BindGroupEntry> = entries
             .iter()
-            .map(|(binding, b)| wgpu::BindGroupEntry { binding: *binding, resource: b.as_entire_binding() })
+            .map(|(binding, b)| wgpu::BindGroupEntry {
+                binding: *binding,
+                resource: b.as_entire_binding(),
+            })
             .collect();
         self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: None,
@@ -663,7 +726,8 @@ impl FusionContext {
         proj: &ColorProjection,
         plan: &FramePlan,
     ) -> Result<Pending, GpuError> {
-        let missing = || self.device_error("preparing a frame", "lookup tables were not uploaded".into());
+        let missing =
+            || self.device_error("preparing a frame", "lookup tables were not uploaded".into());
         let rays = self.depth_rays.as_ref().ok_or_else(missing)?;
         let offsets = self.offsets.as_ref().ok_or_else(missing)?;
         let half_widths = self.half_widths.as_ref().ok_or_else(missing)?;
@@ -679,7 +743,11 @@ impl FusionContext {
         let q = &self.queue;
         let u = &s.uniforms;
 
-        q.write_buffer(&u[U_BACKPROJECT], 0, bytemuck::bytes_of(&SizeParams { size: [n, dstride, 0, 0] }));
+        q.write_buffer(
+            &u[U_BACKPROJECT],
+            0,
+            bytemuck::bytes_of(&SizeParams { size: [n, dstride, 0, 0] }),
+        );
         let r = &proj.rotation;
         let t = &proj.translation;
         let pp = ProjectParams {
@@ -691,62 +759,95 @@ impl FusionContext {
             opaque: [0; 4],
         };
         q.write_buffer(&u[U_PROJECT], 0, bytemuck::bytes_of(&pp));
-        q.write_buffer(&u[U_ZCLEAR], 0, bytemuck::bytes_of(&SizeParams { size: [cw, ch, m, cstride] }));
-        q.write_buffer(&u[U_ZSCATTER], 0, bytemuck::bytes_of(&SizeParams { size: [cw, ch, n, dstride] }));
+        q.write_buffer(
+            &u[U_ZCLEAR],
+            0,
+            bytemuck::bytes_of(&SizeParams { size: [cw, ch, m, cstride] }),
+        );
+        q.write_buffer(
+            &u[U_ZSCATTER],
+            0,
+            bytemuck::bytes_of(&SizeParams { size: [cw, ch, n, dstride] }),
+        );
         q.write_buffer(&s.depth, 0, bytemuck::cast_slice(depth.data()));
 
         let mut groups = vec![
             (&k.zclear, self.bind(&k.zclear, &[(0, &u[U_ZCLEAR]), (2, &s.zbuffer)]), (cx, cy)),
             (
                 &k.backproject,
-                self.bind(&k.backproject, &[(0, &u[U_BACKPROJECT]), (1, &s.depth), (2, &rays.buffer), (3, &s.points)]),
+                self.bind(
+                    &k.backproject,
+                    &[(0, &u[U_BACKPROJECT]), (1, &s.depth), (2, &rays.buffer), (3, &s.points)],
+                ),
                 (dx, dy),
             ),
-            (&k.project, self.bind(&k.project, &[(0, &u[U_PROJECT]), (1, &s.points), (2, &s.samples)]), (dx, dy)),
+            (
+                &k.project,
+                self.bind(&k.project, &[(0, &u[U_PROJECT]), (1, &s.points), (2, &s.samples)]),
+                (dx, dy),
+            ),
             (
                 &k.zscatter,
                 self.bind(&k.zscatter, &[(0, &u[U_ZSCATTER]), (1, &s.samples), (2, &s.zbuffer)]),
                 (dx, dy),
             ),
         ];
-        let mut reads = Reads { intermediates: plan.read_intermediates, stages: false, color: false };
+        let mut reads =
+            Reads { intermediates: plan.read_intermediates, stages: false, color: false };
         if let Some(st) = &plan.stages {
             reads.stages = true;
-            let np = NearestParams { size: [cw, ch, m, cstride], offsets: [offsets.len, 0, 0, 0], jump: [st.depth_jump, 0.0, 0.0, 0.0] };
+            let np = NearestParams {
+                size: [cw, ch, m, cstride],
+                offsets: [offsets.len, 0, 0, 0],
+                jump: [st.depth_jump, 0.0, 0.0, 0.0],
+            };
             q.write_buffer(&u[U_NEAREST], 0, bytemuck::bytes_of(&np));
-            let radius = [half_widths.len.saturating_sub(1), grow_half_widths.len.saturating_sub(1), 0, 0];
+            let radius =
+                [half_widths.len.saturating_sub(1), grow_half_widths.len.saturating_sub(1), 0, 0];
             let hc = HoleParams { size: [cw, ch, cw + ch, estride], radius };
             q.write_buffer(&u[U_HOLE_CLEAR], 0, bytemuck::bytes_of(&hc));
             let hp = HoleParams { size: [cw, ch, m, cstride], radius };
             q.write_buffer(&u[U_HOLE], 0, bytemuck::bytes_of(&hp));
             groups.push((
                 &k.nearest,
-                self.bind(&k.nearest, &[(0, &u[U_NEAREST]), (1, &s.zbuffer), (2, &offsets.buffer), (3, &s.nearest)]),
+                self.bind(
+                    &k.nearest,
+                    &[(0, &u[U_NEAREST]), (1, &s.zbuffer), (2, &offsets.buffer), (3, &s.nearest)],
+                ),
                 (cx, cy),
             ));
             groups.push((
                 &k.hole_cover,
                 self.bind(
                     &k.hole_cover,
-                    &[
-                        (0, &u[U_HOLE]),
-                        (1, &s.zbuffer),
-                        (2, &half_widths.buffer),
-                        (3, &s.covered),
-                    ],
+                    &[(0, &u[U_HOLE]), (1, &s.zbuffer), (2, &half_widths.buffer), (3, &s.covered)],
                 ),
                 (cx, cy),
             ));
             groups.push((
                 &k.hole_extents,
-                self.bind(&k.hole_extents, &[(0, &u[U_HOLE_CLEAR]), (3, &s.covered), (4, &s.row_extent), (5, &s.col_extent)]),
+                self.bind(
+                    &k.hole_extents,
+                    &[
+                        (0, &u[U_HOLE_CLEAR]),
+                        (3, &s.covered),
+                        (4, &s.row_extent),
+                        (5, &s.col_extent),
+                    ],
+                ),
                 (ex, ey),
             ));
             groups.push((
                 &k.hole_core,
                 self.bind(
                     &k.hole_core,
-                    &[(0, &u[U_HOLE]), (3, &s.covered), (4, &s.row_extent), (5, &s.col_extent), (6, &s.core)],
+                    &[
+                        (0, &u[U_HOLE]),
+                        (3, &s.covered),
+                        (4, &s.row_extent),
+                        (5, &s.col_extent),
+                        (6, &s.core),
+                    ],
                 ),
                 (cx, cy),
             ));
@@ -754,7 +855,13 @@ impl FusionContext {
                 &k.hole_grow,
                 self.bind(
                     &k.hole_grow,
-                    &[(0, &u[U_HOLE]), (1, &s.zbuffer), (6, &s.core), (7, &grow_half_widths.buffer), (8, &s.holes)],
+                    &[
+                        (0, &u[U_HOLE]),
+                        (1, &s.zbuffer),
+                        (6, &s.core),
+                        (7, &grow_half_widths.buffer),
+                        (8, &s.holes),
+                    ],
                 ),
                 (cx, cy),
             ));
@@ -762,22 +869,37 @@ impl FusionContext {
                 reads.color = true;
                 write_padded(q, &s.color, bytemuck::cast_slice(c.data()));
                 let (tol, on) = st.occlusion_tolerance.map_or((0.0, 0.0), |t| (t, 1.0));
-                let cp = ColorParams { size: [cw, ch, n, dstride], occlusion: [tol, on, 0.0, 0.0], opaque: [0; 4] };
+                let cp = ColorParams {
+                    size: [cw, ch, n, dstride],
+                    occlusion: [tol, on, 0.0, 0.0],
+                    opaque: [0; 4],
+                };
                 q.write_buffer(&u[U_COLOR], 0, bytemuck::bytes_of(&cp));
                 groups.push((
                     &k.color,
                     self.bind(
                         &k.color,
-                        &[(0, &u[U_COLOR]), (1, &s.samples), (2, &s.color), (3, &s.nearest), (4, &s.rgba)],
+                        &[
+                            (0, &u[U_COLOR]),
+                            (1, &s.samples),
+                            (2, &s.color),
+                            (3, &s.nearest),
+                            (4, &s.rgba),
+                        ],
                     ),
                     (dx, dy),
                 ));
             }
         }
 
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("fusion frame") });
+        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("fusion frame"),
+        });
         {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("fusion"), timestamp_writes: None });
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("fusion"),
+                timestamp_writes: None,
+            });
             for (pipe, group, (gx, gy)) in &groups {
                 pass.set_pipeline(pipe);
                 pass.set_bind_group(0, group, &[]);
@@ -786,7 +908,8 @@ impl FusionContext {
         }
         let zbytes = m as u64 * 4;
         let dbytes = n as u64 * 16;
-        let mut copies: Vec<(&wgpu::Buffer, &wgpu::Buffer, u64)> = vec![(&s.zbuffer, &s.read_z, zbytes)];
+        let mut copies: Vec<(&wgpu::Buffer, &wgpu::Buffer, u64)> =
+            vec![(&s.zbuffer, &s.read_z, zbytes)];
         if reads.intermediates {
             copies.push((&s.points, &s.read_points, dbytes));
             copies.push((&s.samples, &s.read_samples, dbytes));
@@ -813,15 +936,24 @@ impl FusionContext {
         Ok(Pending { slot, frame, submission, reads, mapped: rx, maps: copies.len() })
     }
 
-    fn wait(&self, submission: wgpu::SubmissionIndex, mapped: &mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>, maps: usize) -> Result<(), GpuError> {
+    fn wait(
+        &self,
+        submission: wgpu::SubmissionIndex,
+        mapped: &mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+        maps: usize,
+    ) -> Result<(), GpuError> {
         self.device
             .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
             .map_err(|e| self.device_error("waiting for a frame", e.to_string()))?;
         for _ in 0..maps {
             match mapped.recv() {
                 Ok(Ok(())) => {}
-                Ok(Err(e)) => return Err(self.device_error("mapping the read-back buffers", e.to_string())),
-                Err(e) => return Err(self.device_error("mapping the read-back buffers", e.to_string())),
+                Ok(Err(e)) => {
+                    return Err(self.device_error("mapping the read-back buffers", e.to_string()));
+                }
+                Err(e) => {
+                    return Err(self.device_error("mapping the read-back buffers", e.to_string()));
+                }
             }
         }
         self.check_errors("running a frame")
@@ -845,7 +977,8 @@ impl FusionContext {
         let (dw, dh) = s.depth_size;
         let (m, n) = ((cw * ch) as u64, (dw * dh) as u64);
         let zbuffer = Image::from_vec(cw, ch, self.read_mapped(&s.read_z, m * 4)?)?;
-        let (mut points, mut samples, mut nearest, mut holes, mut color_on_depth) = (None, None, None, None, None);
+        let (mut points, mut samples, mut nearest, mut holes, mut color_on_depth) =
+            (None, None, None, None, None);
         if p.reads.intermediates {
             points = Some(self.read_mapped(&s.read_points, n * 16)?);
             samples = Some(self.read_mapped(&s.read_samples, n * 16)?);

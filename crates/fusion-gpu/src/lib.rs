@@ -56,4 +56,4 @@ mod tables;
 
 pub use context::{FramePlan, FusionContext, GpuFrame, GpuPolicy, StageOptions};
 pub use error::GpuError;
-pub use run::{fuse, Engine};
+pub use run::{Engine, fuse};

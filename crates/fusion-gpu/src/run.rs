@@ -4,8 +4,9 @@
 use std::time::Instant;
 
 use geometry::fusion::{
-    check_inputs, coverage_radius_px, finish, fit_plane_ransac, hole_grow_px, linear_resample, sample_spacing_px, zbuffer_index,
-    ColorSample, FusionOptions, FusionOutput, PixelStages, StageTimings,
+    ColorSample, FusionOptions, FusionOutput, PixelStages, StageTimings, check_inputs,
+    coverage_radius_px, finish, fit_plane_ransac, hole_grow_px, linear_resample, sample_spacing_px,
+    zbuffer_index,
 };
 use geometry::{DepthKind, Image, PointCloud, Rig};
 
@@ -50,7 +51,13 @@ impl FusionContext {
         let mut timings = StageTimings::default();
 
         let t = Instant::now();
-        let frame = self.frame(rig, depth, kind, Some(color), FramePlan { stages: Some(stages), read_intermediates: true })?;
+        let frame = self.frame(
+            rig,
+            depth,
+            kind,
+            Some(color),
+            FramePlan { stages: Some(stages), read_intermediates: true },
+        )?;
         timings.h1_ms = ms(t);
         let missing = |what: &str| GpuError::Device {
             adapter: self.adapter_name().to_string(),
@@ -81,13 +88,23 @@ impl FusionContext {
         }
         cloud.colors = cloud_pixels
             .iter()
-            .map(|&i| if color_valid.data()[i as usize] { color_img.data()[i as usize] } else { [0, 0, 0] })
+            .map(|&i| {
+                if color_valid.data()[i as usize] {
+                    color_img.data()[i as usize]
+                } else {
+                    [0, 0, 0]
+                }
+            })
             .collect();
 
         let t = Instant::now();
         let (linear, linear_stats) = if options.linear {
-            let (img, stats) =
-                linear_resample(&samples, &zbuffer, options.linear_max_edge_factor * spacing, options.depth_jump)?;
+            let (img, stats) = linear_resample(
+                &samples,
+                &zbuffer,
+                options.linear_max_edge_factor * spacing,
+                options.depth_jump,
+            )?;
             (Some(img), Some(stats))
         } else {
             (None, None)
@@ -95,7 +112,11 @@ impl FusionContext {
         timings.h3_linear_ms = ms(t);
 
         let t = Instant::now();
-        let plane = if options.fill_holes { fit_plane_ransac(&nearest, &rig.color, &options.plane) } else { None };
+        let plane = if options.fill_holes {
+            fit_plane_ransac(&nearest, &rig.color, &options.plane)
+        } else {
+            None
+        };
         let (filled, filled_pixels) = match &plane {
             Some(p) => {
                 let normal = p.normal.map(|c| c as f32);
@@ -156,7 +177,10 @@ pub fn fuse(
 ) -> Result<(FusionOutput, Engine), GpuError> {
     match FusionContext::new(policy) {
         Ok(mut ctx) => {
-            let engine = Engine::Gpu { adapter: ctx.adapter_name().to_string(), software: ctx.is_software() };
+            let engine = Engine::Gpu {
+                adapter: ctx.adapter_name().to_string(),
+                software: ctx.is_software(),
+            };
             Ok((ctx.run(rig, depth, kind, color, options)?, engine))
         }
         Err(e @ GpuError::NoAdapter { .. }) if policy.falls_back_to_cpu() => {

@@ -18,7 +18,8 @@ fn oversize_colour_frame_is_refused_before_allocating() {
     let width = 16_384;
     let height = pixels / width + 1;
     rig.color = CameraModel::new(width, height, rig.color.intrinsics, rig.color.distortion);
-    let err = ctx.register(&rig, &frame.depth, DepthKind::Z, false).expect_err("oversize frame accepted");
+    let err =
+        ctx.register(&rig, &frame.depth, DepthKind::Z, false).expect_err("oversize frame accepted");
     match &err {
         GpuError::FrameTooLarge { buffer, bytes, limit: l, width: w, .. } => {
             assert_eq!(*buffer, "colour ray table");
@@ -29,7 +30,9 @@ fn oversize_colour_frame_is_refused_before_allocating() {
     let msg = err.to_string();
     assert!(msg.contains("without --gpu") && msg.contains(&limit.to_string()), "{msg}");
     // The context is still usable afterwards.
-    let ok = ctx.register(&setup.rig, &frame.depth, DepthKind::Z, false).expect("normal frame after refusal");
+    let ok = ctx
+        .register(&setup.rig, &frame.depth, DepthKind::Z, false)
+        .expect("normal frame after refusal");
     assert!(ok.zbuffer.data().iter().any(|z| !z.is_nan()));
 }
 
@@ -42,10 +45,14 @@ fn oversize_depth_frame_is_refused() {
     // 16 bytes of point per depth pixel: 2x the binding limit. The image is never built:
     // the size check runs on the rig before any pixel is read.
     let pixels = (2 * ctx.max_binding_bytes() / 16) as usize;
-    rig.depth = CameraModel::new(8192, pixels / 8192 + 1, rig.depth.intrinsics, rig.depth.distortion);
+    rig.depth =
+        CameraModel::new(8192, pixels / 8192 + 1, rig.depth.intrinsics, rig.depth.distortion);
     let depth = Image::filled(1, 1, 1.0f32);
     let err = ctx.register(&rig, &depth, DepthKind::Z, false).expect_err("oversize depth accepted");
-    assert!(matches!(err, GpuError::FrameTooLarge { buffer: "per-depth-pixel point", .. }), "{err}");
+    assert!(
+        matches!(err, GpuError::FrameTooLarge { buffer: "per-depth-pixel point", .. }),
+        "{err}"
+    );
 }
 
 #[test]
@@ -55,7 +62,8 @@ fn bad_input_is_rejected_like_on_the_cpu() {
     let (setup, frame) = kinect();
     // Depth image of the wrong size.
     let small = Image::filled(100, 100, 1.0f32);
-    let err = ctx.register(&setup.rig, &small, DepthKind::Z, false).expect_err("wrong size accepted");
+    let err =
+        ctx.register(&setup.rig, &small, DepthKind::Z, false).expect_err("wrong size accepted");
     assert!(err.to_string().contains("100x100") && err.to_string().contains("512x424"), "{err}");
     // Colour image of the wrong size.
     let color = Image::filled(10, 10, [0u8; 3]);
@@ -66,7 +74,10 @@ fn bad_input_is_rejected_like_on_the_cpu() {
     // A rig with a NaN focal length.
     let mut rig = setup.rig.clone();
     rig.color.intrinsics.fx = f64::NAN;
-    assert!(matches!(ctx.register(&rig, &frame.depth, DepthKind::Z, false), Err(GpuError::Input(_))));
+    assert!(matches!(
+        ctx.register(&rig, &frame.depth, DepthKind::Z, false),
+        Err(GpuError::Input(_))
+    ));
     // All-invalid depth is not an error: an empty z-buffer, like the CPU.
     let empty = Image::filled(512, 424, f32::NAN);
     let out = ctx.register(&setup.rig, &empty, DepthKind::Z, false).expect("empty frame");

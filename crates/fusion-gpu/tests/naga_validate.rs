@@ -7,12 +7,20 @@ fn validate(name: &str, source: &str) {
     let module = naga::front::wgsl::parse_str(source)
         .unwrap_or_else(|e| panic!("{name} does not parse:\n{}", e.emit_to_string(source)));
     // Default capabilities: what every WebGPU adapter has (no f64, no 64-bit atomics, ...).
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{name} does not validate:\n{}", e.emit_to_string(source)));
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::default(),
+    )
+    .validate(&module)
+    .unwrap_or_else(|e| panic!("{name} does not validate:\n{}", e.emit_to_string(source)));
     assert!(!module.entry_points.is_empty(), "{name} has no entry point");
     for ep in &module.entry_points {
-        assert_eq!(ep.stage, naga::ShaderStage::Compute, "{name}: {} is not a compute entry point", ep.name);
+        assert_eq!(
+            ep.stage,
+            naga::ShaderStage::Compute,
+            "{name}: {} is not a compute entry point",
+            ep.name
+        );
     }
 }
 
@@ -27,12 +35,14 @@ fn every_shader_file_validates_with_naga() {
     files.sort();
     assert!(!files.is_empty(), "no .wgsl in {}", dir.display());
     for path in &files {
-        let source = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let source =
+            std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         validate(&path.display().to_string(), &source);
     }
     // Every file on disk is one the crate compiles in, and vice versa.
     let compiled: Vec<&str> = fusion_gpu::shaders::ALL.iter().map(|(n, _)| *n).collect();
-    let on_disk: Vec<String> = files.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    let on_disk: Vec<String> =
+        files.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
     assert_eq!(on_disk, compiled, "shaders/ and fusion_gpu::shaders::ALL disagree");
 }
 
@@ -44,9 +54,12 @@ fn a_broken_shader_is_rejected() {
     let parsed = naga::front::wgsl::parse_str(bad);
     let rejected = match parsed {
         Err(_) => true,
-        Ok(m) => naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
-            .validate(&m)
-            .is_err(),
+        Ok(m) => naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::default(),
+        )
+        .validate(&m)
+        .is_err(),
     };
     assert!(rejected);
 }

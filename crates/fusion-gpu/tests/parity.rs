@@ -3,7 +3,9 @@
 mod common;
 
 use common::{context_or_skip, course, kinect, with_small_color};
-use geometry::fusion::{backproject_pixel, depth_ray_table, project_point, register_depth, ColorProjection};
+use geometry::fusion::{
+    ColorProjection, backproject_pixel, depth_ray_table, project_point, register_depth,
+};
 use geometry::{DepthKind, Image, Rig};
 
 /// Runs one frame on both paths and asserts H1 points, H2 samples and the H7 z-buffer are
@@ -25,17 +27,29 @@ fn assert_bit_identical(test: &str, rig: &Rig, depth: &Image<f32>, kind: DepthKi
                 n_points += 1;
                 assert_eq!(points[i][3], 1.0, "{test}: pixel {i} has no GPU point, CPU {p:?}");
                 for c in 0..3 {
-                    assert_eq!(points[i][c].to_bits(), p[c].to_bits(), "{test}: H1 pixel {i} coord {c}");
+                    assert_eq!(
+                        points[i][c].to_bits(),
+                        p[c].to_bits(),
+                        "{test}: H1 pixel {i} coord {c}"
+                    );
                 }
                 match project_point(&proj, p) {
                     Some(s) => {
                         n_samples += 1;
                         assert_eq!(samples[i][3], 1.0, "{test}: pixel {i} has no GPU sample");
                         for c in 0..3 {
-                            assert_eq!(samples[i][c].to_bits(), s[c].to_bits(), "{test}: H2 pixel {i} coord {c}: {} vs {}", samples[i][c], s[c]);
+                            assert_eq!(
+                                samples[i][c].to_bits(),
+                                s[c].to_bits(),
+                                "{test}: H2 pixel {i} coord {c}: {} vs {}",
+                                samples[i][c],
+                                s[c]
+                            );
                         }
                     }
-                    None => assert_eq!(samples[i], [0.0; 4], "{test}: pixel {i} projected on GPU only"),
+                    None => {
+                        assert_eq!(samples[i], [0.0; 4], "{test}: pixel {i} projected on GPU only")
+                    }
                 }
             }
             None => assert_eq!(points[i], [0.0; 4], "{test}: pixel {i} is a point on the GPU only"),
@@ -58,14 +72,24 @@ fn assert_bit_identical(test: &str, rig: &Rig, depth: &Image<f32>, kind: DepthKi
 fn kinect_preset_z_input_h1_h2_h7_bit_identical() {
     let (setup, frame) = kinect();
     assert_eq!(frame.depth_kind, DepthKind::Z);
-    assert_bit_identical("kinect_preset_z_input_h1_h2_h7_bit_identical", &setup.rig, &frame.depth, DepthKind::Z);
+    assert_bit_identical(
+        "kinect_preset_z_input_h1_h2_h7_bit_identical",
+        &setup.rig,
+        &frame.depth,
+        DepthKind::Z,
+    );
 }
 
 #[test]
 fn course_preset_range_input_h1_h2_h7_bit_identical() {
     let (setup, frame) = course();
     assert_eq!(frame.depth_kind, DepthKind::Range);
-    assert_bit_identical("course_preset_range_input_h1_h2_h7_bit_identical", &setup.rig, &frame.depth, DepthKind::Range);
+    assert_bit_identical(
+        "course_preset_range_input_h1_h2_h7_bit_identical",
+        &setup.rig,
+        &frame.depth,
+        DepthKind::Range,
+    );
 }
 
 #[test]
@@ -74,5 +98,10 @@ fn small_colour_image_with_many_collisions_is_bit_identical() {
     // atomicMin resolves real conflicts.
     let (setup, frame) = kinect();
     let rig = with_small_color(&setup.rig, 240);
-    assert_bit_identical("small_colour_image_with_many_collisions_is_bit_identical", &rig, &frame.depth, DepthKind::Z);
+    assert_bit_identical(
+        "small_colour_image_with_many_collisions_is_bit_identical",
+        &rig,
+        &frame.depth,
+        DepthKind::Z,
+    );
 }

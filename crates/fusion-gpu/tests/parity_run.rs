@@ -9,9 +9,9 @@
 mod common;
 
 use common::{context_or_skip, course, kinect};
-use geometry::fusion::{run, FusionOptions, FusionOutput};
-use geometry::{DepthKind, Image};
+use geometry::fusion::{FusionOptions, FusionOutput, run};
 use geometry::testdata::shared_data_or_skip as shared_data;
+use geometry::{DepthKind, Image};
 
 fn differing_bits(a: &Image<f32>, b: &Image<f32>) -> usize {
     a.data().iter().zip(b.data()).filter(|(x, y)| x.to_bits() != y.to_bits()).count()
@@ -23,20 +23,46 @@ fn differing<T: PartialEq>(a: &[T], b: &[T]) -> usize {
 
 /// Compares every output and prints the per-stage figures the final report quotes.
 fn assert_same(test: &str, cpu: &FusionOutput, gpu: &FusionOutput) {
-    let point_bits = |c: &FusionOutput| c.cloud.points.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
-    let sample_bits =
-        |c: &FusionOutput| c.samples.iter().map(|s| (s.u.to_bits(), s.v.to_bits(), s.z.to_bits(), s.point)).collect::<Vec<_>>();
+    let point_bits = |c: &FusionOutput| {
+        c.cloud.points.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>()
+    };
+    let sample_bits = |c: &FusionOutput| {
+        c.samples
+            .iter()
+            .map(|s| (s.u.to_bits(), s.v.to_bits(), s.z.to_bits(), s.point))
+            .collect::<Vec<_>>()
+    };
     let rows = [
-        ("H1 points (coords)", differing(&point_bits(cpu), &point_bits(gpu)), cpu.cloud.points.len() * 3),
+        (
+            "H1 points (coords)",
+            differing(&point_bits(cpu), &point_bits(gpu)),
+            cpu.cloud.points.len() * 3,
+        ),
         ("H1 pixels", differing(&cpu.cloud_pixels, &gpu.cloud_pixels), cpu.cloud_pixels.len()),
         ("H2 samples", differing(&sample_bits(cpu), &sample_bits(gpu)), cpu.samples.len()),
         ("H7 z-buffer", differing_bits(&cpu.zbuffer, &gpu.zbuffer), cpu.zbuffer.data().len()),
         ("H3 nearest", differing_bits(&cpu.nearest, &gpu.nearest), cpu.nearest.data().len()),
-        ("H8 hole mask", differing(cpu.hole_mask.data(), gpu.hole_mask.data()), cpu.hole_mask.data().len()),
+        (
+            "H8 hole mask",
+            differing(cpu.hole_mask.data(), gpu.hole_mask.data()),
+            cpu.hole_mask.data().len(),
+        ),
         ("H8 filled", differing_bits(&cpu.filled, &gpu.filled), cpu.filled.data().len()),
-        ("H6 colour", differing(cpu.color_on_depth.data(), gpu.color_on_depth.data()), cpu.color_on_depth.data().len()),
-        ("H6 valid", differing(cpu.color_on_depth_valid.data(), gpu.color_on_depth_valid.data()), cpu.color_on_depth_valid.data().len()),
-        ("H1+H6 cloud colours", differing(&cpu.cloud.colors, &gpu.cloud.colors), cpu.cloud.colors.len()),
+        (
+            "H6 colour",
+            differing(cpu.color_on_depth.data(), gpu.color_on_depth.data()),
+            cpu.color_on_depth.data().len(),
+        ),
+        (
+            "H6 valid",
+            differing(cpu.color_on_depth_valid.data(), gpu.color_on_depth_valid.data()),
+            cpu.color_on_depth_valid.data().len(),
+        ),
+        (
+            "H1+H6 cloud colours",
+            differing(&cpu.cloud.colors, &gpu.cloud.colors),
+            cpu.cloud.colors.len(),
+        ),
     ];
     for (stage, diff, total) in rows {
         eprintln!("{test}: {stage}: {diff} of {total} differ");
@@ -55,7 +81,13 @@ fn assert_same(test: &str, cpu: &FusionOutput, gpu: &FusionOutput) {
     assert_eq!(cpu.summary, gpu.summary, "{test}: summary");
     // Not vacuous: the frame has holes that were filled and colour that was sampled.
     let s = &gpu.summary;
-    assert!(s.zbuffer_pixels > 10_000 && s.hole_pixels > 100 && s.filled_pixels > 0 && s.color_on_depth_pixels > 10_000, "{s:?}");
+    assert!(
+        s.zbuffer_pixels > 10_000
+            && s.hole_pixels > 100
+            && s.filled_pixels > 0
+            && s.color_on_depth_pixels > 10_000,
+        "{s:?}"
+    );
 }
 
 #[test]
@@ -65,7 +97,8 @@ fn kinect_preset_full_pipeline_matches_cpu() {
     let (setup, frame) = kinect();
     let options = FusionOptions::default();
     let cpu = run(&setup.rig, &frame.depth, DepthKind::Z, &frame.color, &options).expect("CPU run");
-    let gpu = ctx.run(&setup.rig, &frame.depth, DepthKind::Z, &frame.color, &options).expect("GPU run");
+    let gpu =
+        ctx.run(&setup.rig, &frame.depth, DepthKind::Z, &frame.color, &options).expect("GPU run");
     assert_same(test, &cpu, &gpu);
 }
 
@@ -76,8 +109,11 @@ fn course_preset_full_pipeline_matches_cpu() {
     let (setup, frame) = course();
     // H3 linear is CPU code on both sides; skip it here to keep the test fast.
     let options = FusionOptions { linear: false, ..FusionOptions::default() };
-    let cpu = run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("CPU run");
-    let gpu = ctx.run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("GPU run");
+    let cpu =
+        run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("CPU run");
+    let gpu = ctx
+        .run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options)
+        .expect("GPU run");
     assert_same(test, &cpu, &gpu);
 }
 
@@ -88,8 +124,11 @@ fn all_invalid_depth_is_rejected_like_on_the_cpu() {
     let (setup, frame) = kinect();
     let empty = Image::filled(512, 424, 0.0f32);
     let options = FusionOptions::default();
-    let cpu = run(&setup.rig, &empty, DepthKind::Z, &frame.color, &options).expect_err("CPU accepted");
-    let gpu = ctx.run(&setup.rig, &empty, DepthKind::Z, &frame.color, &options).expect_err("GPU accepted");
+    let cpu =
+        run(&setup.rig, &empty, DepthKind::Z, &frame.color, &options).expect_err("CPU accepted");
+    let gpu = ctx
+        .run(&setup.rig, &empty, DepthKind::Z, &frame.color, &options)
+        .expect_err("GPU accepted");
     assert_eq!(cpu.to_string(), gpu.to_string());
 }
 
@@ -99,16 +138,26 @@ fn fuse_entry_point_reports_the_engine() {
     // Under Auto the call always succeeds: on the GPU when there is one, else on the CPU.
     let (setup, frame) = course();
     let options = FusionOptions { linear: false, ..FusionOptions::default() };
-    let (out, engine) =
-        fusion_gpu::fuse(fusion_gpu::GpuPolicy::Auto, &setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options)
-            .expect("fuse");
-    let cpu = run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("CPU run");
+    let (out, engine) = fusion_gpu::fuse(
+        fusion_gpu::GpuPolicy::Auto,
+        &setup.rig,
+        &frame.depth,
+        DepthKind::Range,
+        &frame.color,
+        &options,
+    )
+    .expect("fuse");
+    let cpu =
+        run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("CPU run");
     assert_eq!(out.summary, cpu.summary, "{test}");
     match engine {
         fusion_gpu::Engine::Gpu { adapter, .. } => eprintln!("{test}: GPU {adapter}"),
         fusion_gpu::Engine::CpuFallback { reason } => {
             assert!(reason.contains("without --gpu"), "{reason}");
-            assert!(std::env::var("KFUSE_REQUIRE_GPU").map_or(true, |v| v != "1"), "{test}: fell back in CI");
+            assert!(
+                std::env::var("KFUSE_REQUIRE_GPU").map_or(true, |v| v != "1"),
+                "{test}: fell back in CI"
+            );
             eprintln!("SKIP {test} (GPU half): {reason}");
         }
     }
@@ -120,9 +169,11 @@ fn course_synthdata_mat_full_pipeline_matches_cpu() {
     let Some(dir) = shared_data(test) else { return };
     let Some(mut ctx) = context_or_skip(test) else { return };
     let path = dir.join("course/synthdata.mat");
-    let data = geometry::io::course::read_course(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let data = geometry::io::course::read_course(&path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let options = FusionOptions { linear: false, ..FusionOptions::default() };
     let cpu = run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("CPU run");
-    let gpu = ctx.run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("GPU run");
+    let gpu =
+        ctx.run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("GPU run");
     assert_same(test, &cpu, &gpu);
 }

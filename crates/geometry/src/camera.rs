@@ -176,11 +176,7 @@ impl Distortion {
             }
         }
         let residual = self.distort(p.x, p.y) - target;
-        if residual.norm() < 1e3 * UNDISTORT_TOLERANCE {
-            Self::inside_fold(p, fold)
-        } else {
-            None
-        }
+        if residual.norm() < 1e3 * UNDISTORT_TOLERANCE { Self::inside_fold(p, fold) } else { None }
     }
 
     fn inside_fold(p: Vector2<f64>, fold: Option<f64>) -> Option<Vector2<f64>> {
@@ -289,16 +285,19 @@ pub struct CameraModel {
 
 impl CameraModel {
     /// A camera from its parts.
-    pub fn new(width: usize, height: usize, intrinsics: Intrinsics, distortion: Distortion) -> Self {
+    pub fn new(
+        width: usize,
+        height: usize,
+        intrinsics: Intrinsics,
+        distortion: Distortion,
+    ) -> Self {
         Self { width, height, intrinsics, distortion }
     }
 
     /// Checks that every parameter is finite and meaningful (positive size and focal lengths).
     pub fn validate(&self) -> Result<(), GeometryError> {
         let k = &self.intrinsics;
-        let all = [k.fx, k.fy, k.cx, k.cy, k.skew]
-            .into_iter()
-            .chain(self.distortion.to_array());
+        let all = [k.fx, k.fy, k.cx, k.cy, k.skew].into_iter().chain(self.distortion.to_array());
         if all.into_iter().any(|v| !v.is_finite()) {
             return Err(GeometryError::InvalidParameter(format!(
                 "camera parameters must be finite numbers, got {self:?}"

@@ -103,7 +103,12 @@ impl<T> Image<T> {
     }
 
     /// Fails with [`GeometryError::SizeMismatch`] unless the image is `width × height`.
-    pub fn expect_size(&self, what: &str, width: usize, height: usize) -> Result<(), GeometryError> {
+    pub fn expect_size(
+        &self,
+        what: &str,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GeometryError> {
         if (self.width, self.height) == (width, height) {
             Ok(())
         } else {

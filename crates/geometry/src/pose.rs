@@ -46,13 +46,18 @@ impl RigidTransform {
     pub fn from_matrix(r: Matrix3<f64>, translation: Vector3<f64>) -> Result<Self, GeometryError> {
         let orth = (r.transpose() * r - Matrix3::identity()).abs().max();
         let det = r.determinant();
-        if !r.iter().all(|v| v.is_finite()) || orth > ROTATION_TOLERANCE || (det - 1.0).abs() > ROTATION_TOLERANCE {
+        if !r.iter().all(|v| v.is_finite())
+            || orth > ROTATION_TOLERANCE
+            || (det - 1.0).abs() > ROTATION_TOLERANCE
+        {
             return Err(GeometryError::InvalidParameter(format!(
                 "not a rotation matrix (|RᵀR - I| = {orth:.2e}, det = {det:.6}): {r}"
             )));
         }
         if !translation.iter().all(|v| v.is_finite()) {
-            return Err(GeometryError::InvalidParameter(format!("translation is not finite: {translation}")));
+            return Err(GeometryError::InvalidParameter(format!(
+                "translation is not finite: {translation}"
+            )));
         }
         // Re-orthonormalise so later compositions stay exact.
         Ok(Self { rotation: Rotation3::from_matrix(&r), translation })
@@ -122,7 +127,8 @@ impl<'de> Deserialize<'de> for RigidTransform {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         let f = RigidTransformFile::deserialize(d)?;
         let r = Matrix3::from_fn(|i, j| f.rotation[i][j]);
-        RigidTransform::from_matrix(r, Vector3::from(f.translation_m)).map_err(serde::de::Error::custom)
+        RigidTransform::from_matrix(r, Vector3::from(f.translation_m))
+            .map_err(serde::de::Error::custom)
     }
 }
 
@@ -133,7 +139,10 @@ mod tests {
 
     #[test]
     fn inverse_and_compose_round_trip() {
-        let a_from_b = RigidTransform::from_axis_angle(Vector3::new(0.1, -0.2, 0.3), Vector3::new(0.05, 0.0, -0.01));
+        let a_from_b = RigidTransform::from_axis_angle(
+            Vector3::new(0.1, -0.2, 0.3),
+            Vector3::new(0.05, 0.0, -0.01),
+        );
         let p = Vector3::new(0.3, -0.4, 2.0);
         let back = a_from_b.inverse().apply(&a_from_b.apply(&p));
         assert_relative_eq!(back, p, epsilon = 1e-14);
@@ -144,7 +153,10 @@ mod tests {
 
     #[test]
     fn json_round_trip_and_non_rotation_rejected() {
-        let t = RigidTransform::from_axis_angle(Vector3::new(-0.001, 0.025, 0.007), Vector3::new(-0.052, -0.0003, 0.0006));
+        let t = RigidTransform::from_axis_angle(
+            Vector3::new(-0.001, 0.025, 0.007),
+            Vector3::new(-0.052, -0.0003, 0.0006),
+        );
         let s = serde_json::to_string(&t).unwrap();
         let back: RigidTransform = serde_json::from_str(&s).unwrap();
         assert_relative_eq!(back.matrix(), t.matrix(), epsilon = 1e-15);

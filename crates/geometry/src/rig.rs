@@ -79,12 +79,16 @@ impl Rig {
 
     /// Parses a rig file's text. `source` names the file in error messages.
     pub fn from_json(text: &str, source: &std::path::Path) -> Result<Self, GeometryError> {
-        let format_err = |message: String| GeometryError::Format { path: source.to_path_buf(), message };
+        let format_err =
+            |message: String| GeometryError::Format { path: source.to_path_buf(), message };
         let file: RigFile = serde_json::from_str(text).map_err(|e| {
             format_err(format!("not a kfuse rig file ({e}); create one with `kfuse calibrate`"))
         })?;
         if file.format != RIG_FORMAT {
-            return Err(format_err(format!("format is '{}', expected '{RIG_FORMAT}'", file.format)));
+            return Err(format_err(format!(
+                "format is '{}', expected '{RIG_FORMAT}'",
+                file.format
+            )));
         }
         if file.version > RIG_VERSION {
             return Err(format_err(format!(
@@ -112,15 +116,22 @@ mod tests {
 
     #[test]
     fn json_round_trip_keeps_every_parameter() {
-        let depth = CameraModel::new(512, 424, Intrinsics::new(365.0, 365.0, 255.5, 211.5), Distortion {
-            k1: 0.098,
-            k2: -0.22,
-            p1: 0.004,
-            p2: 0.0016,
-            k3: 0.0,
-        });
-        let color = CameraModel::new(1920, 1080, Intrinsics::new(1060.0, 1060.0, 959.5, 539.5), Distortion::NONE);
-        let t = RigidTransform::from_axis_angle(Vector3::new(-0.001, 0.025, 0.007), Vector3::new(-0.052, -0.0003, 0.0006));
+        let depth = CameraModel::new(
+            512,
+            424,
+            Intrinsics::new(365.0, 365.0, 255.5, 211.5),
+            Distortion { k1: 0.098, k2: -0.22, p1: 0.004, p2: 0.0016, k3: 0.0 },
+        );
+        let color = CameraModel::new(
+            1920,
+            1080,
+            Intrinsics::new(1060.0, 1060.0, 959.5, 539.5),
+            Distortion::NONE,
+        );
+        let t = RigidTransform::from_axis_angle(
+            Vector3::new(-0.001, 0.025, 0.007),
+            Vector3::new(-0.052, -0.0003, 0.0006),
+        );
         let mut rig = Rig::new(depth, color, t);
         rig.calibration = Some(serde_json::json!({"rms_px": 0.1}));
         let back = Rig::from_json(&rig.to_json(), Path::new("rig.json")).unwrap();
@@ -135,7 +146,9 @@ mod tests {
         let err = Rig::from_json("{}", Path::new("x/rig.json")).unwrap_err().to_string();
         assert!(err.contains("x/rig.json"), "{err}");
         let depth = CameraModel::new(4, 4, Intrinsics::new(1.0, 1.0, 1.5, 1.5), Distortion::NONE);
-        let text = Rig::new(depth, depth, RigidTransform::identity()).to_json().replace("\"version\": 1", "\"version\": 99");
+        let text = Rig::new(depth, depth, RigidTransform::identity())
+            .to_json()
+            .replace("\"version\": 1", "\"version\": 99");
         let err = Rig::from_json(&text, Path::new("rig.json")).unwrap_err().to_string();
         assert!(err.contains("upgrade"), "{err}");
     }

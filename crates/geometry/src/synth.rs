@@ -143,7 +143,11 @@ impl Texture {
             Texture::Plaid { period_m, base, amplitude } => {
                 let w = std::f64::consts::TAU / period_m;
                 let b = f(*base);
-                [b[0] + amplitude * (w * p.x).sin(), b[1] + amplitude * (w * p.y).sin(), b[2] + amplitude * (w * p.z).sin()]
+                [
+                    b[0] + amplitude * (w * p.x).sin(),
+                    b[1] + amplitude * (w * p.y).sin(),
+                    b[2] + amplitude * (w * p.z).sin(),
+                ]
             }
         }
     }
@@ -190,10 +194,10 @@ impl Scene {
     pub fn cast(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
         let mut best: Option<(f64, Vector3<f64>, usize)> = None;
         for (i, o) in self.objects.iter().enumerate() {
-            if let Some((t, n)) = intersect(&o.shape, origin, dir) {
-                if best.is_none_or(|(bt, _, _)| t < bt) {
-                    best = Some((t, n, i));
-                }
+            if let Some((t, n)) = intersect(&o.shape, origin, dir)
+                && best.is_none_or(|(bt, _, _)| t < bt)
+            {
+                best = Some((t, n, i));
             }
         }
         let (t, n, object) = best?;
@@ -227,7 +231,8 @@ fn intersect(shape: &Shape, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<(f64, 
         }
         Shape::Sphere { center, radius } => {
             let oc = o - center;
-            let [t0, t1] = smallest_positive(d.dot(d), 2.0 * oc.dot(d), oc.dot(&oc) - radius * radius);
+            let [t0, t1] =
+                smallest_positive(d.dot(d), 2.0 * oc.dot(d), oc.dot(&oc) - radius * radius);
             let t = t0.or(t1)?;
             Some((t, o + d * t - center))
         }
@@ -244,7 +249,8 @@ fn intersect(shape: &Shape, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<(f64, 
                     }
                     continue;
                 }
-                let (a, b) = ((-half_extents[k] - lo[k]) / ld[k], (half_extents[k] - lo[k]) / ld[k]);
+                let (a, b) =
+                    ((-half_extents[k] - lo[k]) / ld[k], (half_extents[k] - lo[k]) / ld[k]);
                 let (a, b) = if a <= b { (a, b) } else { (b, a) };
                 if a > tmin {
                     tmin = a;
@@ -291,7 +297,10 @@ fn intersect(shape: &Shape, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<(f64, 
                 let t = (height - cv) / dv;
                 let w = co + d * t;
                 let r = height * half_angle.tan();
-                if t > RAY_EPSILON && (w - a * *height).norm_squared() <= r * r && best.is_none_or(|(bt, _)| t < bt) {
+                if t > RAY_EPSILON
+                    && (w - a * *height).norm_squared() <= r * r
+                    && best.is_none_or(|(bt, _)| t < bt)
+                {
                     best = Some((t, a));
                 }
             }
@@ -423,11 +432,20 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
     let depth_px: Vec<DepthPx> = (0..dh)
         .into_par_iter()
         .flat_map_iter(|v| {
-            let mut rng = ChaCha8Rng::seed_from_u64(sensor.seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let mut rng = ChaCha8Rng::seed_from_u64(
+                sensor.seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+            );
             let rays = &depth_rays[v * dw..(v + 1) * dw];
             rays.iter()
                 .map(|ray| {
-                    let none = DepthPx { depth: f32::NAN, amplitude: 0.0, true_z: f32::NAN, color: [0; 3], seen: false, object: u16::MAX };
+                    let none = DepthPx {
+                        depth: f32::NAN,
+                        amplitude: 0.0,
+                        true_z: f32::NAN,
+                        color: [0; 3],
+                        seen: false,
+                        object: u16::MAX,
+                    };
                     let Some(ray) = ray else { return none };
                     let Some(hit) = scene.cast(&zero, ray) else { return none };
                     let obj = &scene.objects[hit.object];
@@ -438,12 +456,23 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
                     // Colour-camera visibility of this point.
                     let to_p = p - color_origin;
                     let pc = rig.color_from_depth.apply(&p);
-                    let seen = rig.color.project(&pc).is_some_and(|px| rig.color.contains(px.x, px.y))
-                        && scene.cast(&color_origin, &to_p).is_some_and(|h| h.t >= 1.0 - HIDDEN_TOLERANCE);
-                    let dropped = sensor.dropout_fraction > 0.0 && rng.random::<f64>() < sensor.dropout_fraction;
-                    let noise = if sensor.noise_sigma_m > 0.0 { sensor.noise_sigma_m * standard_normal(&mut rng) } else { 0.0 };
+                    let seen =
+                        rig.color.project(&pc).is_some_and(|px| rig.color.contains(px.x, px.y))
+                            && scene
+                                .cast(&color_origin, &to_p)
+                                .is_some_and(|h| h.t >= 1.0 - HIDDEN_TOLERANCE);
+                    let dropped = sensor.dropout_fraction > 0.0
+                        && rng.random::<f64>() < sensor.dropout_fraction;
+                    let noise = if sensor.noise_sigma_m > 0.0 {
+                        sensor.noise_sigma_m * standard_normal(&mut rng)
+                    } else {
+                        0.0
+                    };
                     let z = p.z + noise;
-                    let valid = !dropped && z <= sensor.max_range_m && amplitude >= sensor.min_amplitude && z > 0.0;
+                    let valid = !dropped
+                        && z <= sensor.max_range_m
+                        && amplitude >= sensor.min_amplitude
+                        && z > 0.0;
                     let value = match sensor.depth_kind {
                         DepthKind::Z => z,
                         DepthKind::Range => z * (ray.norm()),
@@ -475,7 +504,14 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
     let color_px: Vec<ColorPx> = color_rays
         .par_iter()
         .map(|ray| {
-            let none = ColorPx { color: [0; 3], z: f32::NAN, seen_by_depth: false, disoccluded: false, object: u16::MAX, normal: [f32::NAN; 3] };
+            let none = ColorPx {
+                color: [0; 3],
+                z: f32::NAN,
+                seen_by_depth: false,
+                disoccluded: false,
+                object: u16::MAX,
+                normal: [f32::NAN; 3],
+            };
             let Some(ray) = ray else { return none };
             let dir = rot_dc * ray;
             let Some(hit) = scene.cast(&color_origin, &dir) else { return none };
@@ -525,8 +561,18 @@ pub fn render(setup: &SynthSetup) -> SynthFrame {
 /// `color_from_depth` = a 5° rotation about y and `T = (0.2, -1.0, 0)` m (the numbers of
 /// `course/synthdata.mat`). Depth is delivered as **range**.
 pub fn course_rig() -> Rig {
-    let depth = CameraModel::new(640, 480, Intrinsics::new(426.666_666_666_666_7, 426.666_666_666_666_7, 319.5, 239.5), Distortion::NONE);
-    let color = CameraModel::new(640, 480, Intrinsics::new(622.222_222_222_222_3, 622.222_222_222_222_3, 319.5, 239.5), Distortion::NONE);
+    let depth = CameraModel::new(
+        640,
+        480,
+        Intrinsics::new(426.666_666_666_666_7, 426.666_666_666_666_7, 319.5, 239.5),
+        Distortion::NONE,
+    );
+    let color = CameraModel::new(
+        640,
+        480,
+        Intrinsics::new(622.222_222_222_222_3, 622.222_222_222_222_3, 319.5, 239.5),
+        Distortion::NONE,
+    );
     let r = Rotation3::from_axis_angle(&Vector3::y_axis(), -5f64.to_radians());
     Rig::new(depth, color, RigidTransform::new(r, Vector3::new(0.2, -1.0, 0.0)))
 }
@@ -537,7 +583,10 @@ pub fn course_preset() -> SynthSetup {
     let scene = Scene {
         objects: vec![
             SceneObject {
-                shape: Shape::Plane { point: Vector3::new(0.0, 0.0, 19.0), normal: Vector3::new(0.05, -0.03, -1.0) },
+                shape: Shape::Plane {
+                    point: Vector3::new(0.0, 0.0, 19.0),
+                    normal: Vector3::new(0.05, -0.03, -1.0),
+                },
                 texture: Texture::Checker { square_m: 1.5, a: [200, 200, 190], b: [60, 80, 120] },
                 ir_albedo: 0.8,
             },
@@ -547,12 +596,22 @@ pub fn course_preset() -> SynthSetup {
                     half_extents: Vector3::new(1.1, 1.3, 1.1),
                     rotation: Rotation3::from_euler_angles(0.2, 0.6, 0.05),
                 },
-                texture: Texture::Stripes { period_m: 0.8, direction: Vector3::new(1.0, 1.0, 0.0), a: [220, 60, 40], b: [250, 210, 80] },
+                texture: Texture::Stripes {
+                    period_m: 0.8,
+                    direction: Vector3::new(1.0, 1.0, 0.0),
+                    a: [220, 60, 40],
+                    b: [250, 210, 80],
+                },
                 ir_albedo: 0.6,
             },
             SceneObject {
                 shape: Shape::Sphere { center: Vector3::new(2.6, -0.6, 11.0), radius: 1.6 },
-                texture: Texture::Stripes { period_m: 0.6, direction: Vector3::new(0.0, 1.0, 0.2), a: [40, 160, 60], b: [210, 240, 200] },
+                texture: Texture::Stripes {
+                    period_m: 0.6,
+                    direction: Vector3::new(0.0, 1.0, 0.2),
+                    a: [40, 160, 60],
+                    b: [210, 240, 200],
+                },
                 ir_albedo: 0.7,
             },
             SceneObject {
@@ -562,12 +621,21 @@ pub fn course_preset() -> SynthSetup {
                     half_angle: 22f64.to_radians(),
                     height: 3.2,
                 },
-                texture: Texture::Stripes { period_m: 0.5, direction: Vector3::new(0.0, 1.0, 0.0), a: [90, 60, 160], b: [230, 200, 250] },
+                texture: Texture::Stripes {
+                    period_m: 0.5,
+                    direction: Vector3::new(0.0, 1.0, 0.0),
+                    a: [90, 60, 160],
+                    b: [230, 200, 250],
+                },
                 ir_albedo: 0.5,
             },
         ],
     };
-    SynthSetup { rig: course_rig(), scene, sensor: SensorOptions { depth_kind: DepthKind::Range, ..SensorOptions::default() } }
+    SynthSetup {
+        rig: course_rig(),
+        scene,
+        sensor: SensorOptions { depth_kind: DepthKind::Range, ..SensorOptions::default() },
+    }
 }
 
 /// Kinect v2 depth range limit, metres (beyond it the sensor reports 0).
@@ -597,7 +665,10 @@ pub fn kinect_rig() -> Rig {
         Intrinsics::new(1060.7, 1059.3, 956.2, 537.9),
         Distortion { k1: 0.021, k2: -0.034, p1: 0.0006, p2: -0.0004, k3: 0.0 },
     );
-    let t = RigidTransform::from_axis_angle(Vector3::new(0.0021, -0.0034, 0.0012), Vector3::new(-0.0519, 0.0004, 0.0011));
+    let t = RigidTransform::from_axis_angle(
+        Vector3::new(0.0021, -0.0034, 0.0012),
+        Vector3::new(-0.0519, 0.0004, 0.0011),
+    );
     Rig::new(depth, color, t)
 }
 
@@ -609,7 +680,10 @@ pub fn kinect_preset(noise: bool) -> SynthSetup {
     let scene = Scene {
         objects: vec![
             SceneObject {
-                shape: Shape::Plane { point: Vector3::new(0.0, 0.0, 3.0), normal: Vector3::new(0.25, 0.35, 1.0) },
+                shape: Shape::Plane {
+                    point: Vector3::new(0.0, 0.0, 3.0),
+                    normal: Vector3::new(0.25, 0.35, 1.0),
+                },
                 texture: Texture::Plaid { period_m: 0.45, base: [130, 125, 120], amplitude: 90.0 },
                 ir_albedo: 0.8,
             },
@@ -619,7 +693,12 @@ pub fn kinect_preset(noise: bool) -> SynthSetup {
                     half_extents: Vector3::new(0.11, 0.15, 0.1),
                     rotation: Rotation3::from_euler_angles(0.15, 0.5, 0.05),
                 },
-                texture: Texture::Stripes { period_m: 0.2, direction: Vector3::new(1.0, 0.5, 0.3), a: [200, 50, 40], b: [250, 220, 90] },
+                texture: Texture::Stripes {
+                    period_m: 0.2,
+                    direction: Vector3::new(1.0, 0.5, 0.3),
+                    a: [200, 50, 40],
+                    b: [250, 220, 90],
+                },
                 ir_albedo: 0.7,
             },
             SceneObject {
@@ -634,7 +713,12 @@ pub fn kinect_preset(noise: bool) -> SynthSetup {
                     half_angle: 20f64.to_radians(),
                     height: 0.32,
                 },
-                texture: Texture::Stripes { period_m: 0.15, direction: Vector3::new(0.0, 1.0, 0.0), a: [70, 50, 170], b: [220, 200, 250] },
+                texture: Texture::Stripes {
+                    period_m: 0.15,
+                    direction: Vector3::new(0.0, 1.0, 0.0),
+                    a: [70, 50, 170],
+                    b: [220, 200, 250],
+                },
                 ir_albedo: 0.6,
             },
         ],
@@ -660,16 +744,28 @@ mod tests {
         let d = Vector3::new(0.0, 0.0, 1.0);
         let sphere = Shape::Sphere { center: Vector3::new(0.0, 0.0, 5.0), radius: 1.0 };
         assert!((intersect(&sphere, &o, &d).unwrap().0 - 4.0).abs() < 1e-12);
-        let b = Shape::Box { center: Vector3::new(0.0, 0.0, 3.0), half_extents: Vector3::new(1.0, 1.0, 0.5), rotation: Rotation3::identity() };
+        let b = Shape::Box {
+            center: Vector3::new(0.0, 0.0, 3.0),
+            half_extents: Vector3::new(1.0, 1.0, 0.5),
+            rotation: Rotation3::identity(),
+        };
         let (t, n) = intersect(&b, &o, &d).unwrap();
         assert!((t - 2.5).abs() < 1e-12 && (n - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-12);
         // Cone with apex towards the camera: the ray along its axis hits the apex.
-        let c = Shape::Cone { apex: Vector3::new(0.0, 0.0, 2.0), axis: d, half_angle: 0.3, height: 1.0 };
+        let c = Shape::Cone {
+            apex: Vector3::new(0.0, 0.0, 2.0),
+            axis: d,
+            half_angle: 0.3,
+            height: 1.0,
+        };
         assert!((intersect(&c, &o, &d).unwrap().0 - 2.0).abs() < 1e-9);
         // A ray 0.1 off the axis hits the mantle at h = 0.1 / tan(0.3).
         let t = intersect(&c, &Vector3::new(0.1, 0.0, 0.0), &d).unwrap().0;
         assert!((t - (2.0 + 0.1 / 0.3f64.tan())).abs() < 1e-9, "{t}");
-        let plane = Shape::Plane { point: Vector3::new(0.0, 0.0, 7.0), normal: Vector3::new(0.0, 0.0, -2.0) };
+        let plane = Shape::Plane {
+            point: Vector3::new(0.0, 0.0, 7.0),
+            normal: Vector3::new(0.0, 0.0, -2.0),
+        };
         assert!((intersect(&plane, &o, &d).unwrap().0 - 7.0).abs() < 1e-12);
     }
 }

@@ -40,7 +40,10 @@ fn existing_or_skip(test: &str, dir: PathBuf, required: bool) -> Option<PathBuf>
         return Some(dir);
     }
     if required {
-        panic!("{test}: shared data not found at {} ({REQUIRE_ENV}=1; set {DATA_ENV})", dir.display());
+        panic!(
+            "{test}: shared data not found at {} ({REQUIRE_ENV}=1; set {DATA_ENV})",
+            dir.display()
+        );
     }
     eprintln!("SKIP {test}: shared data not found at {} (set {DATA_ENV})", dir.display());
     None

@@ -1,8 +1,8 @@
 //! Acceptance tests of the fusion pipeline against the Kinect preset's ground truth.
 
+use geometry::Image;
 use geometry::fusion::{self, FusionOptions};
 use geometry::synth::{self, SynthFrame};
-use geometry::Image;
 
 /// Relative depth difference within a 3×3 neighbourhood that marks a true depth edge: 2 %
 /// is far above the change between neighbouring pixels on any smooth surface of the preset
@@ -34,7 +34,14 @@ fn edge_band(truth: &Image<f32>) -> Image<bool> {
 fn kinect() -> (geometry::synth::SynthSetup, SynthFrame, fusion::FusionOutput) {
     let setup = synth::kinect_preset(false);
     let frame = synth::render(&setup);
-    let out = fusion::run(&setup.rig, &frame.depth, frame.depth_kind, &frame.color, &FusionOptions::default()).unwrap();
+    let out = fusion::run(
+        &setup.rig,
+        &frame.depth,
+        frame.depth_kind,
+        &frame.color,
+        &FusionOptions::default(),
+    )
+    .unwrap();
     (setup, frame, out)
 }
 
@@ -89,12 +96,16 @@ fn kinect_noise_free_meets_the_acceptance_bars() {
     let dband = edge_band(&frame.true_depth_z);
     let (mut nc, mut gc) = (0usize, 0usize);
     for i in 0..dband.data().len() {
-        if !frame.true_seen_by_color.data()[i] || dband.data()[i] || frame.depth.data()[i].is_nan() {
+        if !frame.true_seen_by_color.data()[i] || dband.data()[i] || frame.depth.data()[i].is_nan()
+        {
             continue;
         }
         nc += 1;
         let ok = out.color_on_depth_valid.data()[i]
-            && out.color_on_depth.data()[i].iter().zip(frame.true_color_on_depth.data()[i]).all(|(a, b)| a.abs_diff(b) <= 2);
+            && out.color_on_depth.data()[i]
+                .iter()
+                .zip(frame.true_color_on_depth.data()[i])
+                .all(|(a, b)| a.abs_diff(b) <= 2);
         gc += ok as usize;
     }
     let cfrac = gc as f64 / nc as f64;

@@ -17,7 +17,8 @@ fn plane_fit(points: &[Vector3<f64>]) -> (Vector3<f64>, f64, f64) {
     let i = (0..3).min_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b])).unwrap();
     let n: Vector3<f64> = eig.eigenvectors.column(i).into();
     let (n, d) = if n.dot(&c) < 0.0 { (-n, -n.dot(&c)) } else { (n, n.dot(&c)) };
-    let rms = (points.iter().map(|p| (n.dot(p) - d).powi(2)).sum::<f64>() / points.len() as f64).sqrt();
+    let rms =
+        (points.iter().map(|p| (n.dot(p) - d).powi(2)).sum::<f64>() / points.len() as f64).sqrt();
     (n, d, rms)
 }
 
@@ -60,7 +61,14 @@ fn course_h1_background_is_a_flat_plane_from_range_input() {
 fn course_fusion_lands_on_the_objects() {
     let setup = synth::course_preset();
     let frame = synth::render(&setup);
-    let out = fusion::run(&setup.rig, &frame.depth, frame.depth_kind, &frame.color, &FusionOptions::default()).unwrap();
+    let out = fusion::run(
+        &setup.rig,
+        &frame.depth,
+        frame.depth_kind,
+        &frame.color,
+        &FusionOptions::default(),
+    )
+    .unwrap();
     // Every z-buffered pixel holds the depth of the surface the colour camera sees there,
     // except at depth edges where the rounding to a pixel can put a sample across the edge.
     let (mut n, mut good) = (0, 0);
@@ -82,7 +90,8 @@ fn h5_removes_faces_across_jumps_and_keeps_smooth_faces() {
     let setup = synth::kinect_preset(false);
     let frame = synth::render(&setup);
     let step = 2;
-    let mesh = fusion::mesh_from_depth(&frame.true_color_depth, &setup.rig.color, &frame.color, step);
+    let mesh =
+        fusion::mesh_from_depth(&frame.true_color_depth, &setup.rig.color, &frame.color, step);
     let clean = fusion::remove_stretched_faces(&mesh, FusionOptions::default().stretch_ratio);
     let kept: std::collections::HashSet<[u32; 3]> = clean.faces.iter().copied().collect();
     // Grid pixel of every vertex from its texture coordinate.
@@ -96,14 +105,19 @@ fn h5_removes_faces_across_jumps_and_keeps_smooth_faces() {
     let (mut jumps, mut jumps_removed, mut smooth, mut smooth_kept) = (0, 0, 0, 0);
     for f in &mesh.faces {
         let z: Vec<f32> = f.iter().map(|&i| mesh.vertices[i as usize][2]).collect();
-        let (lo, hi) = (z.iter().cloned().fold(f32::INFINITY, f32::min), z.iter().cloned().fold(0.0, f32::max));
+        let (lo, hi) = (
+            z.iter().cloned().fold(f32::INFINITY, f32::min),
+            z.iter().cloned().fold(0.0, f32::max),
+        );
         if hi > 1.1 * lo {
             jumps += 1;
             jumps_removed += (!kept.contains(f)) as usize;
             continue;
         }
         let px: Vec<usize> = f.iter().map(|&i| pixel(i)).collect();
-        let same_object = px.iter().all(|&p| frame.true_color_object.data()[p] == frame.true_color_object.data()[px[0]]);
+        let same_object = px
+            .iter()
+            .all(|&p| frame.true_color_object.data()[p] == frame.true_color_object.data()[px[0]]);
         // Smooth and facing the camera: true normals tilted < 38.7° (|n_xy| < 0.8 |n_z|), a
         // margin below the 45° of the default test for the facet-vs-surface normal difference.
         let facing = px.iter().all(|&p| {
@@ -115,10 +129,15 @@ fn h5_removes_faces_across_jumps_and_keeps_smooth_faces() {
             smooth_kept += kept.contains(f) as usize;
         }
     }
-    eprintln!("H5: {jumps_removed}/{jumps} jump faces removed, {smooth_kept}/{smooth} smooth faces kept");
+    eprintln!(
+        "H5: {jumps_removed}/{jumps} jump faces removed, {smooth_kept}/{smooth} smooth faces kept"
+    );
     assert!(jumps > 500, "the preset must have depth jumps, got {jumps} faces");
     assert_eq!(jumps_removed, jumps, "every face across a > 10 % jump must go");
-    assert!(smooth > 100_000 && smooth_kept as f64 >= 0.99 * smooth as f64, "{smooth_kept}/{smooth}");
+    assert!(
+        smooth > 100_000 && smooth_kept as f64 >= 0.99 * smooth as f64,
+        "{smooth_kept}/{smooth}"
+    );
 }
 
 /// Pixels within one pixel of a depth edge (> 2 % jump) of `truth` or of nothing.
@@ -197,7 +216,13 @@ fn bad_input_is_rejected_with_clear_errors() {
     let opts = FusionOptions { linear: false, mesh_step: 8, ..FusionOptions::default() };
     let small = Image::filled(320, 240, 1.0f32);
     match fusion::run(&setup.rig, &small, DepthKind::Range, &frame.color, &opts) {
-        Err(GeometryError::SizeMismatch { got_w: 320, got_h: 240, want_w: 640, want_h: 480, .. }) => {}
+        Err(GeometryError::SizeMismatch {
+            got_w: 320,
+            got_h: 240,
+            want_w: 640,
+            want_h: 480,
+            ..
+        }) => {}
         other => panic!("expected a size mismatch, got {other:?}"),
     }
     let small_color = Image::filled(10, 10, [0u8; 3]);
@@ -207,7 +232,8 @@ fn bad_input_is_rejected_with_clear_errors() {
     ));
     for bad in [f32::NAN, 0.0, -1.0] {
         let invalid = Image::filled(640, 480, bad);
-        let err = fusion::run(&setup.rig, &invalid, DepthKind::Range, &frame.color, &opts).unwrap_err();
+        let err =
+            fusion::run(&setup.rig, &invalid, DepthKind::Range, &frame.color, &opts).unwrap_err();
         assert!(matches!(err, GeometryError::InvalidInput(_)), "{err}");
         assert!(err.to_string().contains("no valid sample"), "{err}");
     }

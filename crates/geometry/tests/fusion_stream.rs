@@ -5,13 +5,15 @@
 //! GPU twin is held to the same bits).
 
 use geometry::fusion::{self, ColorProjection, FusionOptions, HoleMasker, Registration};
-use geometry::{synth, Image};
+use geometry::{Image, synth};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// `floor(sqrt(r² - dy²))` for `dy = 0..=floor(r)`: the disc of `HoleMasker`'s docs.
 fn half_widths(r: f32) -> Vec<usize> {
-    (0..=r.floor() as usize).map(|dy| (r * r - (dy * dy) as f32).max(0.0).sqrt().floor() as usize).collect()
+    (0..=r.floor() as usize)
+        .map(|dy| (r * r - (dy * dy) as f32).max(0.0).sqrt().floor() as usize)
+        .collect()
 }
 
 /// `src` dilated by the disc of radius `r`, pixel by pixel.
@@ -24,7 +26,10 @@ fn dilate_brute(src: &[bool], w: usize, h: usize, r: f32) -> Vec<bool> {
             out[y as usize * w + x as usize] = (-k..=k).any(|dy| {
                 let d = hw[dy.unsigned_abs()] as isize;
                 let sy = y + dy;
-                (0..h as isize).contains(&sy) && (x - d..=x + d).any(|sx| (0..w as isize).contains(&sx) && src[sy as usize * w + sx as usize])
+                (0..h as isize).contains(&sy)
+                    && (x - d..=x + d).any(|sx| {
+                        (0..w as isize).contains(&sx) && src[sy as usize * w + sx as usize]
+                    })
             });
         }
     }
@@ -39,10 +44,16 @@ fn hole_mask_brute(zb: &[u32], w: usize, h: usize, radius: f32, grow: f32) -> Ve
     let covered = dilate_brute(&occupied, w, h, radius);
     // First and last covered pixel of every row and column.
     let c = |x: usize, y: usize| covered[y * w + x];
-    let row_span: Vec<(usize, usize)> =
-        (0..h).map(|y| ((0..w).find(|&x| c(x, y)).unwrap_or(w), (0..w).rev().find(|&x| c(x, y)).unwrap_or(0))).collect();
-    let col_span: Vec<(usize, usize)> =
-        (0..w).map(|x| ((0..h).find(|&y| c(x, y)).unwrap_or(h), (0..h).rev().find(|&y| c(x, y)).unwrap_or(0))).collect();
+    let row_span: Vec<(usize, usize)> = (0..h)
+        .map(|y| {
+            ((0..w).find(|&x| c(x, y)).unwrap_or(w), (0..w).rev().find(|&x| c(x, y)).unwrap_or(0))
+        })
+        .collect();
+    let col_span: Vec<(usize, usize)> = (0..w)
+        .map(|x| {
+            ((0..h).find(|&y| c(x, y)).unwrap_or(h), (0..h).rev().find(|&y| c(x, y)).unwrap_or(0))
+        })
+        .collect();
     let mut core = vec![false; w * h];
     for y in 0..h {
         for x in 0..w {
@@ -55,36 +66,57 @@ fn hole_mask_brute(zb: &[u32], w: usize, h: usize, radius: f32, grow: f32) -> Ve
 }
 
 /// The reference z-buffer, the number of samples on the image, the hole mask and its count.
-fn reference(depth: &Image<f32>, rays: &[[f32; 3]], proj: &ColorProjection, radius: f32, grow: f32) -> (Vec<u32>, usize, Vec<bool>, usize) {
+fn reference(
+    depth: &Image<f32>,
+    rays: &[[f32; 3]],
+    proj: &ColorProjection,
+    radius: f32,
+    grow: f32,
+) -> (Vec<u32>, usize, Vec<bool>, usize) {
     let (cloud, _) = fusion::backproject_cloud(depth, rays);
     let samples = fusion::project_cloud(&cloud.points, proj);
     let zb = fusion::zbuffer_from_samples(&samples, proj.width, proj.height);
     let mut mask = vec![false; zb.data().len()];
-    let holes = HoleMasker::new(proj.width as usize, proj.height as usize, radius, grow).compute(zb.data(), &mut mask);
+    let holes = HoleMasker::new(proj.width as usize, proj.height as usize, radius, grow)
+        .compute(zb.data(), &mut mask);
     (zb.data().iter().map(|z| z.to_bits()).collect(), samples.len(), mask, holes)
 }
 
 /// Runs both entry points of `reg` on `depth` and compares with the reference.
 /// Returns the number of samples on the image and of hole pixels.
-fn assert_matches(reg: &mut Registration, depth: &Image<f32>, rays: &[[f32; 3]], radius: f32, grow: f32, what: &str) -> (usize, usize) {
+fn assert_matches(
+    reg: &mut Registration,
+    depth: &Image<f32>,
+    rays: &[[f32; 3]],
+    radius: f32,
+    grow: f32,
+    what: &str,
+) -> (usize, usize) {
     let proj = *reg.projection();
     let (want_z, want_n, want_mask, want_holes) = reference(depth, rays, &proj, radius, grow);
     let brute = hole_mask_brute(&want_z, proj.width as usize, proj.height as usize, radius, grow);
     assert!(brute == want_mask, "{what}: HoleMasker differs from the mask's definition");
     let mut mask = vec![true; want_mask.len()];
     for parallel in [false, true] {
-        let n = if parallel { reg.register_parallel(depth) } else { reg.register(depth) }.expect("sizes match");
+        let n = if parallel { reg.register_parallel(depth) } else { reg.register(depth) }
+            .expect("sizes match");
         assert_eq!(n, want_n, "{what} (parallel: {parallel}): samples on the image");
         let got: Vec<u32> = reg.zbuffer().iter().map(|z| z.to_bits()).collect();
         let diff = got.iter().zip(&want_z).filter(|(a, b)| a != b).count();
-        assert_eq!(diff, 0, "{what} (parallel: {parallel}): z-buffer pixels differing from the reference");
-        let holes = if parallel { reg.hole_mask_parallel(&mut mask) } else { reg.hole_mask(&mut mask) };
+        assert_eq!(
+            diff, 0,
+            "{what} (parallel: {parallel}): z-buffer pixels differing from the reference"
+        );
+        let holes =
+            if parallel { reg.hole_mask_parallel(&mut mask) } else { reg.hole_mask(&mut mask) };
         assert_eq!(holes, want_holes, "{what} (parallel: {parallel}): hole count");
         assert!(mask == want_mask, "{what} (parallel: {parallel}): hole mask differs");
         let (w, words) = (proj.width as usize, (proj.width as usize).div_ceil(64));
         let (bit_holes, bits) = reg.hole_bits();
         assert_eq!(bit_holes, want_holes, "{what}: hole count of the bit mask");
-        let unpacked: Vec<bool> = (0..want_mask.len()).map(|i| bits[(i / w) * words + (i % w) / 64] >> (i % w % 64) & 1 == 1).collect();
+        let unpacked: Vec<bool> = (0..want_mask.len())
+            .map(|i| bits[(i / w) * words + (i % w) / 64] >> (i % w % 64) & 1 == 1)
+            .collect();
         assert!(unpacked == want_mask, "{what} (parallel: {parallel}): bit mask differs");
     }
     (want_n, want_holes)
@@ -98,16 +130,31 @@ fn registration_is_bit_identical_to_the_staged_reference_on_the_kinect_preset() 
         let frame = synth::render(&setup);
         let rig = &setup.rig;
         let rays = fusion::depth_ray_table(&rig.depth, frame.depth_kind);
-        let (radius, grow) = (fusion::coverage_radius_px(rig, &options), fusion::hole_grow_px(rig, &options));
+        let (radius, grow) =
+            (fusion::coverage_radius_px(rig, &options), fusion::hole_grow_px(rig, &options));
         let mut reg = Registration::new(rig, frame.depth_kind, &options);
-        let (n, holes) = assert_matches(&mut reg, &frame.depth, &rays, radius, grow, &format!("kinect preset, noise {noisy}"));
+        let (n, holes) = assert_matches(
+            &mut reg,
+            &frame.depth,
+            &rays,
+            radius,
+            grow,
+            &format!("kinect preset, noise {noisy}"),
+        );
         assert!(n > 150_000, "only {n} samples landed");
         assert!(holes > 5_000, "only {holes} hole pixels: the preset has disocclusions");
         // A second, different frame through the same workspace: nothing of the first may stay.
         let shifted = Image::from_fn(frame.depth.width(), frame.depth.height(), |x, y| {
             if (x / 32 + y / 32) % 3 == 0 { f32::NAN } else { *frame.depth.get(x, y) * 1.3 }
         });
-        assert_matches(&mut reg, &shifted, &rays, radius, grow, &format!("kinect preset x1.3 with gaps, noise {noisy}"));
+        assert_matches(
+            &mut reg,
+            &shifted,
+            &rays,
+            radius,
+            grow,
+            &format!("kinect preset x1.3 with gaps, noise {noisy}"),
+        );
     }
 }
 
@@ -124,7 +171,11 @@ fn registration_is_bit_identical_to_the_staged_reference_on_random_inputs() {
         let (cw, ch) = (rng.random_range(20..200u32), rng.random_range(10..90u32));
         let proj = ColorProjection {
             rotation: [1.0, 0.01, -0.02, -0.01, 1.0, 0.015, 0.02, -0.015, 1.0],
-            translation: [rng.random_range(-0.1..0.1), rng.random_range(-0.05..0.05), rng.random_range(-0.5..0.2)],
+            translation: [
+                rng.random_range(-0.1..0.1),
+                rng.random_range(-0.05..0.05),
+                rng.random_range(-0.5..0.2),
+            ],
             fx: rng.random_range(20.0..300.0),
             fy: rng.random_range(20.0..300.0),
             cx: cw as f32 * rng.random_range(0.3..0.7),
@@ -143,7 +194,11 @@ fn registration_is_bit_identical_to_the_staged_reference_on_random_inputs() {
                 if i % 97 == 5 {
                     [f32::NAN, f32::NAN, 1.0] // a folded lens pixel
                 } else {
-                    [rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5), rng.random_range(0.5..1.0)]
+                    [
+                        rng.random_range(-1.5..1.5),
+                        rng.random_range(-1.5..1.5),
+                        rng.random_range(0.5..1.0),
+                    ]
                 }
             })
             .collect();
@@ -161,13 +216,23 @@ fn registration_is_bit_identical_to_the_staged_reference_on_random_inputs() {
                 5..=9 => [0.5f32, 1.0, 2.0][rng.random_range(0..3)],
                 _ => rng.random_range(0.05..6.0),
             });
-            let (n, h) = assert_matches(&mut reg, &depth, &rays, radius, grow, &format!("random case {case}, frame {frame}"));
+            let (n, h) = assert_matches(
+                &mut reg,
+                &depth,
+                &rays,
+                radius,
+                grow,
+                &format!("random case {case}, frame {frame}"),
+            );
             (landed, holes) = (landed + n, holes + h);
         }
         assert!(landed > 0, "random case {case}: no sample landed, the case tests nothing");
         total_holes += holes;
     }
-    assert!(total_holes > 100, "only {total_holes} hole pixels in all random cases: the masks test little");
+    assert!(
+        total_holes > 100,
+        "only {total_holes} hole pixels in all random cases: the masks test little"
+    );
 }
 
 #[test]
@@ -176,5 +241,8 @@ fn registration_rejects_a_depth_image_of_the_wrong_size() {
     let mut reg = Registration::new(&setup.rig, geometry::DepthKind::Z, &FusionOptions::default());
     let wrong = Image::filled(setup.rig.depth.width + 1, setup.rig.depth.height, 1.0f32);
     assert!(matches!(reg.register(&wrong), Err(geometry::GeometryError::SizeMismatch { .. })));
-    assert!(matches!(reg.register_parallel(&wrong), Err(geometry::GeometryError::SizeMismatch { .. })));
+    assert!(matches!(
+        reg.register_parallel(&wrong),
+        Err(geometry::GeometryError::SizeMismatch { .. })
+    ));
 }

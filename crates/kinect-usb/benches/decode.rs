@@ -10,7 +10,12 @@ use kinect_usb::testdata::{read_bytes, read_f32, vectors_dir};
 
 /// CPU time of the calling thread (ns), from `/proc/thread-self/schedstat` (Linux).
 fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
 }
 
 /// With `DECODE_CPU_PROBE=N` set: before the criterion runs, the least CPU time of the calling
@@ -20,14 +25,19 @@ fn thread_cpu_ns() -> Option<u64> {
 /// `DECODE_CPU_PROBE_ONLY=SUBSTRING` limits it to the matching configurations (e.g. for
 /// `valgrind --tool=callgrind`).
 fn cpu_probe(dec: &mut DepthDecoder, raw: &[u8], depth: &mut [f32], ir: &mut [f32], name: &str) {
-    let Some(n) = std::env::var("DECODE_CPU_PROBE").ok().and_then(|v| v.parse::<usize>().ok()) else { return };
+    let Some(n) = std::env::var("DECODE_CPU_PROBE").ok().and_then(|v| v.parse::<usize>().ok())
+    else {
+        return;
+    };
     if std::env::var("DECODE_CPU_PROBE_ONLY").is_ok_and(|only| !name.contains(&only)) {
         return;
     }
     let (mut best, mut best_wall) = (u64::MAX, f64::MAX);
     for _ in 0..n {
         let wall = std::time::Instant::now();
-        let (Some(t0), _, Some(t1)) = (thread_cpu_ns(), dec.decode(raw, depth, ir).unwrap(), thread_cpu_ns()) else {
+        let (Some(t0), _, Some(t1)) =
+            (thread_cpu_ns(), dec.decode(raw, depth, ir).unwrap(), thread_cpu_ns())
+        else {
             return;
         };
         best = best.min(t1 - t0);
@@ -45,7 +55,9 @@ fn bench(c: &mut Criterion) {
         eprintln!("SKIP decode bench: shared data not found");
         return;
     };
-    let p0 = P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap()).unwrap();
+    let p0 =
+        P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap())
+            .unwrap();
     let xz = XzTables::from_vecs(
         read_f32(&dir.join("tables/xtable.f32")).unwrap(),
         read_f32(&dir.join("tables/ztable.f32")).unwrap(),
@@ -72,7 +84,9 @@ fn bench(c: &mut Criterion) {
             .with_kernels(kernels);
         cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_on_1_thread"));
         dec.config.parallel = true;
-        pool.install(|| cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_on_2_threads")));
+        pool.install(|| {
+            cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_on_2_threads"))
+        });
         dec.config = DecoderConfig { bilateral: false, edge_aware: false, parallel: false };
         cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_off_1_thread"));
         dec.config = single;

@@ -111,7 +111,15 @@ pub trait UsbBackend: Send {
     /// Selects an alternate setting.
     fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError>;
     /// Standard/host-to-device control request.
-    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> Result<usize, UsbError>;
+    fn control_out(
+        &mut self,
+        req_type: u8,
+        req: u8,
+        value: u16,
+        index: u16,
+        data: &[u8],
+        timeout: Duration,
+    ) -> Result<usize, UsbError>;
     /// Bulk OUT.
     fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<usize, UsbError>;
     /// Bulk IN.
@@ -123,7 +131,10 @@ pub trait UsbBackend: Send {
     /// Starts continuous streaming.
     fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError>;
     /// Next streaming event of any stream, or `Ok(None)` after `timeout` without one.
-    fn next_event(&mut self, timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError>;
+    fn next_event(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError>;
     /// Cancels a stream and waits at most `max_wait` for its transfers.
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError>;
 }
@@ -147,7 +158,15 @@ impl<T: UsbBackend + ?Sized> UsbBackend for Box<T> {
     fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError> {
         (**self).set_alt(iface, alt)
     }
-    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+    fn control_out(
+        &mut self,
+        req_type: u8,
+        req: u8,
+        value: u16,
+        index: u16,
+        data: &[u8],
+        timeout: Duration,
+    ) -> Result<usize, UsbError> {
         (**self).control_out(req_type, req, value, index, data, timeout)
     }
     fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
@@ -165,7 +184,10 @@ impl<T: UsbBackend + ?Sized> UsbBackend for Box<T> {
     fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
         (**self).start_stream(spec)
     }
-    fn next_event(&mut self, timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+    fn next_event(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
         (**self).next_event(timeout)
     }
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
@@ -195,7 +217,15 @@ impl<T: UsbBackend> UsbBackend for std::sync::Arc<std::sync::Mutex<T>> {
     fn set_alt(&mut self, iface: u8, alt: u8) -> Result<(), UsbError> {
         lock(self).set_alt(iface, alt)
     }
-    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
+    fn control_out(
+        &mut self,
+        req_type: u8,
+        req: u8,
+        value: u16,
+        index: u16,
+        data: &[u8],
+        timeout: Duration,
+    ) -> Result<usize, UsbError> {
         lock(self).control_out(req_type, req, value, index, data, timeout)
     }
     fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<usize, UsbError> {
@@ -213,7 +243,10 @@ impl<T: UsbBackend> UsbBackend for std::sync::Arc<std::sync::Mutex<T>> {
     fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
         lock(self).start_stream(spec)
     }
-    fn next_event(&mut self, timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+    fn next_event(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
         lock(self).next_event(timeout)
     }
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {

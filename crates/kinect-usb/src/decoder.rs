@@ -58,7 +58,10 @@ use wide::{f32x4, f64x2};
 
 use crate::error::{KinectError, Result};
 use crate::params::{P0Tables, XzTables};
-use crate::raw::{HEIGHT, PIXELS, RAW_FRAME_BYTES, ROW_BYTES, SATURATED, SUB_IMAGE_BYTES, WIDTH, lut, stored_row_of_processing_row};
+use crate::raw::{
+    HEIGHT, PIXELS, RAW_FRAME_BYTES, ROW_BYTES, SATURATED, SUB_IMAGE_BYTES, WIDTH, lut,
+    stored_row_of_processing_row,
+};
 
 /// Decoder constants of spec §9.1 (libfreenect2 defaults). Literal constants inside the
 /// formulas are kept inline, as the spec requires for bit-exactness.
@@ -164,7 +167,6 @@ impl Default for DecoderConfig {
         DecoderConfig { bilateral: true, edge_aware: true, parallel: true }
     }
 }
-
 
 /// How the decoder evaluates its transcendental functions (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -369,7 +371,9 @@ impl Trig {
             }
             e
         };
-        let range = |t: &[u16]| (t.iter().copied().min().unwrap_or(0), t.iter().copied().max().unwrap_or(0));
+        let range = |t: &[u16]| {
+            (t.iter().copied().min().unwrap_or(0), t.iter().copied().max().unwrap_or(0))
+        };
         let spans = p0.tables.each_ref().map(|t| range(t));
         // P0 row 423 − y is processing row y (spec §9.3).
         let p0_at = |k: usize, y: usize, x: usize| p0.tables[k][(H - 1 - y) * W + x];
@@ -453,13 +457,26 @@ pub struct DepthDecoder {
 impl DepthDecoder {
     /// Builds a decoder from x/z tables (processing-row indexed) and the P0 tables, with
     /// [`DecoderPrecision::Fast`].
-    pub fn new(params: DecoderParams, config: DecoderConfig, xz: &XzTables, p0: &P0Tables) -> Result<Self> {
+    pub fn new(
+        params: DecoderParams,
+        config: DecoderConfig,
+        xz: &XzTables,
+        p0: &P0Tables,
+    ) -> Result<Self> {
         if xz.x.len() != PIXELS || xz.z.len() != PIXELS {
-            return Err(KinectError::Size { what: "x/z tables".into(), expected: PIXELS, got: xz.x.len().min(xz.z.len()) });
+            return Err(KinectError::Size {
+                what: "x/z tables".into(),
+                expected: PIXELS,
+                got: xz.x.len().min(xz.z.len()),
+            });
         }
         for t in &p0.tables {
             if t.len() != PIXELS {
-                return Err(KinectError::Size { what: "P0 table".into(), expected: PIXELS, got: t.len() });
+                return Err(KinectError::Size {
+                    what: "P0 table".into(),
+                    expected: PIXELS,
+                    got: t.len(),
+                });
             }
         }
         let trig = Trig::new(&params, p0, TRIG_TABLE_MAX_SPAN);
@@ -512,12 +529,27 @@ impl DepthDecoder {
     /// Decodes one raw frame into upright `depth` (mm) and `ir` images of 512 × 424.
     pub fn decode(&mut self, raw: &[u8], depth: &mut [f32], ir: &mut [f32]) -> Result<()> {
         if raw.len() != RAW_FRAME_BYTES {
-            return Err(KinectError::Size { what: "raw depth frame".into(), expected: RAW_FRAME_BYTES, got: raw.len() });
+            return Err(KinectError::Size {
+                what: "raw depth frame".into(),
+                expected: RAW_FRAME_BYTES,
+                got: raw.len(),
+            });
         }
         if depth.len() != PIXELS || ir.len() != PIXELS {
-            return Err(KinectError::Size { what: "depth/IR output".into(), expected: PIXELS, got: depth.len().min(ir.len()) });
+            return Err(KinectError::Size {
+                what: "depth/IR output".into(),
+                expected: PIXELS,
+                got: depth.len().min(ir.len()),
+            });
         }
-        let ctx = Ctx { raw, t: &self.tables, p: &self.params, cfg: self.config, fast: self.precision == DecoderPrecision::Fast, lanes8: self.precision == DecoderPrecision::Fast && self.kernels == Kernels::Avx2 };
+        let ctx = Ctx {
+            raw,
+            t: &self.tables,
+            p: &self.params,
+            cfg: self.config,
+            fast: self.precision == DecoderPrecision::Fast,
+            lanes8: self.precision == DecoderPrecision::Fast && self.kernels == Kernels::Avx2,
+        };
         // Pass 1: stage 1, bilateral, stage 2 per band; IR written directly (output rows of a
         // band are the band's processing rows flipped, hence the reversed output chunks).
         let chunk = BAND_ROWS * W;
@@ -545,8 +577,11 @@ impl DepthDecoder {
             band(&ctx, &mut self.work[0], 0, H, out);
         }
         // Pass 2: edge-aware filter (optional) and flip to upright output.
-        let planes = (&self.depth_pre[..], &self.depth_lo[..], &self.depth_hi[..], &self.ir_sum[..]);
-        let f = |(r, drow): (usize, &mut [f32])| output_row(planes, H - 1 - r, drow, &self.params, self.config.edge_aware);
+        let planes =
+            (&self.depth_pre[..], &self.depth_lo[..], &self.depth_hi[..], &self.ir_sum[..]);
+        let f = |(r, drow): (usize, &mut [f32])| {
+            output_row(planes, H - 1 - r, drow, &self.params, self.config.edge_aware)
+        };
         if self.config.parallel {
             depth.par_chunks_mut(W).enumerate().for_each(f);
         } else {
@@ -625,7 +660,18 @@ fn band_with<const L8: bool>(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, 
                 copy_unfiltered(&ws.cur, &mut ws.fa, &mut ws.fb, &mut ws.ok);
             } else {
                 for k in 0..3 {
-                    bilateral_k(c.p, k, &ws.prev, &ws.cur, &ws.next, &ws.e_prev, &ws.e_cur, &mut ws.fa[k], &mut ws.fb[k], &mut ws.ok);
+                    bilateral_k(
+                        c.p,
+                        k,
+                        &ws.prev,
+                        &ws.cur,
+                        &ws.next,
+                        &ws.e_prev,
+                        &ws.e_cur,
+                        &mut ws.fa[k],
+                        &mut ws.fb[k],
+                        &mut ws.ok,
+                    );
                 }
             }
         } else {
@@ -634,11 +680,19 @@ fn band_with<const L8: bool>(c: &Ctx, ws: &mut Workspace, y0: usize, y1: usize, 
         }
         ir_row(&ws.cur, c.p, &mut ir[(y1 - 1 - y) * W..][..W]);
         let os = (y - y0) * SW + PAD;
-        let (dpr, lor, hir, isr) = (&mut dp[o..o + W], &mut lo[os..os + W], &mut hi[os..os + W], &mut is[os..os + W]);
+        let (dpr, lor, hir, isr) =
+            (&mut dp[o..o + W], &mut lo[os..os + W], &mut hi[os..os + W], &mut is[os..os + W]);
         #[cfg(target_arch = "x86_64")]
         if L8 {
-            let scratch = lanes8::Stage2Scratch { astar: &mut ws.astar, gate: &mut ws.gate, phi: &mut ws.phi, conf: &mut ws.conf };
-            lanes8::stage2_row(c.p, &ws.fa, &ws.fb, &ws.ok, &c.t.x[y], &c.t.z[y], scratch, dpr, lor, hir, isr);
+            let scratch = lanes8::Stage2Scratch {
+                astar: &mut ws.astar,
+                gate: &mut ws.gate,
+                phi: &mut ws.phi,
+                conf: &mut ws.conf,
+            };
+            lanes8::stage2_row(
+                c.p, &ws.fa, &ws.fb, &ws.ok, &c.t.x[y], &c.t.z[y], scratch, dpr, lor, hir, isr,
+            );
         } else {
             stage2_row(c, y, ws, dpr, lor, hir, isr);
         }
@@ -691,7 +745,8 @@ fn stage1_row(c: &Ctx, y: usize, m: &mut [Plane; 9], out: &mut Row1, unit: bool)
         let (m0, m1, m2) = (&m[3 * k], &m[3 * k + 1], &m[3 * k + 2]);
         let mk = sp(p.ab_multiplier_per_frq[k]);
         let Row1 { a: oa, b: ob, amp: oamp, ua, ub, n2 } = out;
-        let (oa, ob, oamp, ua, ub, n2) = (&mut oa[k], &mut ob[k], &mut oamp[k], &mut ua[k], &mut ub[k], &mut n2[k]);
+        let (oa, ob, oamp, ua, ub, n2) =
+            (&mut oa[k], &mut ob[k], &mut oamp[k], &mut ua[k], &mut ub[k], &mut n2[k]);
         for x in (0..W / 4).map(|g| 4 * g) {
             let (v0, v1, v2) = (ld(m0, x), ld(m1, x), ld(m2, x));
             let [c0, c1, c2, s0, s1, s2] = c.t.trig.lanes(y, k, x);
@@ -731,7 +786,8 @@ fn ir_row(r: &Row1, p: &DecoderParams, out: &mut [f32]) {
 /// Bilateral amplitude threshold τ on a² + b² (spec §9.5).
 #[inline]
 fn bilateral_tau(p: &DecoderParams) -> f32 {
-    (p.joint_bilateral_ab_threshold * p.joint_bilateral_ab_threshold) / (p.ab_multiplier * p.ab_multiplier)
+    (p.joint_bilateral_ab_threshold * p.joint_bilateral_ab_threshold)
+        / (p.ab_multiplier * p.ab_multiplier)
 }
 
 /// Range distance of two unit phasors (spec §9.5): `((−(ua1·ua + ub1·ub)) + 1)·0.5`, written as
@@ -786,7 +842,13 @@ type UnitPlanes<'a> = (&'a PPlane, &'a PPlane, &'a PPlane);
 /// One direction of [`edge_weights`]: pairs (x of `this`, x + `OFF` of `other`). `FAST`: the
 /// weights with [`fastmath::exp_unclamped`]; else the exponent, −∞ where masked, for libm.
 #[inline(always)]
-fn pair_row<const FAST: bool, const OFF: isize>(p: &DecoderParams, this: UnitPlanes, other: UnitPlanes, e: &mut PPlane, d: &mut PPlane) {
+fn pair_row<const FAST: bool, const OFF: isize>(
+    p: &DecoderParams,
+    this: UnitPlanes,
+    other: UnitPlanes,
+    e: &mut PPlane,
+    d: &mut PPlane,
+) {
     let ce = sp(-1.442695f32 * p.joint_bilateral_exp);
     let tau0 = sp(bilateral_tau(p));
     let ((ua, ub, n2), (oa, ob, on2)) = (this, other);
@@ -963,7 +1025,15 @@ fn conf_arg(p: &DecoderParams, ln_astar: f32) -> f32 {
 /// [`DepthDecoder`]'s fields) and the amplitude sum, in three passes over the row: amplitudes,
 /// phases and confidence (libm only past the gate for Exact), unwrapping and depth.
 #[inline(always)]
-fn stage2_row(c: &Ctx, y: usize, ws: &mut Workspace, dp: &mut [f32], lo: &mut [f32], hi: &mut [f32], is: &mut [f32]) {
+fn stage2_row(
+    c: &Ctx,
+    y: usize,
+    ws: &mut Workspace,
+    dp: &mut [f32],
+    lo: &mut [f32],
+    hi: &mut [f32],
+    is: &mut [f32],
+) {
     let p = c.p;
     let zero = sp(0.0);
     let (xt, zt) = (&c.t.x[y], &c.t.z[y]);
@@ -995,7 +1065,8 @@ fn stage2_row(c: &Ctx, y: usize, ws: &mut Workspace, dp: &mut [f32], lo: &mut [f
                 st(&mut ws.phi[k], x, ph);
             }
             let l = fastmath::ln(ld(&ws.astar, x));
-            let arg = (l * sp(p.ab_confidence_slope) * sp(0.301030) + sp(p.ab_confidence_offset)) * sp(3.321928);
+            let arg = (l * sp(p.ab_confidence_slope) * sp(0.301030) + sp(p.ab_confidence_offset))
+                * sp(3.321928);
             st(&mut ws.conf, x, fastmath::exp(arg));
         }
     } else {
@@ -1109,7 +1180,13 @@ fn rows3(v: &[f32], y: usize) -> [&[f32]; 3] {
 
 /// Pass 2 of processing row `y` (written to output row `423 − y`): edge-aware filter (spec
 /// §9.7) or a plain copy. `planes` = (depth, lo, hi, ir_sum), see [`DepthDecoder`]'s fields.
-fn output_row(planes: (&[f32], &[f32], &[f32], &[f32]), y: usize, drow: &mut [f32], p: &DecoderParams, edge_on: bool) {
+fn output_row(
+    planes: (&[f32], &[f32], &[f32], &[f32]),
+    y: usize,
+    drow: &mut [f32],
+    p: &DecoderParams,
+    edge_on: bool,
+) {
     let (dp, dlo, dhi, is) = planes;
     let d = &dp[y * W..(y + 1) * W];
     if !edge_on {
@@ -1136,7 +1213,9 @@ fn output_row(planes: (&[f32], &[f32], &[f32], &[f32]), y: usize, drow: &mut [f3
         let (mut lo, mut hi) = (dc, dc);
         // Neighbours in raster order. lo/hi hold ±∞ where d̃ ≤ 0, which `fmin`/`fmax` ignore
         // exactly like the reference's `if d̃ > 0` test.
-        for (r, j) in [(0, i - 1), (0, i), (0, i + 1), (1, i - 1), (1, i + 1), (2, i - 1), (2, i), (2, i + 1)] {
+        for (r, j) in
+            [(0, i - 1), (0, i), (0, i + 1), (1, i - 1), (1, i + 1), (2, i - 1), (2, i), (2, i + 1)]
+        {
             let sv = ld(s[r], j);
             sum += sv;
             sq += sv * sv;
@@ -1144,7 +1223,8 @@ fn output_row(planes: (&[f32], &[f32], &[f32], &[f32]), y: usize, drow: &mut [f3
             hi = fmax(hi, ld(h[r], j));
         }
         let nine = sp(9.0);
-        let sigma = (sq * nine - sum * sum).sqrt() / nine / fmax(sum / nine, sp(p.edge_ab_avg_min_value));
+        let sigma =
+            (sq * nine - sum * sum).sqrt() / nine / fmax(sum / nine, sp(p.edge_ab_avg_min_value));
         let dlo = (dc - lo).abs();
         let dhi = (dc - hi).abs();
         let avg = (dlo + dhi) * sp(0.5);
@@ -1176,7 +1256,10 @@ mod tests {
     #[test]
     fn trig_table_equals_trig_planes() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
-        let p0 = P0Tables { tables: [11_000u16, 2_000, 17_000].map(|lo| (0..W * H).map(|_| rng.random_range(lo..lo + 3_000)).collect()) };
+        let p0 = P0Tables {
+            tables: [11_000u16, 2_000, 17_000]
+                .map(|lo| (0..W * H).map(|_| rng.random_range(lo..lo + 3_000)).collect()),
+        };
         let params = DecoderParams::default();
         let (table, planes) = (Trig::new(&params, &p0, 16_384), Trig::new(&params, &p0, 0));
         assert!(matches!(table, Trig::Table { .. }) && matches!(planes, Trig::Planes(_)));
@@ -1186,7 +1269,10 @@ mod tests {
                     let (t, p) = (table.lanes(y, k, x), planes.lanes(y, k, x));
                     for j in 0..6 {
                         let (t, p) = (t[j].to_array(), p[j].to_array());
-                        assert!(t.iter().zip(&p).all(|(a, b)| a.to_bits() == b.to_bits()), "y {y} k {k} x {x} j {j}: {t:?} vs {p:?}");
+                        assert!(
+                            t.iter().zip(&p).all(|(a, b)| a.to_bits() == b.to_bits()),
+                            "y {y} k {k} x {x} j {j}: {t:?} vs {p:?}"
+                        );
                     }
                 }
             }
@@ -1216,8 +1302,24 @@ mod tests {
                 check(quad);
             }
         }
-        for x in [0.0f32, -0.0, 0.5, -0.5, 1.0, -1.0, 8_388_607.5, -8_388_607.5, 8_388_608.0, -8_388_609.0] {
-            check([x, f32::from_bits(x.to_bits() + 1), f32::from_bits(x.to_bits().saturating_sub(1)), -x]);
+        for x in [
+            0.0f32,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            8_388_607.5,
+            -8_388_607.5,
+            8_388_608.0,
+            -8_388_609.0,
+        ] {
+            check([
+                x,
+                f32::from_bits(x.to_bits() + 1),
+                f32::from_bits(x.to_bits().saturating_sub(1)),
+                -x,
+            ]);
         }
     }
 }

@@ -7,8 +7,8 @@ use crate::backend::{StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBacke
 use crate::error::{KinectError, Result, UsbError};
 use crate::params::{ColorParams, DepthParams, P0Tables};
 use crate::protocol::{
-    self, ColorSettingCode, ColorSettingResponse, Command, Exposure, ExposureMode, LedSetting, MIN_BYTES_PER_INTERVAL,
-    MODE_OFF, MODE_ON, MODE_ON_100, STATUS_REGISTER, ValueKind, ep,
+    self, ColorSettingCode, ColorSettingResponse, Command, Exposure, ExposureMode, LedSetting,
+    MIN_BYTES_PER_INTERVAL, MODE_OFF, MODE_ON, MODE_ON_100, STATUS_REGISTER, ValueKind, ep,
 };
 use crate::stream::{ColorAssembler, ColorMeta, DepthAssembler, RawDepthFrame};
 
@@ -21,9 +21,11 @@ pub const STATUS_POLL_INTERVAL: Duration = Duration::from_millis(100);
 /// Bound on waiting for cancelled transfers at stop (the reference waits forever).
 pub const STOP_WAIT: Duration = Duration::from_secs(2);
 /// Colour transfers in flight × size (Linux default, spec §5.5).
-pub const COLOR_STREAM: StreamSpec = StreamSpec::Bulk { ep: ep::COLOR_IN, transfers: 20, size: 16_384 };
+pub const COLOR_STREAM: StreamSpec =
+    StreamSpec::Bulk { ep: ep::COLOR_IN, transfers: 20, size: 16_384 };
 /// Depth transfers in flight × packets × packet size (Linux default, spec §5.5).
-pub const DEPTH_STREAM: StreamSpec = StreamSpec::Iso { ep: ep::DEPTH_IN, transfers: 60, packets: 8, packet_size: 33_792 };
+pub const DEPTH_STREAM: StreamSpec =
+    StreamSpec::Iso { ep: ep::DEPTH_IN, transfers: 60, packets: 8, packet_size: 33_792 };
 
 /// Session state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -123,16 +125,23 @@ impl<B: UsbBackend> KinectDevice<B> {
             b.claim(iface).map_err(|e| KinectError::usb(format!("claim interface {iface}"), e))?;
         }
         let t = COMMAND_TIMEOUT;
-        b.control_out(0x00, 0x31, 40, 0, &[], t).map_err(|e| KinectError::usb("SET_ISOCH_DELAY", e))?;
+        b.control_out(0x00, 0x31, 40, 0, &[], t)
+            .map_err(|e| KinectError::usb("SET_ISOCH_DELAY", e))?;
         b.set_alt(1, 0).map_err(|e| KinectError::usb("interface 1 alt 0", e))?;
         b.control_out(0x00, 0x03, 48, 0, &[], t).map_err(|e| KinectError::usb("U1_ENABLE", e))?;
         b.control_out(0x00, 0x03, 49, 0, &[], t).map_err(|e| KinectError::usb("U2_ENABLE", e))?;
-        b.control_out(0x01, 0x03, 0, 3 << 8, &[], t).map_err(|e| KinectError::usb("function suspend", e))?;
-        let bpi = b.iso_bytes_per_interval(ep::DEPTH_IN, 1).map_err(|e| KinectError::usb("reading endpoint 0x84 descriptor", e))?;
+        b.control_out(0x01, 0x03, 0, 3 << 8, &[], t)
+            .map_err(|e| KinectError::usb("function suspend", e))?;
+        let bpi = b
+            .iso_bytes_per_interval(ep::DEPTH_IN, 1)
+            .map_err(|e| KinectError::usb("reading endpoint 0x84 descriptor", e))?;
         if bpi < MIN_BYTES_PER_INTERVAL {
             let _ = b.release(0);
             let _ = b.release(1);
-            return Err(KinectError::InsufficientBandwidth { got: bpi, need: MIN_BYTES_PER_INTERVAL });
+            return Err(KinectError::InsufficientBandwidth {
+                got: bpi,
+                need: MIN_BYTES_PER_INTERVAL,
+            });
         }
         Ok(KinectDevice {
             backend,
@@ -188,24 +197,37 @@ impl<B: UsbBackend> KinectDevice<B> {
         };
         let name = cmd.name();
         let msg = cmd.encode(seq);
-        let n = self.usb(ep::COMMAND_OUT, &name, |b| b.bulk_out(ep::COMMAND_OUT, &msg, COMMAND_TIMEOUT))?;
+        let n = self
+            .usb(ep::COMMAND_OUT, &name, |b| b.bulk_out(ep::COMMAND_OUT, &msg, COMMAND_TIMEOUT))?;
         if n != msg.len() {
-            return Err(KinectError::Protocol { what: name, detail: format!("short write {n} of {}", msg.len()) });
+            return Err(KinectError::Protocol {
+                what: name,
+                detail: format!("short write {n} of {}", msg.len()),
+            });
         }
         let mut data = Vec::new();
         if cmd.max_response_len() > 0 {
             data = vec![0u8; cmd.max_response_len() as usize];
-            let got = self.usb(ep::COMMAND_IN, &name, |b| b.bulk_in(ep::COMMAND_IN, &mut data, COMMAND_TIMEOUT))?;
+            let got = self.usb(ep::COMMAND_IN, &name, |b| {
+                b.bulk_in(ep::COMMAND_IN, &mut data, COMMAND_TIMEOUT)
+            })?;
             data.truncate(got);
             if protocol::is_completion(&data) {
-                return Err(KinectError::Protocol { what: name, detail: "premature completion (device ended the command without data)".into() });
+                return Err(KinectError::Protocol {
+                    what: name,
+                    detail: "premature completion (device ended the command without data)".into(),
+                });
             }
             if got < cmd.min_response_len() {
-                return Err(KinectError::Protocol { what: name, detail: format!("short response: {got} bytes, need {}", cmd.min_response_len()) });
+                return Err(KinectError::Protocol {
+                    what: name,
+                    detail: format!("short response: {got} bytes, need {}", cmd.min_response_len()),
+                });
             }
         }
         let mut c = [0u8; 16];
-        let got = self.usb(ep::COMMAND_IN, &name, |b| b.bulk_in(ep::COMMAND_IN, &mut c, COMMAND_TIMEOUT))?;
+        let got = self
+            .usb(ep::COMMAND_IN, &name, |b| b.bulk_in(ep::COMMAND_IN, &mut c, COMMAND_TIMEOUT))?;
         let (cseq, status) = protocol::parse_completion_status(&c[..got], &name)?;
         if cseq != seq {
             let msg = format!("{name}: completion sequence {cseq}, expected {seq}");
@@ -227,12 +249,19 @@ impl<B: UsbBackend> KinectDevice<B> {
     /// Sends one 0x3E colour-camera setting (spec §4.10) and returns its parsed response.
     /// A non-zero `status` in the response is returned as [`KinectError::Rejected`].
     /// Prefer the typed methods ([`Self::set_exposure`], [`Self::integration_time_ms`], …).
-    pub fn color_setting(&mut self, code: ColorSettingCode, value: u32) -> Result<ColorSettingResponse> {
+    pub fn color_setting(
+        &mut self,
+        code: ColorSettingCode,
+        value: u32,
+    ) -> Result<ColorSettingResponse> {
         self.require_open("colour setting")?;
         if let ColorSettingCode::SetMeteringZoneWeight(z) = code
             && z >= protocol::METERING_ZONES
         {
-            return Err(KinectError::Invalid(format!("metering zone {z} (zones are 0..{})", protocol::METERING_ZONES - 1)));
+            return Err(KinectError::Invalid(format!(
+                "metering zone {z} (zones are 0..{})",
+                protocol::METERING_ZONES - 1
+            )));
         }
         let cmd = Command::ColorSetting { code: code.code(), value };
         let name = cmd.name();
@@ -240,7 +269,11 @@ impl<B: UsbBackend> KinectDevice<B> {
         let r = protocol::parse_color_setting_response(&data)
             .map_err(|e| KinectError::Protocol { what: name.clone(), detail: e.to_string() })?;
         if r.status != 0 {
-            return Err(KinectError::Rejected { what: name, status: r.status, detail: format!("response {r:?}") });
+            return Err(KinectError::Rejected {
+                what: name,
+                status: r.status,
+                detail: format!("response {r:?}"),
+            });
         }
         Ok(r)
     }
@@ -273,7 +306,10 @@ impl<B: UsbBackend> KinectDevice<B> {
     fn get_color_f32(&mut self, code: ColorSettingCode) -> Result<f32> {
         let v = f32::from_bits(self.get_color_raw(code)?);
         if !v.is_finite() {
-            return Err(KinectError::Protocol { what: format!("colour setting {code:?}"), detail: format!("device returned a non-finite value {v}") });
+            return Err(KinectError::Protocol {
+                what: format!("colour setting {code:?}"),
+                detail: format!("device returned a non-finite value {v}"),
+            });
         }
         Ok(v)
     }
@@ -345,7 +381,11 @@ impl<B: UsbBackend> KinectDevice<B> {
     /// Red, green and blue channel gains (codes 14–16).
     pub fn rgb_gains(&mut self) -> Result<[f32; 3]> {
         use ColorSettingCode::*;
-        Ok([self.get_color_f32(GetRedGain)?, self.get_color_f32(GetGreenGain)?, self.get_color_f32(GetBlueGain)?])
+        Ok([
+            self.get_color_f32(GetRedGain)?,
+            self.get_color_f32(GetGreenGain)?,
+            self.get_color_f32(GetBlueGain)?,
+        ])
     }
 
     /// White-balance mode (code 81), raw value.
@@ -368,12 +408,21 @@ impl<B: UsbBackend> KinectDevice<B> {
         let name = cmd.name();
         let (_, status) = self.transact(cmd)?;
         if status != 0 {
-            return Err(KinectError::Rejected { what: name, status, detail: "completion status".into() });
+            return Err(KinectError::Rejected {
+                what: name,
+                status,
+                detail: "completion status".into(),
+            });
         }
         Ok(())
     }
 
-    fn usb<T>(&mut self, endpoint: u8, what: &str, f: impl FnOnce(&mut B) -> std::result::Result<T, UsbError>) -> Result<T> {
+    fn usb<T>(
+        &mut self,
+        endpoint: u8,
+        what: &str,
+        f: impl FnOnce(&mut B) -> std::result::Result<T, UsbError>,
+    ) -> Result<T> {
         match f(&mut self.backend) {
             Ok(v) => Ok(v),
             Err(UsbError::Stall) => {
@@ -388,7 +437,10 @@ impl<B: UsbBackend> KinectDevice<B> {
     /// Starts streaming (spec §5.2). On failure, rolls back best-effort and stays Open.
     pub fn start(&mut self, color: bool, depth: bool) -> Result<&DeviceInfo> {
         if self.state != State::Open {
-            return Err(KinectError::State { op: "start".into(), state: format!("{:?}", self.state) });
+            return Err(KinectError::State {
+                op: "start".into(),
+                state: format!("{:?}", self.state),
+            });
         }
         match self.start_inner(color, depth) {
             Ok(()) => {
@@ -427,14 +479,18 @@ impl<B: UsbBackend> KinectDevice<B> {
             std::thread::sleep(STATUS_POLL_INTERVAL);
         }
         if !ready {
-            self.warnings.push(format!("sensor never reported ready after {STATUS_POLLS} status polls; continuing"));
+            self.warnings.push(format!(
+                "sensor never reported ready after {STATUS_POLLS} status polls; continuing"
+            ));
         }
         self.command(Command::InitStreams)?;
         self.usb(0, "interface 1 alt 1", |b| b.set_alt(1, 1))?;
         self.command(Command::ReadStatus(STATUS_REGISTER))?;
         self.command(Command::SetStreaming(true))?;
         self.info = Some(DeviceInfo {
-            firmware: protocol::user_firmware_version(&fw).map(|v| v.to_string()).unwrap_or_else(|| "unknown".into()),
+            firmware: protocol::user_firmware_version(&fw)
+                .map(|v| v.to_string())
+                .unwrap_or_else(|| "unknown".into()),
             serial,
             hardware_info,
             depth_params,
@@ -445,10 +501,14 @@ impl<B: UsbBackend> KinectDevice<B> {
             raw_color_params,
         });
         if color {
-            self.color_h = Some(self.usb(ep::COLOR_IN, "start colour stream", |b| b.start_stream(COLOR_STREAM))?);
+            self.color_h = Some(
+                self.usb(ep::COLOR_IN, "start colour stream", |b| b.start_stream(COLOR_STREAM))?,
+            );
         }
         if depth {
-            self.depth_h = Some(self.usb(ep::DEPTH_IN, "start depth stream", |b| b.start_stream(DEPTH_STREAM))?);
+            self.depth_h = Some(
+                self.usb(ep::DEPTH_IN, "start depth stream", |b| b.start_stream(DEPTH_STREAM))?,
+            );
         }
         Ok(())
     }
@@ -456,9 +516,16 @@ impl<B: UsbBackend> KinectDevice<B> {
     /// Waits for the next complete frame, at most `timeout`. `tap` sees every raw stream event
     /// (for recordings). Returns `Ok(None)` on timeout; `Err(Disconnected)` when the device
     /// went away.
-    pub fn next_frame(&mut self, timeout: Duration, tap: &mut dyn FnMut(StreamKind, &StreamEvent)) -> Result<Option<Frame<'_>>> {
+    pub fn next_frame(
+        &mut self,
+        timeout: Duration,
+        tap: &mut dyn FnMut(StreamKind, &StreamEvent),
+    ) -> Result<Option<Frame<'_>>> {
         if self.state != State::Streaming {
-            return Err(KinectError::State { op: "next_frame".into(), state: format!("{:?}", self.state) });
+            return Err(KinectError::State {
+                op: "next_frame".into(),
+                state: format!("{:?}", self.state),
+            });
         }
         let deadline = Instant::now() + timeout;
         loop {
@@ -466,7 +533,9 @@ impl<B: UsbBackend> KinectDevice<B> {
             let ev = match self.backend.next_event(left) {
                 Ok(Some(ev)) => ev,
                 Ok(None) => return Ok(None),
-                Err(UsbError::NoDevice) => return Err(KinectError::Disconnected { what: "streaming".into() }),
+                Err(UsbError::NoDevice) => {
+                    return Err(KinectError::Disconnected { what: "streaming".into() });
+                }
                 Err(e) => return Err(KinectError::usb("streaming", e)),
             };
             let (h, ev) = ev;
@@ -476,9 +545,14 @@ impl<B: UsbBackend> KinectDevice<B> {
                 StreamEvent::Stopped { reason: StopReason::Disconnected } => {
                     return Err(KinectError::Disconnected { what: "streaming".into() });
                 }
-                StreamEvent::Stopped { reason: StopReason::Requested } => return Err(KinectError::EndOfStream),
+                StreamEvent::Stopped { reason: StopReason::Requested } => {
+                    return Err(KinectError::EndOfStream);
+                }
                 StreamEvent::Stopped { reason } => {
-                    return Err(KinectError::Protocol { what: format!("{kind:?} stream"), detail: format!("stream stopped: {reason:?}") });
+                    return Err(KinectError::Protocol {
+                        what: format!("{kind:?} stream"),
+                        detail: format!("stream stopped: {reason:?}"),
+                    });
                 }
                 StreamEvent::IsoPacket { status, data } => {
                     if status != XferStatus::Completed {

@@ -123,7 +123,9 @@ pub enum KinectError {
     #[error("end of stream (recording exhausted)")]
     EndOfStream,
     /// The device answered a setting command with a non-zero status.
-    #[error("the Kinect v2 rejected {what}: status {status:#x} ({detail}); check the value against the documented range")]
+    #[error(
+        "the Kinect v2 rejected {what}: status {status:#x} ({detail}); check the value against the documented range"
+    )]
     Rejected {
         /// The command, with its value.
         what: String,

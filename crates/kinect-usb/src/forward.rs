@@ -4,8 +4,8 @@
 use crate::decoder::DecoderParams;
 use crate::params::{P0Tables, XzTables};
 use crate::raw::{
-    HEIGHT, PIXELS, RAW_FRAME_BYTES, ROW_BYTES, SUB_IMAGE_BYTES, WIDTH, encode, lut, slot_of_column,
-    stored_row_of_output_row, write_code,
+    HEIGHT, PIXELS, RAW_FRAME_BYTES, ROW_BYTES, SUB_IMAGE_BYTES, WIDTH, encode, lut,
+    slot_of_column, stored_row_of_output_row, write_code,
 };
 
 /// Wrap periods of the three frequencies' phases in units of the common wrap counter.
@@ -14,14 +14,27 @@ const WRAP_PERIODS: [f64; 3] = [3.0, 15.0, 2.0];
 /// Builds the raw frame for an upright scene (`depth_mm`, `ir`, 512 × 424 each). Pixels that
 /// cannot be represented (depth ≤ 0 or NaN, `ztable ≤ 0`) get all-zero codes and decode to 0.
 /// Sub-image 9 is left zero (the decoder ignores it).
-pub fn forward_frame(depth_mm: &[f32], ir: &[f32], xz: &XzTables, p0: &P0Tables, p: &DecoderParams) -> Vec<u8> {
+pub fn forward_frame(
+    depth_mm: &[f32],
+    ir: &[f32],
+    xz: &XzTables,
+    p0: &P0Tables,
+    p: &DecoderParams,
+) -> Vec<u8> {
     let mut out = vec![0u8; RAW_FRAME_BYTES];
     forward_frame_into(depth_mm, ir, xz, p0, p, &mut out);
     out
 }
 
 /// As [`forward_frame`], writing into `out` (2 984 960 bytes).
-pub fn forward_frame_into(depth_mm: &[f32], ir: &[f32], xz: &XzTables, p0: &P0Tables, p: &DecoderParams, out: &mut [u8]) {
+pub fn forward_frame_into(
+    depth_mm: &[f32],
+    ir: &[f32],
+    xz: &XzTables,
+    p0: &P0Tables,
+    p: &DecoderParams,
+    out: &mut [u8],
+) {
     assert_eq!(out.len(), RAW_FRAME_BYTES, "raw frame buffer");
     assert!(depth_mm.len() == PIXELS && ir.len() == PIXELS, "scene must be 512 x 424");
     out.fill(0);
@@ -48,8 +61,8 @@ pub fn forward_frame_into(depth_mm: &[f32], ir: &[f32], xz: &XzTables, p0: &P0Ta
             let ph = (z + disc.sqrt()) / (2.0 * zt);
             let t = ph / kappa;
             let slot = slot_of_column(c);
-            for k in 0..3 {
-                let frac = (t / WRAP_PERIODS[k]).fract();
+            for (k, period) in WRAP_PERIODS.iter().enumerate() {
+                let frac = (t / period).fract();
                 let phi = two_pi * frac;
                 let amp = i / (16.0 * p.ab_multiplier_per_frq[k] as f64);
                 let pv = p0.tables[k][r * WIDTH + c];

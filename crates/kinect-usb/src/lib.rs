@@ -22,19 +22,19 @@
 #![deny(missing_docs)]
 #![deny(unsafe_code)]
 
-pub mod error;
-pub mod raw;
-pub mod params;
-pub mod decoder;
-pub mod testdata;
-pub mod registration;
-pub mod stream;
-pub mod forward;
-pub mod protocol;
 pub mod backend;
+pub mod decoder;
 pub mod device;
-pub mod sim;
+pub mod error;
+pub mod forward;
+pub mod params;
+pub mod protocol;
+pub mod raw;
 pub mod recording;
+pub mod registration;
+pub mod sim;
+pub mod stream;
+pub mod testdata;
 mod transfer;
 pub mod usb;
 

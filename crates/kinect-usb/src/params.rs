@@ -195,7 +195,8 @@ impl XzTables {
     /// Computes the tables from the depth intrinsics (spec §9.2, f64 Newton undistortion).
     pub fn from_params(p: &DepthParams) -> Self {
         let (fx, fy, cx, cy) = (p.fx as f64, p.fy as f64, p.cx as f64, p.cy as f64);
-        let (k1, k2, k3, p1, p2) = (p.k1 as f64, p.k2 as f64, p.k3 as f64, p.p1 as f64, p.p2 as f64);
+        let (k1, k2, k3, p1, p2) =
+            (p.k1 as f64, p.k2 as f64, p.k3 as f64, p.p1 as f64, p.p2 as f64);
         let mut x = vec![0f32; PIXELS];
         let mut z = vec![0f32; PIXELS];
         let mut nonconverged = 0;
@@ -240,7 +241,11 @@ impl XzTables {
     pub fn from_vecs(x: Vec<f32>, z: Vec<f32>) -> Result<Self> {
         for (name, t) in [("x table", &x), ("z table", &z)] {
             if t.len() != PIXELS {
-                return Err(KinectError::Size { what: name.into(), expected: PIXELS, got: t.len() });
+                return Err(KinectError::Size {
+                    what: name.into(),
+                    expected: PIXELS,
+                    got: t.len(),
+                });
             }
         }
         Ok(XzTables { x, z, nonconverged: 0 })

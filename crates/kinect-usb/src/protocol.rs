@@ -139,7 +139,10 @@ impl Command {
         match *self {
             Command::ColorSetting { code, value } => match ColorSettingCode::from_code(code) {
                 Some(c) if c.is_get() => format!("colour setting {c:?} (0x3E code {code})"),
-                Some(c) => format!("colour setting {c:?} = {} (0x3E code {code})", c.value_kind().show(value)),
+                Some(c) => format!(
+                    "colour setting {c:?} = {} (0x3E code {code})",
+                    c.value_kind().show(value)
+                ),
                 None => format!("colour setting code {code} = {value:#x} (0x3E)"),
             },
             _ => format!("{self:?} (0x{:02X})", self.id()),
@@ -194,16 +197,25 @@ pub struct CommandMessage {
 /// Parses a command message (20, 24 or 36 bytes).
 pub fn parse_command(b: &[u8]) -> Result<CommandMessage> {
     if !matches!(b.len(), 20 | 24 | 36) {
-        return Err(KinectError::Protocol { what: "command".into(), detail: format!("length {} not 20, 24 or 36", b.len()) });
+        return Err(KinectError::Protocol {
+            what: "command".into(),
+            detail: format!("length {} not 20, 24 or 36", b.len()),
+        });
     }
     if u32_at(b, 0) != COMMAND_MAGIC {
-        return Err(KinectError::Protocol { what: "command".into(), detail: format!("bad magic 0x{:08X}", u32_at(b, 0)) });
+        return Err(KinectError::Protocol {
+            what: "command".into(),
+            detail: format!("bad magic 0x{:08X}", u32_at(b, 0)),
+        });
     }
     Ok(CommandMessage {
         sequence: u32_at(b, 4),
         max_response_len: u32_at(b, 8),
         id: u32_at(b, 12),
-        params: b[20..].chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+        params: b[20..]
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
     })
 }
 
@@ -229,7 +241,10 @@ pub fn is_completion(b: &[u8]) -> bool {
 /// Parses a completion and returns its sequence.
 pub fn parse_completion(b: &[u8], what: &str) -> Result<u32> {
     if !is_completion(b) {
-        return Err(KinectError::Protocol { what: what.into(), detail: format!("missing completion ({} bytes)", b.len()) });
+        return Err(KinectError::Protocol {
+            what: what.into(),
+            detail: format!("missing completion ({} bytes)", b.len()),
+        });
     }
     Ok(u32_at(b, 4))
 }
@@ -263,13 +278,22 @@ impl std::fmt::Display for FirmwareVersion {
 /// Parses the firmware response (up to 7 records) and returns the records.
 pub fn parse_firmware(b: &[u8]) -> Result<Vec<FirmwareVersion>> {
     if b.len() < 16 {
-        return Err(KinectError::Size { what: "firmware response".into(), expected: 0x200, got: b.len() });
+        return Err(KinectError::Size {
+            what: "firmware response".into(),
+            expected: 0x200,
+            got: b.len(),
+        });
     }
     Ok(b.chunks_exact(16)
         .take(7)
         .map(|r| {
             let mm = u32_at(r, 0);
-            FirmwareVersion { major: (mm >> 16) as u16, minor: (mm & 0xFFFF) as u16, revision: u32_at(r, 4), build: u32_at(r, 8) }
+            FirmwareVersion {
+                major: (mm >> 16) as u16,
+                minor: (mm & 0xFFFF) as u16,
+                revision: u32_at(r, 4),
+                build: u32_at(r, 8),
+            }
         })
         .collect())
 }
@@ -296,7 +320,11 @@ pub fn encode_serial(s: &str) -> Vec<u8> {
 /// Parses the status word.
 pub fn parse_status(b: &[u8]) -> Result<u32> {
     if b.len() < 4 {
-        return Err(KinectError::Size { what: "status response".into(), expected: 4, got: b.len() });
+        return Err(KinectError::Size {
+            what: "status response".into(),
+            expected: 4,
+            got: b.len(),
+        });
     }
     Ok(u32_at(b, 0))
 }
@@ -489,8 +517,16 @@ impl ColorSettingCode {
         use ColorSettingCode::*;
         let set = self.set_of_get().unwrap_or(self);
         match set {
-            SetIntegrationTime | SetRedGain | SetGreenGain | SetBlueGain | SetExposureTime | SetDigitalGain
-            | SetAnalogGain | SetExposureCompensation | SetMaxAnalogGainCap | SetMaxDigitalGainCap => ValueKind::F32,
+            SetIntegrationTime
+            | SetRedGain
+            | SetGreenGain
+            | SetBlueGain
+            | SetExposureTime
+            | SetDigitalGain
+            | SetAnalogGain
+            | SetExposureCompensation
+            | SetMaxAnalogGainCap
+            | SetMaxDigitalGainCap => ValueKind::F32,
             _ => ValueKind::U32,
         }
     }
@@ -518,7 +554,10 @@ impl ColorSettingResponse {
     /// The 16 response bytes (used by the simulated device).
     pub fn to_bytes(&self) -> [u8; COLOR_SETTING_RESPONSE_LEN] {
         let mut b = [0u8; COLOR_SETTING_RESPONSE_LEN];
-        for (i, w) in [self.num_status, self.command_list_status, self.status, self.data].into_iter().enumerate() {
+        for (i, w) in [self.num_status, self.command_list_status, self.status, self.data]
+            .into_iter()
+            .enumerate()
+        {
             b[4 * i..4 * i + 4].copy_from_slice(&w.to_le_bytes());
         }
         b
@@ -528,7 +567,11 @@ impl ColorSettingResponse {
 /// Parses a 0x3E response: exactly 16 bytes, four little-endian u32 words.
 pub fn parse_color_setting_response(b: &[u8]) -> Result<ColorSettingResponse> {
     if b.len() != COLOR_SETTING_RESPONSE_LEN {
-        return Err(KinectError::Size { what: "colour setting (0x3E) response".into(), expected: COLOR_SETTING_RESPONSE_LEN, got: b.len() });
+        return Err(KinectError::Size {
+            what: "colour setting (0x3E) response".into(),
+            expected: COLOR_SETTING_RESPONSE_LEN,
+            got: b.len(),
+        });
     }
     if is_completion(b) {
         return Err(KinectError::Protocol {
@@ -536,7 +579,12 @@ pub fn parse_color_setting_response(b: &[u8]) -> Result<ColorSettingResponse> {
             detail: "a completion instead of the 16-byte response (premature completion)".into(),
         });
     }
-    Ok(ColorSettingResponse { num_status: u32_at(b, 0), command_list_status: u32_at(b, 4), status: u32_at(b, 8), data: u32_at(b, 12) })
+    Ok(ColorSettingResponse {
+        num_status: u32_at(b, 0),
+        command_list_status: u32_at(b, 4),
+        status: u32_at(b, 8),
+        data: u32_at(b, 12),
+    })
 }
 
 /// Colour exposure mode as read with code 80 and set with code 0.
@@ -618,10 +666,22 @@ impl Exposure {
                 true,
                 *EXPOSURE_COMPENSATION_RANGE.end(),
             ),
-            Exposure::SemiAuto { exposure_ms } => check_range("semi-auto exposure time (ms)", exposure_ms, 0.0, false, MAX_EXPOSURE_MS),
+            Exposure::SemiAuto { exposure_ms } => check_range(
+                "semi-auto exposure time (ms)",
+                exposure_ms,
+                0.0,
+                false,
+                MAX_EXPOSURE_MS,
+            ),
             Exposure::Manual { integration_ms, analog_gain } => {
                 check_range("integration time (ms)", integration_ms, 0.0, false, MAX_EXPOSURE_MS)?;
-                check_range("analog gain", analog_gain, *ANALOG_GAIN_RANGE.start(), true, *ANALOG_GAIN_RANGE.end())
+                check_range(
+                    "analog gain",
+                    analog_gain,
+                    *ANALOG_GAIN_RANGE.start(),
+                    true,
+                    *ANALOG_GAIN_RANGE.end(),
+                )
             }
         }
     }
@@ -634,10 +694,18 @@ impl Exposure {
         let acs = (SetAcs, 0);
         Ok(match *self {
             Exposure::Auto { compensation } => {
-                vec![acs, (SetExposureMode, ExposureMode::Auto.value()), (SetExposureCompensation, compensation.to_bits())]
+                vec![
+                    acs,
+                    (SetExposureMode, ExposureMode::Auto.value()),
+                    (SetExposureCompensation, compensation.to_bits()),
+                ]
             }
             Exposure::SemiAuto { exposure_ms } => {
-                vec![acs, (SetExposureMode, ExposureMode::SemiAuto.value()), (SetExposureTime, exposure_ms.to_bits())]
+                vec![
+                    acs,
+                    (SetExposureMode, ExposureMode::SemiAuto.value()),
+                    (SetExposureTime, exposure_ms.to_bits()),
+                ]
             }
             Exposure::Manual { integration_ms, analog_gain } => vec![
                 acs,
@@ -650,7 +718,11 @@ impl Exposure {
 
     /// The preset as 0x3E commands, in order.
     pub fn commands(&self) -> Result<Vec<Command>> {
-        Ok(self.settings()?.into_iter().map(|(c, v)| Command::ColorSetting { code: c.code(), value: v }).collect())
+        Ok(self
+            .settings()?
+            .into_iter()
+            .map(|(c, v)| Command::ColorSetting { code: c.code(), value: v })
+            .collect())
     }
 }
 
@@ -712,22 +784,39 @@ impl LedSetting {
 
     /// LED `id` constantly on at `level`.
     pub fn on(id: u16, level: u16) -> Self {
-        LedSetting { id, mode: LedMode::Constant, start_level: level, stop_level: level, interval_ms: 0 }
+        LedSetting {
+            id,
+            mode: LedMode::Constant,
+            start_level: level,
+            stop_level: level,
+            interval_ms: 0,
+        }
     }
 
     /// LED `id` blinking between full and off every `interval_ms`.
     pub fn blink(id: u16, interval_ms: u32) -> Self {
-        LedSetting { id, mode: LedMode::Blink, start_level: LED_MAX_LEVEL, stop_level: 0, interval_ms }
+        LedSetting {
+            id,
+            mode: LedMode::Blink,
+            start_level: LED_MAX_LEVEL,
+            stop_level: 0,
+            interval_ms,
+        }
     }
 
     /// Checks id, levels and the blink interval.
     pub fn validate(&self) -> Result<()> {
         if self.id >= LED_COUNT {
-            return Err(KinectError::Invalid(format!("LED id {} (the sensor has LEDs 0 and 1)", self.id)));
+            return Err(KinectError::Invalid(format!(
+                "LED id {} (the sensor has LEDs 0 and 1)",
+                self.id
+            )));
         }
         for (what, l) in [("start level", self.start_level), ("stop level", self.stop_level)] {
             if l > LED_MAX_LEVEL {
-                return Err(KinectError::Invalid(format!("LED {what} {l} is above {LED_MAX_LEVEL}")));
+                return Err(KinectError::Invalid(format!(
+                    "LED {what} {l} is above {LED_MAX_LEVEL}"
+                )));
             }
         }
         if self.mode == LedMode::Blink && self.interval_ms == 0 {
@@ -742,7 +831,12 @@ impl LedSetting {
             LedMode::Constant => 0u32,
             LedMode::Blink => 1,
         };
-        [self.id as u32 | mode << 16, self.start_level as u32 | (self.stop_level as u32) << 16, self.interval_ms, 0]
+        [
+            self.id as u32 | mode << 16,
+            self.start_level as u32 | (self.stop_level as u32) << 16,
+            self.interval_ms,
+            0,
+        ]
     }
 
     /// Decodes (and validates) four parameter words; the reserved word must be 0.
@@ -750,12 +844,22 @@ impl LedSetting {
         let mode = match w[0] >> 16 {
             0 => LedMode::Constant,
             1 => LedMode::Blink,
-            m => return Err(KinectError::Invalid(format!("LED mode {m} (0 = constant, 1 = blink)"))),
+            m => {
+                return Err(KinectError::Invalid(format!(
+                    "LED mode {m} (0 = constant, 1 = blink)"
+                )));
+            }
         };
         if w[3] != 0 {
             return Err(KinectError::Invalid(format!("LED reserved word {:#x} is not 0", w[3])));
         }
-        let l = LedSetting { id: (w[0] & 0xFFFF) as u16, mode, start_level: (w[1] & 0xFFFF) as u16, stop_level: (w[1] >> 16) as u16, interval_ms: w[2] };
+        let l = LedSetting {
+            id: (w[0] & 0xFFFF) as u16,
+            mode,
+            start_level: (w[1] & 0xFFFF) as u16,
+            stop_level: (w[1] >> 16) as u16,
+            interval_ms: w[2],
+        };
         l.validate()?;
         Ok(l)
     }
@@ -802,10 +906,21 @@ mod tests {
         let acs = color_msg(25, [0, 0, 0, 0]);
         assert_eq!(
             enc(manual_exposure(20.0, 2.0).unwrap()),
-            vec![acs.clone(), color_msg(0, [4, 0, 0, 0]), color_msg(1, [0, 0, 0xA0, 0x41]), color_msg(21, [0, 0, 0, 0x40])]
+            vec![
+                acs.clone(),
+                color_msg(0, [4, 0, 0, 0]),
+                color_msg(1, [0, 0, 0xA0, 0x41]),
+                color_msg(21, [0, 0, 0, 0x40])
+            ]
         );
-        assert_eq!(enc(auto_exposure(-1.5).unwrap()), vec![acs.clone(), color_msg(0, [0, 0, 0, 0]), color_msg(23, [0, 0, 0xC0, 0xBF])]);
-        assert_eq!(enc(semi_auto_exposure(33.0).unwrap()), vec![acs, color_msg(0, [3, 0, 0, 0]), color_msg(17, [0, 0, 0x04, 0x42])]);
+        assert_eq!(
+            enc(auto_exposure(-1.5).unwrap()),
+            vec![acs.clone(), color_msg(0, [0, 0, 0, 0]), color_msg(23, [0, 0, 0xC0, 0xBF])]
+        );
+        assert_eq!(
+            enc(semi_auto_exposure(33.0).unwrap()),
+            vec![acs, color_msg(0, [3, 0, 0, 0]), color_msg(17, [0, 0, 0x04, 0x42])]
+        );
         for m in enc(manual_exposure(20.0, 2.0).unwrap()) {
             assert_eq!(m.len(), 36);
         }
@@ -848,8 +963,14 @@ mod tests {
         }
         // Spec §4.10 lists codes 0, 1, 2, 10..=83: 3 + 74.
         assert_eq!(n, 77);
-        assert_eq!(ColorSettingCode::GetAnalogGain.set_of_get(), Some(ColorSettingCode::SetAnalogGain));
-        assert_eq!(ColorSettingCode::GetExposureMode.set_of_get(), Some(ColorSettingCode::SetExposureMode));
+        assert_eq!(
+            ColorSettingCode::GetAnalogGain.set_of_get(),
+            Some(ColorSettingCode::SetAnalogGain)
+        );
+        assert_eq!(
+            ColorSettingCode::GetExposureMode.set_of_get(),
+            Some(ColorSettingCode::SetExposureMode)
+        );
         assert_eq!(ColorSettingCode::GetAnalogGain.value_kind(), ValueKind::F32);
         assert_eq!(ColorSettingCode::GetExposureMode.value_kind(), ValueKind::U32);
         assert_eq!(ColorSettingCode::SetMeteringZoneWeight(47).code(), 76);
@@ -860,7 +981,15 @@ mod tests {
     fn color_setting_response_parses_and_rejects_bad_lengths() {
         let b = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x40];
         let r = parse_color_setting_response(&b).unwrap();
-        assert_eq!(r, ColorSettingResponse { num_status: 1, command_list_status: 0, status: 0, data: 0x4000_0000 });
+        assert_eq!(
+            r,
+            ColorSettingResponse {
+                num_status: 1,
+                command_list_status: 0,
+                status: 0,
+                data: 0x4000_0000
+            }
+        );
         assert_eq!(r.data_f32(), 2.0);
         assert_eq!(r.to_bytes(), b);
         for n in [0, 4, 15, 17] {

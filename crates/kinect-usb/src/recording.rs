@@ -83,7 +83,9 @@ impl RecordedEvent {
     /// As a backend stream event.
     pub fn to_event(&self) -> StreamEvent {
         match self.kind {
-            StreamKind::Depth => StreamEvent::IsoPacket { status: self.status, data: self.data.clone() },
+            StreamKind::Depth => {
+                StreamEvent::IsoPacket { status: self.status, data: self.data.clone() }
+            }
             StreamKind::Color => StreamEvent::Bulk { status: self.status, data: self.data.clone() },
         }
     }
@@ -120,7 +122,14 @@ impl<W: Write> RecordingWriter<W> {
     pub fn new(mut w: W, meta: &RecordingMeta) -> std::io::Result<Self> {
         w.write_all(MAGIC)?;
         w.write_all(&VERSION.to_le_bytes())?;
-        for f in [meta.firmware.as_bytes(), meta.serial.as_bytes(), &meta.hardware_info, &meta.depth_params, &meta.p0, &meta.color_params] {
+        for f in [
+            meta.firmware.as_bytes(),
+            meta.serial.as_bytes(),
+            &meta.hardware_info,
+            &meta.depth_params,
+            &meta.p0,
+            &meta.color_params,
+        ] {
             w.write_all(&(f.len() as u32).to_le_bytes())?;
             w.write_all(f)?;
         }
@@ -130,7 +139,9 @@ impl<W: Write> RecordingWriter<W> {
     /// Appends one event (stream-stopped events are not recorded).
     pub fn write_event(&mut self, kind: StreamKind, ev: &StreamEvent) -> std::io::Result<()> {
         let (status, data) = match ev {
-            StreamEvent::IsoPacket { status, data } | StreamEvent::Bulk { status, data } => (*status, data),
+            StreamEvent::IsoPacket { status, data } | StreamEvent::Bulk { status, data } => {
+                (*status, data)
+            }
             StreamEvent::Stopped { .. } => return Ok(()),
         };
         let k = if kind == StreamKind::Depth { KIND_ISO } else { KIND_BULK };
@@ -159,11 +170,18 @@ struct Cursor<'a> {
 
 impl<'a> Cursor<'a> {
     fn err(&self, detail: impl Into<String>) -> KinectError {
-        KinectError::Recording { path: self.path.to_path_buf(), offset: self.pos as u64, detail: detail.into() }
+        KinectError::Recording {
+            path: self.path.to_path_buf(),
+            offset: self.pos as u64,
+            detail: detail.into(),
+        }
     }
     fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8]> {
         if self.b.len() - self.pos < n {
-            return Err(self.err(format!("truncated: {what} needs {n} bytes, {} left", self.b.len() - self.pos)));
+            return Err(self.err(format!(
+                "truncated: {what} needs {n} bytes, {} left",
+                self.b.len() - self.pos
+            )));
         }
         let s = &self.b[self.pos..self.pos + n];
         self.pos += n;
@@ -187,7 +205,9 @@ pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Re
         return Err(c.err(format!("unsupported version {v}")));
     }
     let mut fields = Vec::new();
-    for name in ["firmware", "serial", "hardware info", "depth params", "P0 tables", "colour params"] {
+    for name in
+        ["firmware", "serial", "hardware info", "depth params", "P0 tables", "colour params"]
+    {
         let n = c.u32(name)? as usize;
         if n > MAX_META {
             return Err(c.err(format!("{name} length {n} too large")));
@@ -219,9 +239,13 @@ pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Re
                     if n != 8 {
                         return Err(c.err("bad end record"));
                     }
-                    let count = u64::from_le_bytes(data.try_into().map_err(|_| c.err("bad end record"))?);
+                    let count =
+                        u64::from_le_bytes(data.try_into().map_err(|_| c.err("bad end record"))?);
                     if count != events.len() as u64 {
-                        return Err(c.err(format!("end record counts {count} events, file holds {}", events.len())));
+                        return Err(c.err(format!(
+                            "end record counts {count} events, file holds {}",
+                            events.len()
+                        )));
                     }
                     Ok(None)
                 }
@@ -259,6 +283,7 @@ pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Re
 
 /// Reads and parses a recording file.
 pub fn read_recording_file(path: &Path, keep_prefix: bool) -> Result<Recording> {
-    let b = std::fs::read(path).map_err(|source| KinectError::File { path: PathBuf::from(path), source })?;
+    let b = std::fs::read(path)
+        .map_err(|source| KinectError::File { path: PathBuf::from(path), source })?;
     read_recording(&b, path, keep_prefix)
 }

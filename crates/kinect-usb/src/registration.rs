@@ -63,11 +63,12 @@ impl Registration {
                 let ix = (dx_ + 0.5) as i32;
                 let iy = (dy_ + 0.5) as i32;
                 // `as` truncates toward zero: (−1, 0) becomes 0 (reference quirk, spec §11.1).
-                distort_src[i] = if ix >= 0 && (ix as usize) < WIDTH && iy >= 0 && (iy as usize) < HEIGHT {
-                    iy * WIDTH as i32 + ix
-                } else {
-                    -1
-                };
+                distort_src[i] =
+                    if ix >= 0 && (ix as usize) < WIDTH && iy >= 0 && (iy as usize) < HEIGHT {
+                        iy * WIDTH as i32 + ix
+                    } else {
+                        -1
+                    };
                 let (rx, ry) = depth_to_color(d, color, x as f32, y as f32);
                 map_x[i] = rx;
                 map_y[i] = ry;

@@ -9,14 +9,17 @@ use std::time::Duration;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::backend::{ResetOutcome, StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend, XferStatus};
+use crate::backend::{
+    ResetOutcome, StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend, XferStatus,
+};
 use crate::decoder::DecoderParams;
 use crate::error::UsbError;
 use crate::forward::forward_frame;
 use crate::params::{ColorParams, DepthParams, P0Tables, XzTables};
 use crate::protocol::{
-    self, ANALOG_GAIN_RANGE, COLOR_SETTING_ID, COLOR_SETTING_RESPONSE_LEN, ColorSettingCode, ColorSettingResponse, CommandMessage,
-    EXPOSURE_COMPENSATION_RANGE, ExposureMode, LedSetting, MAX_EXPOSURE_MS, SET_MODE_ID, ep,
+    self, ANALOG_GAIN_RANGE, COLOR_SETTING_ID, COLOR_SETTING_RESPONSE_LEN, ColorSettingCode,
+    ColorSettingResponse, CommandMessage, EXPOSURE_COMPENSATION_RANGE, ExposureMode, LedSetting,
+    MAX_EXPOSURE_MS, SET_MODE_ID, ep,
 };
 use crate::raw::PIXELS;
 use crate::stream::{ColorMeta, build_color_packet, packetize_depth_frame};
@@ -95,7 +98,12 @@ impl SimColorSettings {
     /// Applies one 0x3E request `[count, setting seq id, code, value]`, validating it as the
     /// sensor is assumed to: returns the response.
     fn apply(&mut self, params: &[u32]) -> ColorSettingResponse {
-        let reply = |status: u32, data: u32| ColorSettingResponse { num_status: 1, command_list_status: 0, status, data };
+        let reply = |status: u32, data: u32| ColorSettingResponse {
+            num_status: 1,
+            command_list_status: 0,
+            status,
+            data,
+        };
         let [count, sub_seq, code, value] = match params {
             &[a, b, c, d] => [a, b, c, d],
             _ => return reply(SIM_STATUS_BAD_REQUEST, 0),
@@ -111,13 +119,24 @@ impl SimColorSettings {
         }
         use ColorSettingCode::*;
         let f = f32::from_bits(value);
-        let in_range = |lo: f32, lo_incl: bool, hi: f32| f.is_finite() && (if lo_incl { f >= lo } else { f > lo }) && f <= hi;
+        let in_range = |lo: f32, lo_incl: bool, hi: f32| {
+            f.is_finite() && (if lo_incl { f >= lo } else { f > lo }) && f <= hi
+        };
         let ok = match c {
-            SetExposureMode => matches!(ExposureMode::from_value(value), ExposureMode::Auto | ExposureMode::SemiAuto | ExposureMode::Manual),
+            SetExposureMode => matches!(
+                ExposureMode::from_value(value),
+                ExposureMode::Auto | ExposureMode::SemiAuto | ExposureMode::Manual
+            ),
             SetIntegrationTime | SetExposureTime => in_range(0.0, false, MAX_EXPOSURE_MS),
             SetAnalogGain => in_range(*ANALOG_GAIN_RANGE.start(), true, *ANALOG_GAIN_RANGE.end()),
-            SetExposureCompensation => in_range(*EXPOSURE_COMPENSATION_RANGE.start(), true, *EXPOSURE_COMPENSATION_RANGE.end()),
-            SetRedGain | SetGreenGain | SetBlueGain | SetDigitalGain => in_range(0.0, false, protocol::MAX_CHANNEL_GAIN),
+            SetExposureCompensation => in_range(
+                *EXPOSURE_COMPENSATION_RANGE.start(),
+                true,
+                *EXPOSURE_COMPENSATION_RANGE.end(),
+            ),
+            SetRedGain | SetGreenGain | SetBlueGain | SetDigitalGain => {
+                in_range(0.0, false, protocol::MAX_CHANNEL_GAIN)
+            }
             _ => true,
         };
         if !ok {
@@ -156,12 +175,24 @@ impl SimProfile {
         use crate::testdata::read_bytes;
         let hw = read_bytes(&dir.join("real/protocol/hardware_info_response.bin"))?;
         Ok(SimProfile {
-            firmware: [(1, 0, 0, 0), (2, 0, 0, 0), (3, 0, 0, 0), (4, 0, 3912, 0), (0, 0, 0, 0), (0, 0, 0, 0), (0, 0, 0, 0)],
+            firmware: [
+                (1, 0, 0, 0),
+                (2, 0, 0, 0),
+                (3, 0, 0, 0),
+                (4, 0, 3912, 0),
+                (0, 0, 0, 0),
+                (0, 0, 0, 0),
+                (0, 0, 0, 0),
+            ],
             hardware_info: hw,
             serial: "016293740947".into(),
-            depth_params: DepthParams::from_response(&read_bytes(&dir.join("inputs/depth_camera_params_response.bin"))?)?,
+            depth_params: DepthParams::from_response(&read_bytes(
+                &dir.join("inputs/depth_camera_params_response.bin"),
+            )?)?,
             p0: P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin"))?)?,
-            color_params: ColorParams::from_response(&read_bytes(&dir.join("inputs/rgb_camera_params_response.bin"))?)?,
+            color_params: ColorParams::from_response(&read_bytes(
+                &dir.join("inputs/rgb_camera_params_response.bin"),
+            )?)?,
             status_words: vec![1024, 9729, 9731],
             bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
         })
@@ -190,12 +221,28 @@ impl SimProfile {
         mx[9] = shift_m / shift_d * color_f * QC;
         my[8] = color_f * QC / (QD * depth.fy);
         SimProfile {
-            firmware: [(1, 0, 0, 0), (2, 0, 0, 0), (3, 0, 0, 0), (4, 0, 3912, 0), (0, 0, 0, 0), (0, 0, 0, 0), (0, 0, 0, 0)],
+            firmware: [
+                (1, 0, 0, 0),
+                (2, 0, 0, 0),
+                (3, 0, 0, 0),
+                (4, 0, 3912, 0),
+                (0, 0, 0, 0),
+                (0, 0, 0, 0),
+                (0, 0, 0, 0),
+            ],
             hardware_info: vec![0u8; 92],
             serial: "000000000001".into(),
             depth_params: depth,
             p0: P0Tables { tables },
-            color_params: ColorParams { f: color_f, cx: 959.5, cy: 539.5, shift_d, shift_m, mx, my },
+            color_params: ColorParams {
+                f: color_f,
+                cx: 959.5,
+                cy: 539.5,
+                shift_d,
+                shift_m,
+                mx,
+                my,
+            },
             status_words: vec![1024, 9729, 9731],
             bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
         }
@@ -396,7 +443,11 @@ impl SimDevice {
                 let w = if self.faults.status_never_ready {
                     0
                 } else {
-                    p.status_words.get(self.status_polls).or(p.status_words.last()).copied().unwrap_or(1)
+                    p.status_words
+                        .get(self.status_polls)
+                        .or(p.status_words.last())
+                        .copied()
+                        .unwrap_or(1)
                 };
                 self.status_polls += 1;
                 if w & 1 == 1 {
@@ -466,7 +517,8 @@ impl SimDevice {
         {
             self.gone = true;
             for h in [self.iso.map(|s| s.0), self.bulk.map(|s| s.0)].into_iter().flatten() {
-                self.queue.push_back((h, StreamEvent::Stopped { reason: StopReason::Disconnected }));
+                self.queue
+                    .push_back((h, StreamEvent::Stopped { reason: StopReason::Disconnected }));
             }
             return;
         }
@@ -482,14 +534,22 @@ impl SimDevice {
                 for g in gaps.iter_mut() {
                     *g = self.rng.random_range(1..=3);
                 }
-                let packets = packetize_depth_frame(&self.raw_frames[idx], self.depth_sequence, self.timestamp, psize, gaps);
+                let packets = packetize_depth_frame(
+                    &self.raw_frames[idx],
+                    self.depth_sequence,
+                    self.timestamp,
+                    psize,
+                    gaps,
+                );
                 for mut pk in packets {
                     let r: f64 = self.rng.random();
                     let status = if r < self.faults.iso_drop_rate {
                         pk.clear();
                         XferStatus::Error
                     } else {
-                        if r < self.faults.iso_drop_rate + self.faults.iso_short_rate && pk.len() > 1 {
+                        if r < self.faults.iso_drop_rate + self.faults.iso_short_rate
+                            && pk.len() > 1
+                        {
                             let keep = self.rng.random_range(0..pk.len());
                             pk.truncate(keep);
                         }
@@ -508,12 +568,32 @@ impl SimDevice {
             let pad = (4 - jpeg.len() % 4) % 4;
             let filler = 4 * self.rng.random_range(0..64usize);
             let (exposure, gain) = self.color.footer_exposure_gain();
-            let meta = ColorMeta { sequence: self.frame_index as u32, timestamp: self.timestamp, exposure, gain, gamma: 1.0 };
+            let meta = ColorMeta {
+                sequence: self.frame_index as u32,
+                timestamp: self.timestamp,
+                exposure,
+                gain,
+                gamma: 1.0,
+            };
             let packet = build_color_packet(jpeg, &meta, pad, filler);
             for chunk in packet.chunks(size.max(1)) {
                 let r: f64 = self.rng.random();
-                let status = if r < self.faults.bulk_error_rate { XferStatus::Error } else { XferStatus::Completed };
-                color_events.push((h, StreamEvent::Bulk { status, data: if status == XferStatus::Completed { chunk.to_vec() } else { Vec::new() } }));
+                let status = if r < self.faults.bulk_error_rate {
+                    XferStatus::Error
+                } else {
+                    XferStatus::Completed
+                };
+                color_events.push((
+                    h,
+                    StreamEvent::Bulk {
+                        status,
+                        data: if status == XferStatus::Completed {
+                            chunk.to_vec()
+                        } else {
+                            Vec::new()
+                        },
+                    },
+                ));
             }
         }
         // Interleave the two streams over the frame period.
@@ -525,12 +605,10 @@ impl SimDevice {
         for _ in 0..total {
             // Keep both streams proportionally advanced.
             let take_depth = nc == 0 || (nd > 0 && sent_d * nc <= sent_c * nd);
-            if take_depth {
-                if let Some(e) = di.next() {
-                    self.queue.push_back(e);
-                    sent_d += 1;
-                    continue;
-                }
+            if take_depth && let Some(e) = di.next() {
+                self.queue.push_back(e);
+                sent_d += 1;
+                continue;
             }
             if let Some(e) = ci.next() {
                 self.queue.push_back(e);
@@ -596,7 +674,15 @@ impl UsbBackend for SimDevice {
         Ok(())
     }
 
-    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, _data: &[u8], _t: Duration) -> Result<usize, UsbError> {
+    fn control_out(
+        &mut self,
+        req_type: u8,
+        req: u8,
+        value: u16,
+        index: u16,
+        _data: &[u8],
+        _t: Duration,
+    ) -> Result<usize, UsbError> {
         self.check()?;
         self.transcript.push(format!("control {req_type:02x} {req:02x} {value} {index:#x}"));
         if req_type == 0x01 && req == 0x03 {
@@ -635,23 +721,39 @@ impl UsbBackend for SimDevice {
             COLOR_SETTING_ID => {
                 // Colour settings always carry sequence 0 and do not advance it (spec §3.3).
                 if m.sequence != 0 {
-                    self.violations.push(format!("colour setting (0x3E) with sequence {}, must be 0", m.sequence));
+                    self.violations.push(format!(
+                        "colour setting (0x3E) with sequence {}, must be 0",
+                        m.sequence
+                    ));
                 }
                 if m.max_response_len != COLOR_SETTING_RESPONSE_LEN as u32 {
-                    self.violations.push(format!("colour setting (0x3E) max_response_len {}, must be 16", m.max_response_len));
+                    self.violations.push(format!(
+                        "colour setting (0x3E) max_response_len {}, must be 16",
+                        m.max_response_len
+                    ));
                 }
             }
-            SET_MODE_ID if m.sequence != self.expected_seq && !(self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1)) => {
+            SET_MODE_ID
+                if m.sequence != self.expected_seq
+                    && !(self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1)) =>
+            {
                 // Out of the counter: the LED API (sequence 0, spec §4.9).
                 if m.sequence != 0 {
-                    self.violations.push(format!("command 0x4b: sequence {} expected {} (or 0 for the LED API)", m.sequence, self.expected_seq));
+                    self.violations.push(format!(
+                        "command 0x4b: sequence {} expected {} (or 0 for the LED API)",
+                        m.sequence, self.expected_seq
+                    ));
                 }
                 completion_status = self.apply_led(&m.params, true);
             }
             _ => {
-                let ok = m.sequence == self.expected_seq || (self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1));
+                let ok = m.sequence == self.expected_seq
+                    || (self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1));
                 if !ok {
-                    self.violations.push(format!("command {:#x}: sequence {} expected {}", m.id, m.sequence, self.expected_seq));
+                    self.violations.push(format!(
+                        "command {:#x}: sequence {} expected {}",
+                        m.id, m.sequence, self.expected_seq
+                    ));
                 }
                 // A 0x4B at sequence 0 when the counter is also at 0: LED API or first command?
                 let ambiguous = m.id == SET_MODE_ID && m.sequence == 0 && self.expected_seq == 0;
@@ -691,7 +793,11 @@ impl UsbBackend for SimDevice {
             self.faults.timeout_command = None;
             return Err(UsbError::Timeout);
         }
-        let seq = if self.faults.wrong_completion_sequence { m.sequence.wrapping_add(7) } else { m.sequence };
+        let seq = if self.faults.wrong_completion_sequence {
+            m.sequence.wrapping_add(7)
+        } else {
+            m.sequence
+        };
         match phase {
             Phase::Data if self.faults.premature_completion == Some(m.id) => {
                 self.faults.premature_completion = None;
@@ -706,7 +812,11 @@ impl UsbBackend for SimDevice {
                     resp.truncate(resp.len() / 2);
                 }
                 if buf.len() > m.max_response_len as usize {
-                    self.violations.push(format!("read of {} bytes exceeds max_response_len {}", buf.len(), m.max_response_len));
+                    self.violations.push(format!(
+                        "read of {} bytes exceeds max_response_len {}",
+                        buf.len(),
+                        m.max_response_len
+                    ));
                 }
                 let n = resp.len().min(buf.len());
                 buf[..n].copy_from_slice(&resp[..n]);
@@ -759,7 +869,10 @@ impl UsbBackend for SimDevice {
         Ok(h)
     }
 
-    fn next_event(&mut self, _timeout: Duration) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+    fn next_event(
+        &mut self,
+        _timeout: Duration,
+    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
         if self.queue.is_empty() {
             self.check()?;
             if self.iso.is_none() && self.bulk.is_none() {

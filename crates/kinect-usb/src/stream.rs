@@ -46,7 +46,12 @@ impl DepthFooter {
         if b.len() < DEPTH_FOOTER_BYTES {
             return None;
         }
-        Some(DepthFooter { timestamp: u32_at(b, 8), sequence: u32_at(b, 12), subsequence: u32_at(b, 16), length: u32_at(b, 20) })
+        Some(DepthFooter {
+            timestamp: u32_at(b, 8),
+            sequence: u32_at(b, 12),
+            subsequence: u32_at(b, 16),
+            length: u32_at(b, 20),
+        })
     }
 
     /// Serialises the footer (magic words and the 32 unknown fields zero).
@@ -147,7 +152,10 @@ impl DepthAssembler {
 
     fn on_subpacket(&mut self, f: DepthFooter) -> Option<RawDepthFrame<'_>> {
         let len = self.work.len();
-        if f.length as usize != len || f.subsequence as usize >= SUB_IMAGES || len != SUB_IMAGE_BYTES {
+        if f.length as usize != len
+            || f.subsequence as usize >= SUB_IMAGES
+            || len != SUB_IMAGE_BYTES
+        {
             self.work.clear();
             self.stats.dropped_subpackets += 1;
             return None;
@@ -172,7 +180,11 @@ impl DepthAssembler {
             self.current_seq = None;
             self.stats.frames += 1;
             self.last = Some((f.sequence, self.first_timestamp));
-            return Some(RawDepthFrame { sequence: f.sequence, timestamp: self.first_timestamp, data: &self.frame });
+            return Some(RawDepthFrame {
+                sequence: f.sequence,
+                timestamp: self.first_timestamp,
+                data: &self.frame,
+            });
         }
         None
     }
@@ -198,7 +210,11 @@ impl DepthAssembler {
 
     /// The frame completed by the latest [`Self::push`], if that push completed one.
     pub fn last_frame(&self) -> Option<RawDepthFrame<'_>> {
-        self.last.map(|(sequence, timestamp)| RawDepthFrame { sequence, timestamp, data: &self.frame })
+        self.last.map(|(sequence, timestamp)| RawDepthFrame {
+            sequence,
+            timestamp,
+            data: &self.frame,
+        })
     }
 }
 
@@ -244,7 +260,12 @@ impl Default for ColorAssembler {
 impl ColorAssembler {
     /// New assembler with a 2 MiB buffer.
     pub fn new() -> Self {
-        ColorAssembler { buf: Vec::with_capacity(COLOR_BUFFER_CAPACITY), pending_clear: false, last: None, stats: ColorStats::default() }
+        ColorAssembler {
+            buf: Vec::with_capacity(COLOR_BUFFER_CAPACITY),
+            pending_clear: false,
+            last: None,
+            stats: ColorStats::default(),
+        }
     }
 
     /// Feeds one completed bulk transfer. Returns `(jpeg, meta)` when a packet completed.
@@ -280,7 +301,11 @@ impl ColorAssembler {
             gamma: f32::from_bits(u32_at(f, 40)),
         };
         let header_ok = u32_at(&self.buf, 4) == COLOR_MAGIC;
-        if !header_ok || packet_size != n || seq != footer_seq || n - COLOR_HEADER_BYTES - COLOR_FOOTER_BYTES < filler {
+        if !header_ok
+            || packet_size != n
+            || seq != footer_seq
+            || n - COLOR_HEADER_BYTES - COLOR_FOOTER_BYTES < filler
+        {
             self.buf.clear();
             self.stats.dropped += 1;
             return None;
@@ -340,12 +365,23 @@ pub fn build_color_packet(jpeg: &[u8], meta: &ColorMeta, pad: usize, filler: usi
 /// Splits a raw frame into isochronous packets the way the device does: per sub-packet
 /// (data + footer) packets of `max_packet` bytes, the last one shorter, followed by
 /// `gaps[s]` zero-length packets.
-pub fn packetize_depth_frame(raw: &[u8], sequence: u32, timestamp: u32, max_packet: usize, gaps: [usize; SUB_IMAGES]) -> Vec<Vec<u8>> {
+pub fn packetize_depth_frame(
+    raw: &[u8],
+    sequence: u32,
+    timestamp: u32,
+    max_packet: usize,
+    gaps: [usize; SUB_IMAGES],
+) -> Vec<Vec<u8>> {
     let mut out = Vec::new();
     for s in 0..SUB_IMAGES {
         let mut sub = Vec::with_capacity(DEPTH_SUBPACKET_BYTES);
         sub.extend_from_slice(&raw[s * SUB_IMAGE_BYTES..][..SUB_IMAGE_BYTES]);
-        let f = DepthFooter { timestamp, sequence, subsequence: s as u32, length: SUB_IMAGE_BYTES as u32 };
+        let f = DepthFooter {
+            timestamp,
+            sequence,
+            subsequence: s as u32,
+            length: SUB_IMAGE_BYTES as u32,
+        };
         sub.extend_from_slice(&f.to_bytes());
         for chunk in sub.chunks(max_packet.max(1)) {
             out.push(chunk.to_vec());

@@ -41,7 +41,11 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
 pub fn read_f32(path: &Path) -> Result<Vec<f32>> {
     let b = read_bytes(path)?;
     if b.len() % 4 != 0 {
-        return Err(KinectError::Size { what: path.display().to_string(), expected: b.len() / 4 * 4, got: b.len() });
+        return Err(KinectError::Size {
+            what: path.display().to_string(),
+            expected: b.len() / 4 * 4,
+            got: b.len(),
+        });
     }
     Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
 }

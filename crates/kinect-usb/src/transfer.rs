@@ -17,8 +17,8 @@ use std::time::{Duration, Instant};
 
 use rusb::ffi;
 use rusb::ffi::constants::{
-    LIBUSB_TRANSFER_CANCELLED, LIBUSB_TRANSFER_COMPLETED, LIBUSB_TRANSFER_NO_DEVICE, LIBUSB_TRANSFER_TIMED_OUT,
-    LIBUSB_TRANSFER_TYPE_ISOCHRONOUS,
+    LIBUSB_TRANSFER_CANCELLED, LIBUSB_TRANSFER_COMPLETED, LIBUSB_TRANSFER_NO_DEVICE,
+    LIBUSB_TRANSFER_TIMED_OUT, LIBUSB_TRANSFER_TYPE_ISOCHRONOUS,
 };
 
 use crate::backend::{StopReason, StreamEvent, StreamHandle, XferStatus};
@@ -77,7 +77,11 @@ fn disposition(status: c_int, stopping: bool) -> Disposition {
 /// Why a stream stops when resubmission returned libusb error `rc` (spec §5.5 [QUIRK]: the
 /// reference silently lets the stream die; kfuse reports it).
 fn resubmit_failure(rc: c_int) -> StopReason {
-    if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE { StopReason::Disconnected } else { StopReason::Stalled }
+    if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE {
+        StopReason::Disconnected
+    } else {
+        StopReason::Stalled
+    }
 }
 
 /// One isochronous packet descriptor as libusb reports it on completion.
@@ -114,7 +118,11 @@ fn iso_events(buffer: &[u8], descs: &[IsoDesc], packet_size: usize) -> Vec<Strea
 /// completed, nothing otherwise.
 fn bulk_event(status: c_int, buffer: &[u8], actual_length: c_int) -> StreamEvent {
     let status = status_of(status);
-    let data = if status == XferStatus::Completed { buffer[..(actual_length.max(0) as usize).min(buffer.len())].to_vec() } else { Vec::new() };
+    let data = if status == XferStatus::Completed {
+        buffer[..(actual_length.max(0) as usize).min(buffer.len())].to_vec()
+    } else {
+        Vec::new()
+    };
     StreamEvent::Bulk { status, data }
 }
 
@@ -124,7 +132,11 @@ fn bulk_event(status: c_int, buffer: &[u8], actual_length: c_int) -> StreamEvent
 /// `tr.buffer` must point to `tr.length` readable bytes and, for an isochronous transfer,
 /// `tr.num_iso_packets` descriptors must follow the struct (as `libusb_alloc_transfer(n)`
 /// with `n ≥ num_iso_packets` provides).
-unsafe fn transfer_events(tr: &ffi::libusb_transfer, iso: bool, packet_size: usize) -> Vec<StreamEvent> {
+unsafe fn transfer_events(
+    tr: &ffi::libusb_transfer,
+    iso: bool,
+    packet_size: usize,
+) -> Vec<StreamEvent> {
     let len = tr.length.max(0) as usize;
     let buffer: &[u8] = if tr.buffer.is_null() || len == 0 {
         &[]
@@ -136,7 +148,10 @@ unsafe fn transfer_events(tr: &ffi::libusb_transfer, iso: bool, packet_size: usi
         let n = tr.num_iso_packets.max(0) as usize;
         // SAFETY: the caller guarantees `n` descriptors in the flexible array member.
         let descs = unsafe { std::slice::from_raw_parts(tr.iso_packet_desc.as_ptr(), n) };
-        let descs: Vec<IsoDesc> = descs.iter().map(|d| IsoDesc { status: d.status, actual_length: d.actual_length }).collect();
+        let descs: Vec<IsoDesc> = descs
+            .iter()
+            .map(|d| IsoDesc { status: d.status, actual_length: d.actual_length })
+            .collect();
         iso_events(buffer, &descs, packet_size)
     } else {
         vec![bulk_event(tr.status, buffer, tr.actual_length)]
@@ -191,6 +206,7 @@ unsafe impl Send for TransferPool {}
 impl TransferPool {
     /// Allocates and submits `count` transfers on `endpoint`: isochronous with `packets` ×
     /// `packet_size` bytes, or bulk of `packet_size` bytes when `packets == 0`.
+    #[allow(clippy::too_many_arguments)] // mirrors libusb's transfer fields one to one
     pub(crate) fn start(
         dev: *mut ffi::libusb_device_handle,
         endpoint: u8,
@@ -224,13 +240,32 @@ impl TransferPool {
             // the pool (boxed, never moved) as long as the transfer.
             unsafe {
                 if packets > 0 {
-                    ffi::libusb_fill_iso_transfer(t, dev, endpoint, buf.as_mut_ptr(), len as c_int, packets as c_int, on_complete, user, timeout.as_millis() as c_uint);
+                    ffi::libusb_fill_iso_transfer(
+                        t,
+                        dev,
+                        endpoint,
+                        buf.as_mut_ptr(),
+                        len as c_int,
+                        packets as c_int,
+                        on_complete,
+                        user,
+                        timeout.as_millis() as c_uint,
+                    );
                     for i in 0..packets {
                         (*(*t).iso_packet_desc.as_mut_ptr().add(i)).length = packet_size as c_uint;
                     }
                     debug_assert_eq!((*t).transfer_type, LIBUSB_TRANSFER_TYPE_ISOCHRONOUS);
                 } else {
-                    ffi::libusb_fill_bulk_transfer(t, dev, endpoint, buf.as_mut_ptr(), len as c_int, on_complete, user, timeout.as_millis() as c_uint);
+                    ffi::libusb_fill_bulk_transfer(
+                        t,
+                        dev,
+                        endpoint,
+                        buf.as_mut_ptr(),
+                        len as c_int,
+                        on_complete,
+                        user,
+                        timeout.as_millis() as c_uint,
+                    );
                 }
             }
             pool.transfers.push(t);
@@ -243,7 +278,11 @@ impl TransferPool {
             if rc != 0 {
                 pool.shared.in_flight.fetch_sub(1, Ordering::SeqCst);
                 pool.stop(Duration::from_secs(2));
-                return Err(if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE { UsbError::NoDevice } else { UsbError::Io });
+                return Err(if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE {
+                    UsbError::NoDevice
+                } else {
+                    UsbError::Io
+                });
             }
         }
         Ok(pool)
@@ -293,7 +332,9 @@ mod tests {
     use super::*;
     use crate::raw::RAW_FRAME_BYTES;
     use crate::stream::{DepthAssembler, packetize_depth_frame};
-    use rusb::ffi::constants::{LIBUSB_ERROR_IO, LIBUSB_TRANSFER_ERROR, LIBUSB_TRANSFER_OVERFLOW, LIBUSB_TRANSFER_STALL};
+    use rusb::ffi::constants::{
+        LIBUSB_ERROR_IO, LIBUSB_TRANSFER_ERROR, LIBUSB_TRANSFER_OVERFLOW, LIBUSB_TRANSFER_STALL,
+    };
 
     const OK: c_int = LIBUSB_TRANSFER_COMPLETED;
 
@@ -309,7 +350,8 @@ mod tests {
     #[test]
     fn iso_events_use_nominal_offsets_and_statuses() {
         let buf: Vec<u8> = (0..64u8).collect();
-        let descs = [d(OK, 16), d(LIBUSB_TRANSFER_ERROR, 16), d(OK, 5), d(LIBUSB_TRANSFER_TIMED_OUT, 16)];
+        let descs =
+            [d(OK, 16), d(LIBUSB_TRANSFER_ERROR, 16), d(OK, 5), d(LIBUSB_TRANSFER_TIMED_OUT, 16)];
         let ev = iso_events(&buf, &descs, 16);
         assert_eq!(
             ev,
@@ -322,8 +364,23 @@ mod tests {
             ]
         );
         // Stall, overflow and cancelled map to Error / Cancelled without data.
-        let ev = iso_events(&buf, &[d(LIBUSB_TRANSFER_STALL, 3), d(LIBUSB_TRANSFER_OVERFLOW, 3), d(LIBUSB_TRANSFER_CANCELLED, 3)], 16);
-        assert_eq!(ev, [iso(XferStatus::Error, &[]), iso(XferStatus::Error, &[]), iso(XferStatus::Cancelled, &[])]);
+        let ev = iso_events(
+            &buf,
+            &[
+                d(LIBUSB_TRANSFER_STALL, 3),
+                d(LIBUSB_TRANSFER_OVERFLOW, 3),
+                d(LIBUSB_TRANSFER_CANCELLED, 3),
+            ],
+            16,
+        );
+        assert_eq!(
+            ev,
+            [
+                iso(XferStatus::Error, &[]),
+                iso(XferStatus::Error, &[]),
+                iso(XferStatus::Cancelled, &[])
+            ]
+        );
         // Zero-length completed packets (the gaps between depth sub-packets) stay empty.
         assert_eq!(iso_events(&buf, &[d(OK, 0)], 16), [iso(XferStatus::Completed, &[])]);
     }
@@ -352,11 +409,26 @@ mod tests {
     #[test]
     fn bulk_event_takes_actual_length() {
         let buf: Vec<u8> = (0..10u8).collect();
-        assert_eq!(bulk_event(OK, &buf, 4), StreamEvent::Bulk { status: XferStatus::Completed, data: vec![0, 1, 2, 3] });
-        assert_eq!(bulk_event(OK, &buf, 99), StreamEvent::Bulk { status: XferStatus::Completed, data: buf.clone() });
-        assert_eq!(bulk_event(OK, &buf, -1), StreamEvent::Bulk { status: XferStatus::Completed, data: vec![] });
-        assert_eq!(bulk_event(LIBUSB_TRANSFER_ERROR, &buf, 4), StreamEvent::Bulk { status: XferStatus::Error, data: vec![] });
-        assert_eq!(bulk_event(LIBUSB_TRANSFER_TIMED_OUT, &buf, 4), StreamEvent::Bulk { status: XferStatus::TimedOut, data: vec![] });
+        assert_eq!(
+            bulk_event(OK, &buf, 4),
+            StreamEvent::Bulk { status: XferStatus::Completed, data: vec![0, 1, 2, 3] }
+        );
+        assert_eq!(
+            bulk_event(OK, &buf, 99),
+            StreamEvent::Bulk { status: XferStatus::Completed, data: buf.clone() }
+        );
+        assert_eq!(
+            bulk_event(OK, &buf, -1),
+            StreamEvent::Bulk { status: XferStatus::Completed, data: vec![] }
+        );
+        assert_eq!(
+            bulk_event(LIBUSB_TRANSFER_ERROR, &buf, 4),
+            StreamEvent::Bulk { status: XferStatus::Error, data: vec![] }
+        );
+        assert_eq!(
+            bulk_event(LIBUSB_TRANSFER_TIMED_OUT, &buf, 4),
+            StreamEvent::Bulk { status: XferStatus::TimedOut, data: vec![] }
+        );
     }
 
     #[test]
@@ -368,7 +440,10 @@ mod tests {
         for s in [OK, LIBUSB_TRANSFER_ERROR, LIBUSB_TRANSFER_TIMED_OUT, LIBUSB_TRANSFER_STALL] {
             assert_eq!(disposition(s, false), Disposition::Deliver, "{s}");
         }
-        assert_eq!(resubmit_failure(ffi::constants::LIBUSB_ERROR_NO_DEVICE), StopReason::Disconnected);
+        assert_eq!(
+            resubmit_failure(ffi::constants::LIBUSB_ERROR_NO_DEVICE),
+            StopReason::Disconnected
+        );
         assert_eq!(resubmit_failure(LIBUSB_ERROR_IO), StopReason::Stalled);
     }
 
@@ -381,11 +456,21 @@ mod tests {
     fn real_transfer_structs_reassemble_frames() {
         const PACKETS: usize = 8;
         const PS: usize = 33_792;
-        let frames: Vec<Vec<u8>> = (0..3u32).map(|f| (0..RAW_FRAME_BYTES).map(|i| ((i * 7 + f as usize * 101) % 251) as u8).collect()).collect();
+        let frames: Vec<Vec<u8>> = (0..3u32)
+            .map(|f| {
+                (0..RAW_FRAME_BYTES).map(|i| ((i * 7 + f as usize * 101) % 251) as u8).collect()
+            })
+            .collect();
         // (status, bytes) per descriptor slot.
         let mut slots: Vec<(c_int, Vec<u8>)> = Vec::new();
         for (f, raw) in frames.iter().enumerate() {
-            let packets = packetize_depth_frame(raw, f as u32, 1000 + 267 * f as u32, PS, [1, 2, 3, 1, 2, 3, 1, 2, 3, 1]);
+            let packets = packetize_depth_frame(
+                raw,
+                f as u32,
+                1000 + 267 * f as u32,
+                PS,
+                [1, 2, 3, 1, 2, 3, 1, 2, 3, 1],
+            );
             for (k, p) in packets.into_iter().enumerate() {
                 if f == 1 && k == 20 {
                     slots.push((LIBUSB_TRANSFER_ERROR, vec![0xEE; PS]));
@@ -424,7 +509,10 @@ mod tests {
                 match ev {
                     StreamEvent::IsoPacket { status: XferStatus::Completed, data } => {
                         if let Some(f) = asm.push(&data) {
-                            got.push((f.sequence, f.data == frames[f.sequence as usize].as_slice()));
+                            got.push((
+                                f.sequence,
+                                f.data == frames[f.sequence as usize].as_slice(),
+                            ));
                         }
                     }
                     StreamEvent::IsoPacket { .. } => errors += 1,

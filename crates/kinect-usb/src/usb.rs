@@ -64,7 +64,8 @@ fn kinects(ctx: &rusb::Context) -> Result<Vec<(rusb::Device<rusb::Context>, u16)
         .iter()
         .filter_map(|d| {
             let desc = d.device_descriptor().ok()?;
-            (desc.vendor_id() == VENDOR_ID && PRODUCT_IDS.contains(&desc.product_id())).then_some((d, desc.product_id()))
+            (desc.vendor_id() == VENDOR_ID && PRODUCT_IDS.contains(&desc.product_id()))
+                .then_some((d, desc.product_id()))
         })
         .collect())
 }
@@ -112,9 +113,22 @@ pub struct RusbBackend {
 }
 
 impl RusbBackend {
-    fn new(ctx: rusb::Context, device: rusb::Device<rusb::Context>, handle: rusb::DeviceHandle<rusb::Context>) -> Self {
+    fn new(
+        ctx: rusb::Context,
+        device: rusb::Device<rusb::Context>,
+        handle: rusb::DeviceHandle<rusb::Context>,
+    ) -> Self {
         let (tx, rx) = mpsc::channel();
-        RusbBackend { ctx, device, handle, tx, rx, pools: HashMap::new(), next_handle: 1, events: None }
+        RusbBackend {
+            ctx,
+            device,
+            handle,
+            tx,
+            rx,
+            pools: HashMap::new(),
+            next_handle: 1,
+            events: None,
+        }
     }
 
     fn ensure_event_thread(&mut self) {
@@ -166,13 +180,31 @@ impl UsbBackend for RusbBackend {
     fn set_alt(&mut self, iface: u8, alt: u8) -> std::result::Result<(), UsbError> {
         self.handle.set_alternate_setting(iface, alt).map_err(map_err)
     }
-    fn control_out(&mut self, req_type: u8, req: u8, value: u16, index: u16, data: &[u8], timeout: Duration) -> std::result::Result<usize, UsbError> {
+    fn control_out(
+        &mut self,
+        req_type: u8,
+        req: u8,
+        value: u16,
+        index: u16,
+        data: &[u8],
+        timeout: Duration,
+    ) -> std::result::Result<usize, UsbError> {
         self.handle.write_control(req_type, req, value, index, data, timeout).map_err(map_err)
     }
-    fn bulk_out(&mut self, ep: u8, data: &[u8], timeout: Duration) -> std::result::Result<usize, UsbError> {
+    fn bulk_out(
+        &mut self,
+        ep: u8,
+        data: &[u8],
+        timeout: Duration,
+    ) -> std::result::Result<usize, UsbError> {
         self.handle.write_bulk(ep, data, timeout).map_err(map_err)
     }
-    fn bulk_in(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> std::result::Result<usize, UsbError> {
+    fn bulk_in(
+        &mut self,
+        ep: u8,
+        buf: &mut [u8],
+        timeout: Duration,
+    ) -> std::result::Result<usize, UsbError> {
         self.handle.read_bulk(ep, buf, timeout).map_err(map_err)
     }
     fn clear_halt(&mut self, ep: u8) -> std::result::Result<(), UsbError> {
@@ -190,7 +222,8 @@ impl UsbBackend for RusbBackend {
                         if len == 0 {
                             break;
                         }
-                        if extra[i + 1] == SS_ENDPOINT_COMPANION && len >= 6 && i + 6 <= extra.len() {
+                        if extra[i + 1] == SS_ENDPOINT_COMPANION && len >= 6 && i + 6 <= extra.len()
+                        {
                             return Ok(u16::from_le_bytes([extra[i + 4], extra[i + 5]]) as u32);
                         }
                         i += len;
@@ -206,22 +239,45 @@ impl UsbBackend for RusbBackend {
         self.next_handle += 1;
         let raw = self.handle.as_raw();
         let pool = match spec {
-            StreamSpec::Iso { ep, transfers, packets, packet_size } => {
-                TransferPool::start(raw, ep, transfers, packets.max(1), packet_size, h, self.tx.clone(), STREAM_TIMEOUT)?
-            }
-            StreamSpec::Bulk { ep, transfers, size } => TransferPool::start(raw, ep, transfers, 0, size, h, self.tx.clone(), STREAM_TIMEOUT)?,
+            StreamSpec::Iso { ep, transfers, packets, packet_size } => TransferPool::start(
+                raw,
+                ep,
+                transfers,
+                packets.max(1),
+                packet_size,
+                h,
+                self.tx.clone(),
+                STREAM_TIMEOUT,
+            )?,
+            StreamSpec::Bulk { ep, transfers, size } => TransferPool::start(
+                raw,
+                ep,
+                transfers,
+                0,
+                size,
+                h,
+                self.tx.clone(),
+                STREAM_TIMEOUT,
+            )?,
         };
         self.pools.insert(h, pool);
         Ok(h)
     }
-    fn next_event(&mut self, timeout: Duration) -> std::result::Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+    fn next_event(
+        &mut self,
+        timeout: Duration,
+    ) -> std::result::Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
         match self.rx.recv_timeout(timeout) {
             Ok(ev) => Ok(Some(ev)),
             Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => Err(UsbError::Io),
         }
     }
-    fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> std::result::Result<(), UsbError> {
+    fn stop_stream(
+        &mut self,
+        h: StreamHandle,
+        max_wait: Duration,
+    ) -> std::result::Result<(), UsbError> {
         if let Some(mut pool) = self.pools.remove(&h) {
             let done = pool.stop(max_wait);
             drop(pool);

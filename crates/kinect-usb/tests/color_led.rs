@@ -9,13 +9,27 @@ use kinect_usb::backend::UsbBackend;
 use kinect_usb::device::{Frame, KinectDevice, State};
 use kinect_usb::error::UsbError;
 use kinect_usb::params::DepthParams;
-use kinect_usb::protocol::{self, ColorSettingCode, Command, Exposure, ExposureMode, LedMode, LedSetting, ep};
-use kinect_usb::sim::{SIM_STATUS_INVALID_VALUE, SIM_STATUS_UNKNOWN_CODE, SimDevice, SimFaults, SimProfile, SimScene};
+use kinect_usb::protocol::{
+    self, ColorSettingCode, Command, Exposure, ExposureMode, LedMode, LedSetting, ep,
+};
+use kinect_usb::sim::{
+    SIM_STATUS_INVALID_VALUE, SIM_STATUS_UNKNOWN_CODE, SimDevice, SimFaults, SimProfile, SimScene,
+};
 
 const T: Duration = Duration::from_secs(1);
 
 fn profile() -> SimProfile {
-    let depth = DepthParams { fx: 365.0, fy: 365.0, cx: 255.5, cy: 211.5, k1: 0.0, k2: 0.0, k3: 0.0, p1: 0.0, p2: 0.0 };
+    let depth = DepthParams {
+        fx: 365.0,
+        fy: 365.0,
+        cx: 255.5,
+        cy: 211.5,
+        k1: 0.0,
+        k2: 0.0,
+        k3: 0.0,
+        p1: 0.0,
+        p2: 0.0,
+    };
     SimProfile::synthetic(depth, 1060.0)
 }
 
@@ -27,7 +41,11 @@ fn fake_jpeg(n: usize) -> Vec<u8> {
 }
 
 fn sim(faults: SimFaults) -> SimDevice {
-    SimDevice::new(profile(), SimScene { depth_frames: vec![], color_jpegs: vec![fake_jpeg(5_000)] }, faults)
+    SimDevice::new(
+        profile(),
+        SimScene { depth_frames: vec![], color_jpegs: vec![fake_jpeg(5_000)] },
+        faults,
+    )
 }
 
 fn started(faults: SimFaults) -> KinectDevice<SimDevice> {
@@ -38,7 +56,12 @@ fn started(faults: SimFaults) -> KinectDevice<SimDevice> {
 
 /// The 0x3E / 0x4B lines of the transcript.
 fn setting_lines(dev: &KinectDevice<SimDevice>) -> Vec<String> {
-    dev.backend().transcript.iter().filter(|l| l.starts_with("cmd 0x3e") || l.starts_with("cmd 0x4b seq 0 ")).cloned().collect()
+    dev.backend()
+        .transcript
+        .iter()
+        .filter(|l| l.starts_with("cmd 0x3e") || l.starts_with("cmd 0x4b seq 0 "))
+        .cloned()
+        .collect()
 }
 
 /// Manual exposure: every 0x3E goes out with sequence 0, the counter is the same before and
@@ -70,7 +93,11 @@ fn manual_exposure_round_trips_with_sequence_zero() {
     );
     // The next sequenced command continues the counter where start left it.
     dev.command(Command::ReadStatus(protocol::STATUS_REGISTER)).unwrap();
-    assert!(dev.backend().transcript.last().unwrap().starts_with("cmd 0x16 seq 13 "), "{:?}", dev.backend().transcript.last());
+    assert!(
+        dev.backend().transcript.last().unwrap().starts_with("cmd 0x16 seq 13 "),
+        "{:?}",
+        dev.backend().transcript.last()
+    );
     assert_eq!(dev.sequence(), 14);
     dev.close().unwrap();
     assert!(dev.backend().violations.is_empty(), "{:?}", dev.backend().violations);
@@ -104,8 +131,13 @@ fn auto_and_semi_auto_presets_and_other_getters() {
 fn bad_values_are_rejected_by_host_and_by_device() {
     let mut dev = started(SimFaults::default());
     let n = dev.backend().transcript.len();
-    let e = dev.set_exposure(Exposure::Manual { integration_ms: 20.0, analog_gain: 5.0 }).unwrap_err();
-    assert!(matches!(e, KinectError::Invalid(_)) && e.to_string().contains("analog gain 5 is outside [1, 4]"), "{e}");
+    let e =
+        dev.set_exposure(Exposure::Manual { integration_ms: 20.0, analog_gain: 5.0 }).unwrap_err();
+    assert!(
+        matches!(e, KinectError::Invalid(_))
+            && e.to_string().contains("analog gain 5 is outside [1, 4]"),
+        "{e}"
+    );
     let e = dev.set_exposure(Exposure::Auto { compensation: 3.0 }).unwrap_err();
     assert!(e.to_string().contains("compensation 3 is outside [-2, 2]"), "{e}");
     assert!(dev.set_rgb_gains(1.0, -1.0, 1.0).is_err());
@@ -128,7 +160,10 @@ fn bad_values_are_rejected_by_host_and_by_device() {
     assert!(matches!(e, KinectError::Rejected { status: SIM_STATUS_INVALID_VALUE, .. }), "{e}");
     // A code the spec does not list, sent raw.
     let data = dev.command(Command::ColorSetting { code: 5, value: 0 }).unwrap();
-    assert_eq!(protocol::parse_color_setting_response(&data).unwrap().status, SIM_STATUS_UNKNOWN_CODE);
+    assert_eq!(
+        protocol::parse_color_setting_response(&data).unwrap().status,
+        SIM_STATUS_UNKNOWN_CODE
+    );
     assert_eq!(dev.sequence(), 13);
     assert!(dev.backend().violations.is_empty(), "{:?}", dev.backend().violations);
 }
@@ -163,11 +198,17 @@ fn led_api_uses_sequence_zero_and_is_recorded() {
     dev.set_led(LedSetting::on(1, 600)).unwrap();
     assert_eq!(dev.sequence(), 13);
     assert_eq!(dev.backend().led(0), Some(blink));
-    assert_eq!(dev.backend().led(1).map(|l| (l.mode, l.start_level)), Some((LedMode::Constant, 600)));
+    assert_eq!(
+        dev.backend().led(1).map(|l| (l.mode, l.start_level)),
+        Some((LedMode::Constant, 600))
+    );
     assert_eq!(dev.backend().led_api_log(), &[blink, LedSetting::on(1, 600)]);
     assert_eq!(
         setting_lines(&dev),
-        ["cmd 0x4b seq 0 [65536, 1000, 250, 0]".to_string(), format!("cmd 0x4b seq 0 [1, {}, 0, 0]", 600 | (600 << 16))]
+        [
+            "cmd 0x4b seq 0 [65536, 1000, 250, 0]".to_string(),
+            format!("cmd 0x4b seq 0 [1, {}, 0, 0]", 600 | (600 << 16))
+        ]
     );
     // Invalid settings never leave the host.
     let n = dev.backend().transcript.len();
@@ -193,7 +234,8 @@ fn led_before_start_keeps_start_sequence_at_zero() {
     dev.set_led(LedSetting::on(0, 1000)).unwrap();
     dev.set_led(LedSetting::off(0)).unwrap();
     dev.start(true, false).unwrap();
-    let cmds: Vec<&String> = dev.backend().transcript.iter().filter(|l| l.starts_with("cmd")).collect();
+    let cmds: Vec<&String> =
+        dev.backend().transcript.iter().filter(|l| l.starts_with("cmd")).collect();
     assert_eq!(cmds[0], &format!("cmd 0x4b seq 0 [0, {}, 0, 0]", 1000 | (1000 << 16)));
     assert_eq!(cmds[1], "cmd 0x4b seq 0 [0, 0, 0, 0]");
     assert_eq!(cmds[2], "cmd 0x02 seq 0 []");
@@ -206,11 +248,20 @@ fn led_before_start_keeps_start_sequence_at_zero() {
 fn sim_rejects_invalid_led_words_in_completion_status() {
     let mut s = sim(SimFaults::default());
     s.claim(0).unwrap();
-    let bad = LedSetting { id: 0, mode: LedMode::Constant, start_level: 2000, stop_level: 0, interval_ms: 0 };
+    let bad = LedSetting {
+        id: 0,
+        mode: LedMode::Constant,
+        start_level: 2000,
+        stop_level: 0,
+        interval_ms: 0,
+    };
     s.bulk_out(ep::COMMAND_OUT, &Command::Led(bad).encode(0), T).unwrap();
     let mut c = [0u8; 16];
     let n = s.bulk_in(ep::COMMAND_IN, &mut c, T).unwrap();
-    assert_eq!(protocol::parse_completion_status(&c[..n], "led").unwrap(), (0, SIM_STATUS_INVALID_VALUE));
+    assert_eq!(
+        protocol::parse_completion_status(&c[..n], "led").unwrap(),
+        (0, SIM_STATUS_INVALID_VALUE)
+    );
     assert!(s.led_api_log().is_empty());
 }
 

@@ -8,18 +8,83 @@ use kinect_usb::testdata::{read_bytes, read_f32, vectors_or_skip};
 /// (frame, bilateral, edge_aware, xtable, ztable, depth oracle, ir oracle) — the manifest's
 /// `oracle_runs`.
 const RUNS: &[(&str, bool, bool, &str, &str, &str, &str)] = &[
-    ("frames/scene.raw", true, true, "tables/xtable.f32", "tables/ztable.f32", "oracle/scene_filt_depth.f32", "oracle/scene_ir.f32"),
-    ("frames/scene.raw", false, false, "tables/xtable.f32", "tables/ztable.f32", "oracle/scene_nofilt_depth.f32", "oracle/scene_ir.f32"),
-    ("frames/scene.raw", true, false, "tables/xtable.f32", "tables/ztable.f32", "oracle/scene_bilonly_depth.f32", "oracle/scene_ir.f32"),
-    ("frames/random.raw", false, false, "tables/xtable.f32", "tables/ztable.f32", "oracle/random_nofilt_depth.f32", "oracle/random_ir.f32"),
-    ("frames/edge_cases.raw", true, true, "tables/xtable.f32", "tables/ztable.f32", "oracle/edge_cases_filt_depth.f32", "oracle/edge_cases_ir.f32"),
-    ("frames/edge_cases.raw", false, false, "tables/xtable.f32", "tables/ztable.f32", "oracle/edge_cases_nofilt_depth.f32", "oracle/edge_cases_ir.f32"),
-    ("frames/scene_realtables.raw", true, true, "real/libfreenect2-history/xTable.bin", "real/libfreenect2-history/zTable.bin", "oracle/scene_realtables_filt_depth.f32", "oracle/scene_realtables_ir.f32"),
-    ("frames/scene_realtables.raw", false, false, "real/libfreenect2-history/xTable.bin", "real/libfreenect2-history/zTable.bin", "oracle/scene_realtables_nofilt_depth.f32", "oracle/scene_realtables_ir.f32"),
+    (
+        "frames/scene.raw",
+        true,
+        true,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/scene_filt_depth.f32",
+        "oracle/scene_ir.f32",
+    ),
+    (
+        "frames/scene.raw",
+        false,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/scene_nofilt_depth.f32",
+        "oracle/scene_ir.f32",
+    ),
+    (
+        "frames/scene.raw",
+        true,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/scene_bilonly_depth.f32",
+        "oracle/scene_ir.f32",
+    ),
+    (
+        "frames/random.raw",
+        false,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/random_nofilt_depth.f32",
+        "oracle/random_ir.f32",
+    ),
+    (
+        "frames/edge_cases.raw",
+        true,
+        true,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/edge_cases_filt_depth.f32",
+        "oracle/edge_cases_ir.f32",
+    ),
+    (
+        "frames/edge_cases.raw",
+        false,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/edge_cases_nofilt_depth.f32",
+        "oracle/edge_cases_ir.f32",
+    ),
+    (
+        "frames/scene_realtables.raw",
+        true,
+        true,
+        "real/libfreenect2-history/xTable.bin",
+        "real/libfreenect2-history/zTable.bin",
+        "oracle/scene_realtables_filt_depth.f32",
+        "oracle/scene_realtables_ir.f32",
+    ),
+    (
+        "frames/scene_realtables.raw",
+        false,
+        false,
+        "real/libfreenect2-history/xTable.bin",
+        "real/libfreenect2-history/zTable.bin",
+        "oracle/scene_realtables_nofilt_depth.f32",
+        "oracle/scene_realtables_ir.f32",
+    ),
 ];
 
 fn mismatches(got: &[f32], want: &[f32]) -> (usize, usize) {
-    let first = got.iter().zip(want).position(|(a, b)| a.to_bits() != b.to_bits()).unwrap_or(usize::MAX);
+    let first =
+        got.iter().zip(want).position(|(a, b)| a.to_bits() != b.to_bits()).unwrap_or(usize::MAX);
     (got.iter().zip(want).filter(|(a, b)| a.to_bits() != b.to_bits()).count(), first)
 }
 
@@ -29,7 +94,9 @@ fn mismatches(got: &[f32], want: &[f32]) -> (usize, usize) {
 #[test]
 fn decoder_matches_every_oracle_run_bit_for_bit() {
     let Some(dir) = vectors_or_skip("decoder_matches_every_oracle_run_bit_for_bit") else { return };
-    let p0 = P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap()).unwrap();
+    let p0 =
+        P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap())
+            .unwrap();
     let mut depth = vec![0f32; PIXELS];
     let mut ir = vec![0f32; PIXELS];
     let mut failures = Vec::new();
@@ -37,10 +104,15 @@ fn decoder_matches_every_oracle_run_bit_for_bit() {
     // Both the row-band (parallel) and the single-band (sequential) schedule.
     for parallel in [true, false] {
         for &(frame, bil, edge, xt, zt, dref, iref) in RUNS {
-            let xz = XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap()).unwrap();
+            let xz = XzTables::from_vecs(
+                read_f32(&dir.join(xt)).unwrap(),
+                read_f32(&dir.join(zt)).unwrap(),
+            )
+            .unwrap();
             let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel };
-            let mut dec =
-                DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap().with_precision(DecoderPrecision::Exact);
+            let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0)
+                .unwrap()
+                .with_precision(DecoderPrecision::Exact);
             let raw = read_bytes(&dir.join(frame)).unwrap();
             dec.decode(&raw, &mut depth, &mut ir).unwrap();
             for (name, got, path) in [("depth", &depth, dref), ("ir", &ir, iref)] {
@@ -113,16 +185,24 @@ fn depth_diff(got: &[f32], want: &[f32]) -> DepthDiff {
 /// difference, 0.003 mm, is a few f32 ulp at these depths.
 #[test]
 fn fast_decoder_within_spec_tolerance_of_every_oracle_run() {
-    let Some(dir) = vectors_or_skip("fast_decoder_within_spec_tolerance_of_every_oracle_run") else { return };
-    let p0 = P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap()).unwrap();
+    let Some(dir) = vectors_or_skip("fast_decoder_within_spec_tolerance_of_every_oracle_run")
+    else {
+        return;
+    };
+    let p0 =
+        P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap())
+            .unwrap();
     let mut depth = vec![0f32; PIXELS];
     let mut ir = vec![0f32; PIXELS];
     let mut failures = Vec::new();
     for &(frame, bil, edge, xt, zt, dref, iref) in RUNS {
-        let xz = XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap()).unwrap();
+        let xz =
+            XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap())
+                .unwrap();
         let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel: true };
-        let mut dec =
-            DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap().with_precision(DecoderPrecision::Fast);
+        let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0)
+            .unwrap()
+            .with_precision(DecoderPrecision::Fast);
         dec.decode(&read_bytes(&dir.join(frame)).unwrap(), &mut depth, &mut ir).unwrap();
         let d = depth_diff(&depth, &read_f32(&dir.join(dref)).unwrap());
         eprintln!(
@@ -131,7 +211,10 @@ fn fast_decoder_within_spec_tolerance_of_every_oracle_run() {
             100.0 * d.bit_identical,
             d.flips
         );
-        if !(d.max_abs_mm <= MAX_DEPTH_DIFF_MM && d.flips <= MAX_VALIDITY_FLIPS && d.bit_identical >= MIN_BIT_IDENTICAL) {
+        if !(d.max_abs_mm <= MAX_DEPTH_DIFF_MM
+            && d.flips <= MAX_VALIDITY_FLIPS
+            && d.bit_identical >= MIN_BIT_IDENTICAL)
+        {
             failures.push(format!(
                 "{dref}: max |Δ| {} mm (bar {MAX_DEPTH_DIFF_MM}), {} flips (bar {MAX_VALIDITY_FLIPS}), {:.4} bit-identical (bar {MIN_BIT_IDENTICAL})",
                 d.max_abs_mm, d.flips, d.bit_identical
@@ -157,17 +240,28 @@ fn avx2_kernels_equal_the_portable_kernels_bit_for_bit() {
         eprintln!("SKIP {test}: this CPU has no AVX2 (only the portable kernels run here)");
         return;
     }
-    let p0 = P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap()).unwrap();
-    let mut out = [[vec![0f32; PIXELS], vec![0f32; PIXELS]], [vec![0f32; PIXELS], vec![0f32; PIXELS]]];
+    let p0 =
+        P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap())
+            .unwrap();
+    let mut out =
+        [[vec![0f32; PIXELS], vec![0f32; PIXELS]], [vec![0f32; PIXELS], vec![0f32; PIXELS]]];
     let mut failures = Vec::new();
     let mut compared = 0;
     for parallel in [true, false] {
         for &(frame, bil, edge, xt, zt, dref, _) in RUNS {
-            let xz = XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap()).unwrap();
+            let xz = XzTables::from_vecs(
+                read_f32(&dir.join(xt)).unwrap(),
+                read_f32(&dir.join(zt)).unwrap(),
+            )
+            .unwrap();
             let raw = read_bytes(&dir.join(frame)).unwrap();
             let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel };
-            for (kernels, [depth, ir]) in [Kernels::Portable, Kernels::Avx2].into_iter().zip(out.iter_mut()) {
-                let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap().with_kernels(kernels);
+            for (kernels, [depth, ir]) in
+                [Kernels::Portable, Kernels::Avx2].into_iter().zip(out.iter_mut())
+            {
+                let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0)
+                    .unwrap()
+                    .with_kernels(kernels);
                 assert_eq!(dec.kernels(), kernels);
                 dec.decode(&raw, depth, ir).unwrap();
             }

@@ -2,12 +2,12 @@
 
 use std::path::Path;
 
+use kinect_usb::raw::SUB_IMAGE_BYTES;
 use kinect_usb::raw::{PIXELS, RAW_FRAME_BYTES, pack_frame, unpack_sub_image};
 use kinect_usb::recording::read_recording;
 use kinect_usb::stream::{
     ColorAssembler, ColorMeta, DEPTH_FOOTER_BYTES, DepthAssembler, DepthFooter, build_color_packet,
 };
-use kinect_usb::raw::SUB_IMAGE_BYTES;
 use proptest::prelude::*;
 
 fn frame_with(tag: u8) -> Vec<u8> {
@@ -16,12 +16,30 @@ fn frame_with(tag: u8) -> Vec<u8> {
 
 /// Splits each sub-packet of `raw` at the given cut fractions, with `zeros[s]` zero-length
 /// packets after sub-packet s.
-fn split(raw: &[u8], seq: u32, cuts: &[Vec<f64>], zeros: &[usize], order: &[usize]) -> Vec<Vec<u8>> {
+fn split(
+    raw: &[u8],
+    seq: u32,
+    cuts: &[Vec<f64>],
+    zeros: &[usize],
+    order: &[usize],
+) -> Vec<Vec<u8>> {
     let mut out = Vec::new();
     for &s in order {
         let mut sub = raw[s * SUB_IMAGE_BYTES..][..SUB_IMAGE_BYTES].to_vec();
-        sub.extend_from_slice(&DepthFooter { timestamp: 7, sequence: seq, subsequence: s as u32, length: SUB_IMAGE_BYTES as u32 }.to_bytes());
-        let mut pts: Vec<usize> = cuts[s].iter().map(|f| (f * sub.len() as f64) as usize).filter(|&p| p > 0 && p < sub.len()).collect();
+        sub.extend_from_slice(
+            &DepthFooter {
+                timestamp: 7,
+                sequence: seq,
+                subsequence: s as u32,
+                length: SUB_IMAGE_BYTES as u32,
+            }
+            .to_bytes(),
+        );
+        let mut pts: Vec<usize> = cuts[s]
+            .iter()
+            .map(|f| (f * sub.len() as f64) as usize)
+            .filter(|&p| p > 0 && p < sub.len())
+            .collect();
         pts.sort();
         pts.dedup();
         let mut prev = 0;
@@ -141,7 +159,17 @@ proptest! {
 fn settings_sim() -> kinect_usb::sim::SimDevice {
     use kinect_usb::params::DepthParams;
     use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
-    let depth = DepthParams { fx: 365.0, fy: 365.0, cx: 255.5, cy: 211.5, k1: 0.0, k2: 0.0, k3: 0.0, p1: 0.0, p2: 0.0 };
+    let depth = DepthParams {
+        fx: 365.0,
+        fy: 365.0,
+        cx: 255.5,
+        cy: 211.5,
+        k1: 0.0,
+        k2: 0.0,
+        k3: 0.0,
+        p1: 0.0,
+        p2: 0.0,
+    };
     SimDevice::new(SimProfile::synthetic(depth, 1060.0), SimScene::default(), SimFaults::default())
 }
 

@@ -5,7 +5,11 @@ use kinect_usb::registration::{COLOR_HEIGHT, COLOR_WIDTH, Registered, Registrati
 use kinect_usb::testdata::{read_bytes, read_f32, vectors_or_skip};
 
 fn read_u32(p: &std::path::Path) -> Vec<u32> {
-    read_bytes(p).unwrap().chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+    read_bytes(p)
+        .unwrap()
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
 }
 
 /// Exact equality with the four registration oracle files (spec §11.3: an independent
@@ -13,8 +17,14 @@ fn read_u32(p: &std::path::Path) -> Vec<u32> {
 #[test]
 fn registration_matches_vectors_exactly() {
     let Some(dir) = vectors_or_skip("registration_matches_vectors_exactly") else { return };
-    let d = DepthParams::from_response(&read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap()).unwrap();
-    let c = ColorParams::from_response(&read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap()).unwrap();
+    let d = DepthParams::from_response(
+        &read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap(),
+    )
+    .unwrap();
+    let c = ColorParams::from_response(
+        &read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap(),
+    )
+    .unwrap();
     let reg = Registration::new(&d, &c);
     let depth = read_f32(&dir.join("oracle/scene_filt_depth.f32")).unwrap();
     // Synthetic coordinate-encoding colour image of the manifest.
@@ -24,7 +34,10 @@ fn registration_matches_vectors_exactly() {
     let mut out = Registered::new();
     reg.apply(&depth, &color, true, &mut out);
     let und = read_f32(&dir.join("registration/scene_undistorted.f32")).unwrap();
-    let map: Vec<i32> = read_u32(&dir.join("registration/scene_color_depth_map.i32")).into_iter().map(|v| v as i32).collect();
+    let map: Vec<i32> = read_u32(&dir.join("registration/scene_color_depth_map.i32"))
+        .into_iter()
+        .map(|v| v as i32)
+        .collect();
     let regd = read_u32(&dir.join("registration/scene_registered.u32"));
     let big = read_f32(&dir.join("registration/scene_bigdepth.f32")).unwrap();
     let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
@@ -32,7 +45,10 @@ fn registration_matches_vectors_exactly() {
     assert_eq!(out.color_index, map, "colour index map");
     assert_eq!(out.registered, regd, "registered colour");
     assert_eq!(bits(&out.bigdepth), bits(&big), "bigdepth");
-    assert!(out.color_index.iter().filter(|&&v| v >= 0).count() > 100_000, "the vectors map most pixels");
+    assert!(
+        out.color_index.iter().filter(|&&v| v >= 0).count() > 100_000,
+        "the vectors map most pixels"
+    );
 }
 
 /// The 25 single-point mappings of the manifest. Tolerance 1e-3 px: the manifest prints the
@@ -40,17 +56,28 @@ fn registration_matches_vectors_exactly() {
 #[test]
 fn single_point_mappings_match_manifest() {
     let Some(dir) = vectors_or_skip("single_point_mappings_match_manifest") else { return };
-    let d = DepthParams::from_response(&read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap()).unwrap();
-    let c = ColorParams::from_response(&read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap()).unwrap();
+    let d = DepthParams::from_response(
+        &read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap(),
+    )
+    .unwrap();
+    let c = ColorParams::from_response(
+        &read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap(),
+    )
+    .unwrap();
     let reg = Registration::new(&d, &c);
-    let m: serde_json::Value = serde_json::from_slice(&read_bytes(&dir.join("manifest.json")).unwrap()).unwrap();
+    let m: serde_json::Value =
+        serde_json::from_slice(&read_bytes(&dir.join("manifest.json")).unwrap()).unwrap();
     let samples = m["registration"]["single_point_samples"].as_array().unwrap();
     assert_eq!(samples.len(), 25);
     for s in samples {
-        let (x, y) = (s["depth_x"].as_u64().unwrap() as usize, s["depth_y"].as_u64().unwrap() as usize);
+        let (x, y) =
+            (s["depth_x"].as_u64().unwrap() as usize, s["depth_y"].as_u64().unwrap() as usize);
         let (u, v) = reg.map_point(x, y, s["z_mm"].as_f64().unwrap() as f32);
         let (eu, ev) = (s["color_x"].as_f64().unwrap(), s["color_y"].as_f64().unwrap());
-        assert!((u as f64 - eu).abs() < 1e-3 && (v as f64 - ev).abs() < 1e-3, "{s}: got ({u}, {v})");
+        assert!(
+            (u as f64 - eu).abs() < 1e-3 && (v as f64 - ev).abs() < 1e-3,
+            "{s}: got ({u}, {v})"
+        );
     }
 }
 
@@ -60,16 +87,25 @@ fn single_point_mappings_match_manifest() {
 #[test]
 fn xz_tables_match_reference_tables() {
     let Some(dir) = vectors_or_skip("xz_tables_match_reference_tables") else { return };
-    let d = DepthParams::from_response(&read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap()).unwrap();
+    let d = DepthParams::from_response(
+        &read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap(),
+    )
+    .unwrap();
     let t = XzTables::from_params(&d);
     assert_eq!(t.nonconverged, 0);
     let xr = read_f32(&dir.join("tables/xtable.f32")).unwrap();
     let zr = read_f32(&dir.join("tables/ztable.f32")).unwrap();
     let mut exact = 0;
     for i in 0..xr.len() {
-        assert!((t.x[i] - xr[i]).abs() <= 1e-6 * xr[i].abs().max(1.0), "x[{i}] {} vs {}", t.x[i], xr[i]);
+        assert!(
+            (t.x[i] - xr[i]).abs() <= 1e-6 * xr[i].abs().max(1.0),
+            "x[{i}] {} vs {}",
+            t.x[i],
+            xr[i]
+        );
         assert!((t.z[i] - zr[i]).abs() <= 1e-6 * zr[i].abs(), "z[{i}] {} vs {}", t.z[i], zr[i]);
-        exact += (t.x[i].to_bits() == xr[i].to_bits() && t.z[i].to_bits() == zr[i].to_bits()) as usize;
+        exact +=
+            (t.x[i].to_bits() == xr[i].to_bits() && t.z[i].to_bits() == zr[i].to_bits()) as usize;
     }
     assert_eq!(exact, xr.len(), "x/z tables: {exact} of {} pixels bit-identical", xr.len());
 }

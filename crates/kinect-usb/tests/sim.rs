@@ -22,14 +22,20 @@ fn fake_jpeg(n: usize, tag: u8) -> Vec<u8> {
 }
 
 fn truth(dir: &Path) -> (Vec<f32>, Vec<f32>) {
-    (read_f32(&dir.join("truth/scene_depth_mm.f32")).unwrap(), read_f32(&dir.join("truth/scene_ir.f32")).unwrap())
+    (
+        read_f32(&dir.join("truth/scene_depth_mm.f32")).unwrap(),
+        read_f32(&dir.join("truth/scene_ir.f32")).unwrap(),
+    )
 }
 
 /// Two distinct scenes (truth and truth + 100 mm) so a torn frame would match neither.
 fn two_scenes(dir: &Path) -> SimScene {
     let (d, i) = truth(dir);
     let d2: Vec<f32> = d.iter().map(|v| v + 100.0).collect();
-    SimScene { depth_frames: vec![(d, i.clone()), (d2, i)], color_jpegs: vec![fake_jpeg(40_001, 1), fake_jpeg(50_002, 2)] }
+    SimScene {
+        depth_frames: vec![(d, i.clone()), (d2, i)],
+        color_jpegs: vec![fake_jpeg(40_001, 1), fake_jpeg(50_002, 2)],
+    }
 }
 
 fn sim(dir: &Path, faults: SimFaults) -> SimDevice {
@@ -38,7 +44,9 @@ fn sim(dir: &Path, faults: SimFaults) -> SimDevice {
 
 #[test]
 fn start_stop_close_transcript_matches_spec_sequences() {
-    let Some(dir) = vectors_or_skip("start_stop_close_transcript_matches_spec_sequences") else { return };
+    let Some(dir) = vectors_or_skip("start_stop_close_transcript_matches_spec_sequences") else {
+        return;
+    };
     let mut dev = KinectDevice::open(sim(&dir, SimFaults::default())).unwrap();
     let info = dev.start(true, true).unwrap().clone();
     assert_eq!(info.firmware, "4.0.3912.0");
@@ -78,13 +86,30 @@ fn start_stop_close_transcript_matches_spec_sequences() {
     ];
     assert_eq!(cmds, expected_start);
     // Open sequence (spec §5.1) and the alt settings / suspend around streaming.
-    let non_cmd: Vec<&str> = tr.iter().filter(|l| !l.starts_with("cmd")).map(|s| s.as_str()).collect();
+    let non_cmd: Vec<&str> =
+        tr.iter().filter(|l| !l.starts_with("cmd")).map(|s| s.as_str()).collect();
     assert_eq!(
         non_cmd,
         [
-            "reset", "set_config 1", "claim 0", "claim 1", "control 00 31 40 0x0", "set_alt 1 0", "control 00 03 48 0x0",
-            "control 00 03 49 0x0", "control 01 03 0 0x300", "control 01 03 0 0x0", "set_alt 1 1", "start_stream bulk",
-            "start_stream iso", "stop_stream", "stop_stream", "set_alt 1 0", "control 01 03 0 0x300", "release 0", "release 1"
+            "reset",
+            "set_config 1",
+            "claim 0",
+            "claim 1",
+            "control 00 31 40 0x0",
+            "set_alt 1 0",
+            "control 00 03 48 0x0",
+            "control 00 03 49 0x0",
+            "control 01 03 0 0x300",
+            "control 01 03 0 0x0",
+            "set_alt 1 1",
+            "start_stream bulk",
+            "start_stream iso",
+            "stop_stream",
+            "stop_stream",
+            "set_alt 1 0",
+            "control 01 03 0 0x300",
+            "release 0",
+            "release 1"
         ]
     );
     assert!(dev.backend().violations.is_empty(), "{:?}", dev.backend().violations);
@@ -106,7 +131,9 @@ fn simulated_stream_decodes_to_the_scene() {
     )
     .unwrap();
     let (truth_d, _) = truth(&dir);
-    let mut dev = KinectDevice::open(SimDevice::new(profile, two_scenes(&dir), SimFaults::default())).unwrap();
+    let mut dev =
+        KinectDevice::open(SimDevice::new(profile, two_scenes(&dir), SimFaults::default()))
+            .unwrap();
     dev.start(false, true).unwrap();
     let (mut depth, mut ir) = (vec![0f32; PIXELS], vec![0f32; PIXELS]);
     let frame = loop {
@@ -134,7 +161,12 @@ fn simulated_stream_decodes_to_the_scene() {
 /// them: the simulated sensor unplugs itself after `periods` frames (a deterministic end that
 /// does not depend on how fast this machine is), so the run ends on `Disconnected` after the
 /// last period's packets. Returns (emitted sequences, counters, periods).
-fn lossy_run(dir: &Path, drop: f64, short: f64, periods: u64) -> (Vec<u32>, kinect_usb::device::StreamCounters, u64) {
+fn lossy_run(
+    dir: &Path,
+    drop: f64,
+    short: f64,
+    periods: u64,
+) -> (Vec<u32>, kinect_usb::device::StreamCounters, u64) {
     let faults = SimFaults {
         seed: 5,
         iso_drop_rate: drop,
@@ -151,7 +183,11 @@ fn lossy_run(dir: &Path, drop: f64, short: f64, periods: u64) -> (Vec<u32>, kine
         match dev.next_frame(Duration::from_millis(20), &mut |_, _| {}) {
             Ok(Some(Frame::Depth(f))) => {
                 // Two alternating scenes: a torn frame would match neither.
-                assert!(f.data == raws[(f.sequence % 2) as usize].as_slice(), "torn frame {}", f.sequence);
+                assert!(
+                    f.data == raws[(f.sequence % 2) as usize].as_slice(),
+                    "torn frame {}",
+                    f.sequence
+                );
                 seqs.push(f.sequence);
             }
             Ok(_) => {}
@@ -168,7 +204,9 @@ fn lossy_run(dir: &Path, drop: f64, short: f64, periods: u64) -> (Vec<u32>, kine
 /// ~100 packets, so at 6 % loss nearly every frame is dropped — and counted.
 #[test]
 fn five_percent_iso_loss_drops_and_counts_whole_frames() {
-    let Some(dir) = vectors_or_skip("five_percent_iso_loss_drops_and_counts_whole_frames") else { return };
+    let Some(dir) = vectors_or_skip("five_percent_iso_loss_drops_and_counts_whole_frames") else {
+        return;
+    };
     let periods = 60;
     let (seqs, c, periods) = lossy_run(&dir, 0.05, 0.01, periods);
     eprintln!("5 % loss: {periods} frame periods, {c:?}");
@@ -176,7 +214,10 @@ fn five_percent_iso_loss_drops_and_counts_whole_frames() {
     // Every period is consumed: each frame is emitted, counted incomplete or counted skipped,
     // except the last one, which may still be in assembly when the sensor goes away.
     let accounted = c.depth_frames + c.depth_incomplete + c.depth_dropped;
-    assert!(accounted == periods || accounted + 1 == periods, "accounted {accounted} of {periods}: {c:?}");
+    assert!(
+        accounted == periods || accounted + 1 == periods,
+        "accounted {accounted} of {periods}: {c:?}"
+    );
     assert!(c.iso_errors > 200, "{c:?}");
 }
 
@@ -184,24 +225,41 @@ fn five_percent_iso_loss_drops_and_counts_whole_frames() {
 /// ones equal the sequence gaps.
 #[test]
 fn light_iso_loss_keeps_intact_frames_and_counts_gaps() {
-    let Some(dir) = vectors_or_skip("light_iso_loss_keeps_intact_frames_and_counts_gaps") else { return };
+    let Some(dir) = vectors_or_skip("light_iso_loss_keeps_intact_frames_and_counts_gaps") else {
+        return;
+    };
     let (seqs, c, periods) = lossy_run(&dir, 0.002, 0.001, 40);
     assert!(seqs.len() >= 20, "{c:?}");
     // Every period is emitted, incomplete or skipped (the last may still be in assembly).
     let accounted = c.depth_frames + c.depth_incomplete + c.depth_dropped;
-    assert!(accounted == periods || accounted + 1 == periods, "accounted {accounted} of {periods}: {c:?}");
+    assert!(
+        accounted == periods || accounted + 1 == periods,
+        "accounted {accounted} of {periods}: {c:?}"
+    );
     let lost = c.depth_incomplete + c.depth_dropped;
     assert!(lost > 0, "the seed loses some frames: {c:?}");
     // The gaps between emitted sequences are frames counted lost (lost ones after the last
     // emitted frame are counted too, so `lost` can only be larger).
     let span = (seqs.last().unwrap() - seqs[0] + 1) as u64;
-    assert!(lost >= span - seqs.len() as u64, "lost {lost} < gaps {}: {c:?}", span - seqs.len() as u64);
+    assert!(
+        lost >= span - seqs.len() as u64,
+        "lost {lost} < gaps {}: {c:?}",
+        span - seqs.len() as u64
+    );
 }
 
 #[test]
 fn unplug_mid_stream_ends_with_disconnected_after_complete_frames() {
-    let Some(dir) = vectors_or_skip("unplug_mid_stream_ends_with_disconnected_after_complete_frames") else { return };
-    let mut dev = KinectDevice::open(sim(&dir, SimFaults { unplug_after_frames: Some(3), ..SimFaults::default() })).unwrap();
+    let Some(dir) =
+        vectors_or_skip("unplug_mid_stream_ends_with_disconnected_after_complete_frames")
+    else {
+        return;
+    };
+    let mut dev = KinectDevice::open(sim(
+        &dir,
+        SimFaults { unplug_after_frames: Some(3), ..SimFaults::default() },
+    ))
+    .unwrap();
     dev.start(true, true).unwrap();
     let (mut depth, mut color) = (0, 0);
     let err = loop {
@@ -221,12 +279,16 @@ fn unplug_mid_stream_ends_with_disconnected_after_complete_frames() {
 #[test]
 fn busy_and_bandwidth_faults_give_typed_errors() {
     let Some(dir) = vectors_or_skip("busy_and_bandwidth_faults_give_typed_errors") else { return };
-    let e = KinectDevice::open(sim(&dir, SimFaults { busy: true, ..SimFaults::default() })).err().unwrap();
+    let e = KinectDevice::open(sim(&dir, SimFaults { busy: true, ..SimFaults::default() }))
+        .err()
+        .unwrap();
     assert!(matches!(e, KinectError::Busy));
     assert!(e.to_string().contains("device busy"));
     let mut p = SimProfile::from_vectors(&dir).unwrap();
     p.bytes_per_interval = 16_384;
-    let e = KinectDevice::open(SimDevice::new(p, SimScene::default(), SimFaults::default())).err().unwrap();
+    let e = KinectDevice::open(SimDevice::new(p, SimScene::default(), SimFaults::default()))
+        .err()
+        .unwrap();
     assert!(matches!(e, KinectError::InsufficientBandwidth { got: 16_384, need: 33_792 }), "{e}");
 }
 
@@ -234,25 +296,44 @@ fn busy_and_bandwidth_faults_give_typed_errors() {
 fn command_faults_roll_back_to_open() {
     let Some(dir) = vectors_or_skip("command_faults_roll_back_to_open") else { return };
     // STALL on the P0 read: typed error, halt cleared, stop sequence runs, state Open.
-    let mut dev = KinectDevice::open(sim(&dir, SimFaults { stall_command: Some(0x22), ..SimFaults::default() })).unwrap();
+    let mut dev = KinectDevice::open(sim(
+        &dir,
+        SimFaults { stall_command: Some(0x22), ..SimFaults::default() },
+    ))
+    .unwrap();
     let e = dev.start(true, true).err().unwrap();
     assert!(matches!(e, KinectError::Usb { source: kinect_usb::UsbError::Stall, .. }), "{e}");
     assert_eq!(dev.state(), State::Open);
     assert!(dev.backend().transcript.iter().any(|l| l == "clear_halt 0x02"));
-    assert!(dev.backend().transcript.iter().any(|l| l.starts_with("cmd 0x0a")), "rollback ran the stop sequence");
+    assert!(
+        dev.backend().transcript.iter().any(|l| l.starts_with("cmd 0x0a")),
+        "rollback ran the stop sequence"
+    );
     // Retrying after the fault succeeds.
     dev.start(false, true).unwrap();
 
-    let mut dev = KinectDevice::open(sim(&dir, SimFaults { timeout_command: Some(0x14), ..SimFaults::default() })).unwrap();
+    let mut dev = KinectDevice::open(sim(
+        &dir,
+        SimFaults { timeout_command: Some(0x14), ..SimFaults::default() },
+    ))
+    .unwrap();
     let e = dev.start(true, true).err().unwrap();
     assert!(matches!(e, KinectError::Usb { source: kinect_usb::UsbError::Timeout, .. }), "{e}");
     assert_eq!(dev.state(), State::Open);
 
-    let mut dev = KinectDevice::open(sim(&dir, SimFaults { premature_completion: Some(0x02), ..SimFaults::default() })).unwrap();
+    let mut dev = KinectDevice::open(sim(
+        &dir,
+        SimFaults { premature_completion: Some(0x02), ..SimFaults::default() },
+    ))
+    .unwrap();
     let e = dev.start(true, true).err().unwrap();
     assert!(e.to_string().contains("premature completion"), "{e}");
 
-    let mut dev = KinectDevice::open(sim(&dir, SimFaults { wrong_completion_sequence: true, ..SimFaults::default() })).unwrap();
+    let mut dev = KinectDevice::open(sim(
+        &dir,
+        SimFaults { wrong_completion_sequence: true, ..SimFaults::default() },
+    ))
+    .unwrap();
     dev.start(false, false).unwrap();
     assert!(dev.warnings.iter().any(|w| w.contains("completion sequence")));
     dev.strict_sequence = true;
@@ -262,7 +343,11 @@ fn command_faults_roll_back_to_open() {
 #[test]
 fn record_then_replay_gives_identical_frames() {
     let Some(dir) = vectors_or_skip("record_then_replay_gives_identical_frames") else { return };
-    let mut dev = KinectDevice::open(sim(&dir, SimFaults { seed: 9, iso_drop_rate: 0.002, ..SimFaults::default() })).unwrap();
+    let mut dev = KinectDevice::open(sim(
+        &dir,
+        SimFaults { seed: 9, iso_drop_rate: 0.002, ..SimFaults::default() },
+    ))
+    .unwrap();
     let info = dev.start(true, true).unwrap().clone();
     let mut w = RecordingWriter::new(Vec::new(), &RecordingMeta::from_info(&info)).unwrap();
     let mut live = Vec::new();
@@ -279,7 +364,10 @@ fn record_then_replay_gives_identical_frames() {
     assert!(rec.complete);
     let mut rdev = KinectDevice::open(SimDevice::replay(rec).unwrap()).unwrap();
     let rinfo = rdev.start(true, true).unwrap().clone();
-    assert_eq!((rinfo.serial, rinfo.depth_params, rinfo.color_params), (info.serial, info.depth_params, info.color_params));
+    assert_eq!(
+        (rinfo.serial, rinfo.depth_params, rinfo.color_params),
+        (info.serial, info.depth_params, info.color_params)
+    );
     let mut replayed = Vec::new();
     loop {
         match rdev.next_frame(T, &mut |_, _| {}) {

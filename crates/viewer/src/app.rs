@@ -6,15 +6,15 @@ use std::sync::Arc;
 
 use egui::{Color32, Pos2, Rect, Sense, Stroke, TextureHandle, TextureOptions, Vec2};
 
+use crate::ViewerError;
 use crate::calib_page::CalibPage;
 use crate::camera3d::OrbitCamera;
-use crate::live::LivePage;
 use crate::data::{self, Frame};
+use crate::live::LivePage;
 use crate::panes::{self, Pane, Probe};
 use crate::pipeline::{self, Backend, Fused, Resampling, Toggles};
 use crate::render3d::{DrawParams, Geometry3d, View3dCallback};
 use crate::view2d::View2d;
-use crate::ViewerError;
 
 /// The viewer's pages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,10 +91,13 @@ pub struct ViewerApp {
     gpu: Option<fusion_gpu::FusionContext>,
     generation: u64,
     geometry: Option<Arc<Geometry3d>>,
-    textures: HashMap<Pane, (u64, TextureHandle, Option<(f32, f32)>)>,
+    textures: HashMap<Pane, PaneTexture>,
     can_draw_3d: bool,
     home_camera: OrbitCamera,
 }
+
+/// A pane's uploaded texture: the data generation it shows, the handle, and its value range.
+type PaneTexture = (u64, TextureHandle, Option<(f32, f32)>);
 
 fn default_camera() -> OrbitCamera {
     OrbitCamera { target: [0.0, 0.0, 2.0], distance: 2.0, yaw: 0.0, pitch: 0.0 }
@@ -104,13 +107,15 @@ impl ViewerApp {
     fn empty(backend: BackendChoice) -> Self {
         let (gpu, backend_note) = match backend {
             BackendChoice::Cpu => (None, "CPU fusion".to_string()),
-            BackendChoice::Gpu | BackendChoice::Auto => match fusion_gpu::FusionContext::new(fusion_gpu::GpuPolicy::Auto) {
-                Ok(ctx) => {
-                    let note = format!("GPU fusion on {}", ctx.adapter_name());
-                    (Some(ctx), note)
+            BackendChoice::Gpu | BackendChoice::Auto => {
+                match fusion_gpu::FusionContext::new(fusion_gpu::GpuPolicy::Auto) {
+                    Ok(ctx) => {
+                        let note = format!("GPU fusion on {}", ctx.adapter_name());
+                        (Some(ctx), note)
+                    }
+                    Err(e) => (None, format!("CPU fusion (no GPU: {e})")),
                 }
-                Err(e) => (None, format!("CPU fusion (no GPU: {e})")),
-            },
+            }
         };
         Self {
             frame: None,
@@ -249,7 +254,13 @@ impl ViewerApp {
             Ok(fused) => {
                 self.generation += 1;
                 let texture = Arc::new(frame.color.clone());
-                self.geometry = Some(Arc::new(Geometry3d::new(self.generation, &fused.output.cloud, &frame.rig.color_from_depth, &fused.mesh, texture)));
+                self.geometry = Some(Arc::new(Geometry3d::new(
+                    self.generation,
+                    &fused.output.cloud,
+                    &frame.rig.color_from_depth,
+                    &fused.mesh,
+                    texture,
+                )));
                 self.fused = Some(fused);
                 self.error = None;
             }
@@ -260,7 +271,11 @@ impl ViewerApp {
     fn fit_camera(&self) -> OrbitCamera {
         self.geometry
             .as_ref()
-            .and_then(|g| OrbitCamera::fit(g.vertices.iter().map(|v| v.pos).chain(g.points.iter().map(|p| p.pos))))
+            .and_then(|g| {
+                OrbitCamera::fit(
+                    g.vertices.iter().map(|v| v.pos).chain(g.points.iter().map(|p| p.pos)),
+                )
+            })
             .unwrap_or_else(default_camera)
     }
 
@@ -290,7 +305,10 @@ impl ViewerApp {
         if let Some(err) = &self.error {
             let msg = err.to_string();
             egui::Panel::top("kfuse-error").show(ui, |ui| {
-                ui.colored_label(Color32::from_rgb(230, 80, 80), egui::RichText::new("Error").heading());
+                ui.colored_label(
+                    Color32::from_rgb(230, 80, 80),
+                    egui::RichText::new("Error").heading(),
+                );
                 ui.label(msg);
             });
         }
@@ -324,7 +342,9 @@ impl ViewerApp {
         egui::Panel::left("kfuse-panes").resizable(false).show(ui, |ui| {
             ui.heading("Pane");
             for pane in Pane::ALL {
-                if ui.selectable_label(self.pane == pane, pane.label()).clicked() && self.pane != pane {
+                if ui.selectable_label(self.pane == pane, pane.label()).clicked()
+                    && self.pane != pane
+                {
                     if pane.on_depth_grid() != self.pane.on_depth_grid() {
                         self.view2d = View2d::default();
                     }
@@ -344,13 +364,18 @@ impl ViewerApp {
                     p.pixel[0],
                     p.pixel[1],
                     p.depth_mm.map_or("—".to_string(), |d| format!("{d:.1} mm")),
-                    p.point.map_or("—".to_string(), |q| format!("({:.3}, {:.3}, {:.3}) m", q[0], q[1], q[2])),
+                    p.point.map_or("—".to_string(), |q| format!(
+                        "({:.3}, {:.3}, {:.3}) m",
+                        q[0], q[1], q[2]
+                    )),
                 ),
                 None => "move the cursor over the image".to_string(),
             });
         });
         egui::CentralPanel::default().show(ui, |ui| {
-            let (Some(frame), Some(fused)) = (self.frame.clone(), self.fused.as_ref()) else { return };
+            let (Some(frame), Some(fused)) = (self.frame.clone(), self.fused.as_ref()) else {
+                return;
+            };
             if self.pane == Pane::Ir && frame.ir.is_none() {
                 ui.label("This source has no IR image (a capture folder's ir.png).");
             }
@@ -362,7 +387,11 @@ impl ViewerApp {
                     let (img, legend) = panes::render(pane, &frame, fused);
                     let bytes: Vec<u8> = img.data().iter().flatten().copied().collect();
                     let color = egui::ColorImage::from_rgb([img.width(), img.height()], &bytes);
-                    let t = ui.ctx().load_texture(format!("pane-{pane:?}"), color, TextureOptions::NEAREST);
+                    let t = ui.ctx().load_texture(
+                        format!("pane-{pane:?}"),
+                        color,
+                        TextureOptions::NEAREST,
+                    );
                     self.textures.insert(pane, (self.generation, t.clone(), legend));
                     (t, legend)
                 }
@@ -370,7 +399,8 @@ impl ViewerApp {
             let size = [tex.size()[0], tex.size()[1]];
             let legend_h = if legend.is_some() { 28.0 } else { 0.0 };
             let avail = ui.available_rect_before_wrap();
-            let rect = Rect::from_min_max(avail.min, Pos2::new(avail.max.x, avail.max.y - legend_h));
+            let rect =
+                Rect::from_min_max(avail.min, Pos2::new(avail.max.x, avail.max.y - legend_h));
             let resp = ui.allocate_rect(rect, Sense::click_and_drag());
             self.view2d.handle_input(ui, &resp, rect, size);
             self.probe = resp.hover_pos().and_then(|pos| {
@@ -378,9 +408,17 @@ impl ViewerApp {
                 panes::probe(pane, &frame, fused, x, y)
             });
             let painter = ui.painter_at(rect);
-            painter.image(tex.id(), self.view2d.image_rect(rect, size), Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)), Color32::WHITE);
+            painter.image(
+                tex.id(),
+                self.view2d.image_rect(rect, size),
+                Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+                Color32::WHITE,
+            );
             if let Some((lo, hi)) = legend {
-                let bar = Rect::from_min_max(Pos2::new(rect.min.x + 70.0, rect.max.y + 6.0), Pos2::new(rect.max.x - 70.0, rect.max.y + 22.0));
+                let bar = Rect::from_min_max(
+                    Pos2::new(rect.min.x + 70.0, rect.max.y + 6.0),
+                    Pos2::new(rect.max.x - 70.0, rect.max.y + 22.0),
+                );
                 draw_legend(ui, bar, lo, hi);
             }
         });
@@ -395,7 +433,12 @@ impl ViewerApp {
             ui.radio_value(&mut t.resampling, Resampling::Delaunay, "Delaunay");
             ui.checkbox(&mut t.zbuffer, "Z-buffer (H7)");
             ui.checkbox(&mut t.remove_edges, "Remove edge faces (H5)");
-            ui.add_enabled(t.remove_edges, egui::Slider::new(&mut t.stretch_ratio, 0.25..=4.0).logarithmic(true).text("edge threshold"));
+            ui.add_enabled(
+                t.remove_edges,
+                egui::Slider::new(&mut t.stretch_ratio, 0.25..=4.0)
+                    .logarithmic(true)
+                    .text("edge threshold"),
+            );
             ui.checkbox(&mut t.fill_holes, "Fill holes (H8)");
             ui.separator();
             ui.heading("Show");
@@ -407,14 +450,22 @@ impl ViewerApp {
             ui.label("Drag: orbit · right-drag: pan · scroll: zoom");
             ui.separator();
             if let Some(f) = &self.fused {
-                ui.label(format!("mesh: {} vertices, {} faces", f.mesh.vertices.len(), f.mesh.faces.len()));
+                ui.label(format!(
+                    "mesh: {} vertices, {} faces",
+                    f.mesh.vertices.len(),
+                    f.mesh.faces.len()
+                ));
                 ui.label(format!("cloud: {} points", f.output.cloud.len()));
                 ui.label(format!("filled pixels: {}", f.filled_pixels));
-                ui.label(format!("hole pixels: {}", f.output.hole_mask.data().iter().filter(|&&m| m).count()));
+                ui.label(format!(
+                    "hole pixels: {}",
+                    f.output.hole_mask.data().iter().filter(|&&m| m).count()
+                ));
             }
         });
         // The slider is applied when released, so dragging it does not re-run the fusion per frame.
-        let slider_busy = ui.ctx().dragged_id().is_some() && t.stretch_ratio != self.toggles.stretch_ratio;
+        let slider_busy =
+            ui.ctx().dragged_id().is_some() && t.stretch_ratio != self.toggles.stretch_ratio;
         if t != self.toggles && !slider_busy {
             self.set_toggles(t);
         } else if slider_busy {
@@ -440,13 +491,23 @@ impl ViewerApp {
                 self.reset_camera();
             }
             if !self.can_draw_3d {
-                ui.painter().text(rect.center(), egui::Align2::CENTER_CENTER, "the 3D view needs the wgpu renderer", egui::FontId::proportional(16.0), Color32::GRAY);
+                ui.painter().text(
+                    rect.center(),
+                    egui::Align2::CENTER_CENTER,
+                    "the 3D view needs the wgpu renderer",
+                    egui::FontId::proportional(16.0),
+                    Color32::GRAY,
+                );
                 return;
             }
             let Some(geometry) = self.geometry.clone() else { return };
             let vp = self.camera.view_proj(rect.width() / rect.height().max(1.0));
-            let params = DrawParams { view_proj: vp.into(), points: self.show_points, mesh: self.show_mesh };
-            ui.painter().add(egui_wgpu::Callback::new_paint_callback(rect, View3dCallback { geometry, params, size_points: [rect.width(), rect.height()] }));
+            let params =
+                DrawParams { view_proj: vp.into(), points: self.show_points, mesh: self.show_mesh };
+            ui.painter().add(egui_wgpu::Callback::new_paint_callback(
+                rect,
+                View3dCallback { geometry, params, size_points: [rect.width(), rect.height()] },
+            ));
         });
     }
 
@@ -497,14 +558,29 @@ fn draw_legend(ui: &egui::Ui, bar: Rect, lo: f32, hi: f32) {
     let w = bar.width() / STEPS as f32;
     for i in 0..STEPS {
         let c = panes::colormap((i as f32 + 0.5) / STEPS as f32);
-        let r = Rect::from_min_size(Pos2::new(bar.min.x + i as f32 * w, bar.min.y), Vec2::new(w + 0.5, bar.height()));
+        let r = Rect::from_min_size(
+            Pos2::new(bar.min.x + i as f32 * w, bar.min.y),
+            Vec2::new(w + 0.5, bar.height()),
+        );
         painter.rect_filled(r, 0.0, Color32::from_rgb(c[0], c[1], c[2]));
     }
     painter.rect_stroke(bar, 0.0, Stroke::new(1.0, Color32::GRAY), egui::StrokeKind::Outside);
     let font = egui::FontId::proportional(12.0);
     let col = ui.visuals().text_color();
-    painter.text(Pos2::new(bar.min.x - 6.0, bar.center().y), egui::Align2::RIGHT_CENTER, format!("{:.0} mm", lo * 1000.0), font.clone(), col);
-    painter.text(Pos2::new(bar.max.x + 6.0, bar.center().y), egui::Align2::LEFT_CENTER, format!("{:.0} mm", hi * 1000.0), font, col);
+    painter.text(
+        Pos2::new(bar.min.x - 6.0, bar.center().y),
+        egui::Align2::RIGHT_CENTER,
+        format!("{:.0} mm", lo * 1000.0),
+        font.clone(),
+        col,
+    );
+    painter.text(
+        Pos2::new(bar.max.x + 6.0, bar.center().y),
+        egui::Align2::LEFT_CENTER,
+        format!("{:.0} mm", hi * 1000.0),
+        font,
+        col,
+    );
 }
 
 impl eframe::App for ViewerApp {

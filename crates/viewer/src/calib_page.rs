@@ -8,7 +8,7 @@ use egui::{Color32, Pos2, Rect, Sense, Stroke, TextureHandle, TextureOptions, Ve
 use geometry::{CameraModel, RigidTransform};
 use nalgebra::{Vector3, Vector4};
 
-use crate::calibration::{residual_gain, CalibCamera, CalibReport};
+use crate::calibration::{CalibCamera, CalibReport, residual_gain};
 use crate::camera3d::OrbitCamera;
 use crate::view2d::View2d;
 
@@ -33,7 +33,13 @@ pub enum CalibView {
 
 impl CalibView {
     /// All sub-views in menu order.
-    pub const ALL: [CalibView; 5] = [CalibView::Errors, CalibView::Corners, CalibView::Residuals, CalibView::Poses, CalibView::Parameters];
+    pub const ALL: [CalibView; 5] = [
+        CalibView::Errors,
+        CalibView::Corners,
+        CalibView::Residuals,
+        CalibView::Poses,
+        CalibView::Parameters,
+    ];
 
     /// Button label.
     pub fn label(self) -> &'static str {
@@ -88,8 +94,16 @@ pub struct CalibPage {
 /// Hue-spread colours for boards (egui has no palette; 10 distinguishable hues).
 fn palette(i: usize) -> Color32 {
     const P: [[u8; 3]; 10] = [
-        [31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
-        [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207],
+        [31, 119, 180],
+        [255, 127, 14],
+        [44, 160, 44],
+        [214, 39, 40],
+        [148, 103, 189],
+        [140, 86, 75],
+        [227, 119, 194],
+        [127, 127, 127],
+        [188, 189, 34],
+        [23, 190, 207],
     ];
     let c = P[i % P.len()];
     Color32::from_rgb(c[0], c[1], c[2])
@@ -120,7 +134,19 @@ impl CalibPage {
         self.report
             .cameras
             .iter()
-            .map(|c| (c.label, c.images.iter().map(|i| ErrorBar { name: i.name.clone(), rms_px: i.rms_px, rejected: i.rejected.is_some() }).collect()))
+            .map(|c| {
+                (
+                    c.label,
+                    c.images
+                        .iter()
+                        .map(|i| ErrorBar {
+                            name: i.name.clone(),
+                            rms_px: i.rms_px,
+                            rejected: i.rejected.is_some(),
+                        })
+                        .collect(),
+                )
+            })
             .collect()
     }
 
@@ -128,9 +154,21 @@ impl CalibPage {
     /// camera's own), with the image index they belong to.
     pub fn board_poses(&self) -> Vec<(usize, RigidTransform)> {
         if self.report.stereo.is_some() && !self.report.depth_from_board.is_empty() {
-            return self.report.depth_from_board.iter().enumerate().filter_map(|(i, p)| p.map(|p| (i, p))).collect();
+            return self
+                .report
+                .depth_from_board
+                .iter()
+                .enumerate()
+                .filter_map(|(i, p)| p.map(|p| (i, p)))
+                .collect();
         }
-        self.report.cameras.first().map_or(Vec::new(), |c| c.images.iter().enumerate().filter_map(|(i, im)| im.camera_from_board.map(|p| (i, p))).collect())
+        self.report.cameras.first().map_or(Vec::new(), |c| {
+            c.images
+                .iter()
+                .enumerate()
+                .filter_map(|(i, im)| im.camera_from_board.map(|p| (i, p)))
+                .collect()
+        })
     }
 
     /// The cameras in the 3D view's frame: (label, model, frame_from_camera).
@@ -150,7 +188,9 @@ impl CalibPage {
         let page_poses: Vec<Vector3<f64>> = if report.stereo.is_some() {
             report.depth_from_board.iter().flatten().map(|p| p.translation).collect()
         } else {
-            report.cameras.first().map_or(Vec::new(), |c| c.images.iter().filter_map(|i| i.camera_from_board.map(|p| p.translation)).collect())
+            report.cameras.first().map_or(Vec::new(), |c| {
+                c.images.iter().filter_map(|i| i.camera_from_board.map(|p| p.translation)).collect()
+            })
         };
         let n = page_poses.len().max(1) as f64;
         let c = page_poses.iter().fold(Vector3::zeros(), |a, p| a + p) / n;
@@ -236,22 +276,38 @@ impl CalibPage {
         let mut clicked = None;
         for (ci, (label, list)) in bars.iter().enumerate() {
             let limit = self.report.cameras[ci].limit_px;
-            let area = Rect::from_min_size(Pos2::new(rect.min.x + 50.0, rect.min.y + ci as f32 * row_h + 24.0), Vec2::new(rect.width() - 60.0, row_h - 48.0));
+            let area = Rect::from_min_size(
+                Pos2::new(rect.min.x + 50.0, rect.min.y + ci as f32 * row_h + 24.0),
+                Vec2::new(rect.width() - 60.0, row_h - 48.0),
+            );
             let ymax = list.iter().filter_map(|b| b.rms_px).fold(limit, f64::max) * 1.15;
             let y_of = |v: f64| area.max.y - (v / ymax) as f32 * area.height();
             painter.text(Pos2::new(area.min.x, area.min.y - 20.0), egui::Align2::LEFT_TOP,
                 format!("{label} camera: RMS per image, px (red line: handout bar {limit} px; grey X: rejected)"), egui::FontId::proportional(14.0), text);
-            painter.line_segment([area.left_bottom(), area.right_bottom()], Stroke::new(1.0, Color32::GRAY));
-            painter.line_segment([area.left_bottom(), area.left_top()], Stroke::new(1.0, Color32::GRAY));
+            painter.line_segment(
+                [area.left_bottom(), area.right_bottom()],
+                Stroke::new(1.0, Color32::GRAY),
+            );
+            painter.line_segment(
+                [area.left_bottom(), area.left_top()],
+                Stroke::new(1.0, Color32::GRAY),
+            );
             for k in 0..=4 {
                 let v = ymax * k as f64 / 4.0;
-                painter.text(Pos2::new(area.min.x - 4.0, y_of(v)), egui::Align2::RIGHT_CENTER, format!("{v:.2}"), font.clone(), text);
+                painter.text(
+                    Pos2::new(area.min.x - 4.0, y_of(v)),
+                    egui::Align2::RIGHT_CENTER,
+                    format!("{v:.2}"),
+                    font.clone(),
+                    text,
+                );
             }
             let n = list.len().max(1);
             let w = area.width() / n as f32;
             for (i, b) in list.iter().enumerate() {
                 let x0 = area.min.x + i as f32 * w;
-                let slot = Rect::from_min_max(Pos2::new(x0, area.min.y), Pos2::new(x0 + w, area.max.y));
+                let slot =
+                    Rect::from_min_max(Pos2::new(x0, area.min.y), Pos2::new(x0 + w, area.max.y));
                 let colour = if b.rejected {
                     Color32::from_gray(150)
                 } else if b.rms_px.is_some_and(|r| r > limit) {
@@ -260,26 +316,58 @@ impl CalibPage {
                     Color32::from_rgb(31, 119, 180)
                 };
                 if let Some(r) = b.rms_px {
-                    let bar = Rect::from_min_max(Pos2::new(x0 + 0.15 * w, y_of(r)), Pos2::new(x0 + 0.85 * w, area.max.y));
+                    let bar = Rect::from_min_max(
+                        Pos2::new(x0 + 0.15 * w, y_of(r)),
+                        Pos2::new(x0 + 0.85 * w, area.max.y),
+                    );
                     painter.rect_filled(bar, 0.0, colour);
                 }
                 if b.rejected {
-                    painter.text(Pos2::new(slot.center().x, area.max.y - 10.0), egui::Align2::CENTER_CENTER, "X", egui::FontId::proportional(16.0), Color32::from_rgb(220, 60, 60));
+                    painter.text(
+                        Pos2::new(slot.center().x, area.max.y - 10.0),
+                        egui::Align2::CENTER_CENTER,
+                        "X",
+                        egui::FontId::proportional(16.0),
+                        Color32::from_rgb(220, 60, 60),
+                    );
                 }
                 if self.camera == ci && self.image == i {
-                    painter.rect_stroke(slot, 0.0, Stroke::new(1.5, Color32::YELLOW), egui::StrokeKind::Inside);
+                    painter.rect_stroke(
+                        slot,
+                        0.0,
+                        Stroke::new(1.5, Color32::YELLOW),
+                        egui::StrokeKind::Inside,
+                    );
                 }
-                painter.text(Pos2::new(slot.center().x, area.max.y + 2.0), egui::Align2::CENTER_TOP, format!("{}", i + 1), font.clone(), text);
+                painter.text(
+                    Pos2::new(slot.center().x, area.max.y + 2.0),
+                    egui::Align2::CENTER_TOP,
+                    format!("{}", i + 1),
+                    font.clone(),
+                    text,
+                );
                 if resp.hover_pos().is_some_and(|p| slot.contains(p)) {
                     let rms = b.rms_px.map_or("no board".to_string(), |r| format!("{r:.4} px"));
-                    let why = self.report.cameras[ci].images[i].rejected.as_deref().map_or(String::new(), |w| format!(" — rejected: {w}"));
-                    painter.text(Pos2::new(area.max.x, area.min.y - 20.0), egui::Align2::RIGHT_TOP, format!("{}: {rms}{why}", b.name), font.clone(), Color32::YELLOW);
+                    let why = self.report.cameras[ci].images[i]
+                        .rejected
+                        .as_deref()
+                        .map_or(String::new(), |w| format!(" — rejected: {w}"));
+                    painter.text(
+                        Pos2::new(area.max.x, area.min.y - 20.0),
+                        egui::Align2::RIGHT_TOP,
+                        format!("{}: {rms}{why}", b.name),
+                        font.clone(),
+                        Color32::YELLOW,
+                    );
                     if resp.clicked() {
                         clicked = Some((ci, i));
                     }
                 }
             }
-            painter.line_segment([Pos2::new(area.min.x, y_of(limit)), Pos2::new(area.max.x, y_of(limit))], Stroke::new(1.5, Color32::from_rgb(214, 39, 40)));
+            painter.line_segment(
+                [Pos2::new(area.min.x, y_of(limit)), Pos2::new(area.max.x, y_of(limit))],
+                Stroke::new(1.5, Color32::from_rgb(214, 39, 40)),
+            );
         }
         if let Some((c, i)) = clicked {
             self.camera = c;
@@ -292,12 +380,18 @@ impl CalibPage {
         if !self.textures.contains_key(&key) {
             let im = self.report.cameras.get(self.camera)?.images.get(self.image)?;
             let tex = match &im.image {
-                None => Err("the report names no image file (re-run `kfuse calibrate`)".to_string()),
+                None => {
+                    Err("the report names no image file (re-run `kfuse calibrate`)".to_string())
+                }
                 Some(path) => match geometry::io::images::read_color(path) {
                     Ok(img) => {
                         let bytes: Vec<u8> = img.data().iter().flatten().copied().collect();
                         let color = egui::ColorImage::from_rgb([img.width(), img.height()], &bytes);
-                        Ok(ctx.load_texture(format!("calib-{}-{}", self.camera, self.image), color, TextureOptions::LINEAR))
+                        Ok(ctx.load_texture(
+                            format!("calib-{}-{}", self.camera, self.image),
+                            color,
+                            TextureOptions::LINEAR,
+                        ))
                     }
                     Err(e) => Err(e.to_string()),
                 },
@@ -328,7 +422,12 @@ impl CalibPage {
         let img_rect = self.view2d.image_rect(rect, size);
         match &tex {
             Some(Ok(t)) => {
-                painter.image(t.id(), img_rect, Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)), Color32::WHITE);
+                painter.image(
+                    t.id(),
+                    img_rect,
+                    Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+                    Color32::WHITE,
+                );
             }
             _ => {
                 painter.rect_filled(img_rect, 0.0, Color32::from_gray(40));
@@ -336,7 +435,8 @@ impl CalibPage {
         }
         let s = self.view2d.scale(rect, size);
         // Pixel centres at integers: pixel x spans x ± 0.5, so its centre is at edge x + 0.5.
-        let to_screen = |x: f64, y: f64| img_rect.min + Vec2::new((x as f32 + 0.5) * s, (y as f32 + 0.5) * s);
+        let to_screen =
+            |x: f64, y: f64| img_rect.min + Vec2::new((x as f32 + 0.5) * s, (y as f32 + 0.5) * s);
         let r = (s * size[0].max(size[1]) as f32 / 160.0).max(3.0);
         let mut drawn = 0;
         for c in &im.detected {
@@ -346,7 +446,10 @@ impl CalibPage {
         }
         let find = |id: f64| im.detected.iter().find(|c| c[0] == id);
         if let (Some(a), Some(b)) = (find(0.0), find(1.0)) {
-            painter.line_segment([to_screen(a[1], a[2]), to_screen(b[1], b[2])], Stroke::new(2.0, Color32::RED));
+            painter.line_segment(
+                [to_screen(a[1], a[2]), to_screen(b[1], b[2])],
+                Stroke::new(2.0, Color32::RED),
+            );
         }
         self.markers_drawn = drawn;
     }
@@ -361,8 +464,19 @@ impl CalibPage {
             });
         }
         let gain = residual_gain(&cam, joint);
-        let largest = cam.images.iter().flat_map(|i| i.residual_rows(joint)).map(|r| r[3].hypot(r[4])).fold(0.0, f64::max);
-        let fit = if joint { "stereo joint fit" } else if self.report.stereo.is_some() { "single-camera fit" } else { "fit" };
+        let largest = cam
+            .images
+            .iter()
+            .flat_map(|i| i.residual_rows(joint))
+            .map(|r| r[3].hypot(r[4]))
+            .fold(0.0, f64::max);
+        let fit = if joint {
+            "stereo joint fit"
+        } else if self.report.stereo.is_some() {
+            "single-camera fit"
+        } else {
+            "fit"
+        };
         ui.label(format!(
             "{} camera, {fit}: residual vectors (observed - projected) of every used corner, magnified ×{gain:.0}; largest {largest:.3} px; selected image highlighted",
             cam.label
@@ -370,7 +484,10 @@ impl CalibPage {
         let rect = ui.available_rect_before_wrap().shrink(8.0);
         ui.allocate_rect(rect, Sense::hover());
         let size = [cam.model.width, cam.model.height];
-        let frame = View2d::default().image_rect(Rect::from_min_max(rect.min, Pos2::new(rect.max.x, rect.max.y - 30.0)), size);
+        let frame = View2d::default().image_rect(
+            Rect::from_min_max(rect.min, Pos2::new(rect.max.x, rect.max.y - 30.0)),
+            size,
+        );
         let painter = ui.painter_at(rect);
         painter.rect_stroke(frame, 0.0, Stroke::new(1.0, Color32::GRAY), egui::StrokeKind::Inside);
         let s = frame.width() / size[0] as f32;
@@ -391,19 +508,35 @@ impl CalibPage {
         if largest > 0.0 {
             let k = largest.log10().floor();
             let base = 10f64.powf(k);
-            let nice = [5.0, 2.0, 1.0].iter().map(|m| m * base).find(|&v| v <= largest).unwrap_or(base);
+            let nice =
+                [5.0, 2.0, 1.0].iter().map(|m| m * base).find(|&v| v <= largest).unwrap_or(base);
             let len = (nice * gain) as f32 * s;
             let y = frame.max.y + 18.0;
             let x = frame.min.x;
-            painter.line_segment([Pos2::new(x, y), Pos2::new(x + len, y)], Stroke::new(3.0, Color32::YELLOW));
-            painter.text(Pos2::new(x + len + 8.0, y), egui::Align2::LEFT_CENTER, format!("scale: {nice} px residual (×{gain:.0})"), egui::FontId::proportional(13.0), ui.visuals().text_color());
+            painter.line_segment(
+                [Pos2::new(x, y), Pos2::new(x + len, y)],
+                Stroke::new(3.0, Color32::YELLOW),
+            );
+            painter.text(
+                Pos2::new(x + len + 8.0, y),
+                egui::Align2::LEFT_CENTER,
+                format!("scale: {nice} px residual (×{gain:.0})"),
+                egui::FontId::proportional(13.0),
+                ui.visuals().text_color(),
+            );
         }
     }
 
     fn poses_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
-            let frame = if self.report.stereo.is_some() { "depth (IR) camera frame" } else { "camera frame" };
-            ui.label(format!("Board poses in the {frame}, metres. Drag: orbit · right-drag: pan · scroll: zoom"));
+            let frame = if self.report.stereo.is_some() {
+                "depth (IR) camera frame"
+            } else {
+                "camera frame"
+            };
+            ui.label(format!(
+                "Board poses in the {frame}, metres. Drag: orbit · right-drag: pan · scroll: zoom"
+            ));
             if ui.button("Reset view").clicked() {
                 self.orbit = self.home;
             }
@@ -430,7 +563,10 @@ impl CalibPage {
                 return None;
             }
             let (x, y) = (c.x / c.w, c.y / c.w);
-            Some(Pos2::new(rect.center().x + x * rect.width() * 0.5, rect.center().y - y * rect.height() * 0.5))
+            Some(Pos2::new(
+                rect.center().x + x * rect.width() * 0.5,
+                rect.center().y - y * rect.height() * 0.5,
+            ))
         };
         let painter = ui.painter_at(rect);
         let line = |a: Vector3<f64>, b: Vector3<f64>, stroke: Stroke| {
@@ -440,39 +576,73 @@ impl CalibPage {
         };
         // Axes of the reference frame: x red, y green, z blue, 0.1 m.
         let o = Vector3::zeros();
-        for (axis, c) in [(Vector3::x(), Color32::RED), (Vector3::y(), Color32::GREEN), (Vector3::z(), Color32::from_rgb(80, 120, 255))] {
+        for (axis, c) in [
+            (Vector3::x(), Color32::RED),
+            (Vector3::y(), Color32::GREEN),
+            (Vector3::z(), Color32::from_rgb(80, 120, 255)),
+        ] {
             line(o, axis * 0.1, Stroke::new(2.0, c));
         }
         for (label, model, pose) in self.camera_poses() {
             let k = model.intrinsics;
-            let corners: Vec<Vector3<f64>> = [(0.0, 0.0), (model.width as f64 - 1.0, 0.0), (model.width as f64 - 1.0, model.height as f64 - 1.0), (0.0, model.height as f64 - 1.0)]
-                .iter()
-                .map(|&(u, v)| pose.apply(&(Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0) * FRUSTUM_DEPTH_M)))
-                .collect();
+            let corners: Vec<Vector3<f64>> = [
+                (0.0, 0.0),
+                (model.width as f64 - 1.0, 0.0),
+                (model.width as f64 - 1.0, model.height as f64 - 1.0),
+                (0.0, model.height as f64 - 1.0),
+            ]
+            .iter()
+            .map(|&(u, v)| {
+                pose.apply(
+                    &(Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0) * FRUSTUM_DEPTH_M),
+                )
+            })
+            .collect();
             let c = pose.apply(&Vector3::zeros());
-            let colour = if label == "IR" { Color32::from_rgb(230, 120, 230) } else { Color32::from_rgb(240, 200, 60) };
+            let colour = if label == "IR" {
+                Color32::from_rgb(230, 120, 230)
+            } else {
+                Color32::from_rgb(240, 200, 60)
+            };
             for i in 0..4 {
                 line(c, corners[i], Stroke::new(1.5, colour));
                 line(corners[i], corners[(i + 1) % 4], Stroke::new(1.5, colour));
             }
             if let Some(p) = project(corners[0]) {
-                painter.text(p, egui::Align2::RIGHT_BOTTOM, format!("{label} camera"), egui::FontId::proportional(13.0), colour);
+                painter.text(
+                    p,
+                    egui::Align2::RIGHT_BOTTOM,
+                    format!("{label} camera"),
+                    egui::FontId::proportional(13.0),
+                    colour,
+                );
             }
         }
         let (bw, bh) = self.report.board_size_m();
         let outline = [(0.0, 0.0), (bw, 0.0), (bw, bh), (0.0, bh)];
         let mut drawn = 0;
         for (i, pose) in self.board_poses() {
-            let pts: Vec<Vector3<f64>> = outline.iter().map(|&(x, y)| pose.apply(&Vector3::new(x, y, 0.0))).collect();
+            let pts: Vec<Vector3<f64>> =
+                outline.iter().map(|&(x, y)| pose.apply(&Vector3::new(x, y, 0.0))).collect();
             let colour = palette(i);
             let width = if i == self.image { 3.0 } else { 1.5 };
             for k in 0..4 {
                 line(pts[k], pts[(k + 1) % 4], Stroke::new(width, colour));
             }
             // Corner 0 -> x axis, as in the corner view.
-            line(pts[0], pose.apply(&Vector3::new(bw * 0.25, 0.0, 0.0)), Stroke::new(width + 1.0, Color32::RED));
+            line(
+                pts[0],
+                pose.apply(&Vector3::new(bw * 0.25, 0.0, 0.0)),
+                Stroke::new(width + 1.0, Color32::RED),
+            );
             if let Some(p) = project(pose.apply(&Vector3::new(bw * 0.5, bh * 0.5, 0.0))) {
-                painter.text(p, egui::Align2::CENTER_CENTER, format!("{}", i + 1), egui::FontId::proportional(12.0), colour);
+                painter.text(
+                    p,
+                    egui::Align2::CENTER_CENTER,
+                    format!("{}", i + 1),
+                    egui::FontId::proportional(12.0),
+                    colour,
+                );
             }
             drawn += 1;
         }
@@ -482,17 +652,20 @@ impl CalibPage {
     fn parameters_ui(&mut self, ui: &mut egui::Ui) {
         fn table(ui: &mut egui::Ui, id: usize, title: &str, rows: &[crate::calibration::ParamRow]) {
             ui.strong(title);
-            egui::Grid::new(format!("kfuse-calib-params-{id}")).striped(true).num_columns(3).show(ui, |ui| {
-                for (name, v, e, unit) in rows {
-                    ui.label(name);
-                    ui.monospace(format!("{v:>14.6}"));
-                    ui.monospace(match e {
-                        Some(e) => format!("± {e:.6} {unit}"),
-                        None => format!("fixed {unit}"),
-                    });
-                    ui.end_row();
-                }
-            });
+            egui::Grid::new(format!("kfuse-calib-params-{id}")).striped(true).num_columns(3).show(
+                ui,
+                |ui| {
+                    for (name, v, e, unit) in rows {
+                        ui.label(name);
+                        ui.monospace(format!("{v:>14.6}"));
+                        ui.monospace(match e {
+                            Some(e) => format!("± {e:.6} {unit}"),
+                            None => format!("fixed {unit}"),
+                        });
+                        ui.end_row();
+                    }
+                },
+            );
         }
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.label("Intervals are ±3σ (3 × the report's 1σ, comparable with Bouguet's *_error); fixed parameters show none.");

@@ -132,21 +132,42 @@ impl CalibReport {
                 .zip(values)
                 .zip(cam.std_1sigma)
                 .enumerate()
-                .map(|(i, ((n, v), s))| (n.to_string(), v, (s > 0.0).then_some(3.0 * s), if i < 5 { "px" } else { "" }))
+                .map(|(i, ((n, v), s))| {
+                    (n.to_string(), v, (s > 0.0).then_some(3.0 * s), if i < 5 { "px" } else { "" })
+                })
                 .collect();
-            out.push((format!("{} camera ({}x{}), RMS {:.4} px", cam.label, cam.model.width, cam.model.height, cam.rms_px), rows));
+            out.push((
+                format!(
+                    "{} camera ({}x{}), RMS {:.4} px",
+                    cam.label, cam.model.width, cam.model.height, cam.rms_px
+                ),
+                rows,
+            ));
         }
         if let Some(s) = &self.stereo {
             let om = s.color_from_depth.axis_angle();
             let t = s.color_from_depth.translation;
             let mut rows: Vec<ParamRow> = Vec::new();
             for (i, axis) in ["x", "y", "z"].iter().enumerate() {
-                rows.push((format!("rotation {axis} (axis-angle)"), om[i].to_degrees(), Some(3.0 * s.rotation_std_rad[i].to_degrees()), "°"));
+                rows.push((
+                    format!("rotation {axis} (axis-angle)"),
+                    om[i].to_degrees(),
+                    Some(3.0 * s.rotation_std_rad[i].to_degrees()),
+                    "°",
+                ));
             }
             for (i, axis) in ["x", "y", "z"].iter().enumerate() {
-                rows.push((format!("T{axis}"), t[i] * 1000.0, Some(3.0 * s.translation_std_m[i] * 1000.0), "mm"));
+                rows.push((
+                    format!("T{axis}"),
+                    t[i] * 1000.0,
+                    Some(3.0 * s.translation_std_m[i] * 1000.0),
+                    "mm",
+                ));
             }
-            out.push((format!("color_from_depth (X_color = R·X_depth + T), joint RMS {:.4} px", s.rms_px), rows));
+            out.push((
+                format!("color_from_depth (X_color = R·X_depth + T), joint RMS {:.4} px", s.rms_px),
+                rows,
+            ));
         }
         out
     }
@@ -191,11 +212,15 @@ pub fn open_calibration(path: &Path) -> Result<CalibReport, ViewerError> {
     } else if path.is_file() {
         path.to_path_buf()
     } else {
-        return Err(ViewerError::MissingFile { path: path.to_path_buf(), hint: "give a `kfuse calibrate` report folder or rig file".into() });
+        return Err(ViewerError::MissingFile {
+            path: path.to_path_buf(),
+            hint: "give a `kfuse calibrate` report folder or rig file".into(),
+        });
     };
     let text = std::fs::read_to_string(&file).map_err(|e| bad(&file, e.to_string()))?;
-    let json: Value =
-        serde_json::from_str(&text).map_err(|e| bad(&file, format!("not valid JSON ({e}); re-run `kfuse calibrate --report DIR`")))?;
+    let json: Value = serde_json::from_str(&text).map_err(|e| {
+        bad(&file, format!("not valid JSON ({e}); re-run `kfuse calibrate --report DIR`"))
+    })?;
     parse_report(&file, &json)
 }
 
@@ -203,16 +228,31 @@ pub fn open_calibration(path: &Path) -> Result<CalibReport, ViewerError> {
 pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerError> {
     // A rig or camera file carries the report in `calibration`; report.json is the report itself
     // (stereo) or the whole camera file (single camera).
-    let (report, single_camera) = if json.get("format").and_then(Value::as_str) == Some("kfuse-camera") {
-        (json.get("calibration").ok_or_else(|| bad(file, "no \"calibration\" report in this camera file"))?, json.get("camera"))
-    } else if let Some(c) = json.get("calibration").filter(|c| c.is_object()) {
-        (c, None)
-    } else {
-        (json, None)
+    let (report, single_camera) =
+        if json.get("format").and_then(Value::as_str) == Some("kfuse-camera") {
+            (
+                json.get("calibration")
+                    .ok_or_else(|| bad(file, "no \"calibration\" report in this camera file"))?,
+                json.get("camera"),
+            )
+        } else if let Some(c) = json.get("calibration").filter(|c| c.is_object()) {
+            (c, None)
+        } else {
+            (json, None)
+        };
+    let board = report
+        .get("board")
+        .ok_or_else(|| bad(file, "no \"board\" entry; it was not written by `kfuse calibrate`"))?;
+    let num = |v: &Value, k: &str| {
+        v.get(k)
+            .and_then(Value::as_f64)
+            .ok_or_else(|| bad(file, format!("missing or non-numeric \"{k}\"")))
     };
-    let board = report.get("board").ok_or_else(|| bad(file, "no \"board\" entry; it was not written by `kfuse calibrate`"))?;
-    let num = |v: &Value, k: &str| v.get(k).and_then(Value::as_f64).ok_or_else(|| bad(file, format!("missing or non-numeric \"{k}\"")));
-    let board = (num(board, "inner_corners_cols")? as usize, num(board, "inner_corners_rows")? as usize, num(board, "square_m")?);
+    let board = (
+        num(board, "inner_corners_cols")? as usize,
+        num(board, "inner_corners_rows")? as usize,
+        num(board, "square_m")?,
+    );
 
     let camera_of = |v: Option<&Value>, what: &str| -> Result<CameraModel, ViewerError> {
         let v = v.ok_or_else(|| bad(file, format!("no \"{what}\" camera; re-run `kfuse calibrate` (this report predates the viewer)")))?;
@@ -224,12 +264,36 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
     if let Some(depth_mono) = report.get("depth_single_camera") {
         // Stereo: final cameras from the joint fit (in the rig file or in the report).
         let (depth, color) = match json.get("calibration") {
-            Some(_) => (camera_of(json.get("depth_camera"), "depth_camera")?, camera_of(json.get("color_camera"), "color_camera")?),
-            None => (camera_of(report.get("depth_camera"), "depth_camera")?, camera_of(report.get("color_camera"), "color_camera")?),
+            Some(_) => (
+                camera_of(json.get("depth_camera"), "depth_camera")?,
+                camera_of(json.get("color_camera"), "color_camera")?,
+            ),
+            None => (
+                camera_of(report.get("depth_camera"), "depth_camera")?,
+                camera_of(report.get("color_camera"), "color_camera")?,
+            ),
         };
-        let color_mono = report.get("color_single_camera").ok_or_else(|| bad(file, "no \"color_single_camera\" report"))?;
-        cameras.push(camera(file, "IR", depth, report.get("depth_std_1sigma"), num(report, "depth_rms_px")?, depth_mono, calib::files::DEPTH_RMS_LIMIT_PX)?);
-        cameras.push(camera(file, "colour", color, report.get("color_std_1sigma"), num(report, "color_rms_px")?, color_mono, calib::files::COLOR_RMS_LIMIT_PX)?);
+        let color_mono = report
+            .get("color_single_camera")
+            .ok_or_else(|| bad(file, "no \"color_single_camera\" report"))?;
+        cameras.push(camera(
+            file,
+            "IR",
+            depth,
+            report.get("depth_std_1sigma"),
+            num(report, "depth_rms_px")?,
+            depth_mono,
+            calib::files::DEPTH_RMS_LIMIT_PX,
+        )?);
+        cameras.push(camera(
+            file,
+            "colour",
+            color,
+            report.get("color_std_1sigma"),
+            num(report, "color_rms_px")?,
+            color_mono,
+            calib::files::COLOR_RMS_LIMIT_PX,
+        )?);
         // Per pair (image order): the joint fit's weights (reports before they existed: none).
         if let Some(weights) = report.get("per_pair_weight").and_then(Value::as_array) {
             for (cam, key) in cameras.iter_mut().zip(["depth", "color"]) {
@@ -241,7 +305,8 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
         if let Some(pairs) = report.get("per_pair_joint_residuals_px").and_then(Value::as_array) {
             for (cam, key) in cameras.iter_mut().zip(["depth", "color"]) {
                 for (im, pair) in cam.images.iter_mut().zip(pairs) {
-                    im.joint_residuals = rows::<5>(file, pair.get(key), &format!("{}: joint residuals", im.name))?;
+                    im.joint_residuals =
+                        rows::<5>(file, pair.get(key), &format!("{}: joint residuals", im.name))?;
                 }
             }
         }
@@ -251,7 +316,10 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
         };
         let cfd: RigidTransform = cfd
             .ok_or_else(|| bad(file, "no \"color_from_depth\"; re-run `kfuse calibrate`"))
-            .and_then(|v| serde_json::from_value(v.clone()).map_err(|e| bad(file, format!("\"color_from_depth\": {e}"))))?;
+            .and_then(|v| {
+                serde_json::from_value(v.clone())
+                    .map_err(|e| bad(file, format!("\"color_from_depth\": {e}")))
+            })?;
         stereo = Some(StereoExtrinsics {
             color_from_depth: cfd,
             rotation_std_rad: triple(file, report, "color_from_depth_rotation_std_rad")?,
@@ -259,7 +327,8 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
             rms_px: num(report, "rms_px")?,
         });
         if let Some(list) = report.get("depth_from_board").and_then(Value::as_array) {
-            depth_from_board = list.iter().map(|p| serde_json::from_value(p.clone()).ok()).collect();
+            depth_from_board =
+                list.iter().map(|p| serde_json::from_value(p.clone()).ok()).collect();
         }
     } else {
         let model = camera_of(single_camera, "camera")?;
@@ -269,13 +338,24 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
         } else {
             ("IR", calib::files::DEPTH_RMS_LIMIT_PX)
         };
-        cameras.push(camera(file, label, model, report.get("std_1sigma"), num(report, "rms_px")?, report, limit)?);
+        cameras.push(camera(
+            file,
+            label,
+            model,
+            report.get("std_1sigma"),
+            num(report, "rms_px")?,
+            report,
+            limit,
+        )?);
     }
     Ok(CalibReport { source: file.to_path_buf(), cameras, stereo, depth_from_board, board })
 }
 
 fn triple(file: &Path, v: &Value, key: &str) -> Result<[f64; 3], ViewerError> {
-    let a = v.get(key).and_then(Value::as_array).ok_or_else(|| bad(file, format!("missing \"{key}\"")))?;
+    let a = v
+        .get(key)
+        .and_then(Value::as_array)
+        .ok_or_else(|| bad(file, format!("missing \"{key}\"")))?;
     match a.as_slice() {
         [x, y, z] => match (x.as_f64(), y.as_f64(), z.as_f64()) {
             (Some(x), Some(y), Some(z)) => Ok([x, y, z]),
@@ -285,15 +365,24 @@ fn triple(file: &Path, v: &Value, key: &str) -> Result<[f64; 3], ViewerError> {
     }
 }
 
-fn rows<const N: usize>(file: &Path, v: Option<&Value>, what: &str) -> Result<Vec<[f64; N]>, ViewerError> {
+fn rows<const N: usize>(
+    file: &Path,
+    v: Option<&Value>,
+    what: &str,
+) -> Result<Vec<[f64; N]>, ViewerError> {
     let Some(list) = v else { return Ok(Vec::new()) };
     let list = list.as_array().ok_or_else(|| bad(file, format!("\"{what}\" is not a list")))?;
     list.iter()
         .map(|row| {
-            let r = row.as_array().filter(|r| r.len() == N).ok_or_else(|| bad(file, format!("\"{what}\": each entry needs {N} numbers")))?;
+            let r = row
+                .as_array()
+                .filter(|r| r.len() == N)
+                .ok_or_else(|| bad(file, format!("\"{what}\": each entry needs {N} numbers")))?;
             let mut out = [0.0; N];
             for (o, x) in out.iter_mut().zip(r) {
-                *o = x.as_f64().ok_or_else(|| bad(file, format!("\"{what}\": non-numeric entry")))?;
+                *o = x
+                    .as_f64()
+                    .ok_or_else(|| bad(file, format!("\"{what}\": non-numeric entry")))?;
             }
             Ok(out)
         })
@@ -312,23 +401,39 @@ fn camera(
     let std = std.ok_or_else(|| bad(file, format!("no 1σ entry for the {label} camera")))?;
     let mut std_1sigma = [0.0; 10];
     for (s, name) in std_1sigma.iter_mut().zip(PARAM_NAMES) {
-        *s = std.get(name).and_then(Value::as_f64).ok_or_else(|| bad(file, format!("{label} camera σ: missing \"{name}\"")))?;
+        *s = std
+            .get(name)
+            .and_then(Value::as_f64)
+            .ok_or_else(|| bad(file, format!("{label} camera σ: missing \"{name}\"")))?;
     }
-    let images = mono
-        .get("images")
-        .and_then(Value::as_array)
-        .ok_or_else(|| bad(file, format!("no per-image list (\"images\") for the {label} camera")))?;
+    let images = mono.get("images").and_then(Value::as_array).ok_or_else(|| {
+        bad(file, format!("no per-image list (\"images\") for the {label} camera"))
+    })?;
     let images = images
         .iter()
         .map(|im| {
-            let name = im.get("name").and_then(Value::as_str).ok_or_else(|| bad(file, format!("{label} image without a \"name\"")))?;
+            let name = im
+                .get("name")
+                .and_then(Value::as_str)
+                .ok_or_else(|| bad(file, format!("{label} image without a \"name\"")))?;
             Ok(CalibImage {
                 name: name.to_string(),
                 rms_px: im.get("rms_px").and_then(Value::as_f64),
                 rejected: im.get("rejected").and_then(Value::as_str).map(str::to_string),
-                detected: rows::<3>(file, im.get("detected_corners"), &format!("{name}: detected_corners"))?,
-                residuals: rows::<5>(file, im.get("residuals_px"), &format!("{name}: residuals_px"))?,
-                camera_from_board: im.get("camera_from_board").filter(|p| !p.is_null()).and_then(|p| serde_json::from_value(p.clone()).ok()),
+                detected: rows::<3>(
+                    file,
+                    im.get("detected_corners"),
+                    &format!("{name}: detected_corners"),
+                )?,
+                residuals: rows::<5>(
+                    file,
+                    im.get("residuals_px"),
+                    &format!("{name}: residuals_px"),
+                )?,
+                camera_from_board: im
+                    .get("camera_from_board")
+                    .filter(|p| !p.is_null())
+                    .and_then(|p| serde_json::from_value(p.clone()).ok()),
                 image: im.get("image").and_then(Value::as_str).map(PathBuf::from),
                 joint_weight: None,
                 joint_residuals: Vec::new(),
@@ -341,7 +446,12 @@ fn camera(
 /// The magnification of the residual arrows: the largest residual is drawn
 /// [`RESIDUAL_ARROW_FRACTION`] of the image width long (1 when there are no residuals).
 pub fn residual_gain(cam: &CalibCamera, joint: bool) -> f64 {
-    let max = cam.images.iter().flat_map(|i| i.residual_rows(joint)).map(|r| r[3].hypot(r[4])).fold(0.0, f64::max);
+    let max = cam
+        .images
+        .iter()
+        .flat_map(|i| i.residual_rows(joint))
+        .map(|r| r[3].hypot(r[4]))
+        .fold(0.0, f64::max);
     if max > 0.0 { RESIDUAL_ARROW_FRACTION * cam.model.width as f64 / max } else { 1.0 }
 }
 

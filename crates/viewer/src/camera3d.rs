@@ -76,8 +76,10 @@ impl OrbitCamera {
         let up = Vector3::new(0.0, -1.0, 0.0);
         let right = f.cross(&up).normalize();
         let cam_up = right.cross(&f).normalize();
-        let metres_per_point = 2.0 * self.distance * (FOV_Y_DEG.to_radians() * 0.5).tan() / height.max(1.0);
-        let t = Vector3::from(self.target) - right * dx * metres_per_point + cam_up * dy * metres_per_point;
+        let metres_per_point =
+            2.0 * self.distance * (FOV_Y_DEG.to_radians() * 0.5).tan() / height.max(1.0);
+        let t = Vector3::from(self.target) - right * dx * metres_per_point
+            + cam_up * dy * metres_per_point;
         self.target = [t.x, t.y, t.z];
     }
 

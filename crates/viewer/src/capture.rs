@@ -37,7 +37,11 @@ pub fn shot_files(out: &Path, name: &str, kind: ShotKind) -> [PathBuf; 3] {
         ShotKind::Scene => (format!("{name}_"), String::new()),
         ShotKind::Calib => (String::new(), format!("_{name}")),
     };
-    [out.join(format!("{stem}color{suffix}.jpg")), out.join(format!("{stem}ir{suffix}.png")), out.join(format!("{stem}depth{suffix}.png"))]
+    [
+        out.join(format!("{stem}color{suffix}.jpg")),
+        out.join(format!("{stem}ir{suffix}.png")),
+        out.join(format!("{stem}depth{suffix}.png")),
+    ]
 }
 
 /// The simulated scene (depth in mm, IR) and device profile of `--backend sim`:
@@ -45,13 +49,25 @@ pub fn shot_files(out: &Path, name: &str, kind: ShotKind) -> [PathBuf; 3] {
 pub fn sim_scene() -> (SimScene, SimProfile) {
     let setup = geometry::synth::kinect_preset(false);
     let frame = geometry::synth::render(&setup);
-    let depth_mm: Vec<f32> = frame.depth.data().iter().map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 }).collect();
+    let depth_mm: Vec<f32> = frame
+        .depth
+        .data()
+        .iter()
+        .map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 })
+        .collect();
     let ir: Vec<f32> = frame.amplitude.data().iter().map(|&a| a * SIM_IR_SCALE).collect();
     let (cw, ch) = frame.color.size();
     let rgb: Vec<u8> = frame.color.data().iter().flat_map(|p| p.iter().copied()).collect();
     let mut jpeg = Vec::new();
     let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90);
-    let ok = image::ImageEncoder::write_image(enc, &rgb, cw as u32, ch as u32, image::ExtendedColorType::Rgb8).is_ok();
+    let ok = image::ImageEncoder::write_image(
+        enc,
+        &rgb,
+        cw as u32,
+        ch as u32,
+        image::ExtendedColorType::Rgb8,
+    )
+    .is_ok();
     let d = &setup.rig.depth;
     let params = DepthParams {
         fx: d.intrinsics.fx as f32,
@@ -65,7 +81,10 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
         p2: d.distortion.p2 as f32,
     };
     let profile = SimProfile::synthetic(params, setup.rig.color.intrinsics.fx as f32);
-    let scene = SimScene { depth_frames: vec![(depth_mm, ir)], color_jpegs: if ok { vec![jpeg] } else { vec![] } };
+    let scene = SimScene {
+        depth_frames: vec![(depth_mm, ir)],
+        color_jpegs: if ok { vec![jpeg] } else { vec![] },
+    };
     (scene, profile)
 }
 
@@ -106,17 +125,36 @@ pub fn write_params_json(out: &Path, info: &DeviceInfo) -> Result<(), ViewerErro
 
 /// Writes `values` (a `width × height` row-major image) as a 16-bit PNG: rounded, clamped to
 /// 65535; non-finite and non-positive values become 0 (invalid).
-pub fn write_png16(path: &Path, values: &[f32], width: usize, height: usize) -> Result<(), ViewerError> {
-    let px: Vec<u16> = values.iter().map(|&v| if v.is_finite() && v > 0.0 { v.round().min(65535.0) as u16 } else { 0 }).collect();
-    let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(width as u32, height as u32, px)
-        .ok_or_else(|| write_err(path, format!("{} values do not make a {width}x{height} image", values.len())))?;
+pub fn write_png16(
+    path: &Path,
+    values: &[f32],
+    width: usize,
+    height: usize,
+) -> Result<(), ViewerError> {
+    let px: Vec<u16> = values
+        .iter()
+        .map(|&v| if v.is_finite() && v > 0.0 { v.round().min(65535.0) as u16 } else { 0 })
+        .collect();
+    let img =
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(width as u32, height as u32, px)
+            .ok_or_else(|| {
+                write_err(
+                    path,
+                    format!("{} values do not make a {width}x{height} image", values.len()),
+                )
+            })?;
     let mut bytes = std::io::Cursor::new(Vec::new());
     img.write_to(&mut bytes, image::ImageFormat::Png).map_err(|e| write_err(path, e))?;
     write_atomic(path, |w| w.write_all(bytes.get_ref())).map_err(|e| write_err(path, e))
 }
 
 /// Writes one shot: the sensor's colour JPEG unchanged, IR and depth (mm) as 16-bit PNGs.
-pub fn write_shot(files: &[PathBuf; 3], color_jpeg: &[u8], ir: &[f32], depth_mm: &[f32]) -> Result<(), ViewerError> {
+pub fn write_shot(
+    files: &[PathBuf; 3],
+    color_jpeg: &[u8],
+    ir: &[f32],
+    depth_mm: &[f32],
+) -> Result<(), ViewerError> {
     let [c, i, d] = files;
     write_atomic(c, |w| w.write_all(color_jpeg)).map_err(|e| write_err(c, e))?;
     write_png16(i, ir, WIDTH, HEIGHT)?;

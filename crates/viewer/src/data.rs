@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 
 use geometry::io::{course, images, rig as rigio};
-use geometry::{synth, DepthKind, GeometryError, Image, Rig};
+use geometry::{DepthKind, GeometryError, Image, Rig, synth};
 
 use crate::ViewerError;
 
@@ -67,17 +67,41 @@ fn bad(path: &Path, e: GeometryError) -> ViewerError {
 }
 
 fn require(path: PathBuf, hint: &str) -> Result<PathBuf, ViewerError> {
-    if path.is_file() { Ok(path) } else { Err(ViewerError::MissingFile { path, hint: hint.into() }) }
+    if path.is_file() {
+        Ok(path)
+    } else {
+        Err(ViewerError::MissingFile { path, hint: hint.into() })
+    }
 }
 
-fn check_size(path: &Path, camera: &'static str, got: (usize, usize), want: (usize, usize)) -> Result<(), ViewerError> {
+fn check_size(
+    path: &Path,
+    camera: &'static str,
+    got: (usize, usize),
+    want: (usize, usize),
+) -> Result<(), ViewerError> {
     if got == want {
         return Ok(());
     }
-    Err(ViewerError::SizeMismatch { path: path.to_path_buf(), camera, got_w: got.0, got_h: got.1, want_w: want.0, want_h: want.1 })
+    Err(ViewerError::SizeMismatch {
+        path: path.to_path_buf(),
+        camera,
+        got_w: got.0,
+        got_h: got.1,
+        want_w: want.0,
+        want_h: want.1,
+    })
 }
 
-fn load(name: String, rig_path: &Path, color_path: &Path, depth_path: &Path, scale: f64, kind: DepthKind, ir_path: Option<&Path>) -> Result<Frame, ViewerError> {
+fn load(
+    name: String,
+    rig_path: &Path,
+    color_path: &Path,
+    depth_path: &Path,
+    scale: f64,
+    kind: DepthKind,
+    ir_path: Option<&Path>,
+) -> Result<Frame, ViewerError> {
     let rig = rigio::read_rig(rig_path).map_err(|e| bad(rig_path, e))?;
     let color = images::read_color(color_path).map_err(|e| bad(color_path, e))?;
     check_size(color_path, "colour", color.size(), (rig.color.width, rig.color.height))?;
@@ -101,31 +125,46 @@ fn open_capture(dir: &Path) -> Result<Frame, ViewerError> {
     let depth = require(dir.join("depth.png"), HINT)?;
     let ir = dir.join("ir.png");
     let ir = ir.is_file().then_some(ir);
-    load(dir.display().to_string(), &rig, &color, &depth, images::MILLIMETRES, DepthKind::Z, ir.as_deref())
+    load(
+        dir.display().to_string(),
+        &rig,
+        &color,
+        &depth,
+        images::MILLIMETRES,
+        DepthKind::Z,
+        ir.as_deref(),
+    )
 }
 
 /// Resolves an input path recorded in summary.json (see the module docs).
 fn resolve(dir: &Path, recorded: &str, summary: &Path) -> Result<PathBuf, ViewerError> {
     let p = PathBuf::from(recorded);
     let mut tries = vec![p.clone()];
-    if p.is_relative() {
-        if let Some(parent) = dir.parent() {
-            tries.push(parent.join(&p));
-        }
+    if p.is_relative()
+        && let Some(parent) = dir.parent()
+    {
+        tries.push(parent.join(&p));
     }
     if let Some(name) = p.file_name() {
         tries.push(dir.join(name));
     }
     tries.into_iter().find(|t| t.is_file()).ok_or_else(|| ViewerError::MissingFile {
         path: p,
-        hint: format!("{} names it as an input of the fusion; restore it or re-run `kfuse fuse`", summary.display()),
+        hint: format!(
+            "{} names it as an input of the fusion; restore it or re-run `kfuse fuse`",
+            summary.display()
+        ),
     })
 }
 
 fn open_fuse_output(dir: &Path, summary: &Path) -> Result<Frame, ViewerError> {
-    let text = std::fs::read_to_string(summary).map_err(|e| ViewerError::BadFile { path: summary.into(), message: e.to_string() })?;
-    let json: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| ViewerError::BadFile { path: summary.into(), message: format!("not valid JSON ({e}); re-run `kfuse fuse`") })?;
+    let text = std::fs::read_to_string(summary)
+        .map_err(|e| ViewerError::BadFile { path: summary.into(), message: e.to_string() })?;
+    let json: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| ViewerError::BadFile {
+            path: summary.into(),
+            message: format!("not valid JSON ({e}); re-run `kfuse fuse`"),
+        })?;
     let inputs = json.get("inputs").ok_or_else(|| ViewerError::BadFile {
         path: summary.into(),
         message: "no \"inputs\" entry; it was not written by `kfuse fuse`".into(),
@@ -135,16 +174,31 @@ fn open_fuse_output(dir: &Path, summary: &Path) -> Result<Frame, ViewerError> {
     if let Some(mat) = field("mat") {
         let mat = resolve(dir, mat, summary)?;
         let data = course::read_course(&mat).map_err(|e| bad(&mat, e))?;
-        return Ok(Frame { name, rig: data.rig, depth: data.depth, kind: data.depth_kind, color: data.color, ir: None });
+        return Ok(Frame {
+            name,
+            rig: data.rig,
+            depth: data.depth,
+            kind: data.depth_kind,
+            color: data.color,
+            ir: None,
+        });
     }
-    let (Some(rig), Some(color), Some(depth)) = (field("rig"), field("color"), field("depth")) else {
-        return Err(ViewerError::BadFile { path: summary.into(), message: "\"inputs\" lacks rig, color or depth; re-run `kfuse fuse`".into() });
+    let (Some(rig), Some(color), Some(depth)) = (field("rig"), field("color"), field("depth"))
+    else {
+        return Err(ViewerError::BadFile {
+            path: summary.into(),
+            message: "\"inputs\" lacks rig, color or depth; re-run `kfuse fuse`".into(),
+        });
     };
     let kind = match field("depth_kind") {
         Some("range") => DepthKind::Range,
         _ => DepthKind::Z,
     };
-    let scale = inputs.get("depth_scale_m_per_unit").and_then(|v| v.as_f64()).unwrap_or(images::MILLIMETRES);
-    let (rig, color, depth) = (resolve(dir, rig, summary)?, resolve(dir, color, summary)?, resolve(dir, depth, summary)?);
+    let scale = inputs
+        .get("depth_scale_m_per_unit")
+        .and_then(|v| v.as_f64())
+        .unwrap_or(images::MILLIMETRES);
+    let (rig, color, depth) =
+        (resolve(dir, rig, summary)?, resolve(dir, color, summary)?, resolve(dir, depth, summary)?);
     load(name, &rig, &color, &depth, scale, kind, None)
 }

@@ -7,13 +7,17 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum ViewerError {
     /// The folder does not exist or is not a folder.
-    #[error("{path}: not a folder; pass the output folder of `kfuse fuse`, or a capture folder with rig.json, color.png and depth.png")]
+    #[error(
+        "{path}: not a folder; pass the output folder of `kfuse fuse`, or a capture folder with rig.json, color.png and depth.png"
+    )]
     NotAFolder {
         /// The path given.
         path: PathBuf,
     },
     /// The folder holds neither `summary.json` nor `rig.json`.
-    #[error("{path}: neither summary.json (a `kfuse fuse` output) nor rig.json (a capture folder) is in this folder")]
+    #[error(
+        "{path}: neither summary.json (a `kfuse fuse` output) nor rig.json (a capture folder) is in this folder"
+    )]
     UnknownFolder {
         /// The folder.
         path: PathBuf,
@@ -35,7 +39,9 @@ pub enum ViewerError {
         message: String,
     },
     /// An image does not match its camera in the rig.
-    #[error("{path} is {got_w}x{got_h}, but the rig says the {camera} camera is {want_w}x{want_h}; use the rig this image was captured with")]
+    #[error(
+        "{path} is {got_w}x{got_h}, but the rig says the {camera} camera is {want_w}x{want_h}; use the rig this image was captured with"
+    )]
     SizeMismatch {
         /// The image file.
         path: PathBuf,

@@ -24,11 +24,11 @@ use kinect_usb::backend::UsbBackend;
 use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamCounters};
 use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
 use kinect_usb::sim::{SimDevice, SimFaults};
-use kinect_usb::{usb, KinectError};
+use kinect_usb::{KinectError, usb};
 
+use crate::ViewerError;
 use crate::capture::{self, ShotKind};
 use crate::panes;
-use crate::ViewerError;
 
 /// How long one wait for a frame may block the capture thread, so that a closed window stops
 /// it within this time.
@@ -109,14 +109,20 @@ impl LiveSession {
         let (dev_backend, name, paced): (Box<dyn UsbBackend>, &str, bool) = match backend {
             LiveBackend::Usb => {
                 let b = usb::open_first().map_err(|e| match e {
-                    KinectError::NoUsb(_) => ViewerError::Device { message: format!("{e}\n{}", KinectError::NotFound) },
+                    KinectError::NoUsb(_) => {
+                        ViewerError::Device { message: format!("{e}\n{}", KinectError::NotFound) }
+                    }
                     e => device_error(e),
                 })?;
                 (Box::new(b), "Kinect v2", false)
             }
             LiveBackend::Sim { unplug_after } => {
                 let (scene, profile) = capture::sim_scene();
-                let faults = SimFaults { seed: 1, unplug_after_frames: unplug_after, ..SimFaults::default() };
+                let faults = SimFaults {
+                    seed: 1,
+                    unplug_after_frames: unplug_after,
+                    ..SimFaults::default()
+                };
                 (Box::new(SimDevice::new(profile, scene, faults)), "simulated Kinect v2", true)
             }
         };
@@ -132,7 +138,9 @@ impl LiveSession {
         let thread = std::thread::Builder::new()
             .name("kfuse-live".into())
             .spawn(move || capture_loop(dev, decoder, tx, stop2, repaint2, paced))
-            .map_err(|e| ViewerError::Device { message: format!("cannot start the capture thread: {e}") })?;
+            .map_err(|e| ViewerError::Device {
+                message: format!("cannot start the capture thread: {e}"),
+            })?;
         Ok(Self { info, name: name.to_string(), rx: Some(rx), stop, thread: Some(thread), repaint })
     }
 
@@ -178,7 +186,16 @@ fn half_size(rgb: &image::RgbImage) -> Image<[u8; 3]> {
 
 fn ir_grey(ir: &[f32]) -> Image<[u8; 3]> {
     let (lo, hi) = panes::robust_range(ir.iter().copied()).unwrap_or((0.0, 1.0));
-    let data = ir.iter().map(|&a| if a.is_finite() { [(((a - lo) / (hi - lo)).clamp(0.0, 1.0).sqrt() * 255.0) as u8; 3] } else { [0; 3] }).collect();
+    let data = ir
+        .iter()
+        .map(|&a| {
+            if a.is_finite() {
+                [(((a - lo) / (hi - lo)).clamp(0.0, 1.0).sqrt() * 255.0) as u8; 3]
+            } else {
+                [0; 3]
+            }
+        })
+        .collect();
     Image::from_vec(WIDTH, HEIGHT, data).unwrap_or_else(|_| Image::filled(WIDTH, HEIGHT, [0; 3]))
 }
 
@@ -228,7 +245,8 @@ fn capture_loop(
                     number,
                     timestamp,
                     depth_rgb: Arc::new(panes::depth_colors(
-                        &Image::from_vec(WIDTH, HEIGHT, depth.iter().map(|&d| d * 1e-3).collect()).unwrap_or_else(|_| Image::filled(WIDTH, HEIGHT, 0.0)),
+                        &Image::from_vec(WIDTH, HEIGHT, depth.iter().map(|&d| d * 1e-3).collect())
+                            .unwrap_or_else(|_| Image::filled(WIDTH, HEIGHT, 0.0)),
                         DEPTH_RANGE_M,
                     )),
                     ir_rgb: Arc::new(ir_grey(&ir)),
@@ -253,7 +271,9 @@ fn capture_loop(
             Ok(Some(Frame::Color(jpeg, _))) => {
                 let jpeg = jpeg.to_vec();
                 // A colour frame that does not decode is still saved as sent; only the display skips it.
-                if let Ok(img) = image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg) {
+                if let Ok(img) =
+                    image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg)
+                {
                     color_rgb = Some(Arc::new(half_size(&img.to_rgb8())));
                 }
                 color_jpeg = Some(Arc::new(jpeg));
@@ -264,7 +284,9 @@ fn capture_loop(
                     "the sensor was unplugged after {number} depth frames; the frames shown and the shots saved are intact. Reconnect it (USB 3 port, power) and start kfuse view again"
                 ));
             }
-            Err(KinectError::EndOfStream) => break Some(format!("the stream ended after {number} depth frames")),
+            Err(KinectError::EndOfStream) => {
+                break Some(format!("the stream ended after {number} depth frames"));
+            }
             Err(e) => break Some(format!("streaming stopped after {number} depth frames: {e}")),
         }
     };
@@ -396,7 +418,8 @@ impl LivePage {
     pub fn fps(&self) -> Option<f64> {
         let (first, last) = (self.timestamps.front()?, self.timestamps.back()?);
         let ticks = last.wrapping_sub(*first) as f64;
-        (self.timestamps.len() > 1 && ticks > 0.0).then(|| (self.timestamps.len() - 1) as f64 * TICKS_PER_SECOND / ticks)
+        (self.timestamps.len() > 1 && ticks > 0.0)
+            .then(|| (self.timestamps.len() - 1) as f64 * TICKS_PER_SECOND / ticks)
     }
 
     fn next_name(&self, kind: ShotKind) -> String {
@@ -412,9 +435,16 @@ impl LivePage {
 
     /// Saves the newest frame as a calibration pair or a scene (the key presses `C` and `S`).
     pub fn save(&mut self, kind: ShotKind) -> Result<SavedShot, ViewerError> {
-        let frame = self.latest.as_ref().ok_or_else(|| ViewerError::Device { message: "no frame yet: wait for the first depth frame".into() })?;
-        let jpeg = frame.color_jpeg.clone().ok_or_else(|| ViewerError::Device { message: "no colour frame yet: wait for the colour stream".into() })?;
-        std::fs::create_dir_all(&self.out_dir).map_err(|e| ViewerError::Write { path: self.out_dir.clone(), message: e.to_string() })?;
+        let frame = self.latest.as_ref().ok_or_else(|| ViewerError::Device {
+            message: "no frame yet: wait for the first depth frame".into(),
+        })?;
+        let jpeg = frame.color_jpeg.clone().ok_or_else(|| ViewerError::Device {
+            message: "no colour frame yet: wait for the colour stream".into(),
+        })?;
+        std::fs::create_dir_all(&self.out_dir).map_err(|e| ViewerError::Write {
+            path: self.out_dir.clone(),
+            message: e.to_string(),
+        })?;
         if !self.out_dir.join("kinect_params.json").exists() {
             capture::write_params_json(&self.out_dir, &self.info)?;
         }
@@ -425,7 +455,13 @@ impl LivePage {
         Ok(shot)
     }
 
-    fn texture(&mut self, ctx: &egui::Context, k: usize, img: &Image<[u8; 3]>, number: u64) -> TextureHandle {
+    fn texture(
+        &mut self,
+        ctx: &egui::Context,
+        k: usize,
+        img: &Image<[u8; 3]>,
+        number: u64,
+    ) -> TextureHandle {
         if let Some((n, t)) = &self.textures[k]
             && *n == number
         {
@@ -473,10 +509,17 @@ impl LivePage {
                 let c = self.latest.as_ref().map(|f| f.counters).unwrap_or_default();
                 ui.label(format!(
                     "dropped: depth {} (incomplete {}), colour {}, iso errors {}, not shown {}",
-                    c.depth_dropped, c.depth_incomplete, c.color_dropped, c.iso_errors, self.not_shown
+                    c.depth_dropped,
+                    c.depth_incomplete,
+                    c.color_dropped,
+                    c.iso_errors,
+                    self.not_shown
                 ));
             });
-            ui.label(format!("C: save a calibration pair · S: save a scene · into {}", self.out_dir.display()));
+            ui.label(format!(
+                "C: save a calibration pair · S: save a scene · into {}",
+                self.out_dir.display()
+            ));
             if let Some(msg) = &self.stopped {
                 ui.colored_label(Color32::from_rgb(230, 80, 80), msg);
             }
@@ -485,8 +528,17 @@ impl LivePage {
             }
             if let Some(last) = self.saved.last() {
                 let what = if last.kind == ShotKind::Calib { "calibration pair" } else { "scene" };
-                let names: Vec<String> = last.files.iter().filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())).collect();
-                ui.label(format!("saved {} shot(s); last: {what} of frame {}: {}", self.saved.len(), last.frame, names.join(", ")));
+                let names: Vec<String> = last
+                    .files
+                    .iter()
+                    .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+                    .collect();
+                ui.label(format!(
+                    "saved {} shot(s); last: {what} of frame {}: {}",
+                    self.saved.len(),
+                    last.frame,
+                    names.join(", ")
+                ));
             }
         });
         egui::CentralPanel::default().show(ui, |ui| {
@@ -498,8 +550,14 @@ impl LivePage {
             // Colour on the left half; depth over IR on the right half.
             let half = rect.width() * 0.5;
             let left = Rect::from_min_max(rect.min, Pos2::new(rect.min.x + half - 4.0, rect.max.y));
-            let right_top = Rect::from_min_max(Pos2::new(rect.min.x + half + 4.0, rect.min.y), Pos2::new(rect.max.x, rect.center().y - 4.0));
-            let right_bottom = Rect::from_min_max(Pos2::new(rect.min.x + half + 4.0, rect.center().y + 4.0), rect.max);
+            let right_top = Rect::from_min_max(
+                Pos2::new(rect.min.x + half + 4.0, rect.min.y),
+                Pos2::new(rect.max.x, rect.center().y - 4.0),
+            );
+            let right_bottom = Rect::from_min_max(
+                Pos2::new(rect.min.x + half + 4.0, rect.center().y + 4.0),
+                rect.max,
+            );
             let panes = [
                 (0, frame.color_rgb.clone(), left, "colour"),
                 (1, Some(frame.depth_rgb.clone()), right_top, "depth (0.5–4.5 m)"),
@@ -510,14 +568,26 @@ impl LivePage {
                 match img {
                     Some(img) => {
                         let t = self.texture(ui.ctx(), k, &img, frame.number);
-                        let fit = crate::view2d::View2d::default().image_rect(area, [img.width(), img.height()]);
-                        painter.image(t.id(), fit, Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)), Color32::WHITE);
+                        let fit = crate::view2d::View2d::default()
+                            .image_rect(area, [img.width(), img.height()]);
+                        painter.image(
+                            t.id(),
+                            fit,
+                            Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+                            Color32::WHITE,
+                        );
                     }
                     None => {
                         painter.rect_filled(area, 0.0, Color32::from_gray(30));
                     }
                 }
-                painter.text(area.min + egui::vec2(6.0, 6.0), egui::Align2::LEFT_TOP, label, egui::FontId::proportional(14.0), Color32::YELLOW);
+                painter.text(
+                    area.min + egui::vec2(6.0, 6.0),
+                    egui::Align2::LEFT_TOP,
+                    label,
+                    egui::FontId::proportional(14.0),
+                    Color32::YELLOW,
+                );
             }
         });
         if self.streaming() {

@@ -5,8 +5,8 @@
 
 use geometry::Image;
 
-use crate::pipeline::Fused;
 use crate::data::Frame;
+use crate::pipeline::Fused;
 
 /// Side of one checkerboard square of the overlay, colour pixels: 64 px at 1920 wide gives
 /// 30 columns, fine enough to compare edges and coarse enough to see both images.
@@ -37,7 +37,15 @@ pub enum Pane {
 
 impl Pane {
     /// All panes in menu order.
-    pub const ALL: [Pane; 7] = [Pane::Color, Pane::Depth, Pane::Ir, Pane::Blend, Pane::Checker, Pane::Holes, Pane::ColorOnDepth];
+    pub const ALL: [Pane; 7] = [
+        Pane::Color,
+        Pane::Depth,
+        Pane::Ir,
+        Pane::Blend,
+        Pane::Checker,
+        Pane::Holes,
+        Pane::ColorOnDepth,
+    ];
 
     /// The label of its button.
     pub fn label(self) -> &'static str {
@@ -61,8 +69,13 @@ impl Pane {
 /// Viridis at `t` in 0..1 (clamped; non-finite = 0).
 pub fn colormap(t: f32) -> [u8; 3] {
     // Viridis anchors at t = 0, .25, .5, .75, 1.
-    const STOPS: [[f32; 3]; 5] =
-        [[68.0, 1.0, 84.0], [59.0, 82.0, 139.0], [33.0, 145.0, 140.0], [94.0, 201.0, 98.0], [253.0, 231.0, 37.0]];
+    const STOPS: [[f32; 3]; 5] = [
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
+    ];
     let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
     let x = t * 4.0;
     let i = (x.floor() as usize).min(3);
@@ -86,7 +99,8 @@ pub fn robust_range(values: impl Iterator<Item = f32>) -> Option<(f32, f32)> {
 /// Depth as colours over `range` (metres); no sample = black.
 pub fn depth_colors(depth: &Image<f32>, range: (f32, f32)) -> Image<[u8; 3]> {
     let (lo, hi) = range;
-    depth.map(|&d| if d.is_finite() && d > 0.0 { colormap((d - lo) / (hi - lo)) } else { [0, 0, 0] })
+    depth
+        .map(|&d| if d.is_finite() && d > 0.0 { colormap((d - lo) / (hi - lo)) } else { [0, 0, 0] })
 }
 
 /// An image of the pane, and the depth range its legend shows (metres), if any.
@@ -98,10 +112,25 @@ pub fn render(pane: Pane, frame: &Frame, fused: &Fused) -> (Image<[u8; 3]>, Opti
         Pane::Ir => {
             let ir = match &frame.ir {
                 Some(ir) => ir,
-                None => return (Image::filled(frame.depth.width(), frame.depth.height(), [0, 0, 0]), None),
+                None => {
+                    return (
+                        Image::filled(frame.depth.width(), frame.depth.height(), [0, 0, 0]),
+                        None,
+                    );
+                }
             };
             let (lo, hi) = robust_range(ir.data().iter().copied()).unwrap_or((0.0, 1.0));
-            (ir.map(|&a| if a.is_finite() { let g = ((a - lo) / (hi - lo)).clamp(0.0, 1.0).sqrt() * 255.0; [g as u8; 3] } else { [0; 3] }), None)
+            (
+                ir.map(|&a| {
+                    if a.is_finite() {
+                        let g = ((a - lo) / (hi - lo)).clamp(0.0, 1.0).sqrt() * 255.0;
+                        [g as u8; 3]
+                    } else {
+                        [0; 3]
+                    }
+                }),
+                None,
+            )
         }
         Pane::Blend => {
             let d = depth_colors(&fused.shown_depth, range);
@@ -109,7 +138,10 @@ pub fn render(pane: Pane, frame: &Frame, fused: &Fused) -> (Image<[u8; 3]>, Opti
                 let c = frame.color.get(x, y);
                 if fused.shown_depth.get(x, y).is_finite() {
                     let dc = d.get(x, y);
-                    [0, 1, 2].map(|k| (BLEND_ALPHA * dc[k] as f32 + (1.0 - BLEND_ALPHA) * c[k] as f32).round() as u8)
+                    [0, 1, 2].map(|k| {
+                        (BLEND_ALPHA * dc[k] as f32 + (1.0 - BLEND_ALPHA) * c[k] as f32).round()
+                            as u8
+                    })
                 } else {
                     *c
                 }
@@ -119,7 +151,11 @@ pub fn render(pane: Pane, frame: &Frame, fused: &Fused) -> (Image<[u8; 3]>, Opti
         Pane::Checker => {
             let d = depth_colors(&fused.shown_depth, range);
             let out = Image::from_fn(d.width(), d.height(), |x, y| {
-                if (x / CHECKER_PX + y / CHECKER_PX) % 2 == 0 { *frame.color.get(x, y) } else { *d.get(x, y) }
+                if (x / CHECKER_PX + y / CHECKER_PX).is_multiple_of(2) {
+                    *frame.color.get(x, y)
+                } else {
+                    *d.get(x, y)
+                }
             });
             (out, Some(range))
         }
@@ -134,9 +170,16 @@ pub fn render(pane: Pane, frame: &Frame, fused: &Fused) -> (Image<[u8; 3]>, Opti
         }
         Pane::ColorOnDepth => {
             let o = &fused.output;
-            (Image::from_fn(o.color_on_depth.width(), o.color_on_depth.height(), |x, y| {
-                if *o.color_on_depth_valid.get(x, y) { *o.color_on_depth.get(x, y) } else { [0, 0, 0] }
-            }), None)
+            (
+                Image::from_fn(o.color_on_depth.width(), o.color_on_depth.height(), |x, y| {
+                    if *o.color_on_depth_valid.get(x, y) {
+                        *o.color_on_depth.get(x, y)
+                    } else {
+                        [0, 0, 0]
+                    }
+                }),
+                None,
+            )
         }
     }
 }
@@ -168,12 +211,21 @@ pub fn probe(pane: Pane, frame: &Frame, fused: &Fused, x: f32, y: f32) -> Option
     let (px, py) = (px as usize, py as usize);
     let (point, z) = if pane.on_depth_grid() {
         let value = *frame.depth.get(px, py) as f64;
-        let p = (value.is_finite() && value > 0.0).then(|| cam.backproject(px as f64, py as f64, value, frame.kind)).flatten();
+        let p = (value.is_finite() && value > 0.0)
+            .then(|| cam.backproject(px as f64, py as f64, value, frame.kind))
+            .flatten();
         (p, p.map(|p| p.z))
     } else {
         let z = *fused.shown_depth.get(px, py) as f64;
-        let p = z.is_finite().then(|| cam.backproject(px as f64, py as f64, z, geometry::DepthKind::Z)).flatten();
+        let p = z
+            .is_finite()
+            .then(|| cam.backproject(px as f64, py as f64, z, geometry::DepthKind::Z))
+            .flatten();
         (p, p.map(|p| p.z))
     };
-    Some(Probe { pixel: [px, py], depth_mm: z.map(|z| (z * 1000.0) as f32), point: point.map(|p| [p.x, p.y, p.z]) })
+    Some(Probe {
+        pixel: [px, py],
+        depth_mm: z.map(|z| (z * 1000.0) as f32),
+        point: point.map(|p| [p.x, p.y, p.z]),
+    })
 }

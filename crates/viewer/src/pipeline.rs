@@ -13,13 +13,13 @@
 //! * **edge-face removal off**: the 3D view shows H4's mesh instead of H5's.
 
 use geometry::fusion::{
-    self, coverage_radius_px, fill_holes_with_plane, hole_grow_px, mesh_from_depth, nearest_fill, remove_stretched_faces,
-    ColorProjection, FusionOptions, FusionOutput, MeshSource,
+    self, ColorProjection, FusionOptions, FusionOutput, MeshSource, coverage_radius_px,
+    fill_holes_with_plane, hole_grow_px, mesh_from_depth, nearest_fill, remove_stretched_faces,
 };
 use geometry::{Image, Mesh};
 
-use crate::data::Frame;
 use crate::ViewerError;
+use crate::data::Frame;
 
 /// How colour pixels between depth samples are filled (H3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -48,7 +48,13 @@ pub struct Toggles {
 impl Default for Toggles {
     fn default() -> Self {
         let d = FusionOptions::default();
-        Self { resampling: Resampling::Nearest, zbuffer: true, remove_edges: true, stretch_ratio: d.stretch_ratio, fill_holes: true }
+        Self {
+            resampling: Resampling::Nearest,
+            zbuffer: true,
+            remove_edges: true,
+            stretch_ratio: d.stretch_ratio,
+            fill_holes: true,
+        }
     }
 }
 
@@ -98,12 +104,24 @@ pub struct Fused {
 
 /// Runs the pipeline on `frame` with `toggles` (see the module docs). `gpu`: the GPU
 /// context to use, or `None` for the CPU.
-pub fn fuse(frame: &Frame, toggles: Toggles, gpu: Option<&mut fusion_gpu::FusionContext>) -> Result<Fused, ViewerError> {
+pub fn fuse(
+    frame: &Frame,
+    toggles: Toggles,
+    gpu: Option<&mut fusion_gpu::FusionContext>,
+) -> Result<Fused, ViewerError> {
     let options = toggles.options();
     let err = |message: String| ViewerError::Fusion { source_name: frame.name.clone(), message };
     let (mut output, backend) = match gpu {
-        Some(ctx) => (ctx.run(&frame.rig, &frame.depth, frame.kind, &frame.color, &options).map_err(|e| err(e.to_string()))?, Backend::Gpu),
-        None => (fusion::run(&frame.rig, &frame.depth, frame.kind, &frame.color, &options).map_err(|e| err(e.to_string()))?, Backend::Cpu),
+        Some(ctx) => (
+            ctx.run(&frame.rig, &frame.depth, frame.kind, &frame.color, &options)
+                .map_err(|e| err(e.to_string()))?,
+            Backend::Gpu,
+        ),
+        None => (
+            fusion::run(&frame.rig, &frame.depth, frame.kind, &frame.color, &options)
+                .map_err(|e| err(e.to_string()))?,
+            Backend::Cpu,
+        ),
     };
     let rig = &frame.rig;
     let radius = coverage_radius_px(rig, &options);
@@ -116,14 +134,27 @@ pub fn fuse(frame: &Frame, toggles: Toggles, gpu: Option<&mut fusion_gpu::Fusion
         output.hole_mask = fusion::hole_mask(&output.zbuffer, radius, hole_grow_px(rig, &options));
         let rays = fusion::depth_ray_table(&rig.depth, frame.kind);
         let proj = ColorProjection::from_rig(rig);
-        let (c, v) = fusion::color_on_depth(&frame.depth, &rays, &proj, &frame.color, None, options.color_occlusion_tolerance);
-        output.cloud.colors = output.cloud_pixels.iter().map(|&i| if v.data()[i as usize] { c.data()[i as usize] } else { [0; 3] }).collect();
+        let (c, v) = fusion::color_on_depth(
+            &frame.depth,
+            &rays,
+            &proj,
+            &frame.color,
+            None,
+            options.color_occlusion_tolerance,
+        );
+        output.cloud.colors = output
+            .cloud_pixels
+            .iter()
+            .map(|&i| if v.data()[i as usize] { c.data()[i as usize] } else { [0; 3] })
+            .collect();
         output.color_on_depth = c;
         output.color_on_depth_valid = v;
         recompute_mesh = true;
     }
     let base = match toggles.resampling {
-        Resampling::Delaunay if toggles.zbuffer => output.linear.clone().unwrap_or_else(|| output.nearest.clone()),
+        Resampling::Delaunay if toggles.zbuffer => {
+            output.linear.clone().unwrap_or_else(|| output.nearest.clone())
+        }
         // Delaunay on a last-write-wins buffer is not defined by the pipeline: the nearest
         // fill of that buffer is shown instead.
         _ => output.nearest.clone(),
@@ -152,7 +183,11 @@ pub fn fuse(frame: &Frame, toggles: Toggles, gpu: Option<&mut fusion_gpu::Fusion
 
 /// H7 without the depth test: in sample order, the first sample on a colour pixel stays.
 /// Empty pixels hold [`fusion::ZBUFFER_EMPTY`], like the z-buffer.
-pub fn first_write_wins(samples: &[fusion::ColorSample], width: usize, height: usize) -> Image<f32> {
+pub fn first_write_wins(
+    samples: &[fusion::ColorSample],
+    width: usize,
+    height: usize,
+) -> Image<f32> {
     let empty = fusion::ZBUFFER_EMPTY.to_bits();
     let mut img = Image::filled(width, height, fusion::ZBUFFER_EMPTY);
     for s in samples {

@@ -61,15 +61,25 @@ pub struct Geometry3d {
 impl Geometry3d {
     /// The H1 cloud (depth frame, moved into the colour frame with `color_from_depth`) and
     /// a mesh in the colour frame textured by `texture`.
-    pub fn new(generation: u64, cloud: &PointCloud, color_from_depth: &RigidTransform, mesh: &Mesh, texture: Arc<Image<[u8; 3]>>) -> Self {
+    pub fn new(
+        generation: u64,
+        cloud: &PointCloud,
+        color_from_depth: &RigidTransform,
+        mesh: &Mesh,
+        texture: Arc<Image<[u8; 3]>>,
+    ) -> Self {
         let points = cloud
             .points
             .iter()
             .enumerate()
             .map(|(i, p)| {
-                let q = color_from_depth.apply(&Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+                let q =
+                    color_from_depth.apply(&Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64));
                 let c = cloud.colors.get(i).copied().unwrap_or([200, 200, 200]);
-                PointVertex { pos: [q.x as f32, q.y as f32, q.z as f32], color: [c[0], c[1], c[2], 255] }
+                PointVertex {
+                    pos: [q.x as f32, q.y as f32, q.z as f32],
+                    color: [c[0], c[1], c[2], 255],
+                }
             })
             .collect();
         let vertices = mesh
@@ -175,13 +185,20 @@ impl SceneGpu {
     /// Compiles the pipelines; `target_format` is the format of the pass the view is
     /// copied into (egui's).
     pub fn new(device: &wgpu::Device, target_format: wgpu::TextureFormat) -> Self {
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("viewer 3d"), source: wgpu::ShaderSource::Wgsl(SHADER.into()) });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("viewer 3d"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
         let uniform_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("viewer uniforms"),
             entries: &[wgpu::BindGroupLayoutEntry {
                 binding: 0,
                 visibility: wgpu::ShaderStages::VERTEX,
-                ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
                 count: None,
             }],
         });
@@ -191,10 +208,19 @@ impl SceneGpu {
                 wgpu::BindGroupLayoutEntry {
                     binding: 0,
                     visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture { sample_type: wgpu::TextureSampleType::Float { filterable: true }, view_dimension: wgpu::TextureViewDimension::D2, multisampled: false },
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
                     count: None,
                 },
-                wgpu::BindGroupLayoutEntry { binding: 1, visibility: wgpu::ShaderStages::FRAGMENT, ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering), count: None },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
             ],
         });
         let layout3d = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -216,11 +242,23 @@ impl SceneGpu {
         });
         let point_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Unorm8x4];
         let mesh_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2];
-        let pipeline = |label: &str, layout: &wgpu::PipelineLayout, vs: &str, fs: &str, buffers: &[Option<wgpu::VertexBufferLayout>], topology, depth: Option<wgpu::DepthStencilState>, format| {
+        let pipeline = |label: &str,
+                        layout: &wgpu::PipelineLayout,
+                        vs: &str,
+                        fs: &str,
+                        buffers: &[Option<wgpu::VertexBufferLayout>],
+                        topology,
+                        depth: Option<wgpu::DepthStencilState>,
+                        format| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
                 layout: Some(layout),
-                vertex: wgpu::VertexState { module: &module, entry_point: Some(vs), compilation_options: Default::default(), buffers },
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some(vs),
+                    compilation_options: Default::default(),
+                    buffers,
+                },
                 primitive: wgpu::PrimitiveState { topology, ..Default::default() },
                 depth_stencil: depth,
                 multisample: Default::default(),
@@ -228,7 +266,11 @@ impl SceneGpu {
                     module: &module,
                     entry_point: Some(fs),
                     compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
                 }),
                 multiview_mask: None,
                 cache: None,
@@ -239,7 +281,11 @@ impl SceneGpu {
             &layout3d,
             "vs_point",
             "fs_point",
-            &[Some(wgpu::VertexBufferLayout { array_stride: size_of::<PointVertex>() as u64, step_mode: wgpu::VertexStepMode::Vertex, attributes: &point_attrs })],
+            &[Some(wgpu::VertexBufferLayout {
+                array_stride: size_of::<PointVertex>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &point_attrs,
+            })],
             wgpu::PrimitiveTopology::PointList,
             depth.clone(),
             OFFSCREEN_FORMAT,
@@ -249,12 +295,25 @@ impl SceneGpu {
             &layout3d,
             "vs_mesh",
             "fs_mesh",
-            &[Some(wgpu::VertexBufferLayout { array_stride: size_of::<MeshVertex>() as u64, step_mode: wgpu::VertexStepMode::Vertex, attributes: &mesh_attrs })],
+            &[Some(wgpu::VertexBufferLayout {
+                array_stride: size_of::<MeshVertex>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &mesh_attrs,
+            })],
             wgpu::PrimitiveTopology::TriangleList,
             depth,
             OFFSCREEN_FORMAT,
         );
-        let blit_pipeline = pipeline("viewer blit", &blit_layout, "vs_blit", "fs_blit", &[], wgpu::PrimitiveTopology::TriangleList, None, target_format);
+        let blit_pipeline = pipeline(
+            "viewer blit",
+            &blit_layout,
+            "vs_blit",
+            "fs_blit",
+            &[],
+            wgpu::PrimitiveTopology::TriangleList,
+            None,
+            target_format,
+        );
         let uniforms = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("viewer uniforms"),
             contents: bytemuck::bytes_of(&Uniforms { view_proj: [[0.0; 4]; 4] }),
@@ -271,7 +330,17 @@ impl SceneGpu {
             min_filter: wgpu::FilterMode::Linear,
             ..Default::default()
         });
-        Self { point_pipeline, mesh_pipeline, blit_pipeline, uniforms, uniform_group, texture_layout, sampler, target: None, uploaded: None }
+        Self {
+            point_pipeline,
+            mesh_pipeline,
+            blit_pipeline,
+            uniforms,
+            uniform_group,
+            texture_layout,
+            sampler,
+            target: None,
+            uploaded: None,
+        }
     }
 
     /// Number of points and triangles uploaded (0, 0 before the first upload).
@@ -286,15 +355,44 @@ impl SceneGpu {
         }
         let usage_v = wgpu::BufferUsages::VERTEX;
         // Empty buffers are not allowed to be bound: keep one dummy element.
-        let points: &[u8] = if geometry.points.is_empty() { &[0; 16] } else { bytemuck::cast_slice(&geometry.points) };
-        let vertices: &[u8] = if geometry.vertices.is_empty() { &[0; 20] } else { bytemuck::cast_slice(&geometry.vertices) };
-        let indices: &[u8] = if geometry.indices.is_empty() { &[0; 12] } else { bytemuck::cast_slice(&geometry.indices) };
-        let points = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("viewer points"), contents: points, usage: usage_v });
-        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("viewer vertices"), contents: vertices, usage: usage_v });
-        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("viewer indices"), contents: indices, usage: wgpu::BufferUsages::INDEX });
+        let points: &[u8] = if geometry.points.is_empty() {
+            &[0; 16]
+        } else {
+            bytemuck::cast_slice(&geometry.points)
+        };
+        let vertices: &[u8] = if geometry.vertices.is_empty() {
+            &[0; 20]
+        } else {
+            bytemuck::cast_slice(&geometry.vertices)
+        };
+        let indices: &[u8] = if geometry.indices.is_empty() {
+            &[0; 12]
+        } else {
+            bytemuck::cast_slice(&geometry.indices)
+        };
+        let points = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("viewer points"),
+            contents: points,
+            usage: usage_v,
+        });
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("viewer vertices"),
+            contents: vertices,
+            usage: usage_v,
+        });
+        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("viewer indices"),
+            contents: indices,
+            usage: wgpu::BufferUsages::INDEX,
+        });
         let (w, h) = geometry.texture.size();
-        let rgba: Vec<u8> = geometry.texture.data().iter().flat_map(|c| [c[0], c[1], c[2], 255]).collect();
-        let size = wgpu::Extent3d { width: w.max(1) as u32, height: h.max(1) as u32, depth_or_array_layers: 1 };
+        let rgba: Vec<u8> =
+            geometry.texture.data().iter().flat_map(|c| [c[0], c[1], c[2], 255]).collect();
+        let size = wgpu::Extent3d {
+            width: w.max(1) as u32,
+            height: h.max(1) as u32,
+            depth_or_array_layers: 1,
+        };
         let texture = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("viewer mesh texture"),
             size,
@@ -307,9 +405,18 @@ impl SceneGpu {
         });
         if !rgba.is_empty() {
             queue.write_texture(
-                wgpu::TexelCopyTextureInfo { texture: &texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
                 &rgba,
-                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * w as u32), rows_per_image: Some(h as u32) },
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(4 * w as u32),
+                    rows_per_image: Some(h as u32),
+                },
                 size,
             );
         }
@@ -330,7 +437,16 @@ impl SceneGpu {
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("viewer texture"),
             layout: &self.texture_layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(view) }, wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(&self.sampler) }],
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
+            ],
         })
     }
 
@@ -352,11 +468,22 @@ impl SceneGpu {
                 view_formats: &[],
             })
         };
-        let color = make(OFFSCREEN_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC);
+        let color = make(
+            OFFSCREEN_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+        );
         let depth = make(DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT);
         let color_view = color.create_view(&Default::default());
         let blit_group = self.texture_group(device, &color_view);
-        self.target = Some(Target { size, color, color_view, depth_view: depth.create_view(&Default::default()), blit_group });
+        self.target = Some(Target {
+            size,
+            color,
+            color_view,
+            depth_view: depth.create_view(&Default::default()),
+            blit_group,
+        });
     }
 
     /// The offscreen colour texture (after [`SceneGpu::draw`]).
@@ -366,9 +493,20 @@ impl SceneGpu {
 
     /// Records the 3D pass into `encoder`: clears the offscreen target of `size` pixels and
     /// draws the uploaded mesh and/or cloud.
-    pub fn draw(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, encoder: &mut wgpu::CommandEncoder, params: &DrawParams, size: [u32; 2]) {
+    pub fn draw(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        encoder: &mut wgpu::CommandEncoder,
+        params: &DrawParams,
+        size: [u32; 2],
+    ) {
         self.ensure_target(device, size);
-        queue.write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&Uniforms { view_proj: params.view_proj }));
+        queue.write_buffer(
+            &self.uniforms,
+            0,
+            bytemuck::bytes_of(&Uniforms { view_proj: params.view_proj }),
+        );
         let Some(target) = &self.target else { return };
         let [r, g, b, a] = BACKGROUND;
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -377,11 +515,17 @@ impl SceneGpu {
                 view: &target.color_view,
                 depth_slice: None,
                 resolve_target: None,
-                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color { r, g, b, a }), store: wgpu::StoreOp::Store },
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color { r, g, b, a }),
+                    store: wgpu::StoreOp::Store,
+                },
             })],
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                 view: &target.depth_view,
-                depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(1.0),
+                    store: wgpu::StoreOp::Discard,
+                }),
                 stencil_ops: None,
             }),
             timestamp_writes: None,
@@ -443,12 +587,20 @@ impl egui_wgpu::CallbackTrait for View3dCallback {
         let Some(scene) = resources.get_mut::<SceneGpu>() else { return Vec::new() };
         scene.upload(device, queue, &self.geometry);
         let ppp = screen.pixels_per_point;
-        let size = [(self.size_points[0] * ppp).round() as u32, (self.size_points[1] * ppp).round() as u32];
+        let size = [
+            (self.size_points[0] * ppp).round() as u32,
+            (self.size_points[1] * ppp).round() as u32,
+        ];
         scene.draw(device, queue, encoder, &self.params, size);
         Vec::new()
     }
 
-    fn paint(&self, _info: egui::PaintCallbackInfo, pass: &mut wgpu::RenderPass<'static>, resources: &egui_wgpu::CallbackResources) {
+    fn paint(
+        &self,
+        _info: egui::PaintCallbackInfo,
+        pass: &mut wgpu::RenderPass<'static>,
+        resources: &egui_wgpu::CallbackResources,
+    ) {
         if let Some(scene) = resources.get::<SceneGpu>() {
             scene.blit(pass);
         }

@@ -27,7 +27,9 @@ impl Default for View2d {
 
 impl View2d {
     fn center_or(&self, size: [usize; 2]) -> Vec2 {
-        self.center.map_or(Vec2::new(size[0] as f32 * 0.5, size[1] as f32 * 0.5), |c| Vec2::new(c[0], c[1]))
+        self.center.map_or(Vec2::new(size[0] as f32 * 0.5, size[1] as f32 * 0.5), |c| {
+            Vec2::new(c[0], c[1])
+        })
     }
 
     /// Screen points per image pixel in `rect`.
@@ -63,7 +65,13 @@ impl View2d {
 
     /// Applies the mouse input on `resp` (the view's area `rect`): scroll zooms about the
     /// cursor, drag pans.
-    pub fn handle_input(&mut self, ui: &egui::Ui, resp: &egui::Response, rect: Rect, size: [usize; 2]) {
+    pub fn handle_input(
+        &mut self,
+        ui: &egui::Ui,
+        resp: &egui::Response,
+        rect: Rect,
+        size: [usize; 2],
+    ) {
         if resp.hovered() {
             let scroll = ui.input(|i| i.smooth_scroll_delta.y);
             if scroll != 0.0

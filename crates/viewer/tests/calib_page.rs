@@ -10,14 +10,14 @@ use std::sync::OnceLock;
 
 use calib::detect::{align_pair, detect_views};
 use calib::files::{add_detections, camera_json, stereo_rig};
-use calib::{calibrate_mono, calibrate_stereo, Board, CalibFlags, StereoOptions};
+use calib::{Board, CalibFlags, StereoOptions, calibrate_mono, calibrate_stereo};
 use egui_kittest::kittest::Queryable;
-use egui_kittest::wgpu::{create_render_state, default_wgpu_setup, WgpuTestRenderer};
+use egui_kittest::wgpu::{WgpuTestRenderer, create_render_state, default_wgpu_setup};
 use egui_kittest::{Harness, SnapshotOptions};
+use geometry::testdata::shared_data_or_skip as shared;
 use serde_json::Value;
 use viewer::calib_page::CalibView;
 use viewer::{BackendChoice, Page, ViewerApp, ViewerError};
-use geometry::testdata::shared_data_or_skip as shared;
 
 const SIZE: egui::Vec2 = egui::Vec2::new(1000.0, 620.0);
 /// As in ui.rs: colour distance 2 absorbs lavapipe vs GPU rasterisation differences.
@@ -26,9 +26,21 @@ const PIXEL_THRESHOLD: f32 = 2.0;
 const FAILED_PIXELS: usize = 1240;
 
 fn images(dir: &Path, prefix: &str) -> (Vec<PathBuf>, Vec<(String, geometry::Image<u8>)>) {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(prefix)).collect();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(prefix))
+        .collect();
     files.sort();
-    let imgs = files.iter().map(|f| (f.file_name().unwrap().to_string_lossy().into_owned(), calib::io::read_gray(f).unwrap())).collect();
+    let imgs = files
+        .iter()
+        .map(|f| {
+            (
+                f.file_name().unwrap().to_string_lossy().into_owned(),
+                calib::io::read_gray(f).unwrap(),
+            )
+        })
+        .collect();
     (files, imgs)
 }
 
@@ -44,15 +56,25 @@ fn stereo_report(test: &str) -> Option<&'static Path> {
         let board = Board::new(7, 5, 0.04).unwrap();
         let (ir_views, board) = detect_views(&as_refs(&ir), &board);
         let (color_views, board) = detect_views(&as_refs(&color), &board);
-        let color_views: Vec<_> = ir_views.iter().zip(&color_views).map(|(d, c)| align_pair(d, c, &board)).collect();
-        let s = calibrate_stereo(&board, &ir_views, &color_views, &StereoOptions::default(), None, None).unwrap();
+        let color_views: Vec<_> =
+            ir_views.iter().zip(&color_views).map(|(d, c)| align_pair(d, c, &board)).collect();
+        let s = calibrate_stereo(
+            &board,
+            &ir_views,
+            &color_views,
+            &StereoOptions::default(),
+            None,
+            None,
+        )
+        .unwrap();
         let mut rig = stereo_rig(&s, &board);
         let cal = rig.calibration.as_mut().unwrap();
         add_detections(&mut cal["depth_single_camera"], &ir_views, &ir_files);
         add_detections(&mut cal["color_single_camera"], &color_views, &color_files);
         let dir = std::env::temp_dir().join("kfuse-viewer-test-calib-report");
         std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(cal).unwrap()).unwrap();
+        std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(cal).unwrap())
+            .unwrap();
         // The rig file `kfuse calibrate --out` writes, in a folder of its own.
         std::fs::create_dir_all(dir.join("rig")).unwrap();
         std::fs::write(dir.join("rig/rig.json"), rig.to_json()).unwrap();
@@ -70,7 +92,9 @@ fn read_json(path: &Path) -> Value {
 
 #[test]
 fn page_lists_the_reports_per_image_rms_and_corners() {
-    let Some(dir) = stereo_report("page_lists_the_reports_per_image_rms_and_corners") else { return };
+    let Some(dir) = stereo_report("page_lists_the_reports_per_image_rms_and_corners") else {
+        return;
+    };
     let app = ViewerApp::open(dir, BackendChoice::Cpu);
     assert!(app.error.is_none(), "{:?}", app.error);
     assert_eq!(app.page, Page::Calibration);
@@ -87,7 +111,12 @@ fn page_lists_the_reports_per_image_rms_and_corners() {
             assert_eq!(b.rms_px, im["rms_px"].as_f64(), "{label} {}", b.name);
             assert_eq!(b.name, im["name"].as_str().unwrap());
             assert_eq!(b.rejected, !im["rejected"].is_null());
-            let detected = &page.report.cameras[if *label == "IR" { 0 } else { 1 }].images.iter().find(|i| i.name == b.name).unwrap().detected;
+            let detected = &page.report.cameras[if *label == "IR" { 0 } else { 1 }]
+                .images
+                .iter()
+                .find(|i| i.name == b.name)
+                .unwrap()
+                .detected;
             assert_eq!(detected.len(), im["detected_corners"].as_array().unwrap().len());
         }
     }
@@ -117,7 +146,9 @@ fn page_lists_the_reports_per_image_rms_and_corners() {
     for (cam, key) in page.report.cameras.iter().zip(["depth", "color"]) {
         for (im, r) in cam.images.iter().zip(rms) {
             let rows = &im.joint_residuals;
-            let got = (rows.iter().map(|e| e[3] * e[3] + e[4] * e[4]).sum::<f64>() / rows.len() as f64).sqrt();
+            let got = (rows.iter().map(|e| e[3] * e[3] + e[4] * e[4]).sum::<f64>()
+                / rows.len() as f64)
+                .sqrt();
             assert!((got - r[key].as_f64().unwrap()).abs() < 1e-12, "{} {}", cam.label, im.name);
         }
     }
@@ -146,10 +177,15 @@ fn rejected_view_is_marked_on_the_kinect_lab_session() {
     let rejected: Vec<&str> = bars.iter().filter(|b| b.rejected).map(|b| b.name.as_str()).collect();
     // ir_23 shows no board (the CLI test says the same); the other views are used.
     assert_eq!(rejected, vec!["ir_23.bmp"]);
-    assert_eq!(bars.iter().filter(|b| !b.rejected).count(), m.views.iter().filter(|v| v.rejected.is_none()).count());
+    assert_eq!(
+        bars.iter().filter(|b| !b.rejected).count(),
+        m.views.iter().filter(|v| v.rejected.is_none()).count()
+    );
     // Single camera: the boards are in the camera's frame, one per used view.
     assert_eq!(page.board_poses().len(), bars.len() - 1);
-    let Some(mut h) = harness("rejected_view_is_marked_on_the_kinect_lab_session", app) else { return };
+    let Some(mut h) = harness("rejected_view_is_marked_on_the_kinect_lab_session", app) else {
+        return;
+    };
     h.get_by_label_contains("X ir_23.bmp");
     h.snapshot_options("calib_errors_rejected", &options());
     h.get_by_label(CalibView::Poses.label()).click();
@@ -164,7 +200,10 @@ fn corrupt_or_incomplete_report_names_the_file() {
     let app = ViewerApp::open(tmp.path(), BackendChoice::Cpu);
     let e = app.error.as_ref().expect("corrupt JSON is an error");
     assert!(matches!(e, ViewerError::BadFile { .. }));
-    assert!(e.to_string().contains("report.json") && e.to_string().contains("not valid JSON"), "{e}");
+    assert!(
+        e.to_string().contains("report.json") && e.to_string().contains("not valid JSON"),
+        "{e}"
+    );
     assert!(app.calib.is_none());
     // Valid JSON without the report's entries: named too, with the missing entry.
     std::fs::write(tmp.path().join("report.json"), r#"{"board": {"inner_corners_cols": 7, "inner_corners_rows": 5, "square_m": 0.04}, "depth_single_camera": {}}"#).unwrap();
@@ -198,7 +237,11 @@ fn options() -> SnapshotOptions {
 #[test]
 fn calibration_page_snapshots() {
     let Some(dir) = stereo_report("calibration_page_snapshots") else { return };
-    let Some(mut h) = harness("calibration_page_snapshots", ViewerApp::open(dir, BackendChoice::Cpu)) else { return };
+    let Some(mut h) =
+        harness("calibration_page_snapshots", ViewerApp::open(dir, BackendChoice::Cpu))
+    else {
+        return;
+    };
     h.snapshot_options("calib_errors", &options());
 
     // Image 3 of the colour camera: its 35 corners are drawn.
@@ -260,7 +303,12 @@ fn calibration_page_snapshots() {
 fn corrupt_report_shows_the_error_panel() {
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("report.json"), "not json at all").unwrap();
-    let Some(h) = harness("corrupt_report_shows_the_error_panel", ViewerApp::open(tmp.path(), BackendChoice::Cpu)) else { return };
+    let Some(h) = harness(
+        "corrupt_report_shows_the_error_panel",
+        ViewerApp::open(tmp.path(), BackendChoice::Cpu),
+    ) else {
+        return;
+    };
     h.get_by_label("Error");
     h.get_by_label_contains("report.json: not valid JSON");
 }
@@ -271,7 +319,8 @@ fn rig_file_folder_opens_with_the_rigs_cameras() {
     let from_rig = ViewerApp::open(&dir.join("rig"), BackendChoice::Cpu);
     assert!(from_rig.error.is_none(), "{:?}", from_rig.error);
     let from_report = ViewerApp::open(dir, BackendChoice::Cpu);
-    let (a, b) = (&from_rig.calib.as_ref().unwrap().report, &from_report.calib.as_ref().unwrap().report);
+    let (a, b) =
+        (&from_rig.calib.as_ref().unwrap().report, &from_report.calib.as_ref().unwrap().report);
     // Both files carry the same numbers (the rig's cameras are the report's, exactly).
     assert_eq!(a.cameras, b.cameras);
     assert_eq!(a.stereo, b.stereo);
@@ -288,7 +337,12 @@ fn missing_image_is_named_in_the_corner_view() {
     json["depth_single_camera"]["images"][0]["image"] = Value::from("/nonexistent/ir_01.png");
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("report.json"), json.to_string()).unwrap();
-    let Some(mut h) = harness("missing_image_is_named_in_the_corner_view", ViewerApp::open(tmp.path(), BackendChoice::Cpu)) else { return };
+    let Some(mut h) = harness(
+        "missing_image_is_named_in_the_corner_view",
+        ViewerApp::open(tmp.path(), BackendChoice::Cpu),
+    ) else {
+        return;
+    };
     h.get_by_label(CalibView::Corners.label()).click();
     h.run();
     h.run();

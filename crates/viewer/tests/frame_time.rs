@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use egui_kittest::wgpu::{create_render_state, default_wgpu_setup};
 use viewer::camera3d::OrbitCamera;
-use viewer::render3d::{DrawParams, SceneGpu, OFFSCREEN_FORMAT};
+use viewer::render3d::{DrawParams, OFFSCREEN_FORMAT, SceneGpu};
 use viewer::{BackendChoice, ViewerApp};
 
 /// Viewport of the measurement, pixels (a typical laptop window's 3D pane).
@@ -30,7 +30,11 @@ fn frame_time_kinect_textured_mesh() {
     let upload_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut cam = OrbitCamera::fit(geometry.vertices.iter().map(|v| v.pos)).unwrap();
     let mut frame = |cam: &OrbitCamera| {
-        let params = DrawParams { view_proj: cam.view_proj(W as f32 / H as f32).into(), points: false, mesh: true };
+        let params = DrawParams {
+            view_proj: cam.view_proj(W as f32 / H as f32).into(),
+            points: false,
+            mesh: true,
+        };
         let mut enc = device.create_command_encoder(&Default::default());
         scene.draw(device, queue, &mut enc, &params, [W, H]);
         let i = queue.submit([enc.finish()]);
@@ -53,11 +57,23 @@ fn frame_time_kinect_textured_mesh() {
 
     // Read the last frame back: the scene fills most of the view from the camera's viewpoint.
     let tex = scene.offscreen().unwrap();
-    let buf = device.create_buffer(&wgpu::BufferDescriptor { label: None, size: (W * H * 4) as u64, usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ, mapped_at_creation: false });
+    let buf = device.create_buffer(&wgpu::BufferDescriptor {
+        label: None,
+        size: (W * H * 4) as u64,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
     let mut enc = device.create_command_encoder(&Default::default());
     enc.copy_texture_to_buffer(
         tex.as_image_copy(),
-        wgpu::TexelCopyBufferInfo { buffer: &buf, layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(W * 4), rows_per_image: Some(H) } },
+        wgpu::TexelCopyBufferInfo {
+            buffer: &buf,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(W * 4),
+                rows_per_image: Some(H),
+            },
+        },
         wgpu::Extent3d { width: W, height: H, depth_or_array_layers: 1 },
     );
     let i = queue.submit([enc.finish()]);
@@ -65,7 +81,14 @@ fn frame_time_kinect_textured_mesh() {
     device.poll(wgpu::PollType::Wait { submission_index: Some(i), timeout: None }).unwrap();
     let data = buf.slice(..).get_mapped_range().expect("mapped above");
     let bg = viewer::render3d::BACKGROUND.map(|c| (c * 255.0).round() as u8);
-    let covered = data.chunks(4).filter(|p| (p[0] as i32 - bg[0] as i32).abs() > 2 || (p[1] as i32 - bg[1] as i32).abs() > 2 || (p[2] as i32 - bg[2] as i32).abs() > 2).count();
+    let covered = data
+        .chunks(4)
+        .filter(|p| {
+            (p[0] as i32 - bg[0] as i32).abs() > 2
+                || (p[1] as i32 - bg[1] as i32).abs() > 2
+                || (p[2] as i32 - bg[2] as i32).abs() > 2
+        })
+        .count();
     let frac = covered as f64 / (W * H) as f64;
     println!("mesh covers {:.1} % of the view", frac * 100.0);
     // The scene's wall spans the whole colour view; orbiting 30 points (~6°) keeps most of it.

@@ -8,9 +8,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use egui_kittest::kittest::Queryable;
-use egui_kittest::wgpu::{create_render_state, default_wgpu_setup, WgpuTestRenderer};
+use egui_kittest::wgpu::{WgpuTestRenderer, create_render_state, default_wgpu_setup};
 use egui_kittest::{Harness, SnapshotOptions};
-use viewer::capture::{shot_files, ShotKind};
+use viewer::capture::{ShotKind, shot_files};
 use viewer::live::{LiveBackend, LivePage};
 use viewer::{Page, ViewerApp};
 
@@ -28,7 +28,10 @@ fn read_png16(path: &Path) -> Vec<u16> {
 
 fn stopped_page(out: &Path) -> LivePage {
     let mut page = LivePage::open(LiveBackend::Sim { unplug_after: Some(FRAMES) }, out).unwrap();
-    assert!(page.wait_until_stopped(HANG_GUARD), "the capture thread did not stop after the simulated unplug");
+    assert!(
+        page.wait_until_stopped(HANG_GUARD),
+        "the capture thread did not stop after the simulated unplug"
+    );
     page
 }
 
@@ -40,22 +43,39 @@ fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
     assert_eq!(page.frames, FRAMES);
     let latest = page.latest.clone().expect("frames arrived");
     assert_eq!(latest.number, FRAMES);
-    assert!(page.stopped.as_deref().is_some_and(|m| m.contains(&format!("unplugged after {FRAMES} depth frames"))), "{:?}", page.stopped);
+    assert!(
+        page.stopped
+            .as_deref()
+            .is_some_and(|m| m.contains(&format!("unplugged after {FRAMES} depth frames"))),
+        "{:?}",
+        page.stopped
+    );
     assert!(!page.streaming());
     // Sensor-clock rate: the sim's 267-tick period exactly (f64 arithmetic, 1e-9).
     assert!((page.fps().unwrap() - SIM_FPS).abs() < 1e-9, "{:?}", page.fps());
-    assert_eq!(latest.counters.depth_dropped + latest.counters.color_dropped + latest.counters.iso_errors, 0);
+    assert_eq!(
+        latest.counters.depth_dropped + latest.counters.color_dropped + latest.counters.iso_errors,
+        0
+    );
 
     // S: a scene, with kfuse capture's names and writers.
     let shot = page.save(ShotKind::Scene).unwrap();
     assert_eq!(shot.files, shot_files(&out, "scene_0001", ShotKind::Scene));
     assert_eq!(shot.frame, FRAMES);
     let depth = read_png16(&shot.files[2]);
-    let want: Vec<u16> = latest.depth_mm.iter().map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 }).collect();
+    let want: Vec<u16> = latest
+        .depth_mm
+        .iter()
+        .map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 })
+        .collect();
     // Exact: the file holds the frame's depth in whole millimetres.
     assert_eq!(depth, want);
     let ir = read_png16(&shot.files[1]);
-    let want_ir: Vec<u16> = latest.ir.iter().map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 }).collect();
+    let want_ir: Vec<u16> = latest
+        .ir
+        .iter()
+        .map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 })
+        .collect();
     assert_eq!(ir, want_ir);
     assert_eq!(std::fs::read(&shot.files[0]).unwrap(), **latest.color_jpeg.as_ref().unwrap());
     assert!(out.join("kinect_params.json").is_file());
@@ -68,13 +88,20 @@ fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
     for r in 2..422usize {
         for c in 2..510usize {
             let i = r * 512 + c;
-            let flat = (-2i32..=2).all(|dr| (-2i32..=2).all(|dc| {
-                let j = ((r as i32 + dr) * 512 + c as i32 + dc) as usize;
-                (truth[j] - truth[i]).abs() < 30.0 && truth[j] > 0.0
-            }));
+            let flat = (-2i32..=2).all(|dr| {
+                (-2i32..=2).all(|dc| {
+                    let j = ((r as i32 + dr) * 512 + c as i32 + dc) as usize;
+                    (truth[j] - truth[i]).abs() < 30.0 && truth[j] > 0.0
+                })
+            });
             if flat && depth[i] > 0 {
                 checked += 1;
-                assert!((depth[i] as f32 - truth[i]).abs() <= 8.5, "pixel ({c},{r}): {} vs {}", depth[i], truth[i]);
+                assert!(
+                    (depth[i] as f32 - truth[i]).abs() <= 8.5,
+                    "pixel ({c},{r}): {} vs {}",
+                    depth[i],
+                    truth[i]
+                );
             }
         }
     }
@@ -150,7 +177,11 @@ fn live_page_snapshot_and_key_presses() {
     assert_eq!(live.saved.len(), 2);
     assert_eq!(live.saved[0].kind, ShotKind::Scene);
     assert_eq!(live.saved[1].kind, ShotKind::Calib);
-    for f in shot_files(&out, "scene_0001", ShotKind::Scene).iter().chain(&shot_files(&out, "0001", ShotKind::Calib)) {
+    for f in shot_files(&out, "scene_0001", ShotKind::Scene).iter().chain(&shot_files(
+        &out,
+        "0001",
+        ShotKind::Calib,
+    )) {
         assert!(f.is_file(), "{} missing", f.display());
     }
     h.get_by_label_contains("saved 2 shot(s)");

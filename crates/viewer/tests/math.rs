@@ -19,7 +19,10 @@ fn fitted_view_maps_corners_to_pixel_edges() {
     // Fitted by width: 800 / 1920 points per pixel, centred vertically.
     assert!((r.width() - 800.0).abs() < 1e-3 && (r.center().y - RECT.center().y).abs() < 1e-3);
     let [x, y] = v.screen_to_pixel(RECT, size, r.min);
-    assert!((x + 0.5).abs() < 1e-3 && (y + 0.5).abs() < 1e-3, "top-left edge is pixel (-0.5, -0.5), got ({x}, {y})");
+    assert!(
+        (x + 0.5).abs() < 1e-3 && (y + 0.5).abs() < 1e-3,
+        "top-left edge is pixel (-0.5, -0.5), got ({x}, {y})"
+    );
 }
 
 #[test]
@@ -36,7 +39,10 @@ fn zoom_keeps_the_point_under_the_cursor_and_pan_moves_it() {
     let scale = v.scale(RECT, size);
     v.pan(RECT, size, Vec2::new(scale * 10.0, 0.0));
     let panned = v.screen_to_pixel(RECT, size, cursor);
-    assert!((panned[0] - (after[0] - 10.0)).abs() < 1e-3, "dragging right by 10 px shows pixels 10 to the left");
+    assert!(
+        (panned[0] - (after[0] - 10.0)).abs() < 1e-3,
+        "dragging right by 10 px shows pixels 10 to the left"
+    );
 }
 
 fn project(cam: &OrbitCamera, p: [f32; 3]) -> [f32; 3] {

@@ -74,7 +74,10 @@ fn missing_colour_image_is_named() {
     let tmp = tempfile::tempdir().unwrap();
     write_capture(tmp.path());
     std::fs::remove_file(tmp.path().join("color.png")).unwrap();
-    assert!(matches!(expect_error_naming(tmp.path(), "color.png"), ViewerError::MissingFile { .. }));
+    assert!(matches!(
+        expect_error_naming(tmp.path(), "color.png"),
+        ViewerError::MissingFile { .. }
+    ));
 }
 
 #[test]
@@ -97,8 +100,15 @@ fn corrupt_rig_is_named() {
 fn wrong_size_colour_image_is_named() {
     let tmp = tempfile::tempdir().unwrap();
     write_capture(tmp.path());
-    images::write_color_png(&tmp.path().join("color.png"), &geometry::Image::filled(320, 240, [9u8; 3])).unwrap();
-    assert!(matches!(expect_error_naming(tmp.path(), "color.png"), ViewerError::SizeMismatch { got_w: 320, .. }));
+    images::write_color_png(
+        &tmp.path().join("color.png"),
+        &geometry::Image::filled(320, 240, [9u8; 3]),
+    )
+    .unwrap();
+    assert!(matches!(
+        expect_error_naming(tmp.path(), "color.png"),
+        ViewerError::SizeMismatch { got_w: 320, .. }
+    ));
 }
 
 #[test]
@@ -106,8 +116,15 @@ fn corrupt_summary_and_missing_inputs_are_named() {
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("summary.json"), "not json").unwrap();
     expect_error_naming(tmp.path(), "summary.json");
-    std::fs::write(tmp.path().join("summary.json"), r#"{"inputs": {"rig": "/nowhere/rig.json", "color": "c.png", "depth": "d.png"}}"#).unwrap();
-    assert!(matches!(expect_error_naming(tmp.path(), "/nowhere/rig.json"), ViewerError::MissingFile { .. }));
+    std::fs::write(
+        tmp.path().join("summary.json"),
+        r#"{"inputs": {"rig": "/nowhere/rig.json", "color": "c.png", "depth": "d.png"}}"#,
+    )
+    .unwrap();
+    assert!(matches!(
+        expect_error_naming(tmp.path(), "/nowhere/rig.json"),
+        ViewerError::MissingFile { .. }
+    ));
 }
 
 #[test]

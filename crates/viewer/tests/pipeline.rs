@@ -20,7 +20,11 @@ fn finite(img: &geometry::Image<f32>) -> usize {
 fn see_through(app: &ViewerApp) -> usize {
     let truth = &common::synth_frame().1.true_color_depth;
     let z = &app.fused.as_ref().unwrap().output.zbuffer;
-    z.data().iter().zip(truth.data()).filter(|(s, t)| s.is_finite() && t.is_finite() && **s > **t * 1.05).count()
+    z.data()
+        .iter()
+        .zip(truth.data())
+        .filter(|(s, t)| s.is_finite() && t.is_finite() && **s > **t * 1.05)
+        .count()
 }
 
 #[test]
@@ -33,7 +37,11 @@ fn default_view_matches_pipeline_counts() {
     assert_eq!(g.vertices.len(), f.output.summary.mesh_vertices);
     assert_eq!(g.points.len(), f.output.summary.points);
     assert_eq!(app.drawn_triangles(), f.output.summary.faces_after);
-    assert!(f.output.summary.faces_after > 100_000, "Kinect-size mesh expected, got {} faces", f.output.summary.faces_after);
+    assert!(
+        f.output.summary.faces_after > 100_000,
+        "Kinect-size mesh expected, got {} faces",
+        f.output.summary.faces_after
+    );
 }
 
 #[test]
@@ -57,11 +65,16 @@ fn hole_filling_toggles_filled_pixels() {
     let mut app = app();
     let f = app.fused.as_ref().unwrap();
     let filled_on = f.filled_pixels;
-    assert!(filled_on > 1000, "the scene's disocclusions should be plane-filled, got {filled_on} pixels");
+    assert!(
+        filled_on > 1000,
+        "the scene's disocclusions should be plane-filled, got {filled_on} pixels"
+    );
     // The fill only touches hole pixels, and adds depth where the nearest fill had none
     // (the grown hole mask also covers some pixels nearest already filled: those are replaced).
     let nearest = &f.output.nearest;
-    for ((s, n), m) in f.shown_depth.data().iter().zip(nearest.data()).zip(f.output.hole_mask.data()) {
+    for ((s, n), m) in
+        f.shown_depth.data().iter().zip(nearest.data()).zip(f.output.hole_mask.data())
+    {
         assert!(*m || s.to_bits() == n.to_bits(), "the fill changed a non-hole pixel");
     }
     let added = finite(&f.shown_depth) - finite(nearest);
@@ -71,7 +84,10 @@ fn hole_filling_toggles_filled_pixels() {
     let f = app.fused.as_ref().unwrap();
     assert_eq!(f.filled_pixels, 0);
     assert_eq!(finite(&f.shown_depth), finite(&f.output.nearest));
-    assert!(app.geometry().unwrap().vertices.len() < vertices_on, "fewer mesh vertices without the fill");
+    assert!(
+        app.geometry().unwrap().vertices.len() < vertices_on,
+        "fewer mesh vertices without the fill"
+    );
 }
 
 #[test]
@@ -91,7 +107,10 @@ fn zbuffer_off_lets_the_background_through() {
     assert!(off >= on + 400, "z-buffer off: {off} see-through pixels vs {on} with it");
     // The H6 colours lose their occlusion test: more depth pixels get a colour.
     let f = app.fused.as_ref().unwrap();
-    assert!(f.output.color_on_depth_valid.data().iter().filter(|&&v| v).count() > f.output.summary.color_on_depth_pixels);
+    assert!(
+        f.output.color_on_depth_valid.data().iter().filter(|&&v| v).count()
+            > f.output.summary.color_on_depth_pixels
+    );
 }
 
 #[test]
@@ -101,7 +120,13 @@ fn delaunay_resampling_is_closer_to_the_truth_inside_surfaces() {
     let truth = &common::synth_frame().1.true_color_depth;
     let err = |app: &ViewerApp| {
         let s = &app.fused.as_ref().unwrap().shown_depth;
-        let e: Vec<f64> = s.data().iter().zip(truth.data()).filter(|(a, b)| a.is_finite() && b.is_finite()).map(|(a, b)| (a - b).abs() as f64).collect();
+        let e: Vec<f64> = s
+            .data()
+            .iter()
+            .zip(truth.data())
+            .filter(|(a, b)| a.is_finite() && b.is_finite())
+            .map(|(a, b)| (a - b).abs() as f64)
+            .collect();
         let mut e = e;
         e.sort_by(f64::total_cmp);
         (e[e.len() / 2], e.len())
@@ -111,7 +136,9 @@ fn delaunay_resampling_is_closer_to_the_truth_inside_surfaces() {
     app.set_toggles(Toggles { resampling: Resampling::Delaunay, ..app.toggles });
     assert!(app.fused.as_ref().unwrap().output.linear.is_some());
     let (median_linear, n_linear) = err(&app);
-    eprintln!("median |error|: nearest {median_nearest:.5} m ({n_nearest} px), Delaunay {median_linear:.5} m ({n_linear} px)");
+    eprintln!(
+        "median |error|: nearest {median_nearest:.5} m ({n_nearest} px), Delaunay {median_linear:.5} m ({n_linear} px)"
+    );
     // Interpolation beats taking the nearest sample on smooth surfaces: the scene's slanted
     // wall changes depth between samples; 1.5 mm noise bounds both medians.
     assert!(median_linear < median_nearest, "Delaunay {median_linear} vs nearest {median_nearest}");

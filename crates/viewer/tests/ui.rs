@@ -5,7 +5,7 @@
 mod common;
 
 use egui_kittest::kittest::Queryable;
-use egui_kittest::wgpu::{create_render_state, default_wgpu_setup, WgpuTestRenderer};
+use egui_kittest::wgpu::{WgpuTestRenderer, create_render_state, default_wgpu_setup};
 use egui_kittest::{Harness, SnapshotOptions};
 use viewer::panes::Pane;
 use viewer::{BackendChoice, ViewerApp};
@@ -56,7 +56,10 @@ fn images_page_every_pane() {
 
 #[test]
 fn images_page_hover_shows_the_value_under_the_cursor() {
-    let Some(mut h) = harness("images_page_hover_shows_the_value_under_the_cursor", demo_app()) else { return };
+    let Some(mut h) = harness("images_page_hover_shows_the_value_under_the_cursor", demo_app())
+    else {
+        return;
+    };
     h.get_by_label(Pane::Depth.label()).click();
     h.run();
     // The centre of the central panel is the image's centre pixel when fitted.
@@ -165,5 +168,8 @@ fn gpu_fusion_backend_matches_cpu() {
     let cpu = demo_app();
     // fusion-gpu is bit-identical to the CPU pipeline on lavapipe; the drawn counts must agree.
     assert_eq!(gpu.drawn_triangles(), cpu.drawn_triangles());
-    assert_eq!(gpu.fused.as_ref().unwrap().filled_pixels, cpu.fused.as_ref().unwrap().filled_pixels);
+    assert_eq!(
+        gpu.fused.as_ref().unwrap().filled_pixels,
+        cpu.fused.as_ref().unwrap().filled_pixels
+    );
 }

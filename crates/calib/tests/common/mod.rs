@@ -5,10 +5,10 @@
 use std::path::PathBuf;
 
 use calib::{Board, Corner, ViewCorners};
+pub use geometry::testdata::shared_data_or_skip as shared_data;
 use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
 use nalgebra::{Vector2, Vector3};
 use serde_json::Value;
-pub use geometry::testdata::shared_data_or_skip as shared_data;
 
 pub fn json(path: PathBuf) -> Value {
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -26,7 +26,10 @@ pub fn corners_from(list: &Value, name: &str, w: usize, h: usize) -> ViewCorners
         .unwrap()
         .iter()
         .enumerate()
-        .map(|(id, p)| Corner { id, px: Vector2::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap()) })
+        .map(|(id, p)| Corner {
+            id,
+            px: Vector2::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap()),
+        })
         .collect();
     ViewCorners { name: name.into(), width: w, height: h, corners }
 }
@@ -50,15 +53,24 @@ pub fn gt_camera(gt: &Value, cam: &str) -> CameraModel {
 /// Ground-truth `camera_from_board` of view `i` (metres).
 pub fn gt_pose(gt: &Value, i: usize, cam: &str) -> RigidTransform {
     let v = &gt["views"][i][cam];
-    let r = Vector3::new(f(&v["rvec_board_to_cam"][0]), f(&v["rvec_board_to_cam"][1]), f(&v["rvec_board_to_cam"][2]));
-    let t = Vector3::new(f(&v["tvec_board_to_cam_mm"][0]), f(&v["tvec_board_to_cam_mm"][1]), f(&v["tvec_board_to_cam_mm"][2]));
+    let r = Vector3::new(
+        f(&v["rvec_board_to_cam"][0]),
+        f(&v["rvec_board_to_cam"][1]),
+        f(&v["rvec_board_to_cam"][2]),
+    );
+    let t = Vector3::new(
+        f(&v["tvec_board_to_cam_mm"][0]),
+        f(&v["tvec_board_to_cam_mm"][1]),
+        f(&v["tvec_board_to_cam_mm"][2]),
+    );
     RigidTransform::from_axis_angle(r, t / 1000.0)
 }
 
 /// Ground-truth `color_from_depth` (metres).
 pub fn gt_color_from_depth(gt: &Value) -> RigidTransform {
     let s = &gt["stereo"];
-    let r = Vector3::new(f(&s["om_rodrigues"][0]), f(&s["om_rodrigues"][1]), f(&s["om_rodrigues"][2]));
+    let r =
+        Vector3::new(f(&s["om_rodrigues"][0]), f(&s["om_rodrigues"][1]), f(&s["om_rodrigues"][2]));
     let t = Vector3::new(f(&s["T_mm"][0]), f(&s["T_mm"][1]), f(&s["T_mm"][2]));
     RigidTransform::from_axis_angle(r, t / 1000.0)
 }

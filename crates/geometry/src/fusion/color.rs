@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use super::pixel::{register_pixel, zbuffer_index, ColorProjection};
+use super::pixel::{ColorProjection, register_pixel, zbuffer_index};
 use crate::Image;
 
 /// Bilinear sample of `color` at sub-pixel `(u, v)` (pixel centres at integers), `None` unless
@@ -23,7 +23,8 @@ pub fn bilinear_rgb(color: &[[u8; 3]], width: u32, height: u32, u: f32, v: f32) 
     let x1 = (x0 + 1).min(width as usize - 1);
     let y1 = (y0 + 1).min(height as usize - 1);
     let w = width as usize;
-    let (c00, c10, c01, c11) = (color[y0 * w + x0], color[y0 * w + x1], color[y1 * w + x0], color[y1 * w + x1]);
+    let (c00, c10, c01, c11) =
+        (color[y0 * w + x0], color[y0 * w + x1], color[y1 * w + x0], color[y1 * w + x1]);
     let mut out = [0u8; 3];
     for k in 0..3 {
         let top = c00[k] as f32 + (c10[k] as f32 - c00[k] as f32) * fx;
@@ -53,26 +54,26 @@ pub fn color_on_depth(
     let mut out = Image::filled(w, h, [0u8; 3]);
     let mut valid = Image::filled(w, h, false);
     let cdata = color.data();
-    out.data_mut()
-        .par_chunks_mut(w)
-        .zip(valid.data_mut().par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (orow, vrow))| {
+    out.data_mut().par_chunks_mut(w).zip(valid.data_mut().par_chunks_mut(w)).enumerate().for_each(
+        |(y, (orow, vrow))| {
             for x in 0..w {
                 let i = y * w + x;
-                let Some([u, v, z]) = register_pixel(proj, rays[i], depth.data()[i]) else { continue };
+                let Some([u, v, z]) = register_pixel(proj, rays[i], depth.data()[i]) else {
+                    continue;
+                };
                 let Some(c) = bilinear_rgb(cdata, proj.width, proj.height, u, v) else { continue };
-                if let Some(cd) = color_depth {
-                    if let Some(j) = zbuffer_index(u, v, proj.width, proj.height) {
-                        let seen = cd.data()[j];
-                        if seen > 0.0 && z > seen * (1.0 + occlusion_tolerance) {
-                            continue;
-                        }
+                if let Some(cd) = color_depth
+                    && let Some(j) = zbuffer_index(u, v, proj.width, proj.height)
+                {
+                    let seen = cd.data()[j];
+                    if seen > 0.0 && z > seen * (1.0 + occlusion_tolerance) {
+                        continue;
                     }
                 }
                 orow[x] = c;
                 vrow[x] = true;
             }
-        });
+        },
+    );
     (out, valid)
 }

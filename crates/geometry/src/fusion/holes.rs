@@ -52,7 +52,9 @@ pub struct HoleMasker {
 /// `floor(sqrt(r² - dy²))` for `dy = 0..=floor(r)`.
 fn half_widths(r: f32) -> Vec<usize> {
     let r = r.max(0.0);
-    (0..=r.floor() as usize).map(|dy| (r * r - (dy * dy) as f32).max(0.0).sqrt().floor() as usize).collect()
+    (0..=r.floor() as usize)
+        .map(|dy| (r * r - (dy * dy) as f32).max(0.0).sqrt().floor() as usize)
+        .collect()
 }
 
 /// `dst` = `src` dilated horizontally by one pixel. Both rows carry one zero word on each
@@ -234,7 +236,9 @@ impl HoleMasker {
     /// [`HoleMasker::hole_bits`] only (no `bool` image); returns the number of hole pixels.
     pub fn compute_bits_from_occupancy(&mut self) -> usize {
         let mut count = 0;
-        self.compute_bits(|_, bits| count += bits.iter().map(|b| b.count_ones() as usize).sum::<usize>());
+        self.compute_bits(|_, bits| {
+            count += bits.iter().map(|b| b.count_ones() as usize).sum::<usize>()
+        });
         count
     }
 
@@ -244,7 +248,18 @@ impl HoleMasker {
         if h == 0 || w == 0 {
             return;
         }
-        let Self { radius_widths, grow_widths, ring, row: out, occupied, covered, above, below, holes, .. } = self;
+        let Self {
+            radius_widths,
+            grow_widths,
+            ring,
+            row: out,
+            occupied,
+            covered,
+            above,
+            below,
+            holes,
+            ..
+        } = self;
         // 2. covered, top-down; `above` of every row on the way.
         below.fill(0); // the running OR of the rows above, for now
         dilate_stream(
@@ -278,8 +293,12 @@ impl HoleMasker {
             |y, core| {
                 let c = &covered[y * words..(y + 1) * words];
                 let a = &above[y * words..(y + 1) * words];
-                let first = c.iter().position(|&b| b != 0).map(|i| i * 64 + c[i].trailing_zeros() as usize);
-                let last = c.iter().rposition(|&b| b != 0).map(|i| i * 64 + 63 - c[i].leading_zeros() as usize);
+                let first =
+                    c.iter().position(|&b| b != 0).map(|i| i * 64 + c[i].trailing_zeros() as usize);
+                let last = c
+                    .iter()
+                    .rposition(|&b| b != 0)
+                    .map(|i| i * 64 + 63 - c[i].leading_zeros() as usize);
                 match (first, last) {
                     (Some(first), Some(last)) => {
                         for (((k, c), a), b) in core.iter_mut().zip(c).zip(a).zip(below.iter()) {
@@ -388,9 +407,19 @@ fn refine_plane(points: &[Vector3<f64>]) -> Option<(Vector3<f64>, f64)> {
 /// Robust plane fit (RANSAC + least-squares refinement) to the 3D points of the valid pixels
 /// of `depth` (colour-frame `z`), back-projected through `camera` (distortion undone).
 /// Deterministic for a given seed. `None` when fewer than 3 valid pixels or no plane.
-pub fn fit_plane_ransac(depth: &Image<f32>, camera: &CameraModel, options: &PlaneFitOptions) -> Option<PlaneFit> {
+pub fn fit_plane_ransac(
+    depth: &Image<f32>,
+    camera: &CameraModel,
+    options: &PlaneFitOptions,
+) -> Option<PlaneFit> {
     let (w, _) = depth.size();
-    let valid: Vec<usize> = depth.data().iter().enumerate().filter(|(_, z)| **z > 0.0 && z.is_finite()).map(|(i, _)| i).collect();
+    let valid: Vec<usize> = depth
+        .data()
+        .iter()
+        .enumerate()
+        .filter(|(_, z)| **z > 0.0 && z.is_finite())
+        .map(|(i, _)| i)
+        .collect();
     if valid.len() < 3 {
         return None;
     }
@@ -399,7 +428,8 @@ pub fn fit_plane_ransac(depth: &Image<f32>, camera: &CameraModel, options: &Plan
     let fold = camera.distortion.fold_radius();
     let points: Vec<Vector3<f64>> = (0..n)
         .filter_map(|k| {
-            let i = if n == valid.len() { valid[k] } else { valid[rng.random_range(0..valid.len())] };
+            let i =
+                if n == valid.len() { valid[k] } else { valid[rng.random_range(0..valid.len())] };
             let (x, y) = (i % w, i / w);
             let d = camera.intrinsics.from_pixel(x as f64, y as f64);
             let r = camera.distortion.undistort_within(d.x, d.y, fold)?;
@@ -428,12 +458,21 @@ pub fn fit_plane_ransac(depth: &Image<f32>, camera: &CameraModel, options: &Plan
         }
     }
     let (_, nrm, d) = best?;
-    let inliers: Vec<Vector3<f64>> = points.iter().copied().filter(|p| (nrm.dot(p) - d).abs() < options.threshold_m).collect();
+    let inliers: Vec<Vector3<f64>> =
+        points.iter().copied().filter(|p| (nrm.dot(p) - d).abs() < options.threshold_m).collect();
     let (nrm, d) = refine_plane(&inliers)?;
     let final_inliers: Vec<f64> =
         points.iter().map(|p| nrm.dot(p) - d).filter(|r| r.abs() < options.threshold_m).collect();
-    let rms = (final_inliers.iter().map(|r| r * r).sum::<f64>() / final_inliers.len().max(1) as f64).sqrt();
-    Some(PlaneFit { normal: [nrm.x, nrm.y, nrm.z], offset: d, inliers: final_inliers.len(), samples: points.len(), rms_m: rms })
+    let rms = (final_inliers.iter().map(|r| r * r).sum::<f64>()
+        / final_inliers.len().max(1) as f64)
+        .sqrt();
+    Some(PlaneFit {
+        normal: [nrm.x, nrm.y, nrm.z],
+        offset: d,
+        inliers: final_inliers.len(),
+        samples: points.len(),
+        rms_m: rms,
+    })
 }
 
 /// Depth `z` of a plane along the undistorted ray `(x, y, 1)`, in `f32` like the GPU:

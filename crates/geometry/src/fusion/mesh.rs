@@ -9,7 +9,12 @@ use crate::{CameraModel, Image, Mesh};
 /// from it. Each grid cell whose corners are valid gives two triangles `(a, c, b)` and
 /// `(b, c, d)` (`a` top-left, `b` top-right, `c` bottom-left, `d` bottom-right),
 /// counter-clockwise seen from the camera; a cell with three valid corners gives one.
-pub fn mesh_from_depth(depth: &Image<f32>, camera: &CameraModel, color: &Image<[u8; 3]>, step: usize) -> Mesh {
+pub fn mesh_from_depth(
+    depth: &Image<f32>,
+    camera: &CameraModel,
+    color: &Image<[u8; 3]>,
+    step: usize,
+) -> Mesh {
     let step = step.max(1);
     let (w, h) = depth.size();
     let gw = w.div_ceil(step);

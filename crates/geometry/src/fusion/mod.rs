@@ -51,18 +51,22 @@ use std::time::Instant;
 use serde::Serialize;
 
 pub use color::{bilinear_rgb, color_on_depth};
-pub use holes::{fill_holes_with_plane, fit_plane_ransac, hole_mask, plane_depth_pixel, HoleMasker, PlaneFit, PlaneFitOptions};
+pub use holes::{
+    HoleMasker, PlaneFit, PlaneFitOptions, fill_holes_with_plane, fit_plane_ransac, hole_mask,
+    plane_depth_pixel,
+};
 pub use mesh::{face_normal, is_stretched, mesh_from_depth, remove_stretched_faces};
 pub use pixel::{
-    backproject_pixel, depth_ray_table, project_color_point, project_point, register_pixel, transform_point,
-    zbuffer_index, zbuffer_min, zbuffer_pixel, floor_f32, ColorProjection, ZBUFFER_EMPTY,
+    ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32,
+    project_color_point, project_point, register_pixel, transform_point, zbuffer_index,
+    zbuffer_min, zbuffer_pixel,
 };
 pub use register::{
-    atomic_zbuffer_to_image, backproject_cloud, project_cloud, register_depth, register_depth_parallel,
-    zbuffer_from_samples, register_depth_marking, ColorSample,
+    ColorSample, atomic_zbuffer_to_image, backproject_cloud, project_cloud, register_depth,
+    register_depth_marking, register_depth_parallel, zbuffer_from_samples,
 };
+pub use resample::{LinearStats, disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel};
 pub use stream::Registration;
-pub use resample::{disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel, LinearStats};
 
 use crate::{DepthKind, GeometryError, Image, Mesh, PointCloud, Rig};
 
@@ -263,7 +267,11 @@ fn ms(t: Instant) -> f64 {
 /// Errors: [`GeometryError::InvalidParameter`] for an invalid rig,
 /// [`GeometryError::SizeMismatch`] when an image does not match its camera,
 /// [`GeometryError::InvalidInput`] when no depth pixel has a sample.
-pub fn check_inputs(rig: &Rig, depth: &Image<f32>, color: &Image<[u8; 3]>) -> Result<usize, GeometryError> {
+pub fn check_inputs(
+    rig: &Rig,
+    depth: &Image<f32>,
+    color: &Image<[u8; 3]>,
+) -> Result<usize, GeometryError> {
     rig.validate()?;
     depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
     color.expect_size("colour image", rig.color.width, rig.color.height)?;
@@ -318,7 +326,12 @@ pub fn run(
 
     let t = Instant::now();
     let (linear, linear_stats) = if options.linear {
-        let (img, stats) = linear_resample(&samples, &zbuffer, options.linear_max_edge_factor * spacing, options.depth_jump)?;
+        let (img, stats) = linear_resample(
+            &samples,
+            &zbuffer,
+            options.linear_max_edge_factor * spacing,
+            options.depth_jump,
+        )?;
         (Some(img), Some(stats))
     } else {
         (None, None)
@@ -327,7 +340,11 @@ pub fn run(
 
     let t = Instant::now();
     let mask = hole_mask(&zbuffer, radius, hole_grow_px(rig, options));
-    let plane = if options.fill_holes { fit_plane_ransac(&nearest, &rig.color, &options.plane) } else { None };
+    let plane = if options.fill_holes {
+        fit_plane_ransac(&nearest, &rig.color, &options.plane)
+    } else {
+        None
+    };
     let (filled, filled_pixels) = match &plane {
         Some(p) => fill_holes_with_plane(&nearest, &mask, &rig.color, p),
         None => (nearest.clone(), 0),
@@ -335,11 +352,25 @@ pub fn run(
     timings.h8_ms = ms(t);
 
     let t = Instant::now();
-    let (color_img, color_valid) = color_on_depth(depth, &rays, &proj, color, Some(&nearest), options.color_occlusion_tolerance);
-    cloud.colors = cloud_pixels
-        .iter()
-        .map(|&i| if color_valid.data()[i as usize] { color_img.data()[i as usize] } else { [0, 0, 0] })
-        .collect();
+    let (color_img, color_valid) = color_on_depth(
+        depth,
+        &rays,
+        &proj,
+        color,
+        Some(&nearest),
+        options.color_occlusion_tolerance,
+    );
+    cloud.colors =
+        cloud_pixels
+            .iter()
+            .map(|&i| {
+                if color_valid.data()[i as usize] {
+                    color_img.data()[i as usize]
+                } else {
+                    [0, 0, 0]
+                }
+            })
+            .collect();
     timings.h6_ms = ms(t);
 
     let stages = PixelStages {

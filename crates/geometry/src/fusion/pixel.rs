@@ -235,7 +235,9 @@ mod tests {
                     let xd = rig.depth.backproject(u as f64, v as f64, value as f64, kind).unwrap();
                     let xc = rig.color_from_depth.apply(&xd);
                     let want = rig.color.project(&xc).unwrap();
-                    worst = worst.max((got[0] as f64 - want.x).abs()).max((got[1] as f64 - want.y).abs());
+                    worst = worst
+                        .max((got[0] as f64 - want.x).abs())
+                        .max((got[1] as f64 - want.y).abs());
                     assert!((got[2] as f64 - xc.z).abs() < 1e-5 * xc.z, "z {} vs {}", got[2], xc.z);
                 }
             }
@@ -257,7 +259,22 @@ mod tests {
         assert_eq!(zbuffer_index(-0.51, 0.0, 4, 2), None);
         assert_eq!(zbuffer_index(3.5, 0.0, 4, 2), None);
         assert_eq!(zbuffer_index(f32::NAN, 0.0, 4, 2), None);
-        for x in [-3.5f32, -3.0, -0.2, -0.0, 0.0, 0.49, 0.5, 1.0, 2.999, 1e7 + 0.5, -1e9, 3e9, f32::INFINITY, f32::NEG_INFINITY] {
+        for x in [
+            -3.5f32,
+            -3.0,
+            -0.2,
+            -0.0,
+            0.0,
+            0.49,
+            0.5,
+            1.0,
+            2.999,
+            1e7 + 0.5,
+            -1e9,
+            3e9,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ] {
             assert_eq!(floor_f32(x), x.floor(), "floor({x})");
         }
         assert!(floor_f32(f32::NAN).is_nan());

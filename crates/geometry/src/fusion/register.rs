@@ -5,7 +5,8 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use rayon::prelude::*;
 
 use super::pixel::{
-    backproject_pixel, distort_to_pixel, project_point, transform_point, zbuffer_index, zbuffer_min, zbuffer_pixel, ColorProjection, ZBUFFER_EMPTY,
+    ColorProjection, ZBUFFER_EMPTY, backproject_pixel, distort_to_pixel, project_point,
+    transform_point, zbuffer_index, zbuffer_min, zbuffer_pixel,
 };
 use crate::{Image, PointCloud};
 
@@ -29,11 +30,11 @@ pub fn backproject_cloud(depth: &Image<f32>, rays: &[[f32; 3]]) -> (PointCloud, 
     let mut cloud = PointCloud::default();
     let mut pixels = Vec::new();
     for (i, (&value, &ray)) in depth.data().iter().zip(rays).enumerate() {
-        if let Some(p) = backproject_pixel(ray, value) {
-            if p.iter().all(|c| c.is_finite()) {
-                cloud.points.push(p);
-                pixels.push(i as u32);
-            }
+        if let Some(p) = backproject_pixel(ray, value)
+            && p.iter().all(|c| c.is_finite())
+        {
+            cloud.points.push(p);
+            pixels.push(i as u32);
         }
     }
     (cloud, pixels)
@@ -72,7 +73,14 @@ const BLOCK: usize = 256;
 /// [`register_pixel`] gives `None`. Branch-free and the same arithmetic as
 /// [`register_pixel`] (so bit-identical), which lets the compiler vectorise it.
 #[inline]
-fn project_block(p: &ColorProjection, depth: &[f32], rays: &[[f32; 3]], u: &mut [f32; BLOCK], v: &mut [f32; BLOCK], z: &mut [f32; BLOCK]) {
+fn project_block(
+    p: &ColorProjection,
+    depth: &[f32],
+    rays: &[[f32; 3]],
+    u: &mut [f32; BLOCK],
+    v: &mut [f32; BLOCK],
+    z: &mut [f32; BLOCK],
+) {
     for i in 0..depth.len().min(BLOCK) {
         let value = depth[i];
         let ray = rays[i];
@@ -92,7 +100,12 @@ fn project_block(p: &ColorProjection, depth: &[f32], rays: &[[f32; 3]], u: &mut 
 /// row-major) to [`ZBUFFER_EMPTY`] and z-buffers every depth pixel into it.
 /// `depth` and `rays` are depth-sized and row-major. Returns the number of samples that
 /// landed on the colour image.
-pub fn register_depth(depth: &[f32], rays: &[[f32; 3]], proj: &ColorProjection, zbuffer: &mut [f32]) -> usize {
+pub fn register_depth(
+    depth: &[f32],
+    rays: &[[f32; 3]],
+    proj: &ColorProjection,
+    zbuffer: &mut [f32],
+) -> usize {
     zbuffer.fill(ZBUFFER_EMPTY);
     let mut landed = 0;
     let (mut bu, mut bv, mut bz) = ([0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK]);
@@ -151,7 +164,9 @@ pub fn register_depth_parallel(
 ) -> usize {
     /// Depth rows per rayon task: 8 rows (~4k pixels) amortise the task overhead.
     const ROWS_PER_TASK: usize = 8;
-    zbuffer.par_chunks(1 << 16).for_each(|c| c.iter().for_each(|a| a.store(u32::MAX, Ordering::Relaxed)));
+    zbuffer
+        .par_chunks(1 << 16)
+        .for_each(|c| c.iter().for_each(|a| a.store(u32::MAX, Ordering::Relaxed)));
     let chunk = depth_width.max(1) * ROWS_PER_TASK;
     depth
         .par_chunks(chunk)
@@ -175,7 +190,7 @@ pub fn register_depth_parallel(
 
 /// Copies an atomic z-buffer (bit patterns) into an image of `f32`.
 pub fn atomic_zbuffer_to_image(zbuffer: &[AtomicU32], out: &mut [f32]) {
-    out.par_chunks_mut(1 << 16)
-        .zip(zbuffer.par_chunks(1 << 16))
-        .for_each(|(o, b)| o.iter_mut().zip(b).for_each(|(o, a)| *o = f32::from_bits(a.load(Ordering::Relaxed))));
+    out.par_chunks_mut(1 << 16).zip(zbuffer.par_chunks(1 << 16)).for_each(|(o, b)| {
+        o.iter_mut().zip(b).for_each(|(o, a)| *o = f32::from_bits(a.load(Ordering::Relaxed)))
+    });
 }

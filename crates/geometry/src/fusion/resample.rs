@@ -3,7 +3,7 @@
 use rayon::prelude::*;
 use spade::{DelaunayTriangulation, HasPosition, Point2, Triangulation};
 
-use super::pixel::{zbuffer_index, ZBUFFER_EMPTY};
+use super::pixel::{ZBUFFER_EMPTY, zbuffer_index};
 use super::register::ColorSample;
 use crate::{GeometryError, Image};
 
@@ -46,7 +46,8 @@ pub fn nearest_fill(zbuffer: &Image<f32>, radius_px: f32, depth_jump: f32) -> Im
     let offsets = disc_offsets(radius_px);
     let src = zbuffer.data();
     let k = offsets.iter().map(|o| o.0.abs().max(o.1.abs())).max().unwrap_or(0) as usize;
-    let linear: Vec<isize> = offsets.iter().map(|&(dx, dy, _)| dy as isize * w as isize + dx as isize).collect();
+    let linear: Vec<isize> =
+        offsets.iter().map(|&(dx, dy, _)| dy as isize * w as isize + dx as isize).collect();
     let mut out = Image::filled(w, h, ZBUFFER_EMPTY);
     out.data_mut().par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let interior_row = y >= k && y + k < h;
@@ -87,7 +88,15 @@ fn nearest_fill_interior(src: &[f32], centre: usize, linear: &[isize], depth_jum
 
 /// One pixel of [`nearest_fill`].
 #[inline]
-pub fn nearest_fill_pixel(src: &[f32], w: usize, h: usize, x: i32, y: i32, offsets: &[(i32, i32, i32)], depth_jump: f32) -> f32 {
+pub fn nearest_fill_pixel(
+    src: &[f32],
+    w: usize,
+    h: usize,
+    x: i32,
+    y: i32,
+    offsets: &[(i32, i32, i32)],
+    depth_jump: f32,
+) -> f32 {
     let mut zmin = ZBUFFER_EMPTY;
     for &(dx, dy, _) in offsets {
         let (sx, sy) = (x + dx, y + dy);
@@ -165,8 +174,11 @@ pub fn linear_resample(
     if vertices.len() < 3 {
         return Ok((out, stats));
     }
-    let tri = DelaunayTriangulation::<Vertex>::bulk_load(vertices)
-        .map_err(|e| GeometryError::InvalidInput(format!("Delaunay triangulation of the colour-frame samples failed: {e:?}")))?;
+    let tri = DelaunayTriangulation::<Vertex>::bulk_load(vertices).map_err(|e| {
+        GeometryError::InvalidInput(format!(
+            "Delaunay triangulation of the colour-frame samples failed: {e:?}"
+        ))
+    })?;
     stats.triangles = tri.num_inner_faces();
     let max_edge2 = (max_edge_px as f64) * (max_edge_px as f64);
     let data = out.data_mut();

@@ -28,9 +28,9 @@
 
 use rayon::prelude::*;
 
-use super::holes::{unpack_bits_row, HoleMasker};
-use super::pixel::{distort_to_pixel, transform_point, ColorProjection, ZBUFFER_EMPTY};
-use super::{coverage_radius_px, depth_ray_table, hole_grow_px, FusionOptions};
+use super::holes::{HoleMasker, unpack_bits_row};
+use super::pixel::{ColorProjection, ZBUFFER_EMPTY, distort_to_pixel, transform_point};
+use super::{FusionOptions, coverage_radius_px, depth_ray_table, hole_grow_px};
 use crate::{DepthKind, GeometryError, Image, Rig};
 
 /// Pixels per block of the two-pass loop: 256 × 3 words stay in L1.
@@ -272,9 +272,15 @@ fn project_any(
 ) {
     match (float_index, same_stride) {
         (true, true) => project_block::<true, true>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
-        (true, false) => project_block::<true, false>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
-        (false, true) => project_block::<false, true>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
-        (false, false) => project_block::<false, false>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz),
+        (true, false) => {
+            project_block::<true, false>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz)
+        }
+        (false, true) => {
+            project_block::<false, true>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz)
+        }
+        (false, false) => {
+            project_block::<false, false>(p, depth, rx, ry, rs, bits_per_row, pj, po, pz)
+        }
     }
 }
 
@@ -306,7 +312,14 @@ fn scatter_any(
 /// of the image for a Kinect frame: two colour rows in three receive no sample at all).
 #[cold]
 #[inline(never)]
-fn clear_rows(zbuffer: &mut [f32], occupancy: &mut [u64], width: usize, words: usize, from: usize, to: usize) {
+fn clear_rows(
+    zbuffer: &mut [f32],
+    occupancy: &mut [u64],
+    width: usize,
+    words: usize,
+    from: usize,
+    to: usize,
+) {
     for y in from..to {
         let zrow = &mut zbuffer[y * width..(y + 1) * width];
         for (run, bits) in zrow.chunks_mut(64).zip(&mut occupancy[y * words..(y + 1) * words]) {
@@ -334,7 +347,13 @@ impl Registration {
 
     /// The same from a projection, a depth ray table ([`depth_ray_table`], row-major,
     /// `depth_width` columns) and the two radii of [`HoleMasker::new`] in colour pixels.
-    pub fn from_parts(proj: ColorProjection, rays: &[[f32; 3]], depth_width: usize, radius_px: f32, grow_px: f32) -> Self {
+    pub fn from_parts(
+        proj: ColorProjection,
+        rays: &[[f32; 3]],
+        depth_width: usize,
+        radius_px: f32,
+        grow_px: f32,
+    ) -> Self {
         let (cw, ch) = (proj.width as usize, proj.height as usize);
         let depth_width = depth_width.max(1);
         Self {
@@ -376,11 +395,39 @@ impl Registration {
         let mut landed = 0;
         let bits_per_row = (words * 64) as u32;
         let (mut bj, mut bo, mut bz) = ([0u32; BLOCK], [0u32; BLOCK], [0f32; BLOCK]);
-        let chunks = depth.data().chunks(BLOCK).zip(self.ray_x.chunks(BLOCK)).zip(self.ray_y.chunks(BLOCK)).zip(self.ray_s.chunks(BLOCK));
+        let chunks = depth
+            .data()
+            .chunks(BLOCK)
+            .zip(self.ray_x.chunks(BLOCK))
+            .zip(self.ray_y.chunks(BLOCK))
+            .zip(self.ray_s.chunks(BLOCK));
         for (((d, rx), ry), rs) in chunks {
-            project_any(self.float_index, self.same_stride, &self.proj, d, rx, ry, rs, bits_per_row, &mut bj, &mut bo, &mut bz);
+            project_any(
+                self.float_index,
+                self.same_stride,
+                &self.proj,
+                d,
+                rx,
+                ry,
+                rs,
+                bits_per_row,
+                &mut bj,
+                &mut bo,
+                &mut bz,
+            );
             let n = d.len();
-            landed += scatter_any(self.same_stride, &bj[..n], &bo[..n], &bz[..n], &mut self.zbuffer, occupancy, cw, words, 0, &mut cleared);
+            landed += scatter_any(
+                self.same_stride,
+                &bj[..n],
+                &bo[..n],
+                &bz[..n],
+                &mut self.zbuffer,
+                occupancy,
+                cw,
+                words,
+                0,
+                &mut cleared,
+            );
         }
         if cleared < ch {
             clear_rows(&mut self.zbuffer, occupancy, cw, words, cleared, ch);
@@ -396,7 +443,11 @@ impl Registration {
         self.check(depth)?;
         let (cw, ch) = (self.proj.width as usize, self.proj.height as usize);
         let n = depth.data().len();
-        let projected = self.projected.get_or_insert_with(|| Projected { index: vec![0; n], bit: vec![0; n], z: vec![0.0; n] });
+        let projected = self.projected.get_or_insert_with(|| Projected {
+            index: vec![0; n],
+            bit: vec![0; n],
+            z: vec![0.0; n],
+        });
         let chunk = self.depth_width * ROWS_PER_TASK;
         let tasks = n.div_ceil(chunk);
         self.task_rows.resize(tasks, (0, 0));
@@ -411,7 +462,12 @@ impl Registration {
             .zip(projected.bit.par_chunks_mut(chunk))
             .zip(projected.z.par_chunks_mut(chunk))
             .zip(depth.data().par_chunks(chunk))
-            .zip(self.ray_x.par_chunks(chunk).zip(self.ray_y.par_chunks(chunk)).zip(self.ray_s.par_chunks(chunk)))
+            .zip(
+                self.ray_x
+                    .par_chunks(chunk)
+                    .zip(self.ray_y.par_chunks(chunk))
+                    .zip(self.ray_s.par_chunks(chunk)),
+            )
             .zip(self.task_rows.par_iter_mut())
             .for_each(|(((((pj, po), pz), d), ((rx, ry), rs)), rows)| {
                 // Smallest and largest pixel index: their rows bound the rows reached.
@@ -419,8 +475,26 @@ impl Registration {
                 for start in (0..d.len()).step_by(BLOCK) {
                     let end = (start + BLOCK).min(d.len());
                     let (bj, bo) = (&mut pj[start..end], &mut po[start..end]);
-                    let (d, rx, ry, rs, bz) = (&d[start..end], &rx[start..end], &ry[start..end], &rs[start..end], &mut pz[start..end]);
-                    project_any(float_index, same_stride, proj, d, rx, ry, rs, bits_per_row, bj, bo, bz);
+                    let (d, rx, ry, rs, bz) = (
+                        &d[start..end],
+                        &rx[start..end],
+                        &ry[start..end],
+                        &rs[start..end],
+                        &mut pz[start..end],
+                    );
+                    project_any(
+                        float_index,
+                        same_stride,
+                        proj,
+                        d,
+                        rx,
+                        ry,
+                        rs,
+                        bits_per_row,
+                        bj,
+                        bo,
+                        bz,
+                    );
                     for &j in bj.iter() {
                         if j != NO_PIXEL {
                             lo = lo.min(j);
@@ -451,8 +525,20 @@ impl Registration {
                         continue;
                     }
                     let r = t * chunk..((t + 1) * chunk).min(n);
-                    let (pj, po, pz) = (&projected.index[r.clone()], &projected.bit[r.clone()], &projected.z[r]);
-                    landed += scatter_any(same_stride, pj, po, pz, zb, occ, cw, words, row0, &mut cleared);
+                    let (pj, po, pz) =
+                        (&projected.index[r.clone()], &projected.bit[r.clone()], &projected.z[r]);
+                    landed += scatter_any(
+                        same_stride,
+                        pj,
+                        po,
+                        pz,
+                        zb,
+                        occ,
+                        cw,
+                        words,
+                        row0,
+                        &mut cleared,
+                    );
                 }
                 if cleared < rows {
                     clear_rows(zb, occ, cw, words, cleared, rows);
@@ -537,7 +623,10 @@ mod tests {
         let mut t = 0.0f32;
         while t < TWO_POW_23 {
             assert_eq!(floor_to_u32(t) as f32, floor_f32(t), "floor({t:e})");
-            assert_eq!(floor_to_u32(t.next_down().max(0.0)) as f32, floor_f32(t.next_down().max(0.0)));
+            assert_eq!(
+                floor_to_u32(t.next_down().max(0.0)) as f32,
+                floor_f32(t.next_down().max(0.0))
+            );
             t = t * 1.001 + 1e-3;
             checked += 2;
         }
@@ -560,12 +649,19 @@ mod tests {
         let scaled = frame.depth.map(|z| z * 0.7);
         for depth in [&frame.depth, &scaled] {
             for parallel in [false, true] {
-                let run = |r: &mut Registration| if parallel { r.register_parallel(depth) } else { r.register(depth) }.unwrap();
+                let run = |r: &mut Registration| {
+                    if parallel { r.register_parallel(depth) } else { r.register(depth) }.unwrap()
+                };
                 let (na, nb, nc) = (run(&mut a), run(&mut b), run(&mut c));
                 assert_eq!((na, na), (nb, nc));
                 assert!(na > 100_000);
                 for other in [&mut b, &mut c] {
-                    assert!(a.zbuffer.iter().zip(&other.zbuffer).all(|(x, y)| x.to_bits() == y.to_bits()));
+                    assert!(
+                        a.zbuffer
+                            .iter()
+                            .zip(&other.zbuffer)
+                            .all(|(x, y)| x.to_bits() == y.to_bits())
+                    );
                     assert!(a.masker.occupancy_mut() == other.masker.occupancy_mut());
                 }
             }

@@ -34,7 +34,9 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 
 use super::mat::{MatFile, NumericData, column_to_row_major};
-use crate::{CameraModel, DepthKind, Distortion, GeometryError, Image, Intrinsics, RigidTransform, Rig};
+use crate::{
+    CameraModel, DepthKind, Distortion, GeometryError, Image, Intrinsics, Rig, RigidTransform,
+};
 
 /// Where a file's principal point is measured from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -65,13 +67,17 @@ pub struct CourseConvention {
 
 impl CourseConvention {
     /// The convention of `synthdata.mat`, established from its data (see the module docs).
-    pub const SYNTHDATA: CourseConvention =
-        CourseConvention { principal_point: PixelOrigin::OneBased, extrinsics: ExtrinsicsMeaning::ColorPoseInDepth };
+    pub const SYNTHDATA: CourseConvention = CourseConvention {
+        principal_point: PixelOrigin::OneBased,
+        extrinsics: ExtrinsicsMeaning::ColorPoseInDepth,
+    };
 
     /// The literal reading (0-based, Bouguet's `X_color = R·X_depth + T`); wrong for
     /// `synthdata.mat`, kept for comparison.
-    pub const LITERAL: CourseConvention =
-        CourseConvention { principal_point: PixelOrigin::ZeroBased, extrinsics: ExtrinsicsMeaning::ColorFromDepth };
+    pub const LITERAL: CourseConvention = CourseConvention {
+        principal_point: PixelOrigin::ZeroBased,
+        extrinsics: ExtrinsicsMeaning::ColorFromDepth,
+    };
 }
 
 /// The content of `synthdata.mat` in kfuse's conventions.
@@ -94,15 +100,23 @@ pub fn read_course(path: &Path) -> Result<CourseData, GeometryError> {
 }
 
 /// Reads a course file with an explicit convention (for comparisons and other files).
-pub fn read_course_with(path: &Path, convention: CourseConvention) -> Result<CourseData, GeometryError> {
+pub fn read_course_with(
+    path: &Path,
+    convention: CourseConvention,
+) -> Result<CourseData, GeometryError> {
     let file = MatFile::read(path)?;
     course_from_mat(&file, convention)
 }
 
 /// Builds [`CourseData`] from a parsed file: needs `Depth` (H×W), `Image` (H×W×3, float 0..1
 /// or uint8), `Dparam` / `Cparam` structs with `fp`, `cx`, `cy`, and `R` (3×3), `T` (3×1, m).
-pub fn course_from_mat(file: &MatFile, convention: CourseConvention) -> Result<CourseData, GeometryError> {
-    if file.get("Dparam").and_then(|d| d.field("fp")).is_none() && file.get("Dparam").and_then(|d| d.field("fx")).is_some() {
+pub fn course_from_mat(
+    file: &MatFile,
+    convention: CourseConvention,
+) -> Result<CourseData, GeometryError> {
+    if file.get("Dparam").and_then(|d| d.field("fp")).is_none()
+        && file.get("Dparam").and_then(|d| d.field("fx")).is_some()
+    {
         return Err(file.error(
             "looks like the lab's KinectData.mat (Dparam with fx, fy, cx, cy): its 'Depth' is an 8-bit picture, not \
              depth, so it cannot be fused; export its rig with the calibration tools and pass a real depth image"
@@ -119,13 +133,18 @@ pub fn course_from_mat(file: &MatFile, convention: CourseConvention) -> Result<C
     }
     let (h, w) = (depth_arr.dims[0], depth_arr.dims[1]);
     let depth_values = column_to_row_major(&depth_arr.real.to_f32(), &depth_arr.dims);
-    let depth_values: Vec<f32> =
-        depth_values.into_iter().map(|d| if d.is_finite() && d > 0.0 { d } else { f32::NAN }).collect();
+    let depth_values: Vec<f32> = depth_values
+        .into_iter()
+        .map(|d| if d.is_finite() && d > 0.0 { d } else { f32::NAN })
+        .collect();
     let depth = Image::from_vec(w, h, depth_values)?;
     let color = color_image(file, "Image")?;
     if color.size() != (w, h) {
         return Err(GeometryError::SizeMismatch {
-            what: format!("{}: 'Image' (the colour image must match 'Depth')", file.path().display()),
+            what: format!(
+                "{}: 'Image' (the colour image must match 'Depth')",
+                file.path().display()
+            ),
             got_w: color.width(),
             got_h: color.height(),
             want_w: w,
@@ -147,7 +166,8 @@ pub fn course_from_mat(file: &MatFile, convention: CourseConvention) -> Result<C
     let depth_cam = camera("Dparam")?;
     let color_cam = camera("Cparam")?;
     let (r, t) = extrinsics(file, 1.0)?;
-    let given = RigidTransform::from_matrix(r, t).map_err(|e| file.error(format!("'R', 'T': {e}")))?;
+    let given =
+        RigidTransform::from_matrix(r, t).map_err(|e| file.error(format!("'R', 'T': {e}")))?;
     let color_from_depth = match convention.extrinsics {
         ExtrinsicsMeaning::ColorFromDepth => given,
         ExtrinsicsMeaning::ColorPoseInDepth => given.inverse(),
@@ -164,7 +184,10 @@ pub fn course_from_mat(file: &MatFile, convention: CourseConvention) -> Result<C
 }
 
 /// `R` (3×3) and `T` (3×1 or 1×3) of a file, `T` multiplied by `to_metres`.
-fn extrinsics(file: &MatFile, to_metres: f64) -> Result<(Matrix3<f64>, Vector3<f64>), GeometryError> {
+fn extrinsics(
+    file: &MatFile,
+    to_metres: f64,
+) -> Result<(Matrix3<f64>, Vector3<f64>), GeometryError> {
     let r = file.matrix_of_size("R", 3, 3)?;
     let t = file.matrix("T")?;
     if t.data.len() != 3 {
@@ -186,10 +209,12 @@ pub fn color_image(file: &MatFile, name: &str) -> Result<Image<[u8; 3]>, Geometr
     let (h, w) = (arr.dims[0], arr.dims[1]);
     let bytes: Vec<u8> = match &arr.real {
         NumericData::UInt8(v) => column_to_row_major(v, &arr.dims),
-        NumericData::Double(_) | NumericData::Single(_) => column_to_row_major(&arr.real.to_f32(), &arr.dims)
-            .into_iter()
-            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
-            .collect(),
+        NumericData::Double(_) | NumericData::Single(_) => {
+            column_to_row_major(&arr.real.to_f32(), &arr.dims)
+                .into_iter()
+                .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+                .collect()
+        }
         other => {
             return Err(file.error(format!(
                 "variable '{name}' is {}, expected uint8 (0..255) or single/double (0..1) RGB",
@@ -232,7 +257,8 @@ pub fn read_kinect_data(path: &Path) -> Result<KinectLabData, GeometryError> {
     let color_cam = camera("Cparam", color.size())?;
     // Bouguet's stereo T is in millimetres.
     let (r, t) = extrinsics(&file, 1e-3)?;
-    let color_from_depth = RigidTransform::from_matrix(r, t).map_err(|e| file.error(format!("'R', 'T': {e}")))?;
+    let color_from_depth =
+        RigidTransform::from_matrix(r, t).map_err(|e| file.error(format!("'R', 'T': {e}")))?;
     Ok(KinectLabData { rig: Rig::new(depth_cam, color_cam, color_from_depth), color })
 }
 
@@ -262,7 +288,8 @@ mod tests {
 
     /// Least-squares plane through the masked points: (centroid, unit normal, RMS distance).
     fn fit_plane(pts: &[Option<Vector3<f64>>], mask: &[bool]) -> (Vector3<f64>, Vector3<f64>, f64) {
-        let sel: Vec<&Vector3<f64>> = pts.iter().zip(mask).filter_map(|(p, &m)| if m { p.as_ref() } else { None }).collect();
+        let sel: Vec<&Vector3<f64>> =
+            pts.iter().zip(mask).filter_map(|(p, &m)| if m { p.as_ref() } else { None }).collect();
         let n = sel.len() as f64;
         let c = sel.iter().fold(Vector3::zeros(), |a, p| a + *p) / n;
         let cov = sel.iter().fold(Matrix3::zeros(), |a, p| a + (*p - c) * (*p - c).transpose()) / n;
@@ -291,7 +318,11 @@ mod tests {
 
     #[test]
     fn range_reading_makes_the_background_flat() {
-        let Some(data) = load("range_reading_makes_the_background_flat", CourseConvention::SYNTHDATA) else { return };
+        let Some(data) =
+            load("range_reading_makes_the_background_flat", CourseConvention::SYNTHDATA)
+        else {
+            return;
+        };
         assert_eq!(data.rig.depth.intrinsics.cx, 319.0);
         let (mask, rms) = background(&points(&data));
         let inliers = mask.iter().filter(|&&m| m).count();
@@ -309,7 +340,9 @@ mod tests {
 
     #[test]
     fn principal_point_is_one_based() {
-        let Some(data) = load("principal_point_is_one_based", CourseConvention::SYNTHDATA) else { return };
+        let Some(data) = load("principal_point_is_one_based", CourseConvention::SYNTHDATA) else {
+            return;
+        };
         let base = data.rig.depth.intrinsics;
         let rms_at = |dx: f64, dy: f64| {
             let mut d = data.clone();
@@ -320,14 +353,19 @@ mod tests {
         let one_based = rms_at(0.0, 0.0);
         let literal = rms_at(1.0, 1.0);
         let centre = rms_at(0.5, 0.5);
-        eprintln!("plane RMS: 1-based {one_based:.5} m, literal {literal:.5} m, centre {centre:.5} m");
+        eprintln!(
+            "plane RMS: 1-based {one_based:.5} m, literal {literal:.5} m, centre {centre:.5} m"
+        );
         // Measured 2.24 mm vs 2.84 mm (literal) and 2.40 mm (image centre): demand a 10 %
         // margin over the literal reading, far outside the fit's numerical noise (1e-9).
         assert!(one_based < 0.9 * literal, "1-based {one_based} vs literal {literal}");
         assert!(one_based < centre, "1-based {one_based} vs centre {centre}");
         // And it is the minimum of a 0.2 px scan along each axis.
         for d in [-0.2, 0.2] {
-            assert!(one_based < rms_at(d, 0.0) && one_based < rms_at(0.0, d), "not minimal at offset {d}");
+            assert!(
+                one_based < rms_at(d, 0.0) && one_based < rms_at(0.0, d),
+                "not minimal at offset {d}"
+            );
         }
     }
 
@@ -339,7 +377,9 @@ mod tests {
         let mut proj = vec![false; w * h];
         for (p, _) in pts.iter().zip(fg).filter(|(_, f)| **f) {
             let Some(p) = p else { continue };
-            let Some(uv) = data.rig.color.project(&data.rig.color_from_depth.apply(p)) else { continue };
+            let Some(uv) = data.rig.color.project(&data.rig.color_from_depth.apply(p)) else {
+                continue;
+            };
             if data.rig.color.contains(uv.x, uv.y) {
                 proj[uv.y.round() as usize * w + uv.x.round() as usize] = true;
             }
@@ -349,8 +389,12 @@ mod tests {
         let proj = erode(&dilate(&proj, w, h, 2), w, h, 2);
         // Background is the green plane: G exceeds R and B by 0.2 (51/255); objects are
         // magenta, blue and navy.
-        let obj: Vec<bool> =
-            data.color.data().iter().map(|c| !(c[1] as i32 > c[0] as i32 + 51 && c[1] as i32 > c[2] as i32 + 51)).collect();
+        let obj: Vec<bool> = data
+            .color
+            .data()
+            .iter()
+            .map(|c| !(c[1] as i32 > c[0] as i32 + 51 && c[1] as i32 > c[2] as i32 + 51))
+            .collect();
         let inter = proj.iter().zip(&obj).filter(|(a, b)| **a && **b).count();
         let union = proj.iter().zip(&obj).filter(|(a, b)| **a || **b).count();
         inter as f64 / union as f64
@@ -371,7 +415,11 @@ mod tests {
                     let mut acc = !dilate;
                     for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1), (0, 0)] {
                         let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                        let v = if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 { !dilate } else { cur[ny as usize * w + nx as usize] };
+                        let v = if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+                            !dilate
+                        } else {
+                            cur[ny as usize * w + nx as usize]
+                        };
                         acc = if dilate { acc || v } else { acc && v };
                     }
                     out[y * w + x] = acc;
@@ -383,7 +431,10 @@ mod tests {
 
     #[test]
     fn pose_reading_puts_the_depth_objects_on_the_colour_objects() {
-        let Some(data) = load("pose_reading_puts_the_depth_objects_on_the_colour_objects", CourseConvention::SYNTHDATA) else {
+        let Some(data) = load(
+            "pose_reading_puts_the_depth_objects_on_the_colour_objects",
+            CourseConvention::SYNTHDATA,
+        ) else {
             return;
         };
         let (bg, _) = background(&points(&data));
@@ -396,12 +447,18 @@ mod tests {
         let literal_iou = object_iou(&literal, &fg);
         let inverse_only = read_course_with(
             &data_path(),
-            CourseConvention { principal_point: PixelOrigin::OneBased, extrinsics: ExtrinsicsMeaning::ColorFromDepth },
+            CourseConvention {
+                principal_point: PixelOrigin::OneBased,
+                extrinsics: ExtrinsicsMeaning::ColorFromDepth,
+            },
         )
         .unwrap();
         let inverse_iou = object_iou(&inverse_only, &fg);
         // The literal readings miss the objects almost entirely (measured 0.00).
-        assert!(literal_iou < 0.2 && inverse_iou < 0.2, "literal {literal_iou}, Bouguet-direction {inverse_iou}");
+        assert!(
+            literal_iou < 0.2 && inverse_iou < 0.2,
+            "literal {literal_iou}, Bouguet-direction {inverse_iou}"
+        );
         // Translating the other way (X_c = R·X_d − T, a sign error) is also clearly worse
         // (measured 0.17).
         let mut sign = data.clone();
@@ -410,7 +467,9 @@ mod tests {
             data.rig.color_from_depth.rotation.inverse() * data.rig.color_from_depth.translation,
         );
         let sign_iou = object_iou(&sign, &fg);
-        eprintln!("object IoU: pose {iou:.3}, literal {literal_iou:.3}, R·X+T 1-based {inverse_iou:.3}, R·X−T {sign_iou:.3}");
+        eprintln!(
+            "object IoU: pose {iou:.3}, literal {literal_iou:.3}, R·X+T 1-based {inverse_iou:.3}, R·X−T {sign_iou:.3}"
+        );
         assert!(sign_iou < 0.5 * iou, "sign-flipped {sign_iou}");
     }
 
@@ -420,7 +479,9 @@ mod tests {
 
     #[test]
     fn colour_and_depth_are_converted() {
-        let Some(data) = load("colour_and_depth_are_converted", CourseConvention::SYNTHDATA) else { return };
+        let Some(data) = load("colour_and_depth_are_converted", CourseConvention::SYNTHDATA) else {
+            return;
+        };
         assert_eq!(data.color.size(), (640, 480));
         assert_eq!(data.depth_kind, DepthKind::Range);
         // Values checked against an independent reader (scipy.io.loadmat) of the same file:
@@ -435,7 +496,9 @@ mod tests {
 
     #[test]
     fn kinect_data_rig_matches_the_bouguet_stereo_file() {
-        let Some(dir) = shared_data("kinect_data_rig_matches_the_bouguet_stereo_file") else { return };
+        let Some(dir) = shared_data("kinect_data_rig_matches_the_bouguet_stereo_file") else {
+            return;
+        };
         let kd = read_kinect_data(&dir.join("kinect-lab/KinectData.mat")).unwrap();
         let st = MatFile::read(&dir.join("kinect-lab/Calib_Results_stereo.mat")).unwrap();
         assert_eq!(kd.color.size(), (1920, 1080));
@@ -447,7 +510,12 @@ mod tests {
         assert_eq!(kd.rig.color.intrinsics.fy, kk_r.at(1, 1));
         // README: T = (-52.195, -0.262, 0.625) mm → metres.
         let t = kd.rig.color_from_depth.translation;
-        assert!((t.x + 0.052195).abs() < 1e-6 && (t.y + 0.000262).abs() < 1e-6 && (t.z - 0.000625).abs() < 1e-6, "{t}");
+        assert!(
+            (t.x + 0.052195).abs() < 1e-6
+                && (t.y + 0.000262).abs() < 1e-6
+                && (t.z - 0.000625).abs() < 1e-6,
+            "{t}"
+        );
     }
 
     #[test]

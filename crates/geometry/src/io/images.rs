@@ -26,8 +26,7 @@ use crate::{GeometryError, Image};
 /// The colour formats accepted, for error messages and `--help`.
 pub const COLOR_FORMATS: &str = "PNG, JPEG, TIFF or BMP (8/16-bit grey, RGB or RGBA)";
 /// The depth formats accepted, for error messages and `--help`.
-pub const DEPTH_FORMATS: &str =
-    "16-bit grey PNG/TIFF in integer units (millimetres by default), or 32-bit float grey TIFF / OpenEXR in metres";
+pub const DEPTH_FORMATS: &str = "16-bit grey PNG/TIFF in integer units (millimetres by default), or 32-bit float grey TIFF / OpenEXR in metres";
 /// Metres per unit of Kinect 16-bit depth images (millimetres).
 pub const MILLIMETRES: f64 = 1e-3;
 /// Largest depth a 16-bit millimetre PNG can hold, metres.
@@ -77,16 +76,29 @@ pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
         Container::Jpeg => image::ImageFormat::Jpeg,
         Container::Bmp => image::ImageFormat::Bmp,
         Container::Exr => {
-            return Err(format_err(path, format!("is an OpenEXR (float) image; colour images must be {COLOR_FORMATS}")));
+            return Err(format_err(
+                path,
+                format!("is an OpenEXR (float) image; colour images must be {COLOR_FORMATS}"),
+            ));
         }
         Container::Unknown => {
-            return Err(format_err(path, format!("is not an image kfuse can read (unknown format); use {COLOR_FORMATS}")));
+            return Err(format_err(
+                path,
+                format!("is not an image kfuse can read (unknown format); use {COLOR_FORMATS}"),
+            ));
         }
     };
-    let img = image::load_from_memory_with_format(&bytes, format)
-        .map_err(|e| format_err(path, format!("corrupt or unsupported {format:?} image: {e}; use {COLOR_FORMATS}")))?;
+    let img = image::load_from_memory_with_format(&bytes, format).map_err(|e| {
+        format_err(
+            path,
+            format!("corrupt or unsupported {format:?} image: {e}; use {COLOR_FORMATS}"),
+        )
+    })?;
     if matches!(img, image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)) {
-        return Err(format_err(path, format!("is a floating-point image; colour images must be {COLOR_FORMATS}")));
+        return Err(format_err(
+            path,
+            format!("is a floating-point image; colour images must be {COLOR_FORMATS}"),
+        ));
     }
     let rgb = img.into_rgb8();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
@@ -111,11 +123,18 @@ pub fn read_depth(path: &Path, metres_per_unit: f64) -> Result<Image<f32>, Geome
         Container::Jpeg | Container::Bmp => {
             return Err(format_err(
                 path,
-                format!("is an 8-bit JPEG/BMP picture, not depth measurements; depth must be {DEPTH_FORMATS}"),
+                format!(
+                    "is an 8-bit JPEG/BMP picture, not depth measurements; depth must be {DEPTH_FORMATS}"
+                ),
             ));
         }
         Container::Unknown => {
-            return Err(format_err(path, format!("is not an image kfuse can read (unknown format); depth must be {DEPTH_FORMATS}")));
+            return Err(format_err(
+                path,
+                format!(
+                    "is not an image kfuse can read (unknown format); depth must be {DEPTH_FORMATS}"
+                ),
+            ));
         }
     };
     if !img.data().iter().any(|d| d.is_finite()) {
@@ -127,17 +146,30 @@ pub fn read_depth(path: &Path, metres_per_unit: f64) -> Result<Image<f32>, Geome
     Ok(img)
 }
 
-fn from_units(w: usize, h: usize, units: Vec<u16>, metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
-    let data = units.into_iter().map(|u| if u == 0 { f32::NAN } else { (u as f64 * metres_per_unit) as f32 }).collect();
+fn from_units(
+    w: usize,
+    h: usize,
+    units: Vec<u16>,
+    metres_per_unit: f64,
+) -> Result<Image<f32>, GeometryError> {
+    let data = units
+        .into_iter()
+        .map(|u| if u == 0 { f32::NAN } else { (u as f64 * metres_per_unit) as f32 })
+        .collect();
     Image::from_vec(w, h, data)
 }
 
 fn from_metres(w: usize, h: usize, metres: Vec<f32>) -> Result<Image<f32>, GeometryError> {
-    let data = metres.into_iter().map(|d| if d.is_finite() && d > 0.0 { d } else { f32::NAN }).collect();
+    let data =
+        metres.into_iter().map(|d| if d.is_finite() && d > 0.0 { d } else { f32::NAN }).collect();
     Image::from_vec(w, h, data)
 }
 
-fn read_depth_png(path: &Path, bytes: &[u8], metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
+fn read_depth_png(
+    path: &Path,
+    bytes: &[u8],
+    metres_per_unit: f64,
+) -> Result<Image<f32>, GeometryError> {
     let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
         .map_err(|e| format_err(path, format!("corrupt PNG: {e}")))?;
     match img {
@@ -152,14 +184,22 @@ fn read_depth_png(path: &Path, bytes: &[u8], metres_per_unit: f64) -> Result<Ima
     }
 }
 
-fn read_depth_tiff(path: &Path, bytes: &[u8], metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
-    let tiff_err = |e: tiff::TiffError| format_err(path, format!("corrupt or unsupported TIFF: {e}; depth must be {DEPTH_FORMATS}"));
+fn read_depth_tiff(
+    path: &Path,
+    bytes: &[u8],
+    metres_per_unit: f64,
+) -> Result<Image<f32>, GeometryError> {
+    let tiff_err = |e: tiff::TiffError| {
+        format_err(path, format!("corrupt or unsupported TIFF: {e}; depth must be {DEPTH_FORMATS}"))
+    };
     let mut dec = tiff::decoder::Decoder::new(Cursor::new(bytes)).map_err(tiff_err)?;
     let (w, h) = dec.dimensions().map_err(tiff_err)?;
     let colour = dec.colortype().map_err(tiff_err)?;
     let (w, h) = (w as usize, h as usize);
     match (colour, dec.read_image().map_err(tiff_err)?) {
-        (tiff::ColorType::Gray(16), tiff::decoder::DecodingResult::U16(v)) => from_units(w, h, v, metres_per_unit),
+        (tiff::ColorType::Gray(16), tiff::decoder::DecodingResult::U16(v)) => {
+            from_units(w, h, v, metres_per_unit)
+        }
         (tiff::ColorType::Gray(32), tiff::decoder::DecodingResult::F32(v)) => from_metres(w, h, v),
         (c, _) => Err(format_err(path, format!("is a {c:?} TIFF; depth must be {DEPTH_FORMATS}"))),
     }
@@ -182,7 +222,9 @@ fn read_depth_exr(path: &Path, bytes: &[u8]) -> Result<Image<f32>, GeometryError
     let layer = &img.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
     let channels = &layer.channel_data.list;
-    let short = |c: &AnyChannel<FlatSamples>| c.name.to_string().rsplit('.').next().unwrap_or_default().to_lowercase();
+    let short = |c: &AnyChannel<FlatSamples>| {
+        c.name.to_string().rsplit('.').next().unwrap_or_default().to_lowercase()
+    };
     let channel = if channels.len() == 1 {
         &channels[0]
     } else {
@@ -198,7 +240,13 @@ fn read_depth_exr(path: &Path, bytes: &[u8]) -> Result<Image<f32>, GeometryError
         FlatSamples::F32(v) => v.clone(),
         FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
         FlatSamples::U32(_) => {
-            return Err(format_err(path, format!("channel '{}' holds integers; EXR depth must be float metres", channel.name)));
+            return Err(format_err(
+                path,
+                format!(
+                    "channel '{}' holds integers; EXR depth must be float metres",
+                    channel.name
+                ),
+            ));
         }
     };
     from_metres(w, h, values)
@@ -210,13 +258,20 @@ pub fn depth_to_mm(depth: &Image<f32>) -> Vec<u16> {
     depth
         .data()
         .iter()
-        .map(|&d| if d.is_finite() && d > 0.0 { (d as f64 * 1e3).round().clamp(1.0, 65535.0) as u16 } else { 0 })
+        .map(|&d| {
+            if d.is_finite() && d > 0.0 {
+                (d as f64 * 1e3).round().clamp(1.0, 65535.0) as u16
+            } else {
+                0
+            }
+        })
         .collect()
 }
 
 fn encode_png(img: image::DynamicImage, path: &Path) -> Result<Vec<u8>, GeometryError> {
     let mut out = Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png).map_err(|e| format_err(path, format!("cannot encode PNG: {e}")))?;
+    img.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| format_err(path, format!("cannot encode PNG: {e}")))?;
     Ok(out.into_inner())
 }
 
@@ -260,7 +315,8 @@ pub fn write_depth_exr(path: &Path, depth: &Image<f32>) -> Result<(), GeometryEr
 pub fn write_depth_tiff(path: &Path, depth: &Image<f32>) -> Result<(), GeometryError> {
     let (w, h) = size_u32(path, depth.width(), depth.height())?;
     let mut out = Cursor::new(Vec::new());
-    let mut enc = tiff::encoder::TiffEncoder::new(&mut out).map_err(|e| format_err(path, format!("cannot encode TIFF: {e}")))?;
+    let mut enc = tiff::encoder::TiffEncoder::new(&mut out)
+        .map_err(|e| format_err(path, format!("cannot encode TIFF: {e}")))?;
     enc.write_image::<tiff::encoder::colortype::Gray32Float>(w, h, depth.data())
         .map_err(|e| format_err(path, format!("cannot encode TIFF: {e}")))?;
     write_bytes_atomic(path, &out.into_inner())
@@ -278,14 +334,16 @@ pub fn write_u16_png(path: &Path, image: &Image<u16>) -> Result<(), GeometryErro
 pub fn write_color_png(path: &Path, image: &Image<[u8; 3]>) -> Result<(), GeometryError> {
     let (w, h) = size_u32(path, image.width(), image.height())?;
     let raw: Vec<u8> = image.data().iter().flatten().copied().collect();
-    let buf = image::RgbImage::from_raw(w, h, raw).ok_or_else(|| format_err(path, "internal: buffer size"))?;
+    let buf = image::RgbImage::from_raw(w, h, raw)
+        .ok_or_else(|| format_err(path, "internal: buffer size"))?;
     write_bytes_atomic(path, &encode_png(image::DynamicImage::ImageRgb8(buf), path)?)
 }
 
 /// Writes an 8-bit grey image as PNG.
 pub fn write_gray_png(path: &Path, image: &Image<u8>) -> Result<(), GeometryError> {
     let (w, h) = size_u32(path, image.width(), image.height())?;
-    let buf = image::GrayImage::from_raw(w, h, image.data().to_vec()).ok_or_else(|| format_err(path, "internal: buffer size"))?;
+    let buf = image::GrayImage::from_raw(w, h, image.data().to_vec())
+        .ok_or_else(|| format_err(path, "internal: buffer size"))?;
     write_bytes_atomic(path, &encode_png(image::DynamicImage::ImageLuma8(buf), path)?)
 }
 
@@ -306,7 +364,9 @@ mod tests {
     }
 
     fn ramp() -> Image<f32> {
-        Image::from_fn(7, 5, |x, y| if (x + y) % 4 == 0 { f32::NAN } else { 0.5 + 0.0371 * x as f32 + 0.913 * y as f32 })
+        Image::from_fn(7, 5, |x, y| {
+            if (x + y) % 4 == 0 { f32::NAN } else { 0.5 + 0.0371 * x as f32 + 0.913 * y as f32 }
+        })
     }
 
     #[test]
@@ -323,7 +383,10 @@ mod tests {
         assert_eq!(raw.get_pixel(0, 0).0[0], 0, "NaN must be 0");
         assert_eq!(raw.get_pixel(1, 0).0[0], 65535);
         assert_eq!(raw.get_pixel(2, 0).0[0], 1);
-        assert_eq!(raw.get_pixel(3, 2).0[0], (1000.0 * (0.5f32 + 0.0371 * 3.0 + 0.913 * 2.0) as f64).round() as u16);
+        assert_eq!(
+            raw.get_pixel(3, 2).0[0],
+            (1000.0 * (0.5f32 + 0.0371 * 3.0 + 0.913 * 2.0) as f64).round() as u16
+        );
         let back = read_depth(&path, MILLIMETRES).unwrap();
         for (a, b) in depth.data().iter().zip(back.data()).skip(3) {
             // Millimetre quantisation: |error| ≤ 0.5 mm (+ f32 rounding).
@@ -352,7 +415,10 @@ mod tests {
         // whose luminance channel carries the metres.
         let img = exr::prelude::read_first_flat_layer_from_file(dir.join("d.exr")).unwrap();
         assert_eq!(img.layer_data.channel_data.list[0].name.to_string(), "Y");
-        assert_eq!(img.layer_data.channel_data.list[0].sample_data.value_by_flat_index(1).to_f32(), depth.data()[1]);
+        assert_eq!(
+            img.layer_data.channel_data.list[0].sample_data.value_by_flat_index(1).to_f32(),
+            depth.data()[1]
+        );
     }
 
     #[test]
@@ -364,7 +430,10 @@ mod tests {
         assert_eq!(read_color(&path).unwrap(), img);
         // BMP written by the image crate reads back the same.
         let bmp = dir.join("c.bmp");
-        image::RgbImage::from_raw(4, 3, img.data().iter().flatten().copied().collect()).unwrap().save(&bmp).unwrap();
+        image::RgbImage::from_raw(4, 3, img.data().iter().flatten().copied().collect())
+            .unwrap()
+            .save(&bmp)
+            .unwrap();
         assert_eq!(read_color(&bmp).unwrap(), img);
         let mask = Image::from_fn(4, 3, |x, _| x > 1);
         write_mask_png(&dir.join("m.png"), &mask).unwrap();
@@ -414,7 +483,12 @@ mod tests {
         let c = read_color(&jpg).unwrap();
         assert_eq!(c.size(), (16, 8));
         let p = c.get(5, 5);
-        assert!((p[0] as i32 - 200).abs() <= 4 && (p[1] as i32 - 120).abs() <= 4 && (p[2] as i32 - 40).abs() <= 4, "{p:?}");
+        assert!(
+            (p[0] as i32 - 200).abs() <= 4
+                && (p[1] as i32 - 120).abs() <= 4
+                && (p[2] as i32 - 40).abs() <= 4,
+            "{p:?}"
+        );
         // 16-bit grey TIFF written by the tiff crate, in millimetres and with a custom scale.
         let tif = dir.join("d16.tif");
         let mut bytes = Cursor::new(Vec::new());
@@ -436,11 +510,19 @@ mod tests {
         let mut list = SmallVec::new();
         list.push(AnyChannel::new("R", FlatSamples::F32(vec![9.0; 6])));
         list.push(AnyChannel::new("Z", FlatSamples::F32(vec![1.5, 2.0, f32::NAN, 0.0, -1.0, 3.0])));
-        let layer = Layer::new((3, 2), LayerAttributes::named("x"), Encoding::UNCOMPRESSED, AnyChannels::sort(list));
+        let layer = Layer::new(
+            (3, 2),
+            LayerAttributes::named("x"),
+            Encoding::UNCOMPRESSED,
+            AnyChannels::sort(list),
+        );
         exr::prelude::Image::from_layer(layer).write().to_file(&exr_path).unwrap();
         let d = read_depth(&exr_path, MILLIMETRES).unwrap();
         let v: Vec<f32> = d.data().to_vec();
         assert_eq!((v[0], v[1], v[5]), (1.5, 2.0, 3.0));
-        assert!(v[2].is_nan() && v[3].is_nan() && v[4].is_nan(), "NaN, 0 and negative are no sample: {v:?}");
+        assert!(
+            v[2].is_nan() && v[3].is_nan() && v[4].is_nan(),
+            "NaN, 0 and negative are no sample: {v:?}"
+        );
     }
 }

@@ -314,10 +314,17 @@ impl NumericArray {
     /// than two non-singleton dimensions).
     pub fn matrix(&self) -> Result<MatMatrix, String> {
         if self.is_complex() {
-            return Err(format!("is a complex {} array; kfuse needs real numbers", self.class().name()));
+            return Err(format!(
+                "is a complex {} array; kfuse needs real numbers",
+                self.class().name()
+            ));
         }
         if self.dims.len() > 2 && self.dims[2..].iter().any(|&d| d != 1) {
-            return Err(format!("has {} dimensions ({}); expected a 2-D matrix", self.dims.len(), dims_text(&self.dims)));
+            return Err(format!(
+                "has {} dimensions ({}); expected a 2-D matrix",
+                self.dims.len(),
+                dims_text(&self.dims)
+            ));
         }
         let rows = self.dims.first().copied().unwrap_or(0);
         let cols = self.dims.get(1).copied().unwrap_or(1);
@@ -543,7 +550,9 @@ fn describe(v: &MatValue) -> String {
         MatValue::Unsupported { class } => match class {
             MatClass::Sparse => "sparse (not supported: convert with full() in MATLAB)".into(),
             MatClass::Object => "object (not supported: save its fields as a struct)".into(),
-            MatClass::Other(c) => format!("class-{c} (function handle or opaque object, not supported)"),
+            MatClass::Other(c) => {
+                format!("class-{c} (function handle or opaque object, not supported)")
+            }
             c => c.name().into(),
         },
         other => format!("{} {}", dims_text(other.dims()), other.class().name()),
@@ -561,7 +570,8 @@ pub struct MatFile {
 impl MatFile {
     /// Reads and parses the file at `path`.
     pub fn read(path: &Path) -> Result<Self, GeometryError> {
-        let bytes = std::fs::read(path).map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+        let bytes = std::fs::read(path)
+            .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
         Self::parse(&bytes, path)
     }
 
@@ -574,12 +584,15 @@ impl MatFile {
                 bytes.len()
             )));
         }
-        if bytes.starts_with(b"\x89HDF") || bytes[..HEADER_LEN.min(bytes.len())].windows(4).any(|w| w == b"HDF5") {
+        if bytes.starts_with(b"\x89HDF")
+            || bytes[..HEADER_LEN.min(bytes.len())].windows(4).any(|w| w == b"HDF5")
+        {
             return Err(fail(
                 "is a MATLAB v7.3 (HDF5) file, which is not supported: re-save it in MATLAB with save(..., '-v7')".into(),
             ));
         }
-        let header = String::from_utf8_lossy(&bytes[..116]).trim_end_matches([' ', '\0']).to_string();
+        let header =
+            String::from_utf8_lossy(&bytes[..116]).trim_end_matches([' ', '\0']).to_string();
         let little = match &bytes[126..128] {
             b"IM" => true,
             b"MI" => false,
@@ -591,7 +604,9 @@ impl MatFile {
             }
         };
         if !header.starts_with("MATLAB") {
-            return Err(fail("not a MATLAB v5 .mat file: header does not start with 'MATLAB'".into()));
+            return Err(fail(
+                "not a MATLAB v5 .mat file: header does not start with 'MATLAB'".into(),
+            ));
         }
         let mut reader = Reader { bytes, pos: HEADER_LEN, little };
         let mut variables = Vec::new();
@@ -601,18 +616,23 @@ impl MatFile {
                 break;
             }
             let at = reader.pos;
-            let (ty, data) = reader.element().map_err(|e| fail(format!("variable #{} at byte {at}: {e}", variables.len() + 1)))?;
+            let (ty, data) = reader.element().map_err(|e| {
+                fail(format!("variable #{} at byte {at}: {e}", variables.len() + 1))
+            })?;
             let inflated;
             let (ty2, payload): (u32, &[u8]) = if ty == MI_COMPRESSED {
                 let mut out = Vec::new();
                 flate2::read::ZlibDecoder::new(data).read_to_end(&mut out).map_err(|e| {
-                    fail(format!("variable #{} at byte {at}: compressed data is corrupt or truncated ({e})", variables.len() + 1))
+                    fail(format!(
+                        "variable #{} at byte {at}: compressed data is corrupt or truncated ({e})",
+                        variables.len() + 1
+                    ))
                 })?;
                 inflated = out;
                 let mut inner = Reader { bytes: &inflated, pos: 0, little };
-                inner
-                    .element()
-                    .map_err(|e| fail(format!("variable #{} at byte {at} (inflated): {e}", variables.len() + 1)))?
+                inner.element().map_err(|e| {
+                    fail(format!("variable #{} at byte {at} (inflated): {e}", variables.len() + 1))
+                })?
             } else {
                 (ty, data)
             };
@@ -620,8 +640,9 @@ impl MatFile {
                 // Not a variable (e.g. subsystem data): skip.
                 continue;
             }
-            let (name, value) = parse_matrix(payload, little, 0)
-                .map_err(|e| fail(format!("variable #{} at byte {at}: {e}", variables.len() + 1)))?;
+            let (name, value) = parse_matrix(payload, little, 0).map_err(|e| {
+                fail(format!("variable #{} at byte {at}: {e}", variables.len() + 1))
+            })?;
             variables.push((name, value));
         }
         Ok(Self { path: path.to_path_buf(), header, variables })
@@ -662,7 +683,10 @@ impl MatFile {
         let mut walked = first.to_string();
         for part in parts {
             let s = value.as_struct().ok_or_else(|| {
-                self.error(format!("variable '{walked}' is a {}, not a struct (needed: '{path}')", describe(value)))
+                self.error(format!(
+                    "variable '{walked}' is a {}, not a struct (needed: '{path}')",
+                    describe(value)
+                ))
             })?;
             value = s.field(part).ok_or_else(|| {
                 self.error(format!(
@@ -678,33 +702,49 @@ impl MatFile {
 
     /// The real 2-D matrix at `path` (see [`MatFile::require`]), row-major `f64`.
     pub fn matrix(&self, path: &str) -> Result<MatMatrix, GeometryError> {
-        self.require(path)?.as_f64_matrix().map_err(|why| self.error(format!("variable '{path}' {why}")))
+        self.require(path)?
+            .as_f64_matrix()
+            .map_err(|why| self.error(format!("variable '{path}' {why}")))
     }
 
     /// The real matrix at `path`, which must be `rows × cols`.
-    pub fn matrix_of_size(&self, path: &str, rows: usize, cols: usize) -> Result<MatMatrix, GeometryError> {
+    pub fn matrix_of_size(
+        &self,
+        path: &str,
+        rows: usize,
+        cols: usize,
+    ) -> Result<MatMatrix, GeometryError> {
         let m = self.matrix(path)?;
         if m.rows != rows || m.cols != cols {
-            return Err(self.error(format!("variable '{path}' is {}×{}, expected {rows}×{cols}", m.rows, m.cols)));
+            return Err(self.error(format!(
+                "variable '{path}' is {}×{}, expected {rows}×{cols}",
+                m.rows, m.cols
+            )));
         }
         Ok(m)
     }
 
     /// The real scalar at `path`.
     pub fn scalar(&self, path: &str) -> Result<f64, GeometryError> {
-        self.require(path)?.as_scalar().map_err(|why| self.error(format!("variable '{path}' {why}")))
+        self.require(path)?
+            .as_scalar()
+            .map_err(|why| self.error(format!("variable '{path}' {why}")))
     }
 
     /// The char array at `path` as text.
     pub fn string(&self, path: &str) -> Result<String, GeometryError> {
         let v = self.require(path)?;
-        v.as_string().ok_or_else(|| self.error(format!("variable '{path}' is a {}, expected text", describe(v))))
+        v.as_string().ok_or_else(|| {
+            self.error(format!("variable '{path}' is a {}, expected text", describe(v)))
+        })
     }
 
     /// The numeric array at `path`.
     pub fn numeric(&self, path: &str) -> Result<&NumericArray, GeometryError> {
         let v = self.require(path)?;
-        v.as_numeric().ok_or_else(|| self.error(format!("variable '{path}' is a {}, expected a numeric array", describe(v))))
+        v.as_numeric().ok_or_else(|| {
+            self.error(format!("variable '{path}' is a {}, expected a numeric array", describe(v)))
+        })
     }
 
     /// A format error naming this file.
@@ -721,10 +761,12 @@ struct Reader<'a> {
 
 impl<'a> Reader<'a> {
     fn u32_at(&self, at: usize) -> Result<u32, String> {
-        let b = self
-            .bytes
-            .get(at..at + 4)
-            .ok_or_else(|| format!("truncated: a data element tag at byte {at} runs past the end ({} bytes)", self.bytes.len()))?;
+        let b = self.bytes.get(at..at + 4).ok_or_else(|| {
+            format!(
+                "truncated: a data element tag at byte {at} runs past the end ({} bytes)",
+                self.bytes.len()
+            )
+        })?;
         let arr = [b[0], b[1], b[2], b[3]];
         Ok(if self.little { u32::from_le_bytes(arr) } else { u32::from_be_bytes(arr) })
     }
@@ -775,13 +817,18 @@ fn decode(ty: u32, data: &[u8], little: bool) -> Result<Stored, String> {
     macro_rules! ints {
         ($t:ty, $n:expr) => {{
             if data.len() % $n != 0 {
-                return Err(format!("data of {} bytes is not a whole number of {}-byte values", data.len(), $n));
+                return Err(format!(
+                    "data of {} bytes is not a whole number of {}-byte values",
+                    data.len(),
+                    $n
+                ));
             }
             Stored::Ints(
                 data.chunks_exact($n)
                     .map(|c| {
                         let arr: [u8; $n] = c.try_into().unwrap_or([0; $n]);
-                        (if little { <$t>::from_le_bytes(arr) } else { <$t>::from_be_bytes(arr) }) as i128
+                        (if little { <$t>::from_le_bytes(arr) } else { <$t>::from_be_bytes(arr) })
+                            as i128
                     })
                     .collect(),
             )
@@ -804,7 +851,8 @@ fn decode(ty: u32, data: &[u8], little: bool) -> Result<Stored, String> {
                 data.chunks_exact(4)
                     .map(|c| {
                         let arr = [c[0], c[1], c[2], c[3]];
-                        (if little { f32::from_le_bytes(arr) } else { f32::from_be_bytes(arr) }) as f64
+                        (if little { f32::from_le_bytes(arr) } else { f32::from_be_bytes(arr) })
+                            as f64
                     })
                     .collect(),
             )
@@ -862,7 +910,11 @@ fn parse_matrix(data: &[u8], little: bool, depth: usize) -> Result<(String, MatV
         // MATLAB writes an empty array ([]) as an miMATRIX with no content.
         return Ok((
             String::new(),
-            MatValue::Numeric(NumericArray { dims: vec![0, 0], real: NumericData::Double(Vec::new()), imag: None }),
+            MatValue::Numeric(NumericArray {
+                dims: vec![0, 0],
+                real: NumericData::Double(Vec::new()),
+                imag: None,
+            }),
         ));
     }
     let mut r = Reader { bytes: data, pos: 0, little };
@@ -879,13 +931,19 @@ fn parse_matrix(data: &[u8], little: bool, depth: usize) -> Result<(String, MatV
         return Err("array dimensions missing (corrupt array header)".into());
     }
     let dims: Vec<usize> = match decode(ty, dims_raw, little)? {
-        Stored::Ints(v) => v.into_iter().map(|d| usize::try_from(d).map_err(|_| format!("negative dimension {d}"))).collect::<Result<_, _>>()?,
+        Stored::Ints(v) => v
+            .into_iter()
+            .map(|d| usize::try_from(d).map_err(|_| format!("negative dimension {d}")))
+            .collect::<Result<_, _>>()?,
         _ => return Err("array dimensions are not integers".into()),
     };
     if dims.len() < 2 || dims.len() > MAX_DIMS {
         return Err(format!("array has {} dimensions (2..{MAX_DIMS} allowed)", dims.len()));
     }
-    let count = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d)).ok_or("array dimensions overflow")?;
+    let count = dims
+        .iter()
+        .try_fold(1usize, |acc, &d| acc.checked_mul(d))
+        .ok_or("array dimensions overflow")?;
     let (ty, name_raw) = r.element()?;
     if ty != MI_INT8 && ty != MI_UINT8 {
         return Err("array name missing (corrupt array header)".into());
@@ -904,15 +962,29 @@ fn parse_matrix(data: &[u8], little: bool, depth: usize) -> Result<(String, MatV
         | MatClass::Int64
         | MatClass::UInt64 => {
             let (ty, re) = r.element().map_err(|e| format!("{}: {e}", at("real part")))?;
-            let real = convert(decode(ty, re, little).map_err(|e| format!("{}: {e}", at("real part")))?, class, logical)?;
+            let real = convert(
+                decode(ty, re, little).map_err(|e| format!("{}: {e}", at("real part")))?,
+                class,
+                logical,
+            )?;
             if real.len() != count {
-                return Err(format!("{}: {} values for dimensions {}", at("real part"), real.len(), dims_text(&dims)));
+                return Err(format!(
+                    "{}: {} values for dimensions {}",
+                    at("real part"),
+                    real.len(),
+                    dims_text(&dims)
+                ));
             }
             let imag = if complex {
                 let (ty, im) = r.element().map_err(|e| format!("{}: {e}", at("imaginary part")))?;
                 let imag = convert(decode(ty, im, little)?, class, logical)?;
                 if imag.len() != count {
-                    return Err(format!("{}: {} values for dimensions {}", at("imaginary part"), imag.len(), dims_text(&dims)));
+                    return Err(format!(
+                        "{}: {} values for dimensions {}",
+                        at("imaginary part"),
+                        imag.len(),
+                        dims_text(&dims)
+                    ));
                 }
                 Some(imag)
             } else {
@@ -928,16 +1000,24 @@ fn parse_matrix(data: &[u8], little: bool, depth: usize) -> Result<(String, MatV
             } else {
                 match decode(ty, raw, little).map_err(|e| format!("{}: {e}", at("text")))? {
                     Stored::Ints(v) => v.into_iter().map(|c| c as u16).collect(),
-                    _ => return Err(format!("{}: characters stored as floating point", at("text"))),
+                    _ => {
+                        return Err(format!("{}: characters stored as floating point", at("text")));
+                    }
                 }
             };
             if units.len() != count && ty != MI_UTF8 {
-                return Err(format!("{}: {} characters for dimensions {}", at("text"), units.len(), dims_text(&dims)));
+                return Err(format!(
+                    "{}: {} characters for dimensions {}",
+                    at("text"),
+                    units.len(),
+                    dims_text(&dims)
+                ));
             }
             MatValue::Char { dims, units }
         }
         MatClass::Struct => {
-            let (ty, len_raw) = r.element().map_err(|e| format!("{}: {e}", at("field name length")))?;
+            let (ty, len_raw) =
+                r.element().map_err(|e| format!("{}: {e}", at("field name length")))?;
             let name_len = match decode(ty, len_raw, little)? {
                 Stored::Ints(v) if v.len() == 1 && v[0] > 0 => v[0] as usize,
                 _ => return Err(format!("{}: bad field name length", at("struct"))),
@@ -955,7 +1035,8 @@ fn parse_matrix(data: &[u8], little: bool, depth: usize) -> Result<(String, MatV
                     if ty != MI_MATRIX {
                         return Err(format!("'{name}.{f}': field is not an array element"));
                     }
-                    let (_, v) = parse_matrix(sub, little, depth + 1).map_err(|e| format!("'{name}.{f}': {e}"))?;
+                    let (_, v) = parse_matrix(sub, little, depth + 1)
+                        .map_err(|e| format!("'{name}.{f}': {e}"))?;
                     values.push(v);
                 }
                 elements.push(values);
@@ -969,7 +1050,8 @@ fn parse_matrix(data: &[u8], little: bool, depth: usize) -> Result<(String, MatV
                 if ty != MI_MATRIX {
                     return Err(format!("'{name}{{{}}}': cell is not an array element", i + 1));
                 }
-                let (_, v) = parse_matrix(sub, little, depth + 1).map_err(|e| format!("'{name}{{{}}}': {e}", i + 1))?;
+                let (_, v) = parse_matrix(sub, little, depth + 1)
+                    .map_err(|e| format!("'{name}{{{}}}': {e}", i + 1))?;
                 cells.push(v);
             }
             MatValue::Cell { dims, cells }
@@ -1020,10 +1102,13 @@ fn matrix_bytes(name: &str, value: &MatValue) -> Result<Vec<u8>, String> {
     let mut body = Vec::new();
     let (class, complex, logical) = match value {
         MatValue::Numeric(a) => (a.class(), a.is_complex(), a.class() == MatClass::Logical),
-        MatValue::Unsupported { class } => return Err(format!("cannot write a {} value ('{name}')", class.name())),
+        MatValue::Unsupported { class } => {
+            return Err(format!("cannot write a {} value ('{name}')", class.name()));
+        }
         other => (other.class(), false, false),
     };
-    let flags = class.code() as u32 | if complex { 0x800 } else { 0 } | if logical { 0x200 } else { 0 };
+    let flags =
+        class.code() as u32 | if complex { 0x800 } else { 0 } | if logical { 0x200 } else { 0 };
     let mut flag_bytes = flags.to_le_bytes().to_vec();
     flag_bytes.extend_from_slice(&[0; 4]);
     push_element(&mut body, MI_UINT32, &flag_bytes);
@@ -1088,7 +1173,8 @@ pub fn encode(variables: &[(&str, MatValue)]) -> Result<Vec<u8>, String> {
 
 /// Writes variables to `path` as an uncompressed v5 `.mat` file (atomically).
 pub fn write_mat(path: &Path, variables: &[(&str, MatValue)]) -> Result<(), GeometryError> {
-    let bytes = encode(variables).map_err(|message| GeometryError::Format { path: path.to_path_buf(), message })?;
+    let bytes = encode(variables)
+        .map_err(|message| GeometryError::Format { path: path.to_path_buf(), message })?;
     write_bytes_atomic(path, &bytes)
 }
 
@@ -1123,12 +1209,28 @@ mod tests {
     fn writer_round_trip_all_kinds() {
         let vars = vec![
             ("M", MatValue::double_matrix(2, 3, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0])),
-            ("s", MatValue::structure(vec![("name", MatValue::string("ir_")), ("inner", MatValue::structure(vec![("x", MatValue::scalar(-2.5))]))])),
+            (
+                "s",
+                MatValue::structure(vec![
+                    ("name", MatValue::string("ir_")),
+                    ("inner", MatValue::structure(vec![("x", MatValue::scalar(-2.5))])),
+                ]),
+            ),
             (
                 "i16",
-                MatValue::Numeric(NumericArray { dims: vec![1, 3], real: NumericData::Int16(vec![-7, 0, 300]), imag: None }),
+                MatValue::Numeric(NumericArray {
+                    dims: vec![1, 3],
+                    real: NumericData::Int16(vec![-7, 0, 300]),
+                    imag: None,
+                }),
             ),
-            ("c", MatValue::Cell { dims: vec![1, 2], cells: vec![MatValue::scalar(1.0), MatValue::string("two")] }),
+            (
+                "c",
+                MatValue::Cell {
+                    dims: vec![1, 2],
+                    cells: vec![MatValue::scalar(1.0), MatValue::string("two")],
+                },
+            ),
         ];
         let bytes = encode(&vars).unwrap();
         let f = MatFile::parse(&bytes, Path::new("mem.mat")).unwrap();
@@ -1140,7 +1242,12 @@ mod tests {
         assert_eq!(f.numeric("i16").unwrap().real, NumericData::Int16(vec![-7, 0, 300]));
         assert_eq!(f.require("c").unwrap().as_cells().unwrap()[1].as_string().unwrap(), "two");
         let err = f.scalar("s.missing").unwrap_err().to_string();
-        assert!(err.contains("mem.mat") && err.contains("no field 'missing'") && err.contains("name, inner"), "{err}");
+        assert!(
+            err.contains("mem.mat")
+                && err.contains("no field 'missing'")
+                && err.contains("name, inner"),
+            "{err}"
+        );
         let err = f.matrix("nope").unwrap_err().to_string();
         assert!(err.contains("no variable 'nope'") && err.contains("M, s, i16, c"), "{err}");
     }
@@ -1156,7 +1263,14 @@ mod tests {
                     imag: Some(NumericData::Double(vec![0.5, -0.5])),
                 }),
             ),
-            ("mask", MatValue::Numeric(NumericArray { dims: vec![2, 1], real: NumericData::Logical(vec![1, 0]), imag: None })),
+            (
+                "mask",
+                MatValue::Numeric(NumericArray {
+                    dims: vec![2, 1],
+                    real: NumericData::Logical(vec![1, 0]),
+                    imag: None,
+                }),
+            ),
         ];
         let f = MatFile::parse(&encode(&vars).unwrap(), Path::new("c.mat")).unwrap();
         let z = f.numeric("z").unwrap();
@@ -1187,12 +1301,18 @@ mod tests {
         assert!(f.header().starts_with("MATLAB 5.0 MAT-file"));
         // README: "Bouguet's IR result (fx 364.126, fy 365.126)"; stated to 3 decimals.
         let fc = f.matrix_of_size("fc", 2, 1).unwrap();
-        assert!((fc.data[0] - 364.126).abs() < 5e-4 && (fc.data[1] - 365.126).abs() < 5e-4, "{fc:?}");
+        assert!(
+            (fc.data[0] - 364.126).abs() < 5e-4 && (fc.data[1] - 365.126).abs() < 5e-4,
+            "{fc:?}"
+        );
         // Principal point fixed at ((w-1)/2, (h-1)/2) = (255.5, 211.5): exact in the file.
         let cc = f.matrix("cc").unwrap();
         assert_eq!(cc.data, vec![255.5, 211.5]);
         let kk = f.matrix_of_size("KK", 3, 3).unwrap();
-        assert_eq!((kk.at(0, 0), kk.at(0, 2), kk.at(1, 1), kk.at(2, 2)), (fc.data[0], 255.5, fc.data[1], 1.0));
+        assert_eq!(
+            (kk.at(0, 0), kk.at(0, 2), kk.at(1, 1), kk.at(2, 2)),
+            (fc.data[0], 255.5, fc.data[1], 1.0)
+        );
         // k3 fixed at 0 (README); stored as an integer-valued double.
         let kc = f.matrix_of_size("kc", 5, 1).unwrap();
         assert_eq!(kc.data[4], 0.0);
@@ -1238,7 +1358,9 @@ mod tests {
 
     #[test]
     fn course_synthdata_reads_structs_and_single_arrays() {
-        let Some(data) = shared_data("course_synthdata_reads_structs_and_single_arrays") else { return };
+        let Some(data) = shared_data("course_synthdata_reads_structs_and_single_arrays") else {
+            return;
+        };
         let f = MatFile::read(&data.join("course/synthdata.mat")).unwrap();
         let depth = f.numeric("Depth").unwrap();
         assert_eq!((depth.dims.clone(), depth.class()), (vec![480, 640], MatClass::Single));

@@ -14,8 +14,7 @@
 pub mod atomic;
 pub mod course;
 pub mod images;
+pub mod mat;
 pub mod obj;
 pub mod ply;
 pub mod rig;
-pub mod mat;
-

@@ -29,7 +29,11 @@ pub struct ObjFiles {
 
 /// Writes `mesh` as `<obj_path>` + `<stem>.mtl` + `<stem>_texture.png` (the latter only when
 /// `texture` is given; the mesh then needs texture coordinates).
-pub fn write_textured_obj(obj_path: &Path, mesh: &Mesh, texture: Option<&Image<[u8; 3]>>) -> Result<ObjFiles, GeometryError> {
+pub fn write_textured_obj(
+    obj_path: &Path,
+    mesh: &Mesh,
+    texture: Option<&Image<[u8; 3]>>,
+) -> Result<ObjFiles, GeometryError> {
     let n = mesh.vertices.len();
     let invalid = |m: String| GeometryError::InvalidInput(format!("{}: {m}", obj_path.display()));
     if !mesh.uvs.is_empty() && mesh.uvs.len() != n {
@@ -44,7 +48,10 @@ pub fn write_textured_obj(obj_path: &Path, mesh: &Mesh, texture: Option<&Image<[
     if let Some(bad) = mesh.faces.iter().flatten().find(|&&i| i as usize >= n) {
         return Err(invalid(format!("face index {bad} out of range for {n} vertices")));
     }
-    let stem = obj_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "mesh".into());
+    let stem = obj_path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "mesh".into());
     let mtl = obj_path.with_file_name(format!("{stem}.mtl"));
     let tex_name = format!("{stem}_texture.png");
     let tex_path = texture.map(|_| obj_path.with_file_name(&tex_name));
@@ -66,7 +73,12 @@ pub fn write_textured_obj(obj_path: &Path, mesh: &Mesh, texture: Option<&Image<[
         Ok(())
     })?;
     write_atomic(obj_path, |out| {
-        writeln!(out, "# kfuse mesh: {} vertices, {} triangles, units: metres", n, mesh.faces.len())?;
+        writeln!(
+            out,
+            "# kfuse mesh: {} vertices, {} triangles, units: metres",
+            n,
+            mesh.faces.len()
+        )?;
         writeln!(out, "# frame: x right, y down, z forward (camera frame)")?;
         writeln!(out, "mtllib {mtl_name}")?;
         for (i, v) in mesh.vertices.iter().enumerate() {
@@ -121,8 +133,11 @@ mod tests {
         let tex = Image::from_fn(4, 2, |x, y| [x as u8 * 50, y as u8 * 100, 0]);
         let files = write_textured_obj(&dir.join("mesh.obj"), &mesh, Some(&tex)).unwrap();
         assert_eq!(files.texture.as_deref(), Some(dir.join("mesh_texture.png").as_path()));
-        let (models, materials) =
-            tobj::load_obj(&files.obj, &tobj::LoadOptions { single_index: true, triangulate: true, ..Default::default() }).unwrap();
+        let (models, materials) = tobj::load_obj(
+            &files.obj,
+            &tobj::LoadOptions { single_index: true, triangulate: true, ..Default::default() },
+        )
+        .unwrap();
         let materials = materials.unwrap();
         assert_eq!(materials.len(), 1);
         assert_eq!(materials[0].diffuse_texture.as_deref(), Some("mesh_texture.png"));
@@ -137,7 +152,13 @@ mod tests {
         // Triangles and positions survive (tobj may reorder vertices: compare by position).
         let tri: Vec<[f32; 3]> = m.indices[3..6]
             .iter()
-            .map(|&i| [m.positions[3 * i as usize], m.positions[3 * i as usize + 1], m.positions[3 * i as usize + 2]])
+            .map(|&i| {
+                [
+                    m.positions[3 * i as usize],
+                    m.positions[3 * i as usize + 1],
+                    m.positions[3 * i as usize + 2],
+                ]
+            })
             .collect();
         assert_eq!(tri, vec![mesh.vertices[1], mesh.vertices[2], mesh.vertices[3]]);
         assert_eq!(crate::io::images::read_color(files.texture.as_ref().unwrap()).unwrap(), tex);

@@ -14,7 +14,14 @@ use std::path::Path;
 use crate::io::atomic::write_atomic;
 use crate::{GeometryError, Mesh, PointCloud};
 
-fn header(out: &mut dyn Write, comments: &[String], vertices: usize, color: bool, uv: bool, faces: Option<usize>) -> std::io::Result<()> {
+fn header(
+    out: &mut dyn Write,
+    comments: &[String],
+    vertices: usize,
+    color: bool,
+    uv: bool,
+    faces: Option<usize>,
+) -> std::io::Result<()> {
     writeln!(out, "ply")?;
     writeln!(out, "format binary_little_endian 1.0")?;
     for c in comments {
@@ -55,7 +62,10 @@ fn check_len(path: &Path, what: &str, got: usize, want: usize) -> Result<(), Geo
 pub fn write_cloud_ply(path: &Path, cloud: &PointCloud, frame: &str) -> Result<(), GeometryError> {
     check_len(path, "colors", cloud.colors.len(), cloud.points.len())?;
     let color = cloud.has_colors() && !cloud.is_empty();
-    let comments = vec!["kfuse point cloud, units: metres".to_string(), format!("frame: {frame} (x right, y down, z forward)")];
+    let comments = vec![
+        "kfuse point cloud, units: metres".to_string(),
+        format!("frame: {frame} (x right, y down, z forward)"),
+    ];
     write_atomic(path, |out| {
         header(out, &comments, cloud.points.len(), color, false, None)?;
         let mut buf = Vec::with_capacity(cloud.points.len() * 15);
@@ -73,7 +83,12 @@ pub fn write_cloud_ply(path: &Path, cloud: &PointCloud, frame: &str) -> Result<(
 
 /// Writes a mesh as binary PLY: vertices (with colours and `s, t` texture coordinates when
 /// present) and triangles. `texture_file` is recorded as `comment TextureFile`.
-pub fn write_mesh_ply(path: &Path, mesh: &Mesh, frame: &str, texture_file: Option<&str>) -> Result<(), GeometryError> {
+pub fn write_mesh_ply(
+    path: &Path,
+    mesh: &Mesh,
+    frame: &str,
+    texture_file: Option<&str>,
+) -> Result<(), GeometryError> {
     let n = mesh.vertices.len();
     check_len(path, "colors", mesh.colors.len(), n)?;
     check_len(path, "uvs", mesh.uvs.len(), n)?;
@@ -84,11 +99,17 @@ pub fn write_mesh_ply(path: &Path, mesh: &Mesh, frame: &str, texture_file: Optio
         )));
     }
     if n > i32::MAX as usize {
-        return Err(GeometryError::InvalidInput(format!("{}: {n} vertices exceed PLY's int indices", path.display())));
+        return Err(GeometryError::InvalidInput(format!(
+            "{}: {n} vertices exceed PLY's int indices",
+            path.display()
+        )));
     }
     let color = !mesh.colors.is_empty() && n > 0;
     let uv = !mesh.uvs.is_empty() && n > 0;
-    let mut comments = vec!["kfuse mesh, units: metres".to_string(), format!("frame: {frame} (x right, y down, z forward)")];
+    let mut comments = vec![
+        "kfuse mesh, units: metres".to_string(),
+        format!("frame: {frame} (x right, y down, z forward)"),
+    ];
     if let Some(t) = texture_file {
         comments.push(format!("TextureFile {t}"));
     }
@@ -192,7 +213,9 @@ mod tests {
             other => panic!("{other:?}"),
         }
         let bad = Mesh { faces: vec![[0, 1, 9]], ..mesh };
-        let err = write_mesh_ply(&dir.join("bad.ply"), &bad, "depth camera", None).unwrap_err().to_string();
+        let err = write_mesh_ply(&dir.join("bad.ply"), &bad, "depth camera", None)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("bad.ply") && err.contains("face index 9"), "{err}");
         assert!(!dir.join("bad.ply").exists());
     }

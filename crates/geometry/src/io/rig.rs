@@ -7,13 +7,16 @@ use crate::{GeometryError, Rig};
 
 /// Reads and validates a rig file.
 pub fn read_rig(path: &Path) -> Result<Rig, GeometryError> {
-    let bytes = std::fs::read(path).map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+    let bytes = std::fs::read(path)
+        .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
     let text = String::from_utf8(bytes).map_err(|_| GeometryError::Format {
         path: path.to_path_buf(),
-        message: "not a kfuse rig file (binary, not JSON text); create one with `kfuse calibrate`".into(),
+        message: "not a kfuse rig file (binary, not JSON text); create one with `kfuse calibrate`"
+            .into(),
     })?;
     let rig = Rig::from_json(&text, path)?;
-    rig.validate().map_err(|e| GeometryError::Format { path: path.to_path_buf(), message: e.to_string() })?;
+    rig.validate()
+        .map_err(|e| GeometryError::Format { path: path.to_path_buf(), message: e.to_string() })?;
     Ok(rig)
 }
 
@@ -39,13 +42,27 @@ mod tests {
             Intrinsics::new(368.1, 368.1, 261.7, 202.5),
             Distortion { k1: 0.084, k2: -0.27, p1: 0.0, p2: 0.0, k3: 0.10 },
         );
-        let color = CameraModel::new(1920, 1080, Intrinsics::new(1062.5, 1066.5, 959.5, 539.5), Distortion::NONE);
-        let rig = Rig::new(depth, color, RigidTransform::from_axis_angle(Vector3::new(0.0, 0.01, 0.0), Vector3::new(-0.052, 0.0, 0.0)));
+        let color = CameraModel::new(
+            1920,
+            1080,
+            Intrinsics::new(1062.5, 1066.5, 959.5, 539.5),
+            Distortion::NONE,
+        );
+        let rig = Rig::new(
+            depth,
+            color,
+            RigidTransform::from_axis_angle(
+                Vector3::new(0.0, 0.01, 0.0),
+                Vector3::new(-0.052, 0.0, 0.0),
+            ),
+        );
         let path = dir.join("rig.json");
         write_rig(&path, &rig).unwrap();
         let back = read_rig(&path).unwrap();
         assert_eq!(back.depth, rig.depth);
-        assert!((back.color_from_depth.translation - rig.color_from_depth.translation).norm() < 1e-15);
+        assert!(
+            (back.color_from_depth.translation - rig.color_from_depth.translation).norm() < 1e-15
+        );
         let err = read_rig(&dir.join("nope.json")).unwrap_err().to_string();
         assert!(err.contains("nope.json"), "{err}");
         std::fs::write(dir.join("bad.json"), "{\"format\": 3}").unwrap();

@@ -39,7 +39,8 @@ fn sp(v: f32) -> f32x4 {
 
 /// Coefficients of e^r ≈ Σ cᵢ rⁱ on |r| ≤ ln 2 / 2: a weighted least-squares (Lawson iteration)
 /// fit made for this module, relative error 1.9·10⁻⁹ in exact arithmetic (degree 6).
-const EXP_P: [f32; 7] = [1.0, 1.0, 0.499_999_9, 0.166_664_2, 0.041_668_225, 0.008_374_816, 0.001_383_684_6];
+const EXP_P: [f32; 7] =
+    [1.0, 1.0, 0.499_999_9, 0.166_664_2, 0.041_668_225, 0.008_374_816, 0.001_383_684_6];
 
 /// e^x, four lanes, clamping x to [−87, 88] first (NaN propagates). See [`exp_unclamped`].
 #[inline(always)]
@@ -75,7 +76,8 @@ const SQRT_2: f32 = std::f32::consts::SQRT_2;
 pub fn ln(x: f32x4) -> f32x4 {
     let bits: i32x4 = wide::bytemuck::cast(x);
     let e = ((bits >> 23u32) & i32x4::splat(0xff)) - i32x4::splat(127);
-    let m: f32x4 = wide::bytemuck::cast((bits & i32x4::splat(0x007f_ffff)) | i32x4::splat(0x3f80_0000));
+    let m: f32x4 =
+        wide::bytemuck::cast((bits & i32x4::splat(0x007f_ffff)) | i32x4::splat(0x3f80_0000));
     let big = m.simd_gt(sp(SQRT_2));
     let m = big.select(m * sp(0.5), m);
     let e = f32x4::from_i32x4(e) + (big & sp(1.0));
@@ -141,7 +143,10 @@ pub fn atan2(y: f32x4, x: f32x4) -> f32x4 {
 /// order, same results bit for bit): loops over them vectorise to any lane width, which is
 /// how the decoder's eight-lane kernels use them.
 pub mod scalar {
-    use super::{ATAN_P, EXP_P, LN2_HI, LN2_LO, PI_HI, PI_LO, PIO2_HI, PIO2_LO, PIO4_HI, PIO4_LO, ROUND_MAGIC, SQRT_2, TAN_PI_8};
+    use super::{
+        ATAN_P, EXP_P, LN2_HI, LN2_LO, PI_HI, PI_LO, PIO2_HI, PIO2_LO, PIO4_HI, PIO4_LO,
+        ROUND_MAGIC, SQRT_2, TAN_PI_8,
+    };
 
     /// [`super::exp`] of one value.
     #[inline(always)]
@@ -226,7 +231,10 @@ mod tests {
             assert!(same(scalar::exp(x), lane(&exp, x)), "exp({x:e})");
             assert!(same(scalar::ln(x), lane(&ln, x)), "ln({x:e})");
             if (-87.0..=88.0).contains(&x) {
-                assert!(same(scalar::exp_unclamped(x), lane(&exp_unclamped, x)), "exp_unclamped({x:e})");
+                assert!(
+                    same(scalar::exp_unclamped(x), lane(&exp_unclamped, x)),
+                    "exp_unclamped({x:e})"
+                );
             }
             let y = f32::from_bits(bits.rotate_left(7));
             let want = atan2(f32x4::splat(y), f32x4::splat(x)).to_array()[0];
@@ -256,12 +264,16 @@ mod tests {
     fn exp_within_bound_of_f64() {
         let mut worst = (0.0f64, 0.0f32);
         let mut check = |x: f32| {
-            let e = ulps(one(exp, x), (x as f64).exp()).max(ulps(one(exp_unclamped, x), (x as f64).exp()));
+            let e = ulps(one(exp, x), (x as f64).exp())
+                .max(ulps(one(exp_unclamped, x), (x as f64).exp()));
             if e > worst.0 {
                 worst = (e, x);
             }
         };
-        for bits in ((-0.0f32).to_bits()..=(-87.0f32).to_bits()).step_by(256).chain((0..=88.0f32.to_bits()).step_by(256)) {
+        for bits in ((-0.0f32).to_bits()..=(-87.0f32).to_bits())
+            .step_by(256)
+            .chain((0..=88.0f32.to_bits()).step_by(256))
+        {
             check(f32::from_bits(bits));
         }
         for bits in ((2.0f32.powi(-20)).to_bits()..=7.3f32.to_bits()).step_by(23) {
@@ -308,7 +320,17 @@ mod tests {
                 }
             }
         }
-        for (y, x) in [(1.0f32, 0.0f32), (-1.0, 0.0), (1.0, -0.0), (0.0, 1.0), (-0.0, 1.0), (0.0, -1.0), (-0.0, -1.0), (1.0, 1.0), (-1.0, -1.0)] {
+        for (y, x) in [
+            (1.0f32, 0.0f32),
+            (-1.0, 0.0),
+            (1.0, -0.0),
+            (0.0, 1.0),
+            (-0.0, 1.0),
+            (0.0, -1.0),
+            (-0.0, -1.0),
+            (1.0, 1.0),
+            (-1.0, -1.0),
+        ] {
             let (got, want) = (atan2_1(y, x), y.atan2(x));
             assert_eq!(got.is_sign_negative(), want.is_sign_negative(), "sign of atan2({y}, {x})");
             let e = ulps(got, (y as f64).atan2(x as f64));
@@ -316,7 +338,13 @@ mod tests {
                 worst = (e, y, x);
             }
         }
-        assert!(worst.0 <= ATAN2_MAX_ULP, "atan2({:e}, {:e}) off by {:.3} ulp", worst.1, worst.2, worst.0);
+        assert!(
+            worst.0 <= ATAN2_MAX_ULP,
+            "atan2({:e}, {:e}) off by {:.3} ulp",
+            worst.1,
+            worst.2,
+            worst.0
+        );
         assert!(atan2_1(f32::NAN, 1.0).is_nan() && atan2_1(1.0, f32::NAN).is_nan());
     }
 }

@@ -92,10 +92,19 @@ pub(super) fn stage2_row(
     }
     for x in 0..W {
         let l = scalar::ln(astar[x]);
-        conf[x] = scalar::exp((l * p.ab_confidence_slope * 0.301030 + p.ab_confidence_offset) * 3.321928);
+        conf[x] =
+            scalar::exp((l * p.ab_confidence_slope * 0.301030 + p.ab_confidence_offset) * 3.321928);
     }
     for x in 0..W {
-        let (d, l, h) = unwrap_depth(p, [phi[0][x], phi[1][x], phi[2][x]], conf[x], gate[x] > 0.0, ok[x] > 0.0, xt[x], zt[x]);
+        let (d, l, h) = unwrap_depth(
+            p,
+            [phi[0][x], phi[1][x], phi[2][x]],
+            conf[x],
+            gate[x] > 0.0,
+            ok[x] > 0.0,
+            xt[x],
+            zt[x],
+        );
         dp[x] = d;
         lo[x] = l;
         hi[x] = h;
@@ -104,7 +113,15 @@ pub(super) fn stage2_row(
 
 /// The parent's `unwrap_depth` for `Fast`, one pixel.
 #[inline(always)]
-fn unwrap_depth(p: &DecoderParams, phi: [f32; 3], conf: f32, gate: bool, ok: bool, xt: f32, zt: f32) -> (f32, f32, f32) {
+fn unwrap_depth(
+    p: &DecoderParams,
+    phi: [f32; 3],
+    conf: f32,
+    gate: bool,
+    ok: bool,
+    xt: f32,
+    zt: f32,
+) -> (f32, f32, f32) {
     let two_pi = 2.0 * std::f64::consts::PI;
     // Unwrapping (step 3).
     let wrap_phase = |f: f32| {

@@ -27,11 +27,15 @@ pub fn synth_frame() -> &'static (Frame, SynthFrame) {
 /// True when a wgpu adapter exists. Without one: panics when `KFUSE_REQUIRE_GPU=1` (CI), else
 /// prints a SKIP line for `test` and returns false.
 pub fn gpu_available(test: &str) -> bool {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-    let ok = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions::default())).is_ok();
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let ok = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions::default()))
+        .is_ok();
     if !ok {
         if std::env::var("KFUSE_REQUIRE_GPU").is_ok_and(|v| v == "1") {
-            panic!("{test}: KFUSE_REQUIRE_GPU=1 but no wgpu adapter was found (install mesa-vulkan-drivers for lavapipe)");
+            panic!(
+                "{test}: KFUSE_REQUIRE_GPU=1 but no wgpu adapter was found (install mesa-vulkan-drivers for lavapipe)"
+            );
         }
         eprintln!("SKIP {test}: no wgpu adapter");
     }
