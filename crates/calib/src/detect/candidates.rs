@@ -124,8 +124,6 @@ pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64
 mod tests {
     use super::*;
 
-    use super::*;
-
     /// Tolerance: none. The row-slice ChESS response equals the per-pixel textbook formula
     /// (16 ring samples gathered per pixel) bit for bit, on a non-square image with structure
     /// everywhere, for both ring radii, borders included.

@@ -94,8 +94,8 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
 }
 
 /// Grows grids from the strongest candidates (seeds not already in a grid) and keeps the
-/// largest; stops early once one covers the board.
-pub(super) fn largest(pts: &[(Vector2<f64>, f32)], board: &Board) -> Option<Grid> {
+/// largest; stops early once one has `enough` corners.
+pub(super) fn largest(pts: &[(Vector2<f64>, f32)], enough: usize) -> Option<Grid> {
     let mut best: Option<Grid> = None;
     let mut tried = vec![false; pts.len()];
     for s in 0..pts.len().min(MAX_SEEDS) {
@@ -109,12 +109,22 @@ pub(super) fn largest(pts: &[(Vector2<f64>, f32)], board: &Board) -> Option<Grid
             if best.as_ref().is_none_or(|b| g.len() > b.len()) {
                 best = Some(g);
             }
-            if best.as_ref().is_some_and(|b| b.len() >= board.len()) {
+            if best.as_ref().is_some_and(|b| b.len() >= enough) {
                 break;
             }
         }
     }
     best
+}
+
+/// Corners along the grid's two axes (`(ni, nj)`).
+pub(super) fn extents(grid: &Grid) -> (i32, i32) {
+    let span = |f: fn(&(i32, i32)) -> i32| {
+        let (lo, hi) =
+            grid.keys().map(f).fold((i32::MAX, i32::MIN), |a, v| (a.0.min(v), a.1.max(v)));
+        if hi >= lo { hi - lo + 1 } else { 0 }
+    };
+    (span(|k| k.0), span(|k| k.1))
 }
 
 /// A grid larger than the board (spurious junctions where the board's border meets the

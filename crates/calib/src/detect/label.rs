@@ -1,6 +1,7 @@
 //! Stage 4, labelling: maps the grid's coordinates to board corner ids. The grid's extents are
 //! matched to the board's `cols × rows`, never mirrored; the colour of the squares fixes the
-//! offsets of a partial board and the orientation (see the module docs for the rule).
+//! offsets of a partial board and, where it can, the orientation (the ordering rule is in the
+//! module docs).
 
 use std::collections::HashMap;
 
@@ -57,7 +58,7 @@ struct Cand {
 
 impl Cand {
     /// Board corner coordinates of grid corner `(i, j)` on a grid of `ni × nj` corners.
-    fn to_board(&self, ni: i32, nj: i32, i: i32, j: i32) -> (i32, i32) {
+    fn board_corner(&self, ni: i32, nj: i32, i: i32, j: i32) -> (i32, i32) {
         let (a, b) = if self.swap { (j, i) } else { (i, j) };
         let (ea, eb) = if self.swap { (nj, ni) } else { (ni, nj) };
         let bx = if self.si > 0 { a } else { ea - 1 - a };
@@ -170,6 +171,28 @@ fn placements(board: &Board, ni: i32, nj: i32, grid_handed: bool) -> Vec<Cand> {
     cands
 }
 
+/// The rotations of a `cols × rows` corner grid onto itself, as quarter turns `k` (0, 2, and
+/// 1, 3 when square), each with whether it changes the colour of the top-left square: the
+/// square at the origin moves to the far corner square `(cols, rows)` under 180° (parity
+/// `cols + rows`) and to `(n, 0)` under 90° (parity `n`).
+pub(super) fn rotations(cols: i32, rows: i32) -> Vec<(u8, bool)> {
+    let mut r = vec![(0, false), (2, (cols + rows) % 2 == 1)];
+    if cols == rows {
+        r.extend([(1, cols % 2 == 1), (3, cols % 2 == 1)]);
+    }
+    r
+}
+
+/// Board corner `(x, y)` turned by `k` quarter turns (`k` odd only for square boards).
+pub(super) fn rotate(k: u8, cols: i32, rows: i32, (x, y): (i32, i32)) -> (i32, i32) {
+    match k % 4 {
+        0 => (x, y),
+        1 => (cols - 1 - y, x),
+        2 => (cols - 1 - x, rows - 1 - y),
+        _ => (y, rows - 1 - x),
+    }
+}
+
 /// Maps grid coordinates to board ids (see the module docs); `None` when not certain.
 pub(super) fn label(
     img: &Image<f32>,
@@ -200,7 +223,7 @@ pub(super) fn label(
     let px_ = map(&hgrid, 1.0, 0.0) - p0;
     let py_ = map(&hgrid, 0.0, 1.0) - p0;
     let grid_handed = px_.x * py_.y - px_.y * py_.x > 0.0;
-    let to_board = |c: &Cand, i: i32, j: i32| c.to_board(ni, nj, i, j);
+    let to_board = |c: &Cand, i: i32, j: i32| c.board_corner(ni, nj, i, j);
     // Colour: the square between inner corners (x, y) and (x+1, y+1) is board square
     // (x+1, y+1), dark iff its coordinates' sum is even (top-left black) or odd.
     let cell_dark_board = |c: &Cand, i: i32, j: i32| -> bool {
@@ -246,20 +269,29 @@ pub(super) fn label(
         bad
     };
     let ok: Vec<&Cand> = cands.iter().filter(|c| conflicts(c) == 0).collect();
-    // Among the survivors, the 180° twins differ only by orientation: keep the one whose
-    // board x axis points most to the right in the image.
+    // The ordering rule (module docs): among the survivors, a black top-left square if any
+    // survivor has one, then the board x axis pointing most to the right in the image.
     let dir_x = |c: &Cand| -> f64 {
         let a = if c.swap { py_ } else { px_ };
         (a * c.si as f64).normalize().x
     };
-    let mut ok = ok;
-    ok.sort_by(|a, b| dir_x(b).total_cmp(&dir_x(a)));
-    let chosen = ok.first()?;
-    // Certain only if every other survivor is the 180° twin of the chosen one.
-    let twin_ok = |c: &Cand| {
-        c.black == chosen.black && c.swap == chosen.swap && c.si == -chosen.si && c.sj == -chosen.sj
+    let any_black = ok.iter().any(|c| c.black);
+    let mut pool: Vec<&Cand> = ok.iter().copied().filter(|c| c.black == any_black).collect();
+    pool.sort_by(|a, b| dir_x(b).total_cmp(&dir_x(a)));
+    let chosen = *pool.first()?;
+    // Certain only if every survivor is the chosen placement turned by one of the board's
+    // rotations (with the top-left colour that turn implies): then they all name the same
+    // physical corners and the rule only picked a representative.
+    let at = |c: &Cand, i: i32, j: i32| c.board_corner(ni, nj, i, j);
+    let equivalent = |c: &Cand| {
+        rotations(cols, rows).iter().any(|&(k, flips)| {
+            c.black == (chosen.black != flips)
+                && [(0, 0), (1, 0), (0, 1)]
+                    .iter()
+                    .all(|&(i, j)| at(c, i, j) == rotate(k, cols, rows, at(chosen, i, j)))
+        })
     };
-    if ok.iter().any(|c| !(*c == *chosen || twin_ok(c))) {
+    if !ok.iter().all(|c| equivalent(c)) {
         return None;
     }
     let corners = g

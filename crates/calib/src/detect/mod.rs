@@ -23,17 +23,40 @@
 //!    non-collinear pair) grows breadth-first by predicting each neighbour from the two
 //!    previous corners of its row or column; holes (a glare-washed corner) are allowed.
 //! 4. **Labelling**: the grid's extents are matched to the board's `cols × rows`, never
-//!    mirrored; the colour of the squares (the board's top-left square is black) fixes the
-//!    offsets of a partial board; the remaining 180° ambiguity of an even×even-square board is
-//!    resolved by keeping the board's x axis pointing right in the image (and between the two
-//!    cameras of a pair by [`align_pair`]). A partial board whose offsets are not certain is
-//!    dropped, never guessed.
+//!    mirrored; the colour of the squares fixes the offsets of a partial board and, where it
+//!    can, the orientation; the rest follows the ordering rule below. A board whose labelling
+//!    is not certain (a partial board whose offsets the colours do not fix) is dropped, never
+//!    guessed.
 //! 5. **Final sub-pixel fit** ([`Refinement::JunctionFit`], the default): the maximum-likelihood
 //!    fit of a blurred X-junction model to every pixel within 0.45 grid steps
 //!    ([`fit_junction`]), started from step 2 with the edge directions of the labelled grid.
 //!    [`Refinement::CornerSubPix`] instead refines each corner again with `cornerSubPix` and a
 //!    window sized to its local grid step (more pixels, less noise) and reproduces Bouguet's
 //!    corners; it is also the junction fit's fallback.
+//!
+//! # Corner ordering rule
+//!
+//! Corner `k` is `(k mod cols, k div cols)` on the board (see [`Board`]): corner 0 is the inner
+//! corner diagonal to the board's top-left square, the x axis runs along the `cols` corners, and
+//! a labelling is never mirrored. A physical board can be labelled so in 2 ways, turned 180°
+//! against each other (4 on a square board, in quarter turns). Which one is reported:
+//!
+//! * **Colour decides** where the turn changes the colour of the top-left square: boards with
+//!   one even and one odd square count (`cols + rows` odd: OpenCV's 9x6 = 10x7 squares, 7x6,
+//!   6x9, 10x7) and the quarter turns of a square board with an odd count (5x5). The top-left
+//!   square is black ([`Board::top_left_black`] `Some(false)` asks for white): corner 0 is at
+//!   the board's black corner square, the same physical corner in every view and in both
+//!   cameras of a stereo pair, whatever the pose. (OpenCV's `findChessboardCornersSB` has no
+//!   fixed rule here; compare its corners after turning them to this rule.)
+//! * **Orientation decides** where the turn keeps the colouring (`cols + rows` even: 7x5 =
+//!   8x6 squares, 8x6, 9x7; and the quarter turns of a square board with an even count): the
+//!   images cannot tell the placements apart, so the detector reports the one whose x axis
+//!   points most to the right in the image (measured at the grid's first corner). Two cameras
+//!   could decide a board near the tie (x axis near vertical) differently; [`align_pair`]
+//!   turns the colour view of a stereo pair to agree with the depth view.
+//!
+//! With the colouring unknown (`top_left_black: None`), [`detect_views`] takes it from the
+//! complete detections (majority) and labels the partial ones again with it.
 
 mod candidates;
 mod grid;
@@ -49,7 +72,8 @@ pub use candidates::{candidates, chess_response};
 pub use junction::{fit_junction, fit_junction_with_std};
 pub use subpix::refine_corner;
 pub use views::{
-    align_pair, detect_views, detect_views_with, detect_views_with_progress, rotate_180,
+    align_pair, common_grid_size, detect_views, detect_views_with, detect_views_with_progress,
+    rotate_180,
 };
 
 use crate::{Board, Corner};
@@ -125,11 +149,57 @@ pub fn detect(img: &Image<f32>, board: &Board, params: &DetectorParams) -> Optio
     if pts.len() < 4 {
         return None;
     }
-    let grid = grid::trim(board, &pts, grid::largest(&pts, board)?);
+    let found = grid::largest(&pts, board.len())?;
+    if shows_larger_board(img, board, &pts, &found) {
+        return None;
+    }
+    let grid = grid::trim(board, &pts, found);
     let labelled = label::label(img, board, &pts, &grid)?;
     let corners = refine::refine(img, &labelled, params);
     let complete = corners.len() == board.len();
     Some(Detection { corners, complete, top_left_black: labelled.top_left_black })
+}
+
+/// True when `grid` is a complete checkerboard (every corner present, colours checked) with
+/// more corners along an axis than `board` allows: the image shows a larger board, and
+/// labelling a board-sized window of it would calibrate on a sub-grid.
+fn shows_larger_board(
+    img: &Image<f32>,
+    board: &Board,
+    pts: &[(nalgebra::Vector2<f64>, f32)],
+    grid: &grid::Grid,
+) -> bool {
+    let (ni, nj) = grid::extents(grid);
+    let (a, b) = (ni.max(nj) as usize, ni.min(nj) as usize);
+    let fits = a <= board.cols.max(board.rows) && b <= board.cols.min(board.rows);
+    !fits && complete_board(img, pts, grid).is_some()
+}
+
+/// The inner-corner counts `(larger, smaller)` of `grid` when it is a complete checkerboard:
+/// no corner missing and the squares' colours those of a board of its size.
+fn complete_board(
+    img: &Image<f32>,
+    pts: &[(nalgebra::Vector2<f64>, f32)],
+    grid: &grid::Grid,
+) -> Option<(usize, usize)> {
+    let (ni, nj) = grid::extents(grid);
+    if ni < 2 || nj < 2 || grid.len() != (ni * nj) as usize {
+        return None;
+    }
+    let (a, b) = (ni.max(nj) as usize, ni.min(nj) as usize);
+    let whole = Board::new(a, b, 1.0).ok()?;
+    label::label(img, &whole, pts, grid).map(|_| (a, b))
+}
+
+/// The inner-corner counts `(larger, smaller)` of the largest complete checkerboard in the
+/// image, whatever its size (for `--board auto` and for saying what the images show when the
+/// board given does not match); `None` when there is none.
+pub fn grid_size(img: &Image<f32>, params: &DetectorParams) -> Option<(usize, usize)> {
+    let pts = candidates(img, params);
+    if pts.len() < 4 {
+        return None;
+    }
+    complete_board(img, &pts, &grid::largest(&pts, usize::MAX)?)
 }
 
 /// Converts an 8-bit grey image to the detector's input.

@@ -4,7 +4,8 @@
 use geometry::Image;
 use nalgebra::{Vector2, Vector3};
 
-use super::{Detection, DetectorParams, Refinement, detect, to_f32};
+use super::label::{rotate, rotations};
+use super::{Detection, DetectorParams, Refinement, detect, grid_size, to_f32};
 use crate::zhang::homography;
 use crate::{Board, ViewCorners};
 
@@ -71,17 +72,47 @@ pub fn detect_views_with(
             width: img.width(),
             height: img.height(),
             corners: d.map(|d| d.corners).unwrap_or_default(),
+            unusable: None,
         })
         .collect();
     (views, board)
 }
 
+/// The inner-corner counts `(larger, smaller)` of the complete board that most images show
+/// (the larger size on a tie), with how many images show it; `None` when no image shows a
+/// complete board. For `--board auto`, and to say what the images show when the board given
+/// is not found.
+pub fn common_grid_size(images: &[(String, &Image<u8>)]) -> Option<((usize, usize), usize)> {
+    use rayon::prelude::*;
+    let sizes: Vec<(usize, usize)> = images
+        .par_iter()
+        .filter_map(|(_, img)| {
+            grid_size(&to_f32(img), &DetectorParams::for_image(img.width(), img.height()))
+        })
+        .collect();
+    let mut counts: Vec<((usize, usize), usize)> = Vec::new();
+    for s in sizes {
+        match counts.iter_mut().find(|c| c.0 == s) {
+            Some(c) => c.1 += 1,
+            None => counts.push((s, 1)),
+        }
+    }
+    counts.into_iter().max_by_key(|&((a, b), n)| (n, a * b))
+}
+
 /// Relabels a view by the board's 180° rotation (`(x, y) → (cols−1−x, rows−1−y)`).
 pub fn rotate_180(view: &ViewCorners, board: &Board) -> ViewCorners {
+    rotate_view(view, board, 2)
+}
+
+/// Relabels a view by `k` quarter turns of the board (`k` odd only for square boards).
+fn rotate_view(view: &ViewCorners, board: &Board, k: u8) -> ViewCorners {
+    let (c, r) = (board.cols as i32, board.rows as i32);
     let mut out = view.clone();
-    for c in &mut out.corners {
-        let (x, y) = (c.id % board.cols, c.id / board.cols);
-        c.id = (board.rows - 1 - y) * board.cols + (board.cols - 1 - x);
+    for corner in &mut out.corners {
+        let (x, y) = ((corner.id % board.cols) as i32, (corner.id / board.cols) as i32);
+        let (x, y) = rotate(k, c, r, (x, y));
+        corner.id = (y * c + x) as usize;
     }
     out.corners.sort_by_key(|c| c.id);
     out
@@ -107,16 +138,28 @@ fn x_axis(view: &ViewCorners, board: &Board) -> Option<Vector2<f64>> {
     Some(v.normalize())
 }
 
-/// Makes the labelling of a colour view agree with its depth/IR partner: on a board whose
-/// colouring is symmetric under 180° (odd × odd inner corners), the two cameras could pick
-/// opposite origins for a board near 90°; the cameras are not rotated against each other by
-/// more than a few degrees, so the x axes must point the same way.
+/// Makes the labelling of a colour view agree with its depth/IR partner. Where the board's
+/// colouring is unchanged by a turn (180° when `cols + rows` is even, e.g. 7x5; 90° too on a
+/// square board with an even count), each camera picks its placement by orientation and the
+/// two could differ for a board near the tie; the cameras are not rotated against each other
+/// by more than a few degrees, so the colour view is turned (by such a turn only) to make its
+/// x axis point the depth view's way. Boards whose colour decides (one even and one odd
+/// square count, e.g. 9x6) are labelled alike by both cameras already and left as they are.
 pub fn align_pair(depth: &ViewCorners, color: &ViewCorners, board: &Board) -> ViewCorners {
-    if !(board.cols + board.rows).is_multiple_of(2) {
-        return color.clone();
+    let Some(a) = x_axis(depth, board) else { return color.clone() };
+    let (c, r) = (board.cols as i32, board.rows as i32);
+    let mut best = (f64::NEG_INFINITY, color.clone());
+    for (k, flips) in rotations(c, r) {
+        if flips {
+            continue;
+        }
+        let turned = rotate_view(color, board, k);
+        if let Some(b) = x_axis(&turned, board) {
+            let score = a.dot(&b);
+            if score > best.0 {
+                best = (score, turned);
+            }
+        }
     }
-    match (x_axis(depth, board), x_axis(color, board)) {
-        (Some(a), Some(b)) if a.dot(&b) < 0.0 => rotate_180(color, board),
-        _ => color.clone(),
-    }
+    best.1
 }
