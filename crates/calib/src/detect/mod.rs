@@ -153,7 +153,14 @@ pub fn detect(img: &Image<f32>, board: &Board, params: &DetectorParams) -> Optio
     if shows_larger_board(img, board, &pts, &found) {
         return None;
     }
+    let total = found.len();
     let grid = grid::trim(board, &pts, found);
+    // Trimming drops the few junctions where the board's border meets the background; a whole
+    // line of corners or more outside the board-sized window is a larger board, and its
+    // sub-grid is never reported.
+    if total - grid.len() >= board.cols.min(board.rows) {
+        return None;
+    }
     let labelled = label::label(img, board, &pts, &grid)?;
     let corners = refine::refine(img, &labelled, params);
     let complete = corners.len() == board.len();
