@@ -238,8 +238,8 @@ fn check(rows: &[Row], e: &Expect) {
 
 /// The issue's bars on every set: not met yet (see `crates/calib/README.md`): OpenCV set left
 /// 11 of 13 boards (left06, left12 missed) and corners up to 1.75 px from SB's; GoPro 32 of 35
-/// and a close-up (test_image.jpg) labelled as a partial board wrongly (RMS 9.7 px without
-/// outlier rejection); Udacity RMS 0.863 px vs OpenCV's 0.853 px.
+/// boards, corners up to 1.24 px from SB's, RMS 0.525 px vs OpenCV's best 0.523 px; Udacity
+/// RMS 0.863 px vs OpenCV's 0.853 px.
 #[test]
 #[ignore = "issue 14's corpus bars are not all met yet; run with --ignored to measure"]
 fn issue_bars_on_every_set() {
@@ -289,7 +289,8 @@ fn corpus_udacity_1280x720_9x6() {
     }
 }
 
-/// Measured: 32 complete boards (OpenCV 35) + 3 partial; worst corner vs SB 1.24 px.
+/// Measured: 32 complete boards (OpenCV 35) + 1 partial; worst corner vs SB 1.24 px; RMS
+/// 0.525 px (OpenCV 0.824 / 0.532 / 0.523).
 #[test]
 fn corpus_gopro_wide_1280x960_8x6() {
     if let Some(rows) = run_set(SETS[2]) {

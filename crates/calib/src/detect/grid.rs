@@ -117,6 +117,35 @@ pub(super) fn largest(pts: &[(Vector2<f64>, f32)], enough: usize) -> Option<Grid
     best
 }
 
+/// Largest turn between two successive steps along a grid line, degrees. A lens bends the
+/// rows of a real board gradually (a few degrees per square even on the GoPro wide-angle set);
+/// a corner grown into the wrong row or column turns the line by 30° or more.
+const MAX_LINE_TURN_DEG: f64 = 20.0;
+/// Largest ratio between two successive steps along a grid line (perspective and lens change
+/// the square size gradually; a skipped corner doubles the step).
+const MAX_STEP_RATIO: f64 = 1.6;
+
+/// True when every line of the grid runs smoothly: successive steps turn by less than
+/// [`MAX_LINE_TURN_DEG`] and change length by less than [`MAX_STEP_RATIO`].
+pub(super) fn is_smooth(pts: &[(Vector2<f64>, f32)], grid: &Grid) -> bool {
+    let cos_max = MAX_LINE_TURN_DEG.to_radians().cos();
+    grid.keys().all(|&(i, j)| {
+        [(1, 0), (0, 1)].iter().all(|&(di, dj)| {
+            let (Some(&a), Some(&b), Some(&c)) =
+                (grid.get(&(i - di, j - dj)), grid.get(&(i, j)), grid.get(&(i + di, j + dj)))
+            else {
+                return true;
+            };
+            let (u, v) = (pts[b].0 - pts[a].0, pts[c].0 - pts[b].0);
+            let (lu, lv) = (u.norm(), v.norm());
+            lu > 0.0
+                && lv > 0.0
+                && u.dot(&v) / (lu * lv) >= cos_max
+                && lu.max(lv) / lu.min(lv) <= MAX_STEP_RATIO
+        })
+    })
+}
+
 /// Corners along the grid's two axes (`(ni, nj)`).
 pub(super) fn extents(grid: &Grid) -> (i32, i32) {
     let span = |f: fn(&(i32, i32)) -> i32| {

@@ -193,6 +193,52 @@ pub(super) fn rotate(k: u8, cols: i32, rows: i32, (x, y): (i32, i32)) -> (i32, i
     }
 }
 
+/// Grid coordinates of board corner `(bx, by)` under placement `c` (the inverse of
+/// [`Cand::board_corner`], also beyond the grid).
+fn grid_of(c: &Cand, ni: i32, nj: i32, bx: i32, by: i32) -> (i32, i32) {
+    let (ea, eb) = if c.swap { (nj, ni) } else { (ni, nj) };
+    let (a, b) = (bx - c.ox, by - c.oy);
+    let a = if c.si > 0 { a } else { ea - 1 - a };
+    let b = if c.sj > 0 { b } else { eb - 1 - b };
+    if c.swap { (b, a) } else { (a, b) }
+}
+
+/// A partial board's offsets are only certain where the image shows the board end: along each
+/// board axis the grid does not span, one of the board's outermost corner lines must be in the
+/// grid with the line beyond it (where a further line of corners would be) inside the image
+/// (`inside` of grid coordinates). Otherwise the offsets rest on extrapolating the grid's
+/// homography past the image, which a strong lens bends (a close-up of a board larger than
+/// the frame has no end in view at all).
+fn board_end_seen(
+    c: &Cand,
+    board: &Board,
+    ni: i32,
+    nj: i32,
+    inside: &dyn Fn(f64, f64) -> bool,
+) -> bool {
+    let (cols, rows) = (board.cols as i32, board.rows as i32);
+    let (ex, ey) = if c.swap { (nj, ni) } else { (ni, nj) };
+    // The line beyond board column `bx` (for every grid row) is inside the image.
+    let column_beyond = |bx: i32| {
+        (c.oy..c.oy + ey).all(|by| {
+            let (gi, gj) = grid_of(c, ni, nj, bx, by);
+            inside(gi as f64, gj as f64)
+        })
+    };
+    let row_beyond = |by: i32| {
+        (c.ox..c.ox + ex).all(|bx| {
+            let (gi, gj) = grid_of(c, ni, nj, bx, by);
+            inside(gi as f64, gj as f64)
+        })
+    };
+    let x_ok = ex == cols
+        || (c.ox == 0 && column_beyond(-1))
+        || (c.ox + ex == cols && column_beyond(cols));
+    let y_ok =
+        ey == rows || (c.oy == 0 && row_beyond(-1)) || (c.oy + ey == rows && row_beyond(rows));
+    x_ok && y_ok
+}
+
 /// Maps grid coordinates to board ids (see the module docs); `None` when not certain.
 pub(super) fn label(
     img: &Image<f32>,
@@ -292,6 +338,15 @@ pub(super) fn label(
         })
     };
     if !ok.iter().all(|c| equivalent(c)) {
+        return None;
+    }
+    if !board_end_seen(chosen, board, ni, nj, &|gi, gj| {
+        let q = map(&hgrid, gi, gj);
+        q.x > edge_margin
+            && q.y > edge_margin
+            && q.x < img.width() as f64 - 1.0 - edge_margin
+            && q.y < img.height() as f64 - 1.0 - edge_margin
+    }) {
         return None;
     }
     let corners = g

@@ -161,6 +161,11 @@ pub fn detect(img: &Image<f32>, board: &Board, params: &DetectorParams) -> Optio
     if total - grid.len() >= board.cols.min(board.rows) {
         return None;
     }
+    // A corner grown into the wrong row or column (a strong lens bends the grid past the
+    // growth's prediction) would be labelled wrongly: such a grid is dropped, never guessed.
+    if !grid::is_smooth(&pts, &grid) {
+        return None;
+    }
     let labelled = label::label(img, board, &pts, &grid)?;
     let corners = refine::refine(img, &labelled, params);
     let complete = corners.len() == board.len();
