@@ -146,6 +146,22 @@ pub(super) fn is_smooth(pts: &[(Vector2<f64>, f32)], grid: &Grid) -> bool {
     })
 }
 
+/// True when `full` has a complete line of corners right beside the window `part` (a
+/// sub-grid of it): a row or column just outside the window, spanning the window's length.
+pub(super) fn full_line_beside(full: &Grid, part: &Grid) -> bool {
+    let (Some(i0), Some(i1), Some(j0), Some(j1)) = (
+        part.keys().map(|k| k.0).min(),
+        part.keys().map(|k| k.0).max(),
+        part.keys().map(|k| k.1).min(),
+        part.keys().map(|k| k.1).max(),
+    ) else {
+        return false;
+    };
+    let column = |i: i32| (j0..=j1).all(|j| full.contains_key(&(i, j)));
+    let row = |j: i32| (i0..=i1).all(|i| full.contains_key(&(i, j)));
+    column(i0 - 1) || column(i1 + 1) || row(j0 - 1) || row(j1 + 1)
+}
+
 /// Corners along the grid's two axes (`(ni, nj)`).
 pub(super) fn extents(grid: &Grid) -> (i32, i32) {
     let span = |f: fn(&(i32, i32)) -> i32| {

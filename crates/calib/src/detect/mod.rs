@@ -153,12 +153,11 @@ pub fn detect(img: &Image<f32>, board: &Board, params: &DetectorParams) -> Optio
     if shows_larger_board(img, board, &pts, &found) {
         return None;
     }
-    let total = found.len();
-    let grid = grid::trim(board, &pts, found);
-    // Trimming drops the few junctions where the board's border meets the background; a whole
-    // line of corners or more outside the board-sized window is a larger board, and its
-    // sub-grid is never reported.
-    if total - grid.len() >= board.cols.min(board.rows) {
+    let grid = grid::trim(board, &pts, found.clone());
+    // Trimming drops junctions where the board's border meets the background or clutter next
+    // to it; a whole line of corners next to the board-sized window, as long as the window,
+    // is a larger board, and its sub-grid is never reported.
+    if grid::full_line_beside(&found, &grid) {
         return None;
     }
     // A corner grown into the wrong row or column (a strong lens bends the grid past the
