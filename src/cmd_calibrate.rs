@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use calib::detect::{Refinement, align_pair, detect_views_with};
+use calib::detect::{Refinement, align_pair, common_grid_size, detect_views_with};
 use calib::files::{
     COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX, add_detections, camera_json, opencv_yaml_camera,
     opencv_yaml_rig, stereo_rig, write_text,
@@ -40,7 +40,8 @@ pub struct CalibrateArgs {
     /// IR (depth-camera) images: a glob pattern (quote it) or a file; repeatable.
     #[arg(long, value_name = "GLOB")]
     ir: Vec<String>,
-    /// Inner corners per row x per column, e.g. 7x5 for a board of 8x6 squares.
+    /// Inner corners per row x per column, e.g. 7x5 for a board of 8x6 squares (OpenCV's
+    /// sample board is 9x6), or `auto`: the size of the complete board most images show.
     #[arg(long, default_value = "7x5")]
     board: String,
     /// Square side with unit: 40mm, 4cm, 0.04m.
@@ -111,11 +112,25 @@ impl From<CornerEstimator> for Refinement {
     }
 }
 
-fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<Board> {
-    let (c, r) = board
-        .split_once(['x', 'X'])
-        .and_then(|(c, r)| Some((c.trim().parse::<usize>().ok()?, r.trim().parse::<usize>().ok()?)))
-        .with_context(|| format!("--board '{board}': give inner corners as COLSxROWS, e.g. 7x5"))?;
+/// The board of `--board`, `--square`, `--top-left`, and whether its size is to be found from
+/// the images (`--board auto`; the counts are then placeholders).
+fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<(Board, bool)> {
+    let auto = board.trim().eq_ignore_ascii_case("auto");
+    let (c, r) = if auto {
+        (2, 2)
+    } else {
+        board
+            .split_once(['x', 'X'])
+            .and_then(|(c, r)| {
+                Some((c.trim().parse::<usize>().ok()?, r.trim().parse::<usize>().ok()?))
+            })
+            .with_context(|| {
+                format!("--board '{board}': give inner corners as COLSxROWS, e.g. 7x5, or auto")
+            })?
+    };
+    if c > MAX_BOARD_SIDE || r > MAX_BOARD_SIDE {
+        bail!("--board '{board}': at most {MAX_BOARD_SIDE} inner corners per side");
+    }
     let s = square.trim();
     let (num, scale) = if let Some(v) = s.strip_suffix("mm") {
         (v, 1e-3)
@@ -130,8 +145,12 @@ fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<Boar
         num.trim().parse().with_context(|| format!("--square '{square}': not a number"))?;
     let mut b = Board::new(c, r, v * scale)?;
     b.top_left_black = top_left.map(|t| t == "black");
-    Ok(b)
+    Ok((b, auto))
 }
+
+/// Largest inner-corner count per side accepted from `--board` (far above any printed board;
+/// bounds the detector's work).
+const MAX_BOARD_SIDE: usize = 100;
 
 /// Natural order: `ir_2` before `ir_10`.
 fn natural_key(p: &Path) -> Vec<(String, u64)> {
@@ -184,34 +203,89 @@ fn bar(len: usize, msg: &str) -> ProgressBar {
     pb
 }
 
+/// One camera's views, its images (`None` where unreadable) and the board (its size found when
+/// `--board auto`).
+type Detected = (Vec<ViewCorners>, Vec<Option<Image<u8>>>, Board);
+
+/// Reads and detects one camera's images. An image that cannot be read is kept as a view that
+/// cannot be used, with the reason, so that the calibration table lists it and goes on.
+///
+/// With `auto`, the board's size is the complete board most images show. When the board is
+/// found in fewer than the views a calibration needs and the images show another size, the
+/// error says which.
 fn load_and_detect(
     files: &[PathBuf],
     board: &Board,
+    auto: bool,
     camera: &str,
     refinement: Refinement,
-) -> Result<(Vec<ViewCorners>, Vec<Image<u8>>, Board)> {
+) -> Result<Detected> {
     use rayon::prelude::*;
     let pb = bar(files.len(), &format!("reading {camera}"));
-    let images: Vec<Image<u8>> = files
+    let images: Vec<Result<Image<u8>, String>> = files
         .par_iter()
         .map(|f| {
-            let r = calib::io::read_gray(f);
+            let r = calib::io::read_gray(f).map_err(|e| e.to_string());
             pb.inc(1);
             r
         })
-        .collect::<Result<_, _>>()?;
+        .collect();
     pb.finish();
+    let file_name =
+        |f: &PathBuf| f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let names: Vec<(String, &Image<u8>)> = files
         .iter()
         .zip(&images)
-        .map(|(f, i)| {
-            (f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(), i)
+        .filter_map(|(f, i)| Some((file_name(f), i.as_ref().ok()?)))
+        .collect();
+    let mut board = *board;
+    if auto {
+        let Some(((a, b), n)) = common_grid_size(&names) else {
+            bail!(
+                "--board auto: no complete checkerboard found in the {} {camera} image(s); give --board COLSxROWS (inner corners)",
+                names.len()
+            );
+        };
+        println!(
+            "--board auto: {n} of {} {camera} images show a {a}x{b} grid; using {a}x{b}",
+            names.len()
+        );
+        (board.cols, board.rows) = (a, b);
+    }
+    let pb = bar(names.len(), &format!("detecting {camera}"));
+    let (found, board) = detect_views_with(&names, &board, refinement, &|| pb.inc(1));
+    pb.finish();
+    let with_board = found.iter().filter(|v| !v.corners.is_empty()).count();
+    if !auto && with_board < calib::mono::MIN_VIEWS {
+        let asked = (board.cols.max(board.rows), board.cols.min(board.rows));
+        if let Some(((a, b), n)) = common_grid_size(&names).filter(|s| s.0 != asked) {
+            bail!(
+                "{camera}: these images show a {a}x{b} grid ({n} of {} images); you asked for {}x{} (the board is found in {with_board}). Give --board {a}x{b} (inner corners) or --board auto",
+                names.len(),
+                board.cols,
+                board.rows
+            );
+        }
+    }
+    let mut found = found.into_iter();
+    let views = files
+        .iter()
+        .zip(&images)
+        .map(|(f, i)| match i {
+            Ok(_) => found.next().expect("one view per readable image"),
+            Err(e) => {
+                println!("  {}: cannot be read ({e}); left out", f.display());
+                ViewCorners {
+                    name: file_name(f),
+                    width: 0,
+                    height: 0,
+                    corners: vec![],
+                    unusable: Some(format!("unreadable: {e}")),
+                }
+            }
         })
         .collect();
-    let pb = bar(files.len(), &format!("detecting {camera}"));
-    let (views, board) = detect_views_with(&names, board, refinement, &|| pb.inc(1));
-    pb.finish();
-    Ok((views, images, board))
+    Ok((views, images.into_iter().map(Result::ok).collect(), board))
 }
 
 fn flags(args: &CalibrateArgs) -> CalibFlags {
@@ -271,7 +345,7 @@ fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
 
 /// Runs the command.
 pub fn run(args: CalibrateArgs) -> Result<()> {
-    let board = parse_board(&args.board, &args.square, args.top_left.as_deref())?;
+    let (board, auto) = parse_board(&args.board, &args.square, args.top_left.as_deref())?;
     if args.color.is_empty() && args.ir.is_empty() {
         bail!("give --color and/or --ir image patterns, e.g. --ir 'captures/ir_*.png'");
     }
@@ -289,12 +363,19 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let (ir_views, ir_images, board) = if ir_files.is_empty() {
         (vec![], vec![], board)
     } else {
-        load_and_detect(&ir_files, &board, "IR", args.corners.into())?
+        load_and_detect(&ir_files, &board, auto, "IR", args.corners.into())?
     };
     let (mut color_views, color_images, board) = if color_files.is_empty() {
         (vec![], vec![], board)
     } else {
-        load_and_detect(&color_files, &board, "colour", args.corners.into())?
+        // With --board auto and IR images, the IR images already fixed the size.
+        load_and_detect(
+            &color_files,
+            &board,
+            auto && ir_files.is_empty(),
+            "colour",
+            args.corners.into(),
+        )?
     };
 
     // Output staging: nothing is written unless everything succeeds.
@@ -427,8 +508,13 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
 
     if let Some(dir) = &args.report {
         let staged = StagedDir::new(dir)?;
-        figs.ir_images = ir_images.iter().zip(&ir_views).collect();
-        figs.color_images = color_images.iter().zip(&color_views).collect();
+        figs.ir_images =
+            ir_images.iter().zip(&ir_views).filter_map(|(i, v)| Some((i.as_ref()?, v))).collect();
+        figs.color_images = color_images
+            .iter()
+            .zip(&color_views)
+            .filter_map(|(i, v)| Some((i.as_ref()?, v)))
+            .collect();
         figs.write(&staged, &report)?;
         staged.commit()?;
         println!("\nreport: {}", dir.display());

@@ -76,7 +76,11 @@ fn bad_inputs_fail_clearly_and_write_nothing() {
         "--out",
         o,
     ]);
-    assert!(!ok && text.contains("must have the same size"), "{text}");
+    // The odd-sized image is left out with its size named; two views are too few.
+    assert!(
+        !ok && text.contains("at least 3 are needed") && text.contains("color_01.png (image is"),
+        "{text}"
+    );
     // A pair where only the colour image shows the board.
     let dir = tmp.path().join("pairs");
     std::fs::create_dir_all(&dir).unwrap();
@@ -143,6 +147,33 @@ fn undistort_writes_rect_images() {
     // Away from the centre it does (barrel-like k1 > 0 with k2 < 0): the image changed.
     let changed = rect.data().iter().zip(input.data()).filter(|(a, b)| a != b).count();
     assert!(changed > 10_000, "{changed} pixels changed");
+    // And by the right amount in the right direction: every board corner found in the output
+    // sits where the lens model's inverse (geometry's iterative `undistort`, not the map) puts
+    // the corner found in the input. The lab's lens moves these corners by up to a few px;
+    // the wrong sign of k1 would double that, applying distortion would too.
+    let corners = |img: &geometry::Image<u8>| {
+        use calib::detect::{DetectorParams, detect, to_f32};
+        let board = calib::Board::new(7, 5, 0.04).unwrap();
+        let d = detect(&to_f32(img), &board, &DetectorParams::for_image(512, 424)).unwrap();
+        assert!(d.complete);
+        d.corners
+    };
+    let k = geometry::Intrinsics::new(364.126, 365.126, 255.5, 211.5);
+    let dist = geometry::Distortion { k1: 0.099, k2: -0.2206, p1: 0.0041, p2: 0.0016, k3: 0.0 };
+    let (before, after) = (corners(&input), corners(&rect));
+    let (mut worst, mut moved) = (0.0f64, 0.0f64);
+    for (b, a) in before.iter().zip(&after) {
+        let n = k.from_pixel(b.px.x, b.px.y);
+        let u = dist.undistort(n.x, n.y).unwrap();
+        let want = k.to_pixel(u.x, u.y);
+        worst = worst.max((a.px - want).norm());
+        moved = moved.max((want - b.px).norm());
+    }
+    eprintln!(
+        "lab ir_1: corners move up to {moved:.3} px; output within {worst:.3} px of the model"
+    );
+    // Real corners carry ~0.1 px of detection noise in each image.
+    assert!(moved > 1.0 && worst < 0.3, "moved {moved} px, off by {worst} px");
 }
 
 /// A sharp pinhole rendering (3x3 supersampling) of the 7x5-corner, 40 mm board of DESIGN.md
@@ -315,4 +346,268 @@ fn corners_flag_selects_the_estimator_and_subpix_matches_the_labs_toolbox() {
     // The flag reaches the detector: the junction fit moves corners by a measurable amount
     // (0.21 px mean from Bouguet's in the library test, against 0.13 px).
     assert!((means[1] - means[0]).abs() > 0.02, "both estimators gave {means:?}");
+}
+
+/// The corpus set with OpenCV's own sample images (`samples/data/left*.jpg`, 9x6 board).
+fn opencv_samples(test: &str) -> Option<std::path::PathBuf> {
+    Some(shared(test)?.join("calib-corpus/opencv-stereo-640x480-9x6/images"))
+}
+
+/// RMS (px) of a single-camera file written by `kfuse calibrate`.
+fn rms_of(out: &Path) -> f64 {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out).unwrap()).unwrap();
+    v["calibration"]["rms_px"].as_f64().unwrap_or_else(|| panic!("no rms_px in {v}"))
+}
+
+#[test]
+fn opencv_sample_images_calibrate_with_the_board_size_only_or_auto() {
+    let Some(dir) =
+        opencv_samples("opencv_sample_images_calibrate_with_the_board_size_only_or_auto")
+    else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let pattern = format!("{}/left*.jpg", dir.display());
+    for board in ["9x6", "auto"] {
+        let out = tmp.path().join(format!("left-{board}.json"));
+        let (ok, text) = kfuse(&[
+            "calibrate",
+            "--color",
+            &pattern,
+            "--board",
+            board,
+            "--square",
+            "24mm",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "--board {board}: {text}");
+        if board == "auto" {
+            assert!(text.contains("show a 9x6 grid; using 9x6"), "{text}");
+        }
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        // OpenCV 5 on the same images (reference.json, classic): fx 536.07, fy 536.02; the
+        // 1σ of fx there is ~2 px.
+        let fx = v["camera"]["fx"].as_f64().unwrap();
+        assert!((fx - 536.07).abs() < 6.0, "--board {board}: fx {fx}\n{text}");
+        // OpenCV's best RMS on this camera (cornerSubPix 5x5) is 0.195 px.
+        let rms = rms_of(&out);
+        assert!(rms < 0.195, "--board {board}: RMS {rms}\n{text}");
+    }
+}
+
+#[test]
+fn a_wrong_board_size_says_what_the_images_show() {
+    let Some(dir) = opencv_samples("a_wrong_board_size_says_what_the_images_show") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("left.json");
+    let pattern = format!("{}/left*.jpg", dir.display());
+    // A smaller board than the images show: never calibrated on a sub-grid.
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--color",
+        &pattern,
+        "--board",
+        "7x5",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && text.contains("these images show a 9x6 grid") && text.contains("you asked for 7x5"),
+        "{text}"
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn an_image_of_another_size_is_left_out_and_the_rest_calibrate() {
+    let Some(data) = shared("an_image_of_another_size_is_left_out_and_the_rest_calibrate") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cam.json");
+    // 20 board images, two of them 1281x721 among 1280x720 (the corpus README).
+    let pattern = format!(
+        "{}/calib-corpus/udacity-camera-cal-1280x720-9x6/images/calibration*.jpg",
+        data.display()
+    );
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--color",
+        &pattern,
+        "--board",
+        "9x6",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    for odd in ["calibration7.jpg", "calibration15.jpg"] {
+        let line = text
+            .lines()
+            .find(|l| l.contains(odd))
+            .unwrap_or_else(|| panic!("{odd} not listed:\n{text}"));
+        assert!(line.contains("1281x721") && line.contains("REJECTED"), "{line}");
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(v["camera"]["width"].as_u64(), Some(1280), "{text}");
+}
+
+/// A 9x6 board (10x7 squares, top-left black, one-square white margin) seen through a lens
+/// `dist` with intrinsics `k`, rendered by undistorting each of 3x3 sub-pixel samples' rays
+/// (geometry's iterative inverse, independent of the undistortion map), then a 3x3 binomial
+/// blur. Returns the image and the board's pinhole projection (corner `id` → pixel).
+fn render_distorted(
+    k: geometry::Intrinsics,
+    dist: geometry::Distortion,
+    (w, h): (usize, usize),
+) -> (image::GrayImage, impl Fn(usize) -> nalgebra::Vector2<f64>) {
+    use nalgebra::{Rotation3, Vector3};
+    let r = *Rotation3::from_euler_angles(0.25, -0.12, 0.15).matrix();
+    let t = Vector3::new(0.0, 0.0, 14.0) - r * Vector3::new(4.0, 2.5, 0.0);
+    let m = nalgebra::Matrix3::from_columns(&[r.column(0).into(), r.column(1).into(), t]);
+    let inv = m.try_inverse().unwrap();
+    let albedo = |u: f64, v: f64| -> f64 {
+        let n = k.from_pixel(u, v);
+        let Some(n) = dist.undistort(n.x, n.y) else { return 90.0 };
+        let q = inv * Vector3::new(n.x, n.y, 1.0);
+        let (x, y) = (q.x / q.z, q.y / q.z);
+        if !(-2.0..=10.0).contains(&x) || !(-2.0..=7.0).contains(&y) {
+            90.0
+        } else if x < -1.0 || y < -1.0 || x > 9.0 || y > 6.0 {
+            220.0
+        } else if ((x.floor() + y.floor()) as i64).rem_euclid(2) == 0 {
+            30.0
+        } else {
+            220.0
+        }
+    };
+    let sharp: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            let mut acc = 0.0;
+            for a in [-1.0, 0.0, 1.0] {
+                for b in [-1.0, 0.0, 1.0] {
+                    acc += albedo(x + a / 3.0, y + b / 3.0);
+                }
+            }
+            acc / 9.0
+        })
+        .collect();
+    let at = |x: i64, y: i64| {
+        sharp[(y.clamp(0, h as i64 - 1) as usize) * w + x.clamp(0, w as i64 - 1) as usize]
+    };
+    let img = image::GrayImage::from_fn(w as u32, h as u32, |x, y| {
+        let (x, y) = (x as i64, y as i64);
+        let mut acc = 0.0;
+        for (dy, ky) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+            for (dx, kx) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+                acc += kx * ky * at(x + dx, y + dy);
+            }
+        }
+        image::Luma([(acc / 16.0).round() as u8])
+    });
+    let pinhole = move |id: usize| {
+        let c = r * Vector3::new((id % 9) as f64, (id / 9) as f64, 0.0) + t;
+        k.to_pixel(c.x / c.z, c.y / c.z)
+    };
+    (img, pinhole)
+}
+
+/// Largest distance (px) of a point from the total-least-squares line through all of them.
+fn line_residual(pts: &[nalgebra::Vector2<f64>]) -> f64 {
+    let m = pts.iter().sum::<nalgebra::Vector2<f64>>() / pts.len() as f64;
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for p in pts {
+        let d = p - m;
+        (sxx, sxy, syy) = (sxx + d.x * d.x, sxy + d.x * d.y, syy + d.y * d.y);
+    }
+    let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    let normal = nalgebra::Vector2::new(-theta.sin(), theta.cos());
+    pts.iter().map(|p| (p - m).dot(&normal).abs()).fold(0.0, f64::max)
+}
+
+/// (worst corner distance to `truth`, worst row/column line residual) of the 9x6 board found
+/// in `img`, `None` when it is not found whole.
+fn corners_vs_truth(
+    img: &image::GrayImage,
+    truth: &dyn Fn(usize) -> nalgebra::Vector2<f64>,
+) -> Option<(f64, f64)> {
+    use calib::detect::{DetectorParams, detect, to_f32};
+    let g = geometry::Image::from_vec(
+        img.width() as usize,
+        img.height() as usize,
+        img.as_raw().clone(),
+    )
+    .unwrap();
+    let board = calib::Board::new(9, 6, 1.0).unwrap();
+    let d = detect(&to_f32(&g), &board, &DetectorParams::for_image(g.width(), g.height()))?;
+    if !d.complete {
+        return None;
+    }
+    let at = |id: usize| d.corners[id].px;
+    let worst = d.corners.iter().map(|c| (c.px - truth(c.id)).norm()).fold(0.0, f64::max);
+    let rows = (0..6).map(|y| line_residual(&(0..9).map(|x| at(y * 9 + x)).collect::<Vec<_>>()));
+    let cols = (0..9).map(|x| line_residual(&(0..6).map(|y| at(y * 9 + x)).collect::<Vec<_>>()));
+    Some((worst, rows.chain(cols).fold(0.0, f64::max)))
+}
+
+/// `kfuse undistort` against truth: a board rendered through a known barrel lens comes out with
+/// its corners on the pinhole projection (within 0.15 px: detector error ~0.03 px plus the
+/// bilinear resampling) and its rows and columns straight (within 0.1 px); the same run with
+/// the wrong sign of k1 in the rig misses both by far.
+#[test]
+fn undistort_puts_corners_on_the_pinhole_projection() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = (512usize, 424usize);
+    let k = geometry::Intrinsics::new(365.0, 365.0, 255.5, 211.5);
+    let dist = geometry::Distortion { k1: -0.3, k2: 0.08, p1: 0.001, p2: -0.0006, k3: 0.0 };
+    let (img, truth) = render_distorted(k, dist, (w, h));
+    let input = tmp.path().join("ir_1.png");
+    img.save(&input).unwrap();
+    let (corner_in, bend_in) = corners_vs_truth(&img, &truth).expect("board in the input");
+    assert!(corner_in > 3.0 && bend_in > 1.0, "the input is distorted: {corner_in} {bend_in}");
+    let mut results = Vec::new();
+    for k1 in [dist.k1, -dist.k1] {
+        let rig = tmp.path().join("rig.json");
+        let cam = format!(
+            r#"{{"width":{w},"height":{h},"fx":365,"fy":365,"cx":255.5,"cy":211.5,"k1":{k1},"k2":{},"p1":{},"p2":{},"k3":0}}"#,
+            dist.k2, dist.p1, dist.p2
+        );
+        std::fs::write(
+            &rig,
+            format!(
+                r#"{{"format":"kfuse-rig","version":1,"depth_camera":{cam},"color_camera":{cam},
+                "color_from_depth":{{"rotation":[[1,0,0],[0,1,0],[0,0,1]],"translation_m":[-0.052,0,0]}}}}"#
+            ),
+        )
+        .unwrap();
+        let out = tmp.path().join(format!("rect{k1}"));
+        let (ok, text) = kfuse(&[
+            "undistort",
+            "--rig",
+            rig.to_str().unwrap(),
+            "--camera",
+            "depth",
+            input.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "{text}");
+        let rect = image::open(out.join("ir_1_rect.png")).unwrap().to_luma8();
+        results.push(corners_vs_truth(&rect, &truth));
+    }
+    eprintln!(
+        "input: corners {corner_in:.3} px, bend {bend_in:.3} px; undistorted: {:?}; wrong sign: {:?}",
+        results[0], results[1]
+    );
+    let (corner, bend) = results[0].expect("board found after undistortion");
+    assert!(corner < 0.15 && bend < 0.1, "corner {corner} px, bend {bend} px");
+    assert!(
+        results[1].is_none_or(|(c, b)| c > 1.5 && b > 1.0),
+        "wrong k1 sign passed: {:?}",
+        results[1]
+    );
 }

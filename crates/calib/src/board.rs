@@ -10,9 +10,10 @@ use crate::CalibError;
 /// Board frame: origin at the first inner corner, corner `k` at
 /// `(square·(k mod cols), square·(k div cols), 0)` metres; the top-left square (next to
 /// corner 0, outside the inner grid) has the colour [`Board::top_left_black`]. The colouring
-/// fixes the board's handedness and, on partial boards, which rows or columns are missing;
-/// for odd × odd inner corners (7×5) it is symmetric under a 180° turn, which the detector
-/// resolves by orientation (see `detect`).
+/// fixes the board's handedness and, on partial boards, which rows or columns are missing.
+/// For odd × odd inner corners (7×5) the colouring is symmetric under a 180° turn and the
+/// detector picks the placement by orientation; for one odd and one even count (9×6) the colour
+/// decides (the corner ordering rule is in the `detect` module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Board {
     /// Inner corners per row (along the board's x axis).
@@ -86,6 +87,9 @@ pub struct ViewCorners {
     pub height: usize,
     /// Labelled corners.
     pub corners: Vec<Corner>,
+    /// Why the view cannot be used at all (e.g. the image could not be read), or `None`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unusable: Option<String>,
 }
 
 impl ViewCorners {

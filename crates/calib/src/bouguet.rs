@@ -120,6 +120,7 @@ pub fn import_mono(path: &Path) -> Result<BouguetCamera, CalibError> {
                     width: nx,
                     height: ny,
                     corners,
+                    unusable: None,
                 }));
                 board_points.push(Some(
                     (0..bx.cols)

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 pub enum CalibError {
     /// Fewer usable views than a calibration needs.
     #[error(
-        "{camera}: only {usable} usable view(s) with a detected board, at least {needed} are needed; add images that show the whole board at different tilts"
+        "{camera}: only {usable} usable view(s) with a detected board, at least {needed} are needed{left_out}; add images that show the whole board at different tilts"
     )]
     TooFewViews {
         /// Which camera ("colour", "depth/IR", "stereo pairs").
@@ -18,6 +18,8 @@ pub enum CalibError {
         usable: usize,
         /// Views needed.
         needed: usize,
+        /// The views left out and why (" (left out: a.png (no board found), …)"), or empty.
+        left_out: String,
     },
     /// The board was not found in any image.
     #[error(
@@ -45,24 +47,6 @@ pub enum CalibError {
         max_tilt_deg: f64,
         /// Smallest acceptable largest tilt, degrees.
         min_tilt_deg: f64,
-    },
-    /// Images of one camera do not all have the same size.
-    #[error(
-        "{camera}: image '{image}' is {got_w}x{got_h} but the first image is {want_w}x{want_h}; all images of one camera must have the same size"
-    )]
-    MixedSizes {
-        /// Which camera.
-        camera: String,
-        /// The odd image.
-        image: String,
-        /// Its width.
-        got_w: usize,
-        /// Its height.
-        got_h: usize,
-        /// The first image's width.
-        want_w: usize,
-        /// The first image's height.
-        want_h: usize,
     },
     /// A colour/IR pair where only one image shows the board.
     #[error(

@@ -270,34 +270,65 @@ pub(crate) fn initial_camera(
     Ok((intr, dist, poses))
 }
 
-/// Checks sizes and counts, returns the image size and the usable views' indices.
+/// Image width and height, the usable views' indices, and per view why it was left out.
+pub(crate) type UsableViews = (usize, usize, Vec<usize>, Vec<Option<String>>);
+
+/// Picks the views a calibration can use. The camera's image size is the most common one
+/// among the readable views (the first one seen on a tie); views of another size, unreadable
+/// ones ([`ViewCorners::unusable`]) and those with fewer than [`MIN_CORNERS_PER_VIEW`] corners
+/// are left out with their reason, and the calibration goes on while [`MIN_VIEWS`] remain.
+/// Returns the image size, the usable views' indices and, per view, why it was left out.
 pub(crate) fn usable_views(
     camera: &str,
     board: &Board,
     views: &[ViewCorners],
-) -> Result<(usize, usize, Vec<usize>), CalibError> {
-    let Some(first) = views.first() else {
-        return Err(CalibError::TooFewViews {
-            camera: camera.into(),
-            usable: 0,
-            needed: MIN_VIEWS,
-        });
-    };
-    for v in views {
-        if (v.width, v.height) != (first.width, first.height) {
-            return Err(CalibError::MixedSizes {
-                camera: camera.into(),
-                image: v.name.clone(),
-                got_w: v.width,
-                got_h: v.height,
-                want_w: first.width,
-                want_h: first.height,
-            });
+) -> Result<UsableViews, CalibError> {
+    let mut sizes: Vec<((usize, usize), usize)> = Vec::new();
+    for v in views.iter().filter(|v| v.unusable.is_none()) {
+        match sizes.iter_mut().find(|s| s.0 == (v.width, v.height)) {
+            Some(s) => s.1 += 1,
+            None => sizes.push(((v.width, v.height), 1)),
         }
     }
-    let usable: Vec<usize> =
-        (0..views.len()).filter(|&i| views[i].corners.len() >= MIN_CORNERS_PER_VIEW).collect();
-    if usable.is_empty() && views.iter().all(|v| v.corners.is_empty()) {
+    // Strictly more wins, so the first size seen wins a tie.
+    let size = sizes.iter().fold(None, |best: Option<((usize, usize), usize)>, s| match best {
+        Some(b) if b.1 >= s.1 => Some(b),
+        _ => Some(*s),
+    });
+    let (w, h) = size.map(|s| s.0).unwrap_or((0, 0));
+    let reasons: Vec<Option<String>> = views
+        .iter()
+        .map(|v| {
+            if let Some(why) = &v.unusable {
+                Some(why.clone())
+            } else if (v.width, v.height) != (w, h) {
+                Some(format!(
+                    "image is {}x{}, the camera's other images are {w}x{h}",
+                    v.width, v.height
+                ))
+            } else if v.corners.is_empty() {
+                Some("no board found".to_string())
+            } else if v.corners.len() < MIN_CORNERS_PER_VIEW {
+                Some(format!("only {} corners (need {MIN_CORNERS_PER_VIEW})", v.corners.len()))
+            } else {
+                None
+            }
+        })
+        .collect();
+    let usable: Vec<usize> = (0..views.len()).filter(|&i| reasons[i].is_none()).collect();
+    let left_out = || {
+        let list: Vec<String> = views
+            .iter()
+            .zip(&reasons)
+            .filter_map(|(v, r)| Some(format!("{} ({})", v.name, r.as_ref()?)))
+            .collect();
+        if list.is_empty() { String::new() } else { format!(" (left out: {})", list.join(", ")) }
+    };
+    let right_size = |v: &&ViewCorners| v.unusable.is_none() && (v.width, v.height) == (w, h);
+    if usable.is_empty()
+        && views.iter().any(|v| right_size(&v))
+        && views.iter().filter(right_size).all(|v| v.corners.is_empty())
+    {
         return Err(CalibError::NoBoard {
             camera: camera.into(),
             images: views.len(),
@@ -310,9 +341,10 @@ pub(crate) fn usable_views(
             camera: camera.into(),
             usable: usable.len(),
             needed: MIN_VIEWS,
+            left_out: left_out(),
         });
     }
-    Ok((first.width, first.height, usable))
+    Ok((w, h, usable, reasons))
 }
 
 /// Robust per-axis noise σ from the median corner error.
@@ -397,8 +429,8 @@ pub(crate) fn residual_variance(sol: &Solution) -> f64 {
 
 /// Calibrates one camera from labelled corners.
 ///
-/// `views` must all have the same image size; views with fewer than
-/// [`MIN_CORNERS_PER_VIEW`] corners are reported as rejected. After the first fit, corner
+/// Views that cannot be used (another image size, unreadable, no board, fewer than
+/// [`MIN_CORNERS_PER_VIEW`] corners) are reported as rejected with the reason. After the first fit, corner
 /// outliers (> [`CORNER_OUTLIER_SIGMAS`] robust σ) and then view outliers (RMS >
 /// [`VIEW_OUTLIER_FACTOR`] × median) are removed one round at a time and the fit repeated;
 /// every removal is listed in the result.
@@ -409,7 +441,7 @@ pub fn calibrate_mono(
     flags: &CalibFlags,
     guess: Option<&CameraModel>,
 ) -> Result<MonoCalibration, CalibError> {
-    let (width, height, usable) = usable_views(camera, board, views)?;
+    let (width, height, usable, reasons) = usable_views(camera, board, views)?;
     let used: Vec<&ViewCorners> = usable.iter().map(|&i| &views[i]).collect();
     let (intr, dist, poses) = initial_camera(camera, board, &used, flags, guess, width, height)?;
     let mut free = flags.free_mask();
@@ -447,17 +479,14 @@ pub fn calibrate_mono(
     let rms = view_rms(&p, 0);
     let mut views_out: Vec<ViewReport> = views
         .iter()
-        .map(|v| ViewReport {
+        .zip(&reasons)
+        .map(|(v, why)| ViewReport {
             name: v.name.clone(),
             camera_from_board: None,
             rms_px: f64::NAN,
             n_corners: v.corners.len(),
             tilt_deg: f64::NAN,
-            rejected: Some(if v.corners.is_empty() {
-                "no board found".to_string()
-            } else {
-                format!("only {} corners (need {MIN_CORNERS_PER_VIEW})", v.corners.len())
-            }),
+            rejected: why.clone(),
         })
         .collect();
     for (vi, &orig) in usable.iter().enumerate() {

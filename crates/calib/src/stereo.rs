@@ -168,6 +168,7 @@ pub fn calibrate_stereo(
             camera: "stereo pairs (board seen by both cameras)".into(),
             usable: pairs.len(),
             needed: MIN_VIEWS,
+            left_out: String::new(),
         });
     }
     let estimates: Vec<RigidTransform> = pairs

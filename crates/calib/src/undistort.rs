@@ -103,8 +103,10 @@ mod tests {
     use super::*;
     use geometry::{Distortion, Intrinsics};
 
+    /// The geometry of undistortion is tested against rendered truth in
+    /// `tests/undistort.rs`; this checks the fold mask and the remaps' value handling.
     #[test]
-    fn undistorting_a_rendered_grid_straightens_it() {
+    fn the_fold_is_masked_and_remaps_keep_values() {
         // A Kinect-IR-like lens with a stronger k2, so that the fold (r = 0.79) lies inside
         // the output image's corners (r = 0.90).
         let cam = CameraModel::new(
@@ -114,20 +116,6 @@ mod tests {
             Distortion { k1: 0.098, k2: -0.6, p1: 0.004, p2: 0.0016, k3: 0.0 },
         );
         let map = UndistortMap::new(&cam);
-        // Each unmasked output pixel maps to the input pixel that the model sends its ray to:
-        // re-project and compare (exactness of the map, 1e-3 px from f32 storage).
-        let mut worst: f64 = 0.0;
-        for v in (0..424).step_by(7) {
-            for u in (0..512).step_by(7) {
-                if let Some((x, y)) = map.map.get(u, v) {
-                    let ray =
-                        Vector3::new((u as f64 - 255.5) / 365.0, (v as f64 - 211.5) / 365.0, 1.0);
-                    let p = cam.project(&ray).unwrap();
-                    worst = worst.max((p.x - *x as f64).abs().max((p.y - *y as f64).abs()));
-                }
-            }
-        }
-        assert!(worst < 1e-3, "{worst}");
         // The fold lies inside the image corners: the corners are masked, the centre is not.
         let r = cam.distortion.fold_radius().unwrap();
         let corner_r = ((255.5f64 / 365.0).powi(2) + (211.5f64 / 365.0).powi(2)).sqrt();

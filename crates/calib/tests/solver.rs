@@ -39,6 +39,7 @@ fn synth_views(
                     Corner { id, px: p + Vector2::new(gauss() * sigma, gauss() * sigma) }
                 })
                 .collect(),
+            unusable: None,
         })
         .collect()
 }
@@ -246,11 +247,24 @@ fn bad_inputs_give_clear_errors() {
         views.iter().map(|v| ViewCorners { corners: vec![], ..v.clone() }).collect();
     let e = calibrate_mono("ir", &board, &empty, &CalibFlags::default(), None).unwrap_err();
     assert!(matches!(e, CalibError::NoBoard { images: 4, .. }), "{e}");
-    // Mixed sizes.
+    // Mixed sizes: the odd view is left out with its reason and the other three calibrate;
+    // with only two left, the error lists it.
     let mut mixed = views.clone();
     mixed[2].width = 640;
-    let e = calibrate_mono("ir", &board, &mixed, &CalibFlags::default(), None).unwrap_err();
+    let m = calibrate_mono("ir", &board, &mixed, &CalibFlags::default(), None).unwrap();
+    assert_eq!((m.camera.width, m.camera.height), (512, 424));
+    let why = m.views[2].rejected.as_deref().unwrap_or("");
+    assert!(why.contains("640x424") && why.contains("512x424"), "{why}");
+    assert!(m.views[2].camera_from_board.is_none());
+    assert!(m.views.iter().enumerate().all(|(i, v)| i == 2 || v.rejected.is_none()));
+    let e = calibrate_mono("ir", &board, &mixed[1..], &CalibFlags::default(), None).unwrap_err();
+    assert!(matches!(e, CalibError::TooFewViews { usable: 2, needed: 3, .. }), "{e}");
     assert!(e.to_string().contains("view_02") && e.to_string().contains("640x424"), "{e}");
+    // An unreadable view is listed with the reason given.
+    let mut unreadable = views.clone();
+    unreadable[0].unusable = Some("unreadable: truncated file".into());
+    let m = calibrate_mono("ir", &board, &unreadable, &CalibFlags::default(), None).unwrap();
+    assert_eq!(m.views[0].rejected.as_deref(), Some("unreadable: truncated file"));
     // Fronto-parallel boards (rotation about the optical axis only, different distances).
     let fronto: Vec<_> = (0..5)
         .map(|i| {

@@ -1,6 +1,6 @@
 //! Shared helpers of the calib integration tests: locating the shared data and reading its
 //! JSON references.
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)]
 
 use std::path::PathBuf;
 
@@ -31,7 +31,7 @@ pub fn corners_from(list: &Value, name: &str, w: usize, h: usize) -> ViewCorners
             px: Vector2::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap()),
         })
         .collect();
-    ViewCorners { name: name.into(), width: w, height: h, corners }
+    ViewCorners { name: name.into(), width: w, height: h, corners, unusable: None }
 }
 
 pub fn f(v: &Value) -> f64 {
@@ -79,3 +79,4 @@ pub fn gt_color_from_depth(gt: &Value) -> RigidTransform {
 pub fn rotation_error_deg(a: &RigidTransform, b: &RigidTransform) -> f64 {
     (a.rotation.inverse() * b.rotation).angle().to_degrees()
 }
+pub mod render;

@@ -1,0 +1,307 @@
+//! The public corpus (`../shared/data/calib-corpus`, see its README): four real sets from four
+//! cameras with OpenCV 5's detections and calibrations in each `reference.json`. Per set and
+//! camera, against that reference, issue 14's bars (asserted per set where met today, else at
+//! the measured level; `issue_bars_on_every_set`, ignored, asserts them all):
+//!
+//! * complete boards found ≥ the better of OpenCV's classic and SB detectors;
+//! * no corner on the negatives (images marked `expected_board: false`);
+//! * where both kfuse and `findChessboardCornersSB` found the board, every kfuse corner within
+//!   [`SB_AGREEMENT_PX`] of SB's corner with the same index, once SB's corners are turned to
+//!   kfuse's ordering rule (identity or 180°; for boards whose colour decides, the same turn for
+//!   every image of the set, since the rule names a physical corner);
+//! * calibration RMS (k1 k2 p1 p2 k3, no outlier rejection, like `calibrateCamera`) ≤ the best
+//!   OpenCV variant recorded for the set.
+//!
+//! Nothing in the detector was tuned on this corpus: the whole corpus is held out (the
+//! detector's parameters are those fixed earlier on the lab's IR views and the rendered set).
+//! Each test prints its table row; `crates/calib/README.md` holds the table of one run.
+
+mod common;
+
+use std::path::Path;
+
+use calib::detect::detect_views;
+use calib::{Board, CalibFlags, ViewCorners, calibrate_mono};
+use common::{f, json, shared_data};
+use geometry::Image;
+use nalgebra::Vector2;
+use serde_json::Value;
+
+/// The issue's bar: kfuse's and SB's corners name the same point within 1 px (SB's own error
+/// against classic is up to ~0.9 px on these images, see `classic_vs_sb`).
+const SB_AGREEMENT_PX: f64 = 1.0;
+
+struct Row {
+    set: String,
+    camera: String,
+    images: usize,
+    kfuse_found: usize,
+    kfuse_partial: usize,
+    classic_found: usize,
+    sb_found: usize,
+    compared: usize,
+    worst_px: f64,
+    kfuse_rms: f64,
+    opencv_rms: (f64, f64, f64),
+}
+
+impl Row {
+    fn print(&self) {
+        let (c, s, a) = self.opencv_rms;
+        println!(
+            "| {} | {} | {} | {} (+{} partial) | {} / {} | {} | {:.3} | {:.3} | {c:.3} / {s:.3} / {a:.3} |",
+            self.set,
+            self.camera,
+            self.images,
+            self.kfuse_found,
+            self.kfuse_partial,
+            self.classic_found,
+            self.sb_found,
+            self.compared,
+            self.worst_px,
+            self.kfuse_rms,
+        );
+    }
+}
+
+fn points(v: &Value) -> Vec<Vector2<f64>> {
+    v.as_array().unwrap().iter().map(|p| Vector2::new(f(&p[0]), f(&p[1]))).collect()
+}
+
+/// SB's corners of one image in kfuse's labelling under a turn: identity or 180°.
+fn turned(sb: &[Vector2<f64>], half_turn: bool) -> Vec<Vector2<f64>> {
+    if half_turn { sb.iter().rev().copied().collect() } else { sb.to_vec() }
+}
+
+fn worst(view: &ViewCorners, sb: &[Vector2<f64>]) -> f64 {
+    view.corners.iter().map(|c| (c.px - sb[c.id]).norm()).fold(0.0, f64::max)
+}
+
+fn run_set(set: &str) -> Option<Vec<Row>> {
+    let root = shared_data(set)?.join("calib-corpus").join(set);
+    let r = json(root.join("reference.json"));
+    let board = Board::new(
+        r["board"]["cols"].as_u64()? as usize,
+        r["board"]["rows"].as_u64()? as usize,
+        1.0,
+    )
+    .unwrap();
+    let colour_decides = (board.cols + board.rows) % 2 == 1;
+    let mut rows = Vec::new();
+    for (camera, files) in r["cameras"].as_object()? {
+        let files: Vec<&str> = files.as_array()?.iter().filter_map(|v| v.as_str()).collect();
+        let entry = |file: &str| r["images"].as_array().unwrap().iter().find(|i| i["file"] == file);
+        let images: Vec<Image<u8>> = files
+            .iter()
+            .map(|p| calib::io::read_gray(&root.join(p)).unwrap_or_else(|e| panic!("{p}: {e}")))
+            .collect();
+        let named: Vec<(String, &Image<u8>)> = files
+            .iter()
+            .zip(&images)
+            .map(|(p, i)| (Path::new(p).file_name().unwrap().to_string_lossy().into(), i))
+            .collect();
+        let (views, _) = detect_views(&named, &board);
+        let mut row = Row {
+            set: set.into(),
+            camera: camera.clone(),
+            images: files.len(),
+            kfuse_found: 0,
+            kfuse_partial: 0,
+            classic_found: 0,
+            sb_found: 0,
+            compared: 0,
+            worst_px: 0.0,
+            kfuse_rms: f64::NAN,
+            opencv_rms: (f64::NAN, f64::NAN, f64::NAN),
+        };
+        // Per image: (worst distance with SB unturned, turned 180°).
+        let mut both: Vec<(String, f64, f64)> = Vec::new();
+        for (file, view) in files.iter().zip(&views) {
+            let e = entry(file).unwrap();
+            let complete = view.corners.len() == board.len();
+            if e["expected_board"] == Value::Bool(false) {
+                assert!(view.corners.is_empty(), "{set}: a board found in the negative {file}");
+                continue;
+            }
+            row.kfuse_found += complete as usize;
+            row.kfuse_partial += (!complete && !view.corners.is_empty()) as usize;
+            row.classic_found += (e["classic"]["found"] == Value::Bool(true)) as usize;
+            let sb_found = e["sb"]["found"] == Value::Bool(true);
+            row.sb_found += sb_found as usize;
+            if sb_found && complete {
+                let sb = points(&e["sb"]["corners"]);
+                both.push((
+                    file.to_string(),
+                    worst(view, &turned(&sb, false)),
+                    worst(view, &turned(&sb, true)),
+                ));
+            }
+        }
+        row.compared = both.len();
+        // Where colour decides, one turn for the whole set (the rule names a physical corner);
+        // otherwise the turn that the orientation rule picked in each image.
+        let set_turn = {
+            let a = both.iter().map(|b| b.1).fold(0.0, f64::max);
+            let b = both.iter().map(|b| b.2).fold(0.0, f64::max);
+            b < a
+        };
+        let per_image: Vec<f64> = both
+            .iter()
+            .map(|b| match (colour_decides, set_turn) {
+                (true, false) => b.1,
+                (true, true) => b.2,
+                (false, _) => b.1.min(b.2),
+            })
+            .collect();
+        for (b, d) in both.iter().zip(&per_image) {
+            println!("  {set} {camera} {}: worst corner vs SB {d:.3} px", b.0);
+        }
+        if colour_decides {
+            println!(
+                "  {set} {camera}: SB's corners turned by {} for kfuse's rule",
+                if set_turn { "180°" } else { "0°" }
+            );
+        }
+        row.worst_px = per_image.iter().copied().fold(0.0, f64::max);
+        let cal = &r["calibration"][camera.as_str()];
+        row.opencv_rms =
+            (f(&cal["classic"]["rms"]), f(&cal["sb"]["rms"]), f(&cal["classic_alt"]["rms"]));
+        let flags = CalibFlags { reject_outliers: false, ..CalibFlags::default() };
+        let m = calibrate_mono(camera, &board, &views, &flags, None).expect("calibrates");
+        row.kfuse_rms = m.rms_px;
+        for v in &m.views {
+            match &v.rejected {
+                Some(why) => println!("  {set} {camera} {}: left out ({why})", v.name),
+                None => println!(
+                    "  {set} {camera} {}: {} corners, RMS {:.3} px",
+                    v.name, v.n_corners, v.rms_px
+                ),
+            }
+        }
+        rows.push(row);
+    }
+    println!(
+        "| set | camera | images | kfuse complete boards | OpenCV classic / SB | compared with SB | worst corner vs SB px | kfuse RMS px | OpenCV RMS classic / SB / 5x5 |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    for row in &rows {
+        row.print();
+    }
+    Some(rows)
+}
+
+/// What a set must show. The issue's bars (boards found ≥ OpenCV's best detector, corners
+/// within 1 px of SB's, RMS ≤ OpenCV's best) are asserted where kfuse meets them today; where
+/// it does not, the test holds the measured level (so that a regression fails) and
+/// [`issue_bars_on_every_set`] (ignored) asserts the bar itself.
+struct Expect {
+    /// Fewest complete boards per camera.
+    found: &'static [(&'static str, usize)],
+    /// Largest distance of a kfuse corner from SB's corner with the same index (after the
+    /// rule's turn), px. A mislabelled corner is a whole square (≥ 10 px here) off.
+    sb_px: f64,
+    /// RMS must not exceed OpenCV's best variant (else only be finite).
+    rms_le_opencv: bool,
+}
+
+fn check(rows: &[Row], e: &Expect) {
+    for r in rows {
+        let want = e.found.iter().find(|f| f.0 == r.camera).map_or(usize::MAX, |f| f.1);
+        assert!(
+            r.kfuse_found >= want,
+            "{} {}: {} complete boards, expected ≥ {want}",
+            r.set,
+            r.camera,
+            r.kfuse_found
+        );
+        assert!(
+            r.worst_px <= e.sb_px,
+            "{} {}: a corner {:.3} px from SB's",
+            r.set,
+            r.camera,
+            r.worst_px
+        );
+        let best_rms = r.opencv_rms.0.min(r.opencv_rms.1).min(r.opencv_rms.2);
+        if e.rms_le_opencv {
+            assert!(
+                r.kfuse_rms <= best_rms,
+                "{} {}: RMS {:.4} px, OpenCV's best {best_rms:.4} px",
+                r.set,
+                r.camera,
+                r.kfuse_rms
+            );
+        } else {
+            assert!(r.kfuse_rms.is_finite());
+        }
+    }
+}
+
+/// The issue's bars on every set: not met yet (see `crates/calib/README.md`): OpenCV set left
+/// 11 of 13 boards (left06, left12 missed) and corners up to 1.75 px from SB's; GoPro 32 of 35
+/// boards, corners up to 1.24 px from SB's, RMS 0.525 px vs OpenCV's best 0.523 px; Udacity
+/// RMS 0.863 px vs OpenCV's 0.853 px.
+#[test]
+#[ignore = "issue 14's corpus bars are not all met yet; run with --ignored to measure"]
+fn issue_bars_on_every_set() {
+    let mut failures = Vec::new();
+    for set in SETS {
+        let Some(rows) = run_set(set) else { return };
+        for r in rows {
+            let best_found = r.classic_found.max(r.sb_found);
+            let best_rms = r.opencv_rms.0.min(r.opencv_rms.1).min(r.opencv_rms.2);
+            if r.kfuse_found < best_found || r.worst_px > SB_AGREEMENT_PX || r.kfuse_rms > best_rms
+            {
+                failures.push(format!("{} {}: found {} (OpenCV {best_found}), worst vs SB {:.3} px, RMS {:.3} (OpenCV {best_rms:.3})", r.set, r.camera, r.kfuse_found, r.worst_px, r.kfuse_rms));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+const SETS: [&str; 4] = [
+    "opencv-stereo-640x480-9x6",
+    "udacity-camera-cal-1280x720-9x6",
+    "gopro-wide-1280x960-8x6",
+    "color-1920x1080-9x6-robotarm",
+];
+
+/// Measured 2026-12-01 (this branch): left 11, right 13 complete boards; worst corner vs SB
+/// 1.58 / 1.75 px; RMS 0.158 / 0.154 px (OpenCV best 0.195 / 0.207).
+#[test]
+fn corpus_opencv_stereo_640x480_9x6() {
+    if let Some(rows) = run_set(SETS[0]) {
+        check(
+            &rows,
+            &Expect { found: &[("left", 11), ("right", 13)], sb_px: 2.0, rms_le_opencv: true },
+        );
+    }
+}
+
+/// Measured: 18 complete boards (OpenCV 17 / 18) + 2 partial, the two 1281x721 images left out,
+/// no board on the 3 negatives; worst corner vs SB 0.47 px; RMS 0.863 px (OpenCV 0.853).
+#[test]
+fn corpus_udacity_1280x720_9x6() {
+    if let Some(rows) = run_set(SETS[1]) {
+        check(
+            &rows,
+            &Expect { found: &[("cam", 18)], sb_px: SB_AGREEMENT_PX, rms_le_opencv: false },
+        );
+    }
+}
+
+/// Measured: 32 complete boards (OpenCV 35) + 1 partial; worst corner vs SB 1.24 px; RMS
+/// 0.525 px (OpenCV 0.824 / 0.532 / 0.523).
+#[test]
+fn corpus_gopro_wide_1280x960_8x6() {
+    if let Some(rows) = run_set(SETS[2]) {
+        check(&rows, &Expect { found: &[("cam", 32)], sb_px: 1.5, rms_le_opencv: false });
+    }
+}
+
+/// Measured: 5 of 5 boards; worst corner vs SB 0.22 px; RMS 0.220 px (OpenCV best 0.234).
+#[test]
+fn corpus_robotarm_1920x1080_9x6() {
+    if let Some(rows) = run_set(SETS[3]) {
+        check(&rows, &Expect { found: &[("cam", 5)], sb_px: SB_AGREEMENT_PX, rms_le_opencv: true });
+    }
+}
