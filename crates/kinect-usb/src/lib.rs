@@ -16,6 +16,14 @@
 //!   per-device counter alone (spec §3.3); every other command post-increments it. Their value
 //!   ranges are the named constants of [`protocol`] (e.g. [`protocol::ANALOG_GAIN_RANGE`]).
 //!
+//! # Features
+//!
+//! * `sim` — the simulated device (module `sim`) and its `rand` dependencies: for the CLI's
+//!   `--backend sim`, the viewer's live mode without a sensor, and tests. Off by default so that
+//!   the driver does not ship it.
+//! * `testdata` — locating and reading the shared test vectors (module `testdata`): for tests and
+//!   benches only (this crate's own tests enable both through a dev-dependency on itself).
+//!
 //! This crate depends on nothing else of kfuse. `unsafe` is confined to the private
 //! `transfer` module (libusb isochronous/bulk transfers) and to the one call by which the
 //! depth decoder enters its AVX2 kernels after checking that the CPU has AVX2.
@@ -32,8 +40,10 @@ pub mod protocol;
 pub mod raw;
 pub mod recording;
 pub mod registration;
+#[cfg(feature = "sim")]
 pub mod sim;
 pub mod stream;
+#[cfg(any(test, feature = "testdata"))]
 pub mod testdata;
 mod transfer;
 pub mod usb;

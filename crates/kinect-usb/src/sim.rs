@@ -172,7 +172,10 @@ impl SimProfile {
     /// A profile from the vectors' inputs (real factory intrinsics, synthetic P0 and colour
     /// parameters) with a real-looking firmware version and status sequence.
     pub fn from_vectors(dir: &std::path::Path) -> crate::Result<Self> {
-        use crate::testdata::read_bytes;
+        let read_bytes = |path: &std::path::Path| {
+            std::fs::read(path)
+                .map_err(|source| crate::KinectError::File { path: path.to_path_buf(), source })
+        };
         let hw = read_bytes(&dir.join("real/protocol/hardware_info_response.bin"))?;
         Ok(SimProfile {
             firmware: [
