@@ -22,7 +22,7 @@ fn scene_mm() -> Vec<f32> {
 }
 
 /// Calibration capture through the real CLI path (sim → USB protocol → iso parser → decoder →
-/// PNG) reproduces the scene's depth. Tolerance: forward-model quantisation ≤ 8 mm (spec §14.3
+/// PNG) reproduces the scene's depth. Tolerance: forward-model quantisation ≤ 8 mm (protocol §14.3
 /// bound; measured max 6 mm on the vectors) + 0.5 mm PNG rounding to whole millimetres.
 #[test]
 fn calib_capture_on_sim_reproduces_scene_depth() {

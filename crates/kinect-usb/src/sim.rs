@@ -1,4 +1,4 @@
-//! A simulated Kinect v2 behind [`UsbBackend`] (spec §14.1): enforces the protocol, answers
+//! A simulated Kinect v2 behind [`UsbBackend`] (protocol §14.1): enforces the protocol, answers
 //! every command from a [`SimProfile`], streams depth frames built with the forward model from a
 //! caller-supplied [`SimScene`] and colour packets from caller-supplied JPEGs, and injects
 //! seeded faults.
@@ -28,11 +28,11 @@ use crate::stream::{ColorMeta, build_color_packet, packetize_depth_frame};
 const TICKS_PER_FRAME: u32 = 267;
 
 /// Status the simulated device puts in a 0x3E response (or an LED completion) when a value is
-/// out of range. The real status codes are not documented (spec §4.10); the sim's convention:
+/// out of range. The real status codes are not documented (protocol §4.10); the sim's convention:
 /// 0 = accepted, [`SIM_STATUS_INVALID_VALUE`], [`SIM_STATUS_UNKNOWN_CODE`],
 /// [`SIM_STATUS_BAD_REQUEST`].
 pub const SIM_STATUS_INVALID_VALUE: u32 = 1;
-/// Status for a setting code the spec does not list.
+/// Status for a setting code the protocol document does not list.
 pub const SIM_STATUS_UNKNOWN_CODE: u32 = 2;
 /// Status for a malformed 0x3E request (setting count ≠ 1 or setting sequence id ≠ 0).
 pub const SIM_STATUS_BAD_REQUEST: u32 = 3;
@@ -40,7 +40,7 @@ pub const SIM_STATUS_BAD_REQUEST: u32 = 3;
 /// footer reports `AUTO_EXPOSURE_MS × 2^compensation` in auto mode.
 pub const SIM_AUTO_EXPOSURE_MS: f32 = 10.0;
 
-/// The simulated colour camera's settings registers (spec §4.10), keyed by SET code.
+/// The simulated colour camera's settings registers (protocol §4.10), keyed by SET code.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SimColorSettings {
     regs: std::collections::BTreeMap<u32, u32>,
@@ -214,7 +214,7 @@ impl SimProfile {
                 })
                 .collect()
         });
-        // Polynomial coefficients of a pinhole mapping (spec §11.1 inverted for x, y linear).
+        // Polynomial coefficients of a pinhole mapping (protocol §11.1 inverted for x, y linear).
         const QD: f32 = 0.01;
         const QC: f32 = 0.002199;
         let (shift_d, shift_m) = (863.0f32, 52.0f32);
@@ -328,7 +328,7 @@ pub struct SimDevice {
     expected_seq: u32,
     pending: Option<(CommandMessage, Vec<u8>, Phase, u32)>,
     /// The last 0x4B at sequence 0 could have been either the first sequenced command or the
-    /// LED API (spec §3.3 ambiguity at the session's start): accept either numbering next.
+    /// LED API (protocol §3.3 ambiguity at the session's start): accept either numbering next.
     led_ambiguous: bool,
     color: SimColorSettings,
     leds: [Option<LedSetting>; 2],
@@ -465,7 +465,7 @@ impl SimDevice {
 
     /// Records an LED setting from 0x4B words; returns the completion status (non-zero when
     /// an LED API request is invalid). Start/stop "mode" words are recorded when they decode as
-    /// LED settings (spec §4.9) and never rejected.
+    /// LED settings (protocol §4.9) and never rejected.
     fn apply_led(&mut self, params: &[u32], api: bool) -> u32 {
         let words = match params {
             &[a, b, c, d] => [a, b, c, d],
@@ -722,7 +722,7 @@ impl UsbBackend for SimDevice {
         let mut completion_status = 0;
         match m.id {
             COLOR_SETTING_ID => {
-                // Colour settings always carry sequence 0 and do not advance it (spec §3.3).
+                // Colour settings always carry sequence 0 and do not advance it (protocol §3.3).
                 if m.sequence != 0 {
                     self.violations.push(format!(
                         "colour setting (0x3E) with sequence {}, must be 0",
@@ -740,7 +740,7 @@ impl UsbBackend for SimDevice {
                 if m.sequence != self.expected_seq
                     && !(self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1)) =>
             {
-                // Out of the counter: the LED API (sequence 0, spec §4.9).
+                // Out of the counter: the LED API (sequence 0, protocol §4.9).
                 if m.sequence != 0 {
                     self.violations.push(format!(
                         "command 0x4b: sequence {} expected {} (or 0 for the LED API)",

@@ -89,7 +89,7 @@ fn mismatches(got: &[f32], want: &[f32]) -> (usize, usize) {
 }
 
 /// Tolerance: none. Every oracle file (depth and IR, all runs, including −0.0 pixels) must be
-/// reproduced bit for bit (spec §9.9: the reference used the same f32 operation order and
+/// reproduced bit for bit (protocol §9.9: the reference used the same f32 operation order and
 /// glibc libm, which Rust's f32 functions call on Linux).
 #[test]
 fn decoder_matches_every_oracle_run_bit_for_bit() {
@@ -132,12 +132,12 @@ fn decoder_matches_every_oracle_run_bit_for_bit() {
     assert_eq!(checked, 32);
 }
 
-/// Spec §9.9 test policy, largest depth difference for pixels valid (non-zero) in both.
+/// Protocol §9.9 test policy, largest depth difference for pixels valid (non-zero) in both.
 const MAX_DEPTH_DIFF_MM: f32 = 0.01;
-/// Spec §9.9 test policy, "at most a handful of pixels flipping between 0 and non-zero"
+/// Protocol §9.9 test policy, "at most a handful of pixels flipping between 0 and non-zero"
 /// (threshold decisions near equality); read as at most 5 of the 217 088 pixels per file.
 const MAX_VALIDITY_FLIPS: usize = 5;
-/// Spec §9.9 reports 90–99.9 % bit-identical pixels for a decoder with other (numpy)
+/// Protocol §9.9 reports 90–99.9 % bit-identical pixels for a decoder with other (numpy)
 /// transcendental functions; a Fast decoder below 90 % would differ more than that one did.
 const MIN_BIT_IDENTICAL: f64 = 0.90;
 
@@ -164,7 +164,7 @@ fn depth_diff(got: &[f32], want: &[f32]) -> DepthDiff {
 }
 
 /// The Fast decoder (own f32 exp/ln/atan2, `decoder::fastmath`) against every oracle run.
-/// Tolerance per file: spec §9.9's fallback policy ([`MAX_DEPTH_DIFF_MM`],
+/// Tolerance per file: protocol §9.9's fallback policy ([`MAX_DEPTH_DIFF_MM`],
 /// [`MAX_VALIDITY_FLIPS`], [`MIN_BIT_IDENTICAL`]) for depth; IR is computed before any
 /// transcendental function and must stay bit-identical.
 ///

@@ -1,4 +1,4 @@
-//! Property tests of the bit layout and the stream parsers (spec §14.3).
+//! Property tests of the bit layout and the stream parsers (protocol §14.3).
 
 use std::path::Path;
 

@@ -85,7 +85,7 @@ fn start_stop_close_transcript_matches_spec_sequences() {
         "cmd 0x4b seq 22 [0, 0, 0, 0]",
     ];
     assert_eq!(cmds, expected_start);
-    // Open sequence (spec §5.1) and the alt settings / suspend around streaming.
+    // Open sequence (protocol §5.1) and the alt settings / suspend around streaming.
     let non_cmd: Vec<&str> =
         tr.iter().filter(|l| !l.starts_with("cmd")).map(|s| s.as_str()).collect();
     assert_eq!(
@@ -116,7 +116,7 @@ fn start_stop_close_transcript_matches_spec_sequences() {
 }
 
 /// Sim → device → decoder (filters off) reproduces the scene within the forward model's
-/// quantisation error. Bounds from spec §14.2 / manifest `forward_model_round_trip`:
+/// quantisation error. Bounds from protocol §14.2 / manifest `forward_model_round_trip`:
 /// median 0.18 mm, max 6.0 mm on the vectors' scene; asserted: median ≤ 0.2 mm, max ≤ 8 mm.
 #[test]
 fn simulated_stream_decodes_to_the_scene() {

@@ -7,14 +7,14 @@ use super::lanes::{V, ld, sp, st};
 use super::lanes8;
 use super::{Ctx, DecoderParams, PAD, PPlane, Plane, Row1, RowE, W, fastmath};
 
-/// Bilateral amplitude threshold τ on a² + b² (spec §9.5).
+/// Bilateral amplitude threshold τ on a² + b² (protocol §9.5).
 #[inline]
 pub(super) fn bilateral_tau(p: &DecoderParams) -> f32 {
     (p.joint_bilateral_ab_threshold * p.joint_bilateral_ab_threshold)
         / (p.ab_multiplier * p.ab_multiplier)
 }
 
-/// Range distance of two unit phasors (spec §9.5): `((−(ua1·ua + ub1·ub)) + 1)·0.5`, written as
+/// Range distance of two unit phasors (protocol §9.5): `((−(ua1·ua + ub1·ub)) + 1)·0.5`, written as
 /// `(1 − (…))·0.5`, the same IEEE result; symmetric bit for bit since each product commutes.
 #[inline(always)]
 pub(super) fn range_dist(ua1: V, ub1: V, ua: V, ub: V) -> V {
@@ -101,7 +101,7 @@ pub(super) fn copy_unfiltered(r: &Row1, fa: &mut [Plane; 3], fb: &mut [Plane; 3]
     *ok = [1.0; W];
 }
 
-/// Joint bilateral filter (spec §9.5) of frequency `k` over one processing row (1 ≤ y ≤ 422):
+/// Joint bilateral filter (protocol §9.5) of frequency `k` over one processing row (1 ≤ y ≤ 422):
 /// writes the filtered phasor to `fa`, `fb` and ANDs this frequency's edge test into `ok`
 /// (k = 0 starts it). Border columns are copied with `edge_ok` true.
 #[allow(clippy::too_many_arguments)]

@@ -10,7 +10,7 @@ pub(super) fn rows3(v: &[f32], y: usize) -> [&[f32]; 3] {
     [y - 1, y, y + 1].map(|r| &v[r * SW..(r + 1) * SW])
 }
 
-/// Pass 2 of processing row `y` (written to output row `423 − y`): edge-aware filter (spec
+/// Pass 2 of processing row `y` (written to output row `423 − y`): edge-aware filter (protocol
 /// §9.7) or a plain copy. `planes` = (depth, lo, hi, ir_sum), see [`DepthDecoder`](super::DepthDecoder)'s fields.
 pub(super) fn output_row(
     planes: (&[f32], &[f32], &[f32], &[f32]),

@@ -1,10 +1,10 @@
-//! CPU depth decoder (spec §9): raw 11-bit frame → depth (mm, f32) + IR amplitude (f32), both
+//! CPU depth decoder (protocol §9): raw 11-bit frame → depth (mm, f32) + IR amplitude (f32), both
 //! 512 × 424 upright (row 0 = top).
 //!
 //! # Precision
 //!
 //! [`DecoderPrecision::Exact`] follows the reference order exactly (f32, with the f64
-//! promotions of the spec, no fused multiply-add, libm `cosf/sinf/atan2f/expf/logf`) and
+//! promotions of protocol §9, no fused multiply-add, libm `cosf/sinf/atan2f/expf/logf`) and
 //! reproduces the oracle vectors bit for bit on Linux x86-64 (`tests/oracle.rs`).
 //!
 //! [`DecoderPrecision::Fast`] — **the default, also of `kfuse capture`** — is the same
@@ -56,7 +56,7 @@
 //!
 //! All working buffers live in [`DepthDecoder`]; [`DepthDecoder::decode`] allocates nothing.
 
-// The spec's literal constants (1.442695, 0.301030, 3.321928, …) must stay as written for
+// The literal constants of protocol §9 (1.442695, 0.301030, 3.321928, …) must stay as written for
 // bit-exactness; they are not the library constants they approximate.
 #![allow(clippy::approx_constant)]
 
@@ -80,8 +80,8 @@ use edge::output_row;
 use stage1::{TRIG_TABLE_MAX_SPAN, Trig, ir_row, stage1_row};
 use stage2::stage2_row;
 
-/// Decoder constants of spec §9.1 (libfreenect2 defaults). Literal constants inside the
-/// formulas are kept inline, as the spec requires for bit-exactness.
+/// Decoder constants of protocol §9.1 (libfreenect2 defaults). Literal constants inside the
+/// formulas are kept inline, as protocol §9.1 requires for bit-exactness.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DecoderParams {
     /// Amplitude scale.
@@ -171,9 +171,9 @@ impl Default for DecoderParams {
 /// Switches of the decoder.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DecoderConfig {
-    /// Joint bilateral filter of the phasors (spec §9.5).
+    /// Joint bilateral filter of the phasors (protocol §9.5).
     pub bilateral: bool,
-    /// Edge-aware filter of the depth (spec §9.7; also clamps to [min_depth, max_depth]).
+    /// Edge-aware filter of the depth (protocol §9.7; also clamps to [min_depth, max_depth]).
     pub edge_aware: bool,
     /// Process rows in parallel on the current rayon pool.
     pub parallel: bool,
@@ -190,7 +190,7 @@ impl Default for DecoderConfig {
 pub enum DecoderPrecision {
     /// glibc `expf/logf/atan2f` per pixel, as the reference: bit-identical to the oracle.
     Exact,
-    /// Four-lane f32 approximations (≤ 2.5 ulp): within spec §9.9's tolerance, about twice as
+    /// Four-lane f32 approximations (≤ 2.5 ulp): within protocol §9.9's tolerance, about twice as
     /// fast as `Exact`.
     #[default]
     Fast,
@@ -240,8 +240,8 @@ type Plane = [f32; W];
 /// One row of one quantity with [`PAD`] unused elements on each side: column x at `x + PAD`.
 type PPlane = [f32; W + 2 * PAD];
 
-/// Stage-1 results of one processing row (spec §9.4) plus the bilateral filter's per-pixel
-/// terms (spec §9.5 step 1): per frequency k, `a`, `b`, amplitude `A`, the unit phasor
+/// Stage-1 results of one processing row (protocol §9.4) plus the bilateral filter's per-pixel
+/// terms (protocol §9.5 step 1): per frequency k, `a`, `b`, amplitude `A`, the unit phasor
 /// `(a·g, b·g)` with `g = 1/√(a² + b²)` (NaN → +∞) and `n² = a² + b²`.
 struct Row1 {
     a: [PPlane; 3],
@@ -321,9 +321,9 @@ impl Workspace {
 
 /// Per-frame-constant tables, by processing row.
 struct Tables {
-    /// The companding LUT (spec §8) as f32.
+    /// The companding LUT (protocol §8) as f32.
     lut: [f32; 2048],
-    /// Spec §9.3's coefficients.
+    /// Protocol §9.3's coefficients.
     trig: Trig,
     x: Vec<Plane>,
     z: Vec<Plane>,
@@ -343,12 +343,12 @@ pub struct DepthDecoder {
     work: Vec<Box<Workspace>>,
     /// Stage-2 depth before the edge-aware filter, by processing pixel.
     depth_pre: Vec<f32>,
-    /// Spec §9.7's `d̃` (depth, 0 where the bilateral `edge_ok` is false) where it is > 0, else
+    /// Protocol §9.7's `d̃` (depth, 0 where the bilateral `edge_ok` is false) where it is > 0, else
     /// +∞: what the neighbour minimum of the edge-aware filter reads. Rows of stride [`SW`].
     depth_lo: Vec<f32>,
     /// The same with −∞ for the neighbour maximum. Rows of stride [`SW`].
     depth_hi: Vec<f32>,
-    /// Stage-2 amplitude sum (spec §9.6 step 2). Rows of stride [`SW`].
+    /// Stage-2 amplitude sum (protocol §9.6 step 2). Rows of stride [`SW`].
     ir_sum: Vec<f32>,
 }
 

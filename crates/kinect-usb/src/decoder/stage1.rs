@@ -14,7 +14,7 @@ use crate::raw::{ROW_BYTES, SUB_IMAGE_BYTES, stored_row_of_processing_row};
 /// about 3 000 values).
 pub(super) const TRIG_TABLE_MAX_SPAN: usize = 16_384;
 
-/// The phase-step coefficients of spec §9.3, `cos ψ_kj` and `sin(−ψ_kj)`, which depend on the
+/// The phase-step coefficients of protocol §9.3, `cos ψ_kj` and `sin(−ψ_kj)`, which depend on the
 /// pixel only through its P0 value.
 pub(super) enum Trig {
     /// Per processing row, 18 planes: for k = 0..3, `cos ψ_k0..2` then `sin(−ψ_k0..2)`.
@@ -28,7 +28,7 @@ impl Trig {
     /// A table if every frequency's P0 values span less than `max_span` values, else planes.
     #[allow(clippy::needless_range_loop)] // x indexes the P0 table and 18 planes.
     pub(super) fn new(params: &DecoderParams, p0: &P0Tables, max_span: usize) -> Self {
-        // Spec §9.3, in this precision.
+        // Protocol §9.3, in this precision.
         let coefficients = |p: u16| -> [f32; 8] {
             let theta = (-(p as f64) * 0.000031 * std::f64::consts::PI) as f32;
             let mut e = [0f32; 8];
@@ -43,7 +43,7 @@ impl Trig {
             (t.iter().copied().min().unwrap_or(0), t.iter().copied().max().unwrap_or(0))
         };
         let spans = p0.tables.each_ref().map(|t| range(t));
-        // P0 row 423 − y is processing row y (spec §9.3).
+        // P0 row 423 − y is processing row y (protocol §9.3).
         let p0_at = |k: usize, y: usize, x: usize| p0.tables[k][(H - 1 - y) * W + x];
         if spans.iter().all(|&(lo, hi)| ((hi - lo) as usize) < max_span) {
             let base = spans.map(|(lo, _)| lo);
@@ -90,7 +90,7 @@ impl Trig {
 }
 
 /// Unpacks the 512 11-bit codes of one 704-byte stored row through the LUT into image-column
-/// order (spec §8). Slots `8g .. 8g + 8` occupy the 11 bytes from `11g`; slot `q` holds column
+/// order (protocol §8). Slots `8g .. 8g + 8` occupy the 11 bytes from `11g`; slot `q` holds column
 /// `4·(q mod 128) + q div 128`. Columns 0 and 511 are never read by the decoder: 0.
 #[inline(always)]
 pub(super) fn unpack_row(row: &[u8], lut: &[f32; 2048], out: &mut Plane) {
@@ -112,7 +112,7 @@ pub(super) fn unpack_row(row: &[u8], lut: &[f32; 2048], out: &mut Plane) {
     out[W - 1] = 0.0;
 }
 
-/// Stage 1 (spec §9.4) of processing row `y`, plus the bilateral per-pixel terms if `unit`.
+/// Stage 1 (protocol §9.4) of processing row `y`, plus the bilateral per-pixel terms if `unit`.
 #[inline(always)]
 pub(super) fn stage1_row(c: &Ctx, y: usize, m: &mut [Plane; 9], out: &mut Row1, unit: bool) {
     let stored = stored_row_of_processing_row(y);
@@ -155,7 +155,7 @@ pub(super) fn stage1_row(c: &Ctx, y: usize, m: &mut [Plane; 9], out: &mut Row1, 
     }
 }
 
-/// IR output (spec §9.6 step 5) of one row from the stage-1 amplitudes.
+/// IR output (protocol §9.6 step 5) of one row from the stage-1 amplitudes.
 #[inline(always)]
 pub(super) fn ir_row(r: &Row1, p: &DecoderParams, out: &mut [f32]) {
     let (third, mult, max) = (sp(0.3333333), sp(p.ab_output_multiplier), sp(65535.0));

@@ -6,13 +6,13 @@ use super::lanes::{V, fmax, fmin, ld, sp, st};
 use super::unwrap::unwrap_depth;
 use super::{Ctx, DecoderParams, Plane, W, Workspace, fastmath};
 
-/// The argument of the de-aliasing confidence's `exp` (spec §9.6 step 3) from `ln A*`.
+/// The argument of the de-aliasing confidence's `exp` (protocol §9.6 step 3) from `ln A*`.
 #[inline(always)]
 pub(super) fn conf_arg(p: &DecoderParams, ln_astar: f32) -> f32 {
     (ln_astar * p.ab_confidence_slope * 0.301030f32 + p.ab_confidence_offset) * 3.321928f32
 }
 
-/// Stage 2 (spec §9.6) of processing row `y` from the filtered phasors in `ws.fa/fb` and
+/// Stage 2 (protocol §9.6) of processing row `y` from the filtered phasors in `ws.fa/fb` and
 /// `ws.ok`: writes the depth, its `lo`/`hi` forms for the edge-aware filter (see
 /// [`DepthDecoder`](super::DepthDecoder)'s fields) and the amplitude sum, in three passes over the row: amplitudes,
 /// phases and confidence (libm only past the gate for Exact), unwrapping and depth.

@@ -46,7 +46,7 @@ pub(super) fn unwrap_depth(
             map64(ph[2], |d| d / f64s(two_pi) * f64s(2.0)),
         )
     };
-    // `−a + b` of the spec is written `b − a` (the same IEEE result).
+    // `−a + b` of the reference formula is written `b − a` (the same IEEE result).
     let t5 = floor4((t1 - t0) * sp(0.333333) + sp(0.5)) * sp(3.0) + t0;
     let t3 = t5 - t2;
     let t4 = t3 * sp(2.0);
@@ -69,7 +69,7 @@ pub(super) fn unwrap_depth(
     let e6 = t8 * sp(0.551318) - t6 * sp(0.826977);
     let e7 = t6 * sp(0.110264) - t7 * sp(0.551318);
     let nu = e8 * e8 + e6 * e6 + e7 * e7;
-    // Multiplied, not selected: a negative t10 becomes −0.0 (spec §9.9).
+    // Multiplied, not selected: a negative t10 becomes −0.0 (protocol §9.9).
     let t10 = t10 * (t9.simd_ge(zero) & one);
     let cf = conf;
     let (cmin, cmax) = (sp(p.min_dealias_confidence), sp(p.max_dealias_confidence));
@@ -90,7 +90,7 @@ pub(super) fn unwrap_depth(
         let [d0, d1] = wide64(dmax * dmax);
         narrow([x0 / (d0 * f64s(8192.0)), x1 / (d1 * f64s(8192.0))])
     };
-    // `−zl·xm + 1` of the spec is written `1 − zl·xm` (the same IEEE result).
+    // `−zl·xm + 1` of the reference formula is written `1 − zl·xm` (the same IEEE result).
     let zf = zl / (one - zl * xm);
     let zf = zf.simd_lt(zero).select(zero, zf);
     let d = (zl.simd_gt(zero) & dmax.simd_gt(zero)).select(zf, zl);
