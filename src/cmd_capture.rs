@@ -14,7 +14,7 @@ use kinect_usb::decoder::{DecoderPrecision, DepthDecoder, Kernels};
 use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamKind};
 use kinect_usb::protocol::{self, Exposure, ExposureMode, LedMode, LedSetting};
 use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
-use kinect_usb::recording::{RecordingMeta, RecordingWriter, read_recording_file};
+use kinect_usb::recording::{ReadOptions, RecordingMeta, RecordingReader, RecordingWriter};
 use kinect_usb::sim::{SimDevice, SimFaults};
 use kinect_usb::{KinectError, usb};
 use viewer::capture::{self, ShotKind};
@@ -63,6 +63,10 @@ pub struct CommonArgs {
     /// Accept a truncated recording and use its intact beginning.
     #[arg(long, requires = "replay")]
     allow_truncated: bool,
+    /// Leave out records of the recording whose checksum does not match (each is reported)
+    /// instead of stopping at the first.
+    #[arg(long, requires = "replay")]
+    skip_corrupt: bool,
     /// Decode depth without the bilateral and edge-aware filters (raw per-pixel depth).
     #[arg(long)]
     no_filters: bool,
@@ -278,8 +282,23 @@ fn not_found_hint(e: KinectError) -> anyhow::Error {
     }
 }
 
+/// Environment variable: when set, `kfuse capture` prints its peak resident memory (VmHWM of
+/// /proc/self/status) on stderr at the end, for the memory tests.
+const PEAK_RSS_ENV: &str = "KFUSE_REPORT_PEAK_RSS";
+
 /// Runs `kfuse capture …`.
 pub fn run_capture(args: CaptureArgs) -> Result<()> {
+    let r = run_capture_mode(args);
+    if std::env::var_os(PEAK_RSS_ENV).is_some()
+        && let Ok(s) = std::fs::read_to_string("/proc/self/status")
+        && let Some(l) = s.lines().find(|l| l.starts_with("VmHWM:"))
+    {
+        eprintln!("peak RSS {}", l.trim_start_matches("VmHWM:").trim());
+    }
+    r
+}
+
+fn run_capture_mode(args: CaptureArgs) -> Result<()> {
     match args.mode {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
@@ -305,15 +324,14 @@ type SimHandle = Arc<Mutex<SimDevice>>;
 fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
     let mut sim = None;
     let backend: Box<dyn UsbBackend> = if let Some(path) = &common.replay {
-        let rec = read_recording_file(path, common.allow_truncated)?;
-        if !rec.complete {
-            eprintln!(
-                "warning: {} is truncated; replaying its {} intact packets",
-                path.display(),
-                rec.events.len()
-            );
-        }
-        Box::new(SimDevice::replay(rec)?)
+        // Streamed: the reader holds one record at a time, whatever the file's size.
+        let opts =
+            ReadOptions { keep_prefix: common.allow_truncated, skip_corrupt: common.skip_corrupt };
+        let reader = RecordingReader::open(path, opts)?;
+        let meta = reader.meta().clone();
+        let h = Arc::new(Mutex::new(SimDevice::replay_from(&meta, Box::new(reader))?));
+        sim = Some(h.clone());
+        Box::new(h)
     } else {
         match common.backend {
             Backend::Sim => {
@@ -599,6 +617,13 @@ fn shots(
     report_counters(&dev);
     let _ = dev.close();
     write_sim_report(common, &sim)?;
+    if let Some(e) = replay_outcome(common, &sim) {
+        bail!(
+            "{e}
+replay stopped: {saved} shot(s) taken before it are intact in {}",
+            out.display()
+        );
+    }
     match outcome {
         Ok(()) => {
             eprintln!("saved {saved} shot(s) in {}", out.display());
@@ -619,6 +644,27 @@ fn shots(
             Err(e)
         }
     }
+}
+
+/// After a replay: reports skipped records and a kept truncated prefix, and returns the error
+/// that ended the replay early (a corrupt record), which must fail the command.
+fn replay_outcome(common: &CommonArgs, sim: &Option<SimHandle>) -> Option<KinectError> {
+    let (Some(path), Some(sim)) = (&common.replay, sim) else { return None };
+    let mut s = sim.lock().unwrap_or_else(|p| p.into_inner());
+    let report = s.replay_report();
+    for (index, offset) in &report.skipped {
+        eprintln!(
+            "warning: {}: record {index} at byte {offset} is corrupt (checksum mismatch) and was left out",
+            path.display()
+        );
+    }
+    if report.truncated {
+        eprintln!(
+            "warning: {} is truncated; its intact beginning was replayed (--allow-truncated)",
+            path.display()
+        );
+    }
+    s.take_replay_error()
 }
 
 fn report_counters(dev: &Device) {
@@ -685,6 +731,13 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     report_counters(&dev);
     let _ = dev.close();
     write_sim_report(common, &sim)?;
+    if let Some(e) = replay_outcome(common, &sim) {
+        bail!(
+            "{e}
+replay stopped: the {got} depth frames before it were written to {}",
+            output.display()
+        );
+    }
     match stop {
         None => {
             eprintln!("recorded {got} depth frames to {}", output.display());

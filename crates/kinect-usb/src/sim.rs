@@ -345,15 +345,33 @@ pub struct SimDevice {
     /// Sequence number of the next depth frame (wraps at 2^16).
     pub depth_sequence: u32,
     timestamp: u32,
-    replay: Option<std::vec::IntoIter<crate::recording::RecordedEvent>>,
+    replay: Option<Box<dyn crate::recording::ReplaySource>>,
+    /// Why a replay stopped early (a corrupt record), taken by [`SimDevice::take_replay_error`].
+    replay_error: Option<crate::KinectError>,
 }
+
+/// Recorded events queued per simulated frame period during replay: about one depth frame's
+/// worth of isochronous packets (9 per sub-packet × 10 plus empty ones) or more, while the
+/// queue stays bounded by this many records (each ≤ `recording::MAX_RECORD`) whatever the
+/// recording's size.
+const REPLAY_EVENTS_PER_PERIOD: usize = 128;
 
 impl SimDevice {
     /// A device that answers commands from a recording's metadata and streams its recorded
     /// events (the replay path: identical code from the backend up). The streams end with
     /// `Stopped { Requested }` when the recording is exhausted.
     pub fn replay(rec: crate::recording::Recording) -> crate::Result<Self> {
-        let m = &rec.meta;
+        Self::replay_from(&rec.meta, Box::new(rec.events.into_iter()))
+    }
+
+    /// [`SimDevice::replay`] streaming from `source` (e.g. a
+    /// [`RecordingReader`](crate::recording::RecordingReader)): at most
+    /// `REPLAY_EVENTS_PER_PERIOD` events are held at a time. A read error ends the streams with
+    /// `Stopped { Stalled }` and is kept for [`SimDevice::take_replay_error`].
+    pub fn replay_from(
+        m: &crate::recording::RecordingMeta,
+        source: Box<dyn crate::recording::ReplaySource>,
+    ) -> crate::Result<Self> {
         let mut fw = [(0u16, 0u16, 0u32, 0u32); 7];
         let parts: Vec<u32> = m.firmware.split('.').filter_map(|p| p.parse().ok()).collect();
         if parts.len() >= 4 {
@@ -372,8 +390,23 @@ impl SimDevice {
             bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
         };
         let mut d = SimDevice::new(profile, SimScene::default(), SimFaults::default());
-        d.replay = Some(rec.events.into_iter());
+        d.replay = Some(source);
         Ok(d)
+    }
+
+    /// The error that ended a replay early, if any (taken: a second call returns `None`).
+    pub fn take_replay_error(&mut self) -> Option<crate::KinectError> {
+        self.replay_error.take()
+    }
+
+    /// What the replay source skipped or found cut so far.
+    pub fn replay_report(&self) -> crate::recording::ReadReport {
+        self.replay.as_ref().map(|r| r.report()).unwrap_or_default()
+    }
+
+    /// Events waiting in the device's queue (what a replay holds in memory besides the reader).
+    pub fn queued_events(&self) -> usize {
+        self.queue.len()
     }
 
     /// A device with the given profile, scene and faults.
@@ -410,6 +443,7 @@ impl SimDevice {
             depth_sequence: 0,
             timestamp: 1000,
             replay: None,
+            replay_error: None,
         }
     }
 
@@ -504,14 +538,30 @@ impl SimDevice {
         if let Some(it) = self.replay.as_mut() {
             use crate::device::StreamKind;
             let (iso, bulk) = (self.iso.map(|s| s.0), self.bulk.map(|s| s.0));
-            for e in it.by_ref() {
-                let h = if e.kind == StreamKind::Depth { iso } else { bulk };
-                if let Some(h) = h {
-                    self.queue.push_back((h, e.to_event()));
+            let mut end = None;
+            for _ in 0..REPLAY_EVENTS_PER_PERIOD {
+                match it.next_event() {
+                    Ok(Some(e)) => {
+                        let h = if e.kind == StreamKind::Depth { iso } else { bulk };
+                        if let Some(h) = h {
+                            self.queue.push_back((h, e.into_event()));
+                        }
+                    }
+                    Ok(None) => {
+                        end = Some(StopReason::Requested);
+                        break;
+                    }
+                    Err(e) => {
+                        self.replay_error = Some(e);
+                        end = Some(StopReason::Stalled);
+                        break;
+                    }
                 }
             }
-            for h in [iso, bulk].into_iter().flatten() {
-                self.queue.push_back((h, StreamEvent::Stopped { reason: StopReason::Requested }));
+            if let Some(reason) = end {
+                for h in [iso, bulk].into_iter().flatten() {
+                    self.queue.push_back((h, StreamEvent::Stopped { reason }));
+                }
             }
             return;
         }

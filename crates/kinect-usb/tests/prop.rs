@@ -116,7 +116,7 @@ proptest! {
     /// Random bytes never panic the recording reader.
     #[test]
     fn recording_reader_never_panics(b in prop::collection::vec(any::<u8>(), 0..400), keep in any::<bool>()) {
-        let mut bytes = b"KFUSEREC\x01\0\0\0".to_vec();
+        let mut bytes = b"KFUSEREC\x02\0\0\0".to_vec();
         bytes.extend(b);
         let _ = read_recording(&bytes, Path::new("random.kfrec"), keep);
     }
