@@ -82,8 +82,8 @@ pub struct CommonArgs {
     /// Simulated device: report busy.
     #[arg(long, hide = true)]
     sim_busy: bool,
-    /// Simulated device: fraction of isochronous packets lost.
-    #[arg(long, hide = true, default_value_t = 0.0)]
+    /// Simulated device: fraction of isochronous packets lost, 0..1.
+    #[arg(long, hide = true, default_value_t = 0.0, value_parser = parse_fraction)]
     sim_iso_drop: f64,
     /// Simulated device: write its colour settings, LED state and protocol violations as JSON
     /// to this file when the capture ends.
@@ -154,6 +154,44 @@ pub fn parse_exposure(s: &str) -> std::result::Result<Exposure, String> {
     Ok(e)
 }
 
+/// Longest `--interval`: one day. Longer waits are certainly a typo (and `inf` or 1e30 would
+/// overflow the `Duration` of the wait).
+pub const MAX_INTERVAL_S: f64 = 86_400.0;
+
+/// Parses `--interval`: a finite number of seconds in `[0, MAX_INTERVAL_S]`.
+pub fn parse_interval(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of seconds"))?;
+    if !(0.0..=MAX_INTERVAL_S).contains(&v) {
+        return Err(format!("{v} s is outside [0, {MAX_INTERVAL_S}] seconds"));
+    }
+    Ok(v)
+}
+
+/// Parses a fraction in `[0, 1]` (`--sim-iso-drop`).
+pub fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number"))?;
+    if !(0.0..=1.0).contains(&v) {
+        return Err(format!("{v} is outside [0, 1]"));
+    }
+    Ok(v)
+}
+
+/// Parses `--name`: a plain file name, so that every file lands inside `--out` (no separators,
+/// no `.` or `..`, not empty, no absolute path).
+pub fn parse_plain_name(s: &str) -> std::result::Result<String, String> {
+    let plain = !s.is_empty()
+        && s != "."
+        && s != ".."
+        && !s.contains(['/', '\\'])
+        && Path::new(s).file_name() == Some(std::ffi::OsStr::new(s));
+    if !plain {
+        return Err(format!(
+            "`{s}` is not a plain file name (no folders or `..`); put the folder in --out"
+        ));
+    }
+    Ok(s.to_string())
+}
+
 /// Parses `--led`: `off`, `on`, `on:LEVEL`, `blink:MS`.
 pub fn parse_led(s: &str) -> std::result::Result<LedArg, String> {
     const FORMS: &str = "expected off, on, on:LEVEL (0..1000) or blink:MS";
@@ -199,8 +237,9 @@ enum CaptureMode {
         /// Number of shots.
         #[arg(long, default_value_t = 20)]
         count: usize,
-        /// Seconds between automatic shots; without it, each line on stdin (Enter) takes a shot.
-        #[arg(long)]
+        /// Seconds between automatic shots (0..86400); without it, each line on stdin (Enter)
+        /// takes a shot.
+        #[arg(long, value_parser = parse_interval)]
         interval: Option<f64>,
         /// Replace existing files in the output folder.
         #[arg(long)]
@@ -216,14 +255,14 @@ enum CaptureMode {
         /// Output folder.
         #[arg(long, default_value = "scene_capture")]
         out: PathBuf,
-        /// File name prefix.
-        #[arg(long, default_value = "scene")]
+        /// File name prefix: a plain file name (no folders, no `..`); files go into --out.
+        #[arg(long, default_value = "scene", value_parser = parse_plain_name)]
         name: String,
         /// Number of scenes to save (numbered when more than one).
         #[arg(long, default_value_t = 1)]
         count: usize,
-        /// Seconds before each automatic save; without it, press Enter.
-        #[arg(long)]
+        /// Seconds before each automatic save (0..86400); without it, press Enter.
+        #[arg(long, value_parser = parse_interval)]
         interval: Option<f64>,
         /// Replace existing files.
         #[arg(long)]
@@ -478,7 +517,13 @@ enum Trigger {
 impl Trigger {
     fn new(interval: Option<f64>) -> Self {
         match interval {
-            Some(s) => Trigger::Interval(Duration::from_secs_f64(s.max(0.0))),
+            // `parse_interval` bounds it to [0, MAX_INTERVAL_S]; the clamp keeps library callers
+            // from the `Duration` panic as well.
+            Some(s) => Trigger::Interval(Duration::from_secs_f64(if s.is_finite() {
+                s.clamp(0.0, MAX_INTERVAL_S)
+            } else {
+                0.0
+            })),
             None => {
                 let (tx, rx) = mpsc::channel();
                 std::thread::spawn(move || {
@@ -536,6 +581,41 @@ fn fresh_pair(
     }
 }
 
+/// Name prefix of the folder inside `--out` where a shot's files are written before they are
+/// moved into place together (same filesystem, so each move is a rename).
+const STAGING_PREFIX: &str = ".kfuse-shot-staging-";
+
+/// Writes one shot's colour, IR and depth into `stage`, then moves all three to `files`: a
+/// failed write leaves none of them in `--out`, and a signal (which only sets a flag, checked
+/// between shots) cannot separate them.
+fn write_shot(stage: &Path, files: &[PathBuf; 3], latest: &Latest) -> Result<()> {
+    std::fs::create_dir_all(stage).with_context(|| format!("creating {}", stage.display()))?;
+    let staged = files.clone().map(|f| stage.join(f.file_name().unwrap_or_default()));
+    write_atomic(&staged[0], |w| w.write_all(&latest.color))?;
+    write_png16(&staged[1], &latest.ir, WIDTH, HEIGHT)?;
+    write_png16(&staged[2], &latest.depth, WIDTH, HEIGHT)?;
+    for (from, to) in staged.iter().zip(files) {
+        std::fs::rename(from, to)
+            .with_context(|| format!("moving {} to {}", from.display(), to.display()))?;
+    }
+    Ok(())
+}
+
+/// Removes staging folders left in `out` by killed captures (their process no longer runs).
+fn remove_stale_staging(out: &Path) {
+    let Ok(entries) = std::fs::read_dir(out) else { return };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(pid) = name.to_str().and_then(|n| n.strip_prefix(STAGING_PREFIX)) else {
+            continue;
+        };
+        let alive = pid.parse::<u32>().is_ok_and(|p| Path::new(&format!("/proc/{p}")).exists());
+        if !alive && e.path().is_dir() {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
+}
+
 fn shots(
     out: &Path,
     names: &[String],
@@ -553,6 +633,8 @@ fn shots(
         );
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    remove_stale_staging(out);
+    let stage = out.join(format!("{STAGING_PREFIX}{}", std::process::id()));
     let (mut dev, sim) = open(common)?;
     let info = dev.start(true, true)?.clone();
     if let Err(e) = apply_settings(&mut dev, common) {
@@ -606,21 +688,21 @@ fn shots(
             outcome = Err(e.into());
             break;
         }
-        let [c, i, d] = files(n);
-        write_atomic(&c, |w| w.write_all(&latest.color))?;
-        write_png16(&i, &latest.ir, WIDTH, HEIGHT)?;
-        write_png16(&d, &latest.depth, WIDTH, HEIGHT)?;
+        if let Err(e) = write_shot(&stage, &files(n), &latest) {
+            let _ = std::fs::remove_dir_all(&stage);
+            return Err(e);
+        }
         saved += 1;
         bar.inc(1);
     }
     bar.finish_and_clear();
+    let _ = std::fs::remove_dir_all(&stage);
     report_counters(&dev);
     let _ = dev.close();
     write_sim_report(common, &sim)?;
     if let Some(e) = replay_outcome(common, &sim) {
         bail!(
-            "{e}
-replay stopped: {saved} shot(s) taken before it are intact in {}",
+            "{e}\nreplay stopped: {saved} shot(s) taken before it are intact in {}",
             out.display()
         );
     }
@@ -733,8 +815,7 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     write_sim_report(common, &sim)?;
     if let Some(e) = replay_outcome(common, &sim) {
         bail!(
-            "{e}
-replay stopped: the {got} depth frames before it were written to {}",
+            "{e}\nreplay stopped: the {got} depth frames before it were written to {}",
             output.display()
         );
     }

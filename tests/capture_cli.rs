@@ -514,3 +514,75 @@ fn replay_memory_is_bounded_whatever_the_file_size() {
     assert!(size > 300 << 20, "test file only {size} bytes");
     assert!(peak < 64 << 20, "peak RSS {peak} bytes for a {size}-byte recording");
 }
+
+/// Intervals that are infinite, huge, NaN or negative, drop rates outside [0, 1] and names
+/// that are not plain file names are refused with one line naming the option, before the
+/// device opens (nothing is created in --out).
+#[test]
+fn bad_intervals_drop_rates_and_names_are_refused_before_the_device_opens() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let abs = dir.path().join("abs").to_str().unwrap().to_string();
+    for (mode, args, want) in [
+        ("calib", vec!["--interval", "inf"], "--interval"),
+        ("calib", vec!["--interval", "1e30"], "outside [0, 86400] seconds"),
+        ("scene", vec!["--interval", "NaN"], "outside [0, 86400] seconds"),
+        ("scene", vec!["--interval=-1"], "outside [0, 86400] seconds"),
+        ("scene", vec!["--interval", "0", "--sim-iso-drop=-0.5"], "outside [0, 1]"),
+        ("scene", vec!["--interval", "0", "--sim-iso-drop", "NaN"], "outside [0, 1]"),
+        ("scene", vec!["--interval", "0", "--name", "../../x"], "not a plain file name"),
+        ("scene", vec!["--interval", "0", "--name", &abs], "not a plain file name"),
+        ("scene", vec!["--interval", "0", "--name", ".."], "not a plain file name"),
+    ] {
+        let st = kfuse()
+            .args(["capture", mode, "--backend", "sim"])
+            .args(&args)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&st.stderr);
+        assert_eq!(st.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} created {}", out.display());
+    }
+    assert!(!dir.path().join("x_depth.png").exists() && !Path::new(&abs).exists());
+    // A plain name with a dot is accepted and its shot lands in --out.
+    let st = kfuse()
+        .args(["capture", "scene", "--backend", "sim", "--interval", "0", "--name", "desk.v2"])
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    assert!(out.join("desk.v2_depth.png").exists());
+}
+
+/// Shots are written in a staging folder and moved in together: after a capture no staging
+/// folder remains, every shot has its three files, and a staging folder left by a killed
+/// capture (a process id that is not running) is removed by the next capture in that folder.
+#[test]
+fn shots_are_published_whole_and_stale_staging_is_removed() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("shots");
+    std::fs::create_dir_all(out.join(".kfuse-shot-staging-4000000000")).unwrap();
+    std::fs::write(out.join(".kfuse-shot-staging-4000000000/color_0001.jpg"), b"partial").unwrap();
+    let st = kfuse()
+        .args(["capture", "calib", "--backend", "sim", "--count", "2", "--interval", "0"])
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(!names.iter().any(|n| n.starts_with(".kfuse-shot-staging")), "{names:?}");
+    for n in ["0001", "0002"] {
+        for f in [format!("color_{n}.jpg"), format!("ir_{n}.png"), format!("depth_{n}.png")] {
+            assert!(names.contains(&f), "{f} missing: {names:?}");
+        }
+    }
+}
