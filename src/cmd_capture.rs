@@ -44,6 +44,9 @@ pub enum Backend {
     Usb,
     /// The simulated Kinect v2 (synthetic scene from `geometry::synth`).
     Sim,
+    /// A USB bus with no Kinect on it (tests: what every command does without a sensor,
+    /// whatever is plugged into the machine running them).
+    Absent,
 }
 
 /// `kfuse devices`.
@@ -291,11 +294,14 @@ enum CaptureMode {
 
 /// Runs `kfuse devices`.
 pub fn run_devices(args: DevicesArgs) -> Result<()> {
-    if args.backend == Backend::Sim {
-        println!("simulated Kinect v2  serial 000000000001  (sim backend)");
-        return Ok(());
-    }
-    let list = usb::list_devices().map_err(not_found_hint)?;
+    let list = match args.backend {
+        Backend::Usb => usb::list_devices().map_err(not_found_hint)?,
+        Backend::Sim => {
+            println!("simulated Kinect v2  serial 000000000001  (sim backend)");
+            return Ok(());
+        }
+        Backend::Absent => Vec::new(),
+    };
     if list.is_empty() {
         return Err(not_found_hint(KinectError::NotFound));
     }
@@ -379,6 +385,7 @@ fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
                 Box::new(h)
             }
             Backend::Usb => Box::new(usb::open_first().map_err(not_found_hint)?),
+            Backend::Absent => return Err(not_found_hint(KinectError::NotFound)),
         }
     };
     let dev = KinectDevice::open(backend).map_err(|e| match e {

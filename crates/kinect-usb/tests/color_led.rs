@@ -140,10 +140,15 @@ fn bad_values_are_rejected_by_host_and_by_device() {
     );
     let e = dev.set_exposure(Exposure::Auto { compensation: 3.0 }).unwrap_err();
     assert!(e.to_string().contains("compensation 3 is outside [-2, 2]"), "{e}");
-    assert!(dev.set_rgb_gains(1.0, -1.0, 1.0).is_err());
-    assert!(dev.set_color_f32(ColorSettingCode::GetAnalogGain, 1.0).is_err());
-    assert!(dev.set_color_u32(ColorSettingCode::SetAnalogGain, 1).is_err());
-    assert!(dev.color_setting(ColorSettingCode::SetMeteringZoneWeight(48), 1).is_err());
+    // Each is refused on the host as invalid input (not a USB or protocol failure).
+    let invalid = |r: kinect_usb::Result<()>, what: &str| match r {
+        Err(KinectError::Invalid(m)) => assert!(m.contains(what), "{m}"),
+        other => panic!("expected Invalid naming {what}: {other:?}"),
+    };
+    invalid(dev.set_rgb_gains(1.0, -1.0, 1.0), "green gain");
+    invalid(dev.set_color_f32(ColorSettingCode::GetAnalogGain, 1.0), "GetAnalogGain");
+    invalid(dev.set_color_u32(ColorSettingCode::SetAnalogGain, 1), "SetAnalogGain");
+    invalid(dev.color_setting(ColorSettingCode::SetMeteringZoneWeight(48), 1).map(|_| ()), "");
     assert_eq!(dev.backend().transcript.len(), n, "nothing may be sent for invalid input");
 
     // Bypassing host validation: the device answers status ≠ 0 and keeps the old value.

@@ -228,6 +228,10 @@ fn fast_decoder_within_spec_tolerance_of_every_oracle_run() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// Set to 1 on machines that have AVX2: the AVX2 comparison below then fails instead of
+/// skipping when the kernels are not detected.
+const REQUIRE_AVX2_ENV: &str = "KFUSE_REQUIRE_AVX2";
+
 /// Tolerance: none. `Fast`'s eight-lane AVX2 kernels do the four-lane kernels' IEEE
 /// operations in the same order, so every depth and IR pixel of every oracle run (both
 /// schedules) must be bit-identical between the two; the four-lane path is thereby held to
@@ -237,6 +241,11 @@ fn avx2_kernels_equal_the_portable_kernels_bit_for_bit() {
     let test = "avx2_kernels_equal_the_portable_kernels_bit_for_bit";
     let Some(dir) = vectors_or_skip(test) else { return };
     if Kernels::detect() != Kernels::Avx2 {
+        // On machines known to have AVX2 (CI), a missing detection is a failure, not a skip.
+        assert!(
+            std::env::var(REQUIRE_AVX2_ENV).as_deref() != Ok("1"),
+            "{test}: {REQUIRE_AVX2_ENV}=1 but Kernels::detect() found no AVX2 on this CPU"
+        );
         eprintln!("SKIP {test}: this CPU has no AVX2 (only the portable kernels run here)");
         return;
     }

@@ -272,7 +272,13 @@ fn unplug_mid_stream_ends_with_disconnected_after_complete_frames() {
     };
     assert!(matches!(err, KinectError::Disconnected { .. }), "{err}");
     assert_eq!((depth, color), (3, 3));
-    assert!(dev.close().is_err(), "stop/close report the missing device");
+    let e = dev.close().unwrap_err();
+    // The best-effort stop aggregates every step's failure into one error that names it.
+    assert!(
+        matches!(&e, KinectError::Protocol { what, detail }
+            if what == "stop" && detail.contains("no device")),
+        "stop/close report the missing device: {e:?}"
+    );
     assert_eq!(dev.state(), State::Closed);
 }
 
@@ -337,7 +343,11 @@ fn command_faults_roll_back_to_open() {
     dev.start(false, false).unwrap();
     assert!(dev.warnings.iter().any(|w| w.contains("completion sequence")));
     dev.strict_sequence = true;
-    assert!(dev.command(kinect_usb::protocol::Command::ReadStatus(0x090000)).is_err());
+    let e = dev.command(kinect_usb::protocol::Command::ReadStatus(0x090000)).unwrap_err();
+    assert!(
+        matches!(e, KinectError::Protocol { .. }) && e.to_string().contains("sequence"),
+        "strict sequence mismatch is a protocol error: {e:?}"
+    );
 }
 
 #[test]
