@@ -344,6 +344,9 @@ pub fn run_capture(args: CaptureArgs) -> Result<()> {
 }
 
 fn run_capture_mode(args: CaptureArgs) -> Result<()> {
+    // Ctrl-C / SIGTERM set a flag that the capture loops poll: a recording is finished (end
+    // record written, file published), a shot is never split.
+    crate::interrupt::install()?;
     match args.mode {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
@@ -669,24 +672,34 @@ fn shots(
     };
     let mut saved = 0usize;
     let mut outcome: Result<()> = Ok(());
-    for n in names {
+    let mut interrupted = false;
+    'shots: for n in names {
         match &trigger {
             Trigger::Interval(d) => {
                 // Keep draining the stream while waiting so the shot is current.
                 let until = Instant::now() + *d;
-                while Instant::now() < until {
+                while Instant::now() < until && !crate::interrupt::requested() {
                     if let Err(e) = dev.next_frame(Duration::from_millis(50), &mut |_, _| {}) {
                         outcome = Err(e.into());
                         break;
                     }
                 }
             }
-            Trigger::Lines(rx) => {
-                if rx.recv().is_err() {
-                    eprintln!("stdin closed: stopping after {saved} shots");
-                    break;
+            Trigger::Lines(rx) => loop {
+                match rx.recv_timeout(Duration::from_millis(100)) {
+                    Ok(()) => break,
+                    Err(mpsc::RecvTimeoutError::Timeout) if !crate::interrupt::requested() => {}
+                    Err(mpsc::RecvTimeoutError::Timeout) => break,
+                    Err(mpsc::RecvTimeoutError::Disconnected) => {
+                        eprintln!("stdin closed: stopping after {saved} shots");
+                        break 'shots;
+                    }
                 }
-            }
+            },
+        }
+        if crate::interrupt::requested() {
+            interrupted = true;
+            break;
         }
         if outcome.is_err() {
             break;
@@ -712,6 +725,12 @@ fn shots(
             "{e}\nreplay stopped: {saved} shot(s) taken before it are intact in {}",
             out.display()
         );
+    }
+    if interrupted {
+        crate::interrupt::check(&format!(
+            ": {saved} complete shot(s) (each with its colour, IR and depth) are in {}",
+            out.display()
+        ))?;
     }
     match outcome {
         Ok(()) => {
@@ -789,11 +808,15 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let mut stop: Option<KinectError> = None;
-    let mut got = 0u64;
+    let (mut got, mut interrupted) = (0u64, false);
     write_atomic(output, |w| {
         let mut rw = RecordingWriter::new(w, &meta)?;
         let mut io_err = None;
         while got < frames {
+            if crate::interrupt::requested() {
+                interrupted = true;
+                break;
+            }
             let mut tap = |k: StreamKind, e: &_| {
                 if let Err(err) = rw.write_event(k, e) {
                     io_err.get_or_insert(err);
@@ -825,6 +848,13 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             "{e}\nreplay stopped: the {got} depth frames before it were written to {}",
             output.display()
         );
+    }
+    if interrupted {
+        crate::interrupt::check(&format!(
+            ": the {got} depth frames captured before it were saved in {} (a complete recording \
+             that replays without extra flags)",
+            output.display()
+        ))?;
     }
     match stop {
         None => {

@@ -607,3 +607,107 @@ fn shots_are_published_whole_and_stale_staging_is_removed() {
         }
     }
 }
+
+/// Sends `signal` (e.g. "-INT") to a running child with the system's `kill`.
+fn send_signal(child: &std::process::Child, signal: &str) {
+    let st = Command::new("kill").args([signal, &child.id().to_string()]).status().unwrap();
+    assert!(st.success(), "kill {signal} failed");
+}
+
+/// Waits (at most 60 s) until `ready` holds, polling every 50 ms.
+fn wait_for(what: &str, mut ready: impl FnMut() -> bool) {
+    let t0 = std::time::Instant::now();
+    while !ready() {
+        assert!(t0.elapsed() < std::time::Duration::from_secs(60), "timed out waiting for {what}");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
+/// Ctrl-C (SIGINT) during `capture record`: the command finishes the recording and exits 130;
+/// the file is complete (no hidden partial file left) and replays without any flag, and it
+/// holds every depth frame the command reported.
+#[test]
+fn sigint_during_record_keeps_a_complete_replayable_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("r.kfrec");
+    let child = kfuse()
+        .args(["capture", "record", "--backend", "sim", "--frames", "1000000", "--output"])
+        .arg(&rec)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Interrupt once a few raw frames (3 MB each) are in the partial file.
+    let bytes_in = |d: &Path| -> u64 {
+        std::fs::read_dir(d).unwrap().filter_map(|e| e.ok()?.metadata().ok()).map(|m| m.len()).sum()
+    };
+    wait_for("recorded data", || bytes_in(dir.path()) > 12 << 20);
+    send_signal(&child, "-INT");
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    let n: u64 = err
+        .split("interrupted (Ctrl-C or SIGTERM): the ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no frame count in: {err}"));
+    assert!(n >= 3, "{n} frames: {err}");
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, vec!["r.kfrec".to_string()], "partial files left behind");
+
+    // Replays without flags, and holds the n reported frames (a copy through replay counts them).
+    let (ok, err, depth) = replay_scene(&rec, &dir.path().join("scene"), &[]);
+    assert!(ok, "{err}");
+    assert!(depth.is_some());
+    let st = kfuse()
+        .args(["capture", "record", "--frames", "1000000", "--replay"])
+        .arg(&rec)
+        .arg("--output")
+        .arg(dir.path().join("copy.kfrec"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(st.status.success(), "{err}");
+    assert!(err.contains(&format!("source recording ended: {n} depth frames")), "{n}: {err}");
+}
+
+/// SIGTERM during `capture calib`: exits 130 and every shot in --out has its three files; no
+/// staging folder remains.
+#[test]
+fn sigterm_during_calib_leaves_only_whole_shots() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("shots");
+    let child = kfuse()
+        .args(["capture", "calib", "--backend", "sim", "--count", "10000", "--interval", "0"])
+        .arg("--out")
+        .arg(&out)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for("two shots", || out.join("depth_0002.png").exists());
+    send_signal(&child, "-TERM");
+    let res = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert_eq!(res.status.code(), Some(130), "{err}");
+    assert!(err.contains("complete shot(s)"), "{err}");
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(!names.iter().any(|n| n.starts_with('.')), "{names:?}");
+    let shots: Vec<&str> = names
+        .iter()
+        .filter_map(|n| n.strip_prefix("color_").and_then(|r| r.strip_suffix(".jpg")))
+        .collect();
+    assert!(shots.len() >= 2, "{names:?}");
+    for s in &shots {
+        for f in [format!("ir_{s}.png"), format!("depth_{s}.png")] {
+            assert!(names.contains(&f), "shot {s} lacks {f}: {names:?}");
+        }
+    }
+    // 3 files per shot plus kinect_params.json: nothing else.
+    assert_eq!(names.len(), 3 * shots.len() + 1, "{names:?}");
+}
