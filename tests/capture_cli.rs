@@ -614,6 +614,21 @@ fn send_signal(child: &std::process::Child, signal: &str) {
     assert!(st.success(), "kill {signal} failed");
 }
 
+/// Waits at most 30 s for `child` to exit after a signal; a command that ignores the signal is
+/// killed and the test fails (instead of hanging).
+fn exit_after_signal(mut child: std::process::Child) -> std::process::Output {
+    let t0 = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > std::time::Duration::from_secs(30) {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!("still running 30 s after the signal: {}", String::from_utf8_lossy(&out.stderr));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child.wait_with_output().unwrap()
+}
+
 /// Waits (at most 60 s) until `ready` holds, polling every 50 ms.
 fn wait_for(what: &str, mut ready: impl FnMut() -> bool) {
     let t0 = std::time::Instant::now();
@@ -642,7 +657,7 @@ fn sigint_during_record_keeps_a_complete_replayable_recording() {
     };
     wait_for("recorded data", || bytes_in(dir.path()) > 12 << 20);
     send_signal(&child, "-INT");
-    let out = child.wait_with_output().unwrap();
+    let out = exit_after_signal(child);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{err}");
     let n: u64 = err
@@ -689,7 +704,7 @@ fn sigterm_during_calib_leaves_only_whole_shots() {
         .unwrap();
     wait_for("two shots", || out.join("depth_0002.png").exists());
     send_signal(&child, "-TERM");
-    let res = child.wait_with_output().unwrap();
+    let res = exit_after_signal(child);
     let err = String::from_utf8_lossy(&res.stderr);
     assert_eq!(res.status.code(), Some(130), "{err}");
     assert!(err.contains("complete shot(s)"), "{err}");
