@@ -246,7 +246,7 @@ fn avx2_kernels_equal_the_portable_kernels_bit_for_bit() {
             std::env::var(REQUIRE_AVX2_ENV).as_deref() != Ok("1"),
             "{test}: {REQUIRE_AVX2_ENV}=1 but Kernels::detect() found no AVX2 on this CPU"
         );
-        eprintln!("SKIP {test}: this CPU has no AVX2 (only the portable kernels run here)");
+        test_skip::skip(test, "this CPU has no AVX2 (only the portable kernels run here)");
         return;
     }
     let p0 =
