@@ -14,7 +14,7 @@ use kinect_usb::decoder::{DecoderPrecision, DepthDecoder, Kernels};
 use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamKind};
 use kinect_usb::protocol::{self, Exposure, ExposureMode, LedMode, LedSetting};
 use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
-use kinect_usb::recording::{RecordingMeta, RecordingWriter, read_recording_file};
+use kinect_usb::recording::{ReadOptions, RecordingMeta, RecordingReader, RecordingWriter};
 use kinect_usb::sim::{SimDevice, SimFaults};
 use kinect_usb::{KinectError, usb};
 use viewer::capture::{self, ShotKind};
@@ -44,6 +44,9 @@ pub enum Backend {
     Usb,
     /// The simulated Kinect v2 (synthetic scene from `geometry::synth`).
     Sim,
+    /// A USB bus with no Kinect on it (tests: what every command does without a sensor,
+    /// whatever is plugged into the machine running them).
+    Absent,
 }
 
 /// `kfuse devices`.
@@ -63,6 +66,10 @@ pub struct CommonArgs {
     /// Accept a truncated recording and use its intact beginning.
     #[arg(long, requires = "replay")]
     allow_truncated: bool,
+    /// Leave out records of the recording whose checksum does not match (each is reported)
+    /// instead of stopping at the first.
+    #[arg(long, requires = "replay")]
+    skip_corrupt: bool,
     /// Decode depth without the bilateral and edge-aware filters (raw per-pixel depth).
     #[arg(long)]
     no_filters: bool,
@@ -78,8 +85,8 @@ pub struct CommonArgs {
     /// Simulated device: report busy.
     #[arg(long, hide = true)]
     sim_busy: bool,
-    /// Simulated device: fraction of isochronous packets lost.
-    #[arg(long, hide = true, default_value_t = 0.0)]
+    /// Simulated device: fraction of isochronous packets lost, 0..1.
+    #[arg(long, hide = true, default_value_t = 0.0, value_parser = parse_fraction)]
     sim_iso_drop: f64,
     /// Simulated device: write its colour settings, LED state and protocol violations as JSON
     /// to this file when the capture ends.
@@ -150,6 +157,44 @@ pub fn parse_exposure(s: &str) -> std::result::Result<Exposure, String> {
     Ok(e)
 }
 
+/// Longest `--interval`: one day. Longer waits are certainly a typo (and `inf` or 1e30 would
+/// overflow the `Duration` of the wait).
+pub const MAX_INTERVAL_S: f64 = 86_400.0;
+
+/// Parses `--interval`: a finite number of seconds in `[0, MAX_INTERVAL_S]`.
+pub fn parse_interval(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of seconds"))?;
+    if !(0.0..=MAX_INTERVAL_S).contains(&v) {
+        return Err(format!("{v} s is outside [0, {MAX_INTERVAL_S}] seconds"));
+    }
+    Ok(v)
+}
+
+/// Parses a fraction in `[0, 1]` (`--sim-iso-drop`).
+pub fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number"))?;
+    if !(0.0..=1.0).contains(&v) {
+        return Err(format!("{v} is outside [0, 1]"));
+    }
+    Ok(v)
+}
+
+/// Parses `--name`: a plain file name, so that every file lands inside `--out` (no separators,
+/// no `.` or `..`, not empty, no absolute path).
+pub fn parse_plain_name(s: &str) -> std::result::Result<String, String> {
+    let plain = !s.is_empty()
+        && s != "."
+        && s != ".."
+        && !s.contains(['/', '\\'])
+        && Path::new(s).file_name() == Some(std::ffi::OsStr::new(s));
+    if !plain {
+        return Err(format!(
+            "`{s}` is not a plain file name (no folders or `..`); put the folder in --out"
+        ));
+    }
+    Ok(s.to_string())
+}
+
 /// Parses `--led`: `off`, `on`, `on:LEVEL`, `blink:MS`.
 pub fn parse_led(s: &str) -> std::result::Result<LedArg, String> {
     const FORMS: &str = "expected off, on, on:LEVEL (0..1000) or blink:MS";
@@ -195,8 +240,9 @@ enum CaptureMode {
         /// Number of shots.
         #[arg(long, default_value_t = 20)]
         count: usize,
-        /// Seconds between automatic shots; without it, each line on stdin (Enter) takes a shot.
-        #[arg(long)]
+        /// Seconds between automatic shots (0..86400); without it, each line on stdin (Enter)
+        /// takes a shot.
+        #[arg(long, value_parser = parse_interval)]
         interval: Option<f64>,
         /// Replace existing files in the output folder.
         #[arg(long)]
@@ -212,14 +258,14 @@ enum CaptureMode {
         /// Output folder.
         #[arg(long, default_value = "scene_capture")]
         out: PathBuf,
-        /// File name prefix.
-        #[arg(long, default_value = "scene")]
+        /// File name prefix: a plain file name (no folders, no `..`); files go into --out.
+        #[arg(long, default_value = "scene", value_parser = parse_plain_name)]
         name: String,
         /// Number of scenes to save (numbered when more than one).
         #[arg(long, default_value_t = 1)]
         count: usize,
-        /// Seconds before each automatic save; without it, press Enter.
-        #[arg(long)]
+        /// Seconds before each automatic save (0..86400); without it, press Enter.
+        #[arg(long, value_parser = parse_interval)]
         interval: Option<f64>,
         /// Replace existing files.
         #[arg(long)]
@@ -248,11 +294,14 @@ enum CaptureMode {
 
 /// Runs `kfuse devices`.
 pub fn run_devices(args: DevicesArgs) -> Result<()> {
-    if args.backend == Backend::Sim {
-        println!("simulated Kinect v2  serial 000000000001  (sim backend)");
-        return Ok(());
-    }
-    let list = usb::list_devices().map_err(not_found_hint)?;
+    let list = match args.backend {
+        Backend::Usb => usb::list_devices().map_err(not_found_hint)?,
+        Backend::Sim => {
+            println!("simulated Kinect v2  serial 000000000001  (sim backend)");
+            return Ok(());
+        }
+        Backend::Absent => Vec::new(),
+    };
     if list.is_empty() {
         return Err(not_found_hint(KinectError::NotFound));
     }
@@ -278,8 +327,26 @@ fn not_found_hint(e: KinectError) -> anyhow::Error {
     }
 }
 
+/// Environment variable: when set, `kfuse capture` prints its peak resident memory (VmHWM of
+/// /proc/self/status) on stderr at the end, for the memory tests.
+const PEAK_RSS_ENV: &str = "KFUSE_REPORT_PEAK_RSS";
+
 /// Runs `kfuse capture …`.
 pub fn run_capture(args: CaptureArgs) -> Result<()> {
+    let r = run_capture_mode(args);
+    if std::env::var_os(PEAK_RSS_ENV).is_some()
+        && let Ok(s) = std::fs::read_to_string("/proc/self/status")
+        && let Some(l) = s.lines().find(|l| l.starts_with("VmHWM:"))
+    {
+        eprintln!("peak RSS {}", l.trim_start_matches("VmHWM:").trim());
+    }
+    r
+}
+
+fn run_capture_mode(args: CaptureArgs) -> Result<()> {
+    // Ctrl-C / SIGTERM set a flag that the capture loops poll: a recording is finished (end
+    // record written, file published), a shot is never split.
+    crate::interrupt::install()?;
     match args.mode {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
@@ -305,15 +372,14 @@ type SimHandle = Arc<Mutex<SimDevice>>;
 fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
     let mut sim = None;
     let backend: Box<dyn UsbBackend> = if let Some(path) = &common.replay {
-        let rec = read_recording_file(path, common.allow_truncated)?;
-        if !rec.complete {
-            eprintln!(
-                "warning: {} is truncated; replaying its {} intact packets",
-                path.display(),
-                rec.events.len()
-            );
-        }
-        Box::new(SimDevice::replay(rec)?)
+        // Streamed: the reader holds one record at a time, whatever the file's size.
+        let opts =
+            ReadOptions { keep_prefix: common.allow_truncated, skip_corrupt: common.skip_corrupt };
+        let reader = RecordingReader::open(path, opts)?;
+        let meta = reader.meta().clone();
+        let h = Arc::new(Mutex::new(SimDevice::replay_from(&meta, Box::new(reader))?));
+        sim = Some(h.clone());
+        Box::new(h)
     } else {
         match common.backend {
             Backend::Sim => {
@@ -322,6 +388,7 @@ fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
                 Box::new(h)
             }
             Backend::Usb => Box::new(usb::open_first().map_err(not_found_hint)?),
+            Backend::Absent => return Err(not_found_hint(KinectError::NotFound)),
         }
     };
     let dev = KinectDevice::open(backend).map_err(|e| match e {
@@ -460,7 +527,13 @@ enum Trigger {
 impl Trigger {
     fn new(interval: Option<f64>) -> Self {
         match interval {
-            Some(s) => Trigger::Interval(Duration::from_secs_f64(s.max(0.0))),
+            // `parse_interval` bounds it to [0, MAX_INTERVAL_S]; the clamp keeps library callers
+            // from the `Duration` panic as well.
+            Some(s) => Trigger::Interval(Duration::from_secs_f64(if s.is_finite() {
+                s.clamp(0.0, MAX_INTERVAL_S)
+            } else {
+                0.0
+            })),
             None => {
                 let (tx, rx) = mpsc::channel();
                 std::thread::spawn(move || {
@@ -518,6 +591,41 @@ fn fresh_pair(
     }
 }
 
+/// Name prefix of the folder inside `--out` where a shot's files are written before they are
+/// moved into place together (same filesystem, so each move is a rename).
+const STAGING_PREFIX: &str = ".kfuse-shot-staging-";
+
+/// Writes one shot's colour, IR and depth into `stage`, then moves all three to `files`: a
+/// failed write leaves none of them in `--out`, and a signal (which only sets a flag, checked
+/// between shots) cannot separate them.
+fn write_shot(stage: &Path, files: &[PathBuf; 3], latest: &Latest) -> Result<()> {
+    std::fs::create_dir_all(stage).with_context(|| format!("creating {}", stage.display()))?;
+    let staged = files.clone().map(|f| stage.join(f.file_name().unwrap_or_default()));
+    write_atomic(&staged[0], |w| w.write_all(&latest.color))?;
+    write_png16(&staged[1], &latest.ir, WIDTH, HEIGHT)?;
+    write_png16(&staged[2], &latest.depth, WIDTH, HEIGHT)?;
+    for (from, to) in staged.iter().zip(files) {
+        std::fs::rename(from, to)
+            .with_context(|| format!("moving {} to {}", from.display(), to.display()))?;
+    }
+    Ok(())
+}
+
+/// Removes staging folders left in `out` by killed captures (their process no longer runs).
+fn remove_stale_staging(out: &Path) {
+    let Ok(entries) = std::fs::read_dir(out) else { return };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(pid) = name.to_str().and_then(|n| n.strip_prefix(STAGING_PREFIX)) else {
+            continue;
+        };
+        let alive = pid.parse::<u32>().is_ok_and(|p| Path::new(&format!("/proc/{p}")).exists());
+        if !alive && e.path().is_dir() {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
+}
+
 fn shots(
     out: &Path,
     names: &[String],
@@ -535,6 +643,8 @@ fn shots(
         );
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    remove_stale_staging(out);
+    let stage = out.join(format!("{STAGING_PREFIX}{}", std::process::id()));
     let (mut dev, sim) = open(common)?;
     let info = dev.start(true, true)?.clone();
     if let Err(e) = apply_settings(&mut dev, common) {
@@ -562,24 +672,34 @@ fn shots(
     };
     let mut saved = 0usize;
     let mut outcome: Result<()> = Ok(());
-    for n in names {
+    let mut interrupted = false;
+    'shots: for n in names {
         match &trigger {
             Trigger::Interval(d) => {
                 // Keep draining the stream while waiting so the shot is current.
                 let until = Instant::now() + *d;
-                while Instant::now() < until {
+                while Instant::now() < until && !crate::interrupt::requested() {
                     if let Err(e) = dev.next_frame(Duration::from_millis(50), &mut |_, _| {}) {
                         outcome = Err(e.into());
                         break;
                     }
                 }
             }
-            Trigger::Lines(rx) => {
-                if rx.recv().is_err() {
-                    eprintln!("stdin closed: stopping after {saved} shots");
-                    break;
+            Trigger::Lines(rx) => loop {
+                match rx.recv_timeout(Duration::from_millis(100)) {
+                    Ok(()) => break,
+                    Err(mpsc::RecvTimeoutError::Timeout) if !crate::interrupt::requested() => {}
+                    Err(mpsc::RecvTimeoutError::Timeout) => break,
+                    Err(mpsc::RecvTimeoutError::Disconnected) => {
+                        eprintln!("stdin closed: stopping after {saved} shots");
+                        break 'shots;
+                    }
                 }
-            }
+            },
+        }
+        if crate::interrupt::requested() {
+            interrupted = true;
+            break;
         }
         if outcome.is_err() {
             break;
@@ -588,17 +708,30 @@ fn shots(
             outcome = Err(e.into());
             break;
         }
-        let [c, i, d] = files(n);
-        write_atomic(&c, |w| w.write_all(&latest.color))?;
-        write_png16(&i, &latest.ir, WIDTH, HEIGHT)?;
-        write_png16(&d, &latest.depth, WIDTH, HEIGHT)?;
+        if let Err(e) = write_shot(&stage, &files(n), &latest) {
+            let _ = std::fs::remove_dir_all(&stage);
+            return Err(e);
+        }
         saved += 1;
         bar.inc(1);
     }
     bar.finish_and_clear();
+    let _ = std::fs::remove_dir_all(&stage);
     report_counters(&dev);
     let _ = dev.close();
     write_sim_report(common, &sim)?;
+    if let Some(e) = replay_outcome(common, &sim) {
+        bail!(
+            "{e}\nreplay stopped: {saved} shot(s) taken before it are intact in {}",
+            out.display()
+        );
+    }
+    if interrupted {
+        crate::interrupt::check(&format!(
+            ": {saved} complete shot(s) (each with its colour, IR and depth) are in {}",
+            out.display()
+        ))?;
+    }
     match outcome {
         Ok(()) => {
             eprintln!("saved {saved} shot(s) in {}", out.display());
@@ -619,6 +752,27 @@ fn shots(
             Err(e)
         }
     }
+}
+
+/// After a replay: reports skipped records and a kept truncated prefix, and returns the error
+/// that ended the replay early (a corrupt record), which must fail the command.
+fn replay_outcome(common: &CommonArgs, sim: &Option<SimHandle>) -> Option<KinectError> {
+    let (Some(path), Some(sim)) = (&common.replay, sim) else { return None };
+    let mut s = sim.lock().unwrap_or_else(|p| p.into_inner());
+    let report = s.replay_report();
+    for (index, offset) in &report.skipped {
+        eprintln!(
+            "warning: {}: record {index} at byte {offset} is corrupt (checksum mismatch) and was left out",
+            path.display()
+        );
+    }
+    if report.truncated {
+        eprintln!(
+            "warning: {} is truncated; its intact beginning was replayed (--allow-truncated)",
+            path.display()
+        );
+    }
+    s.take_replay_error()
 }
 
 fn report_counters(dev: &Device) {
@@ -654,11 +808,15 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let mut stop: Option<KinectError> = None;
-    let mut got = 0u64;
+    let (mut got, mut interrupted) = (0u64, false);
     write_atomic(output, |w| {
         let mut rw = RecordingWriter::new(w, &meta)?;
         let mut io_err = None;
         while got < frames {
+            if crate::interrupt::requested() {
+                interrupted = true;
+                break;
+            }
             let mut tap = |k: StreamKind, e: &_| {
                 if let Err(err) = rw.write_event(k, e) {
                     io_err.get_or_insert(err);
@@ -685,6 +843,19 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     report_counters(&dev);
     let _ = dev.close();
     write_sim_report(common, &sim)?;
+    if let Some(e) = replay_outcome(common, &sim) {
+        bail!(
+            "{e}\nreplay stopped: the {got} depth frames before it were written to {}",
+            output.display()
+        );
+    }
+    if interrupted {
+        crate::interrupt::check(&format!(
+            ": the {got} depth frames captured before it were saved in {} (a complete recording \
+             that replays without extra flags)",
+            output.display()
+        ))?;
+    }
     match stop {
         None => {
             eprintln!("recorded {got} depth frames to {}", output.display());

@@ -1,7 +1,7 @@
-//! The transport abstraction (spec §14.1). The protocol layer, the parsers and the decoder see
+//! The transport abstraction (protocol §14.1). The protocol layer, the parsers and the decoder see
 //! only this trait and byte slices.
 //!
-//! Deviation from the spec's sketch: streaming events are *pulled* with
+//! Deviation from the sketch of protocol §14.1: streaming events are *pulled* with
 //! [`UsbBackend::next_event`] instead of being pushed on a channel. A libusb backend fills an
 //! internal queue from its event thread; the simulated device generates events on demand,
 //! which keeps it deterministic and single-threaded.

@@ -1,4 +1,4 @@
-//! The session state machine (spec §5): open, start streaming, frames, stop, close — over any
+//! The session state machine (protocol §5): open, start streaming, frames, stop, close — over any
 //! [`UsbBackend`].
 
 use std::time::{Duration, Instant};
@@ -12,18 +12,18 @@ use crate::protocol::{
 };
 use crate::stream::{ColorAssembler, ColorMeta, DepthAssembler, RawDepthFrame};
 
-/// Timeout of every control and command transfer (spec §2.1, §3.2).
+/// Timeout of every control and command transfer (protocol §2.1, §3.2).
 pub const COMMAND_TIMEOUT: Duration = Duration::from_millis(1000);
-/// Status polls before giving up waiting for readiness (spec §5.2 step 10).
+/// Status polls before giving up waiting for readiness (protocol §5.2 step 10).
 pub const STATUS_POLLS: usize = 50;
 /// Sleep between not-ready status polls.
 pub const STATUS_POLL_INTERVAL: Duration = Duration::from_millis(100);
 /// Bound on waiting for cancelled transfers at stop (the reference waits forever).
 pub const STOP_WAIT: Duration = Duration::from_secs(2);
-/// Colour transfers in flight × size (Linux default, spec §5.5).
+/// Colour transfers in flight × size (Linux default, protocol §5.5).
 pub const COLOR_STREAM: StreamSpec =
     StreamSpec::Bulk { ep: ep::COLOR_IN, transfers: 20, size: 16_384 };
-/// Depth transfers in flight × packets × packet size (Linux default, spec §5.5).
+/// Depth transfers in flight × packets × packet size (Linux default, protocol §5.5).
 pub const DEPTH_STREAM: StreamSpec =
     StreamSpec::Iso { ep: ep::DEPTH_IN, transfers: 60, packets: 8, packet_size: 33_792 };
 
@@ -114,7 +114,7 @@ pub struct KinectDevice<B: UsbBackend> {
 }
 
 impl<B: UsbBackend> KinectDevice<B> {
-    /// Opens the device (spec §5.1 steps 2–9) on an already-opened backend handle.
+    /// Opens the device (protocol §5.1 steps 2–9) on an already-opened backend handle.
     pub fn open(mut backend: B) -> Result<Self> {
         let b = &mut backend;
         b.reset().map_err(|e| KinectError::usb("port reset", e))?;
@@ -173,20 +173,20 @@ impl<B: UsbBackend> KinectDevice<B> {
         &self.backend
     }
 
-    /// Sequence number the next sequenced command will carry (spec §3.3). Colour settings and
+    /// Sequence number the next sequenced command will carry (protocol §3.3). Colour settings and
     /// LED commands neither use nor advance it.
     pub fn sequence(&self) -> u32 {
         self.seq
     }
 
-    /// Sends one command and returns its data phase (spec §3.2).
+    /// Sends one command and returns its data phase (protocol §3.2).
     pub fn command(&mut self, cmd: Command) -> Result<Vec<u8>> {
         self.transact(cmd).map(|(data, _)| data)
     }
 
     /// One transaction; returns the data phase and the completion's status word.
     /// Colour settings and the LED API go out with sequence 0 and leave the counter alone
-    /// (spec §3.3); every other command takes the counter and post-increments it.
+    /// (protocol §3.3); every other command takes the counter and post-increments it.
     fn transact(&mut self, cmd: Command) -> Result<(Vec<u8>, u32)> {
         let seq = if cmd.is_unsequenced() {
             0
@@ -246,7 +246,7 @@ impl<B: UsbBackend> KinectDevice<B> {
         Ok(())
     }
 
-    /// Sends one 0x3E colour-camera setting (spec §4.10) and returns its parsed response.
+    /// Sends one 0x3E colour-camera setting (protocol §4.10) and returns its parsed response.
     /// A non-zero `status` in the response is returned as [`KinectError::Rejected`].
     /// Prefer the typed methods ([`Self::set_exposure`], [`Self::integration_time_ms`], …).
     pub fn color_setting(
@@ -314,7 +314,7 @@ impl<B: UsbBackend> KinectDevice<B> {
         Ok(v)
     }
 
-    /// Applies an exposure preset (spec §4.10), after validating its values. The commands are
+    /// Applies an exposure preset (protocol §4.10), after validating its values. The commands are
     /// sent in the preset's order; the first failure stops and is returned.
     pub fn set_exposure(&mut self, e: Exposure) -> Result<()> {
         self.require_open("set exposure")?;
@@ -324,8 +324,8 @@ impl<B: UsbBackend> KinectDevice<B> {
         Ok(())
     }
 
-    /// Sets the white-balance mode (code 10). The spec does not document the values
-    /// [UNSURE]; libfreenect2 clients use 1 = auto and 3 = manual.
+    /// Sets the white-balance mode (code 10). Protocol §4.10 does not document the values
+    /// \[UNSURE\]; libfreenect2 clients use 1 = auto and 3 = manual.
     pub fn set_white_balance_mode(&mut self, mode: u32) -> Result<()> {
         self.set_color_u32(ColorSettingCode::SetWhiteBalanceMode, mode)
     }
@@ -393,12 +393,12 @@ impl<B: UsbBackend> KinectDevice<B> {
         self.get_color_raw(ColorSettingCode::GetWhiteBalanceMode)
     }
 
-    /// Frame-rate setting (code 83), raw value (encoding not documented by the spec).
+    /// Frame-rate setting (code 83), raw value (encoding not documented, protocol §4.10).
     pub fn frame_rate_raw(&mut self) -> Result<u32> {
         self.get_color_raw(ColorSettingCode::GetFrameRate)
     }
 
-    /// Sets an LED (spec §4.9) after validating the setting. Sent with sequence 0 without
+    /// Sets an LED (protocol §4.9) after validating the setting. Sent with sequence 0 without
     /// advancing the counter; a non-zero completion status is returned as
     /// [`KinectError::Rejected`].
     pub fn set_led(&mut self, led: LedSetting) -> Result<()> {
@@ -426,7 +426,7 @@ impl<B: UsbBackend> KinectDevice<B> {
         match f(&mut self.backend) {
             Ok(v) => Ok(v),
             Err(UsbError::Stall) => {
-                // Clear the halt so the next command can proceed (spec §3.2).
+                // Clear the halt so the next command can proceed (protocol §3.2).
                 let _ = self.backend.clear_halt(endpoint);
                 Err(KinectError::usb(what, UsbError::Stall))
             }
@@ -434,7 +434,7 @@ impl<B: UsbBackend> KinectDevice<B> {
         }
     }
 
-    /// Starts streaming (spec §5.2). On failure, rolls back best-effort and stays Open.
+    /// Starts streaming (protocol §5.2). On failure, rolls back best-effort and stays Open.
     pub fn start(&mut self, color: bool, depth: bool) -> Result<&DeviceInfo> {
         if self.state != State::Open {
             return Err(KinectError::State {
@@ -599,7 +599,7 @@ impl<B: UsbBackend> KinectDevice<B> {
         }
     }
 
-    /// Stops streaming (spec §5.3), best effort: every step runs, errors are aggregated.
+    /// Stops streaming (protocol §5.3), best effort: every step runs, errors are aggregated.
     pub fn stop(&mut self) -> Result<()> {
         if self.state != State::Streaming {
             return Ok(());
@@ -642,7 +642,7 @@ impl<B: UsbBackend> KinectDevice<B> {
         }
     }
 
-    /// Closes the session (spec §5.4), best effort.
+    /// Closes the session (protocol §5.4), best effort.
     pub fn close(&mut self) -> Result<()> {
         if self.state == State::Closed {
             return Ok(());

@@ -110,7 +110,7 @@ pub enum KinectError {
         source: std::io::Error,
     },
     /// A recording file is malformed or truncated.
-    #[error("recording {path}: {detail} (at byte {offset}); re-record or pass the intact prefix")]
+    #[error("recording {path}: {detail} (at byte {offset})")]
     Recording {
         /// The file.
         path: PathBuf,

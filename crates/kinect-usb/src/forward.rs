@@ -1,4 +1,4 @@
-//! Forward model (spec §14.2): a scene's depth (mm) and IR amplitude → the raw 11-bit frame the
+//! Forward model (protocol §14.2): a scene's depth (mm) and IR amplitude → the raw 11-bit frame the
 //! decoder turns back into that scene (within quantisation). Used by the simulated device.
 
 use crate::decoder::DecoderParams;

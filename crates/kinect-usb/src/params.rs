@@ -1,5 +1,5 @@
-//! Factory parameters read from the device (spec §4.5–§4.7) and the x/z tables derived from
-//! them (spec §9.2).
+//! Factory parameters read from the device (protocol §4.5–§4.7) and the x/z tables derived from
+//! them (protocol §9.2).
 
 use crate::error::{KinectError, Result};
 use crate::raw::{HEIGHT, PIXELS, WIDTH};
@@ -12,7 +12,7 @@ pub const P0_RESPONSE_LEN: usize = 1_302_572;
 pub const P0_TABLE_OFFSETS: [usize; 3] = [34, 434_214, 868_394];
 /// Size of the colour-camera parameter response.
 pub const COLOR_PARAMS_LEN: usize = 12_981;
-/// Newton iterations allowed for undistortion (spec §9.2).
+/// Newton iterations allowed for undistortion (protocol §9.2).
 const MAX_NEWTON_ITERS: usize = 100;
 
 fn f32_at(b: &[u8], off: usize) -> f32 {
@@ -122,7 +122,7 @@ impl P0Tables {
     }
 }
 
-/// Colour camera parameters (spec §4.7).
+/// Colour camera parameters (protocol §4.7).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ColorParams {
     /// Focal length (fx = fy), pixels.
@@ -192,7 +192,7 @@ pub struct XzTables {
 }
 
 impl XzTables {
-    /// Computes the tables from the depth intrinsics (spec §9.2, f64 Newton undistortion).
+    /// Computes the tables from the depth intrinsics (protocol §9.2, f64 Newton undistortion).
     pub fn from_params(p: &DepthParams) -> Self {
         let (fx, fy, cx, cy) = (p.fx as f64, p.fy as f64, p.cx as f64, p.cy as f64);
         let (k1, k2, k3, p1, p2) =

@@ -1,4 +1,4 @@
-//! Command messages, completions and response parsers (spec §3–§4). Pure byte-level code.
+//! Command messages, completions and response parsers (protocol §3–§4). Pure byte-level code.
 
 use crate::error::{KinectError, Result};
 
@@ -10,7 +10,7 @@ pub const COMPLETION_MAGIC: u32 = 0x0A6F_E000;
 pub const COMPLETION_LEN: usize = 16;
 /// Status register polled for readiness.
 pub const STATUS_REGISTER: u32 = 0x09_0000;
-/// Minimum isochronous bytes per interval of endpoint 0x84 (spec §2.2).
+/// Minimum isochronous bytes per interval of endpoint 0x84 (protocol §2.2).
 pub const MIN_BYTES_PER_INTERVAL: u32 = 0x8400;
 
 /// Vendor id (Microsoft).
@@ -18,7 +18,7 @@ pub const VENDOR_ID: u16 = 0x045E;
 /// Product ids opened by kfuse: release sensor and developer preview.
 pub const PRODUCT_IDS: [u16; 2] = [0x02D8, 0x02C4];
 
-/// Endpoints (spec §2).
+/// Endpoints (protocol §2).
 pub mod ep {
     /// Command OUT (bulk).
     pub const COMMAND_OUT: u8 = 0x02;
@@ -30,7 +30,7 @@ pub mod ep {
     pub const DEPTH_IN: u8 = 0x84;
 }
 
-/// Command ids and parameters (spec §4.1).
+/// Command ids and parameters (protocol §4.1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Command {
     /// 0x02.
@@ -49,15 +49,15 @@ pub enum Command {
     SetMode([u32; 4]),
     /// 0x0A.
     Stop,
-    /// 0x3E: one colour-camera setting (spec §4.10). Parameters `[1, 0, code, value]`; sent with
-    /// sequence 0 without advancing the counter (spec §3.3); 16-byte response.
+    /// 0x3E: one colour-camera setting (§4.10). Parameters `[1, 0, code, value]`; sent with
+    /// sequence 0 without advancing the counter (protocol §3.3); 16-byte response.
     ColorSetting {
         /// Setting code ([`ColorSettingCode::code`]).
         code: u32,
         /// Value: a u32, or the bit pattern of an f32 (see [`ColorSettingCode::value_kind`]).
         value: u32,
     },
-    /// 0x4B used as the public LED API (spec §4.9): sequence 0, counter not advanced. Build it
+    /// 0x4B used as the public LED API (protocol §4.9): sequence 0, counter not advanced. Build it
     /// from a validated [`LedSetting`].
     Led(LedSetting),
 }
@@ -113,7 +113,7 @@ impl Command {
     }
 
     /// True for the commands sent with sequence 0 that do not advance the per-device counter
-    /// (colour settings and the LED API, spec §3.3).
+    /// (colour settings and the LED API, protocol §3.3).
     pub fn is_unsequenced(&self) -> bool {
         matches!(self, Command::ColorSetting { .. } | Command::Led(_))
     }
@@ -224,7 +224,7 @@ pub fn encode_completion(seq: u32) -> [u8; COMPLETION_LEN] {
     encode_completion_with_status(seq, 0)
 }
 
-/// Encodes a completion with a status word (offset 8, spec §3.2).
+/// Encodes a completion with a status word (offset 8, protocol §3.2).
 pub fn encode_completion_with_status(seq: u32, status: u32) -> [u8; COMPLETION_LEN] {
     let mut c = [0u8; COMPLETION_LEN];
     c[0..4].copy_from_slice(&COMPLETION_MAGIC.to_le_bytes());
@@ -250,7 +250,7 @@ pub fn parse_completion(b: &[u8], what: &str) -> Result<u32> {
 }
 
 /// Parses a completion and returns `(sequence, status word)`. The status word's meaning is
-/// unsure (spec §3.2: the reference driver ignores it); kfuse only checks it for the LED API.
+/// unsure (protocol §3.2: the reference driver ignores it); kfuse only checks it for the LED API.
 pub fn parse_completion_status(b: &[u8], what: &str) -> Result<(u32, u32)> {
     let seq = parse_completion(b, what)?;
     Ok((seq, u32_at(b, 8)))
@@ -298,7 +298,7 @@ pub fn parse_firmware(b: &[u8]) -> Result<Vec<FirmwareVersion>> {
         .collect())
 }
 
-/// The version shown to users: record index 3 (spec §4.2).
+/// The version shown to users: record index 3 (protocol §4.2).
 pub fn user_firmware_version(records: &[FirmwareVersion]) -> Option<FirmwareVersion> {
     records.get(3).copied()
 }
@@ -330,27 +330,27 @@ pub fn parse_status(b: &[u8]) -> Result<u32> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Colour camera settings (0x3E, spec §4.10) and the LED API (0x4B, spec §4.9).
+// Colour camera settings (0x3E, protocol §4.10) and the LED API (0x4B, protocol §4.9).
 // ---------------------------------------------------------------------------------------------
 
-/// Command id of the colour-camera setting command (spec §4.10).
+/// Command id of the colour-camera setting command (protocol §4.10).
 pub const COLOR_SETTING_ID: u32 = 0x3E;
-/// Command id of "set mode" / LED (spec §4.9).
+/// Command id of "set mode" / LED (protocol §4.9).
 pub const SET_MODE_ID: u32 = 0x4B;
-/// Length of a 0x3E response: `num_status, command_list_status, status, data` (spec §4.10).
+/// Length of a 0x3E response: `num_status, command_list_status, status, data` (protocol §4.10).
 pub const COLOR_SETTING_RESPONSE_LEN: usize = 16;
 
-/// Analog gain accepted by the colour sensor (spec §4.10: "f32, 1..4").
+/// Analog gain accepted by the colour sensor (protocol §4.10: "f32, 1..4").
 pub const ANALOG_GAIN_RANGE: std::ops::RangeInclusive<f32> = 1.0..=4.0;
-/// Exposure compensation of the auto-exposure preset, in EV (spec §4.10: "f32, −2..2").
+/// Exposure compensation of the auto-exposure preset, in EV (protocol §4.10: "f32, −2..2").
 pub const EXPOSURE_COMPENSATION_RANGE: std::ops::RangeInclusive<f32> = -2.0..=2.0;
 /// Longest manual integration time / semi-auto pseudo exposure time in ms: two 30 Hz frame
-/// periods, the range libfreenect2 documents for these presets (the spec gives none).
+/// periods, the range libfreenect2 documents for these presets (the protocol document gives none).
 pub const MAX_EXPOSURE_MS: f32 = 66.0;
-/// Largest red/green/blue or digital gain kfuse sends. The spec gives no range; kfuse uses the
+/// Largest red/green/blue or digital gain kfuse sends. §4.10 gives no range; kfuse uses the
 /// analog gain's upper bound so that a typo cannot push an absurd value into the firmware.
 pub const MAX_CHANNEL_GAIN: f32 = 4.0;
-/// Number of metering zones (codes 29–76 set the weight of zone 0..47, spec §4.10).
+/// Number of metering zones (codes 29–76 set the weight of zone 0..47, protocol §4.10).
 pub const METERING_ZONES: u8 = 48;
 
 /// Representation of a 0x3E value word.
@@ -372,9 +372,9 @@ impl ValueKind {
     }
 }
 
-/// The codes of the 0x3E colour-setting command (spec §4.10 table).
+/// The codes of the 0x3E colour-setting command (protocol §4.10 table).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[allow(missing_docs)] // Each variant is the spec's name of its code; `code()` gives the number.
+#[allow(missing_docs)] // Each variant is §4.10's name of its code; `code()` gives the number.
 pub enum ColorSettingCode {
     SetExposureMode,
     SetIntegrationTime,
@@ -447,7 +447,7 @@ impl ColorSettingCode {
         }
     }
 
-    /// The setting of a numeric code, `None` for codes the spec does not list (3–9, > 83).
+    /// The setting of a numeric code, `None` for codes protocol §4.10 does not list (3–9, > 83).
     pub fn from_code(code: u32) -> Option<Self> {
         use ColorSettingCode::*;
         Some(match code {
@@ -510,9 +510,9 @@ impl ColorSettingCode {
         })
     }
 
-    /// How the value word is represented: f32 for the times and gains (spec §4.10 names
+    /// How the value word is represented: f32 for the times and gains (protocol §4.10 names
     /// integration time, exposure time, analog gain and compensation as f32; the channel and
-    /// digital gains and caps are treated alike [UNSURE]), u32 for modes and the rest.
+    /// digital gains and caps are treated alike \[UNSURE\]), u32 for modes and the rest.
     pub fn value_kind(self) -> ValueKind {
         use ColorSettingCode::*;
         let set = self.set_of_get().unwrap_or(self);
@@ -532,7 +532,7 @@ impl ColorSettingCode {
     }
 }
 
-/// The 16-byte response of a 0x3E command (spec §4.10).
+/// The 16-byte response of a 0x3E command (protocol §4.10).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ColorSettingResponse {
     /// Number of status entries.
@@ -596,7 +596,7 @@ pub enum ExposureMode {
     SemiAuto,
     /// 4: manual (integration time and analog gain).
     Manual,
-    /// A value the spec does not name.
+    /// A value the protocol document does not name.
     Other(u32),
 }
 
@@ -622,7 +622,7 @@ impl ExposureMode {
     }
 }
 
-/// An exposure setting of the colour camera (the presets of spec §4.10).
+/// An exposure setting of the colour camera (the presets of protocol §4.10).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Exposure {
     /// Automatic exposure with a compensation in EV ([`EXPOSURE_COMPENSATION_RANGE`]).
@@ -686,7 +686,7 @@ impl Exposure {
         }
     }
 
-    /// The preset's `(code, value)` settings, in order (spec §4.10): *auto* = (25←0, 0←0,
+    /// The preset's `(code, value)` settings, in order (protocol §4.10): *auto* = (25←0, 0←0,
     /// 23←comp); *semi-auto* = (25←0, 0←3, 17←ms); *manual* = (25←0, 0←4, 1←ms, 21←gain).
     pub fn settings(&self) -> Result<Vec<(ColorSettingCode, u32)>> {
         self.validate()?;
@@ -746,12 +746,12 @@ pub fn validate_channel_gain(what: &str, g: f32) -> Result<()> {
     check_range(what, g, 0.0, false, MAX_CHANNEL_GAIN)
 }
 
-/// Highest LED brightness level (spec §4.9: levels 0..1000).
+/// Highest LED brightness level (protocol §4.9: levels 0..1000).
 pub const LED_MAX_LEVEL: u16 = 1000;
-/// Number of LEDs addressable by the LED API (ids 0 and 1, spec §4.9).
+/// Number of LEDs addressable by the LED API (ids 0 and 1, protocol §4.9).
 pub const LED_COUNT: u16 = 2;
 
-/// LED mode (spec §4.9).
+/// LED mode (protocol §4.9).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LedMode {
     /// 0: constant at `start_level`.
@@ -760,7 +760,7 @@ pub enum LedMode {
     Blink,
 }
 
-/// One LED setting (spec §4.9): `u16 id, u16 mode | u16 start, u16 stop | u32 interval | u32 0`,
+/// One LED setting (§4.9): `u16 id, u16 mode | u16 start, u16 stop | u32 interval | u32 0`,
 /// packed little-endian into the four parameter words.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LedSetting {
@@ -884,7 +884,7 @@ mod tests {
         assert_eq!(parse_completion(&encode_completion(9), "x").unwrap(), 9);
     }
 
-    /// The 20-byte header of a command message with sequence 0, as spelled out in spec §3.1.
+    /// The 20-byte header of a command message with sequence 0, as spelled out in protocol §3.1.
     fn header(max_len: u8, id: u8) -> Vec<u8> {
         vec![0x09, 0x20, 0x02, 0x06, 0, 0, 0, 0, max_len, 0, 0, 0, id, 0, 0, 0, 0, 0, 0, 0]
     }
@@ -897,7 +897,7 @@ mod tests {
         m
     }
 
-    /// Every preset of spec §4.10 encodes to the exact bytes: count 1, setting sequence id 0,
+    /// Every preset of protocol §4.10 encodes to the exact bytes: count 1, setting sequence id 0,
     /// the code, the value (u32 or the f32 bit pattern, hand-written below: 20.0 = 0x41A00000,
     /// 2.0 = 0x40000000, −1.5 = 0xBFC00000, 33.0 = 0x42040000), sequence 0 in the header.
     #[test]
@@ -961,7 +961,7 @@ mod tests {
                 n += 1;
             }
         }
-        // Spec §4.10 lists codes 0, 1, 2, 10..=83: 3 + 74.
+        // Protocol §4.10 lists codes 0, 1, 2, 10..=83: 3 + 74.
         assert_eq!(n, 77);
         assert_eq!(
             ColorSettingCode::GetAnalogGain.set_of_get(),
@@ -1000,7 +1000,7 @@ mod tests {
         assert!(e.contains("premature completion"), "{e}");
     }
 
-    /// LED words per spec §4.9; the start/stop mode words of the spec's table decode as the
+    /// LED words per protocol §4.9; the start/stop mode words of its table decode as the
     /// LED settings it names.
     #[test]
     fn led_setting_encodes_per_spec() {

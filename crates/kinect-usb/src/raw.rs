@@ -1,4 +1,4 @@
-//! Raw depth frame layout (spec §8): 10 sub-images of 424 stored rows × 512 packed 11-bit codes,
+//! Raw depth frame layout (§8): 10 sub-images of 424 stored rows × 512 packed 11-bit codes,
 //! the column/row permutations and the companding LUT.
 
 /// Image width of the depth/IR camera.
@@ -44,7 +44,7 @@ pub fn stored_row_of_processing_row(y: usize) -> usize {
     if y < 212 { y + 212 } else { 423 - y }
 }
 
-/// The 2048-entry code → signed measurement table (spec §8).
+/// The 2048-entry code → signed measurement table (protocol §8).
 pub fn lut() -> [i16; 2048] {
     let mut t = [0i16; 2048];
     let mut y: i32 = 0;

@@ -1,23 +1,28 @@
 //! Raw recordings: the device metadata plus every stream event, replayable through the same
 //! code path as a live device.
 //!
-//! # File format (`.kfrec`, little-endian, version 1)
+//! # File format (`.kfrec`, little-endian, version 2)
 //!
 //! ```text
 //! "KFUSEREC"                  8 bytes magic
-//! u32 version = 1
+//! u32 version = 2
 //! 6 × (u32 length, bytes)     firmware (UTF-8), serial (UTF-8), hardware info,
 //!                             depth-params response, P0 response, colour-params response
+//! u32 CRC-32 of every header byte before it (magic included)
 //! records, each:  u8 kind (1 = iso packet, 2 = bulk transfer), u8 status
-//!                 (0 completed, 1 error, 2 timed out, 3 cancelled), u32 length, bytes
-//! end record:     u8 kind = 0xEE, u8 0, u32 length = 8, u64 number of records
+//!                 (0 completed, 1 error, 2 timed out, 3 cancelled), u32 length, bytes,
+//!                 u32 CRC-32 (IEEE, as zlib) of the kind, status, length and bytes
+//! end record:     u8 kind = 0xEE, u8 0, u32 length = 8, u64 number of records, u32 CRC-32
 //! ```
 //!
-//! A file without the end record, with a record cut short, or whose count disagrees is
-//! reported as truncated/corrupt with the byte offset; [`read_recording`] can optionally keep
-//! the intact prefix.
+//! Version 1 (no checksums) is refused with a message saying how to go on. A file without the
+//! end record or with a record cut short is *truncated*; a record whose checksum does not match
+//! is *corrupt*; both are reported with the record's index and byte offset.
+//! [`RecordingReader`] streams the events one at a time (memory bounded by [`MAX_RECORD`]
+//! whatever the file size); [`ReadOptions`] can keep the intact prefix of a truncated file and
+//! skip corrupt records.
 
-use std::io::Write;
+use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
 use crate::backend::{StreamEvent, XferStatus};
@@ -26,14 +31,15 @@ use crate::error::{KinectError, Result};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"KFUSEREC";
-/// Format version.
-pub const VERSION: u32 = 1;
+/// Format version (2: CRC-32 per record and of the header).
+pub const VERSION: u32 = 2;
 const KIND_ISO: u8 = 1;
 const KIND_BULK: u8 = 2;
 const KIND_END: u8 = 0xEE;
-/// Largest record accepted (a merged iso packet or a bulk transfer is far smaller; guards
-/// against allocating garbage lengths).
-const MAX_RECORD: usize = 4 << 20;
+/// Largest record accepted: a merged isochronous packet (≤ 64 KiB seen) or a bulk transfer
+/// (16 KiB) is far smaller; guards against allocating garbage lengths, and bounds the memory a
+/// streaming replay holds per record.
+pub const MAX_RECORD: usize = 4 << 20;
 /// Largest metadata field (the P0 response is 1.3 MB).
 const MAX_META: usize = 4 << 20;
 
@@ -80,6 +86,14 @@ pub struct RecordedEvent {
 }
 
 impl RecordedEvent {
+    /// As a backend stream event, without copying the data.
+    pub fn into_event(self) -> StreamEvent {
+        match self.kind {
+            StreamKind::Depth => StreamEvent::IsoPacket { status: self.status, data: self.data },
+            StreamKind::Color => StreamEvent::Bulk { status: self.status, data: self.data },
+        }
+    }
+
     /// As a backend stream event.
     pub fn to_event(&self) -> StreamEvent {
         match self.kind {
@@ -120,8 +134,13 @@ pub struct RecordingWriter<W: Write> {
 impl<W: Write> RecordingWriter<W> {
     /// Writes the header.
     pub fn new(mut w: W, meta: &RecordingMeta) -> std::io::Result<Self> {
-        w.write_all(MAGIC)?;
-        w.write_all(&VERSION.to_le_bytes())?;
+        let mut crc = crc32fast::Hasher::new();
+        let mut put = |w: &mut W, b: &[u8]| {
+            crc.update(b);
+            w.write_all(b)
+        };
+        put(&mut w, MAGIC)?;
+        put(&mut w, &VERSION.to_le_bytes())?;
         for f in [
             meta.firmware.as_bytes(),
             meta.serial.as_bytes(),
@@ -130,9 +149,10 @@ impl<W: Write> RecordingWriter<W> {
             &meta.p0,
             &meta.color_params,
         ] {
-            w.write_all(&(f.len() as u32).to_le_bytes())?;
-            w.write_all(f)?;
+            put(&mut w, &(f.len() as u32).to_le_bytes())?;
+            put(&mut w, f)?;
         }
+        w.write_all(&crc.finalize().to_le_bytes())?;
         Ok(RecordingWriter { w, count: 0 })
     }
 
@@ -145,109 +165,368 @@ impl<W: Write> RecordingWriter<W> {
             StreamEvent::Stopped { .. } => return Ok(()),
         };
         let k = if kind == StreamKind::Depth { KIND_ISO } else { KIND_BULK };
-        self.w.write_all(&[k, status_code(status)])?;
-        self.w.write_all(&(data.len() as u32).to_le_bytes())?;
-        self.w.write_all(data)?;
+        self.record(k, status_code(status), data)?;
         self.count += 1;
         Ok(())
     }
 
+    /// Writes one record with its checksum.
+    fn record(&mut self, kind: u8, status: u8, data: &[u8]) -> std::io::Result<()> {
+        let head = record_head(kind, status, data.len() as u32);
+        self.w.write_all(&head)?;
+        self.w.write_all(data)?;
+        self.w.write_all(&record_crc(&head, data).to_le_bytes())
+    }
+
     /// Writes the end record and returns the inner writer.
     pub fn finish(mut self) -> std::io::Result<W> {
-        self.w.write_all(&[KIND_END, 0])?;
-        self.w.write_all(&8u32.to_le_bytes())?;
-        self.w.write_all(&self.count.to_le_bytes())?;
+        let count = self.count.to_le_bytes();
+        self.record(KIND_END, 0, &count)?;
         self.w.flush()?;
         Ok(self.w)
     }
-}
 
-struct Cursor<'a> {
-    b: &'a [u8],
-    pos: usize,
-    path: &'a Path,
-}
+    /// Flushes the inner writer (what was written so far is a valid prefix).
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        self.w.flush()
+    }
 
-impl<'a> Cursor<'a> {
-    fn err(&self, detail: impl Into<String>) -> KinectError {
-        KinectError::Recording {
-            path: self.path.to_path_buf(),
-            offset: self.pos as u64,
-            detail: detail.into(),
-        }
-    }
-    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8]> {
-        if self.b.len() - self.pos < n {
-            return Err(self.err(format!(
-                "truncated: {what} needs {n} bytes, {} left",
-                self.b.len() - self.pos
-            )));
-        }
-        let s = &self.b[self.pos..self.pos + n];
-        self.pos += n;
-        Ok(s)
-    }
-    fn u32(&mut self, what: &str) -> Result<u32> {
-        let s = self.take(4, what)?;
-        Ok(u32::from_le_bytes([s[0], s[1], s[2], s[3]]))
+    /// Events written so far.
+    pub fn count(&self) -> u64 {
+        self.count
     }
 }
 
-/// Parses a recording held in memory. `path` is only used in error messages. With
-/// `keep_prefix`, a truncated file yields its intact events and `complete = false`.
-pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Recording> {
-    let mut c = Cursor { b: bytes, pos: 0, path };
-    if c.take(8, "magic")? != MAGIC {
-        return Err(c.err("not a kfuse recording (bad magic)"));
-    }
-    let v = c.u32("version")?;
-    if v != VERSION {
-        return Err(c.err(format!("unsupported version {v}")));
-    }
-    let mut fields = Vec::new();
-    for name in
-        ["firmware", "serial", "hardware info", "depth params", "P0 tables", "colour params"]
-    {
-        let n = c.u32(name)? as usize;
-        if n > MAX_META {
-            return Err(c.err(format!("{name} length {n} too large")));
-        }
-        fields.push(c.take(n, name)?.to_vec());
-    }
-    let text = |v: &Vec<u8>| String::from_utf8_lossy(v).into_owned();
-    let meta = RecordingMeta {
-        firmware: text(&fields[0]),
-        serial: text(&fields[1]),
-        hardware_info: fields[2].clone(),
-        depth_params: fields[3].clone(),
-        p0: fields[4].clone(),
-        color_params: fields[5].clone(),
-    };
-    let mut events = Vec::new();
-    loop {
-        let start = c.pos;
-        let rec = (|| -> Result<Option<RecordedEvent>> {
-            let h = c.take(2, "record header")?;
-            let (kind, st) = (h[0], h[1]);
-            let n = c.u32("record length")? as usize;
-            if n > MAX_RECORD {
-                return Err(c.err(format!("record length {n} too large (corrupt)")));
+/// Size of the end record: header, u64 count, CRC.
+const END_RECORD_BYTES: usize = 6 + 8 + 4;
+
+/// The six header bytes of a record.
+fn record_head(kind: u8, status: u8, len: u32) -> [u8; 6] {
+    let l = len.to_le_bytes();
+    [kind, status, l[0], l[1], l[2], l[3]]
+}
+
+/// CRC-32 of a record's header and data.
+fn record_crc(head: &[u8; 6], data: &[u8]) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    h.update(head);
+    h.update(data);
+    h.finalize()
+}
+
+/// How [`RecordingReader`] treats damage.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReadOptions {
+    /// A truncated file ends the events at its intact prefix instead of failing
+    /// (`kfuse capture --allow-truncated`).
+    pub keep_prefix: bool,
+    /// A record whose checksum does not match is skipped (and counted) instead of failing
+    /// (`kfuse capture --skip-corrupt`). Records whose length field is impossible cannot be
+    /// skipped (the next record's position is unknown) and still fail.
+    pub skip_corrupt: bool,
+}
+
+/// What a streaming reader found wrong so far.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ReadReport {
+    /// Records skipped because their checksum did not match: (index, byte offset).
+    pub skipped: Vec<(u64, u64)>,
+    /// The file ended before its end record (only with [`ReadOptions::keep_prefix`]).
+    pub truncated: bool,
+}
+
+/// Streams a recording's events one at a time: holds the metadata and at most one record.
+pub struct RecordingReader<R: Read> {
+    r: R,
+    path: PathBuf,
+    pos: u64,
+    /// Index of the next record (skipped ones included).
+    index: u64,
+    opts: ReadOptions,
+    meta: RecordingMeta,
+    done: bool,
+    report: ReadReport,
+}
+
+/// Why a read came up short.
+enum Short {
+    /// End of file after `got` of the wanted bytes.
+    Eof(usize),
+    /// Another I/O error.
+    Io(std::io::Error),
+}
+
+impl RecordingReader<BufReader<std::fs::File>> {
+    /// Opens a recording file and reads its header.
+    /// Opens a recording file and reads its header. Unless [`ReadOptions::keep_prefix`], a
+    /// file that does not end with an intact end record is refused here, before any event is
+    /// replayed (a replay that stops early would otherwise never reach the damage).
+    pub fn open(path: &Path, opts: ReadOptions) -> Result<Self> {
+        use std::io::{Seek, SeekFrom};
+        let io = |source| KinectError::File { path: path.to_path_buf(), source };
+        let f = std::fs::File::open(path).map_err(io)?;
+        let rd = RecordingReader::new(BufReader::with_capacity(1 << 20, f), path, opts)?;
+        if !opts.keep_prefix {
+            // A second, independent handle (a cloned one would share the reader's offset).
+            let mut f = std::fs::File::open(path).map_err(io)?;
+            let len = f.seek(SeekFrom::End(0)).map_err(io)?;
+            let at = len.saturating_sub(END_RECORD_BYTES as u64);
+            let mut end = [0u8; END_RECORD_BYTES];
+            let intact = at >= rd.pos && {
+                f.seek(SeekFrom::Start(at)).map_err(io)?;
+                f.read_exact(&mut end).map_err(io)?;
+                let head: [u8; 6] = [end[0], end[1], end[2], end[3], end[4], end[5]];
+                let crc = u32::from_le_bytes([end[14], end[15], end[16], end[17]]);
+                head == record_head(KIND_END, 0, 8) && crc == record_crc(&head, &end[6..14])
+            };
+            if !intact {
+                return Err(rd.err(
+                    len,
+                    "truncated: the file does not end with an intact end record (the recording \
+                     was cut or is still being written); replay its intact beginning with \
+                     --allow-truncated",
+                ));
             }
-            let data = c.take(n, "record data")?;
+        }
+        Ok(rd)
+    }
+}
+
+impl<R: Read> RecordingReader<R> {
+    /// Reads the header from `r`; `path` is only used in messages.
+    pub fn new(r: R, path: &Path, opts: ReadOptions) -> Result<Self> {
+        let mut rd = RecordingReader {
+            r,
+            path: path.to_path_buf(),
+            pos: 0,
+            index: 0,
+            opts,
+            meta: RecordingMeta {
+                firmware: String::new(),
+                serial: String::new(),
+                hardware_info: Vec::new(),
+                depth_params: Vec::new(),
+                p0: Vec::new(),
+                color_params: Vec::new(),
+            },
+            done: false,
+            report: ReadReport::default(),
+        };
+        let mut crc = crc32fast::Hasher::new();
+        let mut magic = [0u8; 8];
+        rd.header_bytes(&mut magic, "magic", &mut crc)?;
+        if &magic != MAGIC {
+            return Err(rd.err(0, "not a kfuse recording (bad magic)"));
+        }
+        let mut v = [0u8; 4];
+        rd.header_bytes(&mut v, "version", &mut crc)?;
+        let v = u32::from_le_bytes(v);
+        if v == 1 {
+            return Err(rd.err(
+                8,
+                "format version 1 (written by an older kfuse, without checksums) is no longer \
+                 read; record it again with this kfuse, or replay it with the kfuse that wrote it",
+            ));
+        }
+        if v != VERSION {
+            return Err(
+                rd.err(8, format!("unsupported format version {v} (this kfuse reads {VERSION})"))
+            );
+        }
+        let mut fields = Vec::new();
+        for name in
+            ["firmware", "serial", "hardware info", "depth params", "P0 tables", "colour params"]
+        {
+            let mut n = [0u8; 4];
+            rd.header_bytes(&mut n, name, &mut crc)?;
+            let n = u32::from_le_bytes(n) as usize;
+            if n > MAX_META {
+                return Err(
+                    rd.err(rd.pos - 4, format!("{name} length {n} too large (corrupt header)"))
+                );
+            }
+            let mut f = vec![0u8; n];
+            rd.header_bytes(&mut f, name, &mut crc)?;
+            fields.push(f);
+        }
+        let at = rd.pos;
+        let mut stored = [0u8; 4];
+        rd.header_bytes(&mut stored, "header checksum", &mut crc32fast::Hasher::new())?;
+        let (stored, computed) = (u32::from_le_bytes(stored), crc.finalize());
+        if stored != computed {
+            return Err(rd.err(
+                at,
+                format!("header checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the metadata is damaged; record again"),
+            ));
+        }
+        let text = |v: &[u8]| String::from_utf8_lossy(v).into_owned();
+        let [fw, serial, hw, dp, p0, cp]: [Vec<u8>; 6] =
+            fields.try_into().map_err(|_| rd.err(at, "header fields"))?;
+        rd.meta = RecordingMeta {
+            firmware: text(&fw),
+            serial: text(&serial),
+            hardware_info: hw,
+            depth_params: dp,
+            p0,
+            color_params: cp,
+        };
+        Ok(rd)
+    }
+
+    /// The recording's metadata.
+    pub fn meta(&self) -> &RecordingMeta {
+        &self.meta
+    }
+
+    /// What was skipped or cut so far.
+    pub fn report(&self) -> &ReadReport {
+        &self.report
+    }
+
+    fn err(&self, offset: u64, detail: impl Into<String>) -> KinectError {
+        KinectError::Recording { path: self.path.clone(), offset, detail: detail.into() }
+    }
+
+    /// Fills `buf`, advancing the position by what was read.
+    fn fill(&mut self, buf: &mut [u8]) -> std::result::Result<(), Short> {
+        let mut got = 0;
+        while got < buf.len() {
+            match self.r.read(&mut buf[got..]) {
+                Ok(0) => {
+                    self.pos += got as u64;
+                    return Err(Short::Eof(got));
+                }
+                Ok(n) => got += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    self.pos += got as u64;
+                    return Err(Short::Io(e));
+                }
+            }
+        }
+        self.pos += got as u64;
+        Ok(())
+    }
+
+    fn header_bytes(
+        &mut self,
+        buf: &mut [u8],
+        what: &str,
+        crc: &mut crc32fast::Hasher,
+    ) -> Result<()> {
+        let at = self.pos;
+        match self.fill(buf) {
+            Ok(()) => {
+                crc.update(buf);
+                Ok(())
+            }
+            Err(Short::Eof(got)) => Err(self.err(
+                at,
+                format!("truncated in the header: {what} needs {} bytes, {got} left", buf.len()),
+            )),
+            Err(Short::Io(source)) => Err(KinectError::File { path: self.path.clone(), source }),
+        }
+    }
+
+    /// A truncation at `at` (record `index`): an error, or the end of the intact prefix.
+    fn truncated(&mut self, at: u64, detail: String) -> Result<Option<RecordedEvent>> {
+        self.done = true;
+        if self.opts.keep_prefix {
+            self.report.truncated = true;
+            return Ok(None);
+        }
+        Err(self.err(
+            at,
+            format!(
+                "truncated: {detail} (record {}); the events before it are intact: replay them \
+                 with --allow-truncated",
+                self.index
+            ),
+        ))
+    }
+
+    /// The next event: `Ok(None)` after the end record (or at the end of the intact prefix
+    /// with [`ReadOptions::keep_prefix`]).
+    pub fn next_event(&mut self) -> Result<Option<RecordedEvent>> {
+        loop {
+            if self.done {
+                return Ok(None);
+            }
+            let at = self.pos;
+            let mut head = [0u8; 6];
+            match self.fill(&mut head) {
+                Ok(()) => {}
+                Err(Short::Eof(0)) => {
+                    return self.truncated(at, "the file ends without its end record".into());
+                }
+                Err(Short::Eof(got)) => {
+                    return self.truncated(at, format!("record header cut after {got} of 6 bytes"));
+                }
+                Err(Short::Io(source)) => {
+                    return Err(KinectError::File { path: self.path.clone(), source });
+                }
+            }
+            let (kind, st) = (head[0], head[1]);
+            let n = u32::from_le_bytes([head[2], head[3], head[4], head[5]]) as usize;
+            let index = self.index;
+            if n > MAX_RECORD {
+                self.done = true;
+                return Err(self.err(
+                    at,
+                    format!(
+                        "record {index} is corrupt: length {n} exceeds {MAX_RECORD} bytes; the \
+                         records after it cannot be located (the events before it can be \
+                         replayed by cutting the file at byte {at} and passing --allow-truncated)"
+                    ),
+                ));
+            }
+            let mut data = vec![0u8; n];
+            let mut crc = [0u8; 4];
+            for buf in [&mut data[..], &mut crc[..]] {
+                match self.fill(buf) {
+                    Ok(()) => {}
+                    Err(Short::Eof(_)) => {
+                        return self
+                            .truncated(at, format!("record cut short ({n} data bytes declared)"));
+                    }
+                    Err(Short::Io(source)) => {
+                        return Err(KinectError::File { path: self.path.clone(), source });
+                    }
+                }
+            }
+            let (stored, computed) = (u32::from_le_bytes(crc), record_crc(&head, &data));
+            if stored != computed {
+                if self.opts.skip_corrupt {
+                    self.report.skipped.push((index, at));
+                    self.index += 1;
+                    continue;
+                }
+                self.done = true;
+                return Err(self.err(
+                    at,
+                    format!(
+                        "record {index} is corrupt: checksum mismatch (stored {stored:#010x}, \
+                         computed {computed:#010x}); pass --skip-corrupt to leave it out and go on"
+                    ),
+                ));
+            }
             match kind {
                 KIND_END => {
-                    if n != 8 {
-                        return Err(c.err("bad end record"));
+                    self.done = true;
+                    let count = u64::from_le_bytes(
+                        data.as_slice().try_into().map_err(|_| self.err(at, "bad end record"))?,
+                    );
+                    if count != self.index {
+                        return Err(self.err(
+                            at,
+                            format!("end record counts {count} events, file holds {}", self.index),
+                        ));
                     }
-                    let count =
-                        u64::from_le_bytes(data.try_into().map_err(|_| c.err("bad end record"))?);
-                    if count != events.len() as u64 {
-                        return Err(c.err(format!(
-                            "end record counts {count} events, file holds {}",
-                            events.len()
-                        )));
+                    let mut extra = [0u8; 1];
+                    if let Ok(()) = self.fill(&mut extra) {
+                        return Err(self.err(self.pos - 1, "data after the end record"));
                     }
-                    Ok(None)
+                    return Ok(None);
                 }
                 KIND_ISO | KIND_BULK => {
                     let status = match st {
@@ -255,33 +534,65 @@ pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Re
                         1 => XferStatus::Error,
                         2 => XferStatus::TimedOut,
                         3 => XferStatus::Cancelled,
-                        _ => return Err(c.err(format!("unknown status {st}"))),
+                        _ => {
+                            return Err(
+                                self.err(at, format!("record {index}: unknown status {st}"))
+                            );
+                        }
                     };
+                    self.index += 1;
                     let kind = if kind == KIND_ISO { StreamKind::Depth } else { StreamKind::Color };
-                    Ok(Some(RecordedEvent { kind, status, data: data.to_vec() }))
+                    return Ok(Some(RecordedEvent { kind, status, data }));
                 }
-                k => Err(c.err(format!("unknown record kind {k:#x}"))),
-            }
-        })();
-        match rec {
-            Ok(Some(e)) => events.push(e),
-            Ok(None) => {
-                if c.pos != bytes.len() {
-                    return Err(c.err("data after the end record"));
+                k => {
+                    self.done = true;
+                    return Err(self.err(at, format!("record {index}: unknown record kind {k:#x}")));
                 }
-                return Ok(Recording { meta, events, complete: true });
-            }
-            Err(e) => {
-                if keep_prefix && c.pos >= start {
-                    return Ok(Recording { meta, events, complete: false });
-                }
-                return Err(e);
             }
         }
     }
 }
 
-/// Reads and parses a recording file.
+/// A source of recorded events for [`crate::sim::SimDevice::replay`] (feature `sim`).
+pub trait ReplaySource: Send {
+    /// The next event, `Ok(None)` at the end.
+    fn next_event(&mut self) -> Result<Option<RecordedEvent>>;
+    /// Damage met so far (none for in-memory events).
+    fn report(&self) -> ReadReport {
+        ReadReport::default()
+    }
+}
+
+impl<R: Read + Send> ReplaySource for RecordingReader<R> {
+    fn next_event(&mut self) -> Result<Option<RecordedEvent>> {
+        RecordingReader::next_event(self)
+    }
+    fn report(&self) -> ReadReport {
+        self.report.clone()
+    }
+}
+
+impl ReplaySource for std::vec::IntoIter<RecordedEvent> {
+    fn next_event(&mut self) -> Result<Option<RecordedEvent>> {
+        Ok(self.next())
+    }
+}
+
+/// Parses a recording held in memory (all events at once; for tests and small files).
+/// `path` is only used in error messages. With `keep_prefix`, a truncated file yields its
+/// intact events and `complete = false`.
+pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Recording> {
+    let opts = ReadOptions { keep_prefix, skip_corrupt: false };
+    let mut r = RecordingReader::new(bytes, path, opts)?;
+    let mut events = Vec::new();
+    while let Some(e) = r.next_event()? {
+        events.push(e);
+    }
+    let complete = !r.report.truncated;
+    Ok(Recording { meta: r.meta.clone(), events, complete })
+}
+
+/// Reads and parses a whole recording file into memory (see [`RecordingReader`] to stream).
 pub fn read_recording_file(path: &Path, keep_prefix: bool) -> Result<Recording> {
     let b = std::fs::read(path)
         .map_err(|source| KinectError::File { path: PathBuf::from(path), source })?;

@@ -1,4 +1,4 @@
-//! Depth → colour registration with the device's factory parameters (spec §11).
+//! Depth → colour registration with the device's factory parameters (protocol §11).
 //!
 //! Depth pixels are upright (row 0 = top); colour pixels are 1920 × 1080, index `col + 1920·row`.
 //! All arithmetic in f32 in the reference order, so outputs match the registration vectors
@@ -62,7 +62,7 @@ impl Registration {
                 let (dx_, dy_) = distort(d, x as f32, y as f32);
                 let ix = (dx_ + 0.5) as i32;
                 let iy = (dy_ + 0.5) as i32;
-                // `as` truncates toward zero: (−1, 0) becomes 0 (reference quirk, spec §11.1).
+                // `as` truncates toward zero: (−1, 0) becomes 0 (reference quirk, protocol §11.1).
                 distort_src[i] =
                     if ix >= 0 && (ix as usize) < WIDTH && iy >= 0 && (iy as usize) < HEIGHT {
                         iy * WIDTH as i32 + ix
@@ -78,14 +78,14 @@ impl Registration {
         Registration { color: *color, distort_src, map_x, map_y, map_yi }
     }
 
-    /// Colour pixel (float) of undistorted depth pixel `(x, y)` at depth `z_mm` (spec §11.2).
+    /// Colour pixel (float) of undistorted depth pixel `(x, y)` at depth `z_mm` (protocol §11.2).
     pub fn map_point(&self, x: usize, y: usize, z_mm: f32) -> (f32, f32) {
         let i = y * WIDTH + x;
         let c = &self.color;
         ((self.map_x[i] + c.shift_m / z_mm) * c.f + c.cx, self.map_y[i])
     }
 
-    /// Full-frame registration (spec §11.3) of an upright depth image (mm) and a 1920 × 1080
+    /// Full-frame registration (protocol §11.3) of an upright depth image (mm) and a 1920 × 1080
     /// colour image (one u32 per pixel). With `filter` the occlusion filter is applied.
     pub fn apply(&self, depth: &[f32], color: &[u32], filter: bool, out: &mut Registered) {
         let c = &self.color;

@@ -1,4 +1,4 @@
-//! A simulated Kinect v2 behind [`UsbBackend`] (spec §14.1): enforces the protocol, answers
+//! A simulated Kinect v2 behind [`UsbBackend`] (protocol §14.1): enforces the protocol, answers
 //! every command from a [`SimProfile`], streams depth frames built with the forward model from a
 //! caller-supplied [`SimScene`] and colour packets from caller-supplied JPEGs, and injects
 //! seeded faults.
@@ -28,11 +28,11 @@ use crate::stream::{ColorMeta, build_color_packet, packetize_depth_frame};
 const TICKS_PER_FRAME: u32 = 267;
 
 /// Status the simulated device puts in a 0x3E response (or an LED completion) when a value is
-/// out of range. The real status codes are not documented (spec §4.10); the sim's convention:
+/// out of range. The real status codes are not documented (protocol §4.10); the sim's convention:
 /// 0 = accepted, [`SIM_STATUS_INVALID_VALUE`], [`SIM_STATUS_UNKNOWN_CODE`],
 /// [`SIM_STATUS_BAD_REQUEST`].
 pub const SIM_STATUS_INVALID_VALUE: u32 = 1;
-/// Status for a setting code the spec does not list.
+/// Status for a setting code the protocol document does not list.
 pub const SIM_STATUS_UNKNOWN_CODE: u32 = 2;
 /// Status for a malformed 0x3E request (setting count ≠ 1 or setting sequence id ≠ 0).
 pub const SIM_STATUS_BAD_REQUEST: u32 = 3;
@@ -40,7 +40,7 @@ pub const SIM_STATUS_BAD_REQUEST: u32 = 3;
 /// footer reports `AUTO_EXPOSURE_MS × 2^compensation` in auto mode.
 pub const SIM_AUTO_EXPOSURE_MS: f32 = 10.0;
 
-/// The simulated colour camera's settings registers (spec §4.10), keyed by SET code.
+/// The simulated colour camera's settings registers (protocol §4.10), keyed by SET code.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SimColorSettings {
     regs: std::collections::BTreeMap<u32, u32>,
@@ -172,7 +172,10 @@ impl SimProfile {
     /// A profile from the vectors' inputs (real factory intrinsics, synthetic P0 and colour
     /// parameters) with a real-looking firmware version and status sequence.
     pub fn from_vectors(dir: &std::path::Path) -> crate::Result<Self> {
-        use crate::testdata::read_bytes;
+        let read_bytes = |path: &std::path::Path| {
+            std::fs::read(path)
+                .map_err(|source| crate::KinectError::File { path: path.to_path_buf(), source })
+        };
         let hw = read_bytes(&dir.join("real/protocol/hardware_info_response.bin"))?;
         Ok(SimProfile {
             firmware: [
@@ -211,7 +214,7 @@ impl SimProfile {
                 })
                 .collect()
         });
-        // Polynomial coefficients of a pinhole mapping (spec §11.1 inverted for x, y linear).
+        // Polynomial coefficients of a pinhole mapping (protocol §11.1 inverted for x, y linear).
         const QD: f32 = 0.01;
         const QC: f32 = 0.002199;
         let (shift_d, shift_m) = (863.0f32, 52.0f32);
@@ -325,7 +328,7 @@ pub struct SimDevice {
     expected_seq: u32,
     pending: Option<(CommandMessage, Vec<u8>, Phase, u32)>,
     /// The last 0x4B at sequence 0 could have been either the first sequenced command or the
-    /// LED API (spec §3.3 ambiguity at the session's start): accept either numbering next.
+    /// LED API (protocol §3.3 ambiguity at the session's start): accept either numbering next.
     led_ambiguous: bool,
     color: SimColorSettings,
     leds: [Option<LedSetting>; 2],
@@ -342,15 +345,33 @@ pub struct SimDevice {
     /// Sequence number of the next depth frame (wraps at 2^16).
     pub depth_sequence: u32,
     timestamp: u32,
-    replay: Option<std::vec::IntoIter<crate::recording::RecordedEvent>>,
+    replay: Option<Box<dyn crate::recording::ReplaySource>>,
+    /// Why a replay stopped early (a corrupt record), taken by [`SimDevice::take_replay_error`].
+    replay_error: Option<crate::KinectError>,
 }
+
+/// Recorded events queued per simulated frame period during replay: about one depth frame's
+/// worth of isochronous packets (9 per sub-packet × 10 plus empty ones) or more, while the
+/// queue stays bounded by this many records (each ≤ `recording::MAX_RECORD`) whatever the
+/// recording's size.
+const REPLAY_EVENTS_PER_PERIOD: usize = 128;
 
 impl SimDevice {
     /// A device that answers commands from a recording's metadata and streams its recorded
     /// events (the replay path: identical code from the backend up). The streams end with
     /// `Stopped { Requested }` when the recording is exhausted.
     pub fn replay(rec: crate::recording::Recording) -> crate::Result<Self> {
-        let m = &rec.meta;
+        Self::replay_from(&rec.meta, Box::new(rec.events.into_iter()))
+    }
+
+    /// [`SimDevice::replay`] streaming from `source` (e.g. a
+    /// [`RecordingReader`](crate::recording::RecordingReader)): at most
+    /// `REPLAY_EVENTS_PER_PERIOD` events are held at a time. A read error ends the streams with
+    /// `Stopped { Stalled }` and is kept for [`SimDevice::take_replay_error`].
+    pub fn replay_from(
+        m: &crate::recording::RecordingMeta,
+        source: Box<dyn crate::recording::ReplaySource>,
+    ) -> crate::Result<Self> {
         let mut fw = [(0u16, 0u16, 0u32, 0u32); 7];
         let parts: Vec<u32> = m.firmware.split('.').filter_map(|p| p.parse().ok()).collect();
         if parts.len() >= 4 {
@@ -369,8 +390,23 @@ impl SimDevice {
             bytes_per_interval: protocol::MIN_BYTES_PER_INTERVAL,
         };
         let mut d = SimDevice::new(profile, SimScene::default(), SimFaults::default());
-        d.replay = Some(rec.events.into_iter());
+        d.replay = Some(source);
         Ok(d)
+    }
+
+    /// The error that ended a replay early, if any (taken: a second call returns `None`).
+    pub fn take_replay_error(&mut self) -> Option<crate::KinectError> {
+        self.replay_error.take()
+    }
+
+    /// What the replay source skipped or found cut so far.
+    pub fn replay_report(&self) -> crate::recording::ReadReport {
+        self.replay.as_ref().map(|r| r.report()).unwrap_or_default()
+    }
+
+    /// Events waiting in the device's queue (what a replay holds in memory besides the reader).
+    pub fn queued_events(&self) -> usize {
+        self.queue.len()
     }
 
     /// A device with the given profile, scene and faults.
@@ -407,6 +443,7 @@ impl SimDevice {
             depth_sequence: 0,
             timestamp: 1000,
             replay: None,
+            replay_error: None,
         }
     }
 
@@ -462,7 +499,7 @@ impl SimDevice {
 
     /// Records an LED setting from 0x4B words; returns the completion status (non-zero when
     /// an LED API request is invalid). Start/stop "mode" words are recorded when they decode as
-    /// LED settings (spec §4.9) and never rejected.
+    /// LED settings (protocol §4.9) and never rejected.
     fn apply_led(&mut self, params: &[u32], api: bool) -> u32 {
         let words = match params {
             &[a, b, c, d] => [a, b, c, d],
@@ -501,14 +538,30 @@ impl SimDevice {
         if let Some(it) = self.replay.as_mut() {
             use crate::device::StreamKind;
             let (iso, bulk) = (self.iso.map(|s| s.0), self.bulk.map(|s| s.0));
-            for e in it.by_ref() {
-                let h = if e.kind == StreamKind::Depth { iso } else { bulk };
-                if let Some(h) = h {
-                    self.queue.push_back((h, e.to_event()));
+            let mut end = None;
+            for _ in 0..REPLAY_EVENTS_PER_PERIOD {
+                match it.next_event() {
+                    Ok(Some(e)) => {
+                        let h = if e.kind == StreamKind::Depth { iso } else { bulk };
+                        if let Some(h) = h {
+                            self.queue.push_back((h, e.into_event()));
+                        }
+                    }
+                    Ok(None) => {
+                        end = Some(StopReason::Requested);
+                        break;
+                    }
+                    Err(e) => {
+                        self.replay_error = Some(e);
+                        end = Some(StopReason::Stalled);
+                        break;
+                    }
                 }
             }
-            for h in [iso, bulk].into_iter().flatten() {
-                self.queue.push_back((h, StreamEvent::Stopped { reason: StopReason::Requested }));
+            if let Some(reason) = end {
+                for h in [iso, bulk].into_iter().flatten() {
+                    self.queue.push_back((h, StreamEvent::Stopped { reason }));
+                }
             }
             return;
         }
@@ -719,7 +772,7 @@ impl UsbBackend for SimDevice {
         let mut completion_status = 0;
         match m.id {
             COLOR_SETTING_ID => {
-                // Colour settings always carry sequence 0 and do not advance it (spec §3.3).
+                // Colour settings always carry sequence 0 and do not advance it (protocol §3.3).
                 if m.sequence != 0 {
                     self.violations.push(format!(
                         "colour setting (0x3E) with sequence {}, must be 0",
@@ -737,7 +790,7 @@ impl UsbBackend for SimDevice {
                 if m.sequence != self.expected_seq
                     && !(self.led_ambiguous && m.sequence == self.expected_seq.wrapping_add(1)) =>
             {
-                // Out of the counter: the LED API (sequence 0, spec §4.9).
+                // Out of the counter: the LED API (sequence 0, protocol §4.9).
                 if m.sequence != 0 {
                     self.violations.push(format!(
                         "command 0x4b: sequence {} expected {} (or 0 for the LED API)",

@@ -1,5 +1,5 @@
-//! Stream parsers: depth frame assembly from isochronous packets (spec §7) and colour JPEG
-//! framing from bulk transfers (spec §6). Both are allocation-free per packet after
+//! Stream parsers: depth frame assembly from isochronous packets (protocol §7) and colour JPEG
+//! framing from bulk transfers (protocol §6). Both are allocation-free per packet after
 //! construction and never panic on any input.
 
 use crate::raw::{RAW_FRAME_BYTES, SUB_IMAGE_BYTES, SUB_IMAGES};
@@ -10,7 +10,7 @@ pub const DEPTH_FOOTER_BYTES: usize = 152;
 pub const DEPTH_SUBPACKET_BYTES: usize = SUB_IMAGE_BYTES + DEPTH_FOOTER_BYTES;
 /// Mask of a complete frame (all 10 sub-images received).
 const COMPLETE_MASK: u16 = 0x3FF;
-/// Depth sequence numbers wrap at 2^16 (spec §7, observed).
+/// Depth sequence numbers wrap at 2^16 (protocol §7, observed).
 const DEPTH_SEQ_MODULUS: u32 = 1 << 16;
 /// Colour header bytes (sequence + magic).
 pub const COLOR_HEADER_BYTES: usize = 8;
@@ -98,7 +98,7 @@ pub struct DepthAssembler {
 pub struct RawDepthFrame<'a> {
     /// Frame sequence number.
     pub sequence: u32,
-    /// Timestamp of the frame's sub-packet 0 (kfuse deviation from the reference, spec §7).
+    /// Timestamp of the frame's sub-packet 0 (kfuse deviation from the reference, protocol §7).
     pub timestamp: u32,
     /// 2 984 960 bytes.
     pub data: &'a [u8],

@@ -19,15 +19,15 @@ pub fn vectors_dir() -> Option<PathBuf> {
     d.is_dir().then_some(d)
 }
 
-/// Returns the vectors folder or, if absent, prints a SKIP line for `test` and returns `None`
-/// (panics instead when `KFUSE_REQUIRE_SHARED_DATA=1`).
+/// Returns the vectors folder or, if absent, records a skip of `test` (`test_skip::skip`, which
+/// CI counts) and returns `None` (panics instead when `KFUSE_REQUIRE_SHARED_DATA=1`).
 pub fn vectors_or_skip(test: &str) -> Option<PathBuf> {
     let d = vectors_dir();
     if d.is_none() {
         if std::env::var("KFUSE_REQUIRE_SHARED_DATA").as_deref() == Ok("1") {
             panic!("{test}: shared data required but not found (set {DATA_ENV})");
         }
-        eprintln!("SKIP {test}: shared data not found (set {DATA_ENV})");
+        test_skip::skip(test, &format!("shared data not found (set {DATA_ENV})"));
     }
     d
 }

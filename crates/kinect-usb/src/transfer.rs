@@ -1,6 +1,6 @@
 //! Asynchronous libusb transfers (isochronous depth, bulk colour) — the only `unsafe` code of
 //! kfuse. rusb has no isochronous API, so this drives `libusb1-sys` (re-exported as
-//! `rusb::ffi`) directly, following spec §5.5: a pool of transfers that resubmit themselves on
+//! `rusb::ffi`) directly, following protocol §5.5: a pool of transfers that resubmit themselves on
 //! completion, per-packet data handed over in descriptor order at offsets `i × packet_size`
 //! (always advancing by the nominal size), failed resubmission surfaced as a `Stopped` event.
 //!
@@ -74,7 +74,7 @@ fn disposition(status: c_int, stopping: bool) -> Disposition {
     }
 }
 
-/// Why a stream stops when resubmission returned libusb error `rc` (spec §5.5 [QUIRK]: the
+/// Why a stream stops when resubmission returned libusb error `rc` (protocol §5.5 \[QUIRK\]: the
 /// reference silently lets the stream die; kfuse reports it).
 fn resubmit_failure(rc: c_int) -> StopReason {
     if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE {
@@ -91,9 +91,9 @@ struct IsoDesc {
     actual_length: c_uint,
 }
 
-/// The isochronous bookkeeping of spec §5.5: one event per descriptor, in order; packet `i`'s
+/// The isochronous bookkeeping of protocol §5.5: one event per descriptor, in order; packet `i`'s
 /// data starts at the **nominal** offset `i × packet_size` whatever happened to earlier packets
-/// (the reference's [QUIRK] of advancing only past completed packets is not reproduced); its
+/// (the reference's \[QUIRK\] of advancing only past completed packets is not reproduced); its
 /// length is `actual_length` clamped to the packet size and to the buffer; only completed
 /// packets carry data.
 fn iso_events(buffer: &[u8], descs: &[IsoDesc], packet_size: usize) -> Vec<StreamEvent> {

@@ -16,11 +16,11 @@ use crate::error::{KinectError, Result, UsbError};
 use crate::protocol::{PRODUCT_IDS, VENDOR_ID};
 use crate::transfer::TransferPool;
 
-/// Open attempts right after enumeration (spec §5.1).
+/// Open attempts right after enumeration (protocol §5.1).
 const OPEN_ATTEMPTS: usize = 10;
 /// Pause between open attempts.
 const OPEN_RETRY: Duration = Duration::from_millis(100);
-/// Event-thread poll interval (spec §5.5).
+/// Event-thread poll interval (protocol §5.5).
 const EVENT_POLL: Duration = Duration::from_millis(100);
 /// Streaming transfer timeout.
 const STREAM_TIMEOUT: Duration = Duration::from_millis(1000);
@@ -70,7 +70,7 @@ fn kinects(ctx: &rusb::Context) -> Result<Vec<(rusb::Device<rusb::Context>, u16)
         .collect())
 }
 
-/// Lists connected Kinect v2 sensors (spec §1 enumeration recipe).
+/// Lists connected Kinect v2 sensors (protocol §1 enumeration recipe).
 pub fn list_devices() -> Result<Vec<DeviceSummary>> {
     let ctx = context()?;
     Ok(kinects(&ctx)?

@@ -1,5 +1,5 @@
-//! Colour-camera settings (0x3E, spec §4.10) and the LED API (0x4B, spec §4.9) end to end over
-//! the simulated device: sequence rules (spec §3.3), round trips, device-side rejection, fault
+//! Colour-camera settings (0x3E, protocol §4.10) and the LED API (0x4B, §4.9) end to end over
+//! the simulated device: sequence rules (protocol §3.3), round trips, device-side rejection, fault
 //! injection. Needs no shared data (synthetic profile).
 
 use std::time::Duration;
@@ -140,10 +140,15 @@ fn bad_values_are_rejected_by_host_and_by_device() {
     );
     let e = dev.set_exposure(Exposure::Auto { compensation: 3.0 }).unwrap_err();
     assert!(e.to_string().contains("compensation 3 is outside [-2, 2]"), "{e}");
-    assert!(dev.set_rgb_gains(1.0, -1.0, 1.0).is_err());
-    assert!(dev.set_color_f32(ColorSettingCode::GetAnalogGain, 1.0).is_err());
-    assert!(dev.set_color_u32(ColorSettingCode::SetAnalogGain, 1).is_err());
-    assert!(dev.color_setting(ColorSettingCode::SetMeteringZoneWeight(48), 1).is_err());
+    // Each is refused on the host as invalid input (not a USB or protocol failure).
+    let invalid = |r: kinect_usb::Result<()>, what: &str| match r {
+        Err(KinectError::Invalid(m)) => assert!(m.contains(what), "{m}"),
+        other => panic!("expected Invalid naming {what}: {other:?}"),
+    };
+    invalid(dev.set_rgb_gains(1.0, -1.0, 1.0), "green gain");
+    invalid(dev.set_color_f32(ColorSettingCode::GetAnalogGain, 1.0), "GetAnalogGain");
+    invalid(dev.set_color_u32(ColorSettingCode::SetAnalogGain, 1), "SetAnalogGain");
+    invalid(dev.color_setting(ColorSettingCode::SetMeteringZoneWeight(48), 1).map(|_| ()), "");
     assert_eq!(dev.backend().transcript.len(), n, "nothing may be sent for invalid input");
 
     // Bypassing host validation: the device answers status ≠ 0 and keeps the old value.
@@ -158,7 +163,7 @@ fn bad_values_are_rejected_by_host_and_by_device() {
     assert_eq!(dev.analog_gain().unwrap(), 1.0);
     let e = dev.set_color_u32(ColorSettingCode::SetExposureMode, 2).unwrap_err();
     assert!(matches!(e, KinectError::Rejected { status: SIM_STATUS_INVALID_VALUE, .. }), "{e}");
-    // A code the spec does not list, sent raw.
+    // A code the protocol document does not list, sent raw.
     let data = dev.command(Command::ColorSetting { code: 5, value: 0 }).unwrap();
     assert_eq!(
         protocol::parse_color_setting_response(&data).unwrap().status,
@@ -216,7 +221,7 @@ fn led_api_uses_sequence_zero_and_is_recorded() {
     assert!(matches!(dev.set_led(LedSetting::on(0, 1001)), Err(KinectError::Invalid(_))));
     assert!(matches!(dev.set_led(LedSetting::blink(0, 0)), Err(KinectError::Invalid(_))));
     assert_eq!(dev.backend().transcript.len(), n);
-    // Stop and close still number their mode commands from 13 (spec §5.3/§5.4).
+    // Stop and close still number their mode commands from 13 (protocol §5.3/§5.4).
     dev.close().unwrap();
     let tr = &dev.backend().transcript;
     assert!(tr.iter().any(|l| l == "cmd 0x4b seq 13 [1, 6553700, 0, 0]"), "{tr:?}");

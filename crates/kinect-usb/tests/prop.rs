@@ -1,10 +1,13 @@
-//! Property tests of the bit layout and the stream parsers (spec §14.3).
+//! Property tests of the bit layout and the stream parsers (protocol §14.3).
 
 use std::path::Path;
 
+use kinect_usb::KinectError;
+use kinect_usb::backend::XferStatus;
+use kinect_usb::device::StreamKind;
 use kinect_usb::raw::SUB_IMAGE_BYTES;
 use kinect_usb::raw::{PIXELS, RAW_FRAME_BYTES, pack_frame, unpack_sub_image};
-use kinect_usb::recording::read_recording;
+use kinect_usb::recording::{RecordedEvent, RecordingMeta, RecordingWriter, read_recording};
 use kinect_usb::stream::{
     ColorAssembler, ColorMeta, DEPTH_FOOTER_BYTES, DepthAssembler, DepthFooter, build_color_packet,
 };
@@ -96,29 +99,6 @@ proptest! {
         // Frame 1 arrived in part: counted once, as incomplete, not also as skipped.
         prop_assert_eq!(a.stats.incomplete_frames, 1);
         prop_assert_eq!(a.stats.skipped_frames, 0);
-    }
-
-    /// Random packet sequences never panic in any parser.
-    #[test]
-    fn random_packets_never_panic(pkts in prop::collection::vec(
-        prop_oneof![
-            Just(0usize), 1usize..200, Just(DEPTH_FOOTER_BYTES), 30_000usize..34_000, 298_000usize..298_700
-        ], 0..40), seed in any::<u8>()) {
-        let mut a = DepthAssembler::new();
-        let mut c = ColorAssembler::new();
-        for (i, n) in pkts.into_iter().enumerate() {
-            let p: Vec<u8> = (0..n).map(|k| (k as u8).wrapping_mul(seed).wrapping_add(i as u8)).collect();
-            let _ = a.push(&p);
-            let _ = c.push(&p);
-        }
-    }
-
-    /// Random bytes never panic the recording reader.
-    #[test]
-    fn recording_reader_never_panics(b in prop::collection::vec(any::<u8>(), 0..400), keep in any::<bool>()) {
-        let mut bytes = b"KFUSEREC\x01\0\0\0".to_vec();
-        bytes.extend(b);
-        let _ = read_recording(&bytes, Path::new("random.kfrec"), keep);
     }
 
     /// Colour packets with random JPEG length, 0..3 pad bytes, random filler and random
@@ -231,5 +211,120 @@ proptest! {
             }
         }
         prop_assert!(s.violations.is_empty(), "{:?}", s.violations);
+    }
+}
+
+/// A recording of `events` with a small synthetic header.
+fn recording_bytes(events: &[RecordedEvent]) -> Vec<u8> {
+    let meta = RecordingMeta {
+        firmware: "4.0.3912.0".into(),
+        serial: "000000000001".into(),
+        hardware_info: vec![7; 92],
+        depth_params: vec![1; 92],
+        p0: vec![2; 64],
+        color_params: vec![3; 64],
+    };
+    let mut w = RecordingWriter::new(Vec::new(), &meta).unwrap();
+    for e in events {
+        w.write_event(e.kind, &e.to_event()).unwrap();
+    }
+    w.finish().unwrap()
+}
+
+fn event() -> impl Strategy<Value = RecordedEvent> {
+    (any::<bool>(), 0u8..4, prop::collection::vec(any::<u8>(), 0..300)).prop_map(|(d, st, data)| {
+        let status =
+            [XferStatus::Completed, XferStatus::Error, XferStatus::TimedOut, XferStatus::Cancelled]
+                [st as usize];
+        RecordedEvent { kind: if d { StreamKind::Depth } else { StreamKind::Color }, status, data }
+    })
+}
+
+proptest! {
+    // 256 cases: each is cheap (a few KB), and a bit flip has to land in every part of the
+    // format (header fields, record headers, data, checksums, end record) many times.
+    #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+
+    /// A recording round-trips exactly; any single flipped bit is refused (never replayed as
+    /// other data) with a recording error at an offset inside the file, and with
+    /// `keep_prefix` at most yields an intact prefix of the original events; any cut is
+    /// reported as truncated, and with `keep_prefix` yields an intact prefix.
+    #[test]
+    fn recordings_roundtrip_and_damage_is_detected(events in prop::collection::vec(event(), 0..20),
+                                                   pos in any::<prop::sample::Index>(), bit in 0u8..8) {
+        let bytes = recording_bytes(&events);
+        let path = Path::new("p.kfrec");
+        let r = read_recording(&bytes, path, false).unwrap();
+        prop_assert!(r.complete);
+        prop_assert_eq!(&r.events, &events);
+
+        let is_prefix = |got: &[RecordedEvent]| got.len() <= events.len() && got == &events[..got.len()];
+        let mut flipped = bytes.clone();
+        let at = pos.index(bytes.len());
+        flipped[at] ^= 1 << bit;
+        match read_recording(&flipped, path, false) {
+            Err(KinectError::Recording { offset, .. }) => prop_assert!(offset <= bytes.len() as u64),
+            other => prop_assert!(false, "flip at {at} bit {bit}: {other:?}"),
+        }
+        if let Ok(r) = read_recording(&flipped, path, true) {
+            prop_assert!(!r.complete && is_prefix(&r.events), "flip at {at}: {} events", r.events.len());
+        }
+
+        let cut = &bytes[..at];
+        match read_recording(cut, path, false) {
+            Err(e @ KinectError::Recording { .. }) => prop_assert!(e.to_string().contains("truncated"), "{e}"),
+            other => prop_assert!(false, "cut at {at}: {other:?}"),
+        }
+        if let Ok(r) = read_recording(cut, path, true) {
+            prop_assert!(!r.complete && is_prefix(&r.events));
+        }
+    }
+
+    /// Random bytes after the magic and version are refused (a recording error at an offset
+    /// inside the input), with or without `keep_prefix`: the header checksum cannot match.
+    #[test]
+    fn random_recording_bytes_are_refused(b in prop::collection::vec(any::<u8>(), 0..400), keep in any::<bool>()) {
+        let mut bytes = b"KFUSEREC\x02\0\0\0".to_vec();
+        bytes.extend(b);
+        match read_recording(&bytes, Path::new("random.kfrec"), keep) {
+            Err(KinectError::Recording { offset, .. }) => prop_assert!(offset <= bytes.len() as u64),
+            other => prop_assert!(false, "{other:?}"),
+        }
+    }
+}
+
+proptest! {
+    // 128 cases of up to 40 packets of up to ~300 KB.
+    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+
+    /// Random packet sequences never panic either parser, and what they emit is well formed:
+    /// depth frames are whole raw frames (10 sub-images, so at most one per 10 packets that
+    /// could end a sub-packet) and are all counted; colour frames are JPEGs (FF D8 … FF D9)
+    /// shorter than the bytes pushed.
+    #[test]
+    fn random_packets_never_panic_and_emit_only_whole_frames(pkts in prop::collection::vec(
+        prop_oneof![
+            Just(0usize), 1usize..200, Just(DEPTH_FOOTER_BYTES), 30_000usize..34_000, 298_000usize..298_700
+        ], 0..40), seed in any::<u8>()) {
+        let mut a = DepthAssembler::new();
+        let mut c = ColorAssembler::new();
+        let (mut depth, mut color, mut pushed) = (0u64, 0u64, 0usize);
+        let enders = pkts.iter().filter(|&&n| n >= DEPTH_FOOTER_BYTES).count() as u64;
+        for (i, n) in pkts.into_iter().enumerate() {
+            let p: Vec<u8> = (0..n).map(|k| (k as u8).wrapping_mul(seed).wrapping_add(i as u8)).collect();
+            pushed += n;
+            if let Some(f) = a.push(&p) {
+                prop_assert_eq!(f.data.len(), RAW_FRAME_BYTES);
+                depth += 1;
+            }
+            if let Some((jpeg, _)) = c.push(&p) {
+                prop_assert!(jpeg.len() >= 4 && jpeg.len() < pushed);
+                prop_assert!(jpeg.starts_with(&[0xFF, 0xD8]) && jpeg.ends_with(&[0xFF, 0xD9]));
+                color += 1;
+            }
+        }
+        prop_assert!(depth * 10 <= enders, "{depth} frames from {enders} packets");
+        prop_assert_eq!(a.stats.frames, depth);
+        prop_assert_eq!(c.stats.frames, color);
     }
 }

@@ -12,7 +12,7 @@ fn read_u32(p: &std::path::Path) -> Vec<u32> {
         .collect()
 }
 
-/// Exact equality with the four registration oracle files (spec §11.3: an independent
+/// Exact equality with the four registration oracle files (protocol §11.3: an independent
 /// implementation matched them exactly; everything is f32 in a fixed order).
 #[test]
 fn registration_matches_vectors_exactly() {

@@ -85,7 +85,7 @@ fn start_stop_close_transcript_matches_spec_sequences() {
         "cmd 0x4b seq 22 [0, 0, 0, 0]",
     ];
     assert_eq!(cmds, expected_start);
-    // Open sequence (spec §5.1) and the alt settings / suspend around streaming.
+    // Open sequence (protocol §5.1) and the alt settings / suspend around streaming.
     let non_cmd: Vec<&str> =
         tr.iter().filter(|l| !l.starts_with("cmd")).map(|s| s.as_str()).collect();
     assert_eq!(
@@ -116,7 +116,7 @@ fn start_stop_close_transcript_matches_spec_sequences() {
 }
 
 /// Sim → device → decoder (filters off) reproduces the scene within the forward model's
-/// quantisation error. Bounds from spec §14.2 / manifest `forward_model_round_trip`:
+/// quantisation error. Bounds from protocol §14.2 / manifest `forward_model_round_trip`:
 /// median 0.18 mm, max 6.0 mm on the vectors' scene; asserted: median ≤ 0.2 mm, max ≤ 8 mm.
 #[test]
 fn simulated_stream_decodes_to_the_scene() {
@@ -272,7 +272,13 @@ fn unplug_mid_stream_ends_with_disconnected_after_complete_frames() {
     };
     assert!(matches!(err, KinectError::Disconnected { .. }), "{err}");
     assert_eq!((depth, color), (3, 3));
-    assert!(dev.close().is_err(), "stop/close report the missing device");
+    let e = dev.close().unwrap_err();
+    // The best-effort stop aggregates every step's failure into one error that names it.
+    assert!(
+        matches!(&e, KinectError::Protocol { what, detail }
+            if what == "stop" && detail.contains("no device")),
+        "stop/close report the missing device: {e:?}"
+    );
     assert_eq!(dev.state(), State::Closed);
 }
 
@@ -337,7 +343,11 @@ fn command_faults_roll_back_to_open() {
     dev.start(false, false).unwrap();
     assert!(dev.warnings.iter().any(|w| w.contains("completion sequence")));
     dev.strict_sequence = true;
-    assert!(dev.command(kinect_usb::protocol::Command::ReadStatus(0x090000)).is_err());
+    let e = dev.command(kinect_usb::protocol::Command::ReadStatus(0x090000)).unwrap_err();
+    assert!(
+        matches!(e, KinectError::Protocol { .. }) && e.to_string().contains("sequence"),
+        "strict sequence mismatch is a protocol error: {e:?}"
+    );
 }
 
 #[test]

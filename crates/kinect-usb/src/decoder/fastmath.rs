@@ -114,7 +114,7 @@ const PI_LO: f32 = (std::f64::consts::PI - PI_HI as f64) as f32;
 
 /// atan2(y, x), four lanes, in (−π, π], for finite (y, x) ≠ (0, 0); NaN in either gives NaN
 /// (so does (0, 0), where libm gives ±0 or ±π — the decoder never needs it there: the amplitude
-/// gate of spec §9.6 discards those pixels).
+/// gate of protocol §9.6 discards those pixels).
 #[inline(always)]
 pub fn atan2(y: f32x4, x: f32x4) -> f32x4 {
     let (ax, ay) = (x.abs(), y.abs());

@@ -52,7 +52,7 @@ pub(super) struct Stage2Scratch<'a> {
     pub conf: &'a mut Plane,
 }
 
-/// The parent's `stage2_row` for `Fast` (spec §9.6), in the same loops: amplitudes and gate,
+/// The parent's `stage2_row` for `Fast` (protocol §9.6), in the same loops: amplitudes and gate,
 /// phases, confidence, then `unwrap_depth`; writes the depth `dp`, its `lo`/`hi` forms and the
 /// amplitude sum `is` of one processing row. `fa`, `fb`: filtered phasors; `ok`: the
 /// bilateral `edge_ok` (1.0 / 0.0); `xt`, `zt`: the row's x/z tables.
