@@ -13,10 +13,10 @@ use calib::{
     Board, CalibError, CalibFlags, MonoCalibration, StereoOptions, ViewCorners, calibrate_mono,
     calibrate_stereo,
 };
-use geometry::io::atomic::StagedDir;
-use geometry::io::images::write_color_png;
 use geometry::{CameraModel, Image};
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_io::atomic::StagedDir;
+use kfuse_io::images::write_color_png;
 use nalgebra::Vector2;
 use plotters::prelude::*;
 

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use geometry::io::atomic::StagedDir;
-use geometry::io::{images, rig as rigio};
 use geometry::synth;
+use kfuse_io::atomic::StagedDir;
+use kfuse_io::{images, rig as rigio};
 
 use crate::cmd_fuse::{self, DepthKindArg, FuseArgs, MeshFromArg, ResampleArg};
 

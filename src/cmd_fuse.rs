@@ -7,10 +7,10 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
-use geometry::io::atomic::{StagedDir, write_bytes_atomic};
-use geometry::io::{course, images, obj, ply, rig as rigio};
 use geometry::{DepthKind, Image, Rig};
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
+use kfuse_io::{course, images, obj, ply, rig as rigio};
 use serde::Serialize;
 
 use crate::figures::{self, Panel, titles};

@@ -5,10 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use calib::undistort::UndistortMap;
 use geometry::Rig;
-use geometry::io::images::{
-    MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16,
-};
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_io::images::{MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16};
 
 /// Arguments of `kfuse undistort`.
 #[derive(clap::Args, Debug)]

@@ -15,13 +15,13 @@
 //!   viewers show it as grey; `NaN` kept). Float TIFF in metres for tests and exchange.
 //! * **Masks** are written as 8-bit grey PNG (0 / 255), colour as 8-bit RGB PNG.
 //!
-//! Every write goes through [`crate::io::atomic`]: a file appears complete or not at all.
+//! Every write goes through [`crate::atomic`]: a file appears complete or not at all.
 
 use std::io::Cursor;
 use std::path::Path;
 
-use crate::io::atomic::write_bytes_atomic;
-use crate::{GeometryError, Image};
+use crate::atomic::write_bytes_atomic;
+use geometry::{GeometryError, Image};
 
 /// The colour formats accepted, for error messages and `--help`.
 pub const COLOR_FORMATS: &str = "PNG, JPEG, TIFF or BMP (8/16-bit grey, RGB or RGBA)";

@@ -10,7 +10,7 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use crate::GeometryError;
+use geometry::GeometryError;
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GeometryError + '_ {
     move |source| GeometryError::Io { path: path.to_path_buf(), source }

@@ -2,8 +2,8 @@
 
 use std::path::Path;
 
-use crate::io::atomic::write_bytes_atomic;
-use crate::{GeometryError, Rig};
+use crate::atomic::write_bytes_atomic;
+use geometry::{GeometryError, Rig};
 
 /// Reads and validates a rig file.
 pub fn read_rig(path: &Path) -> Result<Rig, GeometryError> {
@@ -28,7 +28,7 @@ pub fn write_rig(path: &Path, rig: &Rig) -> Result<(), GeometryError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{CameraModel, Distortion, Intrinsics, RigidTransform};
+    use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
     use nalgebra::Vector3;
 
     #[test]
