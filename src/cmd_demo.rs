@@ -66,6 +66,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         hole_radius: geometry::fusion::FusionOptions::default().hole_radius_factor,
         no_figures: args.no_figures,
         gpu: None,
+        force: false,
     };
     let result = cmd_fuse::run(&fuse)?;
     cmd_fuse::report(&result);

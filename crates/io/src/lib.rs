@@ -8,6 +8,7 @@
 //! | [`atomic`] | every write: temporary file + rename, [`atomic::StagedDir`] for output folders |
 //! | [`mat`] | MATLAB v5 `.mat` files (reader for every numeric class, char, struct, cell; small writer) |
 //! | [`course`] | the lab's `synthdata.mat` and `KinectData.mat` → [`geometry::Rig`] + images |
+//! | [`image_header`] | image sizes from headers, checked against limits before decoding; JPEG completeness |
 //! | [`images`] | colour (PNG/JPEG/TIFF/BMP), depth (16-bit PNG/TIFF mm, float TIFF/EXR m), masks |
 //! | [`ply`] | binary PLY point clouds and meshes (colours, `s, t` texture coordinates) |
 //! | [`obj`] | OBJ + MTL + PNG texture |
@@ -17,6 +18,7 @@
 
 pub mod atomic;
 pub mod course;
+pub mod image_header;
 pub mod images;
 pub mod mat;
 pub mod obj;

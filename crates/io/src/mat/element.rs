@@ -1,104 +1,131 @@
 //! Stage 2 of the reader: the values of one numeric data element, decoded from its stored type
 //! (`miINT8` … `miDOUBLE`, either byte order) and converted to the array's MATLAB class.
+//!
+//! Values go straight from the stored bytes into the class's type (one pass, no wider
+//! intermediate array), so an element never takes more memory than its bytes times the
+//! widening from storage to class (at most 8×: MATLAB stores integer-valued doubles as
+//! `uint8`). Integers pass through `i128` and floats through `f64` one value at a time, which
+//! is exact for every pair of types.
 
 use super::header::*;
 use super::value::{MatClass, NumericData};
 
-/// Values of one stored data element, before conversion to the array's class.
-pub(super) enum Stored {
-    Ints(Vec<i128>),
-    Floats(Vec<f64>),
+/// A primitive type a data element can be stored as.
+trait StoredValue: Copy {
+    const SIZE: usize;
+    fn read(bytes: &[u8], little: bool) -> Self;
 }
 
-#[allow(clippy::modulo_one)] // the macro also serves 1-byte types
-pub(super) fn decode(ty: u32, data: &[u8], little: bool) -> Result<Stored, String> {
-    macro_rules! ints {
-        ($t:ty, $n:expr) => {{
-            if data.len() % $n != 0 {
-                return Err(format!(
-                    "data of {} bytes is not a whole number of {}-byte values",
-                    data.len(),
-                    $n
-                ));
+macro_rules! stored_value {
+    ($($t:ty),*) => {$(
+        impl StoredValue for $t {
+            const SIZE: usize = std::mem::size_of::<$t>();
+            fn read(bytes: &[u8], little: bool) -> Self {
+                let arr: [u8; std::mem::size_of::<$t>()] =
+                    bytes.try_into().unwrap_or([0; std::mem::size_of::<$t>()]);
+                if little { <$t>::from_le_bytes(arr) } else { <$t>::from_be_bytes(arr) }
             }
-            Stored::Ints(
-                data.chunks_exact($n)
-                    .map(|c| {
-                        let arr: [u8; $n] = c.try_into().unwrap_or([0; $n]);
-                        (if little { <$t>::from_le_bytes(arr) } else { <$t>::from_be_bytes(arr) })
-                            as i128
-                    })
-                    .collect(),
-            )
-        }};
+        }
+    )*};
+}
+stored_value!(i8, u8, i16, u16, i32, u32, i64, u64, f32, f64);
+
+fn each<S: StoredValue, T>(
+    data: &[u8],
+    little: bool,
+    f: impl Fn(S) -> T,
+) -> Result<Vec<T>, String> {
+    if !data.len().is_multiple_of(S::SIZE) {
+        return Err(format!(
+            "data of {} bytes is not a whole number of {}-byte values",
+            data.len(),
+            S::SIZE
+        ));
     }
-    Ok(match ty {
-        MI_INT8 => ints!(i8, 1),
-        MI_UINT8 | MI_UTF8 => ints!(u8, 1),
-        MI_INT16 => ints!(i16, 2),
-        MI_UINT16 | MI_UTF16 => ints!(u16, 2),
-        MI_INT32 => ints!(i32, 4),
-        MI_UINT32 | MI_UTF32 => ints!(u32, 4),
-        MI_INT64 => ints!(i64, 8),
-        MI_UINT64 => ints!(u64, 8),
-        MI_SINGLE => {
-            if !data.len().is_multiple_of(4) {
-                return Err("single data is not a whole number of 4-byte values".into());
-            }
-            Stored::Floats(
-                data.chunks_exact(4)
-                    .map(|c| {
-                        let arr = [c[0], c[1], c[2], c[3]];
-                        (if little { f32::from_le_bytes(arr) } else { f32::from_be_bytes(arr) })
-                            as f64
-                    })
-                    .collect(),
-            )
-        }
-        MI_DOUBLE => {
-            if !data.len().is_multiple_of(8) {
-                return Err("double data is not a whole number of 8-byte values".into());
-            }
-            Stored::Floats(
-                data.chunks_exact(8)
-                    .map(|c| {
-                        let arr: [u8; 8] = c.try_into().unwrap_or([0; 8]);
-                        if little { f64::from_le_bytes(arr) } else { f64::from_be_bytes(arr) }
-                    })
-                    .collect(),
-            )
-        }
-        other => return Err(format!("unknown data type {other} in a numeric element")),
+    Ok(data.chunks_exact(S::SIZE).map(|c| f(S::read(c, little))).collect())
+}
+
+/// Bytes per value of stored type `ty`, `None` for types that hold no numbers.
+pub(super) fn stored_size(ty: u32) -> Option<usize> {
+    Some(match ty {
+        MI_INT8 | MI_UINT8 | MI_UTF8 => 1,
+        MI_INT16 | MI_UINT16 | MI_UTF16 => 2,
+        MI_INT32 | MI_UINT32 | MI_UTF32 | MI_SINGLE => 4,
+        MI_DOUBLE | MI_INT64 | MI_UINT64 => 8,
+        _ => return None,
     })
 }
 
-pub(super) fn convert(
-    stored: Stored,
+/// Decodes every value of an element of stored type `ty`: integers through `from_int`,
+/// floating-point values through `from_float`.
+pub(super) fn decode_with<T>(
+    ty: u32,
+    data: &[u8],
+    little: bool,
+    from_int: impl Fn(i128) -> T,
+    from_float: impl Fn(f64) -> T,
+) -> Result<Vec<T>, String> {
+    match ty {
+        MI_INT8 => each(data, little, |v: i8| from_int(v as i128)),
+        MI_UINT8 | MI_UTF8 => each(data, little, |v: u8| from_int(v as i128)),
+        MI_INT16 => each(data, little, |v: i16| from_int(v as i128)),
+        MI_UINT16 | MI_UTF16 => each(data, little, |v: u16| from_int(v as i128)),
+        MI_INT32 => each(data, little, |v: i32| from_int(v as i128)),
+        MI_UINT32 | MI_UTF32 => each(data, little, |v: u32| from_int(v as i128)),
+        MI_INT64 => each(data, little, |v: i64| from_int(v as i128)),
+        MI_UINT64 => each(data, little, |v: u64| from_int(v as i128)),
+        MI_SINGLE => each(data, little, |v: f32| from_float(v as f64)),
+        MI_DOUBLE => each(data, little, from_float),
+        other => Err(format!("unknown data type {other} in a numeric element")),
+    }
+}
+
+/// Decodes an element that must hold integers (dimensions, lengths, character codes).
+pub(super) fn decode_ints(ty: u32, data: &[u8], little: bool) -> Result<Vec<i128>, String> {
+    if matches!(ty, MI_SINGLE | MI_DOUBLE) {
+        return Err("integers stored as floating point".into());
+    }
+    decode_with(ty, data, little, |x| x, |x| x as i128)
+}
+
+/// Decodes a numeric element into the array's class (`logical` arrays are `uint8` 0/1).
+pub(super) fn read_numeric(
+    ty: u32,
+    data: &[u8],
+    little: bool,
     class: MatClass,
     logical: bool,
 ) -> Result<NumericData, String> {
-    macro_rules! conv {
+    macro_rules! to {
         ($variant:ident, $t:ty) => {
-            NumericData::$variant(match stored {
-                Stored::Ints(v) => v.into_iter().map(|x| x as $t).collect(),
-                Stored::Floats(v) => v.into_iter().map(|x| x as $t).collect(),
-            })
+            NumericData::$variant(decode_with(ty, data, little, |x| x as $t, |x| x as $t)?)
         };
     }
     if logical {
-        return Ok(conv!(Logical, u8));
+        return Ok(to!(Logical, u8));
     }
     Ok(match class {
-        MatClass::Double => conv!(Double, f64),
-        MatClass::Single => conv!(Single, f32),
-        MatClass::Int8 => conv!(Int8, i8),
-        MatClass::UInt8 | MatClass::Logical => conv!(UInt8, u8),
-        MatClass::Int16 => conv!(Int16, i16),
-        MatClass::UInt16 => conv!(UInt16, u16),
-        MatClass::Int32 => conv!(Int32, i32),
-        MatClass::UInt32 => conv!(UInt32, u32),
-        MatClass::Int64 => conv!(Int64, i64),
-        MatClass::UInt64 => conv!(UInt64, u64),
+        MatClass::Double => to!(Double, f64),
+        MatClass::Single => to!(Single, f32),
+        MatClass::Int8 => to!(Int8, i8),
+        MatClass::UInt8 | MatClass::Logical => to!(UInt8, u8),
+        MatClass::Int16 => to!(Int16, i16),
+        MatClass::UInt16 => to!(UInt16, u16),
+        MatClass::Int32 => to!(Int32, i32),
+        MatClass::UInt32 => to!(UInt32, u32),
+        MatClass::Int64 => to!(Int64, i64),
+        MatClass::UInt64 => to!(UInt64, u64),
         other => return Err(format!("class {} is not numeric", other.name())),
     })
+}
+
+/// Bytes one value of a numeric class takes in memory.
+pub(super) fn class_size(class: MatClass, logical: bool) -> usize {
+    match class {
+        _ if logical => 1,
+        MatClass::Double | MatClass::Int64 | MatClass::UInt64 => 8,
+        MatClass::Single | MatClass::Int32 | MatClass::UInt32 => 4,
+        MatClass::Int16 | MatClass::UInt16 => 2,
+        _ => 1,
+    }
 }

@@ -5,9 +5,19 @@ use std::path::{Path, PathBuf};
 
 use super::GeometryError;
 use super::array::parse_matrix;
-use super::compress::inflate;
+use super::compress::{MAX_INFLATED_BYTES, inflate};
 use super::header::*;
 use super::value::{MatMatrix, MatValue, NumericArray, describe};
+
+/// Largest `.mat` file read: 512 MiB. The lab's files are a few MB (`KinectData.mat`, the
+/// largest, holds one Kinect frame: under 20 MB); this keeps a wrong file from being read
+/// whole into memory.
+pub const MAX_MAT_FILE_BYTES: u64 = 512 << 20;
+/// Most bytes all compressed variables of one file may inflate to together: 512 MiB (four
+/// largest-size arrays), so a file of many small zlib bombs is bounded too.
+pub const MAX_TOTAL_INFLATED_BYTES: u64 = 512 << 20;
+/// Most memory all arrays of one file may take together: 384 MiB (three largest-size arrays).
+pub const MAX_TOTAL_ARRAY_BYTES: usize = 384 << 20;
 
 /// A parsed `.mat` file: its variables in file order.
 #[derive(Debug, Clone)]
@@ -20,8 +30,17 @@ pub struct MatFile {
 impl MatFile {
     /// Reads and parses the file at `path`.
     pub fn read(path: &Path) -> Result<Self, GeometryError> {
-        let bytes = std::fs::read(path)
-            .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+        let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
+        let size = std::fs::metadata(path).map_err(io)?.len();
+        if size > MAX_MAT_FILE_BYTES {
+            return Err(GeometryError::Format {
+                path: path.to_path_buf(),
+                message: format!(
+                    "is {size} bytes, over the {MAX_MAT_FILE_BYTES}-byte limit for .mat files; is this the right file?"
+                ),
+            });
+        }
+        let bytes = std::fs::read(path).map_err(io)?;
         Self::parse(&bytes, path)
     }
 
@@ -31,6 +50,8 @@ impl MatFile {
         let (header, little) = parse_header(bytes).map_err(fail)?;
         let mut reader = Reader { bytes, pos: HEADER_LEN, little };
         let mut variables = Vec::new();
+        let mut inflated_left = MAX_TOTAL_INFLATED_BYTES;
+        let mut array_bytes = 0usize;
         while reader.pos < bytes.len() {
             // Trailing zero padding after the last element is legal.
             if bytes[reader.pos..].iter().all(|&b| b == 0) {
@@ -42,9 +63,10 @@ impl MatFile {
             })?;
             let inflated;
             let (ty2, payload): (u32, &[u8]) = if ty == MI_COMPRESSED {
-                inflated = inflate(data).map_err(|e| {
+                inflated = inflate(data, MAX_INFLATED_BYTES.min(inflated_left)).map_err(|e| {
                     fail(format!("variable #{} at byte {at}: {e}", variables.len() + 1))
                 })?;
+                inflated_left -= inflated.len() as u64;
                 let mut inner = Reader { bytes: &inflated, pos: 0, little };
                 inner.element().map_err(|e| {
                     fail(format!("variable #{} at byte {at} (inflated): {e}", variables.len() + 1))
@@ -59,6 +81,13 @@ impl MatFile {
             let (name, value) = parse_matrix(payload, little, 0).map_err(|e| {
                 fail(format!("variable #{} at byte {at}: {e}", variables.len() + 1))
             })?;
+            array_bytes = array_bytes.saturating_add(value.memory_bytes());
+            if array_bytes > MAX_TOTAL_ARRAY_BYTES {
+                return Err(fail(format!(
+                    "variable #{} at byte {at}: the variables so far take more than {MAX_TOTAL_ARRAY_BYTES} bytes (the limit for one file)",
+                    variables.len() + 1
+                )));
+            }
             variables.push((name, value));
         }
         Ok(Self { path: path.to_path_buf(), header, variables })

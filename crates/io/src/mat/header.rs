@@ -107,7 +107,7 @@ pub(super) fn parse_header(bytes: &[u8]) -> Result<(String, bool), String> {
         _ => {
             return Err(format!(
                 "not a MATLAB v5 .mat file (header says '{}'); expected the 'MATLAB 5.0 MAT-file' header",
-                header.chars().take(40).collect::<String>()
+                header.chars().take(40).flat_map(char::escape_default).collect::<String>()
             ));
         }
     };

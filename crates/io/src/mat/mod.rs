@@ -61,7 +61,9 @@ mod header;
 mod value;
 mod write;
 
-pub use file::MatFile;
+pub use array::MAX_ARRAY_BYTES;
+pub use compress::MAX_INFLATED_BYTES;
+pub use file::{MAX_MAT_FILE_BYTES, MAX_TOTAL_ARRAY_BYTES, MAX_TOTAL_INFLATED_BYTES, MatFile};
 pub use value::{
     MatClass, MatMatrix, MatValue, NumericArray, NumericData, StructArray, column_to_row_major,
     row_to_column_major,

@@ -155,6 +155,16 @@ impl NumericData {
         self.len() == 0
     }
 
+    /// Bytes of one value.
+    pub fn class_size(&self) -> usize {
+        match self {
+            NumericData::Double(_) | NumericData::Int64(_) | NumericData::UInt64(_) => 8,
+            NumericData::Single(_) | NumericData::Int32(_) | NumericData::UInt32(_) => 4,
+            NumericData::Int16(_) | NumericData::UInt16(_) => 2,
+            _ => 1,
+        }
+    }
+
     /// The class these values belong to.
     pub fn class(&self) -> MatClass {
         match self {
@@ -401,6 +411,27 @@ impl MatValue {
             MatValue::Struct(_) => MatClass::Struct,
             MatValue::Cell { .. } => MatClass::Cell,
             MatValue::Unsupported { class } => *class,
+        }
+    }
+
+    /// Bytes the values of this array take in memory (numbers, characters, and the same for
+    /// every struct field and cell), for the reader's memory bound.
+    pub fn memory_bytes(&self) -> usize {
+        match self {
+            MatValue::Numeric(a) => {
+                let one = |d: &NumericData| d.len().saturating_mul(d.class_size());
+                one(&a.real).saturating_add(a.imag.as_ref().map_or(0, one))
+            }
+            MatValue::Char { units, .. } => units.len() * 2,
+            MatValue::Struct(s) => s
+                .elements
+                .iter()
+                .flatten()
+                .fold(0usize, |acc, v| acc.saturating_add(v.memory_bytes())),
+            MatValue::Cell { cells, .. } => {
+                cells.iter().fold(0usize, |acc, v| acc.saturating_add(v.memory_bytes()))
+            }
+            MatValue::Unsupported { .. } => 0,
         }
     }
 
