@@ -11,6 +11,7 @@ use clap::{Parser, Subcommand};
 mod cmd_calibrate;
 mod cmd_capture;
 mod cmd_undistort;
+mod interrupt;
 
 /// Kinect v2 capture, calibration and RGB-D fusion.
 #[derive(Parser)]
@@ -44,6 +45,11 @@ fn main() -> std::process::ExitCode {
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
+            let code = if e.downcast_ref::<interrupt::Interrupted>().is_some() {
+                std::process::ExitCode::from(interrupt::INTERRUPTED_EXIT_CODE)
+            } else {
+                std::process::ExitCode::FAILURE
+            };
             // One line: the error and each cause not already spelled out by the one before.
             let mut message = e.to_string();
             for cause in e.chain().skip(1) {
@@ -53,7 +59,7 @@ fn main() -> std::process::ExitCode {
                 }
             }
             eprintln!("error: {message}");
-            std::process::ExitCode::FAILURE
+            code
         }
     }
 }

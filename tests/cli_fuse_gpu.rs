@@ -102,7 +102,7 @@ fn gpu_flag_gives_the_cpu_results_or_a_clear_error() {
             "{test}: no adapter in CI: {err}"
         );
         assert!(!gpu.exists(), "a failed --gpu run left an output folder");
-        eprintln!("SKIP {test} (GPU half): no GPU adapter");
+        test_skip::skip(&format!("{test} (GPU half)"), "no GPU adapter");
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -158,7 +158,7 @@ fn fuse_entry_point_reports_the_engine() {
                 std::env::var("KFUSE_REQUIRE_GPU").map_or(true, |v| v != "1"),
                 "{test}: fell back in CI"
             );
-            eprintln!("SKIP {test} (GPU half): {reason}");
+            test_skip::skip(&format!("{test} (GPU half)"), &reason);
         }
     }
 }

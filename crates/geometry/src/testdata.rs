@@ -24,7 +24,14 @@ pub fn shared_data_dir() -> PathBuf {
 /// The shared data folder if it exists. Otherwise prints `SKIP <test>: ...` and returns
 /// `None`, or panics when `KFUSE_REQUIRE_SHARED_DATA=1`.
 pub fn shared_data_or_skip(test: &str) -> Option<PathBuf> {
-    existing_or_skip(test, shared_data_dir(), std::env::var(REQUIRE_ENV).as_deref() == Ok("1"))
+    let required = std::env::var(REQUIRE_ENV).as_deref() == Ok("1");
+    match existing_or_reason(test, shared_data_dir(), required) {
+        Ok(dir) => Some(dir),
+        Err(reason) => {
+            test_skip::skip(test, &reason);
+            None
+        }
+    }
 }
 
 fn resolve(env_value: Option<std::ffi::OsString>) -> PathBuf {
@@ -35,9 +42,10 @@ fn resolve(env_value: Option<std::ffi::OsString>) -> PathBuf {
     }
 }
 
-fn existing_or_skip(test: &str, dir: PathBuf, required: bool) -> Option<PathBuf> {
+/// The folder if it exists, else why a test must skip; panics when the folder is `required`.
+fn existing_or_reason(test: &str, dir: PathBuf, required: bool) -> Result<PathBuf, String> {
     if dir.is_dir() {
-        return Some(dir);
+        return Ok(dir);
     }
     if required {
         panic!(
@@ -45,8 +53,7 @@ fn existing_or_skip(test: &str, dir: PathBuf, required: bool) -> Option<PathBuf>
             dir.display()
         );
     }
-    eprintln!("SKIP {test}: shared data not found at {} (set {DATA_ENV})", dir.display());
-    None
+    Err(format!("shared data not found at {} (set {DATA_ENV})", dir.display()))
 }
 
 #[cfg(test)]
@@ -67,10 +74,11 @@ mod tests {
     #[test]
     fn a_missing_folder_skips_unless_required() {
         let here = Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf();
-        assert_eq!(existing_or_skip("t", here.clone(), true), Some(here.clone()));
+        assert_eq!(existing_or_reason("t", here.clone(), true), Ok(here.clone()));
         let absent = here.join("no-such-folder");
-        assert_eq!(existing_or_skip("t", absent.clone(), false), None);
-        let required = std::panic::catch_unwind(|| existing_or_skip("t", absent, true));
+        let reason = existing_or_reason("t", absent.clone(), false).unwrap_err();
+        assert!(reason.contains("no-such-folder"), "{reason}");
+        let required = std::panic::catch_unwind(|| existing_or_reason("t", absent, true));
         assert!(required.is_err(), "a required folder that is missing must fail the test");
     }
 }

@@ -15,7 +15,7 @@ pub fn context_or_skip(test: &str) -> Option<FusionContext> {
             if std::env::var("KFUSE_REQUIRE_GPU").is_ok_and(|v| v == "1") {
                 panic!("{test}: KFUSE_REQUIRE_GPU=1 but {e}");
             }
-            eprintln!("SKIP {test}: no GPU adapter ({e})");
+            test_skip::skip(test, &format!("no GPU adapter ({e})"));
             None
         }
         Err(e) => panic!("{test}: {e}"),

@@ -37,7 +37,7 @@ pub fn gpu_available(test: &str) -> bool {
                 "{test}: KFUSE_REQUIRE_GPU=1 but no wgpu adapter was found (install mesa-vulkan-drivers for lavapipe)"
             );
         }
-        eprintln!("SKIP {test}: no wgpu adapter");
+        test_skip::skip(test, "no wgpu adapter");
     }
     ok
 }
