@@ -63,7 +63,7 @@ fn write_peer_frame(setup: &synth::SynthSetup, frame: &synth::SynthFrame) {
     let color = image::RgbImage::from_fn(cw as u32, ch as u32, |x, y| {
         image::Rgb(*frame.color.get(x as usize, y as usize))
     });
-    let atomic = geometry::io::atomic::write_bytes_atomic;
+    let atomic = kfuse_io::atomic::write_bytes_atomic;
     atomic(&dir.join("depth.png"), &png_bytes(&depth_mm)).expect("write depth.png");
     atomic(&dir.join("color.png"), &png_bytes(&color)).expect("write color.png");
     atomic(&dir.join("rig.json"), setup.rig.to_json().as_bytes()).expect("write rig.json");

@@ -13,10 +13,10 @@ use calib::{
     Board, CalibError, CalibFlags, MonoCalibration, StereoOptions, ViewCorners, calibrate_mono,
     calibrate_stereo,
 };
-use geometry::io::atomic::StagedDir;
-use geometry::io::images::write_color_png;
 use geometry::{CameraModel, Image};
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_io::atomic::{StagedDir, StagedFiles};
+use kfuse_io::images::write_color_png;
 use nalgebra::Vector2;
 use plotters::prelude::*;
 
@@ -343,6 +343,47 @@ fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
     }
 }
 
+/// Checks the output paths before any work: each names a file in an existing folder, none is
+/// a folder, none is one of the input images, and the report folder is not a file.
+fn check_outputs<'a>(
+    args: &CalibrateArgs,
+    inputs: impl Iterator<Item = &'a PathBuf> + Clone,
+) -> Result<()> {
+    let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    for (flag, path) in std::iter::once(("--out", &args.out))
+        .chain(args.opencv_yaml.iter().map(|y| ("--opencv-yaml", y)))
+    {
+        if path.is_dir() {
+            bail!("{flag} {} is a folder; give a file name such as rig.json", path.display());
+        }
+        let parent = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        if !parent.is_dir() {
+            bail!(
+                "{flag} {}: folder {} does not exist; create it first",
+                path.display(),
+                parent.display()
+            );
+        }
+        if let Some(input) = inputs.clone().find(|i| same(i, path)) {
+            bail!(
+                "{flag} {} is one of the input images ({}); give a new file name such as rig.json",
+                path.display(),
+                input.display()
+            );
+        }
+    }
+    if let Some(dir) = args.report.as_ref().filter(|d| d.exists() && !d.is_dir()) {
+        bail!("--report {} exists and is not a folder", dir.display());
+    }
+    Ok(())
+}
+
 /// Runs the command.
 pub fn run(args: CalibrateArgs) -> Result<()> {
     let (board, auto) = parse_board(&args.board, &args.square, args.top_left.as_deref())?;
@@ -359,6 +400,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             ir_files.len()
         );
     }
+    check_outputs(&args, color_files.iter().chain(&ir_files))?;
     let flags = flags(&args);
     let (ir_views, ir_images, board) = if ir_files.is_empty() {
         (vec![], vec![], board)
@@ -506,6 +548,12 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         figs.cameras.push((name, m.camera, m, limit));
     }
 
+    // The rig file(s) are written to temporary names first and renamed only after the report
+    // is published: a failure anywhere leaves neither.
+    let mut files = StagedFiles::new();
+    for (path, text) in &outputs {
+        files.add(path, text.as_bytes())?;
+    }
     if let Some(dir) = &args.report {
         let staged = StagedDir::new(dir)?;
         figs.ir_images =
@@ -519,8 +567,8 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         staged.commit()?;
         println!("\nreport: {}", dir.display());
     }
-    for (path, text) in &outputs {
-        write_text(path, text)?;
+    files.commit()?;
+    for (path, _) in &outputs {
         println!("wrote {}", path.display());
     }
     Ok(())

@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
-use geometry::io::atomic::write_atomic;
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_io::atomic::write_atomic;
 use kinect_usb::backend::UsbBackend;
 use kinect_usb::decoder::{DecoderPrecision, DepthDecoder, Kernels};
 use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamKind};

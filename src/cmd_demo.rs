@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use geometry::io::atomic::StagedDir;
-use geometry::io::{images, rig as rigio};
 use geometry::synth;
+use kfuse_io::atomic::StagedDir;
+use kfuse_io::{images, rig as rigio};
 
 use crate::cmd_fuse::{self, DepthKindArg, FuseArgs, MeshFromArg, ResampleArg};
 
@@ -66,6 +66,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         hole_radius: geometry::fusion::FusionOptions::default().hole_radius_factor,
         no_figures: args.no_figures,
         gpu: None,
+        force: false,
     };
     let result = cmd_fuse::run(&fuse)?;
     cmd_fuse::report(&result);

@@ -7,10 +7,10 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
-use geometry::io::atomic::{StagedDir, write_bytes_atomic};
-use geometry::io::{course, images, obj, ply, rig as rigio};
 use geometry::{DepthKind, Image, Rig};
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
+use kfuse_io::{course, image_header, images, obj, ply, rig as rigio};
 use serde::Serialize;
 
 use crate::figures::{self, Panel, titles};
@@ -84,6 +84,10 @@ pub struct FuseArgs {
     /// with a warning. Results are identical to the CPU path.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "on", value_name = "auto")]
     pub gpu: Option<GpuArg>,
+    /// Use a rig that fails the plausibility check (focal lengths 50-20000 px, image sides up
+    /// to 16384 px, baseline up to 0.5 m; see README "Limits"), with a warning.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// `--gpu`.
@@ -159,10 +163,26 @@ fn check_size(
     Ok(())
 }
 
+/// The rig plausibility check ([`Rig::check_plausible`]), or with `--force` its problems as
+/// warnings.
+fn check_rig(rig: &Rig, source: &Path, force: bool) -> Result<()> {
+    if force {
+        for problem in rig.plausibility_problems() {
+            eprintln!("warning: {}: {problem} (--force)", source.display());
+        }
+        return Ok(());
+    }
+    if let Err(e) = rig.check_plausible() {
+        bail!("{}: {e}; pass --force if the rig really is meant this way", source.display());
+    }
+    Ok(())
+}
+
 /// Loads and checks the inputs named by `args` (nothing is written).
 pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
     if let Some(mat) = &args.mat {
         let data = course::read_course(mat)?;
+        check_rig(&data.rig, mat, args.force)?;
         return Ok(Inputs {
             description: serde_json::json!({
                 "mat": mat,
@@ -179,7 +199,19 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
     else {
         bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
     };
-    let rig = rigio::read_rig(rig_path)?;
+    let rig = if args.force {
+        let rig = rigio::read_rig_unchecked(rig_path)?;
+        check_rig(&rig, rig_path, true)?;
+        rig
+    } else {
+        rigio::read_rig(rig_path)?
+    };
+    // Sizes from the headers first: a huge or wrong image is refused before it is decoded.
+    for (what, path, cam) in
+        [("colour image", color_path, &rig.color), ("depth image", depth_path, &rig.depth)]
+    {
+        check_size(what, path, image_header::image_size(path)?, (cam.width, cam.height), rig_path)?;
+    }
     let color = images::read_color(color_path)?;
     check_size(
         "colour image",
@@ -272,6 +304,8 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let bar = progress(6);
     bar.set_message("reading inputs");
     let options = options(args)?;
+    // --out is checked (and its staging folder made) before any work.
+    let staged = StagedDir::new(&args.out)?;
     let inputs = load_inputs(args)?;
     bar.inc(1);
     bar.set_message("fusing (H1-H8)");
@@ -310,7 +344,6 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
         }
     };
     bar.inc(1);
-    let staged = StagedDir::new(&args.out)?;
     let mut files = Vec::new();
     bar.set_message("writing cloud and depth images");
     write_data(&staged, &inputs, &output, &mut files)?;

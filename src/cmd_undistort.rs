@@ -1,14 +1,15 @@
 //! `kfuse undistort`: removes lens distortion from images with a rig file's camera model.
 
-use std::path::PathBuf;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use calib::undistort::UndistortMap;
-use geometry::Rig;
-use geometry::io::images::{
-    MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16,
-};
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_io::atomic::StagedDir;
+use kfuse_io::image_header::image_size;
+use kfuse_io::images::{MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16};
+use kfuse_io::rig::{read_rig, read_rig_unchecked};
 
 /// Arguments of `kfuse undistort`.
 #[derive(clap::Args, Debug)]
@@ -30,17 +31,62 @@ pub struct UndistortArgs {
     /// Images to undistort.
     #[arg(required = true)]
     images: Vec<PathBuf>,
-    /// Output folder (created if missing).
+    /// Output folder (created if missing). The outputs appear all together when every image
+    /// is done, or not at all.
     #[arg(long)]
     out: PathBuf,
+    /// Use a rig that fails the plausibility check (see README "Limits"), with a warning.
+    #[arg(long)]
+    force: bool,
+}
+
+/// `NAME_rect.png` for input `NAME.ext`.
+fn output_name(path: &Path) -> String {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "image".into());
+    format!("{stem}_rect.png")
 }
 
 /// Runs the command.
 pub fn run(args: UndistortArgs) -> Result<()> {
-    let text = std::fs::read_to_string(&args.rig)
-        .with_context(|| format!("reading rig file {}", args.rig.display()))?;
-    let rig = Rig::from_json(&text, &args.rig)?;
+    let rig = if args.force {
+        let rig = read_rig_unchecked(&args.rig)?;
+        for problem in rig.plausibility_problems() {
+            eprintln!("warning: {}: {problem} (--force)", args.rig.display());
+        }
+        rig
+    } else {
+        read_rig(&args.rig)?
+    };
     let cam = if args.camera == "color" { rig.color } else { rig.depth };
+    // Everything that can be checked is checked before the (large) map is built and before
+    // anything is written: one output name per input, every image's size from its header.
+    let mut names: HashMap<String, &PathBuf> = HashMap::new();
+    for path in &args.images {
+        let name = output_name(path);
+        if let Some(first) = names.insert(name.clone(), path) {
+            bail!(
+                "{} and {} would both be written as {name}; undistort them into separate --out folders",
+                first.display(),
+                path.display()
+            );
+        }
+        let size = image_size(path)?;
+        if size != (cam.width, cam.height) {
+            bail!(
+                "{}: image is {}x{} but the rig's {} camera is {}x{}",
+                path.display(),
+                size.0,
+                size.1,
+                args.camera,
+                cam.width,
+                cam.height
+            );
+        }
+    }
+    let staged = StagedDir::new(&args.out)?;
     let map = UndistortMap::new(&cam);
     if let Some(r) = cam.distortion.fold_radius() {
         println!(
@@ -49,19 +95,13 @@ pub fn run(args: UndistortArgs) -> Result<()> {
             100.0 * map.masked_fraction()
         );
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
     let pb = ProgressBar::new(args.images.len() as u64);
     pb.set_style(
         ProgressStyle::with_template("undistorting [{bar:30}] {pos}/{len} {elapsed}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     for path in &args.images {
-        let stem = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "image".into());
-        let out = args.out.join(format!("{stem}_rect.png"));
+        let out = staged.join(output_name(path));
         let eight_bit = calib::io::is_8bit(path)?;
         if eight_bit {
             let img = read_color(path)?;
@@ -97,6 +137,7 @@ pub fn run(args: UndistortArgs) -> Result<()> {
         pb.inc(1);
     }
     pb.finish();
+    staged.commit()?;
     println!("wrote {} image(s) to {}", args.images.len(), args.out.display());
     Ok(())
 }

@@ -1,5 +1,5 @@
 //! PNG figures titled like the lab's ("Task 3: ..."), drawn with plotters into a memory
-//! buffer and written atomically through `geometry::io::images`.
+//! buffer and written atomically through `kfuse_io::images`.
 //!
 //! Text uses the bundled DejaVu Sans (`assets/fonts/`), registered with plotters' `ab_glyph`
 //! backend, so figures render the same on machines without fontconfig.
@@ -8,8 +8,8 @@ use std::path::Path;
 use std::sync::Once;
 
 use anyhow::{Context, Result};
-use geometry::io::images::write_color_png;
 use geometry::{Image, Mesh, PointCloud};
+use kfuse_io::images::write_color_png;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use plotters::prelude::*;
 

@@ -4,10 +4,10 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use geometry::io::mat::{MatValue, write_mat};
-use geometry::io::{images, rig as rigio};
 use geometry::testdata::shared_data_or_skip as shared_data;
 use geometry::{CameraModel, Distortion, Image, Intrinsics, Rig, RigidTransform};
+use kfuse_io::mat::{MatValue, write_mat};
+use kfuse_io::{images, rig as rigio};
 use nalgebra::Vector3;
 
 fn kfuse(args: &[&str]) -> Output {

@@ -9,8 +9,8 @@
 
 use std::path::Path;
 
-use geometry::io::mat::MatFile;
 use geometry::{CameraModel, Distortion, Intrinsics, Rig, RigidTransform};
+use kfuse_io::mat::MatFile;
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::{CalibError, Corner, IntrinsicsStd, ViewCorners};

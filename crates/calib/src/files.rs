@@ -1,12 +1,12 @@
 //! Calibration files: the rig JSON (`geometry::Rig` with its `calibration` report), a
 //! single-camera JSON, and OpenCV FileStorage YAML export. Writing goes through
-//! `geometry::io::atomic` (temporary file + rename), so a failed run leaves nothing half-written.
+//! `kfuse_io::atomic` (temporary file + rename), so a failed run leaves nothing half-written.
 
 use std::fmt::Write as _;
 use std::path::Path;
 
-use geometry::io::atomic::write_bytes_atomic;
 use geometry::{CameraModel, Rig, RigidTransform};
+use kfuse_io::atomic::write_bytes_atomic;
 use serde_json::{Value, json};
 
 use crate::mono::{IntrinsicsStd, MonoCalibration};

@@ -322,7 +322,7 @@ fn real_stereo_from_the_labs_corners_matches_bouguets_stereo() {
     let lab = data.join("kinect-lab");
     let left = import_mono(&lab.join("Calib_Results_left.mat")).unwrap();
     let right = import_mono(&lab.join("Calib_Results_right.mat")).unwrap();
-    let stereo = geometry::io::mat::MatFile::read(&lab.join("Calib_Results_stereo.mat")).unwrap();
+    let stereo = kfuse_io::mat::MatFile::read(&lab.join("Calib_Results_stereo.mat")).unwrap();
     let vec3 = |name: &str| {
         let m = stereo.matrix(name).unwrap();
         nalgebra::Vector3::new(m.data[0], m.data[1], m.data[2])

@@ -169,8 +169,8 @@ fn course_synthdata_mat_full_pipeline_matches_cpu() {
     let Some(dir) = shared_data(test) else { return };
     let Some(mut ctx) = context_or_skip(test) else { return };
     let path = dir.join("course/synthdata.mat");
-    let data = geometry::io::course::read_course(&path)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let data =
+        kfuse_io::course::read_course(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let options = FusionOptions { linear: false, ..FusionOptions::default() };
     let cpu = run(&data.rig, &data.depth, data.depth_kind, &data.color, &options).expect("CPU run");
     let gpu =

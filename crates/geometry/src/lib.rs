@@ -28,7 +28,6 @@ pub mod cloud;
 pub mod error;
 pub mod fusion;
 pub mod image;
-pub mod io;
 pub mod pose;
 pub mod rig;
 pub mod synth;

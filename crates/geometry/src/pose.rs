@@ -51,12 +51,14 @@ impl RigidTransform {
             || (det - 1.0).abs() > ROTATION_TOLERANCE
         {
             return Err(GeometryError::InvalidParameter(format!(
-                "not a rotation matrix (|RᵀR - I| = {orth:.2e}, det = {det:.6}): {r}"
+                "rotation is not a rotation matrix (|RᵀR - I| = {orth:.2e}, det = {det:.6}): {}",
+                one_line(&r)
             )));
         }
         if !translation.iter().all(|v| v.is_finite()) {
             return Err(GeometryError::InvalidParameter(format!(
-                "translation is not finite: {translation}"
+                "translation is not finite: [{}, {}, {}]",
+                translation.x, translation.y, translation.z
             )));
         }
         // Re-orthonormalise so later compositions stay exact.
@@ -130,6 +132,13 @@ impl<'de> Deserialize<'de> for RigidTransform {
         RigidTransform::from_matrix(r, Vector3::from(f.translation_m))
             .map_err(serde::de::Error::custom)
     }
+}
+
+/// A 3x3 matrix on one line, rows in brackets (for error messages).
+fn one_line(m: &Matrix3<f64>) -> String {
+    let rows: Vec<String> =
+        m.row_iter().map(|r| format!("[{}, {}, {}]", r[0], r[1], r[2])).collect();
+    format!("[{}]", rows.join(", "))
 }
 
 #[cfg(test)]

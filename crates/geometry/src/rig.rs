@@ -23,6 +23,27 @@ pub const RIG_FORMAT: &str = "kfuse-rig";
 pub const RIG_VERSION: u32 = 1;
 const RIG_UNITS: &str = "lengths in metres, intrinsics in pixels, rotations as row-major matrices";
 
+// Plausibility limits: what a rig of real cameras can hold. Values outside are nearly always a
+// unit mistake (metres or millimetres where pixels or metres belong), and they make the fusion
+// loop over absurd pixel ranges or allocate absurd images, so they are refused before any work
+// ([`Rig::check_plausible`]; `--force` on the command line skips the check).
+
+/// Shortest focal length, pixels: 50. A 512-px-wide image (the Kinect's depth camera, f ≈ 365
+/// px) would see 158° across at f = 50 px; a focal length in metres (0.00365) or millimetres
+/// (3.65) lands far below.
+pub const MIN_FOCAL_PX: f64 = 50.0;
+/// Longest focal length, pixels: 20 000. A 1920-px image then sees 5.5° across (a long
+/// telephoto; the Kinect's colour camera has f ≈ 1060 px); focal lengths in micrometres land
+/// above.
+pub const MAX_FOCAL_PX: f64 = 20_000.0;
+/// Largest image side of a rig's camera, pixels: 16 384 (16K; the Kinect's largest image is
+/// 1920 px wide). One 16 384² float image is 1 GiB, so a larger side is a typing mistake that
+/// would allocate many gigabytes before any image is looked at.
+pub const MAX_IMAGE_SIDE: usize = 16_384;
+/// Longest depth → colour baseline, metres: 0.5. The Kinect v2's is 52 mm and a rig of two
+/// separate sensors on one bar stays under half a metre; a `T` in millimetres reads as 52 m.
+pub const MAX_BASELINE_M: f64 = 0.5;
+
 /// A calibrated depth + colour camera pair.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rig {
@@ -60,6 +81,59 @@ impl Rig {
     pub fn validate(&self) -> Result<(), GeometryError> {
         self.depth.validate()?;
         self.color.validate()
+    }
+
+    /// What makes this rig implausible for real cameras (focal lengths outside
+    /// [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`], image sides over [`MAX_IMAGE_SIDE`], a baseline over
+    /// [`MAX_BASELINE_M`]), each naming the likely unit mistake; empty when plausible.
+    pub fn plausibility_problems(&self) -> Vec<String> {
+        let mut problems = Vec::new();
+        for (name, cam) in [("depth", &self.depth), ("colour", &self.color)] {
+            if cam.width > MAX_IMAGE_SIDE || cam.height > MAX_IMAGE_SIDE {
+                problems.push(format!(
+                    "the {name} camera's image size {}x{} is over the {MAX_IMAGE_SIDE}-px limit per side",
+                    cam.width, cam.height
+                ));
+            }
+            let k = &cam.intrinsics;
+            for (axis, f) in [("fx", k.fx), ("fy", k.fy)] {
+                if f < MIN_FOCAL_PX {
+                    problems.push(format!(
+                        "the {name} camera's {axis} = {f} px is under {MIN_FOCAL_PX} px: focal lengths must be in pixels, not metres or millimetres"
+                    ));
+                } else if f > MAX_FOCAL_PX {
+                    problems.push(format!(
+                        "the {name} camera's {axis} = {f} px is over {MAX_FOCAL_PX} px: focal lengths must be in pixels"
+                    ));
+                }
+            }
+        }
+        let baseline = self.color_from_depth.translation.norm();
+        if !(baseline <= MAX_BASELINE_M) {
+            let hint = if (1.0..=1000.0 * MAX_BASELINE_M).contains(&baseline) {
+                // Rounded to 0.1 mm so the hint reads "52 → 0.052 m".
+                let short = |x: f64| (x * 1e4).round() / 1e4;
+                format!(
+                    "; T looks like millimetres: {} → {} m?",
+                    short(baseline),
+                    short(baseline / 1000.0)
+                )
+            } else {
+                String::new()
+            };
+            problems
+                .push(format!("the baseline |T| = {baseline} m is over {MAX_BASELINE_M} m{hint}"));
+        }
+        problems
+    }
+
+    /// Fails with every [`Rig::plausibility_problems`] in one line.
+    pub fn check_plausible(&self) -> Result<(), GeometryError> {
+        let problems = self.plausibility_problems();
+        if problems.is_empty() {
+            return Ok(());
+        }
+        Err(GeometryError::InvalidParameter(problems.join("; ")))
     }
 
     /// The rig as pretty-printed JSON (the rig file format above).
@@ -139,6 +213,56 @@ mod tests {
         assert_eq!(back.color, rig.color);
         assert!((back.color_from_depth.matrix() - t.matrix()).abs().max() < 1e-15);
         assert_eq!(back.calibration, rig.calibration);
+    }
+
+    fn kinect() -> Rig {
+        let depth = CameraModel::new(
+            512,
+            424,
+            Intrinsics::new(365.0, 365.0, 255.5, 211.5),
+            Distortion::NONE,
+        );
+        let color = CameraModel::new(
+            1920,
+            1080,
+            Intrinsics::new(1060.0, 1060.0, 959.5, 539.5),
+            Distortion::NONE,
+        );
+        Rig::new(
+            depth,
+            color,
+            RigidTransform::from_axis_angle(Vector3::zeros(), Vector3::new(-0.052, 0.0, 0.0)),
+        )
+    }
+
+    #[test]
+    fn plausibility_names_each_unit_mistake() {
+        assert!(kinect().check_plausible().is_ok());
+        let mut mm = kinect();
+        mm.color_from_depth.translation *= 1000.0;
+        let err = mm.check_plausible().unwrap_err().to_string();
+        assert!(err.contains("T looks like millimetres: 52 → 0.052 m?"), "{err}");
+        for f in [0.00365, 3.65, 49.9] {
+            let mut r = kinect();
+            r.depth.intrinsics.fx = f;
+            let err = r.check_plausible().unwrap_err().to_string();
+            assert!(err.contains("depth camera's fx") && err.contains("in pixels"), "{err}");
+        }
+        let mut r = kinect();
+        r.color.intrinsics.fy = 20_001.0;
+        assert!(r.check_plausible().unwrap_err().to_string().contains("colour camera's fy"));
+        let mut r = kinect();
+        r.color.width = 30_000;
+        r.color.height = 30_000;
+        let err = r.check_plausible().unwrap_err().to_string();
+        assert!(err.contains("30000x30000") && err.contains("16384"), "{err}");
+        // The limits themselves are accepted.
+        let mut r = kinect();
+        r.depth.intrinsics.fx = MIN_FOCAL_PX;
+        r.color.intrinsics.fx = MAX_FOCAL_PX;
+        r.color.width = MAX_IMAGE_SIDE;
+        r.color_from_depth.translation = Vector3::new(MAX_BASELINE_M, 0.0, 0.0);
+        assert!(r.check_plausible().is_ok(), "{:?}", r.plausibility_problems());
     }
 
     #[test]

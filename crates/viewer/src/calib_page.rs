@@ -383,7 +383,7 @@ impl CalibPage {
                 None => {
                     Err("the report names no image file (re-run `kfuse calibrate`)".to_string())
                 }
-                Some(path) => match geometry::io::images::read_color(path) {
+                Some(path) => match kfuse_io::images::read_color(path) {
                     Ok(img) => {
                         let bytes: Vec<u8> = img.data().iter().flatten().copied().collect();
                         let color = egui::ColorImage::from_rgb([img.width(), img.height()], &bytes);

@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use geometry::io::atomic::write_atomic;
+use kfuse_io::atomic::write_atomic;
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DepthDecoder};
 use kinect_usb::device::DeviceInfo;
 use kinect_usb::params::{DepthParams, XzTables};

@@ -10,8 +10,8 @@
 
 use std::path::{Path, PathBuf};
 
-use geometry::io::{course, images, rig as rigio};
 use geometry::{DepthKind, GeometryError, Image, Rig, synth};
+use kfuse_io::{course, images, rig as rigio};
 
 use crate::ViewerError;
 

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use geometry::io::{images, rig as rigio};
 use geometry::synth;
+use kfuse_io::{images, rig as rigio};
 use viewer::data::open_folder;
 use viewer::{BackendChoice, ViewerApp, ViewerError};
 

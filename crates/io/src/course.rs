@@ -34,7 +34,7 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 
 use super::mat::{MatFile, NumericData, column_to_row_major};
-use crate::{
+use geometry::{
     CameraModel, DepthKind, Distortion, GeometryError, Image, Intrinsics, Rig, RigidTransform,
 };
 
@@ -265,7 +265,7 @@ pub fn read_kinect_data(path: &Path) -> Result<KinectLabData, GeometryError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testdata::shared_data_or_skip as shared_data;
+    use geometry::testdata::shared_data_or_skip as shared_data;
     use nalgebra::SymmetricEigen;
 
     /// Iterations of the fit-and-reject plane fit (the objects cover ~6 % of the image; three

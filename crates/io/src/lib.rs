@@ -1,18 +1,24 @@
-//! File input and output at the edge of the crate. Algorithms elsewhere in `geometry` never
-//! open files; these modules do nothing else.
+//! kfuse's file formats, one module per format. The algorithm crates (`geometry`, `calib`,
+//! `fusion-gpu`) never open files and carry no codec dependencies; everything that reads or
+//! writes bytes on disk lives here. Errors are `geometry::GeometryError` values that always
+//! name the file.
 //!
 //! | module | reads / writes |
 //! | --- | --- |
 //! | [`atomic`] | every write: temporary file + rename, [`atomic::StagedDir`] for output folders |
 //! | [`mat`] | MATLAB v5 `.mat` files (reader for every numeric class, char, struct, cell; small writer) |
-//! | [`course`] | the lab's `synthdata.mat` and `KinectData.mat` → [`crate::Rig`] + images |
+//! | [`course`] | the lab's `synthdata.mat` and `KinectData.mat` → [`geometry::Rig`] + images |
+//! | [`image_header`] | image sizes from headers, checked against limits before decoding; JPEG completeness |
 //! | [`images`] | colour (PNG/JPEG/TIFF/BMP), depth (16-bit PNG/TIFF mm, float TIFF/EXR m), masks |
 //! | [`ply`] | binary PLY point clouds and meshes (colours, `s, t` texture coordinates) |
 //! | [`obj`] | OBJ + MTL + PNG texture |
 //! | [`rig`] | rig JSON files |
 
+#![deny(missing_docs)]
+
 pub mod atomic;
 pub mod course;
+pub mod image_header;
 pub mod images;
 pub mod mat;
 pub mod obj;

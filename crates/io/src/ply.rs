@@ -11,8 +11,8 @@
 use std::io::Write;
 use std::path::Path;
 
-use crate::io::atomic::write_atomic;
-use crate::{GeometryError, Mesh, PointCloud};
+use crate::atomic::write_atomic;
+use geometry::{GeometryError, Mesh, PointCloud};
 
 fn header(
     out: &mut dyn Write,

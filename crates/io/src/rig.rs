@@ -2,11 +2,24 @@
 
 use std::path::Path;
 
-use crate::io::atomic::write_bytes_atomic;
-use crate::{GeometryError, Rig};
+use crate::atomic::write_bytes_atomic;
+use geometry::{GeometryError, Rig};
 
-/// Reads and validates a rig file.
+/// Reads and validates a rig file, and checks that it can be a rig of real cameras
+/// ([`Rig::check_plausible`]: focal lengths, image sizes, baseline); the error names the file
+/// and the likely unit mistake. Every command and the viewer read rigs through this.
 pub fn read_rig(path: &Path) -> Result<Rig, GeometryError> {
+    let rig = read_rig_unchecked(path)?;
+    rig.check_plausible().map_err(|e| GeometryError::Format {
+        path: path.to_path_buf(),
+        message: format!("{e} (pass --force if the rig really is meant this way)"),
+    })?;
+    Ok(rig)
+}
+
+/// Reads and validates a rig file without the plausibility check (`--force`): the caller
+/// reports [`Rig::plausibility_problems`] as warnings.
+pub fn read_rig_unchecked(path: &Path) -> Result<Rig, GeometryError> {
     let bytes = std::fs::read(path)
         .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
     let text = String::from_utf8(bytes).map_err(|_| GeometryError::Format {
@@ -28,7 +41,7 @@ pub fn write_rig(path: &Path, rig: &Rig) -> Result<(), GeometryError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{CameraModel, Distortion, Intrinsics, RigidTransform};
+    use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
     use nalgebra::Vector3;
 
     #[test]
@@ -63,6 +76,15 @@ mod tests {
         assert!(
             (back.color_from_depth.translation - rig.color_from_depth.translation).norm() < 1e-15
         );
+        let mut mm = rig.clone();
+        mm.color_from_depth.translation *= 1000.0;
+        write_rig(&dir.join("mm.json"), &mm).unwrap();
+        let err = read_rig(&dir.join("mm.json")).unwrap_err().to_string();
+        assert!(
+            err.contains("mm.json") && err.contains("T looks like millimetres: 52 → 0.052 m?"),
+            "{err}"
+        );
+        assert_eq!(read_rig_unchecked(&dir.join("mm.json")).unwrap().depth, rig.depth);
         let err = read_rig(&dir.join("nope.json")).unwrap_err().to_string();
         assert!(err.contains("nope.json"), "{err}");
         std::fs::write(dir.join("bad.json"), "{\"format\": 3}").unwrap();

@@ -15,13 +15,16 @@
 //!   viewers show it as grey; `NaN` kept). Float TIFF in metres for tests and exchange.
 //! * **Masks** are written as 8-bit grey PNG (0 / 255), colour as 8-bit RGB PNG.
 //!
-//! Every write goes through [`crate::io::atomic`]: a file appears complete or not at all.
+//! Every write goes through [`crate::atomic`]: a file appears complete or not at all.
 
 use std::io::Cursor;
 use std::path::Path;
 
-use crate::io::atomic::write_bytes_atomic;
-use crate::{GeometryError, Image};
+use crate::atomic::write_bytes_atomic;
+use crate::image_header::{
+    Container, check_header, check_jpeg_complete, decoder_limits, read_image_bytes, sniff,
+};
+use geometry::{GeometryError, Image};
 
 /// The colour formats accepted, for error messages and `--help`.
 pub const COLOR_FORMATS: &str = "PNG, JPEG, TIFF or BMP (8/16-bit grey, RGB or RGBA)";
@@ -32,44 +35,17 @@ pub const MILLIMETRES: f64 = 1e-3;
 /// Largest depth a 16-bit millimetre PNG can hold, metres.
 pub const PNG16_MAX_M: f32 = 65.535;
 
-fn read_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
-    std::fs::read(path).map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })
-}
-
 fn format_err(path: &Path, message: impl Into<String>) -> GeometryError {
-    GeometryError::Format { path: path.to_path_buf(), message: message.into() }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Container {
-    Png,
-    Tiff,
-    Exr,
-    Jpeg,
-    Bmp,
-    Unknown,
-}
-
-/// Recognises a file by its first bytes (never by its name).
-fn sniff(bytes: &[u8]) -> Container {
-    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
-        Container::Png
-    } else if bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*") {
-        Container::Tiff
-    } else if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
-        Container::Exr
-    } else if bytes.starts_with(&[0xff, 0xd8, 0xff]) {
-        Container::Jpeg
-    } else if bytes.starts_with(b"BM") {
-        Container::Bmp
-    } else {
-        Container::Unknown
-    }
+    // Decoder messages may end in a newline or hold control characters: one clean line.
+    let message: String = message.into();
+    let message = message.split(char::is_control).filter(|s| !s.trim().is_empty());
+    let message = message.map(str::trim).collect::<Vec<_>>().join(" ");
+    GeometryError::Format { path: path.to_path_buf(), message }
 }
 
 /// Reads a colour image (see the module docs for the formats).
 pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
-    let bytes = read_bytes(path)?;
+    let bytes = read_image_bytes(path)?;
     let format = match sniff(&bytes) {
         Container::Png => image::ImageFormat::Png,
         Container::Tiff => image::ImageFormat::Tiff,
@@ -88,7 +64,13 @@ pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
             ));
         }
     };
-    let img = image::load_from_memory_with_format(&bytes, format).map_err(|e| {
+    if format == image::ImageFormat::Jpeg {
+        check_jpeg_complete(path, &bytes)?;
+    }
+    check_header(path, &bytes)?;
+    let mut reader = image::ImageReader::with_format(Cursor::new(&bytes), format);
+    reader.limits(decoder_limits());
+    let img = reader.decode().map_err(|e| {
         format_err(
             path,
             format!("corrupt or unsupported {format:?} image: {e}; use {COLOR_FORMATS}"),
@@ -115,7 +97,10 @@ pub fn read_depth(path: &Path, metres_per_unit: f64) -> Result<Image<f32>, Geome
             "depth scale must be a positive number of metres per unit, got {metres_per_unit}"
         )));
     }
-    let bytes = read_bytes(path)?;
+    let bytes = read_image_bytes(path)?;
+    if matches!(sniff(&bytes), Container::Png | Container::Tiff | Container::Exr) {
+        check_header(path, &bytes)?;
+    }
     let img = match sniff(&bytes) {
         Container::Png => read_depth_png(path, &bytes, metres_per_unit)?,
         Container::Tiff => read_depth_tiff(path, &bytes, metres_per_unit)?,
@@ -170,8 +155,9 @@ fn read_depth_png(
     bytes: &[u8],
     metres_per_unit: f64,
 ) -> Result<Image<f32>, GeometryError> {
-    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
-        .map_err(|e| format_err(path, format!("corrupt PNG: {e}")))?;
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), image::ImageFormat::Png);
+    reader.limits(decoder_limits());
+    let img = reader.decode().map_err(|e| format_err(path, format!("corrupt PNG: {e}")))?;
     match img {
         image::DynamicImage::ImageLuma16(buf) => {
             let (w, h) = (buf.width() as usize, buf.height() as usize);

@@ -9,9 +9,9 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::io::atomic::write_atomic;
-use crate::io::images::write_color_png;
-use crate::{GeometryError, Image, Mesh};
+use crate::atomic::write_atomic;
+use crate::images::write_color_png;
+use geometry::{GeometryError, Image, Mesh};
 
 /// The name of the single material written to the MTL file.
 pub const MATERIAL_NAME: &str = "kfuse_texture";
@@ -161,6 +161,6 @@ mod tests {
             })
             .collect();
         assert_eq!(tri, vec![mesh.vertices[1], mesh.vertices[2], mesh.vertices[3]]);
-        assert_eq!(crate::io::images::read_color(files.texture.as_ref().unwrap()).unwrap(), tex);
+        assert_eq!(crate::images::read_color(files.texture.as_ref().unwrap()).unwrap(), tex);
     }
 }

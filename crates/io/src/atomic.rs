@@ -1,0 +1,511 @@
+//! Outputs that appear whole or not at all.
+//!
+//! Every file kfuse writes goes first to a hidden temporary name in the same directory and is
+//! renamed into place when complete (a rename within one directory is atomic on POSIX), so a
+//! crash, a full disk or a bad input never leaves a truncated file behind. Multi-file outputs
+//! use [`StagedDir`]: all files are written into a hidden staging directory on the
+//! destination's file system and published only by [`StagedDir::commit`] (one directory rename
+//! for a new folder); dropping it uncommitted deletes everything. A [`MANIFEST`] in each
+//! published folder lists what kfuse wrote, so nothing of the user's is ever replaced.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use geometry::GeometryError;
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GeometryError + '_ {
+    move |source| GeometryError::Io { path: path.to_path_buf(), source }
+}
+
+/// The hidden temporary sibling of `path` used while it is being written.
+pub fn temporary_name(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}.partial-{}", std::process::id()))
+}
+
+/// Writes `path` atomically: `write` fills a temporary file which is synced and renamed to
+/// `path` only if `write` succeeds. On error the temporary file is removed.
+pub fn write_atomic<F>(path: &Path, write: F) -> Result<(), GeometryError>
+where
+    F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
+{
+    let tmp = temporary_name(path);
+    let result = (|| {
+        let file = fs::File::create(&tmp)?;
+        let mut buffered = std::io::BufWriter::new(file);
+        write(&mut buffered)?;
+        let file = buffered.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result.map_err(io_err(path))
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<(), GeometryError> {
+    write_atomic(path, |w| w.write_all(bytes))
+}
+
+/// The file in every output folder kfuse publishes that lists the entries kfuse wrote there:
+/// a later run into the same folder replaces exactly those and never touches anything else.
+pub const MANIFEST: &str = ".kfuse-manifest.json";
+/// Prefix of staging folders (followed by the process id), inside or beside the destination.
+const STAGING_PREFIX: &str = ".kfuse-staging-";
+const MANIFEST_FORMAT: &str = "kfuse-manifest";
+
+/// Whether process `pid` is still running (Linux: `/proc/PID` exists). Where `/proc` is not
+/// available every process counts as running, so no staging folder is ever taken for stale.
+fn process_alive(pid: u32) -> bool {
+    if !Path::new("/proc/self").exists() {
+        return true;
+    }
+    Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Removes the staging folders of killed kfuse runs in `dir`: folders named
+/// `{STAGING_PREFIX}{pid}` (inside a destination) or `.{name}{STAGING_PREFIX}{pid}` (beside
+/// one), and the `{legacy}{pid}` folders of earlier kfuse versions, whose process is gone.
+/// Nothing named otherwise is touched.
+fn remove_stale_staging(dir: &Path, legacy: Option<&str>) {
+    let Ok(entries) = fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let ours = name
+            .rsplit_once(STAGING_PREFIX)
+            .filter(|(head, _)| head.is_empty() || head.starts_with('.'))
+            .map(|(_, pid)| pid);
+        let pid = ours
+            .or_else(|| legacy.and_then(|l| name.strip_prefix(l)))
+            .and_then(|rest| rest.parse::<u32>().ok());
+        let Some(pid) = pid else { continue };
+        let is_dir = entry.file_type().map(|t| t.is_dir()).unwrap_or(false);
+        if is_dir && pid != std::process::id() && !process_alive(pid) {
+            let _ = fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
+/// The entries a folder's manifest lists (empty when there is none or it is unreadable).
+fn read_manifest(dir: &Path) -> Vec<String> {
+    let Ok(text) = fs::read_to_string(dir.join(MANIFEST)) else { return Vec::new() };
+    let Ok(value) = serde_json::from_str::<serde_json::Value>(&text) else { return Vec::new() };
+    if value.get("format").and_then(|f| f.as_str()) != Some(MANIFEST_FORMAT) {
+        return Vec::new();
+    }
+    value
+        .get("files")
+        .and_then(|f| f.as_array())
+        .map(|files| {
+            files
+                .iter()
+                .filter_map(|f| f.as_str())
+                // Plain names only: a manifest never makes kfuse touch anything outside.
+                .filter(|n| is_plain_name(n))
+                .map(str::to_string)
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn manifest_json(files: &[String]) -> String {
+    let value = serde_json::json!({
+        "format": MANIFEST_FORMAT,
+        "about": "entries of this folder written by kfuse; the next kfuse run into this folder replaces them and keeps everything else",
+        "files": files,
+    });
+    serde_json::to_string_pretty(&value).unwrap_or_default()
+}
+
+/// A single file or folder name: not empty, no separator, not `.` or `..`.
+pub fn is_plain_name(name: &str) -> bool {
+    !name.is_empty()
+        && name != "."
+        && name != ".."
+        && !name.contains('/')
+        && !name.contains('\\')
+        && !name.contains('\0')
+}
+
+/// A directory of outputs that becomes visible only when complete.
+///
+/// Files are created under [`StagedDir::path`], a staging folder on the destination's file
+/// system, and published by [`StagedDir::commit`]:
+///
+/// * **new destination**: the staging folder is a hidden sibling and is renamed to the
+///   destination in one step;
+/// * **existing destination** (a reused `--out`, or a mount point): the staging folder is
+///   inside it; commit moves each staged entry in (a rename within one file system), removes
+///   the entries the previous run listed in the folder's [`MANIFEST`] that this run did not
+///   write, and refuses (before moving anything) when a staged name is taken by an entry kfuse
+///   did not write. Nothing else in the folder is ever touched.
+///
+/// The destination is checked when staging starts (before any work): a file in its place is
+/// refused. Staging folders of killed runs are removed then too. Dropped without commit (an
+/// error, Ctrl-C), the staging folder and everything in it is deleted.
+#[derive(Debug)]
+pub struct StagedDir {
+    staging: PathBuf,
+    destination: PathBuf,
+    inside: bool,
+    committed: bool,
+}
+
+impl StagedDir {
+    /// Starts staging outputs for `destination`.
+    pub fn new(destination: &Path) -> Result<Self, GeometryError> {
+        let refuse =
+            |message: String| GeometryError::Format { path: destination.to_path_buf(), message };
+        match fs::metadata(destination) {
+            Ok(m) if !m.is_dir() => {
+                return Err(refuse(
+                    "exists and is not a folder; give a folder for the outputs (it is created if missing)".into(),
+                ));
+            }
+            Ok(_) => {
+                remove_stale_staging(destination, None);
+                let staging = destination.join(format!("{STAGING_PREFIX}{}", std::process::id()));
+                if staging.exists() {
+                    fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
+                }
+                fs::create_dir(&staging).map_err(io_err(&staging))?;
+                return Ok(Self {
+                    staging,
+                    destination: destination.to_path_buf(),
+                    inside: true,
+                    committed: false,
+                });
+            }
+            Err(_) => {}
+        }
+        let parent = match destination.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+        let name = destination
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "out".into());
+        let prefix = format!(".{name}{STAGING_PREFIX}");
+        remove_stale_staging(&parent, Some(&format!(".{name}.partial-")));
+        let staging = parent.join(format!("{prefix}{}", std::process::id()));
+        if staging.exists() {
+            fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
+        }
+        fs::create_dir_all(&staging).map_err(io_err(&staging))?;
+        Ok(Self {
+            staging,
+            destination: destination.to_path_buf(),
+            inside: false,
+            committed: false,
+        })
+    }
+
+    /// Where to write the files now.
+    pub fn path(&self) -> &Path {
+        &self.staging
+    }
+
+    /// A path inside the staging directory.
+    pub fn join(&self, name: impl AsRef<Path>) -> PathBuf {
+        self.staging.join(name)
+    }
+
+    /// The final directory.
+    pub fn destination(&self) -> &Path {
+        &self.destination
+    }
+
+    fn staged_names(&self) -> Result<Vec<String>, GeometryError> {
+        let mut names = Vec::new();
+        for entry in fs::read_dir(&self.staging).map_err(io_err(&self.staging))? {
+            let entry = entry.map_err(io_err(&self.staging))?;
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if name != MANIFEST {
+                names.push(name);
+            }
+        }
+        names.sort();
+        Ok(names)
+    }
+
+    /// Publishes the staged entries (see the type's docs) and returns the destination.
+    pub fn commit(mut self) -> Result<PathBuf, GeometryError> {
+        let names = self.staged_names()?;
+        if !self.inside {
+            write_bytes_atomic(&self.staging.join(MANIFEST), manifest_json(&names).as_bytes())?;
+            match fs::rename(&self.staging, &self.destination) {
+                Ok(()) => {
+                    self.committed = true;
+                    return Ok(self.destination.clone());
+                }
+                // The destination appeared meanwhile: publish into it like a reused folder.
+                Err(_) if self.destination.is_dir() => {}
+                Err(e) => return Err(io_err(&self.destination)(e)),
+            }
+        }
+        let dest = self.destination.clone();
+        let old = read_manifest(&dest);
+        // Refuse before moving anything when a name is taken by something kfuse did not write.
+        for name in &names {
+            let target = dest.join(name);
+            if fs::symlink_metadata(&target).is_ok() && !old.contains(name) {
+                return Err(GeometryError::Format {
+                    path: target,
+                    message: format!(
+                        "exists and was not written by kfuse (it is not listed in {}); move it away or choose another output folder",
+                        dest.join(MANIFEST).display()
+                    ),
+                });
+            }
+        }
+        // The manifest first lists old and new entries, so a run killed during the moves
+        // leaves every kfuse entry known to the next run.
+        let mut union: Vec<String> = old.iter().chain(&names).cloned().collect();
+        union.sort();
+        union.dedup();
+        write_bytes_atomic(&dest.join(MANIFEST), manifest_json(&union).as_bytes())?;
+        for name in &old {
+            if names.contains(name) {
+                continue;
+            }
+            let stale = dest.join(name);
+            match fs::symlink_metadata(&stale) {
+                Ok(m) if m.is_dir() => fs::remove_dir_all(&stale).map_err(io_err(&stale))?,
+                Ok(_) => fs::remove_file(&stale).map_err(io_err(&stale))?,
+                Err(_) => {}
+            }
+        }
+        for name in &names {
+            let target = dest.join(name);
+            if fs::symlink_metadata(&target).map(|m| m.is_dir()).unwrap_or(false) {
+                fs::remove_dir_all(&target).map_err(io_err(&target))?;
+            }
+            fs::rename(self.staging.join(name), &target).map_err(io_err(&target))?;
+        }
+        write_bytes_atomic(&dest.join(MANIFEST), manifest_json(&names).as_bytes())?;
+        fs::remove_dir_all(&self.staging).map_err(io_err(&self.staging))?;
+        self.committed = true;
+        Ok(dest)
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = fs::remove_dir_all(&self.staging);
+        }
+    }
+}
+
+/// Single files (e.g. `rig.json` and an OpenCV YAML beside it) that appear together or not at
+/// all: [`StagedFiles::add`] writes each to its hidden temporary sibling, [`StagedFiles::commit`]
+/// renames them all into place; dropped without commit, the temporaries are deleted.
+#[derive(Debug, Default)]
+pub struct StagedFiles {
+    files: Vec<(PathBuf, PathBuf)>,
+    committed: bool,
+}
+
+impl StagedFiles {
+    /// No files yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Writes `bytes` for `path` (to its temporary sibling; `path` itself is untouched). The
+    /// temporaries of killed runs for the same name are removed first.
+    pub fn add(&mut self, path: &Path, bytes: &[u8]) -> Result<(), GeometryError> {
+        let tmp = temporary_name(path);
+        if let (Some(dir), Some(name)) = (tmp.parent(), path.file_name()) {
+            let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+            let prefix = format!(".{}.partial-", name.to_string_lossy());
+            remove_stale_files(dir, &prefix);
+        }
+        let result = (|| {
+            let mut file = fs::File::create(&tmp)?;
+            file.write_all(bytes)?;
+            file.sync_all()
+        })();
+        // Recorded before the result is checked, so a half-written temporary is removed too.
+        self.files.push((tmp, path.to_path_buf()));
+        result.map_err(io_err(path))
+    }
+
+    /// Renames every file into place.
+    pub fn commit(mut self) -> Result<(), GeometryError> {
+        for (tmp, path) in &self.files {
+            fs::rename(tmp, path).map_err(io_err(path))?;
+        }
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl Drop for StagedFiles {
+    fn drop(&mut self) {
+        if !self.committed {
+            for (tmp, _) in &self.files {
+                let _ = fs::remove_file(tmp);
+            }
+        }
+    }
+}
+
+/// Removes `{prefix}{pid}` files of processes that are gone.
+fn remove_stale_files(dir: &Path, prefix: &str) {
+    let Ok(entries) = fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name.strip_prefix(prefix).and_then(|r| r.parse::<u32>().ok()) else {
+            continue;
+        };
+        let is_file = entry.file_type().map(|t| t.is_file()).unwrap_or(false);
+        if is_file && pid != std::process::id() && !process_alive(pid) {
+            let _ = fs::remove_file(entry.path());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("kfuse-atomic-{name}-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn failed_write_leaves_nothing_and_keeps_the_old_file() {
+        let dir = scratch("fail");
+        let path = dir.join("out.bin");
+        write_bytes_atomic(&path, b"old").unwrap();
+        let err = write_atomic(&path, |w| {
+            w.write_all(b"half")?;
+            Err(std::io::Error::other("disk full"))
+        });
+        assert!(err.is_err());
+        assert_eq!(fs::read(&path).unwrap(), b"old");
+        assert_eq!(fs::read_dir(&dir).unwrap().count(), 1, "temporary file left behind");
+    }
+
+    #[test]
+    fn staged_dir_appears_only_on_commit() {
+        let dir = scratch("staged");
+        let dest = dir.join("results");
+        {
+            let staged = StagedDir::new(&dest).unwrap();
+            fs::write(staged.join("a.txt"), "a").unwrap();
+            // dropped without commit
+        }
+        assert!(!dest.exists());
+        assert_eq!(fs::read_dir(&dir).unwrap().count(), 0, "staging directory left behind");
+        let staged = StagedDir::new(&dest).unwrap();
+        fs::write(staged.join("a.txt"), "a").unwrap();
+        staged.commit().unwrap();
+        assert_eq!(fs::read_to_string(dest.join("a.txt")).unwrap(), "a");
+        assert_eq!(fs::read_dir(&dir).unwrap().count(), 1);
+    }
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    fn publish(dest: &Path, files: &[&str]) -> Result<PathBuf, GeometryError> {
+        let staged = StagedDir::new(dest)?;
+        for f in files {
+            fs::write(staged.join(f), f).unwrap();
+        }
+        staged.commit()
+    }
+
+    #[test]
+    fn reused_folder_ends_with_exactly_this_runs_files_and_keeps_the_users() {
+        let dir = scratch("reuse");
+        let dest = dir.join("out");
+        publish(&dest, &["a.png", "b.png", "summary.json"]).unwrap();
+        assert_eq!(names(&dest), [MANIFEST, "a.png", "b.png", "summary.json"]);
+        fs::write(dest.join("notes.txt"), "mine").unwrap();
+        publish(&dest, &["a.png", "summary.json"]).unwrap();
+        // b.png (kfuse's, from the earlier run) is gone; the user's notes.txt is kept.
+        assert_eq!(names(&dest), [MANIFEST, "a.png", "notes.txt", "summary.json"]);
+        assert_eq!(read_manifest(&dest), ["a.png", "summary.json"]);
+        assert_eq!(fs::read_to_string(dest.join("notes.txt")).unwrap(), "mine");
+        assert_eq!(names(&dir), ["out"], "staging folder left behind");
+    }
+
+    #[test]
+    fn a_users_entry_with_an_output_name_is_kept_and_the_run_refused() {
+        let dir = scratch("clash");
+        let dest = dir.join("out");
+        fs::create_dir_all(dest.join("summary.json")).unwrap();
+        fs::write(dest.join("summary.json/precious.txt"), "x").unwrap();
+        let err = publish(&dest, &["a.png", "summary.json"]).unwrap_err().to_string();
+        assert!(err.contains("summary.json") && err.contains("not written by kfuse"), "{err}");
+        assert_eq!(names(&dest), ["summary.json"], "nothing may be published on refusal");
+        assert_eq!(fs::read_to_string(dest.join("summary.json/precious.txt")).unwrap(), "x");
+    }
+
+    #[test]
+    fn a_file_as_destination_is_refused_before_any_work() {
+        let dir = scratch("file");
+        let dest = dir.join("out");
+        fs::write(&dest, "a file").unwrap();
+        let err = StagedDir::new(&dest).unwrap_err().to_string();
+        assert!(err.contains("not a folder"), "{err}");
+        assert_eq!(fs::read_to_string(&dest).unwrap(), "a file");
+        assert_eq!(names(&dir), ["out"]);
+    }
+
+    #[test]
+    fn staging_of_killed_runs_is_removed_and_live_ones_kept() {
+        let dir = scratch("stale");
+        let dest = dir.join("out");
+        // A pid above the kernel's pid_max (4194304) can never be alive.
+        let dead = 4_194_305 + std::process::id() % 1000;
+        for stale in [format!(".out{STAGING_PREFIX}{dead}"), format!(".out.partial-{dead}")] {
+            fs::create_dir_all(dir.join(&stale)).unwrap();
+            fs::write(dir.join(&stale).join("cloud.ply"), "half").unwrap();
+        }
+        // A folder of another (living) process and a user's look-alike are kept.
+        let live = format!(".out{STAGING_PREFIX}1");
+        fs::create_dir_all(dir.join(&live)).unwrap();
+        fs::create_dir_all(dir.join(".out.partial-mine")).unwrap();
+        publish(&dest, &["a.png"]).unwrap();
+        assert_eq!(names(&dir), [live.as_str(), ".out.partial-mine", "out"]);
+        // Inside an existing folder (the mount-point case) the same.
+        fs::create_dir_all(dest.join(format!("{STAGING_PREFIX}{dead}"))).unwrap();
+        publish(&dest, &["a.png"]).unwrap();
+        assert_eq!(names(&dest), [MANIFEST, "a.png"]);
+    }
+
+    #[test]
+    fn staged_files_appear_together_or_not_at_all() {
+        let dir = scratch("files");
+        let (a, b) = (dir.join("rig.json"), dir.join("rig.yaml"));
+        {
+            let mut staged = StagedFiles::new();
+            staged.add(&a, b"{}").unwrap();
+            staged.add(&b, b"%YAML").unwrap();
+            // dropped: an error happened before commit
+        }
+        assert!(names(&dir).is_empty(), "{:?}", names(&dir));
+        let mut staged = StagedFiles::new();
+        staged.add(&a, b"{}").unwrap();
+        staged.add(&b, b"%YAML").unwrap();
+        staged.commit().unwrap();
+        assert_eq!(names(&dir), ["rig.json", "rig.yaml"]);
+    }
+}

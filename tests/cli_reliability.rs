@@ -1,0 +1,396 @@
+//! Bad inputs and faults through the real binary (issue 12): limits before work, rig unit
+//! mistakes, all-or-nothing outputs for `fuse`, `undistort` and `calibrate`, truncated images,
+//! runs killed at random moments. Each case asserts one clear line, a non-zero exit that is
+//! not a panic or an abort, and exactly the files that should exist.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::Duration;
+
+use geometry::{CameraModel, Distortion, Image, Intrinsics, Rig, RigidTransform};
+use kfuse_io::atomic::MANIFEST;
+use kfuse_io::{images, rig as rigio};
+use nalgebra::Vector3;
+
+fn kfuse(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("run kfuse")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("kfuse-rel-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// A failure with exit code 1 (not a panic's 101 or a signal) and one line naming `file` and
+/// saying `also`.
+fn assert_one_line_failure(o: &Output, file: &str, also: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "expected a clean failure (exit 1): {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "expected one error line: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(lines[0].contains(file), "error does not name {file}: {err}");
+    assert!(lines[0].contains(also), "error does not say '{also}': {err}");
+}
+
+/// A 64x48 depth + 96x72 colour rig, 5 cm baseline.
+fn small_rig() -> Rig {
+    let depth = CameraModel::new(64, 48, Intrinsics::new(60.0, 60.0, 31.5, 23.5), Distortion::NONE);
+    let color = CameraModel::new(96, 72, Intrinsics::new(90.0, 90.0, 47.5, 35.5), Distortion::NONE);
+    Rig::new(
+        depth,
+        color,
+        RigidTransform::from_axis_angle(Vector3::zeros(), Vector3::new(-0.05, 0.0, 0.0)),
+    )
+}
+
+struct Case {
+    dir: PathBuf,
+    rig: PathBuf,
+    color: PathBuf,
+    depth: PathBuf,
+}
+
+fn small_case(name: &str) -> Case {
+    let dir = scratch(name);
+    let rig = dir.join("rig.json");
+    rigio::write_rig(&rig, &small_rig()).unwrap();
+    let color = dir.join("color.png");
+    images::write_color_png(&color, &Image::from_fn(96, 72, |x, y| [x as u8, y as u8, 100]))
+        .unwrap();
+    let depth = dir.join("depth.png");
+    images::write_depth_png16(&depth, &Image::from_fn(64, 48, |x, _| 1.5 + 0.01 * x as f32))
+        .unwrap();
+    Case { dir, rig, color, depth }
+}
+
+fn fuse(case: &Case, rig: &Path, color: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "fuse",
+        "--rig",
+        s(rig),
+        "--color",
+        s(color),
+        "--depth",
+        s(&case.depth),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    kfuse(&args)
+}
+
+#[test]
+fn rig_unit_mistakes_are_refused_before_work_and_force_overrides() {
+    let case = small_case("units");
+    let out = case.dir.join("out");
+    let mut mm = small_rig();
+    mm.color_from_depth.translation *= 1000.0;
+    let mm_path = case.dir.join("rig_mm.json");
+    rigio::write_rig(&mm_path, &mm).unwrap();
+    let o = fuse(&case, &mm_path, &case.color, &out, &[]);
+    assert_one_line_failure(&o, "rig_mm.json", "T looks like millimetres: 50 → 0.05 m?");
+    assert!(!out.exists());
+    for (f, name) in [(0.0006, "rig_metres.json"), (6.0, "rig_millimetres.json")] {
+        let mut r = small_rig();
+        r.depth.intrinsics.fx = f;
+        r.depth.intrinsics.fy = f;
+        let path = case.dir.join(name);
+        rigio::write_rig(&path, &r).unwrap();
+        let o = fuse(&case, &path, &case.color, &out, &[]);
+        assert_one_line_failure(&o, name, "not metres or millimetres");
+        assert!(!out.exists());
+    }
+    // --force: a 45 px focal length (just under the limit) fuses, with a warning.
+    let mut r = small_rig();
+    r.depth.intrinsics.fx = 45.0;
+    r.depth.intrinsics.fy = 45.0;
+    let path = case.dir.join("rig_45.json");
+    rigio::write_rig(&path, &r).unwrap();
+    let o = fuse(&case, &path, &case.color, &out, &[]);
+    assert_one_line_failure(&o, "rig_45.json", "--force");
+    let o = fuse(&case, &path, &case.color, &out, &["--force"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("warning") && err.contains("fx = 45 px"), "{err}");
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+#[test]
+fn image_sizes_are_checked_from_headers_and_truncated_images_refused() {
+    let case = small_case("images");
+    let out = case.dir.join("out");
+    // A 15000x15000 PNG (a few hundred KB): refused from its header, before it is decoded.
+    let huge = case.dir.join("huge.png");
+    {
+        let file = std::fs::File::create(&huge).unwrap();
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), 15_000, 15_000);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().unwrap().into_stream_writer().unwrap();
+        let row = vec![0u8; 15_000];
+        for _ in 0..15_000 {
+            std::io::Write::write_all(&mut w, &row).unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let o = fuse(&case, &case.rig, &huge, &out, &[]);
+    assert_one_line_failure(&o, "huge.png", "15000x15000");
+    assert!(!out.exists());
+
+    // A JPEG cut to 10 % of its bytes: an error, not a grey image fused with exit 0.
+    let jpeg = case.dir.join("color.jpg");
+    let rgb = image::RgbImage::from_fn(96, 72, |x, y| image::Rgb([x as u8 * 2, y as u8 * 3, 90]));
+    rgb.save(&jpeg).unwrap();
+    let o = fuse(&case, &case.rig, &jpeg, &out, &[]);
+    assert!(
+        o.status.success(),
+        "the intact JPEG must fuse: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let bytes = std::fs::read(&jpeg).unwrap();
+    let cut = case.dir.join("cut.jpg");
+    std::fs::write(&cut, &bytes[..bytes.len() / 10]).unwrap();
+    std::fs::remove_dir_all(&out).unwrap();
+    let o = fuse(&case, &case.rig, &cut, &out, &[]);
+    assert_one_line_failure(&o, "cut.jpg", "truncated JPEG");
+    assert!(!out.exists());
+    // Cut anywhere before its end marker, too; data after the marker is allowed.
+    for keep in [bytes.len() / 2, bytes.len() - 2] {
+        std::fs::write(&cut, &bytes[..keep]).unwrap();
+        let o = fuse(&case, &case.rig, &cut, &out, &[]);
+        assert_one_line_failure(&o, "cut.jpg", "truncated JPEG");
+    }
+    let mut trailing = bytes.clone();
+    trailing.extend_from_slice(b"trailing data some cameras append");
+    std::fs::write(&cut, &trailing).unwrap();
+    let o = fuse(&case, &case.rig, &cut, &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    // A truncated PNG.
+    let png = std::fs::read(&case.color).unwrap();
+    let cut = case.dir.join("cut.png");
+    std::fs::write(&cut, &png[..png.len() * 6 / 10]).unwrap();
+    let out2 = case.dir.join("out2");
+    let o = fuse(&case, &case.rig, &cut, &out2, &[]);
+    assert_one_line_failure(&o, "cut.png", "corrupt");
+    assert!(!out2.exists());
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+#[test]
+fn fuse_outputs_are_all_or_nothing_and_never_touch_the_users_files() {
+    let case = small_case("outputs");
+    let out = case.dir.join("out");
+    // --out naming a file: refused at once, the file kept.
+    let file = case.dir.join("a-file");
+    std::fs::write(&file, "mine").unwrap();
+    let o = fuse(&case, &case.rig, &case.color, &file, &[]);
+    assert_one_line_failure(&o, "a-file", "not a folder");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+
+    // Stale staging folders of killed runs (this version's and the old naming) are removed.
+    let dead = 4_194_305 + std::process::id() % 1000; // above the kernel's pid_max
+    for stale in [format!(".out.kfuse-staging-{dead}"), format!(".out.partial-{dead}")] {
+        std::fs::create_dir_all(case.dir.join(&stale)).unwrap();
+        std::fs::write(case.dir.join(&stale).join("cloud.ply"), "half").unwrap();
+    }
+    let o = fuse(&case, &case.rig, &case.color, &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!names(&case.dir).iter().any(|n| n.starts_with(".out")), "{:?}", names(&case.dir));
+    let first = names(&out);
+    assert!(first.contains(&"task1_depth.png".to_string()) || first.len() > 20, "{first:?}");
+    assert!(first.contains(&MANIFEST.to_string()));
+
+    // Reused --out: the figures of the first run are gone, the user's file is kept.
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    let o = fuse(&case, &case.rig, &case.color, &out, &["--no-figures"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let second = names(&out);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let mut listed: Vec<String> = summary["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap().to_string())
+        .collect();
+    listed.extend([MANIFEST.to_string(), "notes.txt".to_string()]);
+    listed.sort();
+    assert_eq!(second, listed, "the folder must hold exactly this run's files and the user's");
+    assert!(second.len() < first.len(), "{second:?}");
+    assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
+
+    // A folder of the user's named like an output: kept, and the run refused.
+    let theirs = case.dir.join("theirs");
+    std::fs::create_dir_all(theirs.join("summary.json")).unwrap();
+    std::fs::write(theirs.join("summary.json/precious.txt"), "x").unwrap();
+    let o = fuse(&case, &case.rig, &case.color, &theirs, &[]);
+    assert_one_line_failure(&o, "summary.json", "not written by kfuse");
+    assert_eq!(names(&theirs), ["summary.json"]);
+    assert_eq!(std::fs::read_to_string(theirs.join("summary.json/precious.txt")).unwrap(), "x");
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+#[test]
+fn fuse_killed_at_any_moment_leaves_all_or_nothing() {
+    let case = small_case("kill");
+    // Kill runs after increasing delays: each leaves no --out or a complete one; the next
+    // run removes the killed runs' staging folders.
+    let mut outcomes = (0, 0);
+    for i in 0..8u64 {
+        let out = case.dir.join(format!("out{i}"));
+        let mut child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
+            .args(["fuse", "--rig", s(&case.rig), "--color", s(&case.color)])
+            .args(["--depth", s(&case.depth), "--out", s(&out)])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(40 * i * i));
+        let _ = child.kill();
+        let _ = child.wait();
+        if out.exists() {
+            outcomes.1 += 1;
+            let summary: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                    .unwrap();
+            for f in summary["files"].as_array().unwrap() {
+                assert!(out.join(f.as_str().unwrap()).is_file(), "{f} missing after a kill");
+            }
+        } else {
+            outcomes.0 += 1;
+        }
+    }
+    let o = fuse(&case, &case.rig, &case.color, &case.dir.join("last"), &[]);
+    assert!(o.status.success());
+    let left: Vec<String> = names(&case.dir)
+        .into_iter()
+        .filter(|n| n.contains("staging") || n.contains("partial"))
+        .collect();
+    assert!(left.is_empty(), "staging of killed runs left: {left:?}");
+    eprintln!("killed runs: {} left nothing, {} had finished", outcomes.0, outcomes.1);
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+#[test]
+fn undistort_checks_everything_before_writing_anything() {
+    let case = small_case("undistort");
+    let out = case.dir.join("rect");
+    // A 30000x30000 rig: refused from the rig, before any map is built.
+    let mut huge = small_rig();
+    huge.color.width = 30_000;
+    huge.color.height = 30_000;
+    let huge_path = case.dir.join("huge_rig.json");
+    rigio::write_rig(&huge_path, &huge).unwrap();
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&huge_path),
+        "--camera",
+        "color",
+        s(&case.color),
+        "--out",
+        s(&out),
+    ]);
+    assert_one_line_failure(&o, "huge_rig.json", "30000x30000");
+    assert!(!out.exists());
+
+    // Two inputs with the same base name: refused before anything is written.
+    let other = case.dir.join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::copy(&case.color, other.join("color.png")).unwrap();
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&case.rig),
+        "--camera",
+        "color",
+        s(&case.color),
+        s(&other.join("color.png")),
+        "--out",
+        s(&out),
+    ]);
+    assert_one_line_failure(&o, "color_rect.png", "separate --out");
+    assert!(!out.exists());
+
+    // A corrupt second image: no partial outputs (the first image's is not published).
+    let bad = case.dir.join("bad.png");
+    let mut bytes = std::fs::read(&case.color).unwrap();
+    let n = bytes.len();
+    bytes.truncate(n / 2);
+    std::fs::write(&bad, &bytes).unwrap();
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&case.rig),
+        "--camera",
+        "color",
+        s(&case.color),
+        s(&bad),
+        "--out",
+        s(&out),
+    ]);
+    assert_one_line_failure(&o, "bad.png", "end of file");
+    assert!(!out.exists(), "{:?}", names(&case.dir));
+    assert!(!names(&case.dir).iter().any(|n| n.contains("staging")), "{:?}", names(&case.dir));
+
+    // The good run publishes both at once.
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&case.rig),
+        "--camera",
+        "color",
+        s(&case.color),
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(names(&out), [MANIFEST, "color_rect.png"]);
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+#[test]
+fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
+    let case = small_case("calibrate");
+    let before = std::fs::read(&case.color).unwrap();
+    let pattern = case.dir.join("*.png");
+    // --out naming an input image: refused, the image untouched.
+    let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&case.color)]);
+    assert_one_line_failure(&o, "color.png", "is one of the input images");
+    assert_eq!(std::fs::read(&case.color).unwrap(), before);
+    // --out in a folder that does not exist, and a bad --opencv-yaml folder: refused before
+    // detection, nothing written.
+    let missing = case.dir.join("no-such-folder/rig.json");
+    let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&missing)]);
+    assert_one_line_failure(&o, "no-such-folder", "does not exist");
+    let rig = case.dir.join("rig_out.json");
+    let yaml = case.dir.join("nope/rig.yaml");
+    let o =
+        kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--opencv-yaml", s(&yaml)]);
+    assert_one_line_failure(&o, "nope", "does not exist");
+    assert!(!rig.exists());
+    // A calibration that fails (no board in these images): no rig, no report, no temporaries.
+    let report = case.dir.join("report");
+    let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--report", s(&report)]);
+    assert!(!o.status.success());
+    assert!(!rig.exists() && !report.exists());
+    assert_eq!(names(&case.dir), ["color.png", "depth.png", "rig.json"]);
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
