@@ -73,7 +73,9 @@ pub struct FuseArgs {
     /// its depth part (1.0 = 45°; larger keeps more slanted faces).
     #[arg(long, value_name = "RATIO", default_value_t = FusionOptions::default().stretch_ratio)]
     pub stretch_ratio: f32,
-    /// Coverage radius of H3 nearest fill and H8 holes, in depth-sample spacings.
+    /// Coverage radius of H3 nearest fill and H8 holes, in depth-sample spacings. Times the
+    /// rig's spacing it may be at most 16 colour pixels (a factor of 5.5 on a Kinect v2):
+    /// the nearest fill's work grows with the square of the radius.
     #[arg(long, value_name = "FACTOR", default_value_t = FusionOptions::default().hole_radius_factor)]
     pub hole_radius: f32,
     /// Do not draw the Task 1-8 figures.
@@ -273,6 +275,11 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     bar.set_message("reading inputs");
     let options = options(args)?;
     let inputs = load_inputs(args)?;
+    // Before any work: the coverage radius this rig and --hole-radius give, and the rig's
+    // sample spacing, within the stages' limits (the stages check again; this names the files).
+    fusion::checked_coverage_radius_px(&inputs.rig, &options).with_context(|| {
+        format!("the rig {} with --hole-radius {}", rig_name(args), args.hole_radius)
+    })?;
     bar.inc(1);
     bar.set_message("fusing (H1-H8)");
     let output = match args.gpu {
@@ -346,6 +353,14 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     bar.inc(1);
     bar.finish_and_clear();
     Ok(FuseResult { out, summary: output.summary })
+}
+
+fn rig_name(args: &FuseArgs) -> String {
+    match (&args.mat, &args.rig) {
+        (Some(m), _) => m.display().to_string(),
+        (_, Some(r)) => r.display().to_string(),
+        _ => "the rig".into(),
+    }
 }
 
 fn input_names(args: &FuseArgs) -> String {

@@ -62,6 +62,28 @@ pub struct StageOptions {
     pub occlusion_tolerance: Option<f32>,
 }
 
+impl StageOptions {
+    /// Checks the three radii against `geometry::fusion::MAX_COVERAGE_RADIUS_PX` before their
+    /// lookup tables are built (the disc table grows with the square of the radius).
+    ///
+    /// Error: [`GpuError::Input`] naming the radius and the limit.
+    pub fn check(&self) -> Result<(), GpuError> {
+        let limit = geometry::fusion::MAX_COVERAGE_RADIUS_PX;
+        for (what, r) in [
+            ("H3 nearest radius", self.nearest_radius_px),
+            ("H8 coverage radius", self.hole_radius_px),
+            ("H8 growth radius", self.hole_grow_px),
+        ] {
+            if !(0.0..=limit).contains(&r) {
+                return Err(GpuError::Input(geometry::GeometryError::InvalidInput(format!(
+                    "{what} {r} px is outside 0..={limit} px"
+                ))));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// What a frame runs: H1 + H2 + H7 always, the later stages when `stages` is given.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct FramePlan {
@@ -436,6 +458,9 @@ impl FusionContext {
         F: FnMut(usize, GpuFrame),
     {
         rig.validate()?;
+        if let Some(s) = &plan.stages {
+            s.check()?;
+        }
         let depth_size = (rig.depth.width, rig.depth.height);
         let color_size = (rig.color.width, rig.color.height);
         self.check_frame_size(depth_size, color_size)?;

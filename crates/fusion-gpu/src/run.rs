@@ -37,7 +37,7 @@ impl FusionContext {
         color: &Image<[u8; 3]>,
         options: &FusionOptions,
     ) -> Result<FusionOutput, GpuError> {
-        let valid_depth_pixels = check_inputs(rig, depth, color)?;
+        let valid_depth_pixels = check_inputs(rig, depth, color, options)?;
         let (cw, ch) = (rig.color.width, rig.color.height);
         let spacing = sample_spacing_px(rig);
         let radius = coverage_radius_px(rig, options);

@@ -74,6 +74,22 @@ use crate::{DepthKind, GeometryError, Image, Mesh, PointCloud, Rig};
 /// camera would call the diagonal gaps of a square sample lattice holes.
 pub const MIN_COVERAGE_RADIUS_PX: f32 = 1.5;
 
+/// Largest coverage radius, colour pixels, that H3 nearest and H8 accept. The nearest fill
+/// reads up to twice the `π r²` pixels of its disc per colour pixel, so its work grows with
+/// the square of the radius: 16 px (≈ 800 offsets, ~22× the Kinect default of 3.5 px) keeps a
+/// 1920×1080 frame to about a second on one core, and a coverage disc 32 px wide already
+/// closes every disocclusion a Kinect-like baseline makes, so H8 would find no hole at all.
+/// A `--hole-radius` of 30 (87 px on a Kinect) or 1e9 is refused with this limit instead of
+/// hanging or aborting on the disc table.
+pub const MAX_COVERAGE_RADIUS_PX: f32 = 16.0;
+
+/// Largest sample spacing, colour pixels between neighbouring depth samples, that a rig may
+/// give (Kinect v2: 2.9). At 8 a depth sample stands for 64 colour pixels: a colour camera
+/// more than 8× sharper than its depth camera is not a fusion rig, but a depth focal length
+/// in millimetres or metres instead of pixels is (3.65 gives ~296, 0.00365 ~300 000), and
+/// would size the coverage disc, the hole mask and the linear resampling's edge test by it.
+pub const MAX_SAMPLE_SPACING_PX: f32 = 8.0;
+
 /// Which colour-frame depth image H4 meshes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -252,6 +268,46 @@ pub fn coverage_radius_px(rig: &Rig, options: &FusionOptions) -> f32 {
     (options.hole_radius_factor * sample_spacing_px(rig)).max(MIN_COVERAGE_RADIUS_PX)
 }
 
+/// The coverage radius of [`coverage_radius_px`] once the rig's sample spacing and the radius
+/// are checked against [`MAX_SAMPLE_SPACING_PX`] and [`MAX_COVERAGE_RADIUS_PX`]: every run
+/// (CPU and GPU) calls this before any table is built or any pixel visited.
+///
+/// Errors, each naming the value, the limit and the fix: [`GeometryError::InvalidParameter`]
+/// for a rig whose focal lengths give a spacing above [`MAX_SAMPLE_SPACING_PX`],
+/// [`GeometryError::InvalidInput`] for a hole radius factor that is not positive or gives a
+/// radius above [`MAX_COVERAGE_RADIUS_PX`].
+pub fn checked_coverage_radius_px(rig: &Rig, options: &FusionOptions) -> Result<f32, GeometryError> {
+    let spacing = sample_spacing_px(rig);
+    if !(spacing <= MAX_SAMPLE_SPACING_PX) {
+        return Err(GeometryError::InvalidParameter(format!(
+            "the rig's cameras give {spacing} colour pixels between neighbouring depth samples \
+             (colour fx, fy = {}, {}; depth fx, fy = {}, {}), more than the {MAX_SAMPLE_SPACING_PX} \
+             a fusion rig can have; focal lengths must be in pixels (a Kinect v2 depth camera has \
+             fx ≈ 365), check the rig file",
+            rig.color.intrinsics.fx,
+            rig.color.intrinsics.fy,
+            rig.depth.intrinsics.fx,
+            rig.depth.intrinsics.fy
+        )));
+    }
+    let factor = options.hole_radius_factor;
+    if !(factor.is_finite() && factor > 0.0) {
+        return Err(GeometryError::InvalidInput(format!(
+            "the hole radius factor must be a positive number, got {factor}"
+        )));
+    }
+    let radius = coverage_radius_px(rig, options);
+    if !(radius <= MAX_COVERAGE_RADIUS_PX) {
+        return Err(GeometryError::InvalidInput(format!(
+            "hole radius {factor} × sample spacing {spacing:.2} px = a coverage radius of \
+             {radius:.1} px, above the limit of {MAX_COVERAGE_RADIUS_PX} px; use a hole radius \
+             of at most {:.2} with this rig",
+            MAX_COVERAGE_RADIUS_PX / spacing
+        )));
+    }
+    Ok(radius)
+}
+
 /// How far H8 grows the hole cores back: `coverage radius - spacing / 2` (see [`HoleMasker`]).
 pub fn hole_grow_px(rig: &Rig, options: &FusionOptions) -> f32 {
     (coverage_radius_px(rig, options) - 0.5 * sample_spacing_px(rig)).max(0.0)
@@ -264,15 +320,17 @@ fn ms(t: Instant) -> f64 {
 /// Checks a frame against its rig before any stage runs (the CPU pipeline and `fusion-gpu`
 /// share it) and returns the number of valid depth samples.
 ///
-/// Errors: [`GeometryError::InvalidParameter`] for an invalid rig,
-/// [`GeometryError::SizeMismatch`] when an image does not match its camera,
-/// [`GeometryError::InvalidInput`] when no depth pixel has a sample.
+/// Errors: [`GeometryError::InvalidParameter`] for an invalid rig or a coverage radius out of
+/// bounds ([`checked_coverage_radius_px`]), [`GeometryError::SizeMismatch`] when an image does
+/// not match its camera, [`GeometryError::InvalidInput`] when no depth pixel has a sample.
 pub fn check_inputs(
     rig: &Rig,
     depth: &Image<f32>,
     color: &Image<[u8; 3]>,
+    options: &FusionOptions,
 ) -> Result<usize, GeometryError> {
     rig.validate()?;
+    checked_coverage_radius_px(rig, options)?;
     depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
     color.expect_size("colour image", rig.color.width, rig.color.height)?;
     let valid_depth_pixels = depth.data().iter().filter(|&&z| z > 0.0 && z < f32::INFINITY).count();
@@ -300,7 +358,7 @@ pub fn run(
     color: &Image<[u8; 3]>,
     options: &FusionOptions,
 ) -> Result<FusionOutput, GeometryError> {
-    let valid_depth_pixels = check_inputs(rig, depth, color)?;
+    let valid_depth_pixels = check_inputs(rig, depth, color, options)?;
     let mut timings = StageTimings::default();
     let proj = ColorProjection::from_rig(rig);
     let (cw, ch) = (rig.color.width, rig.color.height);
