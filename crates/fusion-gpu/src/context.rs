@@ -26,25 +26,6 @@ const EXTENT_WORKGROUP_SIZE: u32 = 64;
 /// read back and the next one uploads.
 const STREAM_SLOTS: usize = 2;
 
-/// What to do when no adapter is found. The library never falls back by itself: both
-/// policies make [`FusionContext::new`] return [`GpuError::NoAdapter`]; the policy tells the
-/// caller (the CLI's `--gpu` / `--gpu auto`) whether it may fall back to the CPU.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum GpuPolicy {
-    /// The GPU was asked for explicitly: no adapter is an error.
-    #[default]
-    Required,
-    /// Use a GPU when there is one, otherwise the caller runs the CPU pipeline (with a warning).
-    Auto,
-}
-
-impl GpuPolicy {
-    /// True when the caller may run the CPU pipeline instead after [`GpuError::NoAdapter`].
-    pub fn falls_back_to_cpu(self) -> bool {
-        matches!(self, GpuPolicy::Auto)
-    }
-}
-
 /// The stages after H7 and their parameters (the same meaning as the CPU twins' arguments).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StageOptions {
@@ -268,11 +249,9 @@ impl FusionContext {
     /// Opens the first Vulkan adapter (a real GPU is preferred over a software one such as
     /// lavapipe) and compiles every stage. Honours `WGPU_BACKEND` / `VK_DRIVER_FILES`.
     ///
-    /// Fails with [`GpuError::NoAdapter`] when there is none, whatever the `policy`; see
-    /// [`GpuPolicy`] for what the caller does then.
-    pub fn new(policy: GpuPolicy) -> Result<Self, GpuError> {
-        // The policy only matters to the caller (fall back or not); see GpuPolicy.
-        let _ = policy;
+    /// Fails with [`GpuError::NoAdapter`] when there is none; the library never falls back
+    /// by itself ([`crate::fuse`] does under [`crate::Engine::Auto`]).
+    pub fn new() -> Result<Self, GpuError> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         // Only the Vulkan backend is compiled in; asking for others would find nothing.
         desc.backends &= wgpu::Backends::VULKAN;

@@ -15,7 +15,11 @@ fn small_rig(depth_f: f64) -> Rig {
     let depth =
         CameraModel::new(64, 48, Intrinsics::new(depth_f, depth_f, 31.5, 23.5), Distortion::NONE);
     let color = CameraModel::new(96, 72, Intrinsics::new(90.0, 90.0, 47.5, 35.5), Distortion::NONE);
-    Rig::new(depth, color, RigidTransform::new(Rotation3::identity(), Vector3::new(-0.05, 0.0, 0.0)))
+    Rig::new(
+        depth,
+        color,
+        RigidTransform::new(Rotation3::identity(), Vector3::new(-0.05, 0.0, 0.0)),
+    )
 }
 
 fn small_frame() -> (Image<f32>, Image<[u8; 3]>) {
@@ -91,7 +95,8 @@ fn registration_from_parts_bounds_its_radii() {
     let rays = fusion::depth_ray_table(&rig.depth, DepthKind::Z);
     let ok = Registration::from_parts(proj, &rays, 64, MAX_COVERAGE_RADIUS_PX, 0.0);
     assert!(ok.is_ok());
-    for (r, g) in [(MAX_COVERAGE_RADIUS_PX.next_up(), 1.0), (2.0, 1e9), (f32::NAN, 1.0), (-1.0, 1.0)]
+    for (r, g) in
+        [(MAX_COVERAGE_RADIUS_PX.next_up(), 1.0), (2.0, 1e9), (f32::NAN, 1.0), (-1.0, 1.0)]
     {
         assert!(Registration::from_parts(proj, &rays, 64, r, g).is_err(), "{r} {g}");
     }

@@ -574,6 +574,12 @@ impl Registration {
         &self.zbuffer
     }
 
+    /// The z-buffer of the last registered frame, taking the workspace apart (row-major,
+    /// colour-sized, no copy).
+    pub fn into_zbuffer(self) -> Vec<f32> {
+        self.zbuffer
+    }
+
     /// The z-buffer as an image.
     pub fn zbuffer_image(&self) -> Image<f32> {
         let w = self.proj.width as usize;
