@@ -53,6 +53,8 @@ mod engine;
 mod error;
 mod run;
 pub mod shaders;
+mod stages;
+mod submit;
 mod tables;
 
 pub use context::{FramePlan, FusionContext, GpuFrame, StageOptions};
