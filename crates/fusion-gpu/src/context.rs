@@ -1,5 +1,6 @@
 //! [`FusionContext`]: the wgpu device, queue, compute pipelines and per-frame buffers, reused
-//! across frames.
+//! across frames. (About 650 lines: the context's state, its buffers and the streaming loop
+//! that owns them; the stages are in [`crate::stages`], a frame's wiring in `submit.rs`.)
 
 use std::collections::VecDeque;
 use std::sync::mpsc;

@@ -1,5 +1,6 @@
 //! H1 + H2 + H7 + H8's mask for a stream of frames: [`Registration`] keeps every buffer and
-//! every per-pixel constant between frames.
+//! every per-pixel constant between frames. (About 700 lines with its tests: the loop variants
+//! and the argument that they are equivalent belong in one place.)
 //!
 //! The per-pixel arithmetic is [`super::pixel`]'s, unchanged (so the z-buffer is
 //! bit-identical to [`super::register_depth`], [`super::zbuffer_from_samples`] and the GPU);
