@@ -8,7 +8,7 @@ use std::hint::black_box;
 use std::sync::atomic::AtomicU32;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use fusion_gpu::{FramePlan, FusionContext, GpuPolicy, StageOptions};
+use fusion_gpu::{FramePlan, FusionContext, StageOptions};
 use geometry::fusion::{
     ColorProjection, FusionOptions, PlaneFit, backproject_cloud, color_on_depth,
     coverage_radius_px, depth_ray_table, fill_holes_with_plane, hole_grow_px, hole_mask,
@@ -79,7 +79,7 @@ fn bench(c: &mut Criterion) {
     g.bench_function("cpu_run", |b| {
         b.iter(|| black_box(run(rig, depth, kind, &frame.color, &options).expect("CPU run")))
     });
-    let gpu_ctx = FusionContext::new(GpuPolicy::Required);
+    let gpu_ctx = FusionContext::new();
     if let Ok(mut ctx) = gpu_ctx {
         g.bench_function("gpu_run", |b| {
             b.iter(|| {
@@ -89,7 +89,7 @@ fn bench(c: &mut Criterion) {
     }
     g.finish();
 
-    let mut ctx = match FusionContext::new(GpuPolicy::Required) {
+    let mut ctx = match FusionContext::new() {
         Ok(ctx) => ctx,
         Err(e) => {
             eprintln!("SKIP GPU benches: {e}");

@@ -583,16 +583,8 @@ struct Figures<'a> {
     color_images: Vec<(&'a Image<u8>, &'a ViewCorners)>,
 }
 
-const FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
-const FONT_NAME: &str = "sans-serif";
-
-fn register_font() {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| {
-        // The bundled file is a valid TrueType font; failing would only lose the text.
-        let _ = plotters::style::register_font(FONT_NAME, FontStyle::Normal, FONT);
-    });
-}
+// The one copy of the bundled font, shared with `kfuse fuse`'s figures.
+use kfuse_figures::{FONT_NAME, register_font};
 
 fn save_rgb(path: &Path, buf: Vec<u8>, w: usize, h: usize) -> Result<()> {
     let px = buf.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();

@@ -65,6 +65,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         stretch_ratio: geometry::fusion::FusionOptions::default().stretch_ratio,
         hole_radius: geometry::fusion::FusionOptions::default().hole_radius_factor,
         no_figures: args.no_figures,
+        engine: fusion_gpu::Engine::Cpu,
         gpu: None,
         force: false,
     };

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
+use fusion_gpu::{Engine, EngineUsed};
 use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
 use geometry::{DepthKind, Image, Rig};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -23,8 +24,8 @@ Examples:
   kfuse fuse --rig rig.json --color c.jpg --depth d.exr --depth-kind range --out fused
   kfuse fuse --mat ../shared/data/course/synthdata.mat --out course-fused
   kfuse fuse --rig rig.json --color c.png --depth d.png --resample nearest --no-figures --out quick
-  kfuse fuse --mat synthdata.mat --gpu --out gpu-fused        (GPU required; prints the adapter)
-  kfuse fuse --mat synthdata.mat --gpu auto --out fused       (GPU if any, else CPU with a warning)
+  kfuse fuse --mat synthdata.mat --engine gpu --out gpu-fused  (GPU required; prints the adapter)
+  kfuse fuse --mat synthdata.mat --engine auto --out fused     (GPU if any, else CPU with a warning)
 
 Inputs are the raw (distorted) camera images; the rig's distortion is applied exactly.
 Depth: 16-bit PNG/TIFF in millimetres (see --depth-scale) or 32-bit float TIFF/EXR in metres;
@@ -73,30 +74,47 @@ pub struct FuseArgs {
     /// its depth part (1.0 = 45°; larger keeps more slanted faces).
     #[arg(long, value_name = "RATIO", default_value_t = FusionOptions::default().stretch_ratio)]
     pub stretch_ratio: f32,
-    /// Coverage radius of H3 nearest fill and H8 holes, in depth-sample spacings.
+    /// Coverage radius of H3 nearest fill and H8 holes, in depth-sample spacings. Times the
+    /// rig's spacing it may be at most 16 colour pixels (a factor of 5.5 on a Kinect v2):
+    /// the nearest fill's work grows with the square of the radius.
     #[arg(long, value_name = "FACTOR", default_value_t = FusionOptions::default().hole_radius_factor)]
     pub hole_radius: f32,
     /// Do not draw the Task 1-8 figures.
     #[arg(long)]
     pub no_figures: bool,
-    /// Run the per-pixel stages (H1, H2, H7, H3 nearest, H8 mask and fill, H6) on the GPU
-    /// (wgpu, Vulkan): `--gpu` fails without an adapter, `--gpu auto` falls back to the CPU
-    /// with a warning. Results are identical to the CPU path.
-    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "on", value_name = "auto")]
-    pub gpu: Option<GpuArg>,
+    /// Where the per-pixel stages (H1, H2, H7, H3 nearest, H8 mask and fill, H6) run: cpu,
+    /// gpu (wgpu, Vulkan; fails without an adapter) or auto (the GPU if there is one, else the
+    /// CPU with a warning). Results are identical on every engine.
+    #[arg(long, value_name = "ENGINE", default_value_t = Engine::Cpu, value_parser = parse_engine, conflicts_with = "gpu")]
+    pub engine: Engine,
+    /// Old spelling of `--engine gpu` (`--gpu`) and `--engine auto` (`--gpu auto`).
+    #[arg(long, num_args = 0..=1, default_missing_value = "gpu", value_name = "auto", value_parser = parse_gpu_alias, hide = true)]
+    pub gpu: Option<Engine>,
     /// Use a rig that fails the plausibility check (focal lengths 50-20000 px, image sides up
     /// to 16384 px, baseline up to 0.5 m; see README "Limits"), with a warning.
     #[arg(long)]
     pub force: bool,
 }
 
-/// `--gpu`.
-#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
-pub enum GpuArg {
-    /// A GPU adapter is required (`--gpu`).
-    On,
-    /// Use a GPU when there is one, else the CPU (`--gpu auto`).
-    Auto,
+/// `--engine cpu|gpu|auto` (the CLI of `fuse` and `view`).
+pub fn parse_engine(s: &str) -> Result<Engine, String> {
+    s.parse()
+}
+
+/// The old `--gpu [auto]`: bare `--gpu` is `gpu`, `--gpu auto` is `auto`.
+fn parse_gpu_alias(s: &str) -> Result<Engine, String> {
+    match s {
+        "gpu" | "on" => Ok(Engine::Gpu),
+        "auto" => Ok(Engine::Auto),
+        _ => Err(format!("'{s}': --gpu takes no value or 'auto' (or use --engine cpu|gpu|auto)")),
+    }
+}
+
+impl FuseArgs {
+    /// The engine asked for, by `--engine` or the old `--gpu [auto]`.
+    pub fn engine(&self) -> Engine {
+        self.gpu.unwrap_or(self.engine)
+    }
 }
 
 /// `--depth-kind`.
@@ -307,42 +325,33 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     // --out is checked (and its staging folder made) before any work.
     let staged = StagedDir::new(&args.out)?;
     let inputs = load_inputs(args)?;
+    // Before any work: the coverage radius this rig and --hole-radius give, and the rig's
+    // sample spacing, within the stages' limits (the stages check again; this names the files).
+    fusion::checked_coverage_radius_px(&inputs.rig, &options).with_context(|| {
+        format!("the rig {} with --hole-radius {}", rig_name(args), args.hole_radius)
+    })?;
     bar.inc(1);
     bar.set_message("fusing (H1-H8)");
-    let output = match args.gpu {
-        None => fusion::run(&inputs.rig, &inputs.depth, inputs.kind, &inputs.color, &options)
-            .with_context(|| format!("fusing {}", input_names(args)))?,
-        Some(gpu) => {
-            let policy = match gpu {
-                GpuArg::On => fusion_gpu::GpuPolicy::Required,
-                GpuArg::Auto => fusion_gpu::GpuPolicy::Auto,
+    let engine = args.engine();
+    let on = if engine == Engine::Cpu { "" } else { " on the GPU" };
+    let (output, used) =
+        fusion_gpu::fuse(engine, &inputs.rig, &inputs.depth, inputs.kind, &inputs.color, &options)
+            .with_context(|| format!("fusing {}{on}", input_names(args)))?;
+    match used {
+        EngineUsed::Cpu => {}
+        // Printed beside the progress bar (which is hidden when stderr is not a terminal).
+        EngineUsed::Gpu { adapter, software } => bar.suspend(|| {
+            let note = if software {
+                " (software Vulkan: exact, but slower than the CPU path)"
+            } else {
+                ""
             };
-            let (output, engine) = fusion_gpu::fuse(
-                policy,
-                &inputs.rig,
-                &inputs.depth,
-                inputs.kind,
-                &inputs.color,
-                &options,
-            )
-            .with_context(|| format!("fusing {} on the GPU", input_names(args)))?;
-            match engine {
-                // Printed beside the progress bar (which is hidden when stderr is not a terminal).
-                fusion_gpu::Engine::Gpu { adapter, software } => bar.suspend(|| {
-                    let note = if software {
-                        " (software Vulkan: exact, but slower than the CPU path)"
-                    } else {
-                        ""
-                    };
-                    eprintln!("GPU adapter: {adapter}{note}");
-                }),
-                fusion_gpu::Engine::CpuFallback { reason } => {
-                    bar.suspend(|| eprintln!("warning: {reason}; fusing on the CPU"))
-                }
-            }
-            output
+            eprintln!("GPU adapter: {adapter}{note}");
+        }),
+        EngineUsed::CpuFallback { reason } => {
+            bar.suspend(|| eprintln!("warning: {reason}; fusing on the CPU"))
         }
-    };
+    }
     bar.inc(1);
     let mut files = Vec::new();
     bar.set_message("writing cloud and depth images");
@@ -379,6 +388,14 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     bar.inc(1);
     bar.finish_and_clear();
     Ok(FuseResult { out, summary: output.summary })
+}
+
+fn rig_name(args: &FuseArgs) -> String {
+    match (&args.mat, &args.rig) {
+        (Some(m), _) => m.display().to_string(),
+        (_, Some(r)) => r.display().to_string(),
+        _ => "the rig".into(),
+    }
 }
 
 fn input_names(args: &FuseArgs) -> String {

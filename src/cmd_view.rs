@@ -6,18 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Result, anyhow, bail};
 use clap::{Args, ValueEnum};
 use viewer::live::{LiveBackend, LivePage};
-use viewer::{BackendChoice, ViewerApp};
-
-/// Where the fusion runs.
-#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FusionBackendArg {
-    /// GPU (wgpu/Vulkan) when an adapter exists, else CPU.
-    Auto,
-    /// CPU pipeline.
-    Cpu,
-    /// GPU pipeline (falls back to the CPU with a note in the title bar when there is no adapter).
-    Gpu,
-}
+use viewer::{Engine, ViewerApp};
 
 /// Which sensor live mode streams from.
 #[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
@@ -35,7 +24,7 @@ Examples:
   kfuse view --demo              # the synthetic Kinect v2 scene, fused in-process
   kfuse view kfuse-demo/fused    # a `kfuse fuse` output folder (re-fuses its inputs)
   kfuse view kfuse-demo/input    # a capture folder: rig.json, color.png, depth.png [, ir.png]
-  kfuse view DIR --fusion cpu    # keep the GPU for the display only
+  kfuse view DIR --engine cpu    # keep the GPU for the display only
   kfuse view calib/report        # a `kfuse calibrate --report` folder (or its rig.json)
   kfuse view --backend usb --out shots   # live mode on a connected Kinect v2
   kfuse view --backend sim       # live mode on the simulated Kinect v2
@@ -57,9 +46,11 @@ pub struct ViewArgs {
     /// Open the bundled synthetic Kinect v2 scene instead of a folder.
     #[arg(long)]
     pub demo: bool,
-    /// Where the fusion runs.
-    #[arg(long, value_enum, default_value_t = FusionBackendArg::Auto)]
-    pub fusion: FusionBackendArg,
+    /// Where the fusion's per-pixel stages run: auto (the GPU when an adapter exists, else the
+    /// CPU), cpu, or gpu (as auto, but the title bar says why when it falls back to the CPU).
+    /// `--fusion` is the old spelling.
+    #[arg(long, alias = "fusion", value_name = "ENGINE", default_value_t = Engine::Auto, value_parser = crate::cmd_fuse::parse_engine)]
+    pub engine: Engine,
     /// Live mode: stream from a sensor (usb) or the simulated one (sim).
     #[arg(long, value_enum, conflicts_with = "demo")]
     pub backend: Option<LiveBackendArg>,
@@ -73,11 +64,7 @@ pub struct ViewArgs {
 
 /// Runs `kfuse view` (blocks until the window closes).
 pub fn run(args: &ViewArgs) -> Result<()> {
-    let backend = match args.fusion {
-        FusionBackendArg::Auto => BackendChoice::Auto,
-        FusionBackendArg::Cpu => BackendChoice::Cpu,
-        FusionBackendArg::Gpu => BackendChoice::Gpu,
-    };
+    let engine = args.engine;
     if let Some(b) = args.backend {
         let backend = match b {
             LiveBackendArg::Usb => LiveBackend::Usb,
@@ -95,9 +82,9 @@ pub fn run(args: &ViewArgs) -> Result<()> {
     let app = match (&args.dir, args.demo) {
         (_, true) => {
             eprintln!("rendering and fusing the synthetic Kinect v2 scene ...");
-            ViewerApp::demo(backend)
+            ViewerApp::demo(engine)
         }
-        (Some(dir), false) => ViewerApp::open(dir, backend),
+        (Some(dir), false) => ViewerApp::open(dir, engine),
         (None, false) => bail!("give a folder or --demo (see kfuse view --help)"),
     };
     if let Some(e) = &app.error {

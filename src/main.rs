@@ -84,3 +84,52 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusion_gpu::Engine;
+
+    fn parse(args: &[&str]) -> Result<Cli, clap::Error> {
+        Cli::try_parse_from(std::iter::once("kfuse").chain(args.iter().copied()))
+    }
+
+    fn fuse_engine(extra: &[&str]) -> Result<Engine, clap::Error> {
+        let mut args = vec!["fuse", "--mat", "in.mat", "--out", "o"];
+        args.extend_from_slice(extra);
+        match parse(&args)?.command {
+            Command::Fuse(a) => Ok(a.engine()),
+            _ => unreachable!("parsed as fuse"),
+        }
+    }
+
+    fn view_engine(extra: &[&str]) -> Result<Engine, clap::Error> {
+        let mut args = vec!["view", "--demo"];
+        args.extend_from_slice(extra);
+        match parse(&args)?.command {
+            Command::View(a) => Ok(a.engine),
+            _ => unreachable!("parsed as view"),
+        }
+    }
+
+    #[test]
+    fn engine_flag_and_its_old_spellings_select_the_same_engines() {
+        // --engine on both commands, with each command's default.
+        assert_eq!(fuse_engine(&[]).unwrap(), Engine::Cpu);
+        assert_eq!(view_engine(&[]).unwrap(), Engine::Auto);
+        for e in Engine::ALL {
+            assert_eq!(fuse_engine(&["--engine", e.name()]).unwrap(), e);
+            assert_eq!(view_engine(&["--engine", e.name()]).unwrap(), e);
+            // view --fusion is the old spelling of --engine.
+            assert_eq!(view_engine(&["--fusion", e.name()]).unwrap(), e);
+        }
+        // fuse --gpu / --gpu auto are the old spellings of --engine gpu / auto.
+        assert_eq!(fuse_engine(&["--gpu"]).unwrap(), Engine::Gpu);
+        assert_eq!(fuse_engine(&["--gpu", "auto"]).unwrap(), Engine::Auto);
+        // Contradictions and unknown names are refused with the accepted values.
+        assert!(fuse_engine(&["--engine", "cpu", "--gpu"]).is_err());
+        let e = fuse_engine(&["--engine", "tpu"]).unwrap_err().to_string();
+        assert!(e.contains("cpu, gpu or auto"), "{e}");
+        assert!(fuse_engine(&["--gpu", "cpu"]).is_err());
+    }
+}

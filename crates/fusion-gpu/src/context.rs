@@ -1,49 +1,29 @@
 //! [`FusionContext`]: the wgpu device, queue, compute pipelines and per-frame buffers, reused
-//! across frames.
+//! across frames. (About 650 lines: the context's state, its buffers and the streaming loop
+//! that owns them; the stages are in [`crate::stages`], a frame's wiring in `submit.rs`.)
 
 use std::collections::VecDeque;
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 
-use bytemuck::{Pod, Zeroable};
+use bytemuck::Pod;
 use geometry::fusion::{ColorProjection, depth_ray_table};
 use geometry::{CameraModel, DepthKind, Image, Rig};
 
 use geometry::fusion::disc_offsets;
 
+use crate::GpuError;
+use crate::stages::{backproject, color, holes, nearest, plane, project, zbuffer};
+use crate::submit::write_padded;
 use crate::tables::hole_half_widths;
-use crate::{GpuError, shaders};
 
 /// Invocations per workgroup of every kernel (the `@workgroup_size` in the shaders): 256 is a
 /// multiple of every vendor's SIMD width and within WebGPU's default limit.
 const WORKGROUP_SIZE: u32 = 256;
 
-/// Workgroup size of the hole mask's per-row / per-column `extents` kernel: only
-/// `width + height` invocations, each a long loop, so small groups spread them over more cores.
-const EXTENT_WORKGROUP_SIZE: u32 = 64;
-
 /// Frame slots of the streaming mode: two, so one frame computes while the previous one is
 /// read back and the next one uploads.
 const STREAM_SLOTS: usize = 2;
-
-/// What to do when no adapter is found. The library never falls back by itself: both
-/// policies make [`FusionContext::new`] return [`GpuError::NoAdapter`]; the policy tells the
-/// caller (the CLI's `--gpu` / `--gpu auto`) whether it may fall back to the CPU.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum GpuPolicy {
-    /// The GPU was asked for explicitly: no adapter is an error.
-    #[default]
-    Required,
-    /// Use a GPU when there is one, otherwise the caller runs the CPU pipeline (with a warning).
-    Auto,
-}
-
-impl GpuPolicy {
-    /// True when the caller may run the CPU pipeline instead after [`GpuError::NoAdapter`].
-    pub fn falls_back_to_cpu(self) -> bool {
-        matches!(self, GpuPolicy::Auto)
-    }
-}
 
 /// The stages after H7 and their parameters (the same meaning as the CPU twins' arguments).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -60,6 +40,28 @@ pub struct StageOptions {
     /// there by more than this fraction (`geometry::fusion::color_on_depth`); `None` samples
     /// every pixel without an occlusion test.
     pub occlusion_tolerance: Option<f32>,
+}
+
+impl StageOptions {
+    /// Checks the three radii against `geometry::fusion::MAX_COVERAGE_RADIUS_PX` before their
+    /// lookup tables are built (the disc table grows with the square of the radius).
+    ///
+    /// Error: [`GpuError::Input`] naming the radius and the limit.
+    pub fn check(&self) -> Result<(), GpuError> {
+        let limit = geometry::fusion::MAX_COVERAGE_RADIUS_PX;
+        for (what, r) in [
+            ("H3 nearest radius", self.nearest_radius_px),
+            ("H8 coverage radius", self.hole_radius_px),
+            ("H8 growth radius", self.hole_grow_px),
+        ] {
+            if !(0.0..=limit).contains(&r) {
+                return Err(GpuError::Input(geometry::GeometryError::InvalidInput(format!(
+                    "{what} {r} px is outside 0..={limit} px"
+                ))));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// What a frame runs: H1 + H2 + H7 always, the later stages when `stages` is given.
@@ -91,149 +93,97 @@ pub struct GpuFrame {
     pub color_on_depth: Option<(Image<[u8; 3]>, Image<bool>)>,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct SizeParams {
-    size: [u32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct ProjectParams {
-    rows: [[f32; 4]; 3],
-    k: [f32; 4],
-    d0: [f32; 4],
-    d1: [f32; 4],
-    size: [u32; 4],
-    /// Always zero (see `keep()` in the shaders).
-    opaque: [u32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct NearestParams {
-    size: [u32; 4],
-    offsets: [u32; 4],
-    jump: [f32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct HoleParams {
-    size: [u32; 4],
-    radius: [u32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct ColorParams {
-    size: [u32; 4],
-    occlusion: [f32; 4],
-    /// Always zero (see `keep()` in the shaders).
-    opaque: [u32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct PlaneParams {
-    size: [u32; 4],
-    plane: [f32; 4],
-    /// Always zero (see `keep()` in the shaders).
-    opaque: [u32; 4],
-}
-
-struct Kernels {
-    backproject: wgpu::ComputePipeline,
-    project: wgpu::ComputePipeline,
-    zclear: wgpu::ComputePipeline,
-    zscatter: wgpu::ComputePipeline,
-    nearest: wgpu::ComputePipeline,
-    hole_extents: wgpu::ComputePipeline,
-    hole_cover: wgpu::ComputePipeline,
-    hole_core: wgpu::ComputePipeline,
-    hole_grow: wgpu::ComputePipeline,
-    color: wgpu::ComputePipeline,
-    plane_fill: wgpu::ComputePipeline,
+/// The compiled pipelines of every stage (see [`crate::stages`]).
+pub(crate) struct Kernels {
+    pub(crate) backproject: wgpu::ComputePipeline,
+    pub(crate) project: wgpu::ComputePipeline,
+    pub(crate) zbuffer: zbuffer::Pipelines,
+    pub(crate) nearest: wgpu::ComputePipeline,
+    pub(crate) holes: holes::Pipelines,
+    pub(crate) color: wgpu::ComputePipeline,
+    pub(crate) plane_fill: wgpu::ComputePipeline,
 }
 
 /// A device buffer built from host data, with the key it was built from.
-struct Cached<K> {
-    key: K,
-    buffer: wgpu::Buffer,
-    len: u32,
+pub(crate) struct Cached<K> {
+    pub(crate) key: K,
+    pub(crate) buffer: wgpu::Buffer,
+    pub(crate) len: u32,
 }
 
 /// Everything one in-flight frame needs: inputs, intermediates, outputs, read-back buffers.
-struct FrameSlot {
-    depth_size: (usize, usize),
-    color_size: (usize, usize),
-    uniforms: Vec<wgpu::Buffer>,
-    depth: wgpu::Buffer,
-    points: wgpu::Buffer,
-    samples: wgpu::Buffer,
-    zbuffer: wgpu::Buffer,
-    nearest: wgpu::Buffer,
-    covered: wgpu::Buffer,
-    row_extent: wgpu::Buffer,
-    col_extent: wgpu::Buffer,
-    core: wgpu::Buffer,
-    holes: wgpu::Buffer,
-    color: wgpu::Buffer,
-    rgba: wgpu::Buffer,
-    filled: wgpu::Buffer,
-    read_z: wgpu::Buffer,
-    read_points: wgpu::Buffer,
-    read_samples: wgpu::Buffer,
-    read_nearest: wgpu::Buffer,
-    read_holes: wgpu::Buffer,
-    read_rgba: wgpu::Buffer,
+pub(crate) struct FrameSlot {
+    pub(crate) depth_size: (usize, usize),
+    pub(crate) color_size: (usize, usize),
+    pub(crate) uniforms: Vec<wgpu::Buffer>,
+    pub(crate) depth: wgpu::Buffer,
+    pub(crate) points: wgpu::Buffer,
+    pub(crate) samples: wgpu::Buffer,
+    pub(crate) zbuffer: wgpu::Buffer,
+    pub(crate) nearest: wgpu::Buffer,
+    pub(crate) covered: wgpu::Buffer,
+    pub(crate) row_extent: wgpu::Buffer,
+    pub(crate) col_extent: wgpu::Buffer,
+    pub(crate) core: wgpu::Buffer,
+    pub(crate) holes: wgpu::Buffer,
+    pub(crate) color: wgpu::Buffer,
+    pub(crate) rgba: wgpu::Buffer,
+    pub(crate) filled: wgpu::Buffer,
+    pub(crate) read_z: wgpu::Buffer,
+    pub(crate) read_points: wgpu::Buffer,
+    pub(crate) read_samples: wgpu::Buffer,
+    pub(crate) read_nearest: wgpu::Buffer,
+    pub(crate) read_holes: wgpu::Buffer,
+    pub(crate) read_rgba: wgpu::Buffer,
 }
 
 /// Uniform buffer indices of a slot.
-const U_BACKPROJECT: usize = 0;
-const U_PROJECT: usize = 1;
-const U_ZCLEAR: usize = 2;
-const U_ZSCATTER: usize = 3;
-const U_NEAREST: usize = 4;
-const U_HOLE_CLEAR: usize = 5;
-const U_HOLE: usize = 6;
-const U_COLOR: usize = 7;
-const U_PLANE: usize = 8;
-const UNIFORM_COUNT: usize = 9;
+pub(crate) const U_BACKPROJECT: usize = 0;
+pub(crate) const U_PROJECT: usize = 1;
+pub(crate) const U_ZCLEAR: usize = 2;
+pub(crate) const U_ZSCATTER: usize = 3;
+pub(crate) const U_NEAREST: usize = 4;
+pub(crate) const U_HOLE_CLEAR: usize = 5;
+pub(crate) const U_HOLE: usize = 6;
+pub(crate) const U_COLOR: usize = 7;
+pub(crate) const U_PLANE: usize = 8;
+pub(crate) const UNIFORM_COUNT: usize = 9;
+/// Bytes of every uniform buffer: the largest parameter struct (H2's projection).
+pub(crate) const UNIFORM_BYTES: u64 = size_of::<project::Params>() as u64;
 
 /// What a submitted frame will read back.
 #[derive(Clone, Copy)]
-struct Reads {
-    intermediates: bool,
-    stages: bool,
-    color: bool,
+pub(crate) struct Reads {
+    pub(crate) intermediates: bool,
+    pub(crate) stages: bool,
+    pub(crate) color: bool,
 }
 
 /// A submitted frame whose results are not read yet.
-struct Pending {
-    slot: usize,
-    frame: usize,
-    submission: wgpu::SubmissionIndex,
-    reads: Reads,
-    mapped: mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
-    maps: usize,
+pub(crate) struct Pending {
+    pub(crate) slot: usize,
+    pub(crate) frame: usize,
+    pub(crate) submission: wgpu::SubmissionIndex,
+    pub(crate) reads: Reads,
+    pub(crate) mapped: mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+    pub(crate) maps: usize,
 }
 
 /// The GPU fusion engine: device, queue, compiled pipelines and buffers reused from frame to
 /// frame (re-allocated only when the image sizes change). Create once, run many frames.
 pub struct FusionContext {
-    device: wgpu::Device,
-    queue: wgpu::Queue,
-    info: wgpu::AdapterInfo,
-    limits: wgpu::Limits,
-    kernels: Kernels,
-    depth_rays: Option<Cached<(CameraModel, DepthKind)>>,
-    color_rays: Option<(Cached<CameraModel>, Vec<[f32; 2]>)>,
-    offsets: Option<Cached<u32>>,
-    half_widths: Option<Cached<u32>>,
-    grow_half_widths: Option<Cached<u32>>,
-    slots: Vec<FrameSlot>,
-    errors: Arc<Mutex<Vec<String>>>,
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    pub(crate) info: wgpu::AdapterInfo,
+    pub(crate) limits: wgpu::Limits,
+    pub(crate) kernels: Kernels,
+    pub(crate) depth_rays: Option<Cached<(CameraModel, DepthKind)>>,
+    pub(crate) color_rays: Option<(Cached<CameraModel>, Vec<[f32; 2]>)>,
+    pub(crate) offsets: Option<Cached<u32>>,
+    pub(crate) half_widths: Option<Cached<u32>>,
+    pub(crate) grow_half_widths: Option<Cached<u32>>,
+    pub(crate) slots: Vec<FrameSlot>,
+    pub(crate) errors: Arc<Mutex<Vec<String>>>,
 }
 
 impl std::fmt::Debug for FusionContext {
@@ -246,11 +196,9 @@ impl FusionContext {
     /// Opens the first Vulkan adapter (a real GPU is preferred over a software one such as
     /// lavapipe) and compiles every stage. Honours `WGPU_BACKEND` / `VK_DRIVER_FILES`.
     ///
-    /// Fails with [`GpuError::NoAdapter`] when there is none, whatever the `policy`; see
-    /// [`GpuPolicy`] for what the caller does then.
-    pub fn new(policy: GpuPolicy) -> Result<Self, GpuError> {
-        // The policy only matters to the caller (fall back or not); see GpuPolicy.
-        let _ = policy;
+    /// Fails with [`GpuError::NoAdapter`] when there is none; the library never falls back
+    /// by itself ([`crate::fuse`] does under [`crate::Engine::Auto`]).
+    pub fn new() -> Result<Self, GpuError> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         // Only the Vulkan backend is compiled in; asking for others would find nothing.
         desc.backends &= wgpu::Backends::VULKAN;
@@ -292,17 +240,13 @@ impl FusionContext {
         }));
 
         let kernels = Kernels {
-            backproject: pipeline(&device, "backproject.wgsl", shaders::BACKPROJECT, "main"),
-            project: pipeline(&device, "project.wgsl", shaders::PROJECT, "main"),
-            zclear: pipeline(&device, "zbuffer.wgsl", shaders::ZBUFFER, "clear"),
-            zscatter: pipeline(&device, "zbuffer.wgsl", shaders::ZBUFFER, "scatter"),
-            nearest: pipeline(&device, "nearest_fill.wgsl", shaders::NEAREST_FILL, "main"),
-            hole_extents: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "extents"),
-            hole_cover: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "coverage"),
-            hole_core: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "core_mask"),
-            hole_grow: pipeline(&device, "hole_mask.wgsl", shaders::HOLE_MASK, "grow"),
-            color: pipeline(&device, "color_on_depth.wgsl", shaders::COLOR_ON_DEPTH, "main"),
-            plane_fill: pipeline(&device, "plane_fill.wgsl", shaders::PLANE_FILL, "main"),
+            backproject: backproject::pipeline(&device),
+            project: project::pipeline(&device),
+            zbuffer: zbuffer::Pipelines::new(&device),
+            nearest: nearest::pipeline(&device),
+            holes: holes::Pipelines::new(&device),
+            color: color::pipeline(&device),
+            plane_fill: plane::pipeline(&device),
         };
         let ctx = Self {
             device,
@@ -436,6 +380,9 @@ impl FusionContext {
         F: FnMut(usize, GpuFrame),
     {
         rig.validate()?;
+        if let Some(s) = &plan.stages {
+            s.check()?;
+        }
         let depth_size = (rig.depth.width, rig.depth.height);
         let color_size = (rig.color.width, rig.color.height);
         self.check_frame_size(depth_size, color_size)?;
@@ -480,89 +427,11 @@ impl FusionContext {
         Ok(count)
     }
 
-    /// H8 fill on the GPU: `nearest` (H3, colour-sized) with every `holes` pixel replaced by the
-    /// depth of the plane `normal · X = offset` (colour frame, metres) along the pixel's
-    /// undistorted ray. Bit-identical to `geometry::fusion::fill_holes_with_plane` with the
-    /// plane rounded to `f32`, including the count of pixels filled. The plane itself comes
-    /// from the CPU RANSAC fit (`geometry::fusion::fit_plane_ransac`).
-    pub fn fill_holes_with_plane(
-        &mut self,
-        color_camera: &CameraModel,
-        nearest: &Image<f32>,
-        holes: &Image<bool>,
-        normal: [f32; 3],
-        offset: f32,
-    ) -> Result<(Image<f32>, usize), GpuError> {
-        color_camera.validate()?;
-        let (w, h) = (color_camera.width, color_camera.height);
-        nearest.expect_size("nearest-filled colour depth", w, h)?;
-        holes.expect_size("hole mask", w, h)?;
-        // The depth side is irrelevant here; reuse slot 0 with whatever depth size it has.
-        self.check_frame_size((1, 1), (w, h))?;
-        let depth_size = self.slots.first().map_or((1, 1), |s| s.depth_size);
-        self.ensure_slot(0, depth_size, (w, h));
-        self.ensure_color_rays(color_camera);
-        let m = (w * h) as u32;
-        let (gx, gy, stride) = self.grid(m);
-        let s = &self.slots[0];
-        let q = &self.queue;
-        q.write_buffer(&s.nearest, 0, bytemuck::cast_slice(nearest.data()));
-        let mask: Vec<u32> = holes.data().iter().map(|&b| b as u32).collect();
-        q.write_buffer(&s.holes, 0, bytemuck::cast_slice(&mask));
-        let params = PlaneParams {
-            size: [w as u32, h as u32, m, stride],
-            plane: [normal[0], normal[1], normal[2], offset],
-            opaque: [0; 4],
-        };
-        q.write_buffer(&s.uniforms[U_PLANE], 0, bytemuck::bytes_of(&params));
-        let (rays, host_rays) = match &self.color_rays {
-            Some((c, host)) => (&c.buffer, host),
-            None => {
-                return Err(self.device_error("filling holes", "colour ray table missing".into()));
-            }
-        };
-        // The count the CPU twin reports: hole pixels whose ray meets the plane in front.
-        let filled = holes
-            .data()
-            .iter()
-            .zip(host_rays)
-            .filter(|(m, ray)| {
-                **m && geometry::fusion::plane_depth_pixel(normal, offset, **ray).is_some()
-            })
-            .count();
-        let group = self.bind(
-            &self.kernels.plane_fill,
-            &[(0, &s.uniforms[U_PLANE]), (1, &s.nearest), (2, &s.holes), (3, rays), (4, &s.filled)],
-        );
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("H8 fill") });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("H8 fill"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.kernels.plane_fill);
-            pass.set_bind_group(0, &group, &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        let bytes = m as u64 * 4;
-        enc.copy_buffer_to_buffer(&s.filled, 0, &s.read_nearest, 0, bytes);
-        let submission = q.submit([enc.finish()]);
-        let (tx, rx) = mpsc::channel();
-        s.read_nearest.map_async(wgpu::MapMode::Read, 0..bytes, move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait(submission, &rx, 1)?;
-        let data: Vec<f32> = self.read_mapped(&self.slots[0].read_nearest, bytes)?;
-        Ok((Image::from_vec(w, h, data)?, filled))
-    }
-
-    fn device_error(&self, during: &'static str, message: String) -> GpuError {
+    pub(crate) fn device_error(&self, during: &'static str, message: String) -> GpuError {
         GpuError::Device { adapter: self.info.name.clone(), during, message }
     }
 
-    fn check_errors(&self, during: &'static str) -> Result<(), GpuError> {
+    pub(crate) fn check_errors(&self, during: &'static str) -> Result<(), GpuError> {
         let mut errors = self
             .errors
             .lock()
@@ -575,7 +444,7 @@ impl FusionContext {
         Err(GpuError::Device { adapter: self.info.name.clone(), during, message })
     }
 
-    fn upload<T: Pod>(&self, label: &str, data: &[T]) -> wgpu::Buffer {
+    pub(crate) fn upload<T: Pod>(&self, label: &str, data: &[T]) -> wgpu::Buffer {
         let bytes: &[u8] = bytemuck::cast_slice(data);
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
@@ -587,7 +456,7 @@ impl FusionContext {
         buffer
     }
 
-    fn ensure_color_rays(&mut self, camera: &CameraModel) {
+    pub(crate) fn ensure_color_rays(&mut self, camera: &CameraModel) {
         if self.color_rays.as_ref().is_none_or(|(c, _)| c.key != *camera) {
             let table = camera.ray_table();
             let buffer = self.upload("colour ray table", &table);
@@ -626,7 +495,12 @@ impl FusionContext {
         }
     }
 
-    fn ensure_slot(&mut self, slot: usize, depth_size: (usize, usize), color_size: (usize, usize)) {
+    pub(crate) fn ensure_slot(
+        &mut self,
+        slot: usize,
+        depth_size: (usize, usize),
+        color_size: (usize, usize),
+    ) {
         if self
             .slots
             .get(slot)
@@ -661,7 +535,7 @@ impl FusionContext {
             depth_size,
             color_size,
             uniforms: (0..UNIFORM_COUNT)
-                .map(|_| buf("params", size_of::<ProjectParams>() as u64, U::UNIFORM | U::COPY_DST))
+                .map(|_| buf("params", UNIFORM_BYTES, U::UNIFORM | U::COPY_DST))
                 .collect(),
             depth: buf("depth", n * 4, storage),
             points: buf("points", n * 16, storage),
@@ -686,11 +560,11 @@ impl FusionContext {
     }
 
     /// Workgroups along x and y, and invocations per row, for `n` items.
-    fn grid(&self, n: u32) -> (u32, u32, u32) {
+    pub(crate) fn grid(&self, n: u32) -> (u32, u32, u32) {
         self.grid_sized(n, WORKGROUP_SIZE)
     }
 
-    fn grid_sized(&self, n: u32, workgroup: u32) -> (u32, u32, u32) {
+    pub(crate) fn grid_sized(&self, n: u32, workgroup: u32) -> (u32, u32, u32) {
         let groups = n.div_ceil(workgroup).max(1);
         let max_x = self.limits.max_compute_workgroups_per_dimension.max(1);
         let x = groups.min(max_x);
@@ -698,7 +572,7 @@ impl FusionContext {
         (x, y, x * workgroup)
     }
 
-    fn bind(
+    pub(crate) fn bind(
         &self,
         pipe: &wgpu::ComputePipeline,
         entries: &[(u32, &wgpu::Buffer)],
@@ -717,226 +591,7 @@ impl FusionContext {
         })
     }
 
-    fn submit(
-        &self,
-        slot: usize,
-        frame: usize,
-        depth: &Image<f32>,
-        color: Option<&Image<[u8; 3]>>,
-        proj: &ColorProjection,
-        plan: &FramePlan,
-    ) -> Result<Pending, GpuError> {
-        let missing =
-            || self.device_error("preparing a frame", "lookup tables were not uploaded".into());
-        let rays = self.depth_rays.as_ref().ok_or_else(missing)?;
-        let offsets = self.offsets.as_ref().ok_or_else(missing)?;
-        let half_widths = self.half_widths.as_ref().ok_or_else(missing)?;
-        let grow_half_widths = self.grow_half_widths.as_ref().ok_or_else(missing)?;
-        let s = &self.slots[slot];
-        let n = depth.data().len() as u32;
-        let (cw, ch) = (proj.width, proj.height);
-        let m = cw * ch;
-        let (dx, dy, dstride) = self.grid(n);
-        let (cx, cy, cstride) = self.grid(m);
-        let (ex, ey, estride) = self.grid_sized(cw + ch, EXTENT_WORKGROUP_SIZE);
-        let k = &self.kernels;
-        let q = &self.queue;
-        let u = &s.uniforms;
-
-        q.write_buffer(
-            &u[U_BACKPROJECT],
-            0,
-            bytemuck::bytes_of(&SizeParams { size: [n, dstride, 0, 0] }),
-        );
-        let r = &proj.rotation;
-        let t = &proj.translation;
-        let pp = ProjectParams {
-            rows: [[r[0], r[1], r[2], t[0]], [r[3], r[4], r[5], t[1]], [r[6], r[7], r[8], t[2]]],
-            k: [proj.fx, proj.fy, proj.cx, proj.cy],
-            d0: [proj.skew, proj.k1, proj.k2, proj.p1],
-            d1: [proj.p2, proj.k3, 0.0, 0.0],
-            size: [cw, ch, n, dstride],
-            opaque: [0; 4],
-        };
-        q.write_buffer(&u[U_PROJECT], 0, bytemuck::bytes_of(&pp));
-        q.write_buffer(
-            &u[U_ZCLEAR],
-            0,
-            bytemuck::bytes_of(&SizeParams { size: [cw, ch, m, cstride] }),
-        );
-        q.write_buffer(
-            &u[U_ZSCATTER],
-            0,
-            bytemuck::bytes_of(&SizeParams { size: [cw, ch, n, dstride] }),
-        );
-        q.write_buffer(&s.depth, 0, bytemuck::cast_slice(depth.data()));
-
-        let mut groups = vec![
-            (&k.zclear, self.bind(&k.zclear, &[(0, &u[U_ZCLEAR]), (2, &s.zbuffer)]), (cx, cy)),
-            (
-                &k.backproject,
-                self.bind(
-                    &k.backproject,
-                    &[(0, &u[U_BACKPROJECT]), (1, &s.depth), (2, &rays.buffer), (3, &s.points)],
-                ),
-                (dx, dy),
-            ),
-            (
-                &k.project,
-                self.bind(&k.project, &[(0, &u[U_PROJECT]), (1, &s.points), (2, &s.samples)]),
-                (dx, dy),
-            ),
-            (
-                &k.zscatter,
-                self.bind(&k.zscatter, &[(0, &u[U_ZSCATTER]), (1, &s.samples), (2, &s.zbuffer)]),
-                (dx, dy),
-            ),
-        ];
-        let mut reads =
-            Reads { intermediates: plan.read_intermediates, stages: false, color: false };
-        if let Some(st) = &plan.stages {
-            reads.stages = true;
-            let np = NearestParams {
-                size: [cw, ch, m, cstride],
-                offsets: [offsets.len, 0, 0, 0],
-                jump: [st.depth_jump, 0.0, 0.0, 0.0],
-            };
-            q.write_buffer(&u[U_NEAREST], 0, bytemuck::bytes_of(&np));
-            let radius =
-                [half_widths.len.saturating_sub(1), grow_half_widths.len.saturating_sub(1), 0, 0];
-            let hc = HoleParams { size: [cw, ch, cw + ch, estride], radius };
-            q.write_buffer(&u[U_HOLE_CLEAR], 0, bytemuck::bytes_of(&hc));
-            let hp = HoleParams { size: [cw, ch, m, cstride], radius };
-            q.write_buffer(&u[U_HOLE], 0, bytemuck::bytes_of(&hp));
-            groups.push((
-                &k.nearest,
-                self.bind(
-                    &k.nearest,
-                    &[(0, &u[U_NEAREST]), (1, &s.zbuffer), (2, &offsets.buffer), (3, &s.nearest)],
-                ),
-                (cx, cy),
-            ));
-            groups.push((
-                &k.hole_cover,
-                self.bind(
-                    &k.hole_cover,
-                    &[(0, &u[U_HOLE]), (1, &s.zbuffer), (2, &half_widths.buffer), (3, &s.covered)],
-                ),
-                (cx, cy),
-            ));
-            groups.push((
-                &k.hole_extents,
-                self.bind(
-                    &k.hole_extents,
-                    &[
-                        (0, &u[U_HOLE_CLEAR]),
-                        (3, &s.covered),
-                        (4, &s.row_extent),
-                        (5, &s.col_extent),
-                    ],
-                ),
-                (ex, ey),
-            ));
-            groups.push((
-                &k.hole_core,
-                self.bind(
-                    &k.hole_core,
-                    &[
-                        (0, &u[U_HOLE]),
-                        (3, &s.covered),
-                        (4, &s.row_extent),
-                        (5, &s.col_extent),
-                        (6, &s.core),
-                    ],
-                ),
-                (cx, cy),
-            ));
-            groups.push((
-                &k.hole_grow,
-                self.bind(
-                    &k.hole_grow,
-                    &[
-                        (0, &u[U_HOLE]),
-                        (1, &s.zbuffer),
-                        (6, &s.core),
-                        (7, &grow_half_widths.buffer),
-                        (8, &s.holes),
-                    ],
-                ),
-                (cx, cy),
-            ));
-            if let Some(c) = color {
-                reads.color = true;
-                write_padded(q, &s.color, bytemuck::cast_slice(c.data()));
-                let (tol, on) = st.occlusion_tolerance.map_or((0.0, 0.0), |t| (t, 1.0));
-                let cp = ColorParams {
-                    size: [cw, ch, n, dstride],
-                    occlusion: [tol, on, 0.0, 0.0],
-                    opaque: [0; 4],
-                };
-                q.write_buffer(&u[U_COLOR], 0, bytemuck::bytes_of(&cp));
-                groups.push((
-                    &k.color,
-                    self.bind(
-                        &k.color,
-                        &[
-                            (0, &u[U_COLOR]),
-                            (1, &s.samples),
-                            (2, &s.color),
-                            (3, &s.nearest),
-                            (4, &s.rgba),
-                        ],
-                    ),
-                    (dx, dy),
-                ));
-            }
-        }
-
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("fusion frame"),
-        });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("fusion"),
-                timestamp_writes: None,
-            });
-            for (pipe, group, (gx, gy)) in &groups {
-                pass.set_pipeline(pipe);
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(*gx, *gy, 1);
-            }
-        }
-        let zbytes = m as u64 * 4;
-        let dbytes = n as u64 * 16;
-        let mut copies: Vec<(&wgpu::Buffer, &wgpu::Buffer, u64)> =
-            vec![(&s.zbuffer, &s.read_z, zbytes)];
-        if reads.intermediates {
-            copies.push((&s.points, &s.read_points, dbytes));
-            copies.push((&s.samples, &s.read_samples, dbytes));
-        }
-        if reads.stages {
-            copies.push((&s.nearest, &s.read_nearest, zbytes));
-            copies.push((&s.holes, &s.read_holes, zbytes));
-        }
-        if reads.color {
-            copies.push((&s.rgba, &s.read_rgba, n as u64 * 4));
-        }
-        for (src, dst, bytes) in &copies {
-            enc.copy_buffer_to_buffer(src, 0, dst, 0, *bytes);
-        }
-        let submission = q.submit([enc.finish()]);
-        let (tx, rx) = mpsc::channel();
-        for (_, dst, bytes) in &copies {
-            let tx = tx.clone();
-            dst.map_async(wgpu::MapMode::Read, 0..*bytes, move |r| {
-                let _ = tx.send(r);
-            });
-        }
-        self.check_errors("submitting a frame")?;
-        Ok(Pending { slot, frame, submission, reads, mapped: rx, maps: copies.len() })
-    }
-
-    fn wait(
+    pub(crate) fn wait(
         &self,
         submission: wgpu::SubmissionIndex,
         mapped: &mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
@@ -959,7 +614,11 @@ impl FusionContext {
         self.check_errors("running a frame")
     }
 
-    fn read_mapped<T: Pod>(&self, buffer: &wgpu::Buffer, bytes: u64) -> Result<Vec<T>, GpuError> {
+    pub(crate) fn read_mapped<T: Pod>(
+        &self,
+        buffer: &wgpu::Buffer,
+        bytes: u64,
+    ) -> Result<Vec<T>, GpuError> {
         let v = {
             let view = buffer
                 .get_mapped_range(0..bytes)
@@ -970,7 +629,7 @@ impl FusionContext {
         Ok(v)
     }
 
-    fn finish(&mut self, p: Pending) -> Result<(usize, GpuFrame), GpuError> {
+    pub(crate) fn finish(&mut self, p: Pending) -> Result<(usize, GpuFrame), GpuError> {
         self.wait(p.submission, &p.mapped, p.maps)?;
         let s = &self.slots[p.slot];
         let (cw, ch) = s.color_size;
@@ -996,33 +655,4 @@ impl FusionContext {
         }
         Ok((p.frame, GpuFrame { zbuffer, points, samples, nearest, holes, color_on_depth }))
     }
-}
-
-/// Writes `bytes` to the start of `buffer`; wgpu copies whole 4-byte words, so a tail of 1-3
-/// bytes (an RGB image with an odd pixel count) is padded with zeros.
-fn write_padded(queue: &wgpu::Queue, buffer: &wgpu::Buffer, bytes: &[u8]) {
-    let aligned = bytes.len() / 4 * 4;
-    if aligned > 0 {
-        queue.write_buffer(buffer, 0, &bytes[..aligned]);
-    }
-    if aligned < bytes.len() {
-        let mut tail = [0u8; 4];
-        tail[..bytes.len() - aligned].copy_from_slice(&bytes[aligned..]);
-        queue.write_buffer(buffer, aligned as u64, &tail);
-    }
-}
-
-fn pipeline(device: &wgpu::Device, file: &str, source: &str, entry: &str) -> wgpu::ComputePipeline {
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(file),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(entry),
-        layout: None,
-        module: &module,
-        entry_point: Some(entry),
-        compilation_options: Default::default(),
-        cache: None,
-    })
 }

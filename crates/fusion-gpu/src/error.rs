@@ -8,7 +8,7 @@ use geometry::GeometryError;
 pub enum GpuError {
     /// No Vulkan adapter is present (no GPU and no software Vulkan driver).
     #[error(
-        "no GPU adapter found; install mesa-vulkan-drivers for software Vulkan, or run without --gpu \
+        "no GPU adapter found; install mesa-vulkan-drivers for software Vulkan, or use --engine cpu \
          (backends tried: {backends})"
     )]
     NoAdapter {
@@ -28,7 +28,7 @@ pub enum GpuError {
     #[error(
         "frame too large for GPU adapter '{adapter}': the {buffer} buffer ({width}x{height}) needs \
          {bytes} bytes, the adapter allows {limit} per binding; use smaller images or the CPU path \
-         (run without --gpu)"
+         (--engine cpu)"
     )]
     FrameTooLarge {
         /// Adapter name.

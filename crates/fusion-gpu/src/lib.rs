@@ -34,8 +34,8 @@
 //!
 //! ```no_run
 //! # fn demo(rig: &geometry::Rig, depth: &geometry::Image<f32>, color: &geometry::Image<[u8; 3]>) -> Result<(), fusion_gpu::GpuError> {
-//! use fusion_gpu::{FusionContext, GpuPolicy};
-//! let mut ctx = FusionContext::new(GpuPolicy::Required)?; // GpuError::NoAdapter without Vulkan
+//! use fusion_gpu::FusionContext;
+//! let mut ctx = FusionContext::new()?; // GpuError::NoAdapter without Vulkan
 //! eprintln!("GPU: {}", ctx.adapter_name());
 //! let options = geometry::fusion::FusionOptions::default();
 //! let out = ctx.run(rig, depth, geometry::DepthKind::Z, color, &options)?; // a FusionOutput
@@ -49,11 +49,15 @@
 #![deny(missing_docs)]
 
 mod context;
+mod engine;
 mod error;
 mod run;
 pub mod shaders;
+mod stages;
+mod submit;
 mod tables;
 
-pub use context::{FramePlan, FusionContext, GpuFrame, GpuPolicy, StageOptions};
+pub use context::{FramePlan, FusionContext, GpuFrame, StageOptions};
+pub use engine::Engine;
 pub use error::GpuError;
-pub use run::{Engine, fuse};
+pub use run::{EngineUsed, fuse};

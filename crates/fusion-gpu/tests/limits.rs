@@ -3,7 +3,7 @@
 mod common;
 
 use common::{context_or_skip, kinect};
-use fusion_gpu::{FramePlan, GpuError, GpuPolicy};
+use fusion_gpu::{Engine, FramePlan, GpuError};
 use geometry::{CameraModel, DepthKind, Image};
 
 #[test]
@@ -28,7 +28,7 @@ fn oversize_colour_frame_is_refused_before_allocating() {
         other => panic!("{test}: expected FrameTooLarge, got {other}"),
     }
     let msg = err.to_string();
-    assert!(msg.contains("without --gpu") && msg.contains(&limit.to_string()), "{msg}");
+    assert!(msg.contains("--engine cpu") && msg.contains(&limit.to_string()), "{msg}");
     // The context is still usable afterwards.
     let ok = ctx
         .register(&setup.rig, &frame.depth, DepthKind::Z, false)
@@ -89,6 +89,6 @@ fn no_adapter_message_says_what_to_do() {
     // The message the CLI prints for `--gpu` without an adapter (no GPU needed for this).
     let err = GpuError::NoAdapter { backends: "VULKAN".into() };
     let msg = err.to_string();
-    assert!(msg.starts_with("no GPU adapter found; install mesa-vulkan-drivers for software Vulkan, or run without --gpu"), "{msg}");
-    assert!(GpuPolicy::Auto.falls_back_to_cpu() && !GpuPolicy::Required.falls_back_to_cpu());
+    assert!(msg.starts_with("no GPU adapter found; install mesa-vulkan-drivers for software Vulkan, or use --engine cpu"), "{msg}");
+    assert!(Engine::Auto.falls_back_to_cpu() && !Engine::Gpu.falls_back_to_cpu());
 }

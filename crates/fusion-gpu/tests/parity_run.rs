@@ -139,7 +139,7 @@ fn fuse_entry_point_reports_the_engine() {
     let (setup, frame) = course();
     let options = FusionOptions { linear: false, ..FusionOptions::default() };
     let (out, engine) = fusion_gpu::fuse(
-        fusion_gpu::GpuPolicy::Auto,
+        fusion_gpu::Engine::Auto,
         &setup.rig,
         &frame.depth,
         DepthKind::Range,
@@ -151,9 +151,12 @@ fn fuse_entry_point_reports_the_engine() {
         run(&setup.rig, &frame.depth, DepthKind::Range, &frame.color, &options).expect("CPU run");
     assert_eq!(out.summary, cpu.summary, "{test}");
     match engine {
-        fusion_gpu::Engine::Gpu { adapter, .. } => eprintln!("{test}: GPU {adapter}"),
-        fusion_gpu::Engine::CpuFallback { reason } => {
-            assert!(reason.contains("without --gpu"), "{reason}");
+        fusion_gpu::EngineUsed::Cpu => {
+            panic!("{test}: Engine::Auto ran on the CPU without trying the GPU")
+        }
+        fusion_gpu::EngineUsed::Gpu { adapter, .. } => eprintln!("{test}: GPU {adapter}"),
+        fusion_gpu::EngineUsed::CpuFallback { reason } => {
+            assert!(reason.contains("--engine cpu"), "{reason}");
             assert!(
                 std::env::var("KFUSE_REQUIRE_GPU").map_or(true, |v| v != "1"),
                 "{test}: fell back in CI"

@@ -132,7 +132,8 @@ fn registration_is_bit_identical_to_the_staged_reference_on_the_kinect_preset() 
         let rays = fusion::depth_ray_table(&rig.depth, frame.depth_kind);
         let (radius, grow) =
             (fusion::coverage_radius_px(rig, &options), fusion::hole_grow_px(rig, &options));
-        let mut reg = Registration::new(rig, frame.depth_kind, &options);
+        let mut reg =
+            Registration::new(rig, frame.depth_kind, &options).expect("the preset rig is valid");
         let (n, holes) = assert_matches(
             &mut reg,
             &frame.depth,
@@ -203,7 +204,8 @@ fn registration_is_bit_identical_to_the_staged_reference_on_random_inputs() {
             })
             .collect();
         let (radius, grow) = (rng.random_range(1.5..4.0f32), rng.random_range(0.0..3.0f32));
-        let mut reg = Registration::from_parts(proj, &rays, dw, radius, grow);
+        let mut reg =
+            Registration::from_parts(proj, &rays, dw, radius, grow).expect("radii within bounds");
         let (mut landed, mut holes) = (0, 0);
         for frame in 0..3 {
             let depth = Image::from_fn(dw, dh, |_, _| match rng.random_range(0..20) {
@@ -238,7 +240,8 @@ fn registration_is_bit_identical_to_the_staged_reference_on_random_inputs() {
 #[test]
 fn registration_rejects_a_depth_image_of_the_wrong_size() {
     let setup = synth::course_preset();
-    let mut reg = Registration::new(&setup.rig, geometry::DepthKind::Z, &FusionOptions::default());
+    let mut reg = Registration::new(&setup.rig, geometry::DepthKind::Z, &FusionOptions::default())
+        .expect("the preset rig is valid");
     let wrong = Image::filled(setup.rig.depth.width + 1, setup.rig.depth.height, 1.0f32);
     assert!(matches!(reg.register(&wrong), Err(geometry::GeometryError::SizeMismatch { .. })));
     assert!(matches!(

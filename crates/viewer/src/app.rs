@@ -12,9 +12,10 @@ use crate::camera3d::OrbitCamera;
 use crate::data::{self, Frame};
 use crate::live::LivePage;
 use crate::panes::{self, Pane, Probe};
-use crate::pipeline::{self, Backend, Fused, Resampling, Toggles};
+use crate::pipeline::{self, Fused, Resampling, Toggles};
 use crate::render3d::{DrawParams, Geometry3d, View3dCallback};
 use crate::view2d::View2d;
+use fusion_gpu::Engine;
 
 /// The viewer's pages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -45,17 +46,6 @@ impl Page {
             Page::Live => "Live",
         }
     }
-}
-
-/// Which fusion backend to use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BackendChoice {
-    /// CPU pipeline.
-    Cpu,
-    /// GPU pipeline; no adapter is an error.
-    Gpu,
-    /// GPU when an adapter exists, otherwise CPU.
-    Auto,
 }
 
 /// All state of the viewer.
@@ -104,18 +94,18 @@ fn default_camera() -> OrbitCamera {
 }
 
 impl ViewerApp {
-    fn empty(backend: BackendChoice) -> Self {
-        let (gpu, backend_note) = match backend {
-            BackendChoice::Cpu => (None, "CPU fusion".to_string()),
-            BackendChoice::Gpu | BackendChoice::Auto => {
-                match fusion_gpu::FusionContext::new(fusion_gpu::GpuPolicy::Auto) {
-                    Ok(ctx) => {
-                        let note = format!("GPU fusion on {}", ctx.adapter_name());
-                        (Some(ctx), note)
-                    }
-                    Err(e) => (None, format!("CPU fusion (no GPU: {e})")),
+    fn empty(engine: Engine) -> Self {
+        // Engine::Gpu falls back like Auto: the viewer can still show the frame, and the
+        // title bar says why (see Engine::Gpu).
+        let (gpu, backend_note) = match engine {
+            Engine::Cpu => (None, "CPU fusion".to_string()),
+            Engine::Gpu | Engine::Auto => match fusion_gpu::FusionContext::new() {
+                Ok(ctx) => {
+                    let note = format!("GPU fusion on {}", ctx.adapter_name());
+                    (Some(ctx), note)
                 }
-            }
+                Err(e) => (None, format!("CPU fusion (no GPU: {e})")),
+            },
         };
         Self {
             frame: None,
@@ -147,8 +137,8 @@ impl ViewerApp {
     }
 
     /// The app showing `frame`, fused with the default switches.
-    pub fn with_frame(frame: Frame, backend: BackendChoice) -> Self {
-        let mut app = Self::empty(backend);
+    pub fn with_frame(frame: Frame, engine: Engine) -> Self {
+        let mut app = Self::empty(engine);
         app.frame = Some(Arc::new(frame));
         app.refuse();
         app.camera = app.fit_camera();
@@ -157,14 +147,14 @@ impl ViewerApp {
     }
 
     /// The app on the bundled synthetic scene.
-    pub fn demo(backend: BackendChoice) -> Self {
-        Self::with_frame(data::demo_frame(), backend)
+    pub fn demo(engine: Engine) -> Self {
+        Self::with_frame(data::demo_frame(), engine)
     }
 
     /// The app on a `kfuse calibrate` output (report folder, rig file or camera file); a
     /// report that cannot be read gives an app showing the error.
     pub fn open_calibration(path: &Path) -> Self {
-        let mut app = Self::empty(BackendChoice::Cpu);
+        let mut app = Self::empty(Engine::Cpu);
         app.page = Page::Calibration;
         match crate::calibration::open_calibration(path) {
             Ok(report) => app.calib = Some(CalibPage::new(report)),
@@ -175,7 +165,7 @@ impl ViewerApp {
 
     /// The app on the live streams of `session`.
     pub fn live(page: LivePage) -> Self {
-        let mut app = Self::empty(BackendChoice::Cpu);
+        let mut app = Self::empty(Engine::Cpu);
         app.page = Page::Live;
         app.live = Some(page);
         app
@@ -199,14 +189,14 @@ impl ViewerApp {
     /// The app on a folder (or a calibration file): a `kfuse calibrate` output opens the
     /// calibration page, anything else is opened as a frame; a folder that cannot be opened
     /// gives an app showing the error.
-    pub fn open(dir: &Path, backend: BackendChoice) -> Self {
+    pub fn open(dir: &Path, engine: Engine) -> Self {
         if dir.is_file() || crate::calibration::is_calibration_folder(dir) {
             return Self::open_calibration(dir);
         }
         match data::open_folder(dir) {
-            Ok(frame) => Self::with_frame(frame, backend),
+            Ok(frame) => Self::with_frame(frame, engine),
             Err(e) => {
-                let mut app = Self::empty(BackendChoice::Cpu);
+                let mut app = Self::empty(Engine::Cpu);
                 app.error = Some(e);
                 app
             }
@@ -219,9 +209,9 @@ impl ViewerApp {
         self.can_draw_3d = true;
     }
 
-    /// Which backend produced the current result.
-    pub fn backend(&self) -> Option<Backend> {
-        self.fused.as_ref().map(|f| f.backend)
+    /// Which engine produced the current result ([`Engine::Cpu`] or [`Engine::Gpu`]).
+    pub fn engine(&self) -> Option<Engine> {
+        self.fused.as_ref().map(|f| f.engine)
     }
 
     /// Changes the switches and re-runs the fusion when they differ.
@@ -545,7 +535,7 @@ impl ViewerApp {
                         ),
                     );
                 }
-                row("backend", format!("{:?}", f.backend));
+                row("backend", format!("{:?}", f.engine));
             });
         });
     }

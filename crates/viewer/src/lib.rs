@@ -37,5 +37,6 @@ pub mod pipeline;
 pub mod render3d;
 pub mod view2d;
 
-pub use app::{BackendChoice, Page, ViewerApp};
+pub use app::{Page, ViewerApp};
 pub use error::ViewerError;
+pub use fusion_gpu::Engine;

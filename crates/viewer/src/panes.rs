@@ -1,7 +1,8 @@
 //! The 2D panes as RGB images (pure functions: tested without a window).
 //!
 //! Depth colours: viridis (dark blue = near, yellow = far) over a robust range (2nd-98th
-//! percentile), black = no sample; the same ramp as the `kfuse fuse` figures.
+//! percentile), black = no sample: `kfuse_figures`' colour map and range, the same as the
+//! `kfuse fuse` figures.
 
 use geometry::Image;
 
@@ -66,41 +67,11 @@ impl Pane {
     }
 }
 
-/// Viridis at `t` in 0..1 (clamped; non-finite = 0).
-pub fn colormap(t: f32) -> [u8; 3] {
-    // Viridis anchors at t = 0, .25, .5, .75, 1.
-    const STOPS: [[f32; 3]; 5] = [
-        [68.0, 1.0, 84.0],
-        [59.0, 82.0, 139.0],
-        [33.0, 145.0, 140.0],
-        [94.0, 201.0, 98.0],
-        [253.0, 231.0, 37.0],
-    ];
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
-    let x = t * 4.0;
-    let i = (x.floor() as usize).min(3);
-    let f = x - i as f32;
-    let (a, b) = (STOPS[i], STOPS[i + 1]);
-    [0, 1, 2].map(|k| (a[k] + (b[k] - a[k]) * f).round() as u8)
-}
+pub use kfuse_figures::{colormap, robust_range};
 
-/// The 2nd and 98th percentiles of the finite positive values, or `None` when there are none.
-pub fn robust_range(values: impl Iterator<Item = f32>) -> Option<(f32, f32)> {
-    let mut v: Vec<f32> = values.filter(|d| d.is_finite() && *d > 0.0).collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f32::total_cmp);
-    let lo = v[v.len() * 2 / 100];
-    let hi = v[(v.len() * 98 / 100).min(v.len() - 1)];
-    Some(if hi > lo { (lo, hi) } else { (lo, lo + 1e-3) })
-}
-
-/// Depth as colours over `range` (metres); no sample = black.
+/// Depth as colours over `range` (metres); no sample = black ([`kfuse_figures::depth_colors`]).
 pub fn depth_colors(depth: &Image<f32>, range: (f32, f32)) -> Image<[u8; 3]> {
-    let (lo, hi) = range;
-    depth
-        .map(|&d| if d.is_finite() && d > 0.0 { colormap((d - lo) / (hi - lo)) } else { [0, 0, 0] })
+    kfuse_figures::depth_colors(depth, Some(range))
 }
 
 /// An image of the pane, and the depth range its legend shows (metres), if any.

@@ -17,7 +17,7 @@ use egui_kittest::{Harness, SnapshotOptions};
 use geometry::testdata::shared_data_or_skip as shared;
 use serde_json::Value;
 use viewer::calib_page::CalibView;
-use viewer::{BackendChoice, Page, ViewerApp, ViewerError};
+use viewer::{Engine, Page, ViewerApp, ViewerError};
 
 const SIZE: egui::Vec2 = egui::Vec2::new(1000.0, 620.0);
 /// As in ui.rs: colour distance 2 absorbs lavapipe vs GPU rasterisation differences.
@@ -95,7 +95,7 @@ fn page_lists_the_reports_per_image_rms_and_corners() {
     let Some(dir) = stereo_report("page_lists_the_reports_per_image_rms_and_corners") else {
         return;
     };
-    let app = ViewerApp::open(dir, BackendChoice::Cpu);
+    let app = ViewerApp::open(dir, Engine::Cpu);
     assert!(app.error.is_none(), "{:?}", app.error);
     assert_eq!(app.page, Page::Calibration);
     assert_eq!(app.pages(), vec![Page::Calibration]);
@@ -170,7 +170,7 @@ fn rejected_view_is_marked_on_the_kinect_lab_session() {
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("ir.json");
     std::fs::write(&file, v.to_string()).unwrap();
-    let app = ViewerApp::open(&file, BackendChoice::Cpu);
+    let app = ViewerApp::open(&file, Engine::Cpu);
     assert!(app.error.is_none(), "{:?}", app.error);
     let page = app.calib.as_ref().unwrap();
     let bars = page.error_bars()[0].1.clone();
@@ -197,7 +197,7 @@ fn rejected_view_is_marked_on_the_kinect_lab_session() {
 fn corrupt_or_incomplete_report_names_the_file() {
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("report.json"), "{ \"board\": ").unwrap();
-    let app = ViewerApp::open(tmp.path(), BackendChoice::Cpu);
+    let app = ViewerApp::open(tmp.path(), Engine::Cpu);
     let e = app.error.as_ref().expect("corrupt JSON is an error");
     assert!(matches!(e, ViewerError::BadFile { .. }));
     assert!(
@@ -207,13 +207,13 @@ fn corrupt_or_incomplete_report_names_the_file() {
     assert!(app.calib.is_none());
     // Valid JSON without the report's entries: named too, with the missing entry.
     std::fs::write(tmp.path().join("report.json"), r#"{"board": {"inner_corners_cols": 7, "inner_corners_rows": 5, "square_m": 0.04}, "depth_single_camera": {}}"#).unwrap();
-    let app = ViewerApp::open(tmp.path(), BackendChoice::Cpu);
+    let app = ViewerApp::open(tmp.path(), Engine::Cpu);
     let e = app.error.as_ref().expect("incomplete report is an error").to_string();
     assert!(e.contains("report.json") && e.contains("depth_camera"), "{e}");
     // A rig file passed directly, truncated.
     let rig = tmp.path().join("rig.json");
     std::fs::write(&rig, "{\"format\": \"kfuse-rig\", \"calibration\": {").unwrap();
-    let app = ViewerApp::open(&rig, BackendChoice::Cpu);
+    let app = ViewerApp::open(&rig, Engine::Cpu);
     assert!(app.error.as_ref().is_some_and(|e| e.to_string().contains("rig.json")));
 }
 
@@ -237,8 +237,7 @@ fn options() -> SnapshotOptions {
 #[test]
 fn calibration_page_snapshots() {
     let Some(dir) = stereo_report("calibration_page_snapshots") else { return };
-    let Some(mut h) =
-        harness("calibration_page_snapshots", ViewerApp::open(dir, BackendChoice::Cpu))
+    let Some(mut h) = harness("calibration_page_snapshots", ViewerApp::open(dir, Engine::Cpu))
     else {
         return;
     };
@@ -303,10 +302,9 @@ fn calibration_page_snapshots() {
 fn corrupt_report_shows_the_error_panel() {
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("report.json"), "not json at all").unwrap();
-    let Some(h) = harness(
-        "corrupt_report_shows_the_error_panel",
-        ViewerApp::open(tmp.path(), BackendChoice::Cpu),
-    ) else {
+    let Some(h) =
+        harness("corrupt_report_shows_the_error_panel", ViewerApp::open(tmp.path(), Engine::Cpu))
+    else {
         return;
     };
     h.get_by_label("Error");
@@ -316,9 +314,9 @@ fn corrupt_report_shows_the_error_panel() {
 #[test]
 fn rig_file_folder_opens_with_the_rigs_cameras() {
     let Some(dir) = stereo_report("rig_file_folder_opens_with_the_rigs_cameras") else { return };
-    let from_rig = ViewerApp::open(&dir.join("rig"), BackendChoice::Cpu);
+    let from_rig = ViewerApp::open(&dir.join("rig"), Engine::Cpu);
     assert!(from_rig.error.is_none(), "{:?}", from_rig.error);
-    let from_report = ViewerApp::open(dir, BackendChoice::Cpu);
+    let from_report = ViewerApp::open(dir, Engine::Cpu);
     let (a, b) =
         (&from_rig.calib.as_ref().unwrap().report, &from_report.calib.as_ref().unwrap().report);
     // Both files carry the same numbers (the rig's cameras are the report's, exactly).
@@ -339,7 +337,7 @@ fn missing_image_is_named_in_the_corner_view() {
     std::fs::write(tmp.path().join("report.json"), json.to_string()).unwrap();
     let Some(mut h) = harness(
         "missing_image_is_named_in_the_corner_view",
-        ViewerApp::open(tmp.path(), BackendChoice::Cpu),
+        ViewerApp::open(tmp.path(), Engine::Cpu),
     ) else {
         return;
     };

@@ -8,7 +8,7 @@ use std::time::Instant;
 use egui_kittest::wgpu::{create_render_state, default_wgpu_setup};
 use viewer::camera3d::OrbitCamera;
 use viewer::render3d::{DrawParams, OFFSCREEN_FORMAT, SceneGpu};
-use viewer::{BackendChoice, ViewerApp};
+use viewer::{Engine, ViewerApp};
 
 /// Viewport of the measurement, pixels (a typical laptop window's 3D pane).
 const W: u32 = 1280;
@@ -20,7 +20,7 @@ fn frame_time_kinect_textured_mesh() {
     if !common::gpu_available("frame_time_kinect_textured_mesh") {
         return;
     }
-    let app = ViewerApp::with_frame(common::synth_frame().0.clone(), BackendChoice::Cpu);
+    let app = ViewerApp::with_frame(common::synth_frame().0.clone(), Engine::Cpu);
     let geometry = app.geometry().unwrap().clone();
     let state = create_render_state(default_wgpu_setup(), egui_wgpu::RendererOptions::PREDICTABLE);
     let (device, queue) = (&state.device, &state.queue);

@@ -7,7 +7,7 @@ use nalgebra::{Vector3, Vector4};
 use viewer::camera3d::OrbitCamera;
 use viewer::panes::{self, Pane};
 use viewer::view2d::View2d;
-use viewer::{BackendChoice, ViewerApp};
+use viewer::{Engine, ViewerApp};
 
 const RECT: Rect = Rect { min: Pos2::new(100.0, 50.0), max: Pos2::new(900.0, 650.0) };
 
@@ -85,7 +85,7 @@ fn orbit_keeps_distance_zoom_changes_it_pan_moves_target() {
 #[test]
 fn probe_reports_depth_and_a_point_that_projects_back() {
     let (frame, _) = common::synth_frame();
-    let app = ViewerApp::with_frame(frame.clone(), BackendChoice::Cpu);
+    let app = ViewerApp::with_frame(frame.clone(), Engine::Cpu);
     let fused = app.fused.as_ref().unwrap();
     // Depth grid: the input depth itself.
     let (u, v) = (256usize, 212usize);
@@ -115,7 +115,7 @@ fn probe_reports_depth_and_a_point_that_projects_back() {
 #[test]
 fn overlays_mix_both_images() {
     let (frame, _) = common::synth_frame();
-    let app = ViewerApp::with_frame(frame.clone(), BackendChoice::Cpu);
+    let app = ViewerApp::with_frame(frame.clone(), Engine::Cpu);
     let fused = app.fused.as_ref().unwrap();
     let (checker, range) = panes::render(Pane::Checker, frame, fused);
     let range = range.unwrap();

@@ -6,7 +6,7 @@ use std::path::Path;
 use geometry::synth;
 use kfuse_io::{images, rig as rigio};
 use viewer::data::open_folder;
-use viewer::{BackendChoice, ViewerApp, ViewerError};
+use viewer::{Engine, ViewerApp, ViewerError};
 
 /// Writes the course-size synthetic scene (640×480, fast) as a capture folder.
 fn write_capture(dir: &Path) -> synth::SynthFrame {
@@ -35,7 +35,7 @@ fn capture_folder_opens_and_fuses() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
     assert!(worst <= 0.0005 + 1e-6, "depth round trip error {worst} m");
-    let app = ViewerApp::open(tmp.path(), BackendChoice::Cpu);
+    let app = ViewerApp::open(tmp.path(), Engine::Cpu);
     assert!(app.error.is_none(), "{:?}", app.error);
     assert!(app.drawn_triangles() > 10_000);
 }
@@ -63,7 +63,7 @@ fn expect_error_naming(dir: &Path, file: &str) -> ViewerError {
     let msg = err.to_string();
     assert!(msg.contains(file), "error {msg:?} does not name {file}");
     // The app shows it instead of panicking.
-    let app = ViewerApp::open(dir, BackendChoice::Cpu);
+    let app = ViewerApp::open(dir, Engine::Cpu);
     assert!(app.error.as_ref().is_some_and(|e| e.to_string().contains(file)));
     assert!(app.fused.is_none());
     err

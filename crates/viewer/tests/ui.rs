@@ -8,7 +8,7 @@ use egui_kittest::kittest::Queryable;
 use egui_kittest::wgpu::{WgpuTestRenderer, create_render_state, default_wgpu_setup};
 use egui_kittest::{Harness, SnapshotOptions};
 use viewer::panes::Pane;
-use viewer::{BackendChoice, ViewerApp};
+use viewer::{Engine, ViewerApp};
 
 /// Window size of every snapshot, points.
 const SIZE: egui::Vec2 = egui::Vec2::new(1000.0, 620.0);
@@ -40,7 +40,7 @@ fn harness(test: &str, mut app: ViewerApp) -> Option<Harness<'static, ViewerApp>
 }
 
 fn demo_app() -> ViewerApp {
-    ViewerApp::with_frame(common::synth_frame().0.clone(), BackendChoice::Cpu)
+    ViewerApp::with_frame(common::synth_frame().0.clone(), Engine::Cpu)
 }
 
 #[test]
@@ -150,7 +150,7 @@ fn error_panel_names_the_missing_file() {
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("rig.json"), "{}").unwrap();
     std::fs::write(tmp.path().join("depth.png"), "").unwrap();
-    let app = ViewerApp::open(tmp.path(), BackendChoice::Cpu);
+    let app = ViewerApp::open(tmp.path(), Engine::Cpu);
     let Some(h) = harness("error_panel_names_the_missing_file", app) else { return };
     h.get_by_label_contains("color.png: missing");
     h.get_by_label("Error");
@@ -163,8 +163,8 @@ fn gpu_fusion_backend_matches_cpu() {
     if !common::gpu_available("gpu_fusion_backend_matches_cpu") {
         return;
     }
-    let gpu = ViewerApp::with_frame(common::synth_frame().0.clone(), BackendChoice::Gpu);
-    assert_eq!(gpu.backend(), Some(viewer::pipeline::Backend::Gpu), "{}", gpu.backend_note);
+    let gpu = ViewerApp::with_frame(common::synth_frame().0.clone(), Engine::Gpu);
+    assert_eq!(gpu.engine(), Some(Engine::Gpu), "{}", gpu.backend_note);
     let cpu = demo_app();
     // fusion-gpu is bit-identical to the CPU pipeline on lavapipe; the drawn counts must agree.
     assert_eq!(gpu.drawn_triangles(), cpu.drawn_triangles());

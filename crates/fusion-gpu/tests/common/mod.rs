@@ -1,12 +1,12 @@
 //! Shared helpers of the GPU tests: the adapter policy and test rigs.
 #![allow(dead_code)]
 
-use fusion_gpu::{FusionContext, GpuError, GpuPolicy};
+use fusion_gpu::{FusionContext, GpuError};
 
 /// A context on the default adapter, or `None` (after printing `SKIP <test>: no GPU adapter`)
 /// when there is none. With `KFUSE_REQUIRE_GPU=1` (CI) a missing adapter fails the test.
 pub fn context_or_skip(test: &str) -> Option<FusionContext> {
-    match FusionContext::new(GpuPolicy::Required) {
+    match FusionContext::new() {
         Ok(ctx) => {
             eprintln!("{test}: adapter {}", ctx.adapter_summary());
             Some(ctx)

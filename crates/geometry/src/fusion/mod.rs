@@ -11,7 +11,9 @@
 //! | H7 | [`register_depth`], [`zbuffer_from_samples`] | nearest surface per colour pixel (exact min z) |
 //! | H8 | [`hole_mask`], [`fit_plane_ransac`], [`fill_holes_with_plane`] | disocclusion holes, plane fill |
 //!
-//! [`run`] chains them for one frame and is what the CLI and `fusion-gpu` call. For a stream
+//! [`run_on`] chains them for one frame, with the per-pixel stages on an engine ([`CpuPixels`]
+//! or `fusion-gpu`'s context; [`run`] is the CPU one); the CLI, `fusion-gpu` and the viewer
+//! all call it. For a stream
 //! of frames, [`Registration`] does H1 + H2 + H7 and H8's mask with buffers and per-pixel
 //! constants kept between frames (bit-identical to the stages above; the fast path of the
 //! `register+holes` benchmark).
@@ -41,12 +43,11 @@
 mod color;
 mod holes;
 mod mesh;
+mod pipeline;
 pub mod pixel;
 mod register;
 mod resample;
 mod stream;
-
-use std::time::Instant;
 
 use serde::Serialize;
 
@@ -56,14 +57,15 @@ pub use holes::{
     plane_depth_pixel,
 };
 pub use mesh::{face_normal, is_stretched, mesh_from_depth, remove_stretched_faces};
+pub use pipeline::{CpuPixels, PerPixel, PerPixelOutput, PixelParams, cloud_colors, run, run_on};
 pub use pixel::{
     ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32,
     project_color_point, project_point, register_pixel, transform_point, zbuffer_index,
     zbuffer_min, zbuffer_pixel,
 };
 pub use register::{
-    ColorSample, atomic_zbuffer_to_image, backproject_cloud, project_cloud, register_depth,
-    register_depth_marking, register_depth_parallel, zbuffer_from_samples,
+    ColorSample, atomic_zbuffer_to_image, backproject_cloud, first_write_wins, project_cloud,
+    register_depth, register_depth_marking, register_depth_parallel, zbuffer_from_samples,
 };
 pub use resample::{LinearStats, disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel};
 pub use stream::Registration;
@@ -73,6 +75,22 @@ use crate::{DepthKind, GeometryError, Image, Mesh, PointCloud, Rig};
 /// Smallest coverage radius, pixels: below 1.5 px a colour camera no sharper than the depth
 /// camera would call the diagonal gaps of a square sample lattice holes.
 pub const MIN_COVERAGE_RADIUS_PX: f32 = 1.5;
+
+/// Largest coverage radius, colour pixels, that H3 nearest and H8 accept. The nearest fill
+/// reads up to twice the `π r²` pixels of its disc per colour pixel, so its work grows with
+/// the square of the radius: 16 px (≈ 800 offsets, ~22× the Kinect default of 3.5 px) keeps a
+/// 1920×1080 frame to about a second on one core, and a coverage disc 32 px wide already
+/// closes every disocclusion a Kinect-like baseline makes, so H8 would find no hole at all.
+/// A `--hole-radius` of 30 (87 px on a Kinect) or 1e9 is refused with this limit instead of
+/// hanging or aborting on the disc table.
+pub const MAX_COVERAGE_RADIUS_PX: f32 = 16.0;
+
+/// Largest sample spacing, colour pixels between neighbouring depth samples, that a rig may
+/// give (Kinect v2: 2.9). At 8 a depth sample stands for 64 colour pixels: a colour camera
+/// more than 8× sharper than its depth camera is not a fusion rig, but a depth focal length
+/// in millimetres or metres instead of pixels is (3.65 gives ~296, 0.00365 ~300 000), and
+/// would size the coverage disc, the hole mask and the linear resampling's edge test by it.
+pub const MAX_SAMPLE_SPACING_PX: f32 = 8.0;
 
 /// Which colour-frame depth image H4 meshes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
@@ -85,6 +103,10 @@ pub enum MeshSource {
     /// Nearest fill with H8's plane-filled holes.
     #[default]
     Filled,
+    /// H3 Delaunay-linear with H8's plane-filled holes (the viewer's Delaunay + hole filling;
+    /// falls back to [`MeshSource::Linear`] without a plane and to nearest without linear).
+    #[serde(rename = "linear_filled")]
+    LinearFilled,
 }
 
 /// Every knob of [`run`]. `Default` is what the lab handout does, tuned for a Kinect v2.
@@ -122,6 +144,15 @@ pub struct FusionOptions {
     pub fill_holes: bool,
     /// Record wall-clock time per stage in the summary.
     pub record_timings: bool,
+    /// H7 z-buffer. Off (a teaching switch of the viewer): the first sample on a colour pixel
+    /// stays ([`first_write_wins`]), H6 has no occlusion test, and the per-pixel stages run on
+    /// the CPU whatever the engine. Written to summary.json only when off.
+    #[serde(skip_serializing_if = "is_true")]
+    pub zbuffer: bool,
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
 }
 
 impl Default for FusionOptions {
@@ -138,6 +169,7 @@ impl Default for FusionOptions {
             plane: PlaneFitOptions::default(),
             fill_holes: true,
             record_timings: false,
+            zbuffer: true,
         }
     }
 }
@@ -228,6 +260,11 @@ pub struct FusionOutput {
     pub hole_mask: Image<bool>,
     /// H3 nearest with H8's holes filled from the plane.
     pub filled: Image<f32>,
+    /// H3 linear with H8's holes filled from the plane (only for
+    /// [`MeshSource::LinearFilled`] when a plane was found).
+    pub linear_filled: Option<Image<f32>>,
+    /// Pixels the plane filled in the depth that H4 meshed ([`FusionOutput::meshed_depth`]).
+    pub mesh_filled_pixels: usize,
     /// H6 colour on the depth grid.
     pub color_on_depth: Image<[u8; 3]>,
     /// H6 validity per depth pixel.
@@ -238,6 +275,21 @@ pub struct FusionOutput {
     pub mesh_clean: Mesh,
     /// Counts and timings.
     pub summary: FusionSummary,
+}
+
+impl FusionOutput {
+    /// The colour-frame depth H4 meshed for `source` (the [`FusionOptions::mesh_source`] of
+    /// the run), with the same fallbacks as the run.
+    pub fn meshed_depth(&self, source: MeshSource) -> &Image<f32> {
+        match (source, &self.linear_filled) {
+            (MeshSource::Nearest, _) => &self.nearest,
+            (MeshSource::Filled, _) => &self.filled,
+            (MeshSource::LinearFilled, Some(d)) => d,
+            (MeshSource::Linear | MeshSource::LinearFilled, _) => {
+                self.linear.as_ref().unwrap_or(&self.nearest)
+            }
+        }
+    }
 }
 
 /// The sample spacing of a rig in colour pixels (see the module docs).
@@ -252,27 +304,68 @@ pub fn coverage_radius_px(rig: &Rig, options: &FusionOptions) -> f32 {
     (options.hole_radius_factor * sample_spacing_px(rig)).max(MIN_COVERAGE_RADIUS_PX)
 }
 
+/// The coverage radius of [`coverage_radius_px`] once the rig's sample spacing and the radius
+/// are checked against [`MAX_SAMPLE_SPACING_PX`] and [`MAX_COVERAGE_RADIUS_PX`]: every run
+/// (CPU and GPU) calls this before any table is built or any pixel visited.
+///
+/// Errors, each naming the value, the limit and the fix: [`GeometryError::InvalidParameter`]
+/// for a rig whose focal lengths give a spacing above [`MAX_SAMPLE_SPACING_PX`],
+/// [`GeometryError::InvalidInput`] for a hole radius factor that is not positive or gives a
+/// radius above [`MAX_COVERAGE_RADIUS_PX`].
+pub fn checked_coverage_radius_px(
+    rig: &Rig,
+    options: &FusionOptions,
+) -> Result<f32, GeometryError> {
+    let spacing = sample_spacing_px(rig);
+    if !(spacing <= MAX_SAMPLE_SPACING_PX) {
+        return Err(GeometryError::InvalidParameter(format!(
+            "the rig's cameras give {spacing} colour pixels between neighbouring depth samples \
+             (colour fx, fy = {}, {}; depth fx, fy = {}, {}), more than the {MAX_SAMPLE_SPACING_PX} \
+             a fusion rig can have; focal lengths must be in pixels (a Kinect v2 depth camera has \
+             fx ≈ 365), check the rig file",
+            rig.color.intrinsics.fx,
+            rig.color.intrinsics.fy,
+            rig.depth.intrinsics.fx,
+            rig.depth.intrinsics.fy
+        )));
+    }
+    let factor = options.hole_radius_factor;
+    if !(factor.is_finite() && factor > 0.0) {
+        return Err(GeometryError::InvalidInput(format!(
+            "the hole radius factor must be a positive number, got {factor}"
+        )));
+    }
+    let radius = coverage_radius_px(rig, options);
+    if !(radius <= MAX_COVERAGE_RADIUS_PX) {
+        return Err(GeometryError::InvalidInput(format!(
+            "hole radius {factor} × sample spacing {spacing:.2} px = a coverage radius of \
+             {radius:.1} px, above the limit of {MAX_COVERAGE_RADIUS_PX} px; use a hole radius \
+             of at most {:.2} with this rig",
+            MAX_COVERAGE_RADIUS_PX / spacing
+        )));
+    }
+    Ok(radius)
+}
+
 /// How far H8 grows the hole cores back: `coverage radius - spacing / 2` (see [`HoleMasker`]).
 pub fn hole_grow_px(rig: &Rig, options: &FusionOptions) -> f32 {
     (coverage_radius_px(rig, options) - 0.5 * sample_spacing_px(rig)).max(0.0)
 }
 
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
-}
-
 /// Checks a frame against its rig before any stage runs (the CPU pipeline and `fusion-gpu`
 /// share it) and returns the number of valid depth samples.
 ///
-/// Errors: [`GeometryError::InvalidParameter`] for an invalid rig,
-/// [`GeometryError::SizeMismatch`] when an image does not match its camera,
-/// [`GeometryError::InvalidInput`] when no depth pixel has a sample.
+/// Errors: [`GeometryError::InvalidParameter`] for an invalid rig or a coverage radius out of
+/// bounds ([`checked_coverage_radius_px`]), [`GeometryError::SizeMismatch`] when an image does
+/// not match its camera, [`GeometryError::InvalidInput`] when no depth pixel has a sample.
 pub fn check_inputs(
     rig: &Rig,
     depth: &Image<f32>,
     color: &Image<[u8; 3]>,
+    options: &FusionOptions,
 ) -> Result<usize, GeometryError> {
     rig.validate()?;
+    checked_coverage_radius_px(rig, options)?;
     depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
     color.expect_size("colour image", rig.color.width, rig.color.height)?;
     let valid_depth_pixels = depth.data().iter().filter(|&&z| z > 0.0 && z < f32::INFINITY).count();
@@ -285,219 +378,4 @@ pub fn check_inputs(
         )));
     }
     Ok(valid_depth_pixels)
-}
-
-/// Runs H1–H8 on one frame. `depth` is depth-camera-sized (metres, kind `kind`, NaN / 0 =
-/// no sample), `color` colour-camera-sized.
-///
-/// Errors: [`GeometryError::SizeMismatch`] when an image does not match its camera in
-/// `rig`, [`GeometryError::InvalidParameter`] for an invalid rig,
-/// [`GeometryError::InvalidInput`] when no depth pixel has a sample.
-pub fn run(
-    rig: &Rig,
-    depth: &Image<f32>,
-    kind: DepthKind,
-    color: &Image<[u8; 3]>,
-    options: &FusionOptions,
-) -> Result<FusionOutput, GeometryError> {
-    let valid_depth_pixels = check_inputs(rig, depth, color)?;
-    let mut timings = StageTimings::default();
-    let proj = ColorProjection::from_rig(rig);
-    let (cw, ch) = (rig.color.width, rig.color.height);
-
-    let t = Instant::now();
-    let rays = depth_ray_table(&rig.depth, kind);
-    let (mut cloud, cloud_pixels) = backproject_cloud(depth, &rays);
-    timings.h1_ms = ms(t);
-
-    let t = Instant::now();
-    let samples = project_cloud(&cloud.points, &proj);
-    timings.h2_ms = ms(t);
-
-    let t = Instant::now();
-    let zbuffer = zbuffer_from_samples(&samples, cw as u32, ch as u32);
-    timings.h7_ms = ms(t);
-
-    let spacing = sample_spacing_px(rig);
-    let radius = coverage_radius_px(rig, options);
-    let t = Instant::now();
-    let nearest = nearest_fill(&zbuffer, radius, options.depth_jump);
-    timings.h3_nearest_ms = ms(t);
-
-    let t = Instant::now();
-    let (linear, linear_stats) = if options.linear {
-        let (img, stats) = linear_resample(
-            &samples,
-            &zbuffer,
-            options.linear_max_edge_factor * spacing,
-            options.depth_jump,
-        )?;
-        (Some(img), Some(stats))
-    } else {
-        (None, None)
-    };
-    timings.h3_linear_ms = ms(t);
-
-    let t = Instant::now();
-    let mask = hole_mask(&zbuffer, radius, hole_grow_px(rig, options));
-    let plane = if options.fill_holes {
-        fit_plane_ransac(&nearest, &rig.color, &options.plane)
-    } else {
-        None
-    };
-    let (filled, filled_pixels) = match &plane {
-        Some(p) => fill_holes_with_plane(&nearest, &mask, &rig.color, p),
-        None => (nearest.clone(), 0),
-    };
-    timings.h8_ms = ms(t);
-
-    let t = Instant::now();
-    let (color_img, color_valid) = color_on_depth(
-        depth,
-        &rays,
-        &proj,
-        color,
-        Some(&nearest),
-        options.color_occlusion_tolerance,
-    );
-    cloud.colors =
-        cloud_pixels
-            .iter()
-            .map(|&i| {
-                if color_valid.data()[i as usize] {
-                    color_img.data()[i as usize]
-                } else {
-                    [0, 0, 0]
-                }
-            })
-            .collect();
-    timings.h6_ms = ms(t);
-
-    let stages = PixelStages {
-        cloud,
-        cloud_pixels,
-        samples,
-        zbuffer,
-        nearest,
-        linear,
-        linear_stats,
-        hole_mask: mask,
-        filled,
-        filled_pixels,
-        plane,
-        color_on_depth: color_img,
-        color_on_depth_valid: color_valid,
-    };
-    Ok(finish(rig, kind, color, options, valid_depth_pixels, stages, timings))
-}
-
-/// What the per-pixel stages (H1–H3, H6–H8) produced. [`finish`] adds the H4/H5 meshes and
-/// the summary; the CPU pipeline and `fusion-gpu` both end with it, so their outputs are
-/// assembled the same way.
-#[derive(Debug, Clone)]
-pub struct PixelStages {
-    /// H1 cloud (depth frame) with H6 colours.
-    pub cloud: PointCloud,
-    /// Depth pixel index of every cloud point.
-    pub cloud_pixels: Vec<u32>,
-    /// H2 samples inside the colour image.
-    pub samples: Vec<ColorSample>,
-    /// H7 z-buffer.
-    pub zbuffer: Image<f32>,
-    /// H3 nearest fill.
-    pub nearest: Image<f32>,
-    /// H3 Delaunay-linear resampling, when enabled.
-    pub linear: Option<Image<f32>>,
-    /// Statistics of the linear resampling.
-    pub linear_stats: Option<LinearStats>,
-    /// H8 hole mask.
-    pub hole_mask: Image<bool>,
-    /// H8 plane-filled depth.
-    pub filled: Image<f32>,
-    /// Hole pixels given a depth by the plane.
-    pub filled_pixels: usize,
-    /// The fitted plane, if any.
-    pub plane: Option<PlaneFit>,
-    /// H6 colour on the depth grid.
-    pub color_on_depth: Image<[u8; 3]>,
-    /// Where H6 colour is trustworthy.
-    pub color_on_depth_valid: Image<bool>,
-}
-
-/// H4 mesh, H5 face removal and the summary on top of the per-pixel stages.
-/// `valid_depth_pixels` counts the input's samples; `timings` holds H1–H3, H6–H8 (H4 and H5
-/// are timed here).
-pub fn finish(
-    rig: &Rig,
-    kind: DepthKind,
-    color: &Image<[u8; 3]>,
-    options: &FusionOptions,
-    valid_depth_pixels: usize,
-    stages: PixelStages,
-    mut timings: StageTimings,
-) -> FusionOutput {
-    let PixelStages {
-        cloud,
-        cloud_pixels,
-        samples,
-        zbuffer,
-        nearest,
-        linear,
-        linear_stats,
-        hole_mask,
-        filled,
-        filled_pixels,
-        plane,
-        color_on_depth,
-        color_on_depth_valid,
-    } = stages;
-    let t = Instant::now();
-    let mesh_depth = match options.mesh_source {
-        MeshSource::Nearest => &nearest,
-        MeshSource::Linear => linear.as_ref().unwrap_or(&nearest),
-        MeshSource::Filled => &filled,
-    };
-    let mesh = mesh_from_depth(mesh_depth, &rig.color, color, options.mesh_step);
-    timings.h4_ms = ms(t);
-    let t = Instant::now();
-    let mesh_clean = remove_stretched_faces(&mesh, options.stretch_ratio);
-    timings.h5_ms = ms(t);
-
-    let count = |img: &Image<f32>| img.data().iter().filter(|z| z.is_finite()).count();
-    let summary = FusionSummary {
-        depth_size: [rig.depth.width, rig.depth.height],
-        color_size: [rig.color.width, rig.color.height],
-        depth_kind: kind,
-        valid_depth_pixels,
-        points: cloud.len(),
-        samples_in_view: samples.len(),
-        zbuffer_pixels: count(&zbuffer),
-        sample_spacing_px: sample_spacing_px(rig),
-        coverage_radius_px: coverage_radius_px(rig, options),
-        nearest_pixels: count(&nearest),
-        linear: linear_stats,
-        mesh_vertices: mesh.vertices.len(),
-        faces_before: mesh.faces.len(),
-        faces_after: mesh_clean.faces.len(),
-        color_on_depth_pixels: color_on_depth_valid.data().iter().filter(|&&v| v).count(),
-        hole_pixels: hole_mask.data().iter().filter(|&&m| m).count(),
-        filled_pixels,
-        plane,
-        timings_ms: options.record_timings.then_some(timings),
-    };
-    FusionOutput {
-        cloud,
-        cloud_pixels,
-        samples,
-        zbuffer,
-        nearest,
-        linear,
-        hole_mask,
-        filled,
-        color_on_depth,
-        color_on_depth_valid,
-        mesh,
-        mesh_clean,
-        summary,
-    }
 }

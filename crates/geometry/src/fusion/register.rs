@@ -66,6 +66,25 @@ pub fn zbuffer_from_samples(samples: &[ColorSample], width: u32, height: u32) ->
     img
 }
 
+/// H7 without the depth test (the viewer's z-buffer-off switch): in sample order, the first
+/// sample on a colour pixel stays. Empty pixels hold [`ZBUFFER_EMPTY`], like the z-buffer.
+/// Where a foreground object and the background hidden behind it (seen by the depth camera,
+/// not by the colour camera) land on one colour pixel, the background can win. (Keeping the
+/// *last* sample instead would hide the effect on a Kinect: with the colour camera at −x,
+/// row-major order is occlusion-compatible and reproduces the z-buffer exactly.)
+pub fn first_write_wins(samples: &[ColorSample], width: usize, height: usize) -> Image<f32> {
+    let mut img = Image::filled(width, height, ZBUFFER_EMPTY);
+    let data = img.data_mut();
+    for s in samples {
+        if let Some(i) = zbuffer_index(s.u, s.v, width as u32, height as u32)
+            && data[i].to_bits() == ZBUFFER_EMPTY.to_bits()
+        {
+            data[i] = s.z;
+        }
+    }
+    img
+}
+
 /// Pixels per block of the two-pass hot loop: 256 × 3 `f32` stay in L1.
 const BLOCK: usize = 256;
 

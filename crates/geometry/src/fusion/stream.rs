@@ -1,5 +1,6 @@
 //! H1 + H2 + H7 + H8's mask for a stream of frames: [`Registration`] keeps every buffer and
-//! every per-pixel constant between frames.
+//! every per-pixel constant between frames. (About 700 lines with its tests: the loop variants
+//! and the argument that they are equivalent belong in one place.)
 //!
 //! The per-pixel arithmetic is [`super::pixel`]'s, unchanged (so the z-buffer is
 //! bit-identical to [`super::register_depth`], [`super::zbuffer_from_samples`] and the GPU);
@@ -30,7 +31,10 @@ use rayon::prelude::*;
 
 use super::holes::{HoleMasker, unpack_bits_row};
 use super::pixel::{ColorProjection, ZBUFFER_EMPTY, distort_to_pixel, transform_point};
-use super::{FusionOptions, coverage_radius_px, depth_ray_table, hole_grow_px};
+use super::{
+    FusionOptions, MAX_COVERAGE_RADIUS_PX, checked_coverage_radius_px, depth_ray_table,
+    hole_grow_px,
+};
 use crate::{DepthKind, GeometryError, Image, Rig};
 
 /// Pixels per block of the two-pass loop: 256 × 3 words stay in L1.
@@ -58,12 +62,13 @@ struct Projected {
 /// # use geometry::{fusion::{FusionOptions, Registration}, synth};
 /// let setup = synth::kinect_preset(false);
 /// let frame = synth::render(&setup);
-/// let mut reg = Registration::new(&setup.rig, frame.depth_kind, &FusionOptions::default());
+/// let mut reg = Registration::new(&setup.rig, frame.depth_kind, &FusionOptions::default())?;
 /// let mut mask = vec![false; reg.zbuffer().len()];
 /// // per frame:
 /// let landed = reg.register(&frame.depth).unwrap();
 /// let holes = reg.hole_mask(&mut mask);
 /// assert!(landed > 150_000 && holes > 0);
+/// # Ok::<(), geometry::GeometryError>(())
 /// ```
 #[derive(Debug, Clone)]
 pub struct Registration {
@@ -333,30 +338,45 @@ fn clear_rows(
 
 impl Registration {
     /// Buffers and per-pixel constants for `rig`, depth images of kind `kind`, and H8's radii
-    /// from `options` ([`coverage_radius_px`], [`hole_grow_px`]).
-    pub fn new(rig: &Rig, kind: DepthKind, options: &FusionOptions) -> Self {
+    /// from `options` ([`checked_coverage_radius_px`], [`hole_grow_px`]).
+    ///
+    /// Errors: [`GeometryError::InvalidParameter`] for an invalid rig,
+    /// [`checked_coverage_radius_px`]'s for a radius out of bounds.
+    pub fn new(rig: &Rig, kind: DepthKind, options: &FusionOptions) -> Result<Self, GeometryError> {
+        rig.validate()?;
+        let radius = checked_coverage_radius_px(rig, options)?;
         let rays = depth_ray_table(&rig.depth, kind);
         Self::from_parts(
             ColorProjection::from_rig(rig),
             &rays,
             rig.depth.width,
-            coverage_radius_px(rig, options),
+            radius,
             hole_grow_px(rig, options),
         )
     }
 
     /// The same from a projection, a depth ray table ([`depth_ray_table`], row-major,
     /// `depth_width` columns) and the two radii of [`HoleMasker::new`] in colour pixels.
+    ///
+    /// Error: [`GeometryError::InvalidInput`] when a radius is not in
+    /// `0..=`[`MAX_COVERAGE_RADIUS_PX`] (the hole mask's tables grow with it).
     pub fn from_parts(
         proj: ColorProjection,
         rays: &[[f32; 3]],
         depth_width: usize,
         radius_px: f32,
         grow_px: f32,
-    ) -> Self {
+    ) -> Result<Self, GeometryError> {
+        for (what, r) in [("coverage radius", radius_px), ("hole growth radius", grow_px)] {
+            if !(0.0..=MAX_COVERAGE_RADIUS_PX).contains(&r) {
+                return Err(GeometryError::InvalidInput(format!(
+                    "{what} {r} px is outside 0..={MAX_COVERAGE_RADIUS_PX} px"
+                )));
+            }
+        }
         let (cw, ch) = (proj.width as usize, proj.height as usize);
         let depth_width = depth_width.max(1);
-        Self {
+        Ok(Self {
             proj,
             depth_width,
             depth_height: rays.len() / depth_width,
@@ -369,7 +389,7 @@ impl Registration {
             task_rows: Vec::new(),
             float_index: fits_float_index(cw, ch, cw.div_ceil(64).max(1) * 64),
             same_stride: cw % 64 == 0,
-        }
+        })
     }
 
     /// The colour projection in use.
@@ -555,6 +575,12 @@ impl Registration {
         &self.zbuffer
     }
 
+    /// The z-buffer of the last registered frame, taking the workspace apart (row-major,
+    /// colour-sized, no copy).
+    pub fn into_zbuffer(self) -> Vec<f32> {
+        self.zbuffer
+    }
+
     /// The z-buffer as an image.
     pub fn zbuffer_image(&self) -> Image<f32> {
         let w = self.proj.width as usize;
@@ -640,7 +666,8 @@ mod tests {
         // the shared pixel/bit index (1920 = 30 * 64) the same as a separate bit index.
         let setup = crate::synth::kinect_preset(true);
         let frame = crate::synth::render(&setup);
-        let mut a = Registration::new(&setup.rig, frame.depth_kind, &FusionOptions::default());
+        let mut a =
+            Registration::new(&setup.rig, frame.depth_kind, &FusionOptions::default()).unwrap();
         assert!(a.float_index, "1920x1080 fits the f32 index form");
         let mut b = a.clone();
         b.float_index = false;

@@ -1,0 +1,347 @@
+//! The one H1–H8 pipeline: [`run_on`] runs the per-pixel stages on an engine ([`PerPixel`]:
+//! [`CpuPixels`] here, `fusion_gpu::FusionContext` on the GPU) and everything else once.
+//!
+//! | step | where |
+//! | --- | --- |
+//! | input checks, limits ([`super::check_inputs`]) | here |
+//! | H1, H2, H7, H3 nearest, H8 mask, H6 | the engine ([`PerPixel::per_pixel`]) |
+//! | H3 Delaunay-linear, H8 plane fit | here (CPU) |
+//! | H8 plane fill | the engine ([`PerPixel::fill_holes`]) |
+//! | cloud colours, H4 mesh, H5 face removal, summary | here |
+//!
+//! The switches of the viewer are options of the same run: [`FusionOptions::zbuffer`] off
+//! (first write wins, H6 without its occlusion test; a teaching switch that always runs on
+//! [`CpuPixels`]), [`FusionOptions::linear`] and [`MeshSource`] (which depth is meshed, with
+//! or without the plane fill), [`FusionOptions::stretch_ratio`] (H5).
+
+use std::time::Instant;
+
+use super::{
+    ColorProjection, ColorSample, FusionOptions, FusionOutput, FusionSummary, MeshSource, PlaneFit,
+    Registration, StageTimings, backproject_cloud, check_inputs, color_on_depth,
+    coverage_radius_px, depth_ray_table, fill_holes_with_plane, first_write_wins, fit_plane_ransac,
+    hole_grow_px, hole_mask, linear_resample, mesh_from_depth, nearest_fill, project_cloud,
+    remove_stretched_faces, sample_spacing_px,
+};
+use crate::{CameraModel, DepthKind, GeometryError, Image, PointCloud, Rig};
+
+/// The parameters of the per-pixel stages, in colour pixels (from [`FusionOptions`] and the
+/// rig; see [`PixelParams::new`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PixelParams {
+    /// H3 nearest and H8 coverage radius ([`super::checked_coverage_radius_px`]).
+    pub radius_px: f32,
+    /// H8 growth radius ([`super::hole_grow_px`]).
+    pub grow_px: f32,
+    /// H3 nearest's surface separation ([`FusionOptions::depth_jump`]).
+    pub depth_jump: f32,
+    /// H6 occlusion tolerance; `None` without the test (z-buffer off).
+    pub occlusion_tolerance: Option<f32>,
+    /// H7 z-buffer (`false`: first write wins, [`first_write_wins`]).
+    pub zbuffer: bool,
+}
+
+impl PixelParams {
+    /// The parameters `options` give for `rig` (radii not checked: [`run_on`] checks them
+    /// first).
+    pub fn new(rig: &Rig, options: &FusionOptions) -> Self {
+        Self {
+            radius_px: coverage_radius_px(rig, options),
+            grow_px: hole_grow_px(rig, options),
+            depth_jump: options.depth_jump,
+            occlusion_tolerance: options.zbuffer.then_some(options.color_occlusion_tolerance),
+            zbuffer: options.zbuffer,
+        }
+    }
+}
+
+/// What the per-pixel stages produce.
+#[derive(Debug, Clone)]
+pub struct PerPixelOutput {
+    /// H1 points (depth camera frame), row-major pixel order.
+    pub points: Vec<[f32; 3]>,
+    /// Depth pixel index of every point.
+    pub cloud_pixels: Vec<u32>,
+    /// H2 samples inside the colour image (`point` indexes `points`).
+    pub samples: Vec<ColorSample>,
+    /// H7 z-buffer.
+    pub zbuffer: Image<f32>,
+    /// H3 nearest fill.
+    pub nearest: Image<f32>,
+    /// H8 hole mask.
+    pub hole_mask: Image<bool>,
+    /// H6 colour on the depth grid.
+    pub color_on_depth: Image<[u8; 3]>,
+    /// Where H6 colour is trustworthy.
+    pub color_on_depth_valid: Image<bool>,
+}
+
+/// An engine for the per-pixel stages. Every engine's output is bit-identical to
+/// [`CpuPixels`]'s (the GPU's on an adapter with IEEE division, see `fusion-gpu`).
+pub trait PerPixel {
+    /// The engine's error (every [`GeometryError`] converts into it).
+    type Error: From<GeometryError>;
+
+    /// H1, H2, H7, H3 nearest, H8 mask and H6 on one checked frame; adds its stage times to
+    /// `timings`.
+    fn per_pixel(
+        &mut self,
+        rig: &Rig,
+        depth: &Image<f32>,
+        kind: DepthKind,
+        color: &Image<[u8; 3]>,
+        params: &PixelParams,
+        timings: &mut StageTimings,
+    ) -> Result<PerPixelOutput, Self::Error>;
+
+    /// H8 fill: `depth` with its `mask` pixels taken from `plane` ([`fill_holes_with_plane`]).
+    fn fill_holes(
+        &mut self,
+        camera: &CameraModel,
+        depth: &Image<f32>,
+        mask: &Image<bool>,
+        plane: &PlaneFit,
+    ) -> Result<(Image<f32>, usize), Self::Error>;
+}
+
+/// The CPU engine. H7 and H8's mask run on [`Registration`] (the fast path of the
+/// `register+holes` benchmark, on all rayon threads), H1/H2 keep the cloud and the samples
+/// the outputs need, H3 nearest and H6 are the stage functions.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct CpuPixels;
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+impl PerPixel for CpuPixels {
+    type Error = GeometryError;
+
+    fn per_pixel(
+        &mut self,
+        rig: &Rig,
+        depth: &Image<f32>,
+        kind: DepthKind,
+        color: &Image<[u8; 3]>,
+        params: &PixelParams,
+        timings: &mut StageTimings,
+    ) -> Result<PerPixelOutput, GeometryError> {
+        let proj = ColorProjection::from_rig(rig);
+        let (cw, ch) = (rig.color.width, rig.color.height);
+
+        let t = Instant::now();
+        let rays = depth_ray_table(&rig.depth, kind);
+        let (cloud, cloud_pixels) = backproject_cloud(depth, &rays);
+        timings.h1_ms += ms(t);
+
+        let t = Instant::now();
+        let samples = project_cloud(&cloud.points, &proj);
+        timings.h2_ms += ms(t);
+
+        let (zbuffer, mask) = if params.zbuffer {
+            let t = Instant::now();
+            let mut reg = Registration::from_parts(
+                proj,
+                &rays,
+                rig.depth.width,
+                params.radius_px,
+                params.grow_px,
+            )?;
+            reg.register_parallel(depth)?;
+            timings.h7_ms += ms(t);
+            let t = Instant::now();
+            let mut mask = Image::filled(cw, ch, false);
+            reg.hole_mask_parallel(mask.data_mut());
+            timings.h8_ms += ms(t);
+            (Image::from_vec(cw, ch, reg.into_zbuffer())?, mask)
+        } else {
+            let t = Instant::now();
+            let zbuffer = first_write_wins(&samples, cw, ch);
+            timings.h7_ms += ms(t);
+            let t = Instant::now();
+            let mask = hole_mask(&zbuffer, params.radius_px, params.grow_px);
+            timings.h8_ms += ms(t);
+            (zbuffer, mask)
+        };
+
+        let t = Instant::now();
+        let nearest = nearest_fill(&zbuffer, params.radius_px, params.depth_jump);
+        timings.h3_nearest_ms += ms(t);
+
+        let t = Instant::now();
+        let (color_img, color_valid) = match params.occlusion_tolerance {
+            Some(tol) => color_on_depth(depth, &rays, &proj, color, Some(&nearest), tol),
+            None => color_on_depth(depth, &rays, &proj, color, None, 0.0),
+        };
+        timings.h6_ms += ms(t);
+
+        Ok(PerPixelOutput {
+            points: cloud.points,
+            cloud_pixels,
+            samples,
+            zbuffer,
+            nearest,
+            hole_mask: mask,
+            color_on_depth: color_img,
+            color_on_depth_valid: color_valid,
+        })
+    }
+
+    fn fill_holes(
+        &mut self,
+        camera: &CameraModel,
+        depth: &Image<f32>,
+        mask: &Image<bool>,
+        plane: &PlaneFit,
+    ) -> Result<(Image<f32>, usize), GeometryError> {
+        Ok(fill_holes_with_plane(depth, mask, camera, plane))
+    }
+}
+
+/// The colours of the cloud: H6's colour of each point's depth pixel, black where H6 does
+/// not trust it.
+pub fn cloud_colors(
+    cloud_pixels: &[u32],
+    color_on_depth: &Image<[u8; 3]>,
+    valid: &Image<bool>,
+) -> Vec<[u8; 3]> {
+    let (colors, valid) = (color_on_depth.data(), valid.data());
+    cloud_pixels
+        .iter()
+        .map(|&i| if valid[i as usize] { colors[i as usize] } else { [0, 0, 0] })
+        .collect()
+}
+
+/// Runs H1–H8 on one frame with the per-pixel stages on `engine` (see the module docs).
+/// With [`FusionOptions::zbuffer`] off the per-pixel stages run on [`CpuPixels`] whatever
+/// the engine.
+///
+/// Errors: those of [`check_inputs`] (before any work), and the engine's.
+pub fn run_on<E: PerPixel>(
+    engine: &mut E,
+    rig: &Rig,
+    depth: &Image<f32>,
+    kind: DepthKind,
+    color: &Image<[u8; 3]>,
+    options: &FusionOptions,
+) -> Result<FusionOutput, E::Error> {
+    let valid_depth_pixels = check_inputs(rig, depth, color, options)?;
+    let mut timings = StageTimings::default();
+    let params = PixelParams::new(rig, options);
+    let px = if options.zbuffer {
+        engine.per_pixel(rig, depth, kind, color, &params, &mut timings)?
+    } else {
+        CpuPixels.per_pixel(rig, depth, kind, color, &params, &mut timings)?
+    };
+
+    let t = Instant::now();
+    let spacing = sample_spacing_px(rig);
+    let (linear, linear_stats) = if options.linear {
+        let (img, stats) = linear_resample(
+            &px.samples,
+            &px.zbuffer,
+            options.linear_max_edge_factor * spacing,
+            options.depth_jump,
+        )?;
+        (Some(img), Some(stats))
+    } else {
+        (None, None)
+    };
+    timings.h3_linear_ms = ms(t);
+
+    let t = Instant::now();
+    let plane = if options.fill_holes {
+        fit_plane_ransac(&px.nearest, &rig.color, &options.plane)
+    } else {
+        None
+    };
+    let mut fill = |d: &Image<f32>| -> Result<(Image<f32>, usize), E::Error> {
+        match &plane {
+            Some(p) if options.zbuffer => engine.fill_holes(&rig.color, d, &px.hole_mask, p),
+            Some(p) => Ok(CpuPixels.fill_holes(&rig.color, d, &px.hole_mask, p)?),
+            None => Ok((d.clone(), 0)),
+        }
+    };
+    let (filled, filled_pixels) = fill(&px.nearest)?;
+    let linear_filled = match (options.mesh_source, &linear) {
+        (MeshSource::LinearFilled, Some(l)) if plane.is_some() => Some(fill(l)?),
+        _ => None,
+    };
+    timings.h8_ms += ms(t);
+
+    let mut cloud = PointCloud { points: px.points, ..PointCloud::default() };
+    cloud.colors = cloud_colors(&px.cloud_pixels, &px.color_on_depth, &px.color_on_depth_valid);
+
+    let t = Instant::now();
+    let (mesh_depth, mesh_filled_pixels) = match (options.mesh_source, &linear_filled) {
+        (MeshSource::Nearest, _) => (&px.nearest, 0),
+        (MeshSource::Filled, _) => (&filled, filled_pixels),
+        (MeshSource::LinearFilled, Some((d, n))) => (d, *n),
+        (MeshSource::Linear | MeshSource::LinearFilled, _) => {
+            (linear.as_ref().unwrap_or(&px.nearest), 0)
+        }
+    };
+    let mesh = mesh_from_depth(mesh_depth, &rig.color, color, options.mesh_step);
+    timings.h4_ms = ms(t);
+    let t = Instant::now();
+    let mesh_clean = remove_stretched_faces(&mesh, options.stretch_ratio);
+    timings.h5_ms = ms(t);
+
+    let count = |img: &Image<f32>| img.data().iter().filter(|z| z.is_finite()).count();
+    let summary = FusionSummary {
+        depth_size: [rig.depth.width, rig.depth.height],
+        color_size: [rig.color.width, rig.color.height],
+        depth_kind: kind,
+        valid_depth_pixels,
+        points: cloud.len(),
+        samples_in_view: px.samples.len(),
+        zbuffer_pixels: count(&px.zbuffer),
+        sample_spacing_px: spacing,
+        coverage_radius_px: params.radius_px,
+        nearest_pixels: count(&px.nearest),
+        linear: linear_stats,
+        mesh_vertices: mesh.vertices.len(),
+        faces_before: mesh.faces.len(),
+        faces_after: mesh_clean.faces.len(),
+        color_on_depth_pixels: px.color_on_depth_valid.data().iter().filter(|&&v| v).count(),
+        hole_pixels: px.hole_mask.data().iter().filter(|&&m| m).count(),
+        filled_pixels,
+        plane,
+        timings_ms: options.record_timings.then_some(timings),
+    };
+    let mesh_depth = linear_filled.map(|(d, _)| d);
+    Ok(FusionOutput {
+        cloud,
+        cloud_pixels: px.cloud_pixels,
+        samples: px.samples,
+        zbuffer: px.zbuffer,
+        nearest: px.nearest,
+        linear,
+        hole_mask: px.hole_mask,
+        filled,
+        linear_filled: mesh_depth,
+        mesh_filled_pixels,
+        color_on_depth: px.color_on_depth,
+        color_on_depth_valid: px.color_on_depth_valid,
+        mesh,
+        mesh_clean,
+        summary,
+    })
+}
+
+/// Runs H1–H8 on one frame on the CPU ([`run_on`] with [`CpuPixels`]). `depth` is
+/// depth-camera-sized (metres, kind `kind`, NaN / 0 = no sample), `color` colour-camera-sized.
+///
+/// Errors: [`GeometryError::SizeMismatch`] when an image does not match its camera in
+/// `rig`, [`GeometryError::InvalidParameter`] for an invalid rig,
+/// [`GeometryError::InvalidInput`] when no depth pixel has a sample or the coverage radius is
+/// out of bounds.
+pub fn run(
+    rig: &Rig,
+    depth: &Image<f32>,
+    kind: DepthKind,
+    color: &Image<[u8; 3]>,
+    options: &FusionOptions,
+) -> Result<FusionOutput, GeometryError> {
+    run_on(&mut CpuPixels, rig, depth, kind, color, options)
+}
