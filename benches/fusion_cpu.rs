@@ -114,7 +114,8 @@ fn benches(c: &mut Criterion) {
     let mut masker = HoleMasker::new(cw, ch, radius, grow);
     let atomic: Vec<AtomicU32> = (0..cw * ch).map(|_| AtomicU32::new(0)).collect();
 
-    let mut reg = Registration::new(rig, frame.depth_kind, &options).expect("the preset rig is valid");
+    let mut reg =
+        Registration::new(rig, frame.depth_kind, &options).expect("the preset rig is valid");
 
     report_cpu_time("register+holes/single", 200, || {
         let n = reg.register(&frame.depth).expect("the preset's depth matches its rig");
