@@ -163,3 +163,50 @@ pub fn align_pair(depth: &ViewCorners, color: &ViewCorners, board: &Board) -> Vi
     }
     best.1
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Corner;
+
+    /// A view of `board` whose corner `(x, y)` is at pixel `(100 + 20·x', 80 + 20·y')` with
+    /// `(x', y')` the corner turned by `k` quarter turns: the camera sees the board upright,
+    /// the labelling differs from the upright one by the turn.
+    fn view(board: &Board, k: u8) -> ViewCorners {
+        let (c, r) = (board.cols as i32, board.rows as i32);
+        let corners = (0..board.len())
+            .map(|id| {
+                let (x, y) = rotate(k, c, r, ((id % board.cols) as i32, (id / board.cols) as i32));
+                Corner { id, px: Vector2::new(100.0 + 20.0 * x as f64, 80.0 + 20.0 * y as f64) }
+            })
+            .collect();
+        ViewCorners { name: "v".into(), width: 640, height: 480, corners, unusable: None }
+    }
+
+    /// Source of the expectations: the ordering rule in the module docs. A colour-symmetric
+    /// board (7x5) labelled 180° apart in the two cameras is turned to agree; a colour-decided
+    /// board (9x6) is never turned (colour already fixed the same physical corner in both
+    /// cameras, whatever the orientation); an even square board (4x4) is turned by the quarter
+    /// turn that makes the x axes agree; an odd square board (5x5) by 180° (a quarter turn would
+    /// change its colour).
+    #[test]
+    fn align_pair_turns_only_where_colour_cannot_decide() {
+        let same = |a: &ViewCorners, b: &ViewCorners| {
+            a.corners.iter().zip(&b.corners).all(|(p, q)| p.id == q.id && p.px == q.px)
+        };
+        let b75 = Board::new(7, 5, 1.0).unwrap();
+        let depth = view(&b75, 0);
+        assert!(same(&align_pair(&depth, &view(&b75, 2), &b75), &depth));
+        let b96 = Board::new(9, 6, 1.0).unwrap();
+        let turned = view(&b96, 2);
+        assert!(same(&align_pair(&view(&b96, 0), &turned, &b96), &turned));
+        let b44 = Board::new(4, 4, 1.0).unwrap();
+        let depth = view(&b44, 0);
+        for k in 1..4 {
+            assert!(same(&align_pair(&depth, &view(&b44, k), &b44), &depth), "4x4, {k} turns");
+        }
+        let b55 = Board::new(5, 5, 1.0).unwrap();
+        let depth = view(&b55, 0);
+        assert!(same(&align_pair(&depth, &view(&b55, 2), &b55), &depth));
+    }
+}
