@@ -1,5 +1,8 @@
 //! The session state machine (protocol §5): open, start streaming, frames, stop, close — over any
 //! [`UsbBackend`].
+//!
+//! Size (~670 lines): the session state machine of protocol §5 and the commands that are only
+//! valid in its states (colour settings, LED); its steps share the device's private state.
 
 use std::time::{Duration, Instant};
 

@@ -1,4 +1,9 @@
 //! Command messages, completions and response parsers (protocol §3–§4). Pure byte-level code.
+//!
+//! Size (~870 lines of code, ~160 of tests): every message and response layout of protocol
+//! §3–§4 — commands, completions, firmware/serial/status parsers, the colour-setting codes and
+//! presets, LED settings — each a few lines of byte handling that the sim and the device share;
+//! kept together so that one file shows the whole wire format.
 
 use crate::error::{KinectError, Result};
 

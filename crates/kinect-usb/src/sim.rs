@@ -2,6 +2,11 @@
 //! every command from a [`SimProfile`], streams depth frames built with the forward model from a
 //! caller-supplied [`SimScene`] and colour packets from caller-supplied JPEGs, and injects
 //! seeded faults.
+//!
+//! Size (~950 lines, one file): the simulated device is one state machine whose command
+//! handlers, stream generator, replay source and fault injection all read and change the same
+//! private state; split into modules, that state would have to become crate-visible. It is
+//! compiled only with the `sim` feature.
 
 use std::collections::VecDeque;
 use std::time::Duration;
