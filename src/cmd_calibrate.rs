@@ -327,6 +327,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         );
     }
     check_outputs(&args, color_files.iter().chain(&ir_files))?;
+    crate::interrupt::install()?;
     let flags = flags(&args);
     let (ir_views, ir_images, board) = if ir_files.is_empty() {
         (vec![], vec![], board)
@@ -469,6 +470,8 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
 
     // The rig file(s) are written to temporary names first and renamed only after the report
     // is published: a failure anywhere leaves neither.
+    const STOPPED: &str = ": stopped; no rig file or report was written";
+    crate::interrupt::check(STOPPED)?;
     let mut files = StagedFiles::new();
     for (path, text) in &outputs {
         files.add(path, text.as_bytes())?;
@@ -478,6 +481,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         figs.ir_images = ir_images.iter().zip(&ir_views).collect();
         figs.color_images = color_images.iter().zip(&color_views).collect();
         figs.write(&staged, &report)?;
+        crate::interrupt::check(STOPPED)?;
         staged.commit()?;
         println!("\nreport: {}", dir.display());
     }

@@ -5,9 +5,6 @@
 //! The first signal sets the flag; a second one exits at once with status 130 (the shell's
 //! convention for "killed by SIGINT"), for a command that does not react.
 
-// Until the commands poll it (capture record, fuse, calibrate, undistort).
-#![allow(dead_code)]
-
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
 
