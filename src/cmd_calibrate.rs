@@ -401,6 +401,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         );
     }
     check_outputs(&args, color_files.iter().chain(&ir_files))?;
+    crate::interrupt::install()?;
     let flags = flags(&args);
     let (ir_views, ir_images, board) = if ir_files.is_empty() {
         (vec![], vec![], board)
@@ -550,6 +551,8 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
 
     // The rig file(s) are written to temporary names first and renamed only after the report
     // is published: a failure anywhere leaves neither.
+    const STOPPED: &str = ": stopped; no rig file or report was written";
+    crate::interrupt::check(STOPPED)?;
     let mut files = StagedFiles::new();
     for (path, text) in &outputs {
         files.add(path, text.as_bytes())?;
@@ -564,6 +567,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             .filter_map(|(i, v)| Some((i.as_ref()?, v)))
             .collect();
         figs.write(&staged, &report)?;
+        crate::interrupt::check(STOPPED)?;
         staged.commit()?;
         println!("\nreport: {}", dir.display());
     }

@@ -181,6 +181,9 @@ fn check_size(
     Ok(())
 }
 
+/// What an interrupted `fuse` says it did.
+const STOPPED: &str = ": stopped; the staging folder was removed and --out left as it was";
+
 /// The rig plausibility check ([`Rig::check_plausible`]), or with `--force` its problems as
 /// warnings.
 fn check_rig(rig: &Rig, source: &Path, force: bool) -> Result<()> {
@@ -324,6 +327,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let options = options(args)?;
     // --out is checked (and its staging folder made) before any work.
     let staged = StagedDir::new(&args.out)?;
+    crate::interrupt::install()?;
     let inputs = load_inputs(args)?;
     // Before any work: the coverage radius this rig and --hole-radius give, and the rig's
     // sample spacing, within the stages' limits (the stages check again; this names the files).
@@ -331,6 +335,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
         format!("the rig {} with --hole-radius {}", rig_name(args), args.hole_radius)
     })?;
     bar.inc(1);
+    crate::interrupt::check(STOPPED)?;
     bar.set_message("fusing (H1-H8)");
     let engine = args.engine();
     let on = if engine == Engine::Cpu { "" } else { " on the GPU" };
@@ -353,18 +358,22 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
         }
     }
     bar.inc(1);
+    crate::interrupt::check(STOPPED)?;
     let mut files = Vec::new();
     bar.set_message("writing cloud and depth images");
     write_data(&staged, &inputs, &output, &mut files)?;
     bar.inc(1);
+    crate::interrupt::check(STOPPED)?;
     bar.set_message("writing meshes");
     write_meshes(&staged, &inputs, &output, &mut files)?;
     bar.inc(1);
+    crate::interrupt::check(STOPPED)?;
     if !args.no_figures {
         bar.set_message("drawing figures");
         write_figures(&staged, &inputs, &output, &mut files)?;
     }
     bar.inc(1);
+    crate::interrupt::check(STOPPED)?;
     files.push("summary.json".into());
     let summary = SummaryFile {
         format: "kfuse-fuse-summary",
@@ -384,6 +393,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let json = serde_json::to_string_pretty(&summary).context("serialising summary.json")?;
     write_bytes_atomic(&staged.join("summary.json"), json.as_bytes())?;
     bar.set_message("committing");
+    crate::interrupt::check(STOPPED)?;
     let out = staged.commit()?;
     bar.inc(1);
     bar.finish_and_clear();

@@ -87,6 +87,7 @@ pub fn run(args: UndistortArgs) -> Result<()> {
         }
     }
     let staged = StagedDir::new(&args.out)?;
+    crate::interrupt::install()?;
     let map = UndistortMap::new(&cam);
     if let Some(r) = cam.distortion.fold_radius() {
         println!(
@@ -135,6 +136,7 @@ pub fn run(args: UndistortArgs) -> Result<()> {
             write_depth_png16(&out, &rect)?;
         }
         pb.inc(1);
+        crate::interrupt::check(": stopped; nothing was written to --out")?;
     }
     pb.finish();
     staged.commit()?;

@@ -34,7 +34,7 @@ fn zlib_bomb(path: &Path, n: u32) {
         let mut b = ty.to_le_bytes().to_vec();
         b.extend_from_slice(&(data.len() as u32).to_le_bytes());
         b.extend_from_slice(data);
-        while b.len() % 8 != 0 {
+        while !b.len().is_multiple_of(8) {
             b.push(0);
         }
         b

@@ -168,7 +168,8 @@ fn image_sizes_are_checked_from_headers_and_truncated_images_refused() {
     std::fs::write(&cut, &bytes[..bytes.len() / 10]).unwrap();
     std::fs::remove_dir_all(&out).unwrap();
     let o = fuse(&case, &case.rig, &cut, &out, &[]);
-    assert_one_line_failure(&o, "cut.jpg", "truncated JPEG");
+    // At 10 % the header itself is cut (refused when the size is read from it).
+    assert_one_line_failure(&o, "cut.jpg", "corrupt Jpeg header");
     assert!(!out.exists());
     // Cut anywhere before its end marker, too; data after the marker is allowed.
     for keep in [bytes.len() / 2, bytes.len() - 2] {
@@ -393,4 +394,47 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     assert!(!rig.exists() && !report.exists());
     assert_eq!(names(&case.dir), ["color.png", "depth.png", "rig.json"]);
     let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+#[test]
+fn ctrl_c_and_sigterm_during_fuse_remove_the_staging_and_exit_130() {
+    let dir = scratch("signal");
+    // A Kinect-size frame, so that a run lasts long enough to be interrupted.
+    let setup = geometry::synth::kinect_preset(true);
+    let frame = geometry::synth::render(&setup);
+    images::write_color_png(&dir.join("color.png"), &frame.color).unwrap();
+    images::write_depth_png16(&dir.join("depth.png"), &frame.depth).unwrap();
+    rigio::write_rig(&dir.join("rig.json"), &setup.rig).unwrap();
+    let mut interrupted = 0;
+    for (i, signal) in ["-INT", "-TERM", "-INT", "-TERM"].into_iter().enumerate() {
+        let out = dir.join(format!("out{i}"));
+        let child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
+            .args(["fuse", "--rig", s(&dir.join("rig.json")), "--color", s(&dir.join("color.png"))])
+            .args(["--depth", s(&dir.join("depth.png")), "--out", s(&out)])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(300 + 400 * i as u64));
+        let sent = Command::new("kill").args([signal, &child.id().to_string()]).status().unwrap();
+        assert!(sent.success());
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        match o.status.code() {
+            Some(130) => {
+                interrupted += 1;
+                assert!(
+                    err.contains("interrupted") && err.contains("staging folder was removed"),
+                    "{err}"
+                );
+                assert!(!out.exists(), "{signal}: --out written after the signal");
+            }
+            Some(0) => assert!(out.join("summary.json").is_file(), "finished run incomplete"),
+            other => panic!("{signal}: exit {other:?}: {err}"),
+        }
+        let left: Vec<String> = names(&dir).into_iter().filter(|n| n.contains("staging")).collect();
+        assert!(left.is_empty(), "{signal}: staging left: {left:?}");
+    }
+    assert!(interrupted >= 2, "only {interrupted} of 4 runs were interrupted");
+    let _ = std::fs::remove_dir_all(&dir);
 }
