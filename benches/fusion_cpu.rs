@@ -14,6 +14,9 @@
 //! * `register+holes/legacy_*`: the previous entry points (`register_depth_marking` +
 //!   `HoleMasker`, and the atomic-min `register_depth_parallel` + a z-buffer scan), kept for
 //!   comparison.
+//! * `run_h7_h8mask/*`: H7 + H8's mask as `geometry::fusion::run` computes them on one frame:
+//!   `staged_before` (z-buffer from H2's samples, then a mask scan; `run` before issue 11) and
+//!   `registration_now` (a fresh `Registration`, what `run` and `kfuse fuse` use now).
 //! * `stage/*`: every stage of `geometry::fusion::run` on its own, and `run` itself.
 //!
 //! `KFUSE_WRITE_PEER_FRAME=1 cargo bench --bench fusion_cpu` also writes the frame for the
@@ -196,6 +199,31 @@ fn benches(c: &mut Criterion) {
             fusion::atomic_zbuffer_to_image(&atomic, &mut zbuffer);
             let holes = masker.compute(&zbuffer, &mut mask);
             black_box((n, holes))
+        })
+    });
+    g.finish();
+
+    // What `geometry::fusion::run` does for H7 + H8's mask on one frame: before issue 11 the
+    // staged functions on H2's samples, now a fresh `Registration` (the CPU engine).
+    let samples0 =
+        fusion::project_cloud(&fusion::backproject_cloud(&frame.depth, &rays).0.points, &proj);
+    let mut g = c.benchmark_group("run_h7_h8mask");
+    g.sample_size(30);
+    g.bench_function("staged_before", |b| {
+        b.iter(|| {
+            let zb = fusion::zbuffer_from_samples(black_box(&samples0), proj.width, proj.height);
+            let mask = fusion::hole_mask(&zb, radius, grow);
+            black_box((zb, mask))
+        })
+    });
+    g.bench_function("registration_now", |b| {
+        b.iter(|| {
+            let mut reg = Registration::from_parts(proj, &rays, rig.depth.width, radius, grow)
+                .expect("radii within bounds");
+            reg.register_parallel(black_box(&frame.depth)).expect("sizes match");
+            let mut mask = geometry::Image::filled(cw, ch, false);
+            reg.hole_mask_parallel(mask.data_mut());
+            black_box((reg.into_zbuffer(), mask))
         })
     });
     g.finish();
