@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
+use calib::rig_io::Role;
 use calib::undistort::UndistortMap;
-use geometry::Rig;
 use geometry::io::images::{
     MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16,
 };
@@ -21,7 +21,7 @@ depth images (millimetres) by nearest neighbour, so no depth is ever blended acr
 Pixels whose ray falls where the distortion model folds (the lab's IR k1/k2 fold near the image
 corners), or outside the input image, are masked: black, or depth 0 (no sample).")]
 pub struct UndistortArgs {
-    /// Rig file written by `kfuse calibrate`.
+    /// Rig file, or the single-camera file of `kfuse calibrate --ir … --out ir.json`.
     #[arg(long)]
     rig: PathBuf,
     /// Which camera took the images.
@@ -37,10 +37,8 @@ pub struct UndistortArgs {
 
 /// Runs the command.
 pub fn run(args: UndistortArgs) -> Result<()> {
-    let text = std::fs::read_to_string(&args.rig)
-        .with_context(|| format!("reading rig file {}", args.rig.display()))?;
-    let rig = Rig::from_json(&text, &args.rig)?;
-    let cam = if args.camera == "color" { rig.color } else { rig.depth };
+    let role = if args.camera == "color" { Role::Color } else { Role::Depth };
+    let cam = calib::rig_io::load(&args.rig)?.camera(role, &args.rig)?;
     let map = UndistortMap::new(&cam);
     if let Some(r) = cam.distortion.fold_radius() {
         println!(
