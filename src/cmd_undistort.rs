@@ -4,12 +4,12 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
+use calib::rig_io::{Calibration, Role};
 use calib::undistort::UndistortMap;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
 use kfuse_io::image_header::image_size;
 use kfuse_io::images::{MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16};
-use kfuse_io::rig::{read_rig, read_rig_unchecked};
 
 /// Arguments of `kfuse undistort`.
 #[derive(clap::Args, Debug)]
@@ -22,7 +22,7 @@ depth images (millimetres) by nearest neighbour, so no depth is ever blended acr
 Pixels whose ray falls where the distortion model folds (the lab's IR k1/k2 fold near the image
 corners), or outside the input image, are masked: black, or depth 0 (no sample).")]
 pub struct UndistortArgs {
-    /// Rig file written by `kfuse calibrate`.
+    /// Rig file, or the single-camera file of `kfuse calibrate --ir … --out ir.json`.
     #[arg(long)]
     rig: PathBuf,
     /// Which camera took the images.
@@ -51,16 +51,28 @@ fn output_name(path: &Path) -> String {
 
 /// Runs the command.
 pub fn run(args: UndistortArgs) -> Result<()> {
-    let rig = if args.force {
-        let rig = read_rig_unchecked(&args.rig)?;
-        for problem in rig.plausibility_problems() {
+    // A rig or the single-camera JSON that `kfuse calibrate --ir/--color --out` writes.
+    let role = if args.camera == "color" { Role::Color } else { Role::Depth };
+    let calibration = calib::rig_io::load(&args.rig)?;
+    let cam = calibration.camera(role, &args.rig)?;
+    let problems = match &calibration {
+        Calibration::Rig(rig) => rig.plausibility_problems(),
+        Calibration::Camera { camera, .. } => {
+            geometry::rig::camera_plausibility_problems(role.name(), camera)
+        }
+    };
+    if !problems.is_empty() {
+        if !args.force {
+            bail!(
+                "{}: {} (pass --force if the rig really is meant this way)",
+                args.rig.display(),
+                problems.join("; ")
+            );
+        }
+        for problem in problems {
             eprintln!("warning: {}: {problem} (--force)", args.rig.display());
         }
-        rig
-    } else {
-        read_rig(&args.rig)?
-    };
-    let cam = if args.camera == "color" { rig.color } else { rig.depth };
+    }
     // Everything that can be checked is checked before the (large) map is built and before
     // anything is written: one output name per input, every image's size from its header.
     let mut names: HashMap<String, &PathBuf> = HashMap::new();

@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 
 mod cmd_calibrate;
 mod cmd_capture;
+mod cmd_rig;
 mod cmd_undistort;
 mod interrupt;
 
@@ -31,6 +32,8 @@ enum Command {
     Demo(cmd_demo::DemoArgs),
     /// Calibrate the colour and/or IR camera from checkerboard images (rig file + report).
     Calibrate(cmd_calibrate::CalibrateArgs),
+    /// Import, export and show rig files (Bouguet, KinectData.mat, OpenCV, ROS, kinect_params.json).
+    Rig(cmd_rig::RigArgs),
     /// Remove lens distortion from images with a rig file (writes *_rect images).
     Undistort(cmd_undistort::UndistortArgs),
     /// Open the viewer: 2D panes, 3D cloud and mesh, live fusion switches.
@@ -68,6 +71,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Calibrate(args) => cmd_calibrate::run(args)?,
         Command::Undistort(args) => cmd_undistort::run(args)?,
+        Command::Rig(args) => cmd_rig::run(args)?,
         Command::Conventions => {
             println!("pixels: 0-based, integer coordinates are pixel centres");
             println!("frames: x right, y down, z forward; the depth camera is the reference");

@@ -26,6 +26,7 @@ mod error;
 pub mod files;
 pub mod io;
 pub mod mono;
+pub mod rig_io;
 pub mod stereo;
 pub mod undistort;
 pub mod zhang;

@@ -71,6 +71,33 @@ struct RigFile {
     calibration: Option<serde_json::Value>,
 }
 
+/// What makes one camera implausible (focal lengths outside [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`],
+/// image sides over [`MAX_IMAGE_SIDE`]), each naming the likely unit mistake; `name` says which
+/// camera ("depth", "colour"). The per-camera half of [`Rig::plausibility_problems`], for files
+/// that hold one camera.
+pub fn camera_plausibility_problems(name: &str, cam: &CameraModel) -> Vec<String> {
+    let mut problems = Vec::new();
+    if cam.width > MAX_IMAGE_SIDE || cam.height > MAX_IMAGE_SIDE {
+        problems.push(format!(
+            "the {name} camera's image size {}x{} is over the {MAX_IMAGE_SIDE}-px limit per side",
+            cam.width, cam.height
+        ));
+    }
+    let k = &cam.intrinsics;
+    for (axis, f) in [("fx", k.fx), ("fy", k.fy)] {
+        if f < MIN_FOCAL_PX {
+            problems.push(format!(
+                "the {name} camera's {axis} = {f} px is under {MIN_FOCAL_PX} px: focal lengths must be in pixels, not metres or millimetres"
+            ));
+        } else if f > MAX_FOCAL_PX {
+            problems.push(format!(
+                "the {name} camera's {axis} = {f} px is over {MAX_FOCAL_PX} px: focal lengths must be in pixels"
+            ));
+        }
+    }
+    problems
+}
+
 impl Rig {
     /// A rig without a calibration report.
     pub fn new(depth: CameraModel, color: CameraModel, color_from_depth: RigidTransform) -> Self {
@@ -87,27 +114,8 @@ impl Rig {
     /// [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`], image sides over [`MAX_IMAGE_SIDE`], a baseline over
     /// [`MAX_BASELINE_M`]), each naming the likely unit mistake; empty when plausible.
     pub fn plausibility_problems(&self) -> Vec<String> {
-        let mut problems = Vec::new();
-        for (name, cam) in [("depth", &self.depth), ("colour", &self.color)] {
-            if cam.width > MAX_IMAGE_SIDE || cam.height > MAX_IMAGE_SIDE {
-                problems.push(format!(
-                    "the {name} camera's image size {}x{} is over the {MAX_IMAGE_SIDE}-px limit per side",
-                    cam.width, cam.height
-                ));
-            }
-            let k = &cam.intrinsics;
-            for (axis, f) in [("fx", k.fx), ("fy", k.fy)] {
-                if f < MIN_FOCAL_PX {
-                    problems.push(format!(
-                        "the {name} camera's {axis} = {f} px is under {MIN_FOCAL_PX} px: focal lengths must be in pixels, not metres or millimetres"
-                    ));
-                } else if f > MAX_FOCAL_PX {
-                    problems.push(format!(
-                        "the {name} camera's {axis} = {f} px is over {MAX_FOCAL_PX} px: focal lengths must be in pixels"
-                    ));
-                }
-            }
-        }
+        let mut problems = camera_plausibility_problems("depth", &self.depth);
+        problems.extend(camera_plausibility_problems("colour", &self.color));
         let baseline = self.color_from_depth.translation.norm();
         if !(baseline <= MAX_BASELINE_M) {
             let hint = if (1.0..=1000.0 * MAX_BASELINE_M).contains(&baseline) {

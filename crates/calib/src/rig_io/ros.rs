@@ -1,0 +1,211 @@
+//! ROS `camera_info` YAML (the layout of `camera_calibration_parsers`: `image_width`,
+//! `image_height`, `camera_name`, `camera_matrix` K, `distortion_model` + `distortion_coefficients`
+//! D, `rectification_matrix` R, `projection_matrix` P), one file per camera.
+//!
+//! # The pair's extrinsics
+//!
+//! ROS stores a stereo pair's geometry in the rectified frames: `R_i` rotates camera `i`'s
+//! frame into its rectified frame and `P_i = K'_i [I | t_i]` projects points of the *first*
+//! camera's rectified frame, `t_i = K'_i⁻¹ P_i[:, 3]` (`t_1 = 0`; for the second camera
+//! `P[0][3] = Tx = −fx'·B`). So `X_2 = R_2ᵀ (R_1 X_1 − t_1 + t_2)`:
+//! `color_from_depth = (R_2ᵀ R_1, R_2ᵀ (t_2 − t_1))`, lengths in metres (ROS uses SI units).
+//!
+//! Export writes a pair that gives the rig back: the rectified frame's x axis along the
+//! baseline (`e1 = ±C/|C|`, `C` the colour camera's centre in the depth frame, the sign
+//! keeping x pointing right), `e2 = ẑ × e1` normalised, `e3 = e1 × e2`; `R_1 = [e1 e2 e3]ᵀ`,
+//! `R_2 = R_1 Rᵀ`, `K'_i = K_i` (each camera keeps its own intrinsics and size, so the images
+//! are not resampled to a common rectified camera) and `t_2 = (∓|C|, 0, 0)`.
+//! Distortion model `plumb_bob` (k1, k2, p1, p2, k3: OpenCV's order, as kfuse's).
+
+use std::fmt::Write as _;
+
+use geometry::{CameraModel, Rig, RigidTransform};
+use nalgebra::{Matrix3, Vector3};
+use serde_json::json;
+
+use super::opencv::camera_from;
+use super::yaml::{Doc, fmt_err};
+use super::{Calibration, ImportOptions, Imported};
+use crate::CalibError;
+
+/// Below this baseline (metres) the export uses the identity rectification (no direction).
+const MIN_BASELINE_M: f64 = 1e-12;
+/// |P[2][3]| and |t| below this count as zero when telling a pair from two mono files.
+const ZERO_TRANSLATION: f64 = 1e-12;
+
+/// True when a YAML document looks like a ROS `camera_info` file.
+pub fn is_camera_info(doc: &Doc) -> bool {
+    ["distortion_model", "projection_matrix", "rectification_matrix", "camera_name"]
+        .iter()
+        .any(|k| doc.has(k))
+}
+
+struct Info {
+    camera: CameraModel,
+    rect: Matrix3<f64>,
+    /// `t_i = K'⁻¹ P[:, 3]`.
+    t: Vector3<f64>,
+}
+
+fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
+    let w = doc.size("image_width")?;
+    let h = doc.size("image_height")?;
+    let (Some(w), Some(h)) = (w, h) else {
+        return Err(fmt_err(doc.path(), "no 'image_width' / 'image_height'"));
+    };
+    if let Some(model) = doc.string("distortion_model")
+        && !matches!(model.as_str(), "plumb_bob" | "rational_polynomial")
+    {
+        return Err(fmt_err(
+            doc.path(),
+            format!(
+                "distortion_model '{model}' is not supported (kfuse uses plumb_bob: k1, k2, p1, p2, k3)"
+            ),
+        ));
+    }
+    let k = doc.values("camera_matrix", 9)?;
+    let d = doc.matrix("distortion_coefficients")?.map(|m| m.2).unwrap_or_default();
+    let camera = camera_from(&k, &d, (w, h), doc, what)?;
+    let rect = match doc.matrix("rectification_matrix")? {
+        None => Matrix3::identity(),
+        Some((_, _, r)) if r.len() == 9 => Matrix3::from_row_slice(&r),
+        Some((r, c, _)) => {
+            return Err(fmt_err(
+                doc.path(),
+                format!("'rectification_matrix' is {r}×{c}, expected 3×3"),
+            ));
+        }
+    };
+    RigidTransform::from_matrix(rect, Vector3::zeros())
+        .map_err(|e| fmt_err(doc.path(), format!("'rectification_matrix': {e}")))?;
+    let t = match doc.matrix("projection_matrix")? {
+        None => Vector3::zeros(),
+        Some((3, 4, p)) => {
+            let kp = Matrix3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]);
+            let inv = kp.try_inverse().ok_or_else(|| {
+                fmt_err(doc.path(), "'projection_matrix': its left 3×3 part is singular")
+            })?;
+            inv * Vector3::new(p[3], p[7], p[11])
+        }
+        Some((r, c, _)) => {
+            return Err(fmt_err(
+                doc.path(),
+                format!("'projection_matrix' is {r}×{c}, expected 3×4"),
+            ));
+        }
+    };
+    Ok(Info { camera, rect, t })
+}
+
+/// Imports one `camera_info` file (one camera; `opts.role` says which) or a pair
+/// (depth first, colour second).
+pub fn import(docs: &[Doc], opts: &ImportOptions) -> Result<Imported, CalibError> {
+    match docs {
+        [one] => {
+            let info = read_info(one, "camera")?;
+            let role = opts.role.ok_or_else(|| {
+                fmt_err(
+                    one.path(),
+                    "holds one camera; say which with --camera depth or --camera color, or give the depth and colour files together",
+                )
+            })?;
+            Ok(Imported {
+                calibration: Calibration::Camera {
+                    camera: info.camera,
+                    role: Some(role),
+                    report: Some(
+                        json!({"source": "ROS camera_info", "file": one.path().display().to_string()}),
+                    ),
+                },
+                source: "ROS camera_info".into(),
+                notes: vec![],
+            })
+        }
+        [d, c] => {
+            let a = read_info(d, "depth camera")?;
+            let b = read_info(c, "colour camera")?;
+            let rot = b.rect.transpose() * a.rect;
+            let t = b.rect.transpose() * (b.t - a.t);
+            if (rot - Matrix3::identity()).abs().max() < ZERO_TRANSLATION
+                && t.norm() < ZERO_TRANSLATION
+            {
+                return Err(fmt_err(
+                    c.path(),
+                    "the two camera_info files carry no extrinsics (R = I and no Tx, Ty in either projection_matrix): they are two single cameras, not a calibrated pair",
+                ));
+            }
+            let cfd = RigidTransform::from_matrix(rot, t)
+                .map_err(|e| fmt_err(c.path(), format!("extrinsics: {e}")))?;
+            let mut rig = Rig::new(a.camera, b.camera, cfd);
+            rig.calibration = Some(json!({"source": "ROS camera_info pair",
+                "files": [d.path().display().to_string(), c.path().display().to_string()]}));
+            Ok(Imported {
+                calibration: Calibration::Rig(rig),
+                source: "ROS camera_info pair".into(),
+                notes: vec![
+                    "first file = depth camera, second = colour camera; translations in metres (ROS SI units)".into(),
+                ],
+            })
+        }
+        _ => Err(fmt_err(
+            docs[0].path(),
+            format!("give one camera_info file or a pair (depth, colour), not {}", docs.len()),
+        )),
+    }
+}
+
+fn mat_yaml(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
+    // `{:?}` is Rust's shortest representation that reads back to the same f64.
+    let values: Vec<String> = data.iter().map(|v| format!("{v:?}")).collect();
+    let _ =
+        writeln!(out, "{name}:\n  rows: {rows}\n  cols: {cols}\n  data: [{}]", values.join(", "));
+}
+
+/// One `camera_info` file.
+pub fn camera_info_yaml(
+    name: &str,
+    c: &CameraModel,
+    rect: &Matrix3<f64>,
+    t: &Vector3<f64>,
+) -> String {
+    let k = c.intrinsics.matrix();
+    let kt = k * t;
+    let mut s = String::new();
+    let _ =
+        writeln!(s, "image_width: {}\nimage_height: {}\ncamera_name: {name}", c.width, c.height);
+    let row =
+        |m: &Matrix3<f64>| (0..3).flat_map(|i| (0..3).map(move |j| m[(i, j)])).collect::<Vec<_>>();
+    mat_yaml(&mut s, "camera_matrix", 3, 3, &row(&k));
+    let _ = writeln!(s, "distortion_model: plumb_bob");
+    mat_yaml(&mut s, "distortion_coefficients", 1, 5, &c.distortion.to_array());
+    mat_yaml(&mut s, "rectification_matrix", 3, 3, &row(rect));
+    let p: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| k[(i, j)]).chain([kt[i]])).collect();
+    mat_yaml(&mut s, "projection_matrix", 3, 4, &p);
+    s
+}
+
+/// The `camera_info` pair of a rig: `(depth file text, colour file text)` (module docs).
+pub fn rig_yaml(rig: &Rig) -> (String, String) {
+    let cfd = &rig.color_from_depth;
+    let r = *cfd.rotation.matrix();
+    let centre = -(r.transpose() * cfd.translation);
+    let b = centre.norm();
+    let (r1, t2) = if b < MIN_BASELINE_M {
+        (Matrix3::identity(), Vector3::zeros())
+    } else {
+        let sign = if centre.x < 0.0 { -1.0 } else { 1.0 };
+        let e1 = centre * (sign / b);
+        // A baseline along the optical axis has no ẑ × e1; any perpendicular axis will do.
+        let e2 = Vector3::z().cross(&e1).try_normalize(MIN_BASELINE_M).unwrap_or(Vector3::y());
+        let e3 = e1.cross(&e2);
+        (
+            Matrix3::from_rows(&[e1.transpose(), e2.transpose(), e3.transpose()]),
+            Vector3::new(-sign * b, 0.0, 0.0),
+        )
+    };
+    let r2 = r1 * r.transpose();
+    (
+        camera_info_yaml("depth", &rig.depth, &r1, &Vector3::zeros()),
+        camera_info_yaml("color", &rig.color, &r2, &t2),
+    )
+}

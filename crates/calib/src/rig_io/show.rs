@@ -1,0 +1,251 @@
+//! A rig or camera in words, with units, and its sanity checks (`kfuse rig show`).
+//!
+//! The checks here are about plausibility of the *geometry* (square pixels, principal point
+//! near the centre, distortion that does not fold inside the image, near-parallel cameras);
+//! each returns a [`Finding`] and none changes the rig.
+
+use std::fmt::Write as _;
+
+use geometry::{CameraModel, Rig};
+
+use super::{Calibration, Role};
+
+/// Largest |fy/fx − 1| of a camera with square pixels (Kinect v2: < 0.3 %; 5 % means the
+/// image was resized in one direction or fx, fy were swapped).
+pub const MAX_ASPECT_DEVIATION: f64 = 0.05;
+/// Largest distance of the principal point from the image centre, as a fraction of the
+/// image side (real lenses: < 5 %; 15 % suggests a 1-based/0-based mix-up on a crop or a
+/// principal point of another image size).
+pub const MAX_PRINCIPAL_OFFSET: f64 = 0.15;
+/// Largest |skew| / fx (modern sensors have none; Bouguet's `alpha_c` is ~0).
+pub const MAX_SKEW_RATIO: f64 = 0.01;
+/// Largest angle between the two cameras of an RGB-D rig, degrees (Kinect v2: ~0.5°; a
+/// larger angle usually means R belongs to another pair or is inverted twice).
+pub const MAX_RIG_ANGLE_DEG: f64 = 10.0;
+/// Image sizes of the Kinect v2's cameras.
+pub const KINECT_DEPTH_SIZE: (usize, usize) = (512, 424);
+/// See [`KINECT_DEPTH_SIZE`].
+pub const KINECT_COLOR_SIZE: (usize, usize) = (1920, 1080);
+
+/// One result of a check.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Finding {
+    /// True when the value is outside its plausible range.
+    pub warning: bool,
+    /// What was checked and what was found (units included).
+    pub text: String,
+}
+
+fn finding(warning: bool, text: String) -> Finding {
+    Finding { warning, text }
+}
+
+fn fov_deg(c: &CameraModel) -> (f64, f64) {
+    let k = &c.intrinsics;
+    let h = ((c.width as f64 - 0.5 - k.cx) / k.fx).atan() + ((k.cx + 0.5) / k.fx).atan();
+    let v = ((c.height as f64 - 0.5 - k.cy) / k.fy).atan() + ((k.cy + 0.5) / k.fy).atan();
+    (h.to_degrees(), v.to_degrees())
+}
+
+/// The checks of one camera.
+pub fn camera_checks(c: &CameraModel, role: Option<Role>) -> Vec<Finding> {
+    let k = &c.intrinsics;
+    let name = role.map(|r| r.name()).unwrap_or("camera");
+    let mut out = Vec::new();
+    let aspect = k.fy / k.fx;
+    out.push(finding(
+        (aspect - 1.0).abs() > MAX_ASPECT_DEVIATION,
+        format!("{name}: fy/fx = {aspect:.4} (square pixels: within {MAX_ASPECT_DEVIATION} of 1)"),
+    ));
+    let (ox, oy) = (k.cx - (c.width as f64 - 1.0) / 2.0, k.cy - (c.height as f64 - 1.0) / 2.0);
+    let off = (ox / c.width as f64).abs().max((oy / c.height as f64).abs());
+    out.push(finding(
+        off > MAX_PRINCIPAL_OFFSET,
+        format!(
+            "{name}: principal point {ox:+.1}, {oy:+.1} px from the image centre ({:.1} % of the image, limit {:.0} %)",
+            100.0 * off,
+            100.0 * MAX_PRINCIPAL_OFFSET
+        ),
+    ));
+    if k.skew.abs() > MAX_SKEW_RATIO * k.fx {
+        out.push(finding(
+            true,
+            format!("{name}: skew {:.3} px is more than {MAX_SKEW_RATIO} of fx", k.skew),
+        ));
+    }
+    if let Some(r) = c.distortion.fold_radius() {
+        let corner = [
+            (0.0, 0.0),
+            (c.width as f64 - 1.0, 0.0),
+            (0.0, c.height as f64 - 1.0),
+            (c.width as f64 - 1.0, c.height as f64 - 1.0),
+        ]
+        .iter()
+        .map(|&(u, v)| {
+            let d = k.from_pixel(u, v);
+            d.norm()
+        })
+        .fold(0.0, f64::max);
+        // Distorted corner radius vs the distorted radius at the fold.
+        let fold_d = r
+            * (1.0
+                + r * r * (c.distortion.k1 + r * r * (c.distortion.k2 + r * r * c.distortion.k3)));
+        out.push(finding(
+            fold_d < corner,
+            format!(
+                "{name}: distortion folds {:.1}° off-axis{}",
+                r.atan().to_degrees(),
+                if fold_d < corner {
+                    " — inside the image: undistort masks the corners"
+                } else {
+                    ", outside the image"
+                }
+            ),
+        ));
+    }
+    out
+}
+
+/// The checks of a rig: both cameras, sizes, the angle between the cameras.
+pub fn rig_checks(rig: &Rig) -> Vec<Finding> {
+    let mut out = camera_checks(&rig.depth, Some(Role::Depth));
+    out.extend(camera_checks(&rig.color, Some(Role::Color)));
+    let angle = rig.color_from_depth.angle_deg();
+    out.push(finding(
+        angle > MAX_RIG_ANGLE_DEG,
+        format!(
+            "rotation between the cameras {angle:.3}° (RGB-D rigs: below {MAX_RIG_ANGLE_DEG}°)"
+        ),
+    ));
+    let sizes = ((rig.depth.width, rig.depth.height), (rig.color.width, rig.color.height));
+    if sizes != (KINECT_DEPTH_SIZE, KINECT_COLOR_SIZE) {
+        out.push(finding(
+            false,
+            format!(
+                "image sizes {}x{} (depth) and {}x{} (colour) are not the Kinect v2's 512x424 and 1920x1080",
+                sizes.0.0, sizes.0.1, sizes.1.0, sizes.1.1
+            ),
+        ));
+    }
+    out
+}
+
+fn camera_text(s: &mut String, title: &str, c: &CameraModel) {
+    let k = &c.intrinsics;
+    let d = &c.distortion;
+    let (h, v) = fov_deg(c);
+    let _ = writeln!(s, "{title}: {} x {} px", c.width, c.height);
+    let _ = writeln!(s, "  focal length     fx {:.3} px, fy {:.3} px", k.fx, k.fy);
+    let _ = writeln!(
+        s,
+        "  principal point  cx {:.3} px, cy {:.3} px (0-based, pixel centres at integers)",
+        k.cx, k.cy
+    );
+    if k.skew != 0.0 {
+        let _ = writeln!(s, "  skew             {:.4} px", k.skew);
+    }
+    let _ = writeln!(s, "  field of view    {h:.1}° x {v:.1}° (horizontal x vertical)");
+    if d.is_zero() {
+        let _ = writeln!(s, "  distortion       none");
+    } else {
+        let _ = writeln!(
+            s,
+            "  distortion       k1 {:.6}, k2 {:.6}, p1 {:.6}, p2 {:.6}, k3 {:.6} (OpenCV order, unitless)",
+            d.k1, d.k2, d.p1, d.p2, d.k3
+        );
+    }
+}
+
+/// The text of `kfuse rig show`: every parameter with its unit, then the checks
+/// (`WARN` for implausible values, `ok` otherwise). Returns `(text, number of warnings)`.
+pub fn describe(name: &str, c: &Calibration) -> (String, usize) {
+    let mut s = String::new();
+    let findings = match c {
+        Calibration::Rig(rig) => {
+            let _ = writeln!(s, "{name}: kfuse rig (depth camera = reference frame)");
+            camera_text(&mut s, "depth camera", &rig.depth);
+            camera_text(&mut s, "colour camera", &rig.color);
+            let t = rig.color_from_depth.translation * 1e3;
+            let axis = rig.color_from_depth.rotation.axis().map(|a| a.into_inner());
+            let centre =
+                -(rig.color_from_depth.rotation.inverse() * rig.color_from_depth.translation) * 1e3;
+            let _ = writeln!(s, "color_from_depth: X_color = R·X_depth + T");
+            match axis {
+                Some(a) => {
+                    let _ = writeln!(
+                        s,
+                        "  rotation         {:.4}° about ({:+.3}, {:+.3}, {:+.3})",
+                        rig.color_from_depth.angle_deg(),
+                        a.x,
+                        a.y,
+                        a.z
+                    );
+                }
+                None => {
+                    let _ = writeln!(s, "  rotation         none");
+                }
+            }
+            let _ = writeln!(s, "  translation T    ({:.3}, {:.3}, {:.3}) mm", t.x, t.y, t.z);
+            let _ = writeln!(
+                s,
+                "  baseline         {:.3} mm (colour camera centre at ({:.3}, {:.3}, {:.3}) mm in the depth frame)",
+                t.norm(),
+                centre.x,
+                centre.y,
+                centre.z
+            );
+            rig_checks(rig)
+        }
+        Calibration::Camera { camera, role, .. } => {
+            let what = role.map(|r| format!("{} camera", r.name())).unwrap_or("camera".into());
+            let _ = writeln!(s, "{name}: kfuse single-camera file");
+            camera_text(&mut s, &what, camera);
+            camera_checks(camera, *role)
+        }
+    };
+    let _ = writeln!(s, "checks:");
+    let mut warnings = 0;
+    for f in &findings {
+        warnings += f.warning as usize;
+        let _ = writeln!(s, "  {}  {}", if f.warning { "WARN" } else { "ok  " }, f.text);
+    }
+    (s, warnings)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geometry::{Distortion, Intrinsics, RigidTransform};
+    use nalgebra::Vector3;
+
+    #[test]
+    fn implausible_values_are_flagged_and_plausible_ones_pass() {
+        let good = geometry::synth::kinect_rig();
+        assert!(rig_checks(&good).iter().all(|f| !f.warning), "{:?}", rig_checks(&good));
+        let mut bad = good.clone();
+        bad.color.intrinsics.fy *= 1.2;
+        bad.depth.intrinsics.cx = 10.0;
+        bad.color_from_depth = RigidTransform::from_axis_angle(
+            Vector3::new(0.0, 0.5, 0.0),
+            Vector3::new(-0.05, 0.0, 0.0),
+        );
+        let w: Vec<String> =
+            rig_checks(&bad).into_iter().filter(|f| f.warning).map(|f| f.text).collect();
+        assert_eq!(w.len(), 3, "{w:?}");
+        assert!(
+            w[0].contains("principal point")
+                && w[1].contains("fy/fx = 1.1")
+                && w[2].contains("28.6"),
+            "{w:?}"
+        );
+        // The lab's IR k1/k2 fold inside the image.
+        let lab = CameraModel::new(
+            512,
+            424,
+            Intrinsics::new(364.1, 364.1, 255.5, 211.5),
+            Distortion { k1: 0.0905, k2: -0.2695, p1: 0.0, p2: 0.0, k3: 0.0 },
+        );
+        let f = camera_checks(&lab, Some(Role::Depth));
+        assert!(f.iter().any(|f| f.warning && f.text.contains("inside the image")), "{f:?}");
+    }
+}

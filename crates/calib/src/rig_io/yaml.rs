@@ -1,0 +1,265 @@
+//! Reading the YAML of OpenCV's `cv::FileStorage` and of ROS `camera_info` files with
+//! `serde_yaml_ng` (libyaml), plus the two quirks of OpenCV's dialect:
+//!
+//! * **The `%YAML:1.0` header.** OpenCV writes the YAML directive with a colon, which is not
+//!   YAML syntax (`%YAML 1.0` would be) and which libyaml rejects. When the file's first line
+//!   starts with `%YAML:` that line is dropped before parsing (the document marker `---`
+//!   that follows it stays); any other first line is parsed as it is.
+//! * **The `!!opencv-matrix` tag.** OpenCV writes matrices as a mapping tagged
+//!   `!!opencv-matrix` with `rows`, `cols`, `dt` and `data`. libyaml expands `!!` to the
+//!   core-schema prefix `tag:yaml.org,2002:`, and serde_yaml_ng treats such tags as type
+//!   hints and drops them, so the matrix arrives as the plain mapping (measured in this
+//!   module's tests). [`Doc::matrix`] reads that mapping; should a tagged value arrive (a
+//!   local tag such as `!opencv-matrix`), it unwraps `opencv-matrix` and refuses any other
+//!   tag by name. ROS writes the same `rows`/`cols`/`data` mapping without a tag, and a plain
+//!   sequence of numbers is accepted as a `1 × n` matrix.
+
+use std::path::{Path, PathBuf};
+
+use serde_yaml_ng::Value;
+
+use crate::CalibError;
+
+/// Largest calibration text file read (a rig YAML is ~2 KB; this bounds a wrong file).
+pub const MAX_TEXT_BYTES: u64 = 4 << 20;
+/// Largest matrix read from a calibration file: OpenCV's `Q` is 4 × 4, distortion vectors
+/// have at most 14 entries; 64 leaves room and bounds a corrupt `rows × cols`.
+const MAX_MATRIX_VALUES: usize = 64;
+/// Largest image side accepted from a file (a 16k sensor is 16 384 px wide).
+pub const MAX_IMAGE_SIDE: u64 = 65_536;
+
+/// A format error naming the file.
+pub fn fmt_err(path: &Path, message: impl Into<String>) -> CalibError {
+    CalibError::Format { path: path.to_path_buf(), message: message.into() }
+}
+
+/// Reads a text file of bounded size.
+pub fn read_text(path: &Path) -> Result<String, CalibError> {
+    let io = |source| CalibError::Io { path: path.to_path_buf(), source };
+    let len = std::fs::metadata(path).map_err(io)?.len();
+    if len > MAX_TEXT_BYTES {
+        return Err(fmt_err(
+            path,
+            format!(
+                "{len} bytes is too large for a calibration file (limit {MAX_TEXT_BYTES}); is this the right file?"
+            ),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(io)?;
+    String::from_utf8(bytes)
+        .map_err(|_| fmt_err(path, "binary data, not a text calibration file (YAML or JSON)"))
+}
+
+/// A parsed YAML document: a top-level mapping and the file it came from.
+#[derive(Debug, Clone)]
+pub struct Doc {
+    path: PathBuf,
+    map: serde_yaml_ng::Mapping,
+}
+
+/// True when `text` is OpenCV FileStorage YAML (starts with its `%YAML:` header).
+pub fn has_opencv_header(text: &str) -> bool {
+    text.trim_start_matches('\u{feff}').starts_with("%YAML:")
+}
+
+impl Doc {
+    /// Parses `text` (see the module docs for the OpenCV header).
+    pub fn parse(text: &str, path: &Path) -> Result<Self, CalibError> {
+        let text = text.trim_start_matches('\u{feff}');
+        let body = if has_opencv_header(text) {
+            text.split_once('\n').map(|(_, rest)| rest).unwrap_or("")
+        } else {
+            text
+        };
+        let value: Value = serde_yaml_ng::from_str(body)
+            .map_err(|e| fmt_err(path, format!("not valid YAML ({e})")))?;
+        match value {
+            Value::Mapping(map) => Ok(Doc { path: path.to_path_buf(), map }),
+            _ => Err(fmt_err(path, "the YAML document is not a mapping of names to values")),
+        }
+    }
+
+    /// Reads and parses a file.
+    pub fn read(path: &Path) -> Result<Self, CalibError> {
+        Self::parse(&read_text(path)?, path)
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Adds the entries of `other` (a second file of the same calibration, e.g. OpenCV's
+    /// `intrinsics.yml` + `extrinsics.yml`). A name present in both with different values is
+    /// an error naming both files.
+    pub fn merge(&mut self, other: Doc) -> Result<(), CalibError> {
+        for (k, v) in other.map {
+            if let Some(mine) = self.map.get(&k) {
+                if *mine != v {
+                    return Err(fmt_err(
+                        &other.path,
+                        format!(
+                            "'{}' differs from the one in {}; give files of one calibration",
+                            k.as_str().unwrap_or("?"),
+                            self.path.display()
+                        ),
+                    ));
+                }
+                continue;
+            }
+            self.map.insert(k, v);
+        }
+        Ok(())
+    }
+
+    /// True when the document has entry `key`.
+    pub fn has(&self, key: &str) -> bool {
+        self.map.contains_key(key)
+    }
+
+    /// The first of `keys` present, with its name.
+    pub fn first_of<'a>(&self, keys: &[&'a str]) -> Option<(&'a str, &Value)> {
+        keys.iter().find_map(|k| self.map.get(*k).map(|v| (*k, v)))
+    }
+
+    /// A string entry.
+    pub fn string(&self, key: &str) -> Option<String> {
+        self.map.get(key).and_then(untagged).and_then(|v| v.as_str().map(str::to_owned))
+    }
+
+    /// An image side (`image_width`, ...), bounded by [`MAX_IMAGE_SIDE`].
+    pub fn size(&self, key: &str) -> Result<Option<usize>, CalibError> {
+        let Some(v) = self.map.get(key) else { return Ok(None) };
+        match untagged(v).and_then(Value::as_u64) {
+            Some(n) if (1..=MAX_IMAGE_SIDE).contains(&n) => Ok(Some(n as usize)),
+            _ => Err(fmt_err(
+                &self.path,
+                format!("'{key}' must be a whole number of pixels in 1..={MAX_IMAGE_SIDE}"),
+            )),
+        }
+    }
+
+    /// Matrix entry `key` as `(rows, cols, row-major values)`; `None` when absent.
+    pub fn matrix(&self, key: &str) -> Result<Option<(usize, usize, Vec<f64>)>, CalibError> {
+        let Some(v) = self.map.get(key) else { return Ok(None) };
+        let err = |m: String| fmt_err(&self.path, format!("'{key}': {m}"));
+        let v = match v {
+            Value::Tagged(t) => {
+                if !is_opencv_matrix_tag(&t.tag.to_string()) {
+                    return Err(err(format!(
+                        "tag {} is not supported (expected !!opencv-matrix)",
+                        t.tag
+                    )));
+                }
+                &t.value
+            }
+            v => v,
+        };
+        if let Value::Sequence(seq) = v {
+            let data = numbers(seq).map_err(err)?;
+            if data.len() > MAX_MATRIX_VALUES {
+                return Err(err(format!("{} values, at most {MAX_MATRIX_VALUES}", data.len())));
+            }
+            return Ok(Some((1, data.len(), data)));
+        }
+        let Value::Mapping(m) = v else {
+            return Err(err("expected a matrix (rows, cols, data)".into()));
+        };
+        let dim = |name: &str| -> Result<usize, CalibError> {
+            m.get(name)
+                .and_then(Value::as_u64)
+                .filter(|&n| (1..=MAX_MATRIX_VALUES as u64).contains(&n))
+                .map(|n| n as usize)
+                .ok_or_else(|| {
+                    err(format!("'{name}' must be a whole number in 1..={MAX_MATRIX_VALUES}"))
+                })
+        };
+        let (rows, cols) = (dim("rows")?, dim("cols")?);
+        if rows * cols > MAX_MATRIX_VALUES {
+            return Err(err(format!("{rows}×{cols} is larger than {MAX_MATRIX_VALUES} values")));
+        }
+        let data = match m.get("data") {
+            Some(Value::Sequence(seq)) => numbers(seq).map_err(err)?,
+            _ => return Err(err("no 'data' list".into())),
+        };
+        if data.len() != rows * cols {
+            return Err(err(format!("{rows}×{cols} but 'data' has {} values", data.len())));
+        }
+        Ok(Some((rows, cols, data)))
+    }
+
+    /// Matrix `key` that must exist and hold `n` values (any shape with `n` entries, so a
+    /// 3×1 and a 1×3 `T` are both accepted).
+    pub fn values(&self, key: &str, n: usize) -> Result<Vec<f64>, CalibError> {
+        match self.matrix(key)? {
+            Some((_, _, d)) if d.len() == n => Ok(d),
+            Some((r, c, _)) => {
+                Err(fmt_err(&self.path, format!("'{key}' is {r}×{c}, expected {n} values")))
+            }
+            None => Err(fmt_err(&self.path, format!("no '{key}'"))),
+        }
+    }
+}
+
+/// libyaml expands `!!opencv-matrix` to the secondary handle's prefix; accept both spellings.
+fn is_opencv_matrix_tag(tag: &str) -> bool {
+    let tag = tag.trim_start_matches('!');
+    tag == "opencv-matrix" || tag == "tag:yaml.org,2002:opencv-matrix"
+}
+
+fn untagged(v: &Value) -> Option<&Value> {
+    match v {
+        Value::Tagged(t) => Some(&t.value),
+        v => Some(v),
+    }
+}
+
+fn numbers(seq: &[Value]) -> Result<Vec<f64>, String> {
+    seq.iter()
+        .map(|v| {
+            let n = match v {
+                Value::Number(n) => n.as_f64(),
+                // OpenCV writes NaN and infinities as .Nan / .Inf, which parse as numbers; a
+                // string here is never a number.
+                _ => None,
+            };
+            n.filter(|x| x.is_finite()).ok_or_else(|| format!("'{v:?}' is not a finite number"))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn opencv_header_and_matrix_tag_are_understood() {
+        let text = "%YAML:1.0\n---\nimage_width: 640\nM1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 5.0000000000000000e+02, 0., 3.195e+02, 0., 5.01e+02,\n       2.395e+02, 0., 0., 1. ]\nT: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ -5.2e+01, 1.5e-01, .5 ]\n";
+        let doc = Doc::parse(text, Path::new("x.yml")).unwrap();
+        assert_eq!(doc.size("image_width").unwrap(), Some(640));
+        let (r, c, m) = doc.matrix("M1").unwrap().unwrap();
+        assert_eq!((r, c), (3, 3));
+        assert_eq!(m, vec![500.0, 0.0, 319.5, 0.0, 501.0, 239.5, 0.0, 0.0, 1.0]);
+        assert_eq!(doc.values("T", 3).unwrap(), vec![-52.0, 0.15, 0.5]);
+        // Without dropping the header libyaml refuses the file: the quirk is real.
+        assert!(serde_yaml_ng::from_str::<Value>(text).is_err());
+    }
+
+    #[test]
+    fn wrong_shapes_and_values_are_named() {
+        let doc = Doc::parse(
+            "A: {rows: 2, cols: 2, data: [1, 2, 3]}\nB: !foo {rows: 1, cols: 1, data: [1]}\nC: {rows: 100000, cols: 100000, data: []}\nD: [1, x]\nw: -3\n",
+            Path::new("bad.yaml"),
+        )
+        .unwrap();
+        let e = |r: Result<_, CalibError>| r.err().map(|e| e.to_string()).unwrap_or_default();
+        let a = e(doc.matrix("A"));
+        assert!(a.contains("bad.yaml: 'A': 2×2 but 'data' has 3 values"), "{a}");
+        assert!(e(doc.matrix("B")).contains("not supported"), "{}", e(doc.matrix("B")));
+        assert!(e(doc.matrix("C")).contains("'rows' must be"));
+        assert!(e(doc.matrix("D")).contains("not a finite number"));
+        let size_err = doc.size("w").unwrap_err().to_string();
+        assert!(size_err.contains("whole number of pixels"), "{size_err}");
+        assert!(doc.matrix("nope").unwrap().is_none());
+    }
+}

@@ -1,0 +1,197 @@
+//! `kfuse rig`: import a rig from other tools' files, export it to OpenCV and ROS, show it.
+//! A thin layer over `calib::rig_io`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use calib::rig_io::{self, Calibration, ImportOptions, LengthUnit, Role};
+use kfuse_io::atomic::write_bytes_atomic;
+
+/// Arguments of `kfuse rig`.
+#[derive(clap::Args, Debug)]
+pub struct RigArgs {
+    #[command(subcommand)]
+    command: RigCommand,
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum RigCommand {
+    /// Turn another tool's calibration into a kfuse rig (or single-camera) file.
+    Import(ImportArgs),
+    /// Write a rig or camera file as OpenCV FileStorage YAML or ROS camera_info.
+    Export(ExportArgs),
+    /// Print a rig or camera file with units and sanity checks.
+    Show(ShowArgs),
+}
+
+/// `kfuse rig import`.
+#[derive(clap::Args, Debug)]
+#[command(after_help = "SOURCES (recognised from their content):
+  Calib_Results_stereo.mat [Calib_Results_left.mat Calib_Results_right.mat]
+                       Bouguet stereo result; left = depth/IR, right = colour. The mono files
+                       give the image sizes; by default they are read from beside the stereo file.
+  Calib_Results_left.mat --camera depth
+                       one Bouguet camera -> single-camera file
+  KinectData.mat       the lab's file (Dparam, Cparam, R, T in mm; no distortion)
+  rig.yml [extrinsics.yml]
+                       OpenCV FileStorage YAML: M1 D1 M2 D2 R T (camera 1 = depth); T's unit from
+                       its T_units or --t-units; image sizes from image_width_1 ... or --depth-size
+  depth.yaml color.yaml
+                       a ROS camera_info pair, depth camera first
+  kinect_params.json   the sensor's factory parameters (kfuse capture): the colour camera is
+                       fitted to the factory registration; the fit's error is printed
+
+EXAMPLES:
+  kfuse rig import ../shared/data/kinect-lab/Calib_Results_stereo.mat --out rig.json
+  kfuse rig import caps/kinect_params.json --out rig.json
+  kfuse rig import intrinsics.yml extrinsics.yml --t-units mm --depth-size 512x424 --color-size 1920x1080 --out rig.json")]
+pub struct ImportArgs {
+    /// The calibration file(s).
+    #[arg(required = true, num_args = 1..=3)]
+    sources: Vec<PathBuf>,
+    /// Output: kfuse rig JSON (single-camera JSON when the source holds one camera).
+    #[arg(long)]
+    out: PathBuf,
+    /// Unit of T in OpenCV files that do not say (m or mm).
+    #[arg(long, value_parser = ["m", "mm"])]
+    t_units: Option<String>,
+    /// Depth camera image size (WxH) for files that do not store it.
+    #[arg(long, value_parser = parse_size)]
+    depth_size: Option<(usize, usize)>,
+    /// Colour camera image size (WxH) for files that do not store it.
+    #[arg(long, value_parser = parse_size)]
+    color_size: Option<(usize, usize)>,
+    /// Which camera a single-camera source is.
+    #[arg(long, value_parser = ["depth", "color"])]
+    camera: Option<String>,
+}
+
+/// `kfuse rig export`.
+#[derive(clap::Args, Debug)]
+#[command(after_help = "EXAMPLES:
+  kfuse rig export rig.json --format opencv --out rig.yml
+  kfuse rig export rig.json --format ros --out ros/   (writes ros/depth.yaml and ros/color.yaml)
+  kfuse rig export ir.json --format ros --out ros/    (a single-camera file: ros/depth.yaml)
+
+OpenCV: stereoCalibrate's names (M1, D1 = depth, M2, D2 = colour, R, T with X_2 = R·X_1 + T),
+T in metres (T_units: m). ROS: one camera_info per camera; the pair's R and P encode the
+extrinsics (ROS convention, metres), so importing the pair gives the rig back.")]
+pub struct ExportArgs {
+    /// Rig file, or single-camera file (`kfuse calibrate --ir … --out ir.json`).
+    rig: PathBuf,
+    /// Output format.
+    #[arg(long, value_parser = ["opencv", "ros"])]
+    format: String,
+    /// Output file (opencv) or folder (ros).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// `kfuse rig show`.
+#[derive(clap::Args, Debug)]
+pub struct ShowArgs {
+    /// Rig file, or single-camera file.
+    rig: PathBuf,
+}
+
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("'{s}' is not WIDTHxHEIGHT (e.g. 512x424)");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let w: usize = w.trim().parse().map_err(|_| bad())?;
+    let h: usize = h.trim().parse().map_err(|_| bad())?;
+    if w == 0 || h == 0 || w > 65_536 || h > 65_536 {
+        return Err(format!("'{s}': sides must be 1..=65536"));
+    }
+    Ok((w, h))
+}
+
+/// Runs the command.
+pub fn run(args: RigArgs) -> Result<()> {
+    match args.command {
+        RigCommand::Import(a) => import(a),
+        RigCommand::Export(a) => export(a),
+        RigCommand::Show(a) => show(&a.rig),
+    }
+}
+
+fn import(a: ImportArgs) -> Result<()> {
+    let opts = ImportOptions {
+        t_units: a.t_units.as_deref().and_then(LengthUnit::parse),
+        depth_size: a.depth_size,
+        color_size: a.color_size,
+        role: a.camera.as_deref().and_then(Role::parse),
+    };
+    let imported = rig_io::import(&a.sources, &opts)?;
+    let text = imported.calibration.to_json();
+    write_bytes_atomic(&a.out, text.as_bytes())?;
+    let what = match &imported.calibration {
+        Calibration::Rig(_) => "rig".to_string(),
+        Calibration::Camera { role, .. } => {
+            format!("single-camera file ({})", role.map(|r| r.name()).unwrap_or("camera"))
+        }
+    };
+    println!("imported {} → {what} {}", imported.source, a.out.display());
+    for n in &imported.notes {
+        println!("  note: {n}");
+    }
+    println!("check it with: kfuse rig show {}", a.out.display());
+    Ok(())
+}
+
+fn export(a: ExportArgs) -> Result<()> {
+    let cal = rig_io::load(&a.rig)?;
+    match (a.format.as_str(), &cal) {
+        ("opencv", Calibration::Rig(rig)) => {
+            write_bytes_atomic(&a.out, calib::files::opencv_yaml_rig(rig).as_bytes())?;
+            println!("wrote {} (OpenCV FileStorage YAML, T in metres)", a.out.display());
+        }
+        ("opencv", Calibration::Camera { camera, .. }) => {
+            write_bytes_atomic(&a.out, calib::files::opencv_yaml_camera(camera).as_bytes())?;
+            println!("wrote {} (OpenCV FileStorage YAML, one camera)", a.out.display());
+        }
+        ("ros", cal) => {
+            if a.out.is_file() {
+                bail!(
+                    "{}: is a file; --format ros writes one file per camera into a folder",
+                    a.out.display()
+                );
+            }
+            std::fs::create_dir_all(&a.out)
+                .with_context(|| format!("creating {}", a.out.display()))?;
+            let files: Vec<(PathBuf, String)> = match cal {
+                Calibration::Rig(rig) => {
+                    let (d, c) = rig_io::ros::rig_yaml(rig);
+                    vec![(a.out.join("depth.yaml"), d), (a.out.join("color.yaml"), c)]
+                }
+                Calibration::Camera { camera, role, .. } => {
+                    let name = role.map(|r| r.name()).unwrap_or("camera");
+                    let text = rig_io::ros::camera_info_yaml(
+                        name,
+                        camera,
+                        &nalgebra::Matrix3::identity(),
+                        &nalgebra::Vector3::zeros(),
+                    );
+                    vec![(a.out.join(format!("{name}.yaml")), text)]
+                }
+            };
+            for (p, t) in &files {
+                write_bytes_atomic(p, t.as_bytes())?;
+                println!("wrote {} (ROS camera_info)", p.display());
+            }
+        }
+        (f, _) => bail!("unknown format '{f}'"),
+    }
+    Ok(())
+}
+
+fn show(path: &Path) -> Result<()> {
+    let cal = rig_io::load(path)?;
+    let (text, warnings) = rig_io::show::describe(&path.display().to_string(), &cal);
+    print!("{text}");
+    if warnings > 0 {
+        println!(
+            "{warnings} warning(s): check the values marked WARN against the source calibration"
+        );
+    }
+    Ok(())
+}
