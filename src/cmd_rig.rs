@@ -52,6 +52,10 @@ pub struct ImportArgs {
     /// Output: kfuse rig JSON (single-camera JSON when the source holds one camera).
     #[arg(long)]
     out: PathBuf,
+    /// Write the rig even when it fails the plausibility checks (focal lengths 50-20000 px,
+    /// image sides up to 16384 px, baseline up to 0.5 m), with a warning.
+    #[arg(long)]
+    force: bool,
     /// Unit of T in OpenCV files that do not say (m or mm).
     #[arg(long, value_parser = ["m", "mm"])]
     t_units: Option<String>,
@@ -122,6 +126,19 @@ fn import(a: ImportArgs) -> Result<()> {
         role: a.camera.as_deref().and_then(Role::parse),
     };
     let imported = rig_io::import(&a.sources, &opts)?;
+    let problems = imported.calibration.plausibility_problems();
+    if !problems.is_empty() {
+        if !a.force {
+            anyhow::bail!(
+                "{}: {} (pass --force to import it anyway)",
+                a.sources[0].display(),
+                problems.join("; ")
+            );
+        }
+        for p in problems {
+            eprintln!("warning: {}: {p} (--force)", a.sources[0].display());
+        }
+    }
     let text = imported.calibration.to_json();
     write_bytes_atomic(&a.out, text.as_bytes())?;
     let what = match &imported.calibration {

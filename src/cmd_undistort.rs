@@ -4,7 +4,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
-use calib::rig_io::{Calibration, Role};
+use calib::rig_io::Role;
 use calib::undistort::UndistortMap;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
@@ -55,12 +55,7 @@ pub fn run(args: UndistortArgs) -> Result<()> {
     let role = if args.camera == "color" { Role::Color } else { Role::Depth };
     let calibration = calib::rig_io::load(&args.rig)?;
     let cam = calibration.camera(role, &args.rig)?;
-    let problems = match &calibration {
-        Calibration::Rig(rig) => rig.plausibility_problems(),
-        Calibration::Camera { camera, .. } => {
-            geometry::rig::camera_plausibility_problems(role.name(), camera)
-        }
-    };
+    let problems = calibration.plausibility_problems();
     if !problems.is_empty() {
         if !args.force {
             bail!(

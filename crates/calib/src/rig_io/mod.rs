@@ -97,6 +97,20 @@ impl Calibration {
         }
     }
 
+    /// What makes the file's cameras (and baseline) implausible for a real camera, each naming
+    /// the likely unit mistake ([`Rig::plausibility_problems`]); empty when plausible.
+    pub fn plausibility_problems(&self) -> Vec<String> {
+        match self {
+            Calibration::Rig(rig) => rig.plausibility_problems(),
+            Calibration::Camera { camera, role, .. } => {
+                geometry::rig::camera_plausibility_problems(
+                    role.map(Role::name).unwrap_or("single"),
+                    camera,
+                )
+            }
+        }
+    }
+
     /// The file text in kfuse's format (rig JSON or single-camera JSON).
     pub fn to_json(&self) -> String {
         match self {

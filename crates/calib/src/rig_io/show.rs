@@ -108,7 +108,10 @@ pub fn camera_checks(c: &CameraModel, role: Option<Role>) -> Vec<Finding> {
 
 /// The checks of a rig: both cameras, sizes, the angle between the cameras.
 pub fn rig_checks(rig: &Rig) -> Vec<Finding> {
-    let mut out = camera_checks(&rig.depth, Some(Role::Depth));
+    // The limits every command enforces (focal lengths in pixels, image sides, baseline).
+    let mut out: Vec<Finding> =
+        rig.plausibility_problems().into_iter().map(|p| finding(true, p)).collect();
+    out.extend(camera_checks(&rig.depth, Some(Role::Depth)));
     out.extend(camera_checks(&rig.color, Some(Role::Color)));
     let angle = rig.color_from_depth.angle_deg();
     out.push(finding(
