@@ -118,7 +118,8 @@ impl Rig {
         problems.extend(camera_plausibility_problems("colour", &self.color));
         let baseline = self.color_from_depth.translation.norm();
         if !(baseline <= MAX_BASELINE_M) {
-            let hint = if (1.0..=1000.0 * MAX_BASELINE_M).contains(&baseline) {
+            // Read as millimetres, 10-500 "m" is a 1-50 cm baseline: the usual slip.
+            let hint = if (10.0..=1000.0 * MAX_BASELINE_M).contains(&baseline) {
                 // Rounded to 0.1 mm so the hint reads "52 → 0.052 m".
                 let short = |x: f64| (x * 1e4).round() / 1e4;
                 format!(
