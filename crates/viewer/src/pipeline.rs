@@ -54,10 +54,11 @@ impl Default for Toggles {
 impl Toggles {
     /// The options the pipeline is called with.
     pub fn options(&self) -> FusionOptions {
-        // Delaunay-linear needs the z-buffer (its vertices are the z-buffer's winners).
+        // Delaunay on a first-write-wins buffer is computed (the Summary shows its counts) but
+        // not meshed: the nearest fill is shown instead (see the module docs).
         let delaunay = self.resampling == Resampling::Delaunay && self.zbuffer;
         FusionOptions {
-            linear: delaunay,
+            linear: self.resampling == Resampling::Delaunay,
             mesh_source: match (delaunay, self.fill_holes) {
                 (true, true) => MeshSource::LinearFilled,
                 (true, false) => MeshSource::Linear,
