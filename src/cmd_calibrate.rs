@@ -143,7 +143,13 @@ fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<(Boa
     };
     let v: f64 =
         num.trim().parse().with_context(|| format!("--square '{square}': not a number"))?;
-    let mut b = Board::new(c, r, v * scale)?;
+    let side_m = v * scale;
+    if !(side_m > 0.0 && side_m <= MAX_SQUARE_M) {
+        bail!(
+            "--square '{square}': a square side must be above 0 and at most {MAX_SQUARE_M} m; give the printed square's side, e.g. 24mm"
+        );
+    }
+    let mut b = Board::new(c, r, side_m)?;
     b.top_left_black = top_left.map(|t| t == "black");
     Ok((b, auto))
 }
@@ -151,6 +157,10 @@ fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<(Boa
 /// Largest inner-corner count per side accepted from `--board` (far above any printed board;
 /// bounds the detector's work).
 const MAX_BOARD_SIDE: usize = 100;
+
+/// Largest square side accepted from `--square`: 1 m is far above any printed board (and a unit
+/// mistake such as `40m` for 40 mm lands above it).
+const MAX_SQUARE_M: f64 = 1.0;
 
 /// Natural order: `ir_2` before `ir_10`.
 fn natural_key(p: &Path) -> Vec<(String, u64)> {
