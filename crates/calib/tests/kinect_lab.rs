@@ -43,7 +43,8 @@ fn bouguet_files_import_with_the_labs_numbers() {
     let Some(data) = shared_data("bouguet_files_import_with_the_labs_numbers") else { return };
     let lab = data.join("kinect-lab");
     let left = import_mono(&lab.join("Calib_Results_left.mat")).unwrap();
-    // Calib_Results_left.m (the toolbox's text dump of the same result).
+    // Calib_Results_left.m (the toolbox's text dump of the same result): fc, cc, kc(2), and
+    // fc_error(1) = 2.623… which the toolbox prints as 3σ (hence / 3 for our 1σ).
     assert!((left.camera.intrinsics.fx - 364.126_403_671_187_9).abs() < 1e-9);
     assert!((left.camera.intrinsics.fy - 365.126_067_090_499_7).abs() < 1e-9);
     assert_eq!((left.camera.intrinsics.cx, left.camera.intrinsics.cy), (255.5, 211.5));
@@ -51,6 +52,7 @@ fn bouguet_files_import_with_the_labs_numbers() {
     assert!((left.std.fx - 2.623478617333947 / 3.0).abs() < 1e-9);
     let active: Vec<usize> =
         left.views.iter().enumerate().filter(|(_, v)| v.is_some()).map(|(i, _)| i + 1).collect();
+    // kinect-lab/README.md: "9 active images"; which nine is the .mat file's active_images.
     assert_eq!(active, vec![1, 2, 3, 5, 6, 8, 9, 10, 11]);
     let rig = import_stereo(
         &lab.join("Calib_Results_stereo.mat"),
@@ -64,8 +66,12 @@ fn bouguet_files_import_with_the_labs_numbers() {
         (t - nalgebra::Vector3::new(-52.19517617163978, -0.262, 0.625)).abs().max() < 2e-3,
         "{t}"
     );
+    // opencv_reference.json → bouguet_reproduction.bouguet_stereo.rotation_angle_deg.
     assert!((rig.color_from_depth.angle_deg() - 1.4909272972377436).abs() < 1e-6);
+    // The Kinect v2 colour stream's size (../shared/DESIGN.md).
     assert_eq!((rig.color.width, rig.color.height), (1920, 1080));
+    // opencv_reference.json → bouguet_reproduction.bouguet_stereo.fc_left[0] (the stereo
+    // session re-optimises the left camera, so it differs from Calib_Results_left.m's fc).
     assert!((rig.depth.intrinsics.fx - 364.2146819723449).abs() < 1e-9);
 }
 

@@ -132,8 +132,16 @@ mod tests {
         let img = Image::from_fn(3, 2, |x, y| 10 * y + x);
         assert_eq!(*img.get(2, 1), 12);
         assert_eq!(img.row(1), &[10, 11, 12]);
-        assert!(Image::from_vec(3, 2, vec![0u8; 5]).is_err());
+        let e = Image::from_vec(3, 2, vec![0u8; 5]).unwrap_err();
+        assert!(matches!(e, GeometryError::InvalidInput(_)), "{e:?}");
         assert!(img.expect_size("test", 3, 2).is_ok());
-        assert!(img.expect_size("test", 2, 3).is_err());
+        let e = img.expect_size("test", 2, 3).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                GeometryError::SizeMismatch { got_w: 3, got_h: 2, want_w: 2, want_h: 3, .. }
+            ),
+            "{e:?}"
+        );
     }
 }

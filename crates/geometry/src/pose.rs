@@ -170,6 +170,9 @@ mod tests {
         let back: RigidTransform = serde_json::from_str(&s).unwrap();
         assert_relative_eq!(back.matrix(), t.matrix(), epsilon = 1e-15);
         let bad = r#"{"rotation":[[2,0,0],[0,1,0],[0,0,1]],"translation_m":[0,0,0]}"#;
-        assert!(serde_json::from_str::<RigidTransform>(bad).is_err());
+        // Well-formed JSON holding a matrix that is not a rotation: refused by from_matrix's
+        // check (a data error naming the rotation), not by the JSON parser.
+        let e = serde_json::from_str::<RigidTransform>(bad).unwrap_err();
+        assert!(e.is_data() && e.to_string().contains("not a rotation matrix"), "{e}");
     }
 }

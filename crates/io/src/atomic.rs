@@ -391,7 +391,14 @@ mod tests {
             w.write_all(b"half")?;
             Err(std::io::Error::other("disk full"))
         });
-        assert!(err.is_err());
+        // The writer's own failure comes back as an I/O error naming the target file.
+        match err {
+            Err(GeometryError::Io { path: p, source }) => {
+                assert_eq!(p, path);
+                assert_eq!(source.to_string(), "disk full");
+            }
+            other => panic!("{other:?}"),
+        }
         assert_eq!(fs::read(&path).unwrap(), b"old");
         assert_eq!(fs::read_dir(&dir).unwrap().count(), 1, "temporary file left behind");
     }

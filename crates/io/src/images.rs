@@ -489,7 +489,8 @@ mod tests {
         assert!((d.get(1, 0) - 0.25).abs() < 1e-7 && (d.get(3, 2) - 2.75).abs() < 1e-6);
         let d = read_depth(&tif, 1e-4).unwrap(); // 0.1 mm units
         assert!((d.get(3, 2) - 0.275).abs() < 1e-7);
-        assert!(read_depth(&tif, 0.0).is_err());
+        let e = read_depth(&tif, 0.0).unwrap_err();
+        assert!(matches!(e, GeometryError::InvalidParameter(_)), "{e:?}");
         // A multi-channel EXR: the Z channel is taken, whatever else is there.
         use exr::prelude::*;
         let exr_path = dir.join("multi.exr");

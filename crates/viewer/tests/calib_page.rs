@@ -22,8 +22,12 @@ use viewer::{Engine, Page, ViewerApp, ViewerError};
 const SIZE: egui::Vec2 = egui::Vec2::new(1000.0, 620.0);
 /// As in ui.rs: colour distance 2 absorbs lavapipe vs GPU rasterisation differences.
 const PIXEL_THRESHOLD: f32 = 2.0;
-/// As in ui.rs: 0.2 % of the window.
-const FAILED_PIXELS: usize = 1240;
+/// Differing pixels tolerated: every calibration view (error bars, corners, residual arrows,
+/// the board-pose wireframe and the parameter table) is drawn by egui's 2D painter, no 3D
+/// mesh. Measured 0 of 620 000 against the committed PNGs on lavapipe (the renderer that wrote
+/// them and that CI uses); 8 leaves room for a few anti-aliased edge pixels, while one changed
+/// digit in a label differs in ≥ 20 pixels.
+const FAILED_PIXELS: usize = 8;
 
 fn images(dir: &Path, prefix: &str) -> (Vec<PathBuf>, Vec<(String, geometry::Image<u8>)>) {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)

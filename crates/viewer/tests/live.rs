@@ -185,6 +185,9 @@ fn live_page_snapshot_and_key_presses() {
         assert!(f.is_file(), "{} missing", f.display());
     }
     h.get_by_label_contains("saved 2 shot(s)");
-    // Same tolerances as ui.rs.
-    h.snapshot_options("live", &SnapshotOptions::new().threshold(2.0).max_failed_pixels(1240));
+    // Colour distance as in ui.rs. The live page is text and 2D images only: measured 0
+    // differing pixels against the committed PNG on lavapipe; 8 is the 2D pages' margin
+    // (ui.rs BUDGET_2D). Showing 7 frames instead of 6 (two digits) differed in 79 pixels (at the
+    // old 1 240 budget that passed).
+    h.snapshot_options("live", &SnapshotOptions::new().threshold(2.0).max_failed_pixels(8));
 }
