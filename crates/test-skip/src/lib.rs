@@ -33,9 +33,11 @@ pub fn skip(test: &str, reason: &str) {
     }
 }
 
+/// Appends `line` and its newline in one `write` on a file opened for appending, so the lines
+/// of tests running in parallel threads or processes never interleave.
 fn append_line(path: &std::path::Path, line: &str) -> std::io::Result<()> {
     let mut file = std::fs::OpenOptions::new().create(true).append(true).open(path)?;
-    writeln!(file, "{line}")
+    file.write_all(format!("{line}\n").as_bytes())
 }
 
 #[cfg(test)]
