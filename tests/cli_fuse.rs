@@ -1,25 +1,16 @@
 //! End-to-end tests of `kfuse fuse` and `kfuse demo`: the real binary, real files, outputs
 //! re-read with third-party readers (image, exr, ply-rs, tobj, serde_json).
 
+mod common;
+
+use common::{Case, kfuse, scratch, small_case};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
+use geometry::Image;
 use geometry::testdata::shared_data_or_skip as shared_data;
-use geometry::{CameraModel, Distortion, Image, Intrinsics, Rig, RigidTransform};
+use kfuse_io::images;
 use kfuse_io::mat::{MatValue, write_mat};
-use kfuse_io::{images, rig as rigio};
-use nalgebra::Vector3;
-
-fn kfuse(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("run kfuse")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("kfuse-e2e-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
@@ -167,37 +158,6 @@ fn fuse_reads_the_course_mat_file() {
     assert!(rms < 0.01, "plane RMS {rms} m");
     assert!(!out.join("task1.png").exists(), "--no-figures drew figures");
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// A small rig: 64x48 depth camera, 96x72 colour camera 5 cm to the side.
-fn small_rig() -> Rig {
-    let depth = CameraModel::new(64, 48, Intrinsics::new(60.0, 60.0, 31.5, 23.5), Distortion::NONE);
-    let color = CameraModel::new(96, 72, Intrinsics::new(90.0, 90.0, 47.5, 35.5), Distortion::NONE);
-    Rig::new(
-        depth,
-        color,
-        RigidTransform::new(nalgebra::Rotation3::identity(), Vector3::new(-0.05, 0.0, 0.0)),
-    )
-}
-
-struct Case {
-    dir: PathBuf,
-    rig: PathBuf,
-    color: PathBuf,
-    depth: PathBuf,
-}
-
-fn small_case(name: &str) -> Case {
-    let dir = scratch(name);
-    let rig = dir.join("rig.json");
-    rigio::write_rig(&rig, &small_rig()).unwrap();
-    let color = dir.join("color.png");
-    images::write_color_png(&color, &Image::from_fn(96, 72, |x, y| [x as u8, y as u8, 100]))
-        .unwrap();
-    let depth = dir.join("depth.png");
-    images::write_depth_png16(&depth, &Image::from_fn(64, 48, |x, _| 1.5 + 0.01 * x as f32))
-        .unwrap();
-    Case { dir, rig, color, depth }
 }
 
 fn fuse_case(case: &Case, color: &Path, depth: &Path) -> (Output, PathBuf) {

@@ -3,25 +3,15 @@
 //! runs killed at random moments. Each case asserts one clear line, a non-zero exit that is
 //! not a panic or an abort, and exactly the files that should exist.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{Case, kfuse, scratch, small_case, small_rig};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
-use geometry::{CameraModel, Distortion, Image, Intrinsics, Rig, RigidTransform};
 use kfuse_io::atomic::MANIFEST;
 use kfuse_io::{images, rig as rigio};
-use nalgebra::Vector3;
-
-fn kfuse(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("run kfuse")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("kfuse-rel-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -46,37 +36,6 @@ fn assert_one_line_failure(o: &Output, file: &str, also: &str) {
     assert!(!err.contains("panicked"), "{err}");
     assert!(lines[0].contains(file), "error does not name {file}: {err}");
     assert!(lines[0].contains(also), "error does not say '{also}': {err}");
-}
-
-/// A 64x48 depth + 96x72 colour rig, 5 cm baseline.
-fn small_rig() -> Rig {
-    let depth = CameraModel::new(64, 48, Intrinsics::new(60.0, 60.0, 31.5, 23.5), Distortion::NONE);
-    let color = CameraModel::new(96, 72, Intrinsics::new(90.0, 90.0, 47.5, 35.5), Distortion::NONE);
-    Rig::new(
-        depth,
-        color,
-        RigidTransform::from_axis_angle(Vector3::zeros(), Vector3::new(-0.05, 0.0, 0.0)),
-    )
-}
-
-struct Case {
-    dir: PathBuf,
-    rig: PathBuf,
-    color: PathBuf,
-    depth: PathBuf,
-}
-
-fn small_case(name: &str) -> Case {
-    let dir = scratch(name);
-    let rig = dir.join("rig.json");
-    rigio::write_rig(&rig, &small_rig()).unwrap();
-    let color = dir.join("color.png");
-    images::write_color_png(&color, &Image::from_fn(96, 72, |x, y| [x as u8, y as u8, 100]))
-        .unwrap();
-    let depth = dir.join("depth.png");
-    images::write_depth_png16(&depth, &Image::from_fn(64, 48, |x, _| 1.5 + 0.01 * x as f32))
-        .unwrap();
-    Case { dir, rig, color, depth }
 }
 
 fn fuse(case: &Case, rig: &Path, color: &Path, out: &Path, extra: &[&str]) -> Output {
