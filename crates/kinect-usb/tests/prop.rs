@@ -56,6 +56,8 @@ fn split(
 }
 
 proptest! {
+    // 12 cases: a run-time choice (each case builds and splits up to three 2 984 960-byte raw
+    // frames, protocol §8), not a coverage argument.
     #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
 
     /// Any split (each sub-packet ending on a packet boundary), any zero-length packets and any
@@ -156,6 +158,7 @@ fn settings_sim() -> kinect_usb::sim::SimDevice {
 }
 
 proptest! {
+    // 48 cases: a run-time choice (up to 24 simulated requests each), not a coverage argument.
     #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
 
     /// Random 0x3E responses never panic the parser; it accepts exactly the 16-byte answers
