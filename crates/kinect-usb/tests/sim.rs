@@ -49,8 +49,9 @@ fn start_stop_close_transcript_matches_spec_sequences() {
     };
     let mut dev = KinectDevice::open(sim(&dir, SimFaults::default())).unwrap();
     let info = dev.start(true, true).unwrap().clone();
-    // Served by SimProfile::from_vectors: the first firmware string and serial of the vectors'
-    // manifest.json → real_protocol_observations (from libfreenect2 issue #591 logs).
+    // SimProfile::from_vectors writes firmware record 3 = (4, 0, 3912, 0), shown as
+    // major.minor.revision.build (protocol §4.2), and this serial: the first values of the
+    // vectors' manifest.json → real_protocol_observations (libfreenect2 issue #591 logs).
     assert_eq!(info.firmware, "4.0.3912.0");
     assert_eq!(info.serial, "016293740947");
     assert_eq!(dev.state(), State::Streaming);
