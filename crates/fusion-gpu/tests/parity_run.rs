@@ -83,7 +83,7 @@ fn assert_same(test: &str, cpu: &FusionOutput, gpu: &FusionOutput) {
     // Guards, not measurements (the comparisons above are exact): the presets' background
     // plane fills most of the view (512 × 424 or 640 × 480), so the z-buffer and the colour on depth
     // far exceed 10 000 pixels (< 5 %). Occlusion strips beside each object are about
-    // f·b·(1/z_object − 1/z_plane) wide: Kinect 365 · 0.052 · (1/1.1 − 1/3) ≈ 11 px, course
+    // f·b·(1/z_object − 1/z_plane) wide: Kinect 368 · 0.052 · (1/1.1 − 1/3) ≈ 11 px, course
     // 427 · 1.0 · (1/11 − 1/19) ≈ 16 px (synth::kinect_rig / course_rig and the presets'
     // objects), i.e. well over 100 hole pixels in all.
     assert!(
