@@ -54,6 +54,7 @@ mod tests {
         save_panels(&path, titles::TASK3, &[Panel::new("nearest", red)], 1).unwrap();
         let img = image::open(&path).unwrap().into_rgb8();
         assert_eq!(img.width() as usize, PANEL_WIDTH + 2 * kfuse_figures::GAP);
+        // The panel's own colour (PNG is lossless); (100, 200) lies inside the scaled panel.
         assert_eq!(img.get_pixel(100, 200).0, [250, 0, 0]);
         let _ = std::fs::remove_dir_all(&dir);
     }

@@ -173,6 +173,8 @@ fn undistort_writes_rect_images() {
         "lab ir_1: corners move up to {moved:.3} px; output within {worst:.3} px of the model"
     );
     // Real corners carry ~0.1 px of detection noise in each image.
+    // Derivation: two independent detections of ~0.1 px each differ by ≈ √2 · 0.1 = 0.14 px;
+    // 0.3 px is ~2× that. 1 px: the lab lens moves these corners by a few px (see above).
     assert!(moved > 1.0 && worst < 0.3, "moved {moved} px, off by {worst} px");
 }
 
@@ -264,6 +266,8 @@ fn fronto_parallel_boards_are_refused_with_the_fix() {
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     let fx = v["camera"]["fx"].as_f64().unwrap();
     // Sharp, noise-free pinhole images: the rendered f = 365 px within 0.5 %.
+    // The bar stated when this test was added (issue 2's closing report: "tilted ±30° calibrate
+    // within 0.5 % of the true focal length"); no tighter measurement is recorded.
     assert!((fx - 365.0).abs() < 0.005 * 365.0, "fx {fx}\n{text}");
 }
 

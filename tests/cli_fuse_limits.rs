@@ -85,6 +85,7 @@ fn hole_radius_beyond_the_rig_limit_is_refused_and_the_limit_itself_fuses() {
     let out = dir.join("out");
     for factor in ["30", "1e9"] {
         let o = fuse(&files, &out, &["--hole-radius", factor]);
+        // 16 px: geometry::fusion::MAX_COVERAGE_RADIUS_PX; 10.67 = 16 / the rig's 1.5 px spacing.
         assert_refused(&o, &out, &["--hole-radius", "16 px", "at most 10.67"]);
     }
     // 16 px / 1.5 px: the largest factor this rig allows still fuses.
@@ -93,6 +94,7 @@ fn hole_radius_beyond_the_rig_limit_is_refused_and_the_limit_itself_fuses() {
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let r = summary["summary"]["coverage_radius_px"].as_f64().unwrap();
+    // 10.666666 × 1.5 = 15.999999: 1e-4 covers the factor's 6 printed decimals.
     assert!((r - 16.0).abs() < 1e-4, "{r}");
     let _ = std::fs::remove_dir_all(&dir);
 }

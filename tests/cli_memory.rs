@@ -92,6 +92,8 @@ fn fuse_peak_memory_stays_bounded() {
     assert!(ok, "{err}");
     let peak = children_peak_mib();
     eprintln!("fuse on a Kinect frame: peak RSS {peak} MiB");
+    // Issue 12's spec ("fuse on a Kinect frame stays under 250 MB peak"); measured 175 MiB
+    // in b44212b (2026-12-01, its commit message), so 75 MiB of margin.
     assert!(peak < FUSE_PEAK_LIMIT_MIB, "fuse peaked at {peak} MiB");
 
     // Crafted headers and a 2 GB zlib bomb: refused, memory within the same bound.
@@ -106,6 +108,8 @@ fn fuse_peak_memory_stays_bounded() {
         let name = mat.file_name().unwrap().to_string_lossy();
         assert!(!ok && err.contains(&*name) && !err.contains("panicked"), "{name}: {err}");
         let peak = children_peak_mib();
+        // The same spec bound: every crafted file must be refused before it allocates more than a
+        // Kinect frame's fusion does (b44212b: the 2.1 GB-RSS case now peaks under 175 MiB).
         assert!(peak < FUSE_PEAK_LIMIT_MIB, "{name}: peak {peak} MiB");
     }
     eprintln!("after {} crafted .mat files: peak RSS {} MiB", inputs.len(), children_peak_mib());

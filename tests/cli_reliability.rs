@@ -380,6 +380,8 @@ fn ctrl_c_and_sigterm_during_fuse_remove_the_staging_and_exit_130() {
         let o = child.wait_with_output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         match o.status.code() {
+            // 130 = 128 + SIGINT (2): interrupt::INTERRUPTED_EXIT_CODE, the shell's convention,
+            // used for SIGTERM too.
             Some(130) => {
                 interrupted += 1;
                 assert!(
@@ -394,6 +396,8 @@ fn ctrl_c_and_sigterm_during_fuse_remove_the_staging_and_exit_130() {
         let left: Vec<String> = names(&dir).into_iter().filter(|n| n.contains("staging")).collect();
         assert!(left.is_empty(), "{signal}: staging left: {left:?}");
     }
+    // Guard, not a measurement: signals at 0.3–1.5 s into a Kinect-frame fuse; a run that
+    // finishes first is allowed, but at least half must have been interrupted to test anything.
     assert!(interrupted >= 2, "only {interrupted} of 4 runs were interrupted");
     let _ = std::fs::remove_dir_all(&dir);
 }

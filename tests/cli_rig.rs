@@ -90,8 +90,10 @@ fn bouguet_stereo_import_equals_the_library_import() {
     assert_eq!(got.depth.intrinsics.cx, kk.at(0, 2));
     let t = m.matrix("T").unwrap().data;
     for (got_t, file_t) in got.color_from_depth.translation.iter().zip(&t) {
+        // mm → m of values below 0.06 m: one f64 rounding (ulp ≈ 7e-18), 1e-15 with margin.
         assert!((got_t - file_t * 1e-3).abs() < 1e-15);
     }
+    // The Kinect v2 depth image (DESIGN.md), the toolbox's nx, ny in Calib_Results_left.mat.
     assert_eq!((got.depth.width, got.depth.height), (512, 424));
     // Explicit mono files give the same rig.
     let out2 = tmp.path().join("rig2.json");
@@ -122,6 +124,9 @@ fn opencv_and_ros_exports_import_back() {
     ok(&["rig", "import", s(&p("rig.yml")), "--out", s(&p("back_cv.json"))]);
     let d = rig_diff(&rig, &read_rig(&p("back_cv.json")));
     eprintln!("OpenCV round trip: max parameter difference {d:.2e}");
+    // Loose, not measured: both exporters print f64 in full (files.rs `{:.17e}`, ros.rs `{:?}`),
+    // so only the re-orthonormalisation of R and the T/P algebra (f64, ~1e-15) differ; 1e-9 is
+    // far above that and far below any unit or transposition mistake (≥ 1e-3).
     assert!(d < 1e-9, "{d}");
 
     ok(&["rig", "export", s(&p("rig.json")), "--format", "ros", "--out", s(&p("ros"))]);
@@ -137,12 +142,14 @@ fn opencv_and_ros_exports_import_back() {
     ]);
     let d = rig_diff(&rig, &read_rig(&p("back_ros.json")));
     eprintln!("ROS round trip: max parameter difference {d:.2e}");
+    // As above (ROS camera_info pair).
     assert!(d < 1e-9, "{d}");
     // The colour camera's ROS projection matrix carries Tx = −fx'·B with B the baseline.
     let doc: serde_yaml_ng::Value = serde_yaml_ng::from_str(&color_info).unwrap();
     let pm = doc["projection_matrix"]["data"].as_sequence().unwrap();
     let (fx, tx) = (pm[0].as_f64().unwrap(), pm[3].as_f64().unwrap());
     let baseline = rig.color_from_depth.translation.norm();
+    // f64 round-off of Tx / fx (~1e-16 relative on a 0.05 m baseline), with margin.
     assert!((tx.abs() / fx - baseline).abs() < 1e-12, "Tx {tx}, fx {fx}, B {baseline}");
 }
 
@@ -200,6 +207,9 @@ fn opencv_stereo_calibrate_files_are_read_with_their_units() {
     ]);
     assert!(text.contains("OpenCV"), "{text}");
     let rig = read_rig(&out);
+    // The numbers written into intrinsics.yml / extrinsics.yml above: M1 fx 3.6409e+02, D2 p1
+    // 6.e-04, T.x −52.195 mm → −0.052195 m (f64 rounding 1e-15), R = 1° about y (printed to 17
+    // digits, so the angle survives to f64 round-off of acos, 1e-12 deg).
     assert_eq!(rig.depth.intrinsics.fx, 364.09);
     assert_eq!(rig.color.distortion.p1, 6e-4);
     assert_eq!((rig.color.width, rig.color.height), (1920, 1080));
@@ -245,6 +255,7 @@ fn kinect_data_mat_import() {
     // The lab README: T = (-52.195, -0.262, 0.625) mm.
     let t = rig.color_from_depth.translation * 1e3;
     assert!(
+        // The README states T to 3 decimals in mm.
         (t.x + 52.195).abs() < 1e-3 && (t.y + 0.262).abs() < 1e-3 && (t.z - 0.625).abs() < 1e-3,
         "{t}"
     );
@@ -339,6 +350,9 @@ fn kinect_params_of_the_simulated_sensor_become_an_exact_rig() {
     eprintln!(
         "sim kinect_params → rig vs registration: RMS {rms:.2e} px, max {max:.2e} px, {n} samples"
     );
+    // n: 512 × 424 pixels × 6 depths = 1 302 528 samples at most, those landing in the colour
+    // image; 0.01 px: the sim's polynomial and parameters are f32 (relative 6e-8, ≈ 1e-4 px on
+    // 1920 px), with margin.
     assert!(n > 500_000 && max < 0.01, "RMS {rms}, max {max}, n {n}");
     // Independent: the sim profile's construction (SimProfile::synthetic): depth = the
     // synthetic rig's depth camera in f32, colour f = its fx, principal point at the image
@@ -348,11 +362,14 @@ fn kinect_params_of_the_simulated_sensor_become_an_exact_rig() {
     assert_eq!(rig.depth.distortion.k3, truth.depth.distortion.k3 as f32 as f64);
     let f = truth.color.intrinsics.fx as f32 as f64;
     let k = rig.color.intrinsics;
+    // Fitted from f32 polynomial coefficients: relative f32 rounding (6e-8 × 1060 ≈ 6e-5 px)
+    // with margin; 959.5, 539.5: the 1920 × 1080 image centre of SimProfile::synthetic.
     assert!((k.fx - f).abs() < 1e-3 && (k.fy - f).abs() < 1e-3, "{k:?}");
     assert!((k.cx - 959.5).abs() < 1e-3 && (k.cy - 539.5).abs() < 1e-3, "{k:?}");
     assert!(rig.color.distortion.k1.abs() < 1e-6 && rig.color.distortion.k2.abs() < 1e-6);
     assert!(rig.color_from_depth.angle_deg() < 1e-4);
     let t = rig.color_from_depth.translation;
+    // SimProfile::synthetic's 52 mm parallax (shift_m); 1e-6 m: f32 rounding of shift_m/shift_d.
     assert!((t.x - 0.052).abs() < 1e-6 && t.y.abs() < 1e-6 && t.z.abs() < 1e-6, "{t}");
 }
 
@@ -403,7 +420,9 @@ fn kinect_params_with_a_cubic_mapping_fit_within_the_stated_error() {
     // models' disagreement, not the fit's: the factory applies its cubic (a radial
     // distortion about the depth ray) before the parallax shift, so its distortion centre
     // moves across the colour image with depth, while a rig's distortion is centred on a
-    // fixed principal point. Bounds: the measured values + 20 %.
+    // fixed principal point. Bounds: the measured values + 20 % (measured in e5a3f99,
+    // 2026-12-01).
+    // At most 512 × 424 × 6 = 1 302 528 samples (those landing in the colour image).
     assert!(n > 500_000, "{n}");
     assert!(rms < 2.0 && max < 12.8, "RMS {rms}, max {max}");
     // The depth camera is taken exactly.
@@ -466,6 +485,7 @@ fn show_prints_units_and_single_camera_files_are_accepted() {
     let b = calib::rig_io::load(&back).unwrap().camera(calib::rig_io::Role::Depth, &back).unwrap();
     let diff =
         cam_values(&a).iter().zip(cam_values(&b)).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    // As for the OpenCV/ROS round trips above: f64 printed in full, 1e-9 is a loose ceiling.
     assert!(diff < 1e-9, "{diff}");
     // undistort takes the single-camera file; the wrong camera is named.
     let img = lab(&data, "ir_1.bmp");
@@ -502,6 +522,7 @@ fn bad_files_fail_with_one_line_naming_the_file() {
         std::fs::write(p(name), bytes).unwrap();
         let (good, stdout, err) = kfuse(&["rig", "import", s(&p(name)), "--out", s(&out)]);
         assert!(!good, "{name}: {stdout}");
+        // The brief's rule: bad input gets one line naming the file.
         assert_eq!(err.trim_end().lines().count(), 1, "{name}: {err}");
         assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
         assert!(!out.exists(), "{name}: output written");

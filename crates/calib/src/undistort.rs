@@ -122,6 +122,9 @@ mod tests {
         assert!(corner_r > r);
         assert!(map.map.get(0, 0).is_none() && map.map.get(256, 212).is_some());
         let masked = map.masked_fraction();
+        // Hand calculation: 3.9 % of the 512 × 424 output pixels have a normalised radius
+        // beyond the fold (0.79), tangential terms ignored; measured 3.70 % (audit18,
+        // 2026-12-01). 0.2 is a loose ceiling over that.
         assert!(masked > 0.0 && masked < 0.2, "{masked}");
         // A depth image keeps its exact values (nearest), a constant grey stays constant.
         let depth = Image::from_fn(512, 424, |u, _| u as u16);

@@ -120,6 +120,7 @@ fn opencv_corners_give_opencv_results_and_uncertainties() {
             r.rms_px,
             reference["rms_px"]
         );
+        // Source of the bar below: issue 3's acceptance criteria.
         // Acceptance: σ within 10 % of calibrateCameraExtended's on the same corners.
         let ours_std = r.std.to_array();
         for (i, name) in calib::mono::intrinsic_names().iter().enumerate() {
@@ -197,6 +198,7 @@ fn a_misdetected_corner_is_caught_and_reported() {
     let r = calibrate_mono("ir", &board(), &views, &CalibFlags::bouguet(), None).unwrap();
     assert_eq!(r.rejected_corners.len(), 1, "{:?}", r.rejected_corners);
     assert_eq!((r.rejected_corners[0].view.as_str(), r.rejected_corners[0].id), ("view_04", 17));
+    // The corner was moved by (3, −4) = 5 px; 3 px leaves room for the fit absorbing part of it.
     assert!(r.rejected_corners[0].error_px > 3.0);
     // Not absorbed: the fit matches the truth as well as noise allows (3σ).
     let e = (r.camera.intrinsics.fx - truth.intrinsics.fx).abs();
@@ -221,12 +223,17 @@ fn stereo_recovers_the_rendered_rig_from_noisy_corners() {
     let dr = rotation_error_deg(&r.color_from_depth, &cfd);
     let sig_t = r.translation_std_m.norm() * 1000.0;
     eprintln!("stereo: |dT| {dt:.4} mm (σ {sig_t:.4}), rotation {dr:.4}°, rms {:.4}", r.rms_px);
+    // Source of the bar below: issue 3's acceptance criteria.
     // Acceptance bars (0.5 mm, 0.05°) and consistency with the reported σ (3σ on the norm).
     assert!(dt < 0.5 && dt < 3.0 * sig_t.max(1e-3), "dT {dt} mm, σ {sig_t}");
     assert!(dr < 0.05, "rotation {dr}°");
+    // Poses 0..15 of the ground truth, all used.
     assert_eq!(r.pairs_used.len(), 15);
     // RMS of 2-D errors is √2 σ per axis (minus a few % for the fitted parameters).
     let (d_want, c_want) = (0.07 * 2f64.sqrt(), 0.05 * 2f64.sqrt());
+    // Derivation: ~100 fitted parameters on 15 × 35 × 2 = 1050 residuals lower the RMS by
+    // ≈ 1 − √(1 − 100/1050) ≈ 5 %, and the RMS of 1050 samples scatters by ≈ 1/√2100 ≈ 2 %;
+    // 10 % covers both, a wrong noise model or a bad fit does not fit in it.
     assert!((r.depth_rms_px / d_want - 1.0).abs() < 0.1, "depth rms {}", r.depth_rms_px);
     assert!((r.color_rms_px / c_want - 1.0).abs() < 0.1, "colour rms {}", r.color_rms_px);
 }
@@ -318,6 +325,7 @@ fn rig_file_and_opencv_yaml_keep_the_calibration() {
     assert!(close(&back.depth, &rig.depth) && close(&back.color, &rig.color));
     assert!((back.color_from_depth.matrix() - rig.color_from_depth.matrix()).abs().max() < 1e-15);
     let report = back.calibration.unwrap();
+    // Poses 0..6 were calibrated above, all used.
     assert_eq!(report["pairs_used"].as_array().unwrap().len(), 6);
     assert!((report["depth_std_1sigma"]["fx"].as_f64().unwrap() - r.depth_std.fx).abs() < 1e-12);
     // YAML: parse the numbers of T and M2 back (17 significant digits: exact).
@@ -378,6 +386,7 @@ fn opencv_rendered_corners_give_opencv_uncertainties() {
         let r = calibrate_mono(cam, &board(), &views, &flags, None).unwrap();
         let want = &mono[key]["intrinsics"];
         assert!(
+            // 0.02 px: as in the test above, OpenCV's looser stopping rule (30 iterations / eps).
             (r.camera.intrinsics.fx - f(&want["fx"])).abs() < 0.02,
             "{key}: fx {} vs {}",
             r.camera.intrinsics.fx,
@@ -386,6 +395,7 @@ fn opencv_rendered_corners_give_opencv_uncertainties() {
         let ours = r.std.to_array();
         for (i, name) in calib::mono::intrinsic_names().iter().enumerate() {
             let Some(theirs) = want["std"][*name].as_f64().filter(|&t| t > 0.0) else { continue };
+            // Source of the bar below: issue 3's acceptance criteria.
             // Acceptance: within 10 % of calibrateCameraExtended on the same corners.
             assert!(
                 (ours[i] / theirs - 1.0).abs() < 0.10,

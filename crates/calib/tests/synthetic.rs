@@ -170,6 +170,8 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
             assert!(e.abs() < 3.0 * s, "{cam}: error {e} vs σ {s}");
         }
         // Acceptance bars: 0.1 % on f, 0.5 px on the principal point.
+        // Issue 3's acceptance bars; measured (issue 4's report, weighted joint fit): IR fx/fy
+        // 0.0012/0.0019 %, colour 0.0017/0.0016 %, principal points 0.027 px and 0.038 px.
         assert!(efx < 1e-3 && efy < 1e-3, "{cam}");
         assert!(epp.norm() < 0.5, "{cam}");
         // No larger than OpenCV's joint stereoCalibrate on the same images: each focal length,
@@ -193,6 +195,8 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
             assert!(w > 0.0 && w <= 1.0, "view {i}: weight {w}");
         }
     }
+    // 0.8: the down-weighted IR views sit far below it (issue 4's report shows `w 0.38` beside
+    // such a view in the viewer); a fit that weights nothing has every w = 1.
     assert!(r.view_weights.iter().any(|w| w.0 == 1.0) && r.view_weights.iter().any(|w| w.0 < 0.8));
     // The joint residual rows reproduce the per-pair RMS (to rounding) and list every corner.
     for (i, ((d, c), (rd, rc))) in r.joint_residuals_px.iter().zip(&r.view_rms_px).enumerate() {
@@ -210,8 +214,10 @@ fn rendered_stereo_beats_the_bars_and_opencv() {
         assert!(et[j].abs() < 3.0 * st[j], "T[{j}] error {} mm vs σ {} mm", et[j], st[j]);
     }
     // Acceptance bars: 0.5 mm and 0.05°, and no worse than OpenCV's joint stereoCalibrate.
+    // Measured |ΔT| 0.0072 mm, rotation 0.0034° (issue 4's report); OpenCV 0.0465 mm, 0.0333°.
     assert!(dt < 0.5 && dr < 0.05);
     assert!(dt <= cv_dt && dr <= cv_dr, "OpenCV: {cv_dt} mm, {cv_dr}°");
+    // synthetic-calib/README.md: 15 board poses, each seen by both cameras.
     assert_eq!(r.pairs_used.len(), 15);
 }
 
@@ -264,6 +270,9 @@ fn report_holds_residuals_detections_and_board_poses() {
         let d = (p.translation - truth.translation)
             .norm()
             .min((p.translation - truth.apply(&far)).norm());
+        // No recorded measurement: 2 mm is ~0.2–0.4 % of the 0.45–0.9 m board distance, a margin
+        // over the calibration's 0.1 % focal bar (which scales distance); a mislabelled or flipped
+        // board is off by ≥ 40 mm (one square).
         assert!(d < 2e-3, "pair {i}: board origin {d} m from the truth");
     }
 }

@@ -64,6 +64,7 @@ fn bad_input_is_rejected_like_on_the_cpu() {
     let small = Image::filled(100, 100, 1.0f32);
     let err =
         ctx.register(&setup.rig, &small, DepthKind::Z, false).expect_err("wrong size accepted");
+    // 100x100: the frame built above; 512x424: the Kinect preset's depth camera (DESIGN.md).
     assert!(err.to_string().contains("100x100") && err.to_string().contains("512x424"), "{err}");
     // Colour image of the wrong size.
     let color = Image::filled(10, 10, [0u8; 3]);
@@ -81,6 +82,7 @@ fn bad_input_is_rejected_like_on_the_cpu() {
     // All-invalid depth is not an error: an empty z-buffer, like the CPU.
     let empty = Image::filled(512, 424, f32::NAN);
     let out = ctx.register(&setup.rig, &empty, DepthKind::Z, false).expect("empty frame");
+    // An empty z-buffer pixel holds the all-ones bit pattern (a NaN, the atomicMin identity).
     assert!(out.zbuffer.data().iter().all(|z| z.to_bits() == u32::MAX));
 }
 

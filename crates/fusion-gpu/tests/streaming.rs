@@ -36,6 +36,7 @@ fn streamed_frames_equal_single_frames_in_order() {
             streamed.push((k, f))
         })
         .expect("stream");
+    // Four frames were built above (k = 0..4), handed back in submission order.
     assert_eq!(n, 4);
     assert_eq!(streamed.iter().map(|(k, _)| *k).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
     for (k, got) in &streamed {

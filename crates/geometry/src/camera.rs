@@ -410,6 +410,9 @@ mod tests {
                 worst = worst.max((p - Vector2::new(u as f64, v as f64)).norm());
             }
         }
+        // UNDISTORT_TOLERANCE (1e-14 normalised ≈ 4e-12 px at f = 368) bounds the Newton
+        // solve; 1e-6 px is the design's round-trip budget, far above that and far below any
+        // model error.
         assert!(worst < 1e-6, "worst round-trip error {worst} px");
     }
 
@@ -421,6 +424,8 @@ mod tests {
         let h = 1e-7;
         let dx = (d.distort(x + h, y) - d.distort(x - h, y)) / (2.0 * h);
         let dy = (d.distort(x, y + h) - d.distort(x, y - h)) / (2.0 * h);
+        // Central differences with h = 1e-7: truncation O(h²) ≈ 1e-14, rounding ≈ ε/h ≈ 2e-9 on
+        // O(1) values; 1e-7 is ~50× that, and a wrong Jacobian term is off by O(0.01).
         assert_relative_eq!(j[(0, 0)], dx.x, epsilon = 1e-7);
         assert_relative_eq!(j[(1, 0)], dx.y, epsilon = 1e-7);
         assert_relative_eq!(j[(0, 1)], dy.x, epsilon = 1e-7);
@@ -432,6 +437,7 @@ mod tests {
         // shared/data/synthetic-calib/README.md: k1 = 0.098, k2 = -0.22 folds at r = 1.047.
         let d = Distortion { k1: 0.098, k2: -0.22, p1: 0.004, p2: 0.0016, k3: 0.0 };
         let r = d.fold_radius().unwrap();
+        // The README states the fold radius to 3 decimals.
         assert!((r - 1.047).abs() < 1e-3, "fold radius {r}");
         // Distorted radii past the fold's maximum have no preimage: undistortion refuses them,
         // and just inside the fold it still inverts exactly.
@@ -439,6 +445,8 @@ mod tests {
         assert!(d.undistort(1.01 * max.x, 1.01 * max.y).is_none());
         let inside = d.distort(0.95 * r, 0.0);
         let back = d.undistort(inside.x, inside.y).unwrap();
+        // The Newton solve converges to UNDISTORT_TOLERANCE (1e-14); 1e-9 leaves margin for the
+        // weaker conditioning near the fold (slope of the radial map → 0 there).
         assert!((back.x - 0.95 * r).abs() < 1e-9 && back.y.abs() < 1e-9, "{back}");
         assert!(Distortion::NONE.fold_radius().is_none());
     }

@@ -154,6 +154,8 @@ mod tests {
         );
         let p = Vector3::new(0.3, -0.4, 2.0);
         let back = a_from_b.inverse().apply(&a_from_b.apply(&p));
+        // 1e-14: f64 round-off of a rotation and a translation on O(1) values (~1e-16 per
+        // operation, a few dozen operations), with margin; a wrong inverse is off by O(0.1).
         assert_relative_eq!(back, p, epsilon = 1e-14);
         let id = a_from_b.compose(&a_from_b.inverse());
         assert_relative_eq!(id.matrix(), Matrix4::identity(), epsilon = 1e-14);

@@ -220,6 +220,7 @@ mod tests {
         let back = Rig::from_json(&rig.to_json(), Path::new("rig.json")).unwrap();
         assert_eq!(back.depth, rig.depth);
         assert_eq!(back.color, rig.color);
+        // A few f64 ulps (2.2e-16) of O(1) matrix entries through the JSON text and back.
         assert!((back.color_from_depth.matrix() - t.matrix()).abs().max() < 1e-15);
         assert_eq!(back.calibration, rig.calibration);
     }
@@ -264,6 +265,7 @@ mod tests {
         r.color.width = 30_000;
         r.color.height = 30_000;
         let err = r.check_plausible().unwrap_err().to_string();
+        // 16384: MAX_IMAGE_SIDE, the rig's per-side limit; 30000 is the size set above.
         assert!(err.contains("30000x30000") && err.contains("16384"), "{err}");
         // The limits themselves are accepted.
         let mut r = kinect();

@@ -743,6 +743,9 @@ mod tests {
         let o = Vector3::zeros();
         let d = Vector3::new(0.0, 0.0, 1.0);
         let sphere = Shape::Sphere { center: Vector3::new(0.0, 0.0, 5.0), radius: 1.0 };
+        // Hand calculations: sphere at z 5, radius 1 → t = 4; box face at 3 − 0.5 = 2.5; cone apex
+        // at 2; plane at 7. 1e-12 (1e-9 for the cone's quadratic, which cancels near the apex): f64
+        // round-off of closed-form roots.
         assert!((intersect(&sphere, &o, &d).unwrap().0 - 4.0).abs() < 1e-12);
         let b = Shape::Box {
             center: Vector3::new(0.0, 0.0, 3.0),

@@ -63,6 +63,8 @@ fn kinect_noise_free_meets_the_acceptance_bars() {
     }
     let frac = good as f64 / n as f64;
     eprintln!("z-buffer: {good}/{n} within 0.5 % ({frac:.5})");
+    // Bars: issue 2's acceptance criteria. Measured (issue 5's report): 99.74 % of 1.57 M
+    // pixels; the 1 000 000 floor only guards against a shrunken common view.
     assert!(n > 1_000_000, "the preset must have a large common view, got {n} pixels");
     assert!(frac >= 0.99, "z-buffered depth within 0.5 % on only {frac:.4} of the common view");
 
@@ -74,6 +76,8 @@ fn kinect_noise_free_meets_the_acceptance_bars() {
     }
     let iou = inter as f64 / union as f64;
     eprintln!("holes: IoU {iou:.4} ({inter}/{union})");
+    // Bar: issue 2 (IoU ≥ 0.9); measured IoU 0.924 (issue 5). 5 000: a guard that the preset
+    // has disocclusions at all.
     assert!(union > 5_000, "the preset must have real disocclusions, got {union} pixels");
     assert!(iou >= 0.9, "hole mask IoU {iou:.4}");
 
@@ -87,6 +91,8 @@ fn kinect_noise_free_meets_the_acceptance_bars() {
         }
     }
     eprintln!("plane fill: {nb} background hole pixels, worst relative error {worst:.2e}");
+    // Bar: issue 2 (0.5 %); measured worst 3.1e-5 over 20 118 pixels (issue 5), so 5 000 is a
+    // guard at a quarter of the measured count.
     assert!(nb > 5_000 && worst <= 0.005, "{nb} pixels, worst {worst}");
 
     // 4. H6 colour on the depth grid vs the true colour, on depth pixels with a sample whose
@@ -110,5 +116,7 @@ fn kinect_noise_free_meets_the_acceptance_bars() {
     }
     let cfrac = gc as f64 / nc as f64;
     eprintln!("H6: {gc}/{nc} within 2/255 ({cfrac:.5})");
+    // Bar: issue 2 (2/255 on ≥ 99 %); measured 99.7 % (issue 5). 100 000: a guard below the
+    // preset's 217 088 depth pixels, most of which the colour camera sees.
     assert!(nc > 100_000 && cfrac >= 0.99, "H6 colour within 2/255 on only {cfrac:.4}");
 }

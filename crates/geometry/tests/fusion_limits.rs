@@ -36,6 +36,8 @@ fn with_factor(factor: f32) -> FusionOptions {
 fn coverage_radius_limit_is_exact_at_the_boundary_and_fusion_runs_up_to_it() {
     let rig = small_rig(60.0);
     let spacing = fusion::sample_spacing_px(&rig);
+    // Hand calculation: colour f 90 px / depth f 60 px = 1.5 colour px per depth sample; 1e-6:
+    // f32 rounding of the ratio.
     assert!((spacing - 1.5).abs() < 1e-6, "spacing {spacing}");
     let (depth, color) = small_frame();
     // The largest factor allowed gives exactly the limit and fuses.
@@ -44,12 +46,14 @@ fn coverage_radius_limit_is_exact_at_the_boundary_and_fusion_runs_up_to_it() {
     assert_eq!(r, MAX_COVERAGE_RADIUS_PX);
     let out = fusion::run(&rig, &depth, DepthKind::Z, &color, &at_limit).expect("fuses");
     assert_eq!(out.summary.coverage_radius_px, MAX_COVERAGE_RADIUS_PX);
+    // Every pixel of the 64 × 48 depth image (1.5 + 0.01 x m) is a valid sample.
     assert_eq!(out.summary.points, 64 * 48);
     // One ulp more is refused, by the library and by the streaming workspace.
     let above = with_factor((MAX_COVERAGE_RADIUS_PX / spacing).next_up());
     let e = fusion::run(&rig, &depth, DepthKind::Z, &color, &above).unwrap_err();
     let message = e.to_string();
     assert!(matches!(e, GeometryError::InvalidInput(_)), "{e:?}");
+    // 16 px: MAX_COVERAGE_RADIUS_PX; 10.67 = 16 / the rig's 1.5 px spacing.
     assert!(message.contains("16 px") && message.contains("at most 10.67"), "{message}");
     let e = Registration::new(&rig, DepthKind::Z, &above).map(|_| ()).unwrap_err();
     assert!(matches!(e, GeometryError::InvalidInput(_)), "{e:?}");
@@ -89,6 +93,7 @@ fn depth_focal_lengths_in_millimetres_or_metres_are_refused_with_the_fix() {
     let rig = small_rig(90.0 / MAX_SAMPLE_SPACING_PX as f64);
     assert_eq!(fusion::sample_spacing_px(&rig), MAX_SAMPLE_SPACING_PX);
     let r = fusion::checked_coverage_radius_px(&rig, &with_factor(1.2)).expect("spacing 8 ok");
+    // Hand calculation: factor 1.2 × MAX_SAMPLE_SPACING_PX (8) = 9.6 px; 1e-5: f32 rounding.
     assert!((r - 9.6).abs() < 1e-5, "{r}");
 }
 

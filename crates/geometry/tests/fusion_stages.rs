@@ -39,6 +39,7 @@ fn course_h1_background_is_a_flat_plane_from_range_input() {
             .collect::<Vec<_>>()
     };
     let points = background(DepthKind::Range);
+    // Guard: the course preset's plane is most of its 640 × 480 = 307 200 pixels (objects ~6 %).
     assert!(points.len() > 100_000, "{} background points", points.len());
     let (n, d, rms) = plane_fit(&points);
     // The preset's plane: through (0, 0, 19) with normal (0.05, -0.03, -1) (sign-normalised).
@@ -48,6 +49,7 @@ fn course_h1_background_is_a_flat_plane_from_range_input() {
     eprintln!("course background: RMS {rms:.2e} m, normal {n:?}, d {d}");
     // Noise-free f32 depth at ~19 m: rounding is ~1e-6 m (ulp(19) = 1.9e-6), so the RMS must
     // be at that level; 1e-5 m leaves 5x margin.
+    // Measured 8.3e-7 m (issue 5's report); bar: issue 2 ("RMS at the data's noise level").
     assert!(rms < 1e-5, "background plane RMS {rms} m");
     // Not bent and in the right place: normal within 1e-5 rad, offset within 1e-4 m.
     assert!((n - truth).norm() < 1e-5, "normal {n} vs {truth}");
@@ -82,6 +84,8 @@ fn course_fusion_lands_on_the_objects() {
     }
     let frac = good as f64 / n as f64;
     eprintln!("course z-buffer: {good}/{n} ({frac:.4})");
+    // Guard and bar without a recorded measurement: n is most of the 640 × 480 colour view;
+    // 0.98 leaves the 2 % of misses the comment above allows at edges and the sphere's limb.
     assert!(n > 50_000 && frac > 0.98, "{frac}");
 }
 
@@ -132,6 +136,9 @@ fn h5_removes_faces_across_jumps_and_keeps_smooth_faces() {
     eprintln!(
         "H5: {jumps_removed}/{jumps} jump faces removed, {smooth_kept}/{smooth} smooth faces kept"
     );
+    // Bars: issue 2 (every face across a > 10 % jump removed, ≥ 99 % of smooth faces kept).
+    // Measured (issue 5's report): 2790 of 2790 jump faces removed, 992 140 of 992 140 smooth
+    // faces kept; 500 and 100 000 are guards well below those counts.
     assert!(jumps > 500, "the preset must have depth jumps, got {jumps} faces");
     assert_eq!(jumps_removed, jumps, "every face across a > 10 % jump must go");
     assert!(
@@ -206,6 +213,7 @@ fn distorted_input_equals_undistort_then_fuse() {
     }
     let frac = good as f64 / n as f64;
     eprintln!("distorted vs undistorted: {good}/{n} within 0.5 % ({frac:.4})");
+    // Measured 99.8 % (issue 5's report, "Distorted input"); n: a guard below the colour view.
     assert!(n > 300_000 && frac >= 0.99, "{frac}");
 }
 
@@ -246,6 +254,7 @@ fn bad_input_is_rejected_with_clear_errors() {
         }
     }
     let out = fusion::run(&setup.rig, &depth, DepthKind::Range, &frame.color, &opts).unwrap();
+    // The course preset's 640 × 480 depth image minus the 50 NaN rows set above.
     assert_eq!(out.summary.valid_depth_pixels, 640 * 480 - 50 * 640);
     assert_eq!(out.cloud.len(), 640 * 480 - 50 * 640);
     assert!(out.cloud.points.iter().all(|p| p[2] > 1.0));

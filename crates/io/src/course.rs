@@ -328,13 +328,19 @@ mod tests {
         let inliers = mask.iter().filter(|&&m| m).count();
         // The data's per-pixel noise, from horizontal second differences of the background
         // (σ = std(d²)/√6), is ~3 mm; a correct model leaves residuals at or below it.
+        // Measured 2.24 mm (issue 5's report).
         assert!(rms < 3.0e-3, "plane RMS {rms} m");
+        // The objects cover ~6 % of the 640 × 480 = 307 200 pixels (see PLANE_ITERATIONS above),
+        // so ≈ 289 000 are background; 280 000 allows ~3 % more rejected at the objects' rims.
         assert!(inliers > 280_000, "only {inliers} background pixels");
         // Read as z instead, the same plane bends by metres.
         let mut as_z = data.clone();
         as_z.depth_kind = DepthKind::Z;
         let (_, rms_z) = background(&points(&as_z));
         eprintln!("plane RMS: range {rms:.5} m ({inliers} px), z reading {rms_z:.3} m");
+        // Range r read as z at the image corner (fp 426.7, 400 px off-centre) is off by
+        // r · (1 − 1/√(1 + (400/426.7)²)) ≈ 0.27 r, metres at ~19 m; measured RMS 1.147 m
+        // against 2.24 mm read as range (issue 5's report), while 100 × 3 mm = 0.3 m.
         assert!(rms_z > 100.0 * rms, "z reading RMS {rms_z} vs range {rms}");
     }
 

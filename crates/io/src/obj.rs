@@ -142,12 +142,15 @@ mod tests {
         assert_eq!(materials.len(), 1);
         assert_eq!(materials[0].diffuse_texture.as_deref(), Some("mesh_texture.png"));
         let m = &models[0].mesh;
+        // The mesh above: 4 vertices × 3 coordinates, 2 faces × 3 indices, 4 uvs × 2,
+        // 4 colours × 3.
         assert_eq!(m.positions.len(), 12);
         assert_eq!(m.indices.len(), 6);
         assert_eq!(m.texcoords.len(), 8);
         assert_eq!(m.material_id, Some(0));
         // Vertex colours present (0..1 floats, printed with 4 decimals).
         assert_eq!(m.vertex_color.len(), 12);
+        // Vertex 3's colour (51, 102, 153) / 255 = (0.2, 0.4, 0.6), printed with 4 decimals.
         assert!((m.vertex_color[9] - 0.2).abs() < 1e-4 && (m.vertex_color[11] - 0.6).abs() < 1e-4);
         // Triangles and positions survive (tobj may reorder vertices: compare by position).
         let tri: Vec<[f32; 3]> = m.indices[3..6]

@@ -118,6 +118,8 @@ fn seed_mat_files() -> Vec<Vec<u8>> {
 #[test]
 fn mat_corpus_is_refused_with_one_clean_line() {
     let files = corpus("mat");
+    // tests/corpus/mat holds 15 crafted files (counted 2026-12-01); ≥ 10 only guards against a
+    // missing or moved corpus folder.
     assert!(files.len() >= 10, "corpus missing: {files:?}");
     for path in files.iter().filter(|p| p.extension().is_some_and(|e| e == "mat")) {
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
@@ -173,6 +175,9 @@ fn mat_random_mutations_never_panic() {
                     ok += 1;
                     for n in f.names() {
                         let v = f.get(n).unwrap();
+                        // Loose ceiling: the reader caps one array at MAX_ARRAY_BYTES and a
+                        // file's arrays together at MAX_TOTAL_ARRAY_BYTES (3 ×); 4× fails only
+                        // a reader that skipped the caps.
                         assert!(v.memory_bytes() <= kfuse_io::mat::MAX_ARRAY_BYTES * 4);
                     }
                 }
@@ -184,6 +189,8 @@ fn mat_random_mutations_never_panic() {
         }
     }
     // Both outcomes occur, so the mutations reach past the header checks.
+    // Guard, not a measurement: of 2 seeds × MUTATIONS (800) mutants each outcome must occur
+    // more than 20 times (2.5 %), i.e. neither all refused at the header nor all harmless.
     assert!(ok > 20 && refused > 20, "ok {ok}, refused {refused}");
 }
 
@@ -267,6 +274,8 @@ fn rig_json_mutations_never_panic_and_accepted_rigs_are_plausible() {
             }
         }
     }
+    // Guard, not a measurement: of 2 × MUTATIONS (800) mutants each outcome must occur more
+    // than 10 times, i.e. the mutations reach both the parser's errors and accepted rigs.
     assert!(ok > 10 && refused > 10, "ok {ok}, refused {refused}");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -305,6 +314,8 @@ fn image_corpus_and_mutations_never_panic_or_decode_past_the_limits() {
             ] {
                 match result {
                     Ok((w, h)) => assert!(
+                        // kfuse_io::image_header::MAX_IMAGE_SIDE (16 384 px) and
+                        // MAX_IMAGE_PIXELS (50 000 000).
                         w <= 16_384 && h <= 16_384 && w * h <= 50_000_000,
                         "{seed}: {w}x{h} decoded"
                     ),

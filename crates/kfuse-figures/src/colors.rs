@@ -100,6 +100,8 @@ mod tests {
 
     #[test]
     fn colormap_hits_the_viridis_anchors_and_clamps() {
+        // matplotlib's viridis table × 255: t = 0 (0.267, 0.0049, 0.329) → (68, 1, 84); 0.5 (0.128,
+        // 0.567, 0.551) → (33, 145, 140); 1 (0.993, 0.906, 0.144) → (253, 231, 37).
         assert_eq!(colormap(0.0), [68, 1, 84]);
         assert_eq!(colormap(0.5), [33, 145, 140]);
         assert_eq!(colormap(1.0), [253, 231, 37]);
@@ -107,6 +109,8 @@ mod tests {
         assert_eq!(colormap(7.0), colormap(1.0));
         assert_eq!(colormap(f32::NAN), colormap(0.0));
         // Half way between the first two anchors.
+        // Hand calculation: ((68 + 59)/2, (1 + 82)/2, (84 + 139)/2) = (63.5, 41.5, 111.5), rounded
+        // half away from zero.
         assert_eq!(colormap(0.125), [64, 42, 112]);
     }
 
@@ -114,6 +118,8 @@ mod tests {
     fn robust_range_is_the_2nd_and_98th_percentile_of_the_samples() {
         // 1..=100 m plus non-samples that must not count: 2 % → 3 m, 98 % → 99 m.
         let values = (1..=100).map(|i| i as f32).chain([f32::NAN, 0.0, -5.0, f32::INFINITY]);
+        // Hand calculation: 100 samples sorted, indices 100 · 2 / 100 = 2 → 3 m and
+        // 100 · 98 / 100 = 98 → 99 m; one repeated value is widened by the documented 1 mm.
         assert_eq!(robust_range(values), Some((3.0, 99.0)));
         assert_eq!(robust_range([2.0f32; 10].into_iter()), Some((2.0, 2.001)));
         assert_eq!(robust_range([f32::NAN, 0.0].into_iter()), None);

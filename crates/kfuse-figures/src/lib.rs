@@ -434,6 +434,8 @@ mod tests {
         .unwrap();
         // Two 640-wide panels scaled 2× and 10×: each covers 640 × 480 pixels.
         assert_eq!(img.width(), 2 * PANEL_WIDTH + 3 * GAP);
+        // Exact count: panels are scaled by whole factors, so every pixel of a panel keeps its
+        // colour; 40 in count_near only separates them from white background and dark text.
         assert_eq!(count_near(&img, [250, 0, 0]), 640 * 480);
         assert_eq!(count_near(&img, [0, 0, 250]), 640 * 480);
         // Text was rendered: dark pixels exist in the title bar.
@@ -441,6 +443,8 @@ mod tests {
             .flat_map(|y| (0..img.width()).map(move |x| (x, y)))
             .filter(|&(x, y)| img.get(x, y)[0] < 100)
             .count();
+        // Guard, not a measurement: a rendered title line has thousands of dark glyph pixels; 200
+        // fails only when no text was drawn.
         assert!(dark > 200, "title text missing ({dark} dark pixels)");
     }
 
@@ -462,6 +466,7 @@ mod tests {
                 && (c[0] as f64
                     - 200.0 * (0.35 + 0.65 * 0.77 / (0.4f64 * 0.4 + 0.25 + 0.77 * 0.77).sqrt()))
                 .abs()
+                    // 1: the u8 rounding of the shaded channel.
                     <= 1.0,
             "{c:?}"
         );
@@ -487,6 +492,8 @@ mod tests {
         for (name, img) in [("cloud", c), ("scatter", s)] {
             assert_eq!((img.width() as u32, img.height() as u32), PLOT_SIZE);
             let non_white = img.data().iter().filter(|p| **p != [255, 255, 255]).count();
+            // Guard, not a measurement: 500 points are drawn; 2000 non-white pixels fails for
+            // an (almost) empty plot.
             assert!(non_white > 2000, "{name}: almost empty ({non_white})");
         }
     }

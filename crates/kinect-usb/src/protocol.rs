@@ -878,6 +878,8 @@ mod tests {
     fn command_roundtrip_and_lengths() {
         let c = Command::SetMode(MODE_ON_100);
         let m = c.encode(6);
+        // Protocol §3.1: a 20-byte header (magic, sequence, max response length, id, 0) plus
+        // 4 bytes per parameter word: 36 for 0x4B's four words, 24 for a data page, 20 for none.
         assert_eq!(m.len(), 36);
         let p = parse_command(&m).unwrap();
         assert_eq!((p.sequence, p.id, p.params.clone()), (6, 0x4B, MODE_ON_100.to_vec()));
@@ -937,6 +939,8 @@ mod tests {
 
     #[test]
     fn exposure_validation_names_the_range() {
+        // Out by a little on each side of protocol §4.10's ranges (analog gain 1..4, compensation
+        // −2..2) and of (0, MAX_EXPOSURE_MS] for times, plus NaN and infinity.
         for bad in [
             Exposure::Manual { integration_ms: 20.0, analog_gain: 0.5 },
             Exposure::Manual { integration_ms: 20.0, analog_gain: 4.01 },
@@ -1010,6 +1014,8 @@ mod tests {
     #[test]
     fn led_setting_encodes_per_spec() {
         let blink = LedSetting::blink(1, 500);
+        // Protocol §4.9: led 1 | blink (1) << 16; start 1000 (0x3E8) | stop 0 << 16; 500 ms; 0.
+        // The bad ones break §4.9's ranges: led id 0 or 1, levels 0..1000, blink interval > 0.
         assert_eq!(blink.words(), [0x0001_0001, 0x0000_03E8, 500, 0]);
         let mut m = header(0, 0x4B);
         m.extend_from_slice(&[1, 0, 1, 0, 0xE8, 0x03, 0, 0, 0xF4, 0x01, 0, 0, 0, 0, 0, 0]);

@@ -146,12 +146,15 @@ mod tests {
             rows[i] = true;
             assert_eq!(stored_row_of_processing_row(423 - r), i);
         }
+        // Protocol §8: output row r ≥ 212 is stored row 635 − r, so row 423 is stored row 212.
         assert_eq!(stored_row_of_output_row(423), 212);
     }
 
     #[test]
     fn lut_properties() {
         let t = lut();
+        // Protocol §8: the companded magnitude's largest value is 16 320; code 1024 is the
+        // saturation marker.
         assert_eq!(t[1023], 16320);
         assert_eq!(t[1024], SATURATED);
         for c in 1..1024 {

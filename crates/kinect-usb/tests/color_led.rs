@@ -72,6 +72,8 @@ fn manual_exposure_round_trips_with_sequence_zero() {
     let mut dev = started(SimFaults::default());
     let before = dev.sequence();
     // Start uses sequences 0..=12 on a sensor ready at the second poll (status words 1024, 9729).
+    // Protocol §5.2: 0x02 (0), 0x14 (1), serial (2), depth params (3), P0 (4), colour params (5),
+    // ModeOn100 (6), ModeOff (7), two status polls (8, 9), 0x09 (10), status (11), 0x2B (12).
     assert_eq!(before, 13);
     dev.set_exposure(Exposure::Manual { integration_ms: 20.5, analog_gain: 2.25 }).unwrap();
     assert_eq!(dev.sequence(), before, "colour settings must not advance the counter");
@@ -80,6 +82,8 @@ fn manual_exposure_round_trips_with_sequence_zero() {
     assert_eq!(dev.exposure_mode().unwrap(), ExposureMode::Manual);
     assert_eq!(dev.sequence(), before);
     assert_eq!(
+        // Protocol §4.10 manual preset (25←0, 0←4, 1←integration ms, 21←analog gain), then
+        // the getters 2 (integration time), 22 (analog gain), 80 (exposure mode); sequence 0.
         setting_lines(&dev),
         [
             "cmd 0x3e seq 0 [1, 0, 25, 0]".to_string(),
@@ -98,6 +102,7 @@ fn manual_exposure_round_trips_with_sequence_zero() {
         "{:?}",
         dev.backend().transcript.last()
     );
+    // One ordinary command after start's 13 (protocol §3.3: post-incremented counter).
     assert_eq!(dev.sequence(), 14);
     dev.close().unwrap();
     assert!(dev.backend().violations.is_empty(), "{:?}", dev.backend().violations);
@@ -121,6 +126,8 @@ fn auto_and_semi_auto_presets_and_other_getters() {
     assert_eq!(dev.white_balance_mode().unwrap(), 3);
     dev.set_color_u32(ColorSettingCode::SetFrameRate, 15).unwrap();
     assert_eq!(dev.frame_rate_raw().unwrap(), 15);
+    // Start's 13 (protocol §5.2, see manual_exposure_round_trips_with_sequence_zero); 0x3E does
+    // not advance it (§3.3).
     assert_eq!(dev.sequence(), 13);
     assert!(dev.backend().violations.is_empty(), "{:?}", dev.backend().violations);
 }
@@ -135,6 +142,7 @@ fn bad_values_are_rejected_by_host_and_by_device() {
         dev.set_exposure(Exposure::Manual { integration_ms: 20.0, analog_gain: 5.0 }).unwrap_err();
     assert!(
         matches!(e, KinectError::Invalid(_))
+            // Ranges from protocol §4.10: analog gain f32 1..4, exposure compensation −2..2.
             && e.to_string().contains("analog gain 5 is outside [1, 4]"),
         "{e}"
     );
@@ -186,6 +194,9 @@ fn colour_footer_follows_exposure_settings() {
         }
     };
     let m = meta(&mut dev);
+    // The simulator's power-on state: auto mode reports SIM_AUTO_EXPOSURE_MS (10 ms) ×
+    // 2^compensation (0) with gain 1 (kinect_usb::sim::SimColorSettings); manual reports the set
+    // integration time and gain; auto with compensation 1 gives 10 × 2¹ = 20 ms.
     assert_eq!((m.exposure, m.gain), (10.0, 1.0));
     dev.set_exposure(Exposure::Manual { integration_ms: 25.0, analog_gain: 3.0 }).unwrap();
     let m = meta(&mut dev);
@@ -209,6 +220,8 @@ fn led_api_uses_sequence_zero_and_is_recorded() {
     );
     assert_eq!(dev.backend().led_api_log(), &[blink, LedSetting::on(1, 600)]);
     assert_eq!(
+        // Protocol §4.9 words: led 0 | blink (1) << 16 = 65536; start 1000 (LED_MAX_LEVEL) |
+        // stop 0 << 16 = 1000; interval 250 ms. Then led 1 constant: 600 | 600 << 16.
         setting_lines(&dev),
         [
             "cmd 0x4b seq 0 [65536, 1000, 250, 0]".to_string(),
@@ -224,6 +237,8 @@ fn led_api_uses_sequence_zero_and_is_recorded() {
     // Stop and close still number their mode commands from 13 (protocol §5.3/§5.4).
     dev.close().unwrap();
     let tr = &dev.backend().transcript;
+    // Stop (protocol §5.3) starts with ModeOn100 = [1, 0x0064_0064 = 6553700, 0, 0] (§4.9) at 13;
+    // stop's 8 commands take 13..=20, close's ModeOn100, ModeOff (§5.4) take 21, 22.
     assert!(tr.iter().any(|l| l == "cmd 0x4b seq 13 [1, 6553700, 0, 0]"), "{tr:?}");
     assert!(tr.iter().any(|l| l == "cmd 0x4b seq 22 [0, 0, 0, 0]"), "{tr:?}");
     assert!(dev.backend().violations.is_empty(), "{:?}", dev.backend().violations);
@@ -241,6 +256,8 @@ fn led_before_start_keeps_start_sequence_at_zero() {
     dev.start(true, false).unwrap();
     let cmds: Vec<&String> =
         dev.backend().transcript.iter().filter(|l| l.starts_with("cmd")).collect();
+    // Protocol §4.9: led 0, constant; start = stop = 1000 packed low half first; LED API at
+    // sequence 0 (§3.3); then start's first command 0x02 also at 0 (§5.2).
     assert_eq!(cmds[0], &format!("cmd 0x4b seq 0 [0, {}, 0, 0]", 1000 | (1000 << 16)));
     assert_eq!(cmds[1], "cmd 0x4b seq 0 [0, 0, 0, 0]");
     assert_eq!(cmds[2], "cmd 0x02 seq 0 []");
@@ -291,6 +308,7 @@ fn command_faults_on_colour_settings() {
     let e = dev.set_exposure(manual).unwrap_err();
     assert!(e.to_string().contains("premature completion"), "{e}");
     let e = dev.set_exposure(manual).unwrap_err();
+    // The simulator's short_response fault halves the 16-byte response (§4.10) to 8 bytes.
     assert!(e.to_string().contains("short response: 8 bytes, need 16"), "{e}");
     assert_eq!(dev.sequence(), 13);
 }

@@ -129,6 +129,7 @@ fn decoder_matches_every_oracle_run_bit_for_bit() {
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+    // Count guard: RUNS has 8 oracle runs × (depth, IR) × 2 schedules = 32 comparisons.
     assert_eq!(checked, 32);
 }
 
@@ -287,5 +288,6 @@ fn avx2_kernels_equal_the_portable_kernels_bit_for_bit() {
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+    // Count guard: 8 RUNS × (depth, IR) × 2 schedules = 32 AVX2-vs-portable comparisons.
     assert_eq!(compared, 32);
 }

@@ -56,6 +56,8 @@ fn split(
 }
 
 proptest! {
+    // 12 cases: a run-time choice (each case builds and splits up to three 2 984 960-byte raw
+    // frames, protocol §8), not a coverage argument.
     #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
 
     /// Any split (each sub-packet ending on a packet boundary), any zero-length packets and any
@@ -70,6 +72,7 @@ proptest! {
         for p in split(&raw, 41, &cuts, &zeros, &order) {
             if let Some(f) = a.push(&p) { got = Some((f.sequence, f.data == raw.as_slice())); }
         }
+        // 41: the sequence `split` stamped into every footer above.
         prop_assert_eq!(got, Some((41, true)));
     }
 
@@ -95,6 +98,7 @@ proptest! {
                 }
             }
         }
+        // Frames 0..3 are sent with sequences 0, 1, 2; frame 1 loses one packet (by construction).
         prop_assert_eq!(seqs, vec![0, 2]);
         // Frame 1 arrived in part: counted once, as incomplete, not also as skipped.
         prop_assert_eq!(a.stats.incomplete_frames, 1);
@@ -154,6 +158,7 @@ fn settings_sim() -> kinect_usb::sim::SimDevice {
 }
 
 proptest! {
+    // 48 cases: a run-time choice (up to 24 simulated requests each), not a coverage argument.
     #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
 
     /// Random 0x3E responses never panic the parser; it accepts exactly the 16-byte answers
@@ -323,6 +328,7 @@ proptest! {
                 color += 1;
             }
         }
+        // Protocol §7: a frame needs 10 sub-packets, each ending on a packet ≥ the 152-byte footer.
         prop_assert!(depth * 10 <= enders, "{depth} frames from {enders} packets");
         prop_assert_eq!(a.stats.frames, depth);
         prop_assert_eq!(c.stats.frames, color);

@@ -49,6 +49,9 @@ fn start_stop_close_transcript_matches_spec_sequences() {
     };
     let mut dev = KinectDevice::open(sim(&dir, SimFaults::default())).unwrap();
     let info = dev.start(true, true).unwrap().clone();
+    // SimProfile::from_vectors writes firmware record 3 = (4, 0, 3912, 0), shown as
+    // major.minor.revision.build (protocol §4.2), and this serial: the first values of the
+    // vectors' manifest.json → real_protocol_observations (libfreenect2 issue #591 logs).
     assert_eq!(info.firmware, "4.0.3912.0");
     assert_eq!(info.serial, "016293740947");
     assert_eq!(dev.state(), State::Streaming);
@@ -153,6 +156,8 @@ fn simulated_stream_decodes_to_the_scene() {
     let median = errs[errs.len() / 2];
     let max = *errs.last().unwrap();
     eprintln!("sim round trip: {} pixels, median {median} mm, max {max} mm", errs.len());
+    // Pixel-count guard: manifest forward_model_round_trip "scene/nofilt" compares 216 240 interior
+    // pixels (424 × 510); > 200 000 fails if the frame decodes mostly invalid.
     assert!(errs.len() > 200_000);
     assert!(median <= 0.2 && max <= 8.0, "median {median} max {max}");
 }
@@ -218,6 +223,9 @@ fn five_percent_iso_loss_drops_and_counts_whole_frames() {
         accounted == periods || accounted + 1 == periods,
         "accounted {accounted} of {periods}: {c:?}"
     );
+    // Derivation: a sub-packet of 298 648 bytes spans 9 packets of 33 792 (protocol §7) plus an
+    // empty one, so 60 periods ≈ 6 000 packets; 5 % dropped ≈ 300 errors (σ ≈ 17), 200 is ~6σ
+    // below and the seed (5) is fixed.
     assert!(c.iso_errors > 200, "{c:?}");
 }
 
@@ -229,6 +237,8 @@ fn light_iso_loss_keeps_intact_frames_and_counts_gaps() {
         return;
     };
     let (seqs, c, periods) = lossy_run(&dir, 0.002, 0.001, 40);
+    // Derivation: a frame of ~100 packets (protocol §7) survives 0.3 % loss with p ≈ 0.997^100 =
+    // 0.74, ≈ 30 of 40 frames (σ ≈ 2.8); 20 is ~3.5σ below and the seed (5) is fixed.
     assert!(seqs.len() >= 20, "{c:?}");
     // Every period is emitted, incomplete or skipped (the last may still be in assembly).
     let accounted = c.depth_frames + c.depth_incomplete + c.depth_dropped;
@@ -271,6 +281,7 @@ fn unplug_mid_stream_ends_with_disconnected_after_complete_frames() {
         }
     };
     assert!(matches!(err, KinectError::Disconnected { .. }), "{err}");
+    // unplug_after_frames: Some(3) above: three complete periods of each stream, then Disconnected.
     assert_eq!((depth, color), (3, 3));
     let e = dev.close().unwrap_err();
     // The best-effort stop aggregates every step's failure into one error that names it.
@@ -295,6 +306,7 @@ fn busy_and_bandwidth_faults_give_typed_errors() {
     let e = KinectDevice::open(SimDevice::new(p, SimScene::default(), SimFaults::default()))
         .err()
         .unwrap();
+    // 16 384: set on the profile above; 33 792: the minimum wBytesPerInterval of protocol §2.2.
     assert!(matches!(e, KinectError::InsufficientBandwidth { got: 16_384, need: 33_792 }), "{e}");
 }
 
@@ -412,6 +424,7 @@ fn depth_sequence_wrap_is_not_counted_as_loss() {
             seqs.push(f.sequence);
         }
     }
+    // Protocol §7: depth sequences wrap at 65 536; the sim was started at 65 534 above.
     assert_eq!(seqs, [65_534, 65_535, 0, 1]);
     assert_eq!(dev.counters().depth_dropped, 0);
 }

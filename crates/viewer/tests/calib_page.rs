@@ -106,6 +106,7 @@ fn page_lists_the_reports_per_image_rms_and_corners() {
     let page = app.calib.as_ref().unwrap();
     let json = read_json(&dir.join("report.json"));
     let bars = page.error_bars();
+    // A stereo report has two cameras (depth_single_camera, color_single_camera).
     assert_eq!(bars.len(), 2);
     for ((label, bars), key) in bars.iter().zip(["depth_single_camera", "color_single_camera"]) {
         let images = json[key]["images"].as_array().unwrap();
@@ -257,6 +258,7 @@ fn calibration_page_snapshots() {
     let page = h.state().calib.as_ref().unwrap();
     assert_eq!((page.camera, page.image), (1, 2));
     assert_eq!(page.markers_drawn, page.report.cameras[1].images[2].detected.len());
+    // synthetic-calib/README.md: 7x5 inner corners, all visible in every view.
     assert_eq!(page.markers_drawn, 35);
     h.snapshot_options("calib_corners", &options());
 
@@ -266,6 +268,7 @@ fn calibration_page_snapshots() {
     // fit's. Every used corner gets one arrow either way.
     let page = h.state().calib.as_ref().unwrap();
     let joint: usize = page.report.cameras[1].images.iter().map(|i| i.joint_residuals.len()).sum();
+    // synthetic-calib/README.md: 15 board poses × 35 corners, all used by the joint fit.
     assert_eq!((page.arrows_drawn, joint), (15 * 35, 15 * 35));
     h.get_by_label_contains("stereo joint fit: residual vectors");
     h.snapshot_options("calib_residuals", &options());
@@ -280,6 +283,7 @@ fn calibration_page_snapshots() {
 
     h.get_by_label(CalibView::Poses.label()).click();
     h.run();
+    // synthetic-calib/README.md: 15 board poses, one board per pair used.
     assert_eq!(h.state().calib.as_ref().unwrap().boards_drawn, 15);
     h.snapshot_options("calib_poses", &options());
     // Dragging orbits; Reset view goes back.

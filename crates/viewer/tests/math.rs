@@ -17,6 +17,7 @@ fn fitted_view_maps_corners_to_pixel_edges() {
     let size = [1920, 1080];
     let r = v.image_rect(RECT, size);
     // Fitted by width: 800 / 1920 points per pixel, centred vertically.
+    // 800 = RECT's width (900 − 100); 1e-3: f32 rounding of ~1e3 point coordinates.
     assert!((r.width() - 800.0).abs() < 1e-3 && (r.center().y - RECT.center().y).abs() < 1e-3);
     let [x, y] = v.screen_to_pixel(RECT, size, r.min);
     assert!(
@@ -35,6 +36,7 @@ fn zoom_keeps_the_point_under_the_cursor_and_pan_moves_it() {
     let after = v.screen_to_pixel(RECT, size, cursor);
     // f32 rounding of ~1e3 point coordinates: 1e-3 px.
     assert!((before[0] - after[0]).abs() < 1e-3 && (before[1] - after[1]).abs() < 1e-3);
+    // The factor passed to zoom_at above, from the default zoom 1 (exact in f32).
     assert_eq!(v.zoom, 4.0);
     let scale = v.scale(RECT, size);
     v.pan(RECT, size, Vec2::new(scale * 10.0, 0.0));
@@ -56,6 +58,8 @@ fn orbit_camera_starts_at_the_colour_camera_and_projects_like_it() {
     assert_eq!(cam.eye(), [0.0, 0.0, 0.0]);
     // The target is at the view's centre, inside the depth range.
     let t = project(&cam, cam.target);
+    // 1e-6: f32 rounding of an NDC coordinate that is exactly 0 for the target; (0, 1): the
+    // depth range of wgpu's clip space.
     assert!(t[0].abs() < 1e-6 && t[1].abs() < 1e-6 && t[2] > 0.0 && t[2] < 1.0);
     // x right stays right; y down (camera frame) is down on screen (NDC y up).
     let r = project(&cam, [0.5, 0.0, 3.0]);
@@ -70,7 +74,10 @@ fn orbit_keeps_distance_zoom_changes_it_pan_moves_target() {
     let mut cam = OrbitCamera::fit([[0.0, 0.0, 3.0]].into_iter()).unwrap();
     cam.orbit(200.0, -100.0);
     let e = Vector3::from(cam.eye());
+    // 3.0: the fitted point's distance; 1e-5 m ≈ 30 f32 ulps at 3 m (trig and a norm).
     assert!(((e - Vector3::from(cam.target)).norm() - 3.0).abs() < 1e-5);
+    // 200 points × ORBIT_RAD_PER_POINT (0.0035) = 0.7 rad of yaw: the eye moves ≈ 3 · sin 0.7 ≈
+    // 1.9 m sideways; 0.1 m only asks for a visible move.
     assert!(e.x.abs() > 0.1, "orbiting moved the eye sideways: {e:?}");
     cam.zoom(100.0);
     assert!(cam.distance < 3.0);
@@ -79,6 +86,7 @@ fn orbit_keeps_distance_zoom_changes_it_pan_moves_target() {
     assert_ne!(cam.target, t0);
     // Panning moves perpendicular to the view direction: distance unchanged.
     let d = cam.distance;
+    // 1e-4 m: f32 rounding of a < 3 m distance after a pan (a few ops, ~1e-6 each), with margin.
     assert!(((Vector3::from(cam.eye()) - Vector3::from(cam.target)).norm() - d).abs() < 1e-4);
 }
 
@@ -105,6 +113,7 @@ fn probe_reports_depth_and_a_point_that_projects_back() {
     let zc = *fused.shown_depth.get(cu, cv);
     assert!((p.depth_mm.unwrap() - zc * 1000.0).abs() < 1e-3);
     let q = p.point.unwrap();
+    // The point's z is the registered depth itself (f32 → f64): 1e-6 m covers the f32 value.
     assert!((q[2] - zc as f64).abs() < 1e-6);
     let back = frame.rig.color.project(&Vector3::new(q[0], q[1], q[2])).unwrap();
     assert!((back.x - cu as f64).abs() < 1e-6 && (back.y - cv as f64).abs() < 1e-6);
@@ -130,9 +139,11 @@ fn overlays_mix_both_images() {
     let d = depth.get(u, v);
     for k in 0..3 {
         let want = (0.5 * c[k] as f32 + 0.5 * d[k] as f32).round() as i32;
+        // 1: one u8 rounding step (the pane mixes with BLEND_ALPHA in its own order of terms).
         assert!((blend.get(u, v)[k] as i32 - want).abs() <= 1);
     }
     let (holes, _) = panes::render(Pane::Holes, frame, fused);
+    // [255, 40, 40]: the Holes pane's hole colour (panes::render, Pane::Holes).
     let red = holes.data().iter().filter(|p| **p == [255, 40, 40]).count();
     assert_eq!(red, fused.output.hole_mask.data().iter().filter(|&&m| m).count());
 }

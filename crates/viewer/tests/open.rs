@@ -24,6 +24,7 @@ fn capture_folder_opens_and_fuses() {
     let tmp = tempfile::tempdir().unwrap();
     let truth = write_capture(tmp.path());
     let frame = open_folder(tmp.path()).unwrap();
+    // 640 × 480: synth::course_rig's depth camera, written above.
     assert_eq!(frame.depth.size(), (640, 480));
     // 16-bit millimetres: every value within half a millimetre of the truth.
     let worst = frame
@@ -34,9 +35,12 @@ fn capture_folder_opens_and_fuses() {
         .filter(|(a, b)| a.is_finite() && b.is_finite())
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
+    // 0.5 mm: rounding to whole millimetres; 1e-6 m: f32 rounding of metre values below 20 m.
     assert!(worst <= 0.0005 + 1e-6, "depth round trip error {worst} m");
     let app = ViewerApp::open(tmp.path(), Engine::Cpu);
     assert!(app.error.is_none(), "{:?}", app.error);
+    // Guard: a 640 × 480 grid has up to 2 · 639 · 479 ≈ 612 000 faces and the course scene's plane
+    // fills the view (synth::course_preset); 10 000 fails only for an (almost) empty mesh.
     assert!(app.drawn_triangles() > 10_000);
 }
 
@@ -55,6 +59,7 @@ fn fuse_output_folder_resolves_its_inputs() {
         "depth_kind": "z", "depth_scale_m_per_unit": 0.001}});
     std::fs::write(fused.join("summary.json"), summary.to_string()).unwrap();
     let frame = open_folder(&fused).unwrap();
+    // 640 × 480: synth::course_rig's colour camera, written by write_capture.
     assert_eq!(frame.color.size(), (640, 480));
 }
 

@@ -38,6 +38,9 @@ fn default_view_matches_pipeline_counts() {
     assert_eq!(g.points.len(), f.output.summary.points);
     assert_eq!(app.drawn_triangles(), f.output.summary.faces_after);
     assert!(
+        // Guard: a 512 × 424 grid has up to 2 · 511 · 423 = 432 306 faces and the preset's
+        // plane and objects fill most of the view (synth::kinect_preset); 100 000 fails for a
+        // sparse mesh.
         f.output.summary.faces_after > 100_000,
         "Kinect-size mesh expected, got {} faces",
         f.output.summary.faces_after
@@ -66,6 +69,9 @@ fn hole_filling_toggles_filled_pixels() {
     let f = app.fused.as_ref().unwrap();
     let filled_on = f.filled_pixels;
     assert!(
+        // Derivation: objects at 1.0–1.7 m before a plane at 2.2–4.8 m, colour camera 52 mm aside
+        // (synth::kinect_rig): disocclusion strips ≈ 1060 · 0.052 · (1/1.1 − 1/3) ≈ 32 colour px
+        // wide beside each object, thousands of pixels in all; 1000 fails when nothing is filled.
         filled_on > 1000,
         "the scene's disocclusions should be plane-filled, got {filled_on} pixels"
     );
@@ -78,6 +84,7 @@ fn hole_filling_toggles_filled_pixels() {
         assert!(*m || s.to_bits() == n.to_bits(), "the fill changed a non-hole pixel");
     }
     let added = finite(&f.shown_depth) - finite(nearest);
+    // Same derivation as filled_on; at most filled_on because only filled pixels can be added.
     assert!(added > 1000 && added <= filled_on, "added {added} finite pixels, filled {filled_on}");
     let vertices_on = app.geometry().unwrap().vertices.len();
     app.set_toggles(Toggles { fill_holes: false, ..app.toggles });
@@ -119,6 +126,7 @@ fn zbuffer_off_lets_the_background_through() {
         }
         // The z-buffer keeps the nearest of the same samples that the first-wins rule chooses
         // from, so switching it off can never bring a pixel nearer.
+        // 1e-6: relative f32 rounding (~1e-7) with margin; "nearer" means a different sample.
         if *b < *a * (1.0 - 1e-6) {
             nearer += 1;
         }
@@ -128,6 +136,7 @@ fn zbuffer_off_lets_the_background_through() {
          background through where the z-buffer showed the surface: {through}; nearer: {nearer}"
     );
     assert_eq!(nearer, 0, "z-buffer off brought {nearer} pixels nearer");
+    // Measured in d5a6c7c (2026-12-01).
     // Measured 807 pixels (beside the box, sphere and cone); half of that leaves room for the
     // noise seeds, and an unchanged z-buffer (0) fails.
     assert!(through >= 400, "z-buffer off: background through on {through} pixels");
@@ -170,6 +179,7 @@ fn delaunay_resampling_is_closer_to_the_truth_inside_surfaces() {
     // Interpolation beats taking the nearest sample on smooth surfaces: the scene's slanted
     // wall changes depth between samples; 1.5 mm noise bounds both medians.
     assert!(median_linear < median_nearest, "Delaunay {median_linear} vs nearest {median_nearest}");
+    // 5 mm ≈ 3σ of KINECT_NOISE_SIGMA_M (1.5 mm, synth.rs); interpolation cannot beat the noise.
     assert!(median_linear < 0.005, "Delaunay median error {median_linear} m above 5 mm");
     assert_ne!(app.drawn_triangles(), faces_nearest, "the mesh must come from the Delaunay depth");
 }

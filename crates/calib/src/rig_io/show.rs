@@ -234,6 +234,7 @@ mod tests {
         );
         let w: Vec<String> =
             rig_checks(&bad).into_iter().filter(|f| f.warning).map(|f| f.text).collect();
+        // Three faults were planted above: fy/fx = 1.2, cx = 10 px, a 0.5 rad (28.6°) rotation.
         assert_eq!(w.len(), 3, "{w:?}");
         assert!(
             w[0].contains("principal point")

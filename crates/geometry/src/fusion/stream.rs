@@ -656,6 +656,8 @@ mod tests {
             t = t * 1.001 + 1e-3;
             checked += 2;
         }
+        // Count guard: the first loop checks 4096 × 2 bases × 8 steps × 2 directions ≈ 131 000
+        // values (a handful below 0 skipped), the sweep ~2 × 16 000 more.
         assert!(checked > 100_000);
     }
 
@@ -681,6 +683,9 @@ mod tests {
                 };
                 let (na, nb, nc) = (run(&mut a), run(&mut b), run(&mut c));
                 assert_eq!((na, na), (nb, nc));
+                // Guard: the Kinect preset's 217 088 depth pixels are mostly valid and land
+                // in the colour view (synth::kinect_preset); 100 000 fails when registration
+                // lands almost nothing.
                 assert!(na > 100_000);
                 for other in [&mut b, &mut c] {
                     assert!(
@@ -693,6 +698,8 @@ mod tests {
                 }
             }
         }
+        // Hand calculation: 3841 × 2185 = 8 392 585 and 3904 bits × 2185 rows = 8 530 240
+        // exceed 2^23 = 8 388 608; 3840 × 2160 = 8 294 400 fits.
         assert!(!fits_float_index(3841, 2185, 3904), "2^23 limit");
         assert!(fits_float_index(3840, 2160, 3840));
     }

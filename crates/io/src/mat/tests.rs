@@ -134,6 +134,7 @@ fn bouguet_left_calibration_matches_its_readme() {
     // k3 fixed at 0 (README); stored as an integer-valued double.
     let kc = f.matrix_of_size("kc", 5, 1).unwrap();
     assert_eq!(kc.data[4], 0.0);
+    // The Kinect v2 depth image size (DESIGN.md), which the toolbox stores as nx, ny.
     assert_eq!(f.scalar("nx").unwrap(), 512.0);
     assert_eq!(f.scalar("ny").unwrap(), 424.0);
     assert_eq!(f.string("calib_name").unwrap(), "ir_");
@@ -143,6 +144,8 @@ fn bouguet_left_calibration_matches_its_readme() {
     // Board points: 7×5 inner corners, 40 mm squares, x = 0..160 mm (README).
     let big_x = f.matrix_of_size("X_1", 3, 35).unwrap();
     assert_eq!(&big_x.data[..5], &[0.0, 40.0, 80.0, 120.0, 160.0]);
+    // Counted with an independent Python zlib/struct walk of the file (2026-12-01): 224 variables
+    // (H_1, H_10, …); > 200 fails when a compressed element stops the reader early.
     assert!(f.names().count() > 200);
 }
 
@@ -165,6 +168,7 @@ fn bouguet_stereo_and_kinect_data_read() {
     }
     let kd = MatFile::read(&data.join("kinect-lab/KinectData.mat")).unwrap();
     let img = kd.numeric("Image").unwrap();
+    // The Kinect v2 colour frame (1080 rows × 1920 columns × RGB, DESIGN.md), uint8.
     assert_eq!(img.dims, vec![1080, 1920, 3]);
     assert_eq!(img.class(), MatClass::UInt8);
     // The lab's stereo intrinsics are copied into Cparam/Dparam: same numbers as KK_*.
@@ -181,6 +185,7 @@ fn course_synthdata_reads_structs_and_single_arrays() {
     };
     let f = MatFile::read(&data.join("course/synthdata.mat")).unwrap();
     let depth = f.numeric("Depth").unwrap();
+    // data README: synthdata.mat holds Image 480×640×3 and Depth 480×640 float32.
     assert_eq!((depth.dims.clone(), depth.class()), (vec![480, 640], MatClass::Single));
     let image = f.numeric("Image").unwrap();
     assert_eq!(image.dims, vec![480, 640, 3]);
@@ -188,6 +193,8 @@ fn course_synthdata_reads_structs_and_single_arrays() {
     let fp = f.scalar("Dparam.fp").unwrap();
     let ratio = f.scalar("Dparam.f").unwrap() / f.scalar("Dparam.pixelsize").unwrap();
     assert!((fp - ratio).abs() < 1e-9 * fp, "fp {fp} vs f/pixelsize {ratio}");
+    // The value stored in synthdata.mat (a 1-based MATLAB index, see kfuse_io::course's
+    // docs: 0-based 319); this reader returns it as stored.
     assert_eq!(f.scalar("Cparam.cx").unwrap(), 320.0);
     let err = f.scalar("Dparam.k1").unwrap_err().to_string();
     assert!(err.contains("synthdata.mat") && err.contains("no field 'k1'"), "{err}");
