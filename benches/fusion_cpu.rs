@@ -73,15 +73,9 @@ fn write_peer_frame(setup: &synth::SynthSetup, frame: &synth::SynthFrame) {
     eprintln!("peer frame written to {}", dir.display());
 }
 
-/// Nanoseconds this thread has run on a CPU (`/proc/thread-self/schedstat`, Linux), or `None`.
-fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
+#[path = "support/thread_cpu.rs"]
+mod thread_cpu;
+use thread_cpu::thread_cpu_ns;
 
 /// CPU time per call of `f` over `iters` calls: on a machine shared with other jobs the
 /// wall-clock figures of criterion include time spent waiting for a core; this does not.

@@ -8,15 +8,9 @@ use kinect_usb::params::{P0Tables, XzTables};
 use kinect_usb::raw::PIXELS;
 use kinect_usb::testdata::{read_bytes, read_f32, vectors_dir};
 
-/// CPU time of the calling thread (ns), from `/proc/thread-self/schedstat` (Linux).
-fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
+#[path = "../../../benches/support/thread_cpu.rs"]
+mod thread_cpu;
+use thread_cpu::thread_cpu_ns;
 
 /// With `DECODE_CPU_PROBE=N` set: before the criterion runs, the least CPU time of the calling
 /// thread and the least wall-clock time of N decodes per configuration. On a machine shared
