@@ -12,8 +12,12 @@
 //! * calibration RMS (k1 k2 p1 p2 k3, no outlier rejection, like `calibrateCamera`) ≤ the best
 //!   OpenCV variant recorded for the set.
 //!
-//! Nothing in the detector was tuned on this corpus: the whole corpus is held out (the
-//! detector's parameters are those fixed earlier on the lab's IR views and the rendered set).
+//! No threshold of the detector was tuned on this corpus (its parameters are those fixed
+//! earlier on the lab's IR views and the rendered set). Two rules came from looking at
+//! corpus views, neither with a tuned value: the smooth-lines check (GoPro GOPR0053) and the
+//! reduced seed basis (OpenCV-set left06 and left12, the only views inspected for it; the
+//! right camera, Udacity, GoPro and robot-arm sets were not looked at and serve as its
+//! held-out check: no board lost there, GoPro 32 → 33).
 //! Each test prints its table row; `crates/calib/README.md` holds the table of one run.
 
 mod common;
@@ -236,10 +240,9 @@ fn check(rows: &[Row], e: &Expect) {
     }
 }
 
-/// The issue's bars on every set: not met yet (see `crates/calib/README.md`): OpenCV set left
-/// 11 of 13 boards (left06, left12 missed) and corners up to 1.75 px from SB's; GoPro 32 of 35
-/// boards, corners up to 1.24 px from SB's, RMS 0.525 px vs OpenCV's best 0.523 px; Udacity
-/// RMS 0.863 px vs OpenCV's 0.853 px.
+/// The issue's bars on every set: not met yet (see `crates/calib/README.md`): OpenCV set
+/// corners up to 1.75 px from SB's; GoPro 33 of 35 boards, corners up to 1.24 px from SB's;
+/// Udacity RMS 0.863 px vs OpenCV's 0.853 px.
 #[test]
 #[ignore = "issue 14's corpus bars are not all met yet; run with --ignored to measure"]
 fn issue_bars_on_every_set() {
@@ -265,14 +268,15 @@ const SETS: [&str; 4] = [
     "color-1920x1080-9x6-robotarm",
 ];
 
-/// Measured 2026-12-01 (this branch): left 11, right 13 complete boards; worst corner vs SB
-/// 1.58 / 1.75 px; RMS 0.158 / 0.154 px (OpenCV best 0.195 / 0.207).
+/// Measured 2026-12-01 (this branch): left 13, right 13 complete boards (left06 and left12
+/// were missed until the seed cell had to be a reduced basis, `grid.rs`); worst corner vs SB
+/// 1.58 / 1.75 px; RMS 0.156 / 0.154 px (OpenCV best 0.195 / 0.207).
 #[test]
 fn corpus_opencv_stereo_640x480_9x6() {
     if let Some(rows) = run_set(SETS[0]) {
         check(
             &rows,
-            &Expect { found: &[("left", 11), ("right", 13)], sb_px: 2.0, rms_le_opencv: true },
+            &Expect { found: &[("left", 13), ("right", 13)], sb_px: 2.0, rms_le_opencv: true },
         );
     }
 }
@@ -289,12 +293,12 @@ fn corpus_udacity_1280x720_9x6() {
     }
 }
 
-/// Measured: 32 complete boards (OpenCV 35) + 1 partial; worst corner vs SB 1.24 px; RMS
-/// 0.525 px (OpenCV 0.824 / 0.532 / 0.523).
+/// Measured: 33 complete boards (OpenCV 35) + 1 partial; worst corner vs SB 1.24 px; RMS
+/// 0.519 px (OpenCV 0.824 / 0.532 / 0.523).
 #[test]
 fn corpus_gopro_wide_1280x960_8x6() {
     if let Some(rows) = run_set(SETS[2]) {
-        check(&rows, &Expect { found: &[("cam", 32)], sb_px: 1.5, rms_le_opencv: false });
+        check(&rows, &Expect { found: &[("cam", 33)], sb_px: 1.5, rms_le_opencv: true });
     }
 }
 

@@ -28,6 +28,18 @@ fn nearest(pts: &[(Vector2<f64>, f32)], used: &[bool], p: Vector2<f64>, tol: f64
     best.map(|b| b.0)
 }
 
+/// True when `(u, v)` is a reduced (Lagrange–Gauss) basis of the lattice it spans: neither
+/// `u + v` nor `u − v` is shorter than the longer of the two. A cell's two sides are; a side
+/// and a diagonal of the cell are not (the other diagonal is shorter), although under
+/// perspective they can meet at 55° or more and pass the angle test. A seed on such a sheared
+/// basis grows the whole board into a grid whose rows run along the cells' diagonals (OpenCV
+/// sample left06 and left12, seeds at the board's border where the side's far neighbour is
+/// missing).
+fn reduced(u: Vector2<f64>, v: Vector2<f64>) -> bool {
+    let longer = u.norm_squared().max(v.norm_squared());
+    (u + v).norm_squared() >= longer && (u - v).norm_squared() >= longer
+}
+
 /// Grows a grid from seed `s`; `None` if no seed cell exists there.
 fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
     let p = pts[s].0;
@@ -46,7 +58,7 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
         for &(b, db) in &by_dist {
             let v = pts[b].0 - p;
             let cos = u.dot(&v) / (da * db);
-            if cos.abs() > 0.6 || db > 2.0 * da || da > 2.0 * db {
+            if cos.abs() > 0.6 || db > 2.0 * da || da > 2.0 * db || !reduced(u, v) {
                 continue;
             }
             let Some(b2) = nearest(pts, &all_used, p - v, GRID_TOLERANCE * db) else { continue };
