@@ -45,6 +45,9 @@ struct Row {
     sb_found: usize,
     compared: usize,
     worst_px: f64,
+    /// Largest distance of a kfuse corner from OpenCV's classic corner refined with a 5x5
+    /// `cornerSubPix` window (`corners_alt`), per image in the better of the two turns.
+    worst_classic5_px: f64,
     kfuse_rms: f64,
     opencv_rms: (f64, f64, f64),
 }
@@ -53,7 +56,7 @@ impl Row {
     fn print(&self) {
         let (c, s, a) = self.opencv_rms;
         println!(
-            "| {} | {} | {} | {} (+{} partial) | {} / {} | {} | {:.3} | {:.3} | {c:.3} / {s:.3} / {a:.3} |",
+            "| {} | {} | {} | {} (+{} partial) | {} / {} | {} | {:.3} | {:.3} | {:.3} | {c:.3} / {s:.3} / {a:.3} |",
             self.set,
             self.camera,
             self.images,
@@ -63,6 +66,7 @@ impl Row {
             self.sb_found,
             self.compared,
             self.worst_px,
+            self.worst_classic5_px,
             self.kfuse_rms,
         );
     }
@@ -115,6 +119,7 @@ fn run_set(set: &str) -> Option<Vec<Row>> {
             sb_found: 0,
             compared: 0,
             worst_px: 0.0,
+            worst_classic5_px: 0.0,
             kfuse_rms: f64::NAN,
             opencv_rms: (f64::NAN, f64::NAN, f64::NAN),
         };
@@ -130,6 +135,11 @@ fn run_set(set: &str) -> Option<Vec<Row>> {
             row.kfuse_found += complete as usize;
             row.kfuse_partial += (!complete && !view.corners.is_empty()) as usize;
             row.classic_found += (e["classic"]["found"] == Value::Bool(true)) as usize;
+            if complete && e["classic"]["found"] == Value::Bool(true) {
+                let c5 = points(&e["classic"]["corners_alt"]);
+                let d = worst(view, &c5).min(worst(view, &turned(&c5, true)));
+                row.worst_classic5_px = row.worst_classic5_px.max(d);
+            }
             let sb_found = e["sb"]["found"] == Value::Bool(true);
             row.sb_found += sb_found as usize;
             if sb_found && complete {
@@ -185,9 +195,9 @@ fn run_set(set: &str) -> Option<Vec<Row>> {
         rows.push(row);
     }
     println!(
-        "| set | camera | images | kfuse complete boards | OpenCV classic / SB | compared with SB | worst corner vs SB px | kfuse RMS px | OpenCV RMS classic / SB / 5x5 |"
+        "| set | camera | images | kfuse complete boards | OpenCV classic / SB | compared with SB | worst corner vs SB px | worst corner vs classic 5x5 px | kfuse RMS px | OpenCV RMS classic / SB / 5x5 |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for row in &rows {
         row.print();
     }
@@ -271,6 +281,13 @@ const SETS: [&str; 4] = [
 /// Measured 2026-12-01 (this branch): left 13, right 13 complete boards (left06 and left12
 /// were missed until the seed cell had to be a reduced basis, `grid.rs`); worst corner vs SB
 /// 1.58 / 1.75 px; RMS 0.156 / 0.154 px (OpenCV best 0.195 / 0.207).
+///
+/// The distance to SB is mostly SB's: at the corners where kfuse is farthest from SB (1.1 to
+/// 1.75 px), kfuse is 0.08–0.29 px from OpenCV's classic corner refined with a 5x5
+/// `cornerSubPix` window and SB is 0.95–1.92 px from it; over every corner of the 26 images
+/// kfuse stays within 0.49 px of that classic corner, which is asserted here within the
+/// issue's 1 px (the 11x11-window classic corners are not: the corpus README shows that
+/// window pulling corners by up to 7.6 px on this set).
 #[test]
 fn corpus_opencv_stereo_640x480_9x6() {
     if let Some(rows) = run_set(SETS[0]) {
@@ -278,6 +295,15 @@ fn corpus_opencv_stereo_640x480_9x6() {
             &rows,
             &Expect { found: &[("left", 13), ("right", 13)], sb_px: 2.0, rms_le_opencv: true },
         );
+        for r in &rows {
+            assert!(
+                r.worst_classic5_px <= SB_AGREEMENT_PX,
+                "{} {}: a corner {:.3} px from OpenCV's classic 5x5 corner",
+                r.set,
+                r.camera,
+                r.worst_classic5_px
+            );
+        }
     }
 }
 
