@@ -219,3 +219,46 @@ pub(super) fn trim(board: &Board, pts: &[(Vector2<f64>, f32)], grid: Grid) -> Gr
     }
     best.map(|b| b.1).unwrap_or(grid)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cell of OpenCV-set left12's seed: sides `a` (43 px) and `b` (53 px) at 82°; the
+    /// diagonal `b − a` meets `a` at 124° (|cos| 0.56, inside the seed's angle test). Sides are a reduced basis, a side and a diagonal are not; the
+    /// grid grown from the candidates' lattice must run along the sides.
+    #[test]
+    fn a_seed_needs_the_cells_sides_not_a_diagonal() {
+        let a = Vector2::new(3.70, -42.76);
+        let b = Vector2::new(-51.73, -12.02);
+        assert!(reduced(a, b) && reduced(b, a));
+        assert!(!reduced(a, b - a) && !reduced(b - a, a) && !reduced(a, a + b));
+        let cos = a.dot(&(b - a)) / (a.norm() * (b - a).norm());
+        assert!(cos.abs() < 0.6, "the angle test alone would accept it: cos {cos}");
+        // A 9x6 lattice of corners with those sides. From every seed, the grid is either
+        // none (a seed on the border has no cell around it along the sides) or the whole
+        // lattice stepping along the sides; seeds on the border used to pick the diagonal.
+        let origin = Vector2::new(400.0, 400.0);
+        let pts: Vec<(Vector2<f64>, f32)> = (0..6)
+            .flat_map(|j| (0..9).map(move |i| (i, j)))
+            .map(|(i, j)| (origin + a * i as f64 + b * j as f64, 1.0))
+            .collect();
+        let mut grown = 0;
+        for s in 0..pts.len() {
+            let Some(g) = grow(&pts, s) else { continue };
+            grown += 1;
+            assert_eq!(g.len(), 54, "seed {s}");
+            for (&(i, j), &n) in &g {
+                for d in [(1, 0), (0, 1)] {
+                    if let Some(&m) = g.get(&(i + d.0, j + d.1)) {
+                        let step = pts[m].0 - pts[n].0;
+                        let side = [a, -a, b, -b].iter().any(|s| (step - s).norm() < 1e-9);
+                        assert!(side, "seed {s}: step {step:?} at ({i}, {j}) is no cell side");
+                    }
+                }
+            }
+        }
+        // The 7x4 interior corners all seed.
+        assert!(grown >= 28, "{grown} seeds grew");
+    }
+}
