@@ -250,22 +250,27 @@ fn load_and_detect(
         .collect();
     let mut board = *board;
     if auto {
-        let Some(((a, b), n)) = common_grid_size(&names) else {
+        let Some(((a, b), _)) = common_grid_size(&names) else {
             bail!(
                 "--board auto: no complete checkerboard found in the {} {camera} image(s); give --board COLSxROWS (inner corners)",
                 names.len()
             );
         };
-        println!(
-            "--board auto: {n} of {} {camera} images show a {a}x{b} grid; using {a}x{b}",
-            names.len()
-        );
         (board.cols, board.rows) = (a, b);
     }
     let pb = bar(names.len(), &format!("detecting {camera}"));
     let (found, board) = detect_views_with(&names, &board, refinement, &|| pb.inc(1));
     pb.finish();
     let with_board = found.iter().filter(|v| !v.corners.is_empty()).count();
+    if auto {
+        // The count of the views the board was then found in (the ones the calibration
+        // uses), not of the images whose whole grid the size search saw.
+        let (a, b) = (board.cols, board.rows);
+        println!(
+            "--board auto: {with_board} of {} {camera} images show a {a}x{b} grid; using {a}x{b}",
+            names.len()
+        );
+    }
     if !auto && with_board < calib::mono::MIN_VIEWS {
         let asked = (board.cols.max(board.rows), board.cols.min(board.rows));
         if let Some(((a, b), n)) = common_grid_size(&names).filter(|s| s.0 != asked) {

@@ -388,7 +388,27 @@ fn opencv_sample_images_calibrate_with_the_board_size_only_or_auto() {
         ]);
         assert!(ok, "--board {board}: {text}");
         if board == "auto" {
-            assert!(text.contains("show a 9x6 grid; using 9x6"), "{text}");
+            // The count names the images the board was found in, i.e. the table's rows with
+            // corners (it once counted the size search's whole grids: "2 of 13", then 11 used).
+            let line = text
+                .lines()
+                .find(|l| l.contains("--board auto:"))
+                .unwrap_or_else(|| panic!("no --board auto line:\n{text}"));
+            assert!(line.contains("show a 9x6 grid; using 9x6"), "{line}");
+            let said: usize = line
+                .split_whitespace()
+                .nth(2)
+                .and_then(|n| n.parse().ok())
+                .unwrap_or_else(|| panic!("{line}"));
+            let with_corners = text
+                .lines()
+                .filter(|l| l.trim_start().starts_with("left") && l.contains(".jpg"))
+                .filter(|l| {
+                    l.split_whitespace().nth(1).and_then(|n| n.parse::<usize>().ok()) > Some(0)
+                })
+                .count();
+            assert_eq!(said, with_corners, "{text}");
+            assert!(said >= 11, "{line}");
         }
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();

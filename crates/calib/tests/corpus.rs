@@ -12,8 +12,12 @@
 //! * calibration RMS (k1 k2 p1 p2 k3, no outlier rejection, like `calibrateCamera`) ≤ the best
 //!   OpenCV variant recorded for the set.
 //!
-//! Nothing in the detector was tuned on this corpus: the whole corpus is held out (the
-//! detector's parameters are those fixed earlier on the lab's IR views and the rendered set).
+//! No threshold of the detector was tuned on this corpus (its parameters are those fixed
+//! earlier on the lab's IR views and the rendered set). Two rules came from looking at
+//! corpus views, neither with a tuned value: the smooth-lines check (GoPro GOPR0053) and the
+//! reduced seed basis (OpenCV-set left06 and left12, the only views inspected for it; the
+//! right camera, Udacity, GoPro and robot-arm sets were not looked at and serve as its
+//! held-out check: no board lost there, GoPro 32 → 33).
 //! Each test prints its table row; `crates/calib/README.md` holds the table of one run.
 
 mod common;
@@ -41,6 +45,9 @@ struct Row {
     sb_found: usize,
     compared: usize,
     worst_px: f64,
+    /// Largest distance of a kfuse corner from OpenCV's classic corner refined with a 5x5
+    /// `cornerSubPix` window (`corners_alt`), per image in the better of the two turns.
+    worst_classic5_px: f64,
     kfuse_rms: f64,
     opencv_rms: (f64, f64, f64),
 }
@@ -49,7 +56,7 @@ impl Row {
     fn print(&self) {
         let (c, s, a) = self.opencv_rms;
         println!(
-            "| {} | {} | {} | {} (+{} partial) | {} / {} | {} | {:.3} | {:.3} | {c:.3} / {s:.3} / {a:.3} |",
+            "| {} | {} | {} | {} (+{} partial) | {} / {} | {} | {:.3} | {:.3} | {:.3} | {c:.3} / {s:.3} / {a:.3} |",
             self.set,
             self.camera,
             self.images,
@@ -59,6 +66,7 @@ impl Row {
             self.sb_found,
             self.compared,
             self.worst_px,
+            self.worst_classic5_px,
             self.kfuse_rms,
         );
     }
@@ -111,6 +119,7 @@ fn run_set(set: &str) -> Option<Vec<Row>> {
             sb_found: 0,
             compared: 0,
             worst_px: 0.0,
+            worst_classic5_px: 0.0,
             kfuse_rms: f64::NAN,
             opencv_rms: (f64::NAN, f64::NAN, f64::NAN),
         };
@@ -126,6 +135,11 @@ fn run_set(set: &str) -> Option<Vec<Row>> {
             row.kfuse_found += complete as usize;
             row.kfuse_partial += (!complete && !view.corners.is_empty()) as usize;
             row.classic_found += (e["classic"]["found"] == Value::Bool(true)) as usize;
+            if complete && e["classic"]["found"] == Value::Bool(true) {
+                let c5 = points(&e["classic"]["corners_alt"]);
+                let d = worst(view, &c5).min(worst(view, &turned(&c5, true)));
+                row.worst_classic5_px = row.worst_classic5_px.max(d);
+            }
             let sb_found = e["sb"]["found"] == Value::Bool(true);
             row.sb_found += sb_found as usize;
             if sb_found && complete {
@@ -181,9 +195,9 @@ fn run_set(set: &str) -> Option<Vec<Row>> {
         rows.push(row);
     }
     println!(
-        "| set | camera | images | kfuse complete boards | OpenCV classic / SB | compared with SB | worst corner vs SB px | kfuse RMS px | OpenCV RMS classic / SB / 5x5 |"
+        "| set | camera | images | kfuse complete boards | OpenCV classic / SB | compared with SB | worst corner vs SB px | worst corner vs classic 5x5 px | kfuse RMS px | OpenCV RMS classic / SB / 5x5 |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for row in &rows {
         row.print();
     }
@@ -236,10 +250,9 @@ fn check(rows: &[Row], e: &Expect) {
     }
 }
 
-/// The issue's bars on every set: not met yet (see `crates/calib/README.md`): OpenCV set left
-/// 11 of 13 boards (left06, left12 missed) and corners up to 1.75 px from SB's; GoPro 32 of 35
-/// boards, corners up to 1.24 px from SB's, RMS 0.525 px vs OpenCV's best 0.523 px; Udacity
-/// RMS 0.863 px vs OpenCV's 0.853 px.
+/// The issue's bars on every set: not met yet (see `crates/calib/README.md`): OpenCV set
+/// corners up to 1.75 px from SB's; GoPro 33 of 35 boards, corners up to 1.24 px from SB's;
+/// Udacity RMS 0.863 px vs OpenCV's 0.853 px.
 #[test]
 #[ignore = "issue 14's corpus bars are not all met yet; run with --ignored to measure"]
 fn issue_bars_on_every_set() {
@@ -265,8 +278,16 @@ const SETS: [&str; 4] = [
     "color-1920x1080-9x6-robotarm",
 ];
 
-/// Measured 2026-12-01 (this branch): left 11, right 13 complete boards; worst corner vs SB
-/// 1.58 / 1.75 px; RMS 0.158 / 0.154 px (OpenCV best 0.195 / 0.207).
+/// Measured 2026-12-01 (this branch): left 13, right 13 complete boards (left06 and left12
+/// were missed until the seed cell had to be a reduced basis, `grid.rs`); worst corner vs SB
+/// 1.58 / 1.75 px; RMS 0.156 / 0.154 px (OpenCV best 0.195 / 0.207).
+///
+/// The distance to SB is mostly SB's: at the corners where kfuse is farthest from SB (1.1 to
+/// 1.75 px), kfuse is 0.08–0.29 px from OpenCV's classic corner refined with a 5x5
+/// `cornerSubPix` window and SB is 0.95–1.92 px from it; over every corner of the 26 images
+/// kfuse stays within 0.49 px of that classic corner, which is asserted here within the
+/// issue's 1 px (the 11x11-window classic corners are not: the corpus README shows that
+/// window pulling corners by up to 7.6 px on this set).
 #[test]
 fn corpus_opencv_stereo_640x480_9x6() {
     if let Some(rows) = run_set(SETS[0]) {
@@ -274,8 +295,17 @@ fn corpus_opencv_stereo_640x480_9x6() {
             &rows,
             // Counts: the measured ones (no margin: one board fewer is a regression). 2.0 px:
             // measured 1.75 + 0.25 px for estimator changes, far below a mislabelling (≥ 10 px).
-            &Expect { found: &[("left", 11), ("right", 13)], sb_px: 2.0, rms_le_opencv: true },
+            &Expect { found: &[("left", 13), ("right", 13)], sb_px: 2.0, rms_le_opencv: true },
         );
+        for r in &rows {
+            assert!(
+                r.worst_classic5_px <= SB_AGREEMENT_PX,
+                "{} {}: a corner {:.3} px from OpenCV's classic 5x5 corner",
+                r.set,
+                r.camera,
+                r.worst_classic5_px
+            );
+        }
     }
 }
 
@@ -291,14 +321,14 @@ fn corpus_udacity_1280x720_9x6() {
     }
 }
 
-/// Measured: 32 complete boards (OpenCV 35) + 1 partial; worst corner vs SB 1.24 px; RMS
-/// 0.525 px (OpenCV 0.824 / 0.532 / 0.523).
+/// Measured: 33 complete boards (OpenCV 35) + 1 partial; worst corner vs SB 1.24 px; RMS
+/// 0.519 px (OpenCV 0.824 / 0.532 / 0.523).
 #[test]
 fn corpus_gopro_wide_1280x960_8x6() {
     if let Some(rows) = run_set(SETS[2]) {
-        // 1.5 px: measured 1.24 + 0.26 px for estimator changes, far below a mislabelling
-        // (≥ 10 px).
-        check(&rows, &Expect { found: &[("cam", 32)], sb_px: 1.5, rms_le_opencv: false });
+        // Counts: measured (no margin). RMS: 0.519 px measured vs OpenCV's best 0.523 px. 1.5 px:
+        // measured 1.24 + 0.26 px for estimator changes, far below a mislabelling (≥ 10 px).
+        check(&rows, &Expect { found: &[("cam", 33)], sb_px: 1.5, rms_le_opencv: true });
     }
 }
 

@@ -61,6 +61,12 @@ pub fn chess_response(img: &Image<f32>, radius: usize) -> Image<f32> {
 /// Candidate X-junctions: local maxima of the ChESS response, refined to sub-pixel.
 pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64>, f32)> {
     let resp = chess_response(img, params.ring_radius);
+    refine_peaks(img, &peaks(&resp, params), params)
+}
+
+/// Local maxima of the response above [`DetectorParams::min_response_fraction`] of its
+/// largest value, strongest first, at most [`MAX_CANDIDATES`].
+pub(super) fn peaks(resp: &Image<f32>, params: &DetectorParams) -> Vec<(usize, usize, f32)> {
     let (w, h) = resp.size();
     let max = resp.data().iter().copied().fold(0.0f32, f32::max);
     if max <= 0.0 {
@@ -73,6 +79,22 @@ pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64
         for x in 0..w {
             let v = *resp.get(x, y);
             if v <= thr {
+                continue;
+            }
+            // The 3x3 neighbourhood first (a subset of the window, same rule): most pixels
+            // above the threshold lie on edges and fail it at once.
+            let beaten = |dx: isize, dy: isize| {
+                let (xx, yy) = (x as isize + dx, y as isize + dy);
+                if xx < 0 || yy < 0 || xx >= w as isize || yy >= h as isize {
+                    return false;
+                }
+                let o = *resp.get(xx as usize, yy as usize);
+                o > v || (o == v && (dy, dx) < (0, 0))
+            };
+            if [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)]
+                .iter()
+                .any(|&(dx, dy)| beaten(dx, dy))
+            {
                 continue;
             }
             let mut is_max = true;
@@ -101,6 +123,16 @@ pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64
     }
     peaks.sort_by(|a, b| b.2.total_cmp(&a.2));
     peaks.truncate(MAX_CANDIDATES);
+    peaks
+}
+
+/// Each peak refined by [`refine_corner`]; of two peaks refining onto one corner the stronger
+/// is kept.
+pub(super) fn refine_peaks(
+    img: &Image<f32>,
+    peaks: &[(usize, usize, f32)],
+    params: &DetectorParams,
+) -> Vec<(Vector2<f64>, f32)> {
     use rayon::prelude::*;
     let mut refined: Vec<(Vector2<f64>, f32)> = peaks
         .par_iter()

@@ -28,6 +28,18 @@ fn nearest(pts: &[(Vector2<f64>, f32)], used: &[bool], p: Vector2<f64>, tol: f64
     best.map(|b| b.0)
 }
 
+/// True when `(u, v)` is a reduced (Lagrange–Gauss) basis of the lattice it spans: neither
+/// `u + v` nor `u − v` is shorter than the longer of the two. A cell's two sides are; a side
+/// and a diagonal of the cell are not (the other diagonal is shorter), although under
+/// perspective they can meet at 55° or more and pass the angle test. A seed on such a sheared
+/// basis grows the whole board into a grid whose rows run along the cells' diagonals (OpenCV
+/// sample left06 and left12, seeds at the board's border where the side's far neighbour is
+/// missing).
+fn reduced(u: Vector2<f64>, v: Vector2<f64>) -> bool {
+    let longer = u.norm_squared().max(v.norm_squared());
+    (u + v).norm_squared() >= longer && (u - v).norm_squared() >= longer
+}
+
 /// Grows a grid from seed `s`; `None` if no seed cell exists there.
 fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
     let p = pts[s].0;
@@ -46,7 +58,7 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
         for &(b, db) in &by_dist {
             let v = pts[b].0 - p;
             let cos = u.dot(&v) / (da * db);
-            if cos.abs() > 0.6 || db > 2.0 * da || da > 2.0 * db {
+            if cos.abs() > 0.6 || db > 2.0 * da || da > 2.0 * db || !reduced(u, v) {
                 continue;
             }
             let Some(b2) = nearest(pts, &all_used, p - v, GRID_TOLERANCE * db) else { continue };
@@ -206,4 +218,47 @@ pub(super) fn trim(board: &Board, pts: &[(Vector2<f64>, f32)], grid: Grid) -> Gr
         }
     }
     best.map(|b| b.1).unwrap_or(grid)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cell of OpenCV-set left12's seed: sides `a` (43 px) and `b` (53 px) at 82°; the
+    /// diagonal `b − a` meets `a` at 124° (|cos| 0.56, inside the seed's angle test). Sides are a reduced basis, a side and a diagonal are not; the
+    /// grid grown from the candidates' lattice must run along the sides.
+    #[test]
+    fn a_seed_needs_the_cells_sides_not_a_diagonal() {
+        let a = Vector2::new(3.70, -42.76);
+        let b = Vector2::new(-51.73, -12.02);
+        assert!(reduced(a, b) && reduced(b, a));
+        assert!(!reduced(a, b - a) && !reduced(b - a, a) && !reduced(a, a + b));
+        let cos = a.dot(&(b - a)) / (a.norm() * (b - a).norm());
+        assert!(cos.abs() < 0.6, "the angle test alone would accept it: cos {cos}");
+        // A 9x6 lattice of corners with those sides. From every seed, the grid is either
+        // none (a seed on the border has no cell around it along the sides) or the whole
+        // lattice stepping along the sides; seeds on the border used to pick the diagonal.
+        let origin = Vector2::new(400.0, 400.0);
+        let pts: Vec<(Vector2<f64>, f32)> = (0..6)
+            .flat_map(|j| (0..9).map(move |i| (i, j)))
+            .map(|(i, j)| (origin + a * i as f64 + b * j as f64, 1.0))
+            .collect();
+        let mut grown = 0;
+        for s in 0..pts.len() {
+            let Some(g) = grow(&pts, s) else { continue };
+            grown += 1;
+            assert_eq!(g.len(), 54, "seed {s}");
+            for (&(i, j), &n) in &g {
+                for d in [(1, 0), (0, 1)] {
+                    if let Some(&m) = g.get(&(i + d.0, j + d.1)) {
+                        let step = pts[m].0 - pts[n].0;
+                        let side = [a, -a, b, -b].iter().any(|s| (step - s).norm() < 1e-9);
+                        assert!(side, "seed {s}: step {step:?} at ({i}, {j}) is no cell side");
+                    }
+                }
+            }
+        }
+        // The 7x4 interior corners all seed.
+        assert!(grown >= 28, "{grown} seeds grew");
+    }
 }

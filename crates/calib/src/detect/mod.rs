@@ -66,6 +66,8 @@ mod refine;
 mod subpix;
 mod views;
 
+use std::time::{Duration, Instant};
+
 use geometry::Image;
 
 pub use candidates::{candidates, chess_response};
@@ -145,15 +147,80 @@ pub struct Detection {
 
 /// Detects the board in a grey image (0–255 values).
 pub fn detect(img: &Image<f32>, board: &Board, params: &DetectorParams) -> Option<Detection> {
-    let pts = candidates(img, params);
+    detect_timed(img, board, params).0
+}
+
+/// Wall-clock time spent in each stage of one [`detect`] call (for the benchmarks and the
+/// `detect_stages` example; a stage not reached is zero).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    /// Stage 1a: the ChESS response over the whole image.
+    pub response: Duration,
+    /// Stage 1b: local maxima of the response (threshold, non-maximum suppression, sorting).
+    pub peaks: Duration,
+    /// Stage 2: `cornerSubPix` of every peak, duplicates merged.
+    pub subpix: Duration,
+    /// Stage 3: grid growing, the larger-board checks, trimming and the smoothness check.
+    pub grid: Duration,
+    /// Stage 4: labelling.
+    pub label: Duration,
+    /// Stage 5: the final sub-pixel fit of the labelled corners.
+    pub refine: Duration,
+}
+
+impl StageTimes {
+    /// Sum of the stages.
+    pub fn total(&self) -> Duration {
+        self.response + self.peaks + self.subpix + self.grid + self.label + self.refine
+    }
+}
+
+/// [`detect`], also returning the time spent in each stage.
+pub fn detect_timed(
+    img: &Image<f32>,
+    board: &Board,
+    params: &DetectorParams,
+) -> (Option<Detection>, StageTimes) {
+    let mut t = StageTimes::default();
+    let mut clock = Instant::now();
+    let mut lap = |d: &mut Duration| {
+        let now = Instant::now();
+        *d = now - clock;
+        clock = now;
+    };
+    let resp = chess_response(img, params.ring_radius);
+    lap(&mut t.response);
+    let peaks = candidates::peaks(&resp, params);
+    lap(&mut t.peaks);
+    let pts = candidates::refine_peaks(img, &peaks, params);
+    lap(&mut t.subpix);
     if pts.len() < 4 {
+        return (None, t);
+    }
+    let grid = grid_for_board(img, board, &pts);
+    lap(&mut t.grid);
+    let Some(grid) = grid else { return (None, t) };
+    let labelled = label::label(img, board, &pts, &grid);
+    lap(&mut t.label);
+    let Some(labelled) = labelled else { return (None, t) };
+    let corners = refine::refine(img, &labelled, params);
+    lap(&mut t.refine);
+    let complete = corners.len() == board.len();
+    (Some(Detection { corners, complete, top_left_black: labelled.top_left_black }), t)
+}
+
+/// Stage 3: the board-sized grid of the candidates, or `None` when there is none or the image
+/// shows a larger board.
+fn grid_for_board(
+    img: &Image<f32>,
+    board: &Board,
+    pts: &[(nalgebra::Vector2<f64>, f32)],
+) -> Option<grid::Grid> {
+    let found = grid::largest(pts, board.len())?;
+    if shows_larger_board(img, board, pts, &found) {
         return None;
     }
-    let found = grid::largest(&pts, board.len())?;
-    if shows_larger_board(img, board, &pts, &found) {
-        return None;
-    }
-    let grid = grid::trim(board, &pts, found.clone());
+    let grid = grid::trim(board, pts, found.clone());
     // Trimming drops junctions where the board's border meets the background or clutter next
     // to it; a whole line of corners next to the board-sized window, as long as the window,
     // is a larger board, and its sub-grid is never reported.
@@ -162,13 +229,10 @@ pub fn detect(img: &Image<f32>, board: &Board, params: &DetectorParams) -> Optio
     }
     // A corner grown into the wrong row or column (a strong lens bends the grid past the
     // growth's prediction) would be labelled wrongly: such a grid is dropped, never guessed.
-    if !grid::is_smooth(&pts, &grid) {
+    if !grid::is_smooth(pts, &grid) {
         return None;
     }
-    let labelled = label::label(img, board, &pts, &grid)?;
-    let corners = refine::refine(img, &labelled, params);
-    let complete = corners.len() == board.len();
-    Some(Detection { corners, complete, top_left_black: labelled.top_left_black })
+    Some(grid)
 }
 
 /// True when `grid` is a complete checkerboard (every corner present, colours checked) with

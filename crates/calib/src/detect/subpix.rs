@@ -38,7 +38,7 @@ pub fn refine_corner(
 ) -> Option<Vector2<f64>> {
     let hw = half_window as isize;
     let mut c = start;
-    let (w, h) = (img.width() as f64, img.height() as f64);
+    let (w, h) = (img.width(), img.height());
     let n = 2 * half_window + 1;
     let mask: Vec<f64> = (0..n)
         .map(|i| {
@@ -47,14 +47,36 @@ pub fn refine_corner(
         })
         .collect();
     let mut patch = vec![0.0f64; (n + 2) * (n + 2)];
+    let mut raw = vec![0.0f64; (n + 3) * (n + 3)];
+    let data = img.data();
+    let stride = img.width();
     for _ in 0..SUBPIX_MAX_ITERATIONS {
+        // The window's samples sit at integer offsets from `c`, so they share one pair of
+        // bilinear weights: read the (n + 3)² pixels under the window once (clamped at the
+        // borders) and blend them, instead of four clamped reads per sample.
+        let (x0, y0) = (c.x.floor(), c.y.floor());
+        let (fx, fy) = (c.x - x0, c.y - y0);
+        let (xs, ys) = (x0 as isize - hw - 1, y0 as isize - hw - 1);
+        let m = (n + 3) as isize;
+        if xs >= 0 && ys >= 0 && xs + m <= w as isize && ys + m <= h as isize {
+            for (i, row) in raw.chunks_mut(n + 3).enumerate() {
+                let start = (ys as usize + i) * stride + xs as usize;
+                for (r, &v) in row.iter_mut().zip(&data[start..start + n + 3]) {
+                    *r = v as f64;
+                }
+            }
+        } else {
+            for (i, row) in raw.chunks_mut(n + 3).enumerate() {
+                for (j, r) in row.iter_mut().enumerate() {
+                    *r = px(img, xs + j as isize, ys + i as isize) as f64;
+                }
+            }
+        }
         for (i, row) in patch.chunks_mut(n + 2).enumerate() {
+            let (top, bottom) = (&raw[i * (n + 3)..], &raw[(i + 1) * (n + 3)..]);
             for (j, v) in row.iter_mut().enumerate() {
-                *v = bilinear(
-                    img,
-                    c.x + (j as isize - hw - 1) as f64,
-                    c.y + (i as isize - hw - 1) as f64,
-                );
+                let (a, b, c, d) = (top[j], top[j + 1], bottom[j], bottom[j + 1]);
+                *v = (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy;
             }
         }
         let (mut a, mut b, mut cc, mut bb1, mut bb2) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -79,7 +101,12 @@ pub fn refine_corner(
         let next = Vector2::new(c.x + (cc * bb1 - b * bb2) / det, c.y + (a * bb2 - b * bb1) / det);
         let step = (next - c).norm();
         c = next;
-        if !(c.x >= 0.0 && c.y >= 0.0 && c.x <= w - 1.0 && c.y <= h - 1.0) {
+        if !(c.x >= 0.0 && c.y >= 0.0 && c.x <= w as f64 - 1.0 && c.y <= h as f64 - 1.0) {
+            return None;
+        }
+        // Left the window: no corner here (most peaks that are not corners drift away; this
+        // spares their remaining iterations).
+        if (c - start).norm() > half_window as f64 {
             return None;
         }
         if step < SUBPIX_EPS {
