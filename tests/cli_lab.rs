@@ -180,6 +180,23 @@ fn unit_and_emptiness_mistakes_fail_naming_the_mistake_and_force_overrides() {
     assert!(stderr(&o).contains("warning") && stderr(&o).contains("(--force)"), "{}", stderr(&o));
     assert_eq!(summary(&out)["summary"]["samples_in_view"], 0);
     std::fs::remove_dir_all(&out).unwrap();
+    // A rig with T in millimetres passed with --force: the overlap check names the mistake
+    // too (read as millimetres, 97 % land: the 5 cm baseline shifts the rest out of view).
+    let mut mm = small_rig();
+    mm.color_from_depth.translation *= 1000.0;
+    let mm_path = case.dir.join("rig_mm.json");
+    rigio::write_rig(&mm_path, &mm).unwrap();
+    let o = fuse_small(&case, &mm_path, &case.depth, &out, &["--force"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("land in the colour image")
+            && stderr(&o).contains(
+                "T looks like millimetres: 50 → 0.05 m? (read as millimetres, 97 % would land)"
+            ),
+        "{}",
+        stderr(&o)
+    );
+    std::fs::remove_dir_all(&out).unwrap();
     let o = fuse_small(&case, &case.rig, &case.depth, &out, &["--depth-scale", "1", "--force"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("median depth"), "{}", stderr(&o));
