@@ -180,6 +180,8 @@ fn load_mat(args: &FuseArgs, mat: &Path) -> Result<Loaded> {
         &file,
     ) {
         let kd = kinect_data::kinect_data_from_mat(&file)?;
+        // A real Kinect's rig: the same plausibility check as a rig file.
+        check_rig(&kd.rig, mat, args.force)?;
         let depth = match kd.depth {
             KinectDepth::Millimetres(d) => Ok(d),
             KinectDepth::Unusable(why) => Err(why),
