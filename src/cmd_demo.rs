@@ -59,6 +59,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         },
         depth_scale: images::MILLIMETRES,
         mat: None,
+        rectified: false,
         out: args.out.join("fused"),
         resample: ResampleArg::Both,
         mesh_from: MeshFromArg::Filled,

@@ -1,20 +1,25 @@
 //! `kfuse fuse`: depth + colour + rig → coloured cloud, registered depth, meshes, holes and
 //! the lab's figures, written into one output folder that appears only when complete.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use fusion_gpu::{Engine, EngineUsed};
+use geometry::Image;
 use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
-use geometry::{DepthKind, Image, Rig};
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
-use kfuse_io::{course, image_header, images, obj, ply, rig as rigio};
+use kfuse_io::{images, obj, ply};
 use serde::Serialize;
 
 use crate::figures::{self, Panel, titles};
+
+mod checks;
+mod inputs;
+
+pub use inputs::{Inputs, load_inputs};
 
 /// Fuse one depth frame with one colour frame.
 #[derive(Args, Debug, Clone)]
@@ -23,11 +28,16 @@ Examples:
   kfuse fuse --rig rig.json --color color.png --depth depth.png --out fused
   kfuse fuse --rig rig.json --color c.jpg --depth d.exr --depth-kind range --out fused
   kfuse fuse --mat ../shared/data/course/synthdata.mat --out course-fused
+  kfuse fuse --mat KinectData.mat --color Colour_rect.tif --depth Depth_rect.tif --out lab
+  kfuse fuse --rig rig.json --color rect/Colour_rect.tif --depth rect/Depth_rect.tif --rectified --out f
   kfuse fuse --rig rig.json --color c.png --depth d.png --resample nearest --no-figures --out quick
   kfuse fuse --mat synthdata.mat --engine gpu --out gpu-fused  (GPU required; prints the adapter)
   kfuse fuse --mat synthdata.mat --engine auto --out fused     (GPU if any, else CPU with a warning)
 
 Inputs are the raw (distorted) camera images; the rig's distortion is applied exactly.
+Images from `kfuse undistort` are rectified: pass --rectified, or they are distorted twice.
+Unit mistakes fail before any work (median depth outside 0.2-15 m, under 1 % of the depth
+samples landing in the colour image, implausible rig); --force fuses anyway.
 Depth: 16-bit PNG/TIFF in millimetres (see --depth-scale) or 32-bit float TIFF/EXR in metres;
 0 or NaN means no sample.
 
@@ -42,25 +52,33 @@ Outputs (in --out; the folder appears only when everything was written):
   summary.json                   counts, plane, timings, inputs and units
   task1.png ... task8.png        the lab's figures")]
 pub struct FuseArgs {
-    /// Rig file (JSON from `kfuse calibrate`) describing both cameras and color_from_depth.
+    /// Rig file (JSON from `kfuse calibrate` or `kfuse rig import`) describing both cameras
+    /// and color_from_depth. A single-camera file is not enough.
     #[arg(long, value_name = "RIG.json", required_unless_present = "mat", requires_all = ["color", "depth"])]
     pub rig: Option<PathBuf>,
-    /// Colour image (PNG, JPEG, TIFF or BMP), as captured (distorted).
-    #[arg(long, value_name = "C.png", requires = "rig")]
+    /// Colour image (PNG, JPEG, TIFF or BMP), as captured (distorted) or rectified (then
+    /// --rectified). With --mat it replaces the file's image.
+    #[arg(long, value_name = "C.png")]
     pub color: Option<PathBuf>,
-    /// Depth image of the depth camera, as captured.
-    #[arg(long, value_name = "D.png", requires = "rig")]
+    /// Depth image of the depth camera, as captured or rectified. With --mat it replaces the
+    /// file's depth (e.g. the handout's Depth_rect.tif).
+    #[arg(long, value_name = "D.png")]
     pub depth: Option<PathBuf>,
     /// What the depth values measure: z (along the optical axis, Kinect) or range (distance to
     /// the optical centre).
     #[arg(long, value_enum, default_value_t = DepthKindArg::Z)]
     pub depth_kind: DepthKindArg,
     /// Metres per unit of 16-bit depth images (0.001 = millimetres). Float images are metres.
-    #[arg(long, default_value_t = images::MILLIMETRES, value_name = "M_PER_UNIT")]
+    #[arg(long, default_value_t = images::MILLIMETRES, value_name = "M_PER_UNIT", allow_hyphen_values = true)]
     pub depth_scale: f64,
-    /// The lab course's MATLAB file (synthdata.mat) instead of --rig/--color/--depth.
-    #[arg(long, value_name = "FILE.mat", conflicts_with_all = ["rig", "color", "depth"])]
+    /// The lab course's MATLAB file instead of --rig: synthdata.mat, or the lab's
+    /// KinectData.mat (uint16 Depth in mm; --color/--depth replace its images).
+    #[arg(long, value_name = "FILE.mat", conflicts_with = "rig")]
     pub mat: Option<PathBuf>,
+    /// The images are already undistorted (`kfuse undistort`, the handout's *_rect files):
+    /// fuse them without the rig's distortion. A rig file can say the same ("rectified": true).
+    #[arg(long)]
+    pub rectified: bool,
     /// Output folder (created; same-named files in it are replaced).
     #[arg(long, short, value_name = "DIR")]
     pub out: PathBuf,
@@ -90,8 +108,10 @@ pub struct FuseArgs {
     /// Old spelling of `--engine gpu` (`--gpu`) and `--engine auto` (`--gpu auto`).
     #[arg(long, num_args = 0..=1, default_missing_value = "gpu", value_name = "auto", value_parser = parse_gpu_alias, hide = true)]
     pub gpu: Option<Engine>,
-    /// Use a rig that fails the plausibility check (focal lengths 50-20000 px, image sides up
-    /// to 16384 px, baseline up to 0.5 m; see README "Limits"), with a warning.
+    /// Fuse despite a failed plausibility check, with a warning: the rig's (focal lengths
+    /// 50-20000 px, image sides up to 16384 px, baseline up to 0.5 m), the depth's (median
+    /// 0.2-15 m after --depth-scale) or the overlap's (at least 1 % of the depth samples land
+    /// in the colour image); see README "Limits".
     #[arg(long)]
     pub force: bool,
 }
@@ -146,128 +166,12 @@ pub enum MeshFromArg {
     Linear,
 }
 
-/// The inputs of one fusion, loaded and checked.
-pub struct Inputs {
-    /// The rig.
-    pub rig: Rig,
-    /// Depth, metres, NaN = none.
-    pub depth: Image<f32>,
-    /// Depth kind.
-    pub kind: DepthKind,
-    /// Colour.
-    pub color: Image<[u8; 3]>,
-    /// Description for summary.json.
-    pub description: serde_json::Value,
-}
-
-fn check_size(
-    what: &str,
-    path: &Path,
-    got: (usize, usize),
-    want: (usize, usize),
-    rig_path: &Path,
-) -> Result<()> {
-    if got != want {
-        bail!(
-            "{what} {} is {}x{}, but the rig {} says that camera is {}x{}; pass the {what} of that camera or the rig it was calibrated with",
-            path.display(),
-            got.0,
-            got.1,
-            rig_path.display(),
-            want.0,
-            want.1
-        );
-    }
-    Ok(())
-}
-
 /// What an interrupted `fuse` says it did.
 const STOPPED: &str = ": stopped; the staging folder was removed and --out left as it was";
 
-/// The rig plausibility check ([`Rig::check_plausible`]), or with `--force` its problems as
-/// warnings.
-fn check_rig(rig: &Rig, source: &Path, force: bool) -> Result<()> {
-    if force {
-        for problem in rig.plausibility_problems() {
-            eprintln!("warning: {}: {problem} (--force)", source.display());
-        }
-        return Ok(());
-    }
-    if let Err(e) = rig.check_plausible() {
-        bail!("{}: {e}; pass --force if the rig really is meant this way", source.display());
-    }
-    Ok(())
-}
-
-/// Loads and checks the inputs named by `args` (nothing is written).
-pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
-    if let Some(mat) = &args.mat {
-        // No plausibility check: the course importers convert known units themselves, and
-        // the lab's synthdata.mat has a 1 m baseline by design.
-        let data = course::read_course(mat)?;
-        return Ok(Inputs {
-            description: serde_json::json!({
-                "mat": mat,
-                "convention": "synthdata.mat: cx, cy 1-based; R, T = colour camera pose in the depth frame; Depth = range (m)",
-            }),
-            rig: data.rig,
-            depth: data.depth,
-            kind: data.depth_kind,
-            color: data.color,
-        });
-    }
-    let (Some(rig_path), Some(color_path), Some(depth_path)) =
-        (&args.rig, &args.color, &args.depth)
-    else {
-        bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
-    };
-    let rig = if args.force {
-        let rig = rigio::read_rig_unchecked(rig_path)?;
-        check_rig(&rig, rig_path, true)?;
-        rig
-    } else {
-        rigio::read_rig(rig_path)?
-    };
-    // Sizes from the headers first: a huge or wrong image is refused before it is decoded.
-    for (what, path, cam) in
-        [("colour image", color_path, &rig.color), ("depth image", depth_path, &rig.depth)]
-    {
-        check_size(what, path, image_header::image_size(path)?, (cam.width, cam.height), rig_path)?;
-    }
-    let color = images::read_color(color_path)?;
-    check_size(
-        "colour image",
-        color_path,
-        color.size(),
-        (rig.color.width, rig.color.height),
-        rig_path,
-    )?;
-    let depth = images::read_depth(depth_path, args.depth_scale)?;
-    check_size(
-        "depth image",
-        depth_path,
-        depth.size(),
-        (rig.depth.width, rig.depth.height),
-        rig_path,
-    )?;
-    let kind = match args.depth_kind {
-        DepthKindArg::Z => DepthKind::Z,
-        DepthKindArg::Range => DepthKind::Range,
-    };
-    Ok(Inputs {
-        description: serde_json::json!({
-            "rig": rig_path, "color": color_path, "depth": depth_path,
-            "depth_kind": kind, "depth_scale_m_per_unit": args.depth_scale,
-        }),
-        rig,
-        depth,
-        kind,
-        color,
-    })
-}
-
-/// The fusion options `args` ask for.
+/// The fusion options `args` ask for; every option's value is checked here.
 pub fn options(args: &FuseArgs) -> Result<FusionOptions> {
+    checks::check_depth_scale(args.depth_scale)?;
     if !(args.stretch_ratio.is_finite() && args.stretch_ratio > 0.0) {
         bail!("--stretch-ratio must be a positive number, got {}", args.stretch_ratio);
     }

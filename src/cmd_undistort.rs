@@ -9,16 +9,20 @@ use calib::undistort::UndistortMap;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
 use kfuse_io::image_header::image_size;
-use kfuse_io::images::{MILLIMETRES, read_color, read_depth, write_color_png, write_depth_png16};
+use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster};
 
 /// Arguments of `kfuse undistort`.
 #[derive(clap::Args, Debug)]
 #[command(after_help = "EXAMPLES:
-  kfuse undistort --rig rig.json --camera color caps/color_*.png --out rect/
-  kfuse undistort --rig rig.json --camera depth caps/depth_*.png --out rect/
+  kfuse undistort --rig rig.json --camera color caps/Colour.tif --out rect/
+  kfuse undistort --rig rig.json --camera depth 'caps/depth_*.png' --out rect/   (quoted or not)
+  kfuse fuse --rig rig.json --color rect/Colour_rect.tif --depth rect/Depth_rect.tif --rectified --out f
 
-Writes NAME_rect.png per input. Colour and 8-bit IR images are resampled bilinearly; 16-bit
-depth images (millimetres) by nearest neighbour, so no depth is ever blended across an edge.
+Writes NAME_rect.EXT per input NAME.EXT (Colour.tif -> Colour_rect.tif), in the input's format
+and pixel type: TIFF stays TIFF, grey stays grey, 16-bit stays 16-bit, float TIFF stays float.
+Colour and 8-bit grey (IR) images are resampled bilinearly; 16-bit (depth in millimetres, 16-bit
+IR) and float (depth in metres) by nearest neighbour, so no depth is ever blended across an edge.
+Fuse the results with --rectified (they would be undistorted a second time otherwise).
 Pixels whose ray falls where the distortion model folds (the lab's IR k1/k2 fold near the image
 corners), or outside the input image, are masked: black, or depth 0 (no sample).")]
 pub struct UndistortArgs {
@@ -28,7 +32,8 @@ pub struct UndistortArgs {
     /// Which camera took the images.
     #[arg(long, value_parser = ["color", "depth"])]
     camera: String,
-    /// Images to undistort.
+    /// Images to undistort: files or glob patterns, quoted ('caps/*.png') or expanded by the
+    /// shell.
     #[arg(required = true)]
     images: Vec<PathBuf>,
     /// Output folder (created if missing). The outputs appear all together when every image
@@ -40,13 +45,59 @@ pub struct UndistortArgs {
     force: bool,
 }
 
-/// `NAME_rect.png` for input `NAME.ext`.
+/// `NAME_rect.EXT` for input `NAME.EXT` (the handout's `Colour.tif` → `Colour_rect.tif`);
+/// `NAME_rect.png` for a name without extension.
 fn output_name(path: &Path) -> String {
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "image".into());
-    format!("{stem}_rect.png")
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().into_owned())
+        .unwrap_or_else(|| RasterFormat::Png.extension().into());
+    format!("{stem}_rect.{ext}")
+}
+
+/// The images named on the command line: an existing file as it is, otherwise a pattern with
+/// `*`, `?` or `[` expanded (sorted; the shell leaves a quoted one alone), each file once.
+fn expand_images(args: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out: Vec<PathBuf> = Vec::new();
+    for arg in args {
+        let text = arg.to_string_lossy();
+        if arg.exists() || !text.contains(['*', '?', '[']) {
+            out.push(arg.clone());
+            continue;
+        }
+        let mut matches: Vec<PathBuf> = glob::glob(&text)
+            .map_err(|e| anyhow::anyhow!("'{text}': invalid glob pattern: {e}"))?
+            .filter_map(|m| m.ok())
+            .filter(|p| p.is_file())
+            .collect();
+        if matches.is_empty() {
+            bail!("'{text}': no file matches this pattern");
+        }
+        matches.sort();
+        out.extend(matches);
+    }
+    let mut seen = std::collections::HashSet::new();
+    out.retain(|p| seen.insert(p.clone()));
+    Ok(out)
+}
+
+/// Undistorts one image in its own pixel type: 8-bit bilinearly, 16-bit and float (depth) by
+/// nearest neighbour; masked pixels are 0 (black, no depth) or NaN (float depth).
+fn remap(map: &UndistortMap, raster: &Raster) -> Raster {
+    match raster {
+        Raster::Gray8(i) => {
+            let (r, _) = map.remap_bilinear(&i.map(|&v| [v]));
+            Raster::Gray8(r.map(|v| v[0]))
+        }
+        Raster::Rgb8(i) => Raster::Rgb8(map.remap_bilinear(i).0),
+        Raster::Rgba8(i) => Raster::Rgba8(map.remap_bilinear(i).0),
+        Raster::Gray16(i) => Raster::Gray16(map.remap_nearest(i, 0)),
+        Raster::GrayF32(i) => Raster::GrayF32(map.remap_nearest(i, f32::NAN)),
+    }
 }
 
 /// Runs the command.
@@ -70,8 +121,9 @@ pub fn run(args: UndistortArgs) -> Result<()> {
     }
     // Everything that can be checked is checked before the (large) map is built and before
     // anything is written: one output name per input, every image's size from its header.
+    let images = expand_images(&args.images)?;
     let mut names: HashMap<String, &PathBuf> = HashMap::new();
-    for path in &args.images {
+    for path in &images {
         let name = output_name(path);
         if let Some(first) = names.insert(name.clone(), path) {
             bail!(
@@ -103,50 +155,31 @@ pub fn run(args: UndistortArgs) -> Result<()> {
             100.0 * map.masked_fraction()
         );
     }
-    let pb = ProgressBar::new(args.images.len() as u64);
+    let pb = ProgressBar::new(images.len() as u64);
     pb.set_style(
         ProgressStyle::with_template("undistorting [{bar:30}] {pos}/{len} {elapsed}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    for path in &args.images {
+    for path in &images {
         let out = staged.join(output_name(path));
-        let eight_bit = calib::io::is_8bit(path)?;
-        if eight_bit {
-            let img = read_color(path)?;
-            if img.size() != (cam.width, cam.height) {
-                bail!(
-                    "{}: image is {}x{} but the rig's {} camera is {}x{}",
-                    path.display(),
-                    img.width(),
-                    img.height(),
-                    args.camera,
-                    cam.width,
-                    cam.height
-                );
-            }
-            let (rect, _) = map.remap_bilinear(&img);
-            write_color_png(&out, &rect)?;
-        } else {
-            let depth = read_depth(path, MILLIMETRES)?;
-            if depth.size() != (cam.width, cam.height) {
-                bail!(
-                    "{}: image is {}x{} but the rig's {} camera is {}x{}",
-                    path.display(),
-                    depth.width(),
-                    depth.height(),
-                    args.camera,
-                    cam.width,
-                    cam.height
-                );
-            }
-            let rect = map.remap_nearest(&depth, f32::NAN);
-            write_depth_png16(&out, &rect)?;
+        let (raster, format) = read_raster(path)?;
+        if raster.size() != (cam.width, cam.height) {
+            bail!(
+                "{}: image is {}x{} but the rig's {} camera is {}x{}",
+                path.display(),
+                raster.size().0,
+                raster.size().1,
+                args.camera,
+                cam.width,
+                cam.height
+            );
         }
+        write_raster(&out, &remap(&map, &raster), format)?;
         pb.inc(1);
         crate::interrupt::check(": stopped; nothing was written to --out")?;
     }
     pb.finish();
     staged.commit()?;
-    println!("wrote {} image(s) to {}", args.images.len(), args.out.display());
+    println!("wrote {} image(s) to {}", images.len(), args.out.display());
     Ok(())
 }

@@ -139,7 +139,7 @@ fn undistort_writes_rect_images() {
         out.to_str().unwrap(),
     ]);
     assert!(ok, "{text}");
-    let rect = calib::io::read_gray(&out.join("ir_1_rect.png")).unwrap();
+    let rect = calib::io::read_gray(&out.join("ir_1_rect.bmp")).unwrap();
     let input = calib::io::read_gray(&img).unwrap();
     assert_eq!(rect.size(), (512, 424));
     // Next to the principal point the lens does not move pixels: the same value comes back.

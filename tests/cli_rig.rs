@@ -490,7 +490,7 @@ fn show_prints_units_and_single_camera_files_are_accepted() {
     // undistort takes the single-camera file; the wrong camera is named.
     let img = lab(&data, "ir_1.bmp");
     ok(&["undistort", "--rig", s(&ir), "--camera", "depth", s(&img), "--out", s(&p("rect"))]);
-    assert!(p("rect/ir_1_rect.png").is_file());
+    assert!(p("rect/ir_1_rect.bmp").is_file(), "a BMP stays a BMP");
     let (good, _, err) = kfuse(&[
         "undistort",
         "--rig",

@@ -8,7 +8,8 @@
 //!                     "skew": 0, "k1": ..., "k2": ..., "p1": ..., "p2": ..., "k3": ... },
 //!   "color_camera": { ... same fields ... },
 //!   "color_from_depth": { "rotation": [[...],[...],[...]], "translation_m": [x, y, z] },
-//!   "calibration": { ... optional report written by `kfuse calibrate` ... }
+//!   "calibration": { ... optional report written by `kfuse calibrate` ... },
+//!   "rectified": true   (optional, default false: the images are already undistorted)
 //! }
 //! ```
 //! `color_from_depth` maps depth-camera points into the colour camera: `X_c = R·X_d + T`.
@@ -56,6 +57,10 @@ pub struct Rig {
     /// The calibration report (errors, standard deviations, board, per-image RMS) as written
     /// by `kfuse calibrate`, kept verbatim; `None` for rigs from other sources.
     pub calibration: Option<serde_json::Value>,
+    /// True when this rig's images are already undistorted (`kfuse undistort`, the lab's
+    /// `*_rect` files): fusion then uses both cameras without their distortion. Optional in
+    /// the file (absent = false, so version-1 files without it read unchanged).
+    pub rectified: bool,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -69,6 +74,8 @@ struct RigFile {
     color_from_depth: RigidTransform,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     calibration: Option<serde_json::Value>,
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    rectified: bool,
 }
 
 /// What makes one camera implausible (focal lengths outside [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`],
@@ -101,7 +108,7 @@ pub fn camera_plausibility_problems(name: &str, cam: &CameraModel) -> Vec<String
 impl Rig {
     /// A rig without a calibration report.
     pub fn new(depth: CameraModel, color: CameraModel, color_from_depth: RigidTransform) -> Self {
-        Self { depth, color, color_from_depth, calibration: None }
+        Self { depth, color, color_from_depth, calibration: None, rectified: false }
     }
 
     /// Checks both cameras.
@@ -155,6 +162,7 @@ impl Rig {
             color_camera: self.color,
             color_from_depth: self.color_from_depth,
             calibration: self.calibration.clone(),
+            rectified: self.rectified,
         };
         // Serialising plain numbers and strings cannot fail.
         serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -184,6 +192,7 @@ impl Rig {
             color: file.color_camera,
             color_from_depth: file.color_from_depth,
             calibration: file.calibration,
+            rectified: file.rectified,
         };
         rig.validate().map_err(|e| format_err(e.to_string()))?;
         Ok(rig)
@@ -223,6 +232,10 @@ mod tests {
         // A few f64 ulps (2.2e-16) of O(1) matrix entries through the JSON text and back.
         assert!((back.color_from_depth.matrix() - t.matrix()).abs().max() < 1e-15);
         assert_eq!(back.calibration, rig.calibration);
+        assert!(!back.rectified && !rig.to_json().contains("rectified"));
+        rig.rectified = true;
+        let back = Rig::from_json(&rig.to_json(), Path::new("rig.json")).unwrap();
+        assert!(back.rectified, "the rectified flag is lost");
     }
 
     fn kinect() -> Rig {

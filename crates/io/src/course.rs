@@ -24,16 +24,16 @@
 //!
 //! # `KinectData.mat`
 //!
-//! `Cparam` / `Dparam` hold Bouguet's 0-based `fx, fy, cx, cy` of the colour and depth
-//! cameras, `R`, `T` Bouguet's stereo extrinsics (`X_color = R·X_depth + T`, millimetres →
-//! metres here). The file stores no distortion (its colour image is already rectified) and
-//! its `Depth` is an 8-bit picture, not depth: only the rig and the colour image are read.
+//! The lab's own file (`Calibrate.m` + capture) is read by [`crate::kinect_data`] (re-exported
+//! here): Bouguet's 0-based `fx, fy, cx, cy`, `R`, `T` in millimetres, and a uint16 `Depth` in
+//! millimetres (z) when the file holds real depth.
 
 use std::path::Path;
 
 use nalgebra::{Matrix3, Vector3};
 
 use super::mat::{MatFile, NumericData, column_to_row_major};
+pub use crate::kinect_data::{KinectDepth, KinectLabData, read_kinect_data};
 use geometry::{
     CameraModel, DepthKind, Distortion, GeometryError, Image, Intrinsics, Rig, RigidTransform,
 };
@@ -118,8 +118,8 @@ pub fn course_from_mat(
         && file.get("Dparam").and_then(|d| d.field("fx")).is_some()
     {
         return Err(file.error(
-            "looks like the lab's KinectData.mat (Dparam with fx, fy, cx, cy): its 'Depth' is an 8-bit picture, not \
-             depth, so it cannot be fused; export its rig with the calibration tools and pass a real depth image"
+            "looks like the lab's KinectData.mat (Dparam with fx, fy, cx, cy), not a course file like synthdata.mat: \
+             it is not depth in the course's layout; read it with kfuse_io::kinect_data (`kfuse fuse --mat` does)"
                 .into(),
         ));
     }
@@ -224,42 +224,6 @@ pub fn color_image(file: &MatFile, name: &str) -> Result<Image<[u8; 3]>, Geometr
     };
     let pixels = bytes.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     Image::from_vec(w, h, pixels)
-}
-
-/// The content of `KinectData.mat`: the lab's rig and its rectified colour image.
-#[derive(Debug, Clone)]
-pub struct KinectLabData {
-    /// Depth camera 512×424 and colour camera (size of `Image`), no distortion, metres.
-    pub rig: Rig,
-    /// The rectified colour image.
-    pub color: Image<[u8; 3]>,
-}
-
-/// Kinect v2 depth image size (the file's `Depth` is not usable, so the size is not read).
-const KINECT_DEPTH_SIZE: (usize, usize) = (512, 424);
-
-/// Reads `KinectData.mat` (see the module docs).
-pub fn read_kinect_data(path: &Path) -> Result<KinectLabData, GeometryError> {
-    let file = MatFile::read(path)?;
-    let color = color_image(&file, "Image")?;
-    let camera = |name: &str, (w, h): (usize, usize)| -> Result<CameraModel, GeometryError> {
-        let k = Intrinsics::new(
-            file.scalar(&format!("{name}.fx"))?,
-            file.scalar(&format!("{name}.fy"))?,
-            file.scalar(&format!("{name}.cx"))?,
-            file.scalar(&format!("{name}.cy"))?,
-        );
-        let cam = CameraModel::new(w, h, k, Distortion::NONE);
-        cam.validate().map_err(|e| file.error(format!("'{name}': {e}")))?;
-        Ok(cam)
-    };
-    let depth_cam = camera("Dparam", KINECT_DEPTH_SIZE)?;
-    let color_cam = camera("Cparam", color.size())?;
-    // Bouguet's stereo T is in millimetres.
-    let (r, t) = extrinsics(&file, 1e-3)?;
-    let color_from_depth =
-        RigidTransform::from_matrix(r, t).map_err(|e| file.error(format!("'R', 'T': {e}")))?;
-    Ok(KinectLabData { rig: Rig::new(depth_cam, color_cam, color_from_depth), color })
 }
 
 #[cfg(test)]

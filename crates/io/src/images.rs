@@ -88,10 +88,27 @@ pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
     Image::from_vec(w, h, pixels)
 }
 
+/// How a depth file stores its values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthEncoding {
+    /// 16-bit integers, scaled by the caller's metres per unit.
+    Integer,
+    /// 32-bit (or 16-bit half) floats, metres.
+    FloatMetres,
+}
+
 /// Reads a depth image into metres (`NaN` = no sample). `metres_per_unit` scales 16-bit
 /// integer images ([`MILLIMETRES`] for Kinect files); float images are already metres.
 /// Fails when the image holds no valid sample at all.
 pub fn read_depth(path: &Path, metres_per_unit: f64) -> Result<Image<f32>, GeometryError> {
+    Ok(read_depth_encoded(path, metres_per_unit)?.0)
+}
+
+/// [`read_depth`], also saying how the file stored the values (for messages about units).
+pub fn read_depth_encoded(
+    path: &Path,
+    metres_per_unit: f64,
+) -> Result<(Image<f32>, DepthEncoding), GeometryError> {
     if !(metres_per_unit.is_finite() && metres_per_unit > 0.0) {
         return Err(GeometryError::InvalidParameter(format!(
             "depth scale must be a positive number of metres per unit, got {metres_per_unit}"
@@ -101,10 +118,10 @@ pub fn read_depth(path: &Path, metres_per_unit: f64) -> Result<Image<f32>, Geome
     if matches!(sniff(&bytes), Container::Png | Container::Tiff | Container::Exr) {
         check_header(path, &bytes)?;
     }
-    let img = match sniff(&bytes) {
-        Container::Png => read_depth_png(path, &bytes, metres_per_unit)?,
+    let (img, encoding) = match sniff(&bytes) {
+        Container::Png => (read_depth_png(path, &bytes, metres_per_unit)?, DepthEncoding::Integer),
         Container::Tiff => read_depth_tiff(path, &bytes, metres_per_unit)?,
-        Container::Exr => read_depth_exr(path, &bytes)?,
+        Container::Exr => (read_depth_exr(path, &bytes)?, DepthEncoding::FloatMetres),
         Container::Jpeg | Container::Bmp => {
             return Err(format_err(
                 path,
@@ -128,7 +145,7 @@ pub fn read_depth(path: &Path, metres_per_unit: f64) -> Result<Image<f32>, Geome
             "has no valid depth sample (every pixel is 0 or NaN); check that this is the depth image and not an empty frame",
         ));
     }
-    Ok(img)
+    Ok((img, encoding))
 }
 
 fn from_units(
@@ -174,7 +191,7 @@ fn read_depth_tiff(
     path: &Path,
     bytes: &[u8],
     metres_per_unit: f64,
-) -> Result<Image<f32>, GeometryError> {
+) -> Result<(Image<f32>, DepthEncoding), GeometryError> {
     let tiff_err = |e: tiff::TiffError| {
         format_err(path, format!("corrupt or unsupported TIFF: {e}; depth must be {DEPTH_FORMATS}"))
     };
@@ -184,9 +201,11 @@ fn read_depth_tiff(
     let (w, h) = (w as usize, h as usize);
     match (colour, dec.read_image().map_err(tiff_err)?) {
         (tiff::ColorType::Gray(16), tiff::decoder::DecodingResult::U16(v)) => {
-            from_units(w, h, v, metres_per_unit)
+            Ok((from_units(w, h, v, metres_per_unit)?, DepthEncoding::Integer))
         }
-        (tiff::ColorType::Gray(32), tiff::decoder::DecodingResult::F32(v)) => from_metres(w, h, v),
+        (tiff::ColorType::Gray(32), tiff::decoder::DecodingResult::F32(v)) => {
+            Ok((from_metres(w, h, v)?, DepthEncoding::FloatMetres))
+        }
         (c, _) => Err(format_err(path, format!("is a {c:?} TIFF; depth must be {DEPTH_FORMATS}"))),
     }
 }

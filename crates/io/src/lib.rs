@@ -8,8 +8,10 @@
 //! | [`atomic`] | every write: temporary file + rename, [`atomic::StagedDir`] for output folders |
 //! | [`mat`] | MATLAB v5 `.mat` files (reader for every numeric class, char, struct, cell; small writer) |
 //! | [`course`] | the lab's `synthdata.mat` and `KinectData.mat` → [`geometry::Rig`] + images |
+//! | [`kinect_data`] | the lab's `KinectData.mat`: rig, colour image, uint16 depth (mm) |
 //! | [`image_header`] | image sizes from headers, checked against limits before decoding; JPEG completeness |
 //! | [`images`] | colour (PNG/JPEG/TIFF/BMP), depth (16-bit PNG/TIFF mm, float TIFF/EXR m), masks |
+//! | [`raster`] | images in their own pixel type and format (undistort keeps both) |
 //! | [`ply`] | binary PLY point clouds and meshes (colours, `s, t` texture coordinates) |
 //! | [`obj`] | OBJ + MTL + PNG texture |
 //! | [`rig`] | rig JSON files |
@@ -20,7 +22,9 @@ pub mod atomic;
 pub mod course;
 pub mod image_header;
 pub mod images;
+pub mod kinect_data;
 pub mod mat;
 pub mod obj;
 pub mod ply;
+pub mod raster;
 pub mod rig;

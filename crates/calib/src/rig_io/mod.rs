@@ -312,7 +312,8 @@ fn import_mat(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
     let has = |n: &str| m.get(n).is_some();
     if has("Dparam") && has("Cparam") {
         expect_count(sources, 1, "a course file")?;
-        if m.get("Dparam").and_then(|d| d.field("fx")).is_some() {
+        // synthdata.mat's Dparam has fx too (beside fp): fp decides.
+        if kfuse_io::kinect_data::is_kinect_data(&m) {
             let kd = kfuse_io::course::read_kinect_data(path)?;
             return Ok(imported(
                 Calibration::Rig(kd.rig),

@@ -1,0 +1,247 @@
+//! Unit and emptiness checks of `kfuse fuse`, run on the loaded inputs before any fusion work:
+//! a unit mistake (depth scale, depth in the wrong unit, T in millimetres, R, T inverted)
+//! otherwise gives "0 samples", empty meshes, blank figures and exit code 0. Each check fails
+//! with one line naming the file and the likely mistake; `--force` turns them into warnings.
+
+use anyhow::{Result, bail};
+use geometry::{DepthKind, Image, Rig, RigidTransform};
+use kfuse_io::images::DepthEncoding;
+
+// Plausible depth: a median outside this band is a unit mistake, not a scene.
+
+/// Shortest plausible median depth, metres: 0.2. The Kinect v2 measures from 0.5 m, the
+/// closest depth cameras from about 0.1-0.2 m; a whole frame whose median is nearer is metres
+/// read as kilometres, or micrometre-scaled millimetres (`--depth-scale 0.000001`).
+pub const MIN_MEDIAN_DEPTH_M: f64 = 0.2;
+/// Longest plausible median depth, metres: 15. The Kinect v2 ends at 4.5 m (8 m at most),
+/// ToF and stereo depth cameras at about 10 m; millimetres read as metres (`--depth-scale 1`)
+/// give medians of hundreds to thousands of "metres".
+pub const MAX_MEDIAN_DEPTH_M: f64 = 15.0;
+/// Smallest fraction of the valid depth samples that must land inside the colour image: 1 %.
+/// A real rig's cameras look the same way and overlap over most of the frame (the Kinect v2's
+/// over 80 %); under 1 % means the rig does not describe these images (T in millimetres, R, T
+/// inverted, swapped cameras), and the fusion's output would be empty.
+pub const MIN_IN_COLOR_FRACTION: f64 = 0.01;
+
+/// Smallest `--depth-scale`, metres per unit: 1e-6 (micrometres; a 16-bit image then holds
+/// at most 65 mm, finer than any depth camera).
+pub const MIN_DEPTH_SCALE: f64 = 1e-6;
+/// Largest `--depth-scale`, metres per unit: 1 (whole metres; larger units cannot be depth
+/// images of a room, and 65 535 · 1e40 is not even a finite `f32`).
+pub const MAX_DEPTH_SCALE: f64 = 1.0;
+
+/// Checks `--depth-scale` (one line naming the option and the fix).
+pub fn check_depth_scale(scale: f64) -> Result<()> {
+    if !(scale.is_finite() && (MIN_DEPTH_SCALE..=MAX_DEPTH_SCALE).contains(&scale)) {
+        // 1e40 as written, not forty digits.
+        let shown = if scale.is_finite() && scale.abs() >= 1e6 {
+            format!("{scale:e}")
+        } else {
+            scale.to_string()
+        };
+        bail!(
+            "--depth-scale {shown}: must be the metres per unit of 16-bit depth images, a number from {MIN_DEPTH_SCALE} to {MAX_DEPTH_SCALE} (0.001 for millimetres, the Kinect's unit)"
+        );
+    }
+    Ok(())
+}
+
+/// Where the depth values came from, for the message naming the mistake.
+#[derive(Debug, Clone)]
+pub enum DepthSource {
+    /// A depth image file read with `--depth-scale`.
+    File {
+        /// The file, as given.
+        name: String,
+        /// How it stores values.
+        encoding: DepthEncoding,
+        /// `--depth-scale`.
+        scale: f64,
+    },
+    /// The `Depth` variable of `KinectData.mat` (uint16 millimetres).
+    KinectMat {
+        /// The file, as given.
+        name: String,
+    },
+}
+
+impl DepthSource {
+    fn name(&self) -> &str {
+        match self {
+            DepthSource::File { name, .. } | DepthSource::KinectMat { name } => name,
+        }
+    }
+}
+
+/// The median of the valid (finite) samples; `None` when there is none.
+pub fn median_depth(depth: &Image<f32>) -> Option<f64> {
+    let mut v: Vec<f32> = depth.data().iter().copied().filter(|d| d.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
+    Some(*m as f64)
+}
+
+/// A length for messages: "1 204" for large values (grouped thousands), 3 significant digits
+/// below 100.
+fn metres_text(m: f64) -> String {
+    if m >= 100.0 {
+        let digits = format!("{:.0}", m);
+        let mut out = String::new();
+        for (i, c) in digits.chars().enumerate() {
+            if i > 0 && (digits.len() - i).is_multiple_of(3) {
+                out.push(' ');
+            }
+            out.push(c);
+        }
+        out
+    } else {
+        format!("{m:.3}")
+    }
+}
+
+/// Fails when the median depth lies outside [`MIN_MEDIAN_DEPTH_M`]..[`MAX_MEDIAN_DEPTH_M`],
+/// naming the likely mistake.
+pub fn check_depth_units(depth: &Image<f32>, source: &DepthSource) -> Result<(), String> {
+    let Some(median) = median_depth(depth) else { return Ok(()) };
+    if (MIN_MEDIAN_DEPTH_M..=MAX_MEDIAN_DEPTH_M).contains(&median) {
+        return Ok(());
+    }
+    let side = if median > MAX_MEDIAN_DEPTH_M {
+        format!("over {MAX_MEDIAN_DEPTH_M} m")
+    } else {
+        format!("under {MIN_MEDIAN_DEPTH_M} m")
+    };
+    let head = format!("{}: median depth {} m is {side}", source.name(), metres_text(median));
+    let hint = match source {
+        DepthSource::File { encoding: DepthEncoding::Integer, scale, .. } => {
+            // The scale that puts this median at the Kinect's typical 0.5-5 m, in powers of ten.
+            let suggested = [1e-4, 1e-3, 1e-2, 1e-1]
+                .into_iter()
+                .find(|s| (0.5..=5.0).contains(&(median / scale * s)))
+                .map(|s| format!(" use {s}"))
+                .unwrap_or_default();
+            if median > MAX_MEDIAN_DEPTH_M {
+                format!(": is --depth-scale {scale} on millimetre depth?{suggested}")
+            } else {
+                format!(": is --depth-scale {scale} too small for this file's unit?{suggested}")
+            }
+        }
+        DepthSource::File { encoding: DepthEncoding::FloatMetres, .. } => {
+            if median > MAX_MEDIAN_DEPTH_M {
+                ": float depth images must hold metres; this one looks like millimetres (divide by 1000, or save 16-bit millimetres)".into()
+            } else {
+                ": float depth images must hold metres; this one looks like a smaller unit or a normalised picture".into()
+            }
+        }
+        DepthSource::KinectMat { .. } => {
+            ": KinectData.mat's 'Depth' must be millimetres (uint16), as the lab's capture saves it"
+                .into()
+        }
+    };
+    Err(format!("{head}{hint}"))
+}
+
+/// Fraction of the valid depth samples whose point lands inside the colour image.
+pub fn in_color_fraction(rig: &Rig, depth: &Image<f32>, kind: DepthKind) -> (f64, usize) {
+    in_color_fraction_with(rig, &rig.color_from_depth, depth, kind)
+}
+
+fn in_color_fraction_with(
+    rig: &Rig,
+    color_from_depth: &RigidTransform,
+    depth: &Image<f32>,
+    kind: DepthKind,
+) -> (f64, usize) {
+    let (w, _) = depth.size();
+    let mut valid = 0usize;
+    let mut inside = 0usize;
+    for (i, &d) in depth.data().iter().enumerate() {
+        if !d.is_finite() {
+            continue;
+        }
+        valid += 1;
+        let (u, v) = ((i % w) as f64, (i / w) as f64);
+        let Some(p) = rig.depth.backproject(u, v, d as f64, kind) else { continue };
+        let q = color_from_depth.apply(&p);
+        if q.z <= 0.0 {
+            continue;
+        }
+        if let Some(uv) = rig.color.project(&q)
+            && rig.color.contains(uv.x, uv.y)
+        {
+            inside += 1;
+        }
+    }
+    (inside as f64 / valid.max(1) as f64, valid)
+}
+
+/// Fails when fewer than [`MIN_IN_COLOR_FRACTION`] of the depth samples land in the colour
+/// image, naming the likely mistake (T in millimetres, R, T inverted) where another reading
+/// of the rig would put them there.
+pub fn check_overlap(
+    rig: &Rig,
+    rig_name: &str,
+    depth: &Image<f32>,
+    kind: DepthKind,
+) -> Result<(), String> {
+    let (fraction, valid) = in_color_fraction(rig, depth, kind);
+    if fraction >= MIN_IN_COLOR_FRACTION {
+        return Ok(());
+    }
+    let t = rig.color_from_depth.translation;
+    let mut in_mm = rig.color_from_depth;
+    in_mm.translation = t * 1e-3;
+    let (mm_fraction, _) = in_color_fraction_with(rig, &in_mm, depth, kind);
+    let (inv_fraction, _) =
+        in_color_fraction_with(rig, &rig.color_from_depth.inverse(), depth, kind);
+    let hint = if mm_fraction >= MIN_IN_COLOR_FRACTION && mm_fraction >= inv_fraction {
+        let short = |x: f64| (x * 1e4).round() / 1e4;
+        format!(
+            "T looks like millimetres: {} → {} m? (read as millimetres, {:.0} % would land)",
+            short(t.norm()),
+            short(t.norm() * 1e-3),
+            100.0 * mm_fraction
+        )
+    } else if inv_fraction >= MIN_IN_COLOR_FRACTION {
+        format!(
+            "R, T look inverted (the colour camera's pose in the depth frame, not color_from_depth; inverted, {:.0} % would land)",
+            100.0 * inv_fraction
+        )
+    } else {
+        "check that the rig belongs to these cameras, its T is in metres, and --depth-kind / --depth-scale".into()
+    };
+    Err(format!(
+        "{rig_name}: only {:.2} % of the {valid} depth samples land in the colour image (at least {:.0} % needed): {hint}",
+        100.0 * fraction,
+        100.0 * MIN_IN_COLOR_FRACTION
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lengths_read_like_the_issue() {
+        assert_eq!(metres_text(1204.4), "1 204");
+        assert_eq!(metres_text(65535.0), "65 535");
+        assert_eq!(metres_text(1.5), "1.500");
+        assert_eq!(metres_text(123.0), "123");
+    }
+
+    #[test]
+    fn median_and_scale_hint() {
+        let d = Image::from_fn(10, 1, |x, _| if x < 3 { f32::NAN } else { 1204.0 + x as f32 });
+        assert_eq!(median_depth(&d), Some(1210.0));
+        let src = DepthSource::File {
+            name: "d.png".into(),
+            encoding: DepthEncoding::Integer,
+            scale: 1.0,
+        };
+        let e = check_depth_units(&d, &src).unwrap_err();
+        assert!(e.contains("median depth 1 210 m") && e.contains("use 0.001"), "{e}");
+    }
+}

@@ -1,0 +1,227 @@
+//! The inputs of `kfuse fuse`: a rig with colour and depth files, the course's
+//! `synthdata.mat`, or the lab's `KinectData.mat` (with `--color` / `--depth` replacing its
+//! images); read, checked against each other and for unit mistakes before any work.
+
+use std::path::Path;
+
+use anyhow::{Result, bail};
+use calib::rig_io::{self, Calibration};
+use geometry::{DepthKind, Distortion, Image, Rig};
+use kfuse_io::kinect_data::{self, KinectDepth};
+use kfuse_io::mat::MatFile;
+use kfuse_io::{course, image_header, images};
+
+use super::checks::{self, DepthSource};
+use super::{DepthKindArg, FuseArgs};
+
+/// The inputs of one fusion, loaded and checked.
+pub struct Inputs {
+    /// The rig (without distortion when the images are rectified).
+    pub rig: Rig,
+    /// Depth, metres, NaN = none.
+    pub depth: Image<f32>,
+    /// Depth kind.
+    pub kind: DepthKind,
+    /// Colour.
+    pub color: Image<[u8; 3]>,
+    /// Description for summary.json.
+    pub description: serde_json::Value,
+}
+
+fn check_size(
+    what: &str,
+    path: &Path,
+    got: (usize, usize),
+    want: (usize, usize),
+    rig_path: &Path,
+) -> Result<()> {
+    if got != want {
+        bail!(
+            "{what} {} is {}x{}, but the rig {} says that camera is {}x{}; pass the {what} of that camera or the rig it was calibrated with",
+            path.display(),
+            got.0,
+            got.1,
+            rig_path.display(),
+            want.0,
+            want.1
+        );
+    }
+    Ok(())
+}
+
+/// The rig plausibility check ([`Rig::check_plausible`]), or with `--force` its problems as
+/// warnings.
+fn check_rig(rig: &Rig, source: &Path, force: bool) -> Result<()> {
+    if force {
+        for problem in rig.plausibility_problems() {
+            eprintln!("warning: {}: {problem} (--force)", source.display());
+        }
+        return Ok(());
+    }
+    if let Err(e) = rig.check_plausible() {
+        bail!("{}: {e}; pass --force if the rig really is meant this way", source.display());
+    }
+    Ok(())
+}
+
+/// Reads `--rig`: a kfuse rig; a single-camera file is refused with how to get a rig.
+fn read_rig(path: &Path, force: bool) -> Result<Rig> {
+    let rig = match rig_io::load(path)? {
+        Calibration::Rig(rig) => rig,
+        Calibration::Camera { role, .. } => {
+            let which = role.map(|r| format!(" (the {} camera)", r.name())).unwrap_or_default();
+            bail!(
+                "{}: this is a single-camera file{which}; fuse needs both cameras and color_from_depth: \
+                 calibrate the pair with `kfuse calibrate --ir 'ir_*.png' --color 'color_*.png' --out rig.json`, \
+                 or make a rig from the lab's files with `kfuse rig import Calib_Results_stereo.mat --out rig.json`",
+                path.display()
+            );
+        }
+    };
+    check_rig(&rig, path, force)?;
+    Ok(rig)
+}
+
+/// Reads a colour image and checks its size against the rig (from the header first: a huge
+/// or wrong image is refused before it is decoded).
+fn read_color(path: &Path, rig: &Rig, rig_path: &Path) -> Result<Image<[u8; 3]>> {
+    let want = (rig.color.width, rig.color.height);
+    check_size("colour image", path, image_header::image_size(path)?, want, rig_path)?;
+    let color = images::read_color(path)?;
+    check_size("colour image", path, color.size(), want, rig_path)?;
+    Ok(color)
+}
+
+/// Reads a depth image with `--depth-scale` and checks its size against the rig.
+fn read_depth(
+    path: &Path,
+    scale: f64,
+    rig: &Rig,
+    rig_path: &Path,
+) -> Result<(Image<f32>, DepthSource)> {
+    let want = (rig.depth.width, rig.depth.height);
+    check_size("depth image", path, image_header::image_size(path)?, want, rig_path)?;
+    let (depth, encoding) = images::read_depth_encoded(path, scale)?;
+    check_size("depth image", path, depth.size(), want, rig_path)?;
+    Ok((depth, DepthSource::File { name: path.display().to_string(), encoding, scale }))
+}
+
+/// Loads and checks the inputs named by `args` (nothing is written).
+pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
+    let (mut inputs, depth_source, rig_name) = match &args.mat {
+        Some(mat) => load_mat(args, mat)?,
+        None => load_files(args)?,
+    };
+    let rectified = args.rectified || inputs.rig.rectified;
+    if rectified {
+        // The images are already undistorted (same camera matrix, no distortion).
+        inputs.rig.depth.distortion = Distortion::NONE;
+        inputs.rig.color.distortion = Distortion::NONE;
+        inputs.rig.rectified = true;
+    }
+    inputs.description["rectified"] = serde_json::json!(rectified);
+    // Units and emptiness (see `checks`), before any work.
+    let mut problems = Vec::new();
+    if let Some(source) = &depth_source
+        && let Err(e) = checks::check_depth_units(&inputs.depth, source)
+    {
+        problems.push(e);
+    }
+    // The overlap test is meaningless on a depth of the wrong unit: one mistake at a time.
+    if problems.is_empty()
+        && let Err(e) = checks::check_overlap(&inputs.rig, &rig_name, &inputs.depth, inputs.kind)
+    {
+        problems.push(e);
+    }
+    for problem in problems {
+        if !args.force {
+            bail!("{problem}; pass --force if this really is meant");
+        }
+        eprintln!("warning: {problem} (--force)");
+    }
+    Ok(inputs)
+}
+
+type Loaded = (Inputs, Option<DepthSource>, String);
+
+fn load_files(args: &FuseArgs) -> Result<Loaded> {
+    let (Some(rig_path), Some(color_path), Some(depth_path)) =
+        (&args.rig, &args.color, &args.depth)
+    else {
+        bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
+    };
+    let rig = read_rig(rig_path, args.force)?;
+    let color = read_color(color_path, &rig, rig_path)?;
+    let (depth, source) = read_depth(depth_path, args.depth_scale, &rig, rig_path)?;
+    let kind = match args.depth_kind {
+        DepthKindArg::Z => DepthKind::Z,
+        DepthKindArg::Range => DepthKind::Range,
+    };
+    let inputs = Inputs {
+        description: serde_json::json!({
+            "rig": rig_path, "color": color_path, "depth": depth_path,
+            "depth_kind": kind, "depth_scale_m_per_unit": args.depth_scale,
+        }),
+        rig,
+        depth,
+        kind,
+        color,
+    };
+    Ok((inputs, Some(source), rig_path.display().to_string()))
+}
+
+/// `--mat`: the course's `synthdata.mat` or the lab's `KinectData.mat`; `--color` / `--depth`
+/// replace the file's images (the handout's `Colour_rect.tif` / `Depth_rect.tif`).
+fn load_mat(args: &FuseArgs, mat: &Path) -> Result<Loaded> {
+    let file = MatFile::read(mat)?;
+    let name = mat.display().to_string();
+    // The file's depth, or why it cannot be used (then --depth must replace it).
+    let (rig, color, file_depth, kind, source, mut description) = if kinect_data::is_kinect_data(
+        &file,
+    ) {
+        let kd = kinect_data::kinect_data_from_mat(&file)?;
+        // A real Kinect's rig: the same plausibility check as a rig file.
+        check_rig(&kd.rig, mat, args.force)?;
+        let depth = match kd.depth {
+            KinectDepth::Millimetres(d) => Ok(d),
+            KinectDepth::Unusable(why) => Err(why),
+        };
+        let description = serde_json::json!({
+            "mat": mat,
+            "convention": "KinectData.mat: fx, fy, cx, cy 0-based; X_color = R·X_depth + T, T in mm; Depth = z (mm); no distortion (rectified images)",
+        });
+        let source = DepthSource::KinectMat { name: name.clone() };
+        (kd.rig, kd.color, depth, DepthKind::Z, Some(source), description)
+    } else {
+        // No plausibility check: the course importers convert known units themselves, and
+        // the lab's synthdata.mat has a 1 m baseline by design. Nor a depth-unit check:
+        // the file's range is metres by definition (its background lies 18 m away).
+        let data = course::course_from_mat(&file, course::CourseConvention::SYNTHDATA)?;
+        let description = serde_json::json!({
+            "mat": mat,
+            "convention": "synthdata.mat: cx, cy 1-based; R, T = colour camera pose in the depth frame; Depth = range (m)",
+        });
+        (data.rig, data.color, Ok(data.depth), data.depth_kind, None, description)
+    };
+    let color = match &args.color {
+        Some(path) => {
+            description["color"] = serde_json::json!(path);
+            read_color(path, &rig, mat)?
+        }
+        None => color,
+    };
+    let (depth, source) = match (&args.depth, file_depth) {
+        (Some(path), _) => {
+            description["depth"] = serde_json::json!(path);
+            description["depth_scale_m_per_unit"] = serde_json::json!(args.depth_scale);
+            let (d, s) = read_depth(path, args.depth_scale, &rig, mat)?;
+            (d, Some(s))
+        }
+        (None, Ok(d)) => (d, source),
+        (None, Err(why)) => bail!(
+            "{name}: {why}; it cannot be fused: pass the frame's depth image with --depth (16-bit PNG/TIFF in millimetres)"
+        ),
+    };
+    description["depth_kind"] = serde_json::json!(kind);
+    Ok((Inputs { rig, depth, kind, color, description }, source, name))
+}
