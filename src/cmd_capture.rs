@@ -1,26 +1,25 @@
-//! `kfuse devices` and `kfuse capture {calib,scene,record}`: thin CLI over `kinect-usb`.
+//! `kfuse devices` and `kfuse capture {calib,scene,record}`: the clap layer over the
+//! `kfuse-capture` library (sensor source, session, frame pump, shot writer, recording), which
+//! the viewer's live page uses too. Here: the flags and their parsers, the shot trigger
+//! (interval or Enter), the progress bar and the messages.
 
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, mpsc};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use kfuse_io::atomic::write_atomic;
-use kinect_usb::backend::UsbBackend;
-use kinect_usb::decoder::{DecoderPrecision, DepthDecoder, Kernels};
-use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamKind};
-use kinect_usb::protocol::{self, Exposure, ExposureMode, LedMode, LedSetting};
-use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
-use kinect_usb::recording::{ReadOptions, RecordingMeta, RecordingReader, RecordingWriter};
-use kinect_usb::sim::{SimDevice, SimFaults};
-use kinect_usb::{KinectError, usb};
-use viewer::capture::{self, ShotKind};
-
-/// How long to wait for one frame before giving up (a live sensor delivers every 33 ms).
-const FRAME_TIMEOUT: Duration = Duration::from_secs(3);
+use kfuse_capture::session::{decoder_summary, list_devices};
+use kfuse_capture::settings::{LedState, parse_exposure, parse_led};
+use kfuse_capture::{
+    CaptureError, ColorSettings, DecoderOptions, FramePump, ReplayOptions, SensorSource, Session,
+    ShotKind, ShotWriter, SimOptions, shot_files, write_params_json,
+};
+use kinect_usb::KinectError;
+use kinect_usb::decoder::DecoderPrecision;
+use kinect_usb::protocol::Exposure;
 
 /// The colour-camera and LED options' help, shared by every capture mode.
 macro_rules! settings_help {
@@ -37,7 +36,9 @@ macro_rules! settings_help {
     };
 }
 
-/// Which transport to use.
+/// Which live sensor to use (`--backend` of `devices`, `capture` and `view`); with
+/// `--replay` a recording instead. The command line's spelling of
+/// `kfuse_capture::SensorSource`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Backend {
     /// A real Kinect v2 over libusb.
@@ -46,7 +47,19 @@ pub enum Backend {
     Sim,
     /// A USB bus with no Kinect on it (tests: what every command does without a sensor,
     /// whatever is plugged into the machine running them).
+    #[value(hide = true)]
     Absent,
+}
+
+impl Backend {
+    /// The library's sensor source for this backend, with the simulator's faults.
+    pub fn source(self, sim: SimOptions) -> SensorSource {
+        match self {
+            Backend::Usb => SensorSource::Usb,
+            Backend::Sim => SensorSource::Sim(sim),
+            Backend::Absent => SensorSource::Absent,
+        }
+    }
 }
 
 /// `kfuse devices`.
@@ -98,63 +111,10 @@ pub struct CommonArgs {
     exposure: Option<Exposure>,
     /// LED: `off`, `on`, `on:LEVEL` (0..1000) or `blink:MS` (blink interval in ms).
     #[arg(long, value_name = "STATE", value_parser = parse_led, conflicts_with = "replay")]
-    led: Option<LedArg>,
+    led: Option<LedState>,
     /// Which LED `--led` drives (the sensor has LEDs 0 and 1).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..2), requires = "led")]
     led_id: u16,
-}
-
-/// `--led` value before the LED id is known.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LedArg {
-    /// Off.
-    Off,
-    /// Constant at a level 0..=1000.
-    On(u16),
-    /// Blinking with an interval in ms.
-    Blink(u32),
-}
-
-impl LedArg {
-    fn setting(self, id: u16) -> LedSetting {
-        match self {
-            LedArg::Off => LedSetting::off(id),
-            LedArg::On(level) => LedSetting::on(id, level),
-            LedArg::Blink(ms) => LedSetting::blink(id, ms),
-        }
-    }
-}
-
-fn parse_f32(s: &str, what: &str) -> std::result::Result<f32, String> {
-    s.trim().parse::<f32>().map_err(|_| format!("{what} `{s}` is not a number"))
-}
-
-/// Parses `--exposure`: `auto`, `auto:COMP`, `semi:MS`, `manual:MS,GAIN`; values are checked
-/// against the ranges of `kinect_usb::protocol`.
-pub fn parse_exposure(s: &str) -> std::result::Result<Exposure, String> {
-    const FORMS: &str = "expected auto, auto:COMP, semi:MS or manual:MS,GAIN (e.g. manual:20,2)";
-    let (mode, rest) = match s.split_once(':') {
-        Some((m, r)) => (m, Some(r)),
-        None => (s, None),
-    };
-    let e = match (mode.trim().to_ascii_lowercase().as_str(), rest) {
-        ("auto", None) => Exposure::Auto { compensation: 0.0 },
-        ("auto", Some(c)) => Exposure::Auto { compensation: parse_f32(c, "compensation")? },
-        ("semi" | "semi-auto", Some(ms)) => {
-            Exposure::SemiAuto { exposure_ms: parse_f32(ms, "exposure time")? }
-        }
-        ("manual", Some(r)) => {
-            let (ms, gain) =
-                r.split_once(',').ok_or_else(|| format!("manual needs MS,GAIN; {FORMS}"))?;
-            Exposure::Manual {
-                integration_ms: parse_f32(ms, "integration time")?,
-                analog_gain: parse_f32(gain, "analog gain")?,
-            }
-        }
-        _ => return Err(format!("`{s}`: {FORMS}")),
-    };
-    e.validate().map_err(|err| err.to_string())?;
-    Ok(e)
 }
 
 /// Longest `--interval`: one day. Longer waits are certainly a typo (and `inf` or 1e30 would
@@ -193,29 +153,6 @@ pub fn parse_plain_name(s: &str) -> std::result::Result<String, String> {
         ));
     }
     Ok(s.to_string())
-}
-
-/// Parses `--led`: `off`, `on`, `on:LEVEL`, `blink:MS`.
-pub fn parse_led(s: &str) -> std::result::Result<LedArg, String> {
-    const FORMS: &str = "expected off, on, on:LEVEL (0..1000) or blink:MS";
-    let (mode, rest) = match s.split_once(':') {
-        Some((m, r)) => (m, Some(r.trim())),
-        None => (s, None),
-    };
-    let arg =
-        match (mode.trim().to_ascii_lowercase().as_str(), rest) {
-            ("off", None) => LedArg::Off,
-            ("on", None) => LedArg::On(protocol::LED_MAX_LEVEL),
-            ("on", Some(l)) => LedArg::On(
-                l.parse().map_err(|_| format!("LED level `{l}` is not a whole number; {FORMS}"))?,
-            ),
-            ("blink", Some(ms)) => LedArg::Blink(ms.parse().map_err(|_| {
-                format!("blink interval `{ms}` is not a whole number of ms; {FORMS}")
-            })?),
-            _ => return Err(format!("`{s}`: {FORMS}")),
-        };
-    arg.setting(0).validate().map_err(|e| e.to_string())?;
-    Ok(arg)
 }
 
 /// `kfuse capture`.
@@ -294,36 +231,32 @@ enum CaptureMode {
 
 /// Runs `kfuse devices`.
 pub fn run_devices(args: DevicesArgs) -> Result<()> {
-    let list = match args.backend {
-        Backend::Usb => usb::list_devices().map_err(not_found_hint)?,
-        Backend::Sim => {
-            println!("simulated Kinect v2  serial 000000000001  (sim backend)");
-            return Ok(());
-        }
-        Backend::Absent => Vec::new(),
-    };
-    if list.is_empty() {
-        return Err(not_found_hint(KinectError::NotFound));
-    }
-    for d in &list {
-        println!(
-            "Kinect v2  bus {:03} address {:03}  pid {:04x}  serial {}",
-            d.bus,
-            d.address,
-            d.product_id,
-            d.serial.as_deref().unwrap_or("(unreadable: device busy or no permission)")
-        );
+    for line in list_devices(&args.backend.source(SimOptions::default()))? {
+        println!("{line}");
     }
     Ok(())
 }
 
-fn not_found_hint(e: KinectError) -> anyhow::Error {
-    match e {
-        KinectError::NoUsb(_) | KinectError::NotFound => {
-            anyhow::anyhow!("{}\n{}", e, KinectError::NotFound)
+impl CommonArgs {
+    fn source(&self) -> SensorSource {
+        match &self.replay {
+            Some(path) => SensorSource::Replay(ReplayOptions {
+                path: path.clone(),
+                allow_truncated: self.allow_truncated,
+                skip_corrupt: self.skip_corrupt,
+            }),
+            None => self.backend.source(SimOptions {
+                unplug_after: self.sim_unplug_after,
+                busy: self.sim_busy,
+                iso_drop: self.sim_iso_drop,
+            }),
         }
-        KinectError::Busy => anyhow::anyhow!("{e}"),
-        e => anyhow::Error::new(e),
+    }
+
+    fn decoder(&self) -> DecoderOptions {
+        let precision =
+            if self.exact_decoder { DecoderPrecision::Exact } else { DecoderPrecision::Fast };
+        DecoderOptions { no_filters: self.no_filters, precision }
     }
 }
 
@@ -350,7 +283,7 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
     match args.mode {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
-            shots(&out, &names, "", interval, overwrite, &common)
+            shots(&out, &names, ShotKind::Calib, interval, overwrite, &common)
         }
         CaptureMode::Scene { out, name, count, interval, overwrite, common } => {
             let names: Vec<String> = if count == 1 {
@@ -358,7 +291,7 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
             } else {
                 (1..=count).map(|i| format!("{name}_{i:04}")).collect()
             };
-            shots(&out, &names, "scene", interval, overwrite, &common)
+            shots(&out, &names, ShotKind::Scene, interval, overwrite, &common)
         }
         CaptureMode::Record { output, frames, overwrite, common } => {
             record(&output, frames, overwrite, &common)
@@ -366,156 +299,31 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
     }
 }
 
-type Device = KinectDevice<Box<dyn UsbBackend>>;
-type SimHandle = Arc<Mutex<SimDevice>>;
-
-fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
-    let mut sim = None;
-    let backend: Box<dyn UsbBackend> = if let Some(path) = &common.replay {
-        // Streamed: the reader holds one record at a time, whatever the file's size.
-        let opts =
-            ReadOptions { keep_prefix: common.allow_truncated, skip_corrupt: common.skip_corrupt };
-        let reader = RecordingReader::open(path, opts)?;
-        let meta = reader.meta().clone();
-        let h = Arc::new(Mutex::new(SimDevice::replay_from(&meta, Box::new(reader))?));
-        sim = Some(h.clone());
-        Box::new(h)
-    } else {
-        match common.backend {
-            Backend::Sim => {
-                let h = Arc::new(Mutex::new(sim_device(common)));
-                sim = Some(h.clone());
-                Box::new(h)
-            }
-            Backend::Usb => Box::new(usb::open_first().map_err(not_found_hint)?),
-            Backend::Absent => return Err(not_found_hint(KinectError::NotFound)),
-        }
+/// Opens the sensor and applies `--exposure` / `--led`, printing what the sensor reads back. A
+/// refused setting is an error (the user asked for it); the simulator's report is still written.
+fn start(common: &CommonArgs) -> Result<Session> {
+    let mut session = Session::open(&common.source())?;
+    let settings = ColorSettings {
+        exposure: common.exposure,
+        led: common.led.map(|l| l.setting(common.led_id)),
     };
-    let dev = KinectDevice::open(backend).map_err(|e| match e {
-        KinectError::Busy => {
-            anyhow::anyhow!("{e}\nhint: run `kfuse devices` to see which sensors are free")
-        }
-        e => not_found_hint(e),
-    })?;
-    Ok((dev, sim))
-}
-
-fn exposure_text(e: &Exposure) -> String {
-    match *e {
-        Exposure::Auto { compensation } => format!("auto:{compensation}"),
-        Exposure::SemiAuto { exposure_ms } => format!("semi:{exposure_ms}"),
-        Exposure::Manual { integration_ms, analog_gain } => {
-            format!("manual:{integration_ms},{analog_gain}")
+    match session.apply_settings(&settings) {
+        Ok(lines) => lines.iter().for_each(|l| eprintln!("{l}")),
+        Err(e) => {
+            session.close();
+            write_sim_report(common, &session)?;
+            return Err(e.into());
         }
     }
+    Ok(session)
 }
 
-/// Applies `--exposure` and `--led` on a started device and reports what the sensor reads
-/// back. A refused setting is an error (the user asked for it); a failed read-back only warns.
-fn apply_settings(dev: &mut Device, common: &CommonArgs) -> Result<()> {
-    if let Some(e) = &common.exposure {
-        dev.set_exposure(*e)
-            .with_context(|| format!("applying --exposure {}", exposure_text(e)))?;
-        let readback = (|| -> kinect_usb::Result<String> {
-            Ok(match dev.exposure_mode()? {
-                ExposureMode::Manual => {
-                    format!(
-                        "manual, integration time {} ms, analog gain {}",
-                        dev.integration_time_ms()?,
-                        dev.analog_gain()?
-                    )
-                }
-                ExposureMode::SemiAuto => {
-                    format!("semi-auto, exposure time {} ms", dev.exposure_time_ms()?)
-                }
-                ExposureMode::Auto => {
-                    format!("auto, compensation {}", dev.exposure_compensation()?)
-                }
-                ExposureMode::Other(v) => format!("mode {v}"),
-            })
-        })();
-        match readback {
-            Ok(t) => eprintln!("colour exposure: {t} (read back from the sensor)"),
-            Err(err) => {
-                eprintln!("warning: --exposure was applied but reading it back failed: {err}")
-            }
-        }
-    }
-    if let Some(l) = common.led {
-        let setting = l.setting(common.led_id);
-        dev.set_led(setting).with_context(|| format!("applying --led (LED {})", common.led_id))?;
-        let what = match setting.mode {
-            LedMode::Constant if setting.start_level == 0 => "off".to_string(),
-            LedMode::Constant => {
-                format!("on at level {}/{}", setting.start_level, protocol::LED_MAX_LEVEL)
-            }
-            LedMode::Blink => format!("blinking every {} ms", setting.interval_ms),
-        };
-        eprintln!("LED {}: {what}", common.led_id);
+/// Writes `--sim-report` (the simulated device's colour settings, LEDs and protocol violations).
+fn write_sim_report(common: &CommonArgs, session: &Session) -> Result<()> {
+    if let Some(path) = &common.sim_report {
+        session.write_sim_report(path)?;
     }
     Ok(())
-}
-
-/// Writes `--sim-report`: the simulated device's colour settings, LEDs and protocol violations.
-fn write_sim_report(common: &CommonArgs, sim: &Option<SimHandle>) -> Result<()> {
-    let (Some(path), Some(sim)) = (&common.sim_report, sim) else { return Ok(()) };
-    let s = sim.lock().unwrap_or_else(|p| p.into_inner());
-    use kinect_usb::protocol::ColorSettingCode as C;
-    let c = s.color_settings();
-    let led = |l: &LedSetting| {
-        serde_json::json!({ "id": l.id, "blink": l.mode == LedMode::Blink, "start_level": l.start_level,
-                            "stop_level": l.stop_level, "interval_ms": l.interval_ms })
-    };
-    let v = serde_json::json!({
-        "exposure_mode": c.get(C::SetExposureMode),
-        "integration_time_ms": c.get_f32(C::SetIntegrationTime),
-        "analog_gain": c.get_f32(C::SetAnalogGain),
-        "exposure_time_ms": c.get_f32(C::SetExposureTime),
-        "exposure_compensation": c.get_f32(C::SetExposureCompensation),
-        "led_api": s.led_api_log().iter().map(led).collect::<Vec<_>>(),
-        "violations": s.violations,
-        "commands": s.transcript.iter().filter(|l| l.starts_with("cmd")).collect::<Vec<_>>(),
-    });
-    write_atomic(path, |w| {
-        serde_json::to_writer_pretty(&mut *w, &v)?;
-        w.write_all(b"\n")
-    })?;
-    Ok(())
-}
-
-/// The simulated device used by `--backend sim`: `geometry::synth`'s Kinect preset scene.
-pub fn sim_device(common: &CommonArgs) -> SimDevice {
-    let (scene, profile) = capture::sim_scene();
-    let faults = SimFaults {
-        seed: 1,
-        busy: common.sim_busy,
-        iso_drop_rate: common.sim_iso_drop,
-        unplug_after_frames: common.sim_unplug_after,
-        ..SimFaults::default()
-    };
-    SimDevice::new(profile, scene, faults)
-}
-
-fn decoder_for(info: &DeviceInfo, no_filters: bool, exact: bool) -> Result<DepthDecoder> {
-    let precision = if exact { DecoderPrecision::Exact } else { DecoderPrecision::Fast };
-    let dec = capture::decoder_for(info, no_filters)?.with_precision(precision);
-    let what = match (precision, dec.kernels()) {
-        (DecoderPrecision::Exact, _) => "exact (bit-identical to libfreenect2's CPU decoder)",
-        (DecoderPrecision::Fast, Kernels::Avx2) => "fast (eight-lane AVX2 kernels)",
-        (DecoderPrecision::Fast, Kernels::Portable) => {
-            "fast (four-lane kernels: this CPU has no AVX2)"
-        }
-    };
-    eprintln!("depth decoder: {what}");
-    Ok(dec)
-}
-
-fn write_params_json(out: &Path, info: &DeviceInfo) -> Result<()> {
-    Ok(capture::write_params_json(out, info)?)
-}
-
-fn write_png16(path: &Path, values: &[f32], width: usize, height: usize) -> Result<()> {
-    Ok(capture::write_png16(path, values, width, height)?)
 }
 
 /// Waits for the trigger of the next shot: `interval` seconds, or one line on stdin.
@@ -549,111 +357,55 @@ impl Trigger {
     }
 }
 
-struct Latest {
-    depth: Vec<f32>,
-    ir: Vec<f32>,
-    color: Vec<u8>,
-    depth_at: Option<Instant>,
-    color_at: Option<Instant>,
+/// What ended the wait for a shot's trigger.
+enum Waited {
+    Shoot,
+    StdinClosed,
+    Interrupted,
 }
 
-/// Pulls frames until both a depth and a colour frame newer than `since` are in `latest`.
-fn fresh_pair(
-    dev: &mut Device,
-    dec: &mut DepthDecoder,
-    latest: &mut Latest,
-    since: Instant,
-) -> kinect_usb::Result<()> {
-    let deadline = Instant::now() + FRAME_TIMEOUT;
-    loop {
-        let fresh = |t: Option<Instant>| t.is_some_and(|t| t >= since);
-        if fresh(latest.depth_at) && fresh(latest.color_at) {
-            return Ok(());
-        }
-        if Instant::now() > deadline {
-            return Err(KinectError::Protocol {
-                what: "capture".into(),
-                detail: format!("no complete frame pair within {FRAME_TIMEOUT:?}"),
-            });
-        }
-        match dev.next_frame(FRAME_TIMEOUT, &mut |_, _| {})? {
-            Some(Frame::Depth(f)) => {
-                dec.decode(f.data, &mut latest.depth, &mut latest.ir)?;
-                latest.depth_at = Some(Instant::now());
+/// Waits for the trigger; with an interval it keeps draining the stream so the shot is current.
+fn wait(trigger: &Trigger, session: &mut Session) -> Result<Waited, CaptureError> {
+    match trigger {
+        Trigger::Interval(d) => {
+            let until = Instant::now() + *d;
+            while Instant::now() < until && !crate::interrupt::requested() {
+                session.next_frame(Duration::from_millis(50), &mut |_, _| {})?;
             }
-            Some(Frame::Color(j, _)) => {
-                latest.color.clear();
-                latest.color.extend_from_slice(j);
-                latest.color_at = Some(Instant::now());
+        }
+        Trigger::Lines(rx) => loop {
+            match rx.recv_timeout(Duration::from_millis(100)) {
+                Ok(()) => break,
+                Err(mpsc::RecvTimeoutError::Timeout) if !crate::interrupt::requested() => {}
+                Err(mpsc::RecvTimeoutError::Timeout) => break,
+                Err(mpsc::RecvTimeoutError::Disconnected) => return Ok(Waited::StdinClosed),
             }
-            None => {}
-        }
+        },
     }
-}
-
-/// Name prefix of the folder inside `--out` where a shot's files are written before they are
-/// moved into place together (same filesystem, so each move is a rename).
-const STAGING_PREFIX: &str = ".kfuse-shot-staging-";
-
-/// Writes one shot's colour, IR and depth into `stage`, then moves all three to `files`: a
-/// failed write leaves none of them in `--out`, and a signal (which only sets a flag, checked
-/// between shots) cannot separate them.
-fn write_shot(stage: &Path, files: &[PathBuf; 3], latest: &Latest) -> Result<()> {
-    std::fs::create_dir_all(stage).with_context(|| format!("creating {}", stage.display()))?;
-    let staged = files.clone().map(|f| stage.join(f.file_name().unwrap_or_default()));
-    write_atomic(&staged[0], |w| w.write_all(&latest.color))?;
-    write_png16(&staged[1], &latest.ir, WIDTH, HEIGHT)?;
-    write_png16(&staged[2], &latest.depth, WIDTH, HEIGHT)?;
-    for (from, to) in staged.iter().zip(files) {
-        std::fs::rename(from, to)
-            .with_context(|| format!("moving {} to {}", from.display(), to.display()))?;
-    }
-    Ok(())
-}
-
-/// Removes staging folders left in `out` by killed captures (their process no longer runs).
-fn remove_stale_staging(out: &Path) {
-    let Ok(entries) = std::fs::read_dir(out) else { return };
-    for e in entries.flatten() {
-        let name = e.file_name();
-        let Some(pid) = name.to_str().and_then(|n| n.strip_prefix(STAGING_PREFIX)) else {
-            continue;
-        };
-        let alive = pid.parse::<u32>().is_ok_and(|p| Path::new(&format!("/proc/{p}")).exists());
-        if !alive && e.path().is_dir() {
-            let _ = std::fs::remove_dir_all(e.path());
-        }
-    }
+    Ok(if crate::interrupt::requested() { Waited::Interrupted } else { Waited::Shoot })
 }
 
 fn shots(
     out: &Path,
     names: &[String],
-    kind: &str,
+    kind: ShotKind,
     interval: Option<f64>,
     overwrite: bool,
     common: &CommonArgs,
 ) -> Result<()> {
-    let kind = if kind == "scene" { ShotKind::Scene } else { ShotKind::Calib };
-    let files = |n: &str| capture::shot_files(out, n, kind);
+    let files = |n: &str| shot_files(out, n, kind);
     if !overwrite && let Some(p) = names.iter().flat_map(|n| files(n)).find(|p| p.exists()) {
         bail!(
             "{} already exists; pass --overwrite to replace, or choose another --out",
             p.display()
         );
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    remove_stale_staging(out);
-    let stage = out.join(format!("{STAGING_PREFIX}{}", std::process::id()));
-    let (mut dev, sim) = open(common)?;
-    let info = dev.start(true, true)?.clone();
-    if let Err(e) = apply_settings(&mut dev, common) {
-        let _ = dev.close();
-        write_sim_report(common, &sim)?;
-        return Err(e);
-    }
-    write_params_json(out, &info)?;
-    let mut dec = decoder_for(&info, common.no_filters, common.exact_decoder)?;
+    let writer = ShotWriter::new(out)?;
+    let mut session = start(common)?;
+    write_params_json(out, session.info())?;
+    let opts = common.decoder();
+    let mut pump = FramePump::new(session.decoder(&opts)?);
+    eprintln!("depth decoder: {}", decoder_summary(&opts, pump.decoder()));
     let trigger = Trigger::new(interval);
     if matches!(trigger, Trigger::Lines(_)) {
         eprintln!("Press Enter to take each of {} shots (Ctrl-D to stop early).", names.len());
@@ -663,64 +415,39 @@ fn shots(
         ProgressStyle::with_template("{bar:30} {pos}/{len} shots {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let mut latest = Latest {
-        depth: vec![0.0; PIXELS],
-        ir: vec![0.0; PIXELS],
-        color: Vec::new(),
-        depth_at: None,
-        color_at: None,
-    };
     let mut saved = 0usize;
-    let mut outcome: Result<()> = Ok(());
+    let mut outcome: Result<(), CaptureError> = Ok(());
     let mut interrupted = false;
-    'shots: for n in names {
-        match &trigger {
-            Trigger::Interval(d) => {
-                // Keep draining the stream while waiting so the shot is current.
-                let until = Instant::now() + *d;
-                while Instant::now() < until && !crate::interrupt::requested() {
-                    if let Err(e) = dev.next_frame(Duration::from_millis(50), &mut |_, _| {}) {
-                        outcome = Err(e.into());
-                        break;
-                    }
-                }
+    for n in names {
+        match wait(&trigger, &mut session) {
+            Ok(Waited::Shoot) => {}
+            Ok(Waited::StdinClosed) => {
+                eprintln!("stdin closed: stopping after {saved} shots");
+                break;
             }
-            Trigger::Lines(rx) => loop {
-                match rx.recv_timeout(Duration::from_millis(100)) {
-                    Ok(()) => break,
-                    Err(mpsc::RecvTimeoutError::Timeout) if !crate::interrupt::requested() => {}
-                    Err(mpsc::RecvTimeoutError::Timeout) => break,
-                    Err(mpsc::RecvTimeoutError::Disconnected) => {
-                        eprintln!("stdin closed: stopping after {saved} shots");
-                        break 'shots;
-                    }
-                }
-            },
+            Ok(Waited::Interrupted) => {
+                interrupted = true;
+                break;
+            }
+            Err(e) => {
+                outcome = Err(e);
+                break;
+            }
         }
-        if crate::interrupt::requested() {
-            interrupted = true;
+        if let Err(e) = pump.fresh_pair(&mut session, Instant::now()) {
+            outcome = Err(e);
             break;
         }
-        if outcome.is_err() {
-            break;
-        }
-        if let Err(e) = fresh_pair(&mut dev, &mut dec, &mut latest, Instant::now()) {
-            outcome = Err(e.into());
-            break;
-        }
-        if let Err(e) = write_shot(&stage, &files(n), &latest) {
-            let _ = std::fs::remove_dir_all(&stage);
-            return Err(e);
-        }
+        writer.write(&files(n), pump.color_jpeg(), pump.ir(), pump.depth_mm())?;
         saved += 1;
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let _ = std::fs::remove_dir_all(&stage);
-    report_counters(&dev);
-    let _ = dev.close();
-    write_sim_report(common, &sim)?;
-    if let Some(e) = replay_outcome(common, &sim) {
+    drop(writer);
+    report_counters(&session);
+    session.close();
+    write_sim_report(common, &session)?;
+    if let Some(e) = replay_outcome(common, &session) {
         bail!(
             "{e}\nreplay stopped: {saved} shot(s) taken before it are intact in {}",
             out.display()
@@ -737,46 +464,39 @@ fn shots(
             eprintln!("saved {saved} shot(s) in {}", out.display());
             Ok(())
         }
-        Err(e) => {
-            let disconnected =
-                matches!(e.downcast_ref::<KinectError>(), Some(KinectError::Disconnected { .. }));
-            if disconnected {
-                bail!(
-                    "{e}\ncapture stopped: {saved} complete shot(s) were saved in {} and are intact; reconnect the sensor (USB 3 port, power) and run again",
-                    out.display()
-                );
-            }
-            if matches!(e.downcast_ref::<KinectError>(), Some(KinectError::EndOfStream)) {
-                bail!("the recording ended after {saved} shot(s) (saved in {})", out.display());
-            }
-            Err(e)
+        Err(e) if e.is_disconnected() => bail!(
+            "{e}\ncapture stopped: {saved} complete shot(s) were saved in {} and are intact; reconnect the sensor (USB 3 port, power) and run again",
+            out.display()
+        ),
+        Err(e) if e.is_end_of_stream() => {
+            bail!("the recording ended after {saved} shot(s) (saved in {})", out.display())
         }
+        Err(e) => Err(e.into()),
     }
 }
 
 /// After a replay: reports skipped records and a kept truncated prefix, and returns the error
 /// that ended the replay early (a corrupt record), which must fail the command.
-fn replay_outcome(common: &CommonArgs, sim: &Option<SimHandle>) -> Option<KinectError> {
-    let (Some(path), Some(sim)) = (&common.replay, sim) else { return None };
-    let mut s = sim.lock().unwrap_or_else(|p| p.into_inner());
-    let report = s.replay_report();
-    for (index, offset) in &report.skipped {
+fn replay_outcome(common: &CommonArgs, session: &Session) -> Option<KinectError> {
+    let path = common.replay.as_ref()?;
+    let outcome = session.replay_outcome()?;
+    for (index, offset) in &outcome.report.skipped {
         eprintln!(
             "warning: {}: record {index} at byte {offset} is corrupt (checksum mismatch) and was left out",
             path.display()
         );
     }
-    if report.truncated {
+    if outcome.report.truncated {
         eprintln!(
             "warning: {} is truncated; its intact beginning was replayed (--allow-truncated)",
             path.display()
         );
     }
-    s.take_replay_error()
+    outcome.error
 }
 
-fn report_counters(dev: &Device) {
-    let c = dev.counters();
+fn report_counters(session: &Session) {
+    let c = session.counters();
     if c.depth_dropped + c.depth_incomplete + c.color_dropped > 0 || c.iso_errors > 0 {
         eprintln!(
             "stream: {} depth frames, {} dropped (incomplete {}), {} iso packet errors; {} colour frames, {} dropped",
@@ -794,69 +514,36 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     if output.exists() && !overwrite {
         bail!("{} already exists; pass --overwrite to replace it", output.display());
     }
-    let (mut dev, sim) = open(common)?;
-    let info = dev.start(true, true)?.clone();
-    if let Err(e) = apply_settings(&mut dev, common) {
-        let _ = dev.close();
-        write_sim_report(common, &sim)?;
-        return Err(e);
-    }
-    let meta = RecordingMeta::from_info(&info);
+    let mut session = start(common)?;
     let bar = ProgressBar::new(frames);
     bar.set_style(
         ProgressStyle::with_template("{bar:30} {pos}/{len} depth frames")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let mut stop: Option<KinectError> = None;
-    let (mut got, mut interrupted) = (0u64, false);
-    write_atomic(output, |w| {
-        let mut rw = RecordingWriter::new(w, &meta)?;
-        let mut io_err = None;
-        while got < frames {
-            if crate::interrupt::requested() {
-                interrupted = true;
-                break;
-            }
-            let mut tap = |k: StreamKind, e: &_| {
-                if let Err(err) = rw.write_event(k, e) {
-                    io_err.get_or_insert(err);
-                }
-            };
-            match dev.next_frame(FRAME_TIMEOUT, &mut tap) {
-                Ok(Some(Frame::Depth(_))) => {
-                    got += 1;
-                    bar.inc(1);
-                }
-                Ok(_) => {}
-                Err(e) => {
-                    stop = Some(e);
-                    break;
-                }
-            }
-            if let Some(e) = io_err.take() {
-                return Err(e);
-            }
-        }
-        rw.finish().map(|_| ())
-    })?;
+    let stop = crate::interrupt::requested;
+    let recorded = kfuse_capture::record::record(&mut session, output, frames, &stop, &mut |n| {
+        bar.set_position(n)
+    });
     bar.finish_and_clear();
-    report_counters(&dev);
-    let _ = dev.close();
-    write_sim_report(common, &sim)?;
-    if let Some(e) = replay_outcome(common, &sim) {
+    report_counters(&session);
+    session.close();
+    write_sim_report(common, &session)?;
+    let recorded = recorded?;
+    let got = recorded.frames;
+    if let Some(e) = replay_outcome(common, &session) {
         bail!(
             "{e}\nreplay stopped: the {got} depth frames before it were written to {}",
             output.display()
         );
     }
-    if interrupted {
+    if recorded.interrupted {
         crate::interrupt::check(&format!(
             ": the {got} depth frames captured before it were saved in {} (a complete recording \
              that replays without extra flags)",
             output.display()
         ))?;
     }
-    match stop {
+    match recorded.stopped_by {
         None => {
             eprintln!("recorded {got} depth frames to {}", output.display());
             Ok(())

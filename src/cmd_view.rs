@@ -4,18 +4,12 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, anyhow, bail};
-use clap::{Args, ValueEnum};
-use viewer::live::{LiveBackend, LivePage};
+use clap::Args;
+use kfuse_capture::SimOptions;
+use viewer::live::LivePage;
 use viewer::{Engine, ViewerApp};
 
-/// Which sensor live mode streams from.
-#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LiveBackendArg {
-    /// A real Kinect v2 over libusb.
-    Usb,
-    /// The simulated Kinect v2 (synthetic scene).
-    Sim,
-}
+use crate::cmd_capture::Backend;
 
 /// Open the viewer.
 #[derive(Args, Debug, Clone)]
@@ -53,7 +47,7 @@ pub struct ViewArgs {
     pub engine: Engine,
     /// Live mode: stream from a sensor (usb) or the simulated one (sim).
     #[arg(long, value_enum, conflicts_with = "demo")]
-    pub backend: Option<LiveBackendArg>,
+    pub backend: Option<Backend>,
     /// Live mode: folder for the shots saved with C and S.
     #[arg(long, default_value = "kfuse-live", requires = "backend")]
     pub out: PathBuf,
@@ -66,12 +60,10 @@ pub struct ViewArgs {
 pub fn run(args: &ViewArgs) -> Result<()> {
     let engine = args.engine;
     if let Some(b) = args.backend {
-        let backend = match b {
-            LiveBackendArg::Usb => LiveBackend::Usb,
-            LiveBackendArg::Sim => LiveBackend::Sim { unplug_after: args.sim_unplug_after },
-        };
+        let source =
+            b.source(SimOptions { unplug_after: args.sim_unplug_after, ..SimOptions::default() });
         // Open the sensor before the window: no sensor is a plain CLI error.
-        let page = LivePage::open(backend, &args.out).map_err(|e| anyhow!("{e}"))?;
+        let page = LivePage::open(&source, &args.out).map_err(|e| anyhow!("{e}"))?;
         eprintln!(
             "{}: streaming; press C (calibration pair) or S (scene) to save into {}",
             page.title(),

@@ -392,7 +392,7 @@ fn kinect_params_with_a_cubic_mapping_fit_within_the_stated_error() {
     )
     .unwrap();
     assert!(c.mx[0] != 0.0, "the vectors' polynomial has cubic terms");
-    // The layout `kfuse capture` writes (viewer::capture::write_params_json).
+    // The layout `kfuse capture` writes (kfuse_capture::write_params_json).
     let v = serde_json::json!({
         "format": "kfuse-kinect-params", "version": 1, "serial": "vectors",
         "units": "pixels; shift_d and shift_m in millimetres",

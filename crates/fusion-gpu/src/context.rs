@@ -322,7 +322,7 @@ impl FusionContext {
     }
 
     /// H1 + H2 + H7 for one depth frame: the colour-sized z-buffer (and H1/H2 per pixel when
-    /// `read_intermediates`). Bit-identical to [`geometry::fusion::register_depth`].
+    /// `read_intermediates`). Bit-identical to [`geometry::fusion::Registration`].
     pub fn register(
         &mut self,
         rig: &Rig,

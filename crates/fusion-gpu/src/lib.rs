@@ -10,7 +10,7 @@
 //! | --- | --- | --- |
 //! | H1 back-projection (z or range, ray table) | `shaders/backproject.wgsl` | [`geometry::fusion::backproject_pixel`] |
 //! | H2 `X_c = R·X_d + T`, projection with distortion | `shaders/project.wgsl` | [`geometry::fusion::project_point`] |
-//! | H7 z-buffer, `atomicMin` on the f32 bits | `shaders/zbuffer.wgsl` | [`geometry::fusion::register_depth`] |
+//! | H7 z-buffer, `atomicMin` on the f32 bits | `shaders/zbuffer.wgsl` | [`geometry::fusion::Registration`] |
 //! | H3 nearest fill (disc, nearest surface) | `shaders/nearest_fill.wgsl` | [`geometry::fusion::nearest_fill_pixel`] |
 //! | H8 hole mask (coverage, core, grow) | `shaders/hole_mask.wgsl` | [`geometry::fusion::HoleMasker`] |
 //! | H8 plane fill (plane from the CPU RANSAC) | `shaders/plane_fill.wgsl` | [`geometry::fusion::plane_depth_pixel`] |

@@ -257,20 +257,19 @@ fn read_depth_exr(path: &Path, bytes: &[u8]) -> Result<Image<f32>, GeometryError
     from_metres(w, h, values)
 }
 
-/// Depth in metres → 16-bit millimetres: `NaN` (or ≤ 0) → 0; valid values rounded to the
-/// nearest millimetre and clamped to `1..=65535`.
+/// One value of a 16-bit image where 0 means "no value" (depth in millimetres, IR amplitude):
+/// non-finite and non-positive values → 0; others rounded to the nearest integer (halves away
+/// from zero) and clamped to `1..=65535`, so that a valid value below 0.5 stays valid instead of
+/// turning into the "no value" 0, and a value above the range saturates. The one rule of every
+/// 16-bit PNG kfuse writes ([`write_png16`]).
+pub fn png16_value(v: f64) -> u16 {
+    if v.is_finite() && v > 0.0 { v.round().clamp(1.0, 65535.0) as u16 } else { 0 }
+}
+
+/// Depth in metres → 16-bit millimetres by [`png16_value`]: `NaN` (or ≤ 0) → 0; valid values
+/// rounded to the nearest millimetre and clamped to `1..=65535`.
 pub fn depth_to_mm(depth: &Image<f32>) -> Vec<u16> {
-    depth
-        .data()
-        .iter()
-        .map(|&d| {
-            if d.is_finite() && d > 0.0 {
-                (d as f64 * 1e3).round().clamp(1.0, 65535.0) as u16
-            } else {
-                0
-            }
-        })
-        .collect()
+    depth.data().iter().map(|&d| png16_value(d as f64 * 1e3)).collect()
 }
 
 fn encode_png(img: image::DynamicImage, path: &Path) -> Result<Vec<u8>, GeometryError> {
@@ -289,9 +288,25 @@ fn size_u32(path: &Path, w: usize, h: usize) -> Result<(u32, u32), GeometryError
 
 /// Writes depth (metres) as a 16-bit grey PNG in millimetres (see [`depth_to_mm`]).
 pub fn write_depth_png16(path: &Path, depth: &Image<f32>) -> Result<(), GeometryError> {
-    let (w, h) = size_u32(path, depth.width(), depth.height())?;
-    let buf = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, depth_to_mm(depth))
-        .ok_or_else(|| format_err(path, "internal: buffer size"))?;
+    write_png16(path, depth.width(), depth.height(), depth_to_mm(depth))
+}
+
+/// Writes a `width × height` row-major 16-bit grey PNG, atomically: the one 16-bit PNG encoder
+/// (depth here, the capture's depth and IR in `kfuse-capture`; values made by [`png16_value`]).
+/// Error: a size of 0 or above `u32`, or `values` not of that size.
+pub fn write_png16(
+    path: &Path,
+    width: usize,
+    height: usize,
+    values: Vec<u16>,
+) -> Result<(), GeometryError> {
+    let (w, h) = size_u32(path, width, height)?;
+    let n = values.len();
+    let buf = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, values)
+        .filter(|_| width.checked_mul(height) == Some(n))
+        .ok_or_else(|| {
+            format_err(path, format!("{n} values do not make a {width}x{height} image"))
+        })?;
     write_bytes_atomic(path, &encode_png(image::DynamicImage::ImageLuma16(buf), path)?)
 }
 

@@ -79,3 +79,14 @@ pub enum ViewerError {
         message: String,
     },
 }
+
+impl From<kfuse_capture::CaptureError> for ViewerError {
+    fn from(e: kfuse_capture::CaptureError) -> Self {
+        match e {
+            kfuse_capture::CaptureError::Write { path, message } => {
+                ViewerError::Write { path, message }
+            }
+            e => ViewerError::Device { message: e.to_string() },
+        }
+    }
+}

@@ -1,7 +1,7 @@
 //! kfuse's viewer: the fusion of one Kinect v2 frame, in 2D panes and a 3D view, with the
 //! pipeline's switches re-running the fusion live; a `kfuse calibrate` report
 //! ([`calibration`], [`calib_page`]); and a live sensor or the simulated one ([`live`]), saving
-//! shots with the files of `kfuse capture` ([`capture`], shared with the CLI).
+//! shots with the files of `kfuse capture` (both use the `kfuse-capture` library).
 //!
 //! Library-first: [`ViewerApp`] holds all state and draws into any `egui::Ui`, so the
 //! headless tests (`egui_kittest`) drive exactly what `kfuse view` shows. The pure parts
@@ -28,7 +28,6 @@ mod app;
 pub mod calib_page;
 pub mod calibration;
 pub mod camera3d;
-pub mod capture;
 pub mod data;
 mod error;
 pub mod live;

@@ -1,10 +1,11 @@
 //! Live mode: a Kinect v2 (or the simulated one) streaming on a background thread that feeds
-//! the UI through a channel; `C` saves a calibration pair, `S` a scene, with the same files as
-//! `kfuse capture` ([`crate::capture`]).
+//! the UI through a channel; `C` saves a calibration pair, `S` a scene, with the same files and
+//! the same writer as `kfuse capture` (`kfuse_capture::ShotWriter`).
 //!
 //! The capture thread opens nothing itself: [`LiveSession::open`] opens and starts the device
-//! on the caller's thread (so "no Kinect v2 found" is an ordinary error), then moves it to the
-//! thread, which decodes every depth frame, keeps the newest colour JPEG and sends one
+//! (`kfuse_capture::Session`) on the caller's thread (so "no Kinect v2 found" is an ordinary
+//! error), then moves it to the thread, whose `kfuse_capture::FramePump` decodes every depth
+//! frame and keeps the newest colour JPEG; the thread sends one
 //! [`LiveFrame`] per depth frame. When the UI lags, only the newest frame waits in the channel
 //! (older ones are counted as not shown, never queued without bound). The thread ends when the
 //! session is dropped (window closed), on unplug or on a stream error, with a message the page
@@ -20,14 +21,14 @@ use std::time::{Duration, Instant};
 
 use egui::{Color32, Key, Pos2, Rect, TextureHandle, TextureOptions};
 use geometry::Image;
-use kinect_usb::backend::UsbBackend;
-use kinect_usb::device::{DeviceInfo, Frame, KinectDevice, StreamCounters};
-use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
-use kinect_usb::sim::{SimDevice, SimFaults};
-use kinect_usb::{KinectError, usb};
+use kfuse_capture::{
+    CaptureError, DecoderOptions, FramePump, Pumped, SensorSource, Session, ShotKind, ShotWriter,
+    shot_files, write_params_json,
+};
+use kinect_usb::device::{DeviceInfo, StreamCounters};
+use kinect_usb::raw::{HEIGHT, WIDTH};
 
 use crate::ViewerError;
-use crate::capture::{self, ShotKind};
 use crate::panes;
 
 /// How long one wait for a frame may block the capture thread, so that a closed window stops
@@ -43,19 +44,6 @@ pub const DEPTH_RANGE_M: (f32, f32) = (0.5, 4.5);
 pub const FPS_WINDOW: usize = 30;
 /// Sensor timestamp units per second (0.125 ms).
 const TICKS_PER_SECOND: f64 = 8000.0;
-
-/// Which sensor to stream from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LiveBackend {
-    /// A real Kinect v2 over libusb.
-    Usb,
-    /// The simulated Kinect v2 (`kfuse capture --backend sim`'s scene); optionally it is
-    /// unplugged after this many frame periods.
-    Sim {
-        /// Frame periods before the simulated unplug.
-        unplug_after: Option<u64>,
-    },
-}
 
 /// One depth frame with everything the page shows and saves.
 #[derive(Clone)]
@@ -98,37 +86,14 @@ pub struct LiveSession {
     repaint: Arc<Mutex<Option<egui::Context>>>,
 }
 
-fn device_error(e: KinectError) -> ViewerError {
-    ViewerError::Device { message: e.to_string() }
-}
-
 impl LiveSession {
-    /// Opens and starts the sensor, then streams on a background thread. The UI's context,
-    /// once given to [`LiveSession::set_repaint`], is woken for every frame.
-    pub fn open(backend: LiveBackend) -> Result<Self, ViewerError> {
-        let (dev_backend, name, paced): (Box<dyn UsbBackend>, &str, bool) = match backend {
-            LiveBackend::Usb => {
-                let b = usb::open_first().map_err(|e| match e {
-                    KinectError::NoUsb(_) => {
-                        ViewerError::Device { message: format!("{e}\n{}", KinectError::NotFound) }
-                    }
-                    e => device_error(e),
-                })?;
-                (Box::new(b), "Kinect v2", false)
-            }
-            LiveBackend::Sim { unplug_after } => {
-                let (scene, profile) = capture::sim_scene();
-                let faults = SimFaults {
-                    seed: 1,
-                    unplug_after_frames: unplug_after,
-                    ..SimFaults::default()
-                };
-                (Box::new(SimDevice::new(profile, scene, faults)), "simulated Kinect v2", true)
-            }
-        };
-        let mut dev = KinectDevice::open(dev_backend).map_err(device_error)?;
-        let info = dev.start(true, true).map_err(device_error)?.clone();
-        let decoder = capture::decoder_for(&info, false).map_err(device_error)?;
+    /// Opens and starts the sensor of `source`, then streams on a background thread. The UI's
+    /// context, once given to [`LiveSession::set_repaint`], is woken for every frame.
+    pub fn open(source: &SensorSource) -> Result<Self, ViewerError> {
+        let session = Session::open(source)?;
+        let info = session.info().clone();
+        let pump = FramePump::new(session.decoder(&DecoderOptions::default())?);
+        let paced = source.needs_pacing();
         // Capacity 1: at most the newest frame waits for the UI.
         let (tx, rx) = mpsc::sync_channel(1);
         let stop = Arc::new(AtomicBool::new(false));
@@ -137,11 +102,18 @@ impl LiveSession {
         let repaint2 = repaint.clone();
         let thread = std::thread::Builder::new()
             .name("kfuse-live".into())
-            .spawn(move || capture_loop(dev, decoder, tx, stop2, repaint2, paced))
+            .spawn(move || capture_loop(session, pump, tx, stop2, repaint2, paced))
             .map_err(|e| ViewerError::Device {
                 message: format!("cannot start the capture thread: {e}"),
             })?;
-        Ok(Self { info, name: name.to_string(), rx: Some(rx), stop, thread: Some(thread), repaint })
+        Ok(Self {
+            info,
+            name: source.name().to_string(),
+            rx: Some(rx),
+            stop,
+            thread: Some(thread),
+            repaint,
+        })
     }
 
     /// The UI context to wake for every frame.
@@ -200,18 +172,15 @@ fn ir_grey(ir: &[f32]) -> Image<[u8; 3]> {
 }
 
 fn capture_loop(
-    mut dev: KinectDevice<Box<dyn UsbBackend>>,
-    mut decoder: kinect_usb::decoder::DepthDecoder,
+    mut session: Session,
+    mut pump: FramePump,
     tx: SyncSender<LiveEvent>,
     stop: Arc<AtomicBool>,
     repaint: Arc<Mutex<Option<egui::Context>>>,
     paced: bool,
 ) {
-    let mut depth = vec![0.0f32; PIXELS];
-    let mut ir = vec![0.0f32; PIXELS];
     let mut color_jpeg: Option<Arc<Vec<u8>>> = None;
     let mut color_rgb: Option<Arc<Image<[u8; 3]>>> = None;
-    let mut number = 0u64;
     let mut pending: Option<LiveEvent> = None;
     let mut next_due = Instant::now();
     let wake = || {
@@ -233,14 +202,9 @@ fn capture_loop(
                 Err(TrySendError::Disconnected(_)) => break None,
             }
         }
-        let got = dev.next_frame(POLL, &mut |_, _| {});
-        match got {
-            Ok(Some(Frame::Depth(f))) => {
-                let timestamp = f.timestamp;
-                if let Err(e) = decoder.decode(f.data, &mut depth, &mut ir) {
-                    break Some(format!("depth decoding failed: {e}"));
-                }
-                number += 1;
+        match pump.pump(&mut session, POLL) {
+            Ok(Some(Pumped::Depth { number, timestamp })) => {
+                let (depth, ir) = (pump.depth_mm(), pump.ir());
                 let frame = LiveFrame {
                     number,
                     timestamp,
@@ -249,12 +213,12 @@ fn capture_loop(
                             .unwrap_or_else(|_| Image::filled(WIDTH, HEIGHT, 0.0)),
                         DEPTH_RANGE_M,
                     )),
-                    ir_rgb: Arc::new(ir_grey(&ir)),
-                    depth_mm: Arc::new(depth.clone()),
-                    ir: Arc::new(ir.clone()),
+                    ir_rgb: Arc::new(ir_grey(ir)),
+                    depth_mm: Arc::new(depth.to_vec()),
+                    ir: Arc::new(ir.to_vec()),
                     color_jpeg: color_jpeg.clone(),
                     color_rgb: color_rgb.clone(),
-                    counters: dev.counters(),
+                    counters: session.counters(),
                 };
                 // A newer frame replaces one the UI has not taken yet.
                 pending = Some(LiveEvent::Frame(Box::new(frame)));
@@ -268,8 +232,8 @@ fn capture_loop(
                     }
                 }
             }
-            Ok(Some(Frame::Color(jpeg, _))) => {
-                let jpeg = jpeg.to_vec();
+            Ok(Some(Pumped::Color)) => {
+                let jpeg = pump.color_jpeg().to_vec();
                 // A colour frame that does not decode is still saved as sent; only the display skips it.
                 if let Ok(img) =
                     image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg)
@@ -279,18 +243,10 @@ fn capture_loop(
                 color_jpeg = Some(Arc::new(jpeg));
             }
             Ok(None) => {}
-            Err(KinectError::Disconnected { .. }) => {
-                break Some(format!(
-                    "the sensor was unplugged after {number} depth frames; the frames shown and the shots saved are intact. Reconnect it (USB 3 port, power) and start kfuse view again"
-                ));
-            }
-            Err(KinectError::EndOfStream) => {
-                break Some(format!("the stream ended after {number} depth frames"));
-            }
-            Err(e) => break Some(format!("streaming stopped after {number} depth frames: {e}")),
+            Err(e) => break Some(stop_message(&e, pump.depth_frames())),
         }
     };
-    let _ = dev.close();
+    session.close();
     // The last frame and the reason reach the UI unless it is gone (blocking sends: the UI
     // drains the channel, and a dropped receiver ends them with an error).
     if let Some(ev) = pending.take() {
@@ -300,6 +256,21 @@ fn capture_loop(
         let _ = tx.send(LiveEvent::Stopped(msg));
     }
     wake();
+}
+
+/// What the page says when streaming stops after `number` depth frames.
+fn stop_message(e: &CaptureError, number: u64) -> String {
+    if e.is_disconnected() {
+        format!(
+            "the sensor was unplugged after {number} depth frames; the frames shown and the shots saved are intact. Reconnect it (USB 3 port, power) and start kfuse view again"
+        )
+    } else if e.is_end_of_stream() {
+        format!("the stream ended after {number} depth frames")
+    } else if let CaptureError::Decode(_) = e {
+        e.to_string()
+    } else {
+        format!("streaming stopped after {number} depth frames: {e}")
+    }
 }
 
 /// A save the page made, for its log.
@@ -334,14 +305,15 @@ pub struct LivePage {
     pub saved: Vec<SavedShot>,
     /// The last save error.
     pub save_error: Option<String>,
+    writer: Option<ShotWriter>,
     timestamps: std::collections::VecDeque<u32>,
     textures: [Option<(u64, TextureHandle)>; 3],
 }
 
 impl LivePage {
     /// Opens the sensor and starts streaming; shots go to `out_dir`.
-    pub fn open(backend: LiveBackend, out_dir: &Path) -> Result<Self, ViewerError> {
-        let session = LiveSession::open(backend)?;
+    pub fn open(source: &SensorSource, out_dir: &Path) -> Result<Self, ViewerError> {
+        let session = LiveSession::open(source)?;
         Ok(Self {
             info: session.info.clone(),
             name: session.name.clone(),
@@ -353,6 +325,7 @@ impl LivePage {
             out_dir: out_dir.to_path_buf(),
             saved: Vec::new(),
             save_error: None,
+            writer: None,
             timestamps: std::collections::VecDeque::new(),
             textures: [None, None, None],
         })
@@ -429,7 +402,7 @@ impl LivePage {
                 ShotKind::Calib => format!("{i:04}"),
                 ShotKind::Scene => format!("scene_{i:04}"),
             })
-            .find(|n| capture::shot_files(&self.out_dir, n, kind).iter().all(|p| !p.exists()))
+            .find(|n| shot_files(&self.out_dir, n, kind).iter().all(|p| !p.exists()))
             .unwrap_or_default()
     }
 
@@ -441,16 +414,20 @@ impl LivePage {
         let jpeg = frame.color_jpeg.clone().ok_or_else(|| ViewerError::Device {
             message: "no colour frame yet: wait for the colour stream".into(),
         })?;
-        std::fs::create_dir_all(&self.out_dir).map_err(|e| ViewerError::Write {
-            path: self.out_dir.clone(),
-            message: e.to_string(),
-        })?;
-        if !self.out_dir.join("kinect_params.json").exists() {
-            capture::write_params_json(&self.out_dir, &self.info)?;
+        let number = frame.number;
+        let (ir, depth_mm) = (frame.ir.clone(), frame.depth_mm.clone());
+        // The folder is created (and stale staging of killed captures removed) on first save.
+        if self.writer.is_none() {
+            self.writer = Some(ShotWriter::new(&self.out_dir)?);
         }
-        let files = capture::shot_files(&self.out_dir, &self.next_name(kind), kind);
-        capture::write_shot(&files, &jpeg, &frame.ir, &frame.depth_mm)?;
-        let shot = SavedShot { kind, files, frame: frame.number };
+        if !self.out_dir.join("kinect_params.json").exists() {
+            write_params_json(&self.out_dir, &self.info)?;
+        }
+        let files = shot_files(&self.out_dir, &self.next_name(kind), kind);
+        if let Some(writer) = &self.writer {
+            writer.write(&files, &jpeg, &ir, &depth_mm)?;
+        }
+        let shot = SavedShot { kind, files, frame: number };
         self.saved.push(shot.clone());
         Ok(shot)
     }

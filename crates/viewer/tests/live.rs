@@ -10,8 +10,8 @@ use std::time::Duration;
 use egui_kittest::kittest::Queryable;
 use egui_kittest::wgpu::{WgpuTestRenderer, create_render_state, default_wgpu_setup};
 use egui_kittest::{Harness, SnapshotOptions};
-use viewer::capture::{ShotKind, shot_files};
-use viewer::live::{LiveBackend, LivePage};
+use kfuse_capture::{SensorSource, ShotKind, SimOptions, shot_files};
+use viewer::live::LivePage;
 use viewer::{Page, ViewerApp};
 
 /// Frame periods before the simulated unplug: enough for colour and depth to both arrive and
@@ -22,12 +22,16 @@ const HANG_GUARD: Duration = Duration::from_secs(120);
 /// The sim's frame period in sensor ticks (0.125 ms): 267, i.e. 29.96 Hz.
 const SIM_FPS: f64 = 8000.0 / 267.0;
 
+fn sim(unplug_after: Option<u64>) -> SensorSource {
+    SensorSource::Sim(SimOptions { unplug_after, ..SimOptions::default() })
+}
+
 fn read_png16(path: &Path) -> Vec<u16> {
     image::open(path).unwrap().into_luma16().into_raw()
 }
 
 fn stopped_page(out: &Path) -> LivePage {
-    let mut page = LivePage::open(LiveBackend::Sim { unplug_after: Some(FRAMES) }, out).unwrap();
+    let mut page = LivePage::open(&sim(Some(FRAMES)), out).unwrap();
     assert!(
         page.wait_until_stopped(HANG_GUARD),
         "the capture thread did not stop after the simulated unplug"
@@ -66,15 +70,16 @@ fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
     let want: Vec<u16> = latest
         .depth_mm
         .iter()
-        .map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 })
+        .map(|&d| if d.is_finite() && d > 0.0 { d.round().clamp(1.0, 65535.0) as u16 } else { 0 })
         .collect();
-    // Exact: the file holds the frame's depth in whole millimetres.
+    // Exact: the file holds the frame's depth in whole millimetres (a valid value below 0.5
+    // stays valid as 1: 0 means "no value").
     assert_eq!(depth, want);
     let ir = read_png16(&shot.files[1]);
     let want_ir: Vec<u16> = latest
         .ir
         .iter()
-        .map(|&d| if d.is_finite() && d > 0.0 { d.round().min(65535.0) as u16 } else { 0 })
+        .map(|&d| if d.is_finite() && d > 0.0 { d.round().clamp(1.0, 65535.0) as u16 } else { 0 })
         .collect();
     assert_eq!(ir, want_ir);
     assert_eq!(std::fs::read(&shot.files[0]).unwrap(), **latest.color_jpeg.as_ref().unwrap());
@@ -82,7 +87,7 @@ fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
 
     // The frame is the sim's scene: where the scene is flat the depth is within kfuse
     // capture's bound (forward-model quantisation ≤ 8 mm + 0.5 mm rounding).
-    let (scene, _) = viewer::capture::sim_scene();
+    let (scene, _) = kfuse_capture::source::sim_scene();
     let truth = &scene.depth_frames[0].0;
     let mut checked = 0;
     for r in 2..422usize {
@@ -120,7 +125,7 @@ fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
 #[test]
 fn closing_stops_the_capture_thread() {
     let tmp = tempfile::tempdir().unwrap();
-    let mut page = LivePage::open(LiveBackend::Sim { unplug_after: None }, tmp.path()).unwrap();
+    let mut page = LivePage::open(&sim(None), tmp.path()).unwrap();
     let until = std::time::Instant::now() + HANG_GUARD;
     while page.frames < 2 && std::time::Instant::now() < until {
         page.poll();
@@ -138,7 +143,7 @@ fn usb_backend_without_a_sensor_fails_cleanly() {
     // exists to catch, so it is never taken for "a sensor is attached".
     let sensors = kinect_usb::usb::list_devices().map(|d| d.len()).unwrap_or(0);
     let tmp = tempfile::tempdir().unwrap();
-    match LivePage::open(LiveBackend::Usb, tmp.path()) {
+    match LivePage::open(&SensorSource::Usb, tmp.path()) {
         Err(e) => {
             assert_eq!(sensors, 0, "a Kinect v2 is on the bus but the page failed: {e}");
             assert!(e.to_string().contains("no Kinect v2 found"), "{e}");
@@ -156,7 +161,7 @@ fn usb_backend_without_a_sensor_fails_cleanly() {
 #[test]
 fn save_before_any_frame_is_an_error_not_a_panic() {
     let tmp = tempfile::tempdir().unwrap();
-    let mut page = LivePage::open(LiveBackend::Sim { unplug_after: Some(0) }, tmp.path()).unwrap();
+    let mut page = LivePage::open(&sim(Some(0)), tmp.path()).unwrap();
     assert!(page.wait_until_stopped(HANG_GUARD));
     assert_eq!(page.frames, 0);
     let e = page.save(ShotKind::Scene).unwrap_err();

@@ -193,7 +193,7 @@ impl HoleMasker {
     }
 
     /// The occupancy bit image [`HoleMasker::compute_from_occupancy`] reads (bit `x % 64` of
-    /// word `y * words_per_row + x / 64`), e.g. for [`super::register_depth_marking`].
+    /// word `y * words_per_row + x / 64`), e.g. for [`super::Registration::register`].
     pub fn occupancy_mut(&mut self) -> &mut [u64] {
         &mut self.occupied
     }

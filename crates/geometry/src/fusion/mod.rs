@@ -8,7 +8,7 @@
 //! | H4 | [`mesh_from_depth`] | textured triangle mesh from a colour-frame depth image |
 //! | H5 | [`remove_stretched_faces`] | faces at depth discontinuities dropped (face-normal test) |
 //! | H6 | [`color_on_depth`] | colour sampled onto the depth grid (bilinear) |
-//! | H7 | [`register_depth`], [`zbuffer_from_samples`] | nearest surface per colour pixel (exact min z) |
+//! | H7 | [`Registration`] | nearest surface per colour pixel (exact min z) |
 //! | H8 | [`hole_mask`], [`fit_plane_ransac`], [`fill_holes_with_plane`] | disocclusion holes, plane fill |
 //!
 //! [`run_on`] chains them for one frame, with the per-pixel stages on an engine ([`CpuPixels`]
@@ -48,6 +48,8 @@ pub mod pixel;
 mod register;
 mod resample;
 mod stream;
+#[cfg(feature = "bench-variants")]
+mod variants;
 
 use serde::Serialize;
 
@@ -63,12 +65,17 @@ pub use pixel::{
     project_color_point, project_point, register_pixel, transform_point, zbuffer_index,
     zbuffer_min, zbuffer_pixel,
 };
-pub use register::{
-    ColorSample, atomic_zbuffer_to_image, backproject_cloud, first_write_wins, project_cloud,
-    register_depth, register_depth_marking, register_depth_parallel, zbuffer_from_samples,
-};
+pub use register::{ColorSample, backproject_cloud, first_write_wins, project_cloud};
 pub use resample::{LinearStats, disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel};
 pub use stream::Registration;
+/// The z-buffer variants that benchmarks and comparison tests measure [`Registration`] against
+/// (feature `bench-variants`; bit-identical to it). Not part of the library's API: the one CPU
+/// z-buffer is [`Registration`], the other is `fusion-gpu`'s shader.
+#[cfg(feature = "bench-variants")]
+pub use variants::{
+    atomic_zbuffer_to_image, register_depth, register_depth_marking, register_depth_parallel,
+    zbuffer_from_samples,
+};
 
 use crate::{DepthKind, GeometryError, Image, Mesh, PointCloud, Rig};
 

@@ -3,7 +3,7 @@
 //! and the argument that they are equivalent belong in one place.)
 //!
 //! The per-pixel arithmetic is [`super::pixel`]'s, unchanged (so the z-buffer is
-//! bit-identical to [`super::register_depth`], [`super::zbuffer_from_samples`] and the GPU);
+//! bit-identical to the `bench-variants` z-buffers `register_depth` and `zbuffer_from_samples` and to the GPU);
 //! what differs is the loop around it:
 //!
 //! * the ray table is stored as three planes (`x`, `y`, `s`), so the projection of a block of
@@ -404,7 +404,7 @@ impl Registration {
     /// Registers one depth frame (depth-camera-sized, the kind given to
     /// [`Registration::new`]) on one thread: afterwards [`Registration::zbuffer`] holds the
     /// smallest colour-frame `z` per colour pixel ([`ZBUFFER_EMPTY`] elsewhere), bit-identical
-    /// to [`super::register_depth`]. Returns the number of samples that landed on the colour
+    /// to the `bench-variants` `register_depth`. Returns the number of samples that landed on the colour
     /// image. Error: [`GeometryError::SizeMismatch`] for a depth image of another size.
     pub fn register(&mut self, depth: &Image<f32>) -> Result<usize, GeometryError> {
         self.check(depth)?;

@@ -1,0 +1,71 @@
+//! Stage 4b: recordings. [`record`] writes every raw USB packet of a session and the device
+//! metadata into a `.kfrec` file (`kinect_usb::recording`), published atomically: replay then
+//! runs the same parsers and decoder as the live sensor.
+
+use std::path::Path;
+
+use kfuse_io::atomic::write_atomic;
+use kinect_usb::KinectError;
+use kinect_usb::device::{Frame, StreamKind};
+use kinect_usb::recording::{RecordingMeta, RecordingWriter};
+
+use crate::pump::FRAME_TIMEOUT;
+use crate::{CaptureError, Session};
+
+/// How a recording ended.
+#[derive(Debug)]
+pub struct Recorded {
+    /// Depth frames recorded (all of them are in the file, which is complete and replayable).
+    pub frames: u64,
+    /// The caller's stop request ended it before `frames` were reached.
+    pub interrupted: bool,
+    /// The stream error that ended it early (unplug, end of a replayed recording), if any.
+    pub stopped_by: Option<KinectError>,
+}
+
+/// Records `frames` depth frames (and the colour frames between them) of `session` into
+/// `output`. `stop` is polled between frames (a signal handler's flag); `progress` is called
+/// with the count after each depth frame. A stream error or a stop request ends the
+/// recording early but still writes a complete file (returned in [`Recorded`]); an I/O error
+/// leaves nothing at `output`.
+pub fn record(
+    session: &mut Session,
+    output: &Path,
+    frames: u64,
+    stop: &dyn Fn() -> bool,
+    progress: &mut dyn FnMut(u64),
+) -> Result<Recorded, CaptureError> {
+    let meta = RecordingMeta::from_info(session.info());
+    let mut done = Recorded { frames: 0, interrupted: false, stopped_by: None };
+    write_atomic(output, |w| {
+        let mut rw = RecordingWriter::new(w, &meta)?;
+        let mut io_err = None;
+        while done.frames < frames {
+            if stop() {
+                done.interrupted = true;
+                break;
+            }
+            let mut tap = |k: StreamKind, e: &_| {
+                if let Err(err) = rw.write_event(k, e) {
+                    io_err.get_or_insert(err);
+                }
+            };
+            match session.device_mut().next_frame(FRAME_TIMEOUT, &mut tap) {
+                Ok(Some(Frame::Depth(_))) => {
+                    done.frames += 1;
+                    progress(done.frames);
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    done.stopped_by = Some(e);
+                    break;
+                }
+            }
+            if let Some(e) = io_err.take() {
+                return Err(e);
+            }
+        }
+        rw.finish().map(|_| ())
+    })?;
+    Ok(done)
+}

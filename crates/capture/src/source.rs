@@ -1,0 +1,128 @@
+//! Stage 1: where frames come from. One type, [`SensorSource`], for `kfuse capture`, `kfuse
+//! devices` and the viewer's live page.
+
+use std::path::PathBuf;
+
+use kinect_usb::params::DepthParams;
+use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
+
+/// Scale from the synthetic scene's amplitude (albedo·cos/r², ≈0.05–0.6) to decoder IR units
+/// (≈1 000–12 000, well above the decoder's amplitude gates).
+pub const SIM_IR_SCALE: f32 = 20_000.0;
+
+/// Quality of the simulated colour camera's JPEG: the sensor's own stream is of this order,
+/// and it keeps the checkerboard's edges sharp for the calibration tests.
+const SIM_JPEG_QUALITY: u8 = 90;
+
+/// Which sensor to stream from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SensorSource {
+    /// A real Kinect v2 over libusb (the first one found).
+    Usb,
+    /// The simulated Kinect v2: `geometry::synth`'s Kinect preset scene over the same USB
+    /// protocol, with optional faults.
+    Sim(SimOptions),
+    /// A raw recording made with `kfuse capture record`, replayed through the same parsers and
+    /// decoder as a live sensor.
+    Replay(ReplayOptions),
+    /// A USB bus with no Kinect on it: what every command does without a sensor, whatever is
+    /// plugged into the machine running the tests.
+    Absent,
+}
+
+/// Faults of the simulated sensor.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SimOptions {
+    /// Disappear (unplug) after this many frame periods.
+    pub unplug_after: Option<u64>,
+    /// Report busy when opened.
+    pub busy: bool,
+    /// Fraction of isochronous packets lost, `0..=1`.
+    pub iso_drop: f64,
+}
+
+/// How to read a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayOptions {
+    /// The `.kfrec` file.
+    pub path: PathBuf,
+    /// Accept a truncated recording and use its intact beginning.
+    pub allow_truncated: bool,
+    /// Leave out records whose checksum does not match instead of stopping at the first.
+    pub skip_corrupt: bool,
+}
+
+impl SensorSource {
+    /// The sensor's name for titles and messages.
+    pub fn name(&self) -> &'static str {
+        match self {
+            SensorSource::Usb => "Kinect v2",
+            SensorSource::Sim(_) => "simulated Kinect v2",
+            SensorSource::Replay(_) => "recorded Kinect v2",
+            SensorSource::Absent => "no Kinect v2",
+        }
+    }
+
+    /// Whether a consumer showing frames live should pace them to the sensor's 30 Hz: the
+    /// simulator and a replay deliver frames as fast as they are asked for.
+    pub fn needs_pacing(&self) -> bool {
+        matches!(self, SensorSource::Sim(_) | SensorSource::Replay(_))
+    }
+}
+
+/// The simulated scene (depth in mm, IR) and device profile of [`SensorSource::Sim`]:
+/// `geometry::synth`'s Kinect preset without noise, colour as a JPEG.
+pub fn sim_scene() -> (SimScene, SimProfile) {
+    let setup = geometry::synth::kinect_preset(false);
+    let frame = geometry::synth::render(&setup);
+    let depth_mm: Vec<f32> = frame
+        .depth
+        .data()
+        .iter()
+        .map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 })
+        .collect();
+    let ir: Vec<f32> = frame.amplitude.data().iter().map(|&a| a * SIM_IR_SCALE).collect();
+    let (cw, ch) = frame.color.size();
+    let rgb: Vec<u8> = frame.color.data().iter().flat_map(|p| p.iter().copied()).collect();
+    let mut jpeg = Vec::new();
+    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, SIM_JPEG_QUALITY);
+    let ok = image::ImageEncoder::write_image(
+        enc,
+        &rgb,
+        cw as u32,
+        ch as u32,
+        image::ExtendedColorType::Rgb8,
+    )
+    .is_ok();
+    let d = &setup.rig.depth;
+    let params = DepthParams {
+        fx: d.intrinsics.fx as f32,
+        fy: d.intrinsics.fy as f32,
+        cx: d.intrinsics.cx as f32,
+        cy: d.intrinsics.cy as f32,
+        k1: d.distortion.k1 as f32,
+        k2: d.distortion.k2 as f32,
+        k3: d.distortion.k3 as f32,
+        p1: d.distortion.p1 as f32,
+        p2: d.distortion.p2 as f32,
+    };
+    let profile = SimProfile::synthetic(params, setup.rig.color.intrinsics.fx as f32);
+    let scene = SimScene {
+        depth_frames: vec![(depth_mm, ir)],
+        color_jpegs: if ok { vec![jpeg] } else { vec![] },
+    };
+    (scene, profile)
+}
+
+/// The simulated device of [`SensorSource::Sim`] (fixed seed 1: runs are reproducible).
+pub fn sim_device(options: &SimOptions) -> SimDevice {
+    let (scene, profile) = sim_scene();
+    let faults = SimFaults {
+        seed: 1,
+        busy: options.busy,
+        iso_drop_rate: options.iso_drop,
+        unplug_after_frames: options.unplug_after,
+        ..SimFaults::default()
+    };
+    SimDevice::new(profile, scene, faults)
+}

@@ -1,0 +1,137 @@
+//! The capture library on the simulated sensor and on files: the 16-bit PNG rule, staged shots,
+//! the session and pump, recording and replay.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use kfuse_capture::record::record;
+use kfuse_capture::shots::STAGING_PREFIX;
+use kfuse_capture::source::sim_scene;
+use kfuse_capture::{
+    CaptureError, DecoderOptions, FramePump, Pumped, ReplayOptions, SensorSource, Session,
+    ShotKind, ShotWriter, SimOptions, shot_files, write_png16,
+};
+
+fn read_png16(p: &Path) -> (u32, u32, Vec<u16>) {
+    let img = image::open(p).unwrap().into_luma16();
+    (img.width(), img.height(), img.into_raw())
+}
+
+/// The entries of `dir`, sorted (staging folders included).
+fn names(dir: &Path) -> std::collections::BTreeSet<String> {
+    let entries = std::fs::read_dir(dir).unwrap();
+    entries.map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect()
+}
+
+/// The one 16-bit rule: 0 means "no value", so a valid value below 0.5 becomes 1 (not 0),
+/// halves round away from zero, values above the range saturate, and NaN, ±∞, 0 and negative
+/// values are 0. Expected values worked out by hand from that rule.
+#[test]
+fn png16_rounds_clamps_to_1_65535_and_zeroes_invalid_values() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("v.png");
+    let values =
+        [0.0, 0.3, 0.5, 1234.5, 1234.49, 70_000.0, f32::NAN, -5.0, f32::INFINITY, 65_535.4];
+    write_png16(&p, &values, 5, 2).unwrap();
+    let (w, h, px) = read_png16(&p);
+    assert_eq!((w, h), (5, 2));
+    assert_eq!(px, vec![0, 1, 1, 1235, 1234, 65535, 0, 0, 0, 65535]);
+    // The depth writer of kfuse-io follows the same rule (metres → mm): 0.3 mm stays valid.
+    let depth = geometry::Image::from_vec(3, 1, vec![0.0003f32, 1.5, f32::NAN]).unwrap();
+    assert_eq!(kfuse_io::images::depth_to_mm(&depth), vec![1, 1500, 0]);
+    // A size that does not match the values is refused and writes nothing.
+    let bad = dir.path().join("bad.png");
+    let e = write_png16(&bad, &values, 4, 2).unwrap_err().to_string();
+    assert!(e.contains("10 values do not make a 4x2 image"), "{e}");
+    assert!(!bad.exists());
+}
+
+/// A shot's three files appear together: a good shot leaves exactly them (no staging folder),
+/// a failing one (IR of the wrong size) leaves none of its files; a staging folder of a dead
+/// process is removed when a writer opens the folder.
+#[test]
+fn shots_are_staged_and_appear_together() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("shots");
+    std::fs::create_dir_all(out.join(format!("{STAGING_PREFIX}4294967295"))).unwrap();
+    let w = ShotWriter::new(&out).unwrap();
+    assert!(names(&out).is_empty(), "stale staging kept: {:?}", names(&out));
+    let n = 512 * 424;
+    let depth: Vec<f32> = (0..n).map(|i| (i % 5000) as f32).collect();
+    let ir = vec![100.0f32; n];
+    let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
+    let files = shot_files(&out, "0001", ShotKind::Calib);
+    w.write(&files, &jpeg, &ir, &depth).unwrap();
+    let shot_names = ["color_0001.jpg", "depth_0001.png", "ir_0001.png"].map(String::from);
+    assert_eq!(names(&out), shot_names.clone().into());
+    assert_eq!(read_png16(&files[2]).2[4999], 4999);
+    assert_eq!(std::fs::read(&files[0]).unwrap(), jpeg);
+    let scene = shot_files(&out, "desk", ShotKind::Scene);
+    let e = w.write(&scene, &jpeg, &ir[..10], &depth).unwrap_err();
+    assert!(matches!(e, CaptureError::Write { .. }), "{e}");
+    assert_eq!(names(&out), shot_names.into());
+}
+
+/// The session on the simulated sensor: a fresh pair's depth equals the scene within the
+/// decoder's forward-model bound (8 mm, protocol §14.3) plus 0.5 mm; a recording of it
+/// replays through the same session type with as many depth frames, then ends.
+#[test]
+fn sim_session_pumps_the_scene_and_a_recording_replays() {
+    let source = SensorSource::Sim(SimOptions::default());
+    let mut s = Session::open(&source).unwrap();
+    assert!((f64::from(s.info().depth_params.fx) - 368.096588).abs() < 1e-3);
+    let opts = DecoderOptions { no_filters: true, ..DecoderOptions::default() };
+    let mut pump = FramePump::new(s.decoder(&opts).unwrap());
+    pump.fresh_pair(&mut s, Instant::now()).unwrap();
+    assert_eq!(&pump.color_jpeg()[..2], &[0xFF, 0xD8]);
+    let (scene, _) = sim_scene();
+    let truth = &scene.depth_frames[0].0;
+    let (mut n, mut max) = (0usize, 0f32);
+    for (i, (&t, &d)) in truth.iter().zip(pump.depth_mm()).enumerate() {
+        let c = i % 512;
+        if t > 0.0 && d > 0.0 && c > 0 && c < 511 {
+            n += 1;
+            max = max.max((t - d).abs());
+        }
+    }
+    assert!(n > 150_000 && max <= 8.5, "{n} pixels, max |err| {max} mm");
+
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("s.kfrec");
+    let mut seen = Vec::new();
+    let r = record(&mut s, &file, 3, &|| false, &mut |k| seen.push(k)).unwrap();
+    assert_eq!((r.frames, r.interrupted, r.stopped_by.is_none()), (3, false, true));
+    assert_eq!(seen, [1, 2, 3]);
+    s.close();
+
+    let replay = SensorSource::Replay(ReplayOptions {
+        path: file,
+        allow_truncated: false,
+        skip_corrupt: false,
+    });
+    let mut s = Session::open(&replay).unwrap();
+    let mut pump = FramePump::new(s.decoder(&opts).unwrap());
+    let mut depth_frames = 0;
+    let end = loop {
+        match pump.pump(&mut s, Duration::from_secs(3)) {
+            Ok(Some(Pumped::Depth { number, .. })) => depth_frames = number,
+            Ok(_) => {}
+            Err(e) => break e,
+        }
+    };
+    assert!(end.is_end_of_stream(), "{end}");
+    assert_eq!(depth_frames, 3);
+    let outcome = s.replay_outcome().unwrap();
+    assert!(outcome.error.is_none() && outcome.report.skipped.is_empty());
+}
+
+/// No sensor and bad configuration are plain errors that say what to do.
+#[test]
+fn absent_sensor_and_bad_drop_rate_are_refused() {
+    let e = Session::open(&SensorSource::Absent).err().unwrap();
+    assert!(matches!(e, CaptureError::NoSensor { .. }), "{e}");
+    assert!(e.to_string().contains("no Kinect v2 found"), "{e}");
+    let bad = SensorSource::Sim(SimOptions { iso_drop: 1.5, ..SimOptions::default() });
+    let e = Session::open(&bad).err().unwrap();
+    assert!(e.to_string().contains("1.5 is outside [0, 1]"), "{e}");
+}
