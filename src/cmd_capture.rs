@@ -46,6 +46,7 @@ pub enum Backend {
     Sim,
     /// A USB bus with no Kinect on it (tests: what every command does without a sensor,
     /// whatever is plugged into the machine running them).
+    #[value(hide = true)]
     Absent,
 }
 
@@ -77,8 +78,16 @@ pub struct CommonArgs {
     /// ~2× slower) instead of the default fast decoder (within 0.01 mm of it).
     #[arg(long)]
     exact_decoder: bool,
-    #[arg(long, value_enum, default_value_t = Backend::Usb, hide = true)]
+    /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
+    /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
+    /// checkerboard of 40 mm squares in 12 tilted poses at 0.6–1.5 m (one pose per frame:
+    /// `--count 12 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
+    /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
+    #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
+    /// Set by `capture calib`: the simulated sensor shows its calibration scene.
+    #[arg(skip)]
+    sim_calib_scene: bool,
     /// Simulated device: disappear after this many frame periods.
     #[arg(long, hide = true)]
     sim_unplug_after: Option<u64>,
@@ -349,6 +358,7 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
     crate::interrupt::install()?;
     match args.mode {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
+            let common = CommonArgs { sim_calib_scene: true, ..common };
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
             shots(&out, &names, "", interval, overwrite, &common)
         }
@@ -383,7 +393,7 @@ fn open(common: &CommonArgs) -> Result<(Device, Option<SimHandle>)> {
     } else {
         match common.backend {
             Backend::Sim => {
-                let h = Arc::new(Mutex::new(sim_device(common)));
+                let h = Arc::new(Mutex::new(sim_device(common)?));
                 sim = Some(h.clone());
                 Box::new(h)
             }
@@ -483,9 +493,14 @@ fn write_sim_report(common: &CommonArgs, sim: &Option<SimHandle>) -> Result<()> 
     Ok(())
 }
 
-/// The simulated device used by `--backend sim`: `geometry::synth`'s Kinect preset scene.
-pub fn sim_device(common: &CommonArgs) -> SimDevice {
-    let (scene, profile) = capture::sim_scene();
+/// The simulated device used by `--backend sim`: `geometry::synth`'s Kinect preset scene, or
+/// for `capture calib` the checkerboard of `kinect_usb::sim::calib_scene`.
+pub fn sim_device(common: &CommonArgs) -> Result<SimDevice> {
+    let (mut scene, profile) = capture::sim_scene();
+    if common.sim_calib_scene {
+        scene = kinect_usb::sim::calib_scene::calibration_scene(&profile)
+            .context("the simulated sensor's colour parameters are not a pinhole camera")?;
+    }
     let faults = SimFaults {
         seed: 1,
         busy: common.sim_busy,
@@ -493,7 +508,7 @@ pub fn sim_device(common: &CommonArgs) -> SimDevice {
         unplug_after_frames: common.sim_unplug_after,
         ..SimFaults::default()
     };
-    SimDevice::new(profile, scene, faults)
+    Ok(SimDevice::new(profile, scene, faults))
 }
 
 fn decoder_for(info: &DeviceInfo, no_filters: bool, exact: bool) -> Result<DepthDecoder> {

@@ -45,9 +45,27 @@ pub fn shot_files(out: &Path, name: &str, kind: ShotKind) -> [PathBuf; 3] {
 }
 
 /// The simulated scene (depth in mm, IR) and device profile of `--backend sim`:
-/// `geometry::synth`'s Kinect preset without noise, colour as a quality-90 JPEG.
+/// `geometry::synth`'s Kinect preset without noise, colour as a quality-90 JPEG, rendered with
+/// the rig the profile's factory parameters describe (`FactoryRig::of_profile`: pinhole colour
+/// camera, `color_from_depth` = +52 mm along x as on real devices, protocol §4.7, §11.2), so
+/// that `kinect_params.json` maps every point where the images show it.
 pub fn sim_scene() -> (SimScene, SimProfile) {
-    let setup = geometry::synth::kinect_preset(false);
+    let mut setup = geometry::synth::kinect_preset(false);
+    let profile = sim_profile(&setup.rig);
+    if let Some(f) = kinect_usb::sim::calib_scene::FactoryRig::of_profile(&profile) {
+        let [fx, fy, cx, cy] = f.color;
+        let (w, h) = (setup.rig.color.width, setup.rig.color.height);
+        setup.rig.color = geometry::CameraModel::new(
+            w,
+            h,
+            geometry::Intrinsics::new(fx, fy, cx, cy),
+            geometry::Distortion::NONE,
+        );
+        setup.rig.color_from_depth = geometry::RigidTransform::from_axis_angle(
+            nalgebra::Vector3::zeros(),
+            nalgebra::Vector3::from(f.t_m),
+        );
+    }
     let frame = geometry::synth::render(&setup);
     let depth_mm: Vec<f32> = frame
         .depth
@@ -68,7 +86,16 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
         image::ExtendedColorType::Rgb8,
     )
     .is_ok();
-    let d = &setup.rig.depth;
+    let scene = SimScene {
+        depth_frames: vec![(depth_mm, ir)],
+        color_jpegs: if ok { vec![jpeg] } else { vec![] },
+    };
+    (scene, profile)
+}
+
+/// The simulated sensor's profile for `rig`'s depth camera and colour focal length.
+fn sim_profile(rig: &geometry::Rig) -> SimProfile {
+    let d = &rig.depth;
     let params = DepthParams {
         fx: d.intrinsics.fx as f32,
         fy: d.intrinsics.fy as f32,
@@ -80,12 +107,7 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
         p1: d.distortion.p1 as f32,
         p2: d.distortion.p2 as f32,
     };
-    let profile = SimProfile::synthetic(params, setup.rig.color.intrinsics.fx as f32);
-    let scene = SimScene {
-        depth_frames: vec![(depth_mm, ir)],
-        color_jpegs: if ok { vec![jpeg] } else { vec![] },
-    };
-    (scene, profile)
+    SimProfile::synthetic(params, rig.color.intrinsics.fx as f32)
 }
 
 /// The depth decoder for a started device (`no_filters`: without the bilateral and
