@@ -226,9 +226,41 @@ fn ir_sample(pose: &BoardPose, x: f64, y: f64) -> (f64, f64) {
     (ALBEDO[m] * cos / r2 * IR_SCALE, p[2] * 1000.0)
 }
 
+/// Rays per depth pixel: the [`IR_SAMPLES`]² supersamples, then the pixel centre.
+const RAYS_PER_PIXEL: usize = IR_SAMPLES * IR_SAMPLES + 1;
+
+/// The undistorted rays of every depth pixel's samples (row-major, [`RAYS_PER_PIXEL`] each):
+/// computed once for all poses (the fixed-point undistortion is the costly part).
+fn depth_rays(rig: &FactoryRig) -> Vec<[f64; 2]> {
+    let n = IR_SAMPLES as f64;
+    let mut rays = vec![[0.0; 2]; WIDTH * HEIGHT * RAYS_PER_PIXEL];
+    rays.par_chunks_mut(WIDTH * RAYS_PER_PIXEL).enumerate().for_each(|(v, row)| {
+        for (u, px) in row.chunks_mut(RAYS_PER_PIXEL).enumerate() {
+            for (s, ray) in px.iter_mut().enumerate() {
+                let (du, dv) = if s + 1 == RAYS_PER_PIXEL {
+                    (0.0, 0.0)
+                } else {
+                    let (a, b) = (s / IR_SAMPLES, s % IR_SAMPLES);
+                    ((b as f64 + 0.5) / n - 0.5, (a as f64 + 0.5) / n - 0.5)
+                };
+                *ray = rig.depth_ray(u as f64 + du, v as f64 + dv);
+            }
+        }
+    });
+    rays
+}
+
 /// Renders pose `k`: depth (z, mm) and IR, each 512 × 424, and the colour image (RGB8,
 /// 1920 × 1080).
 pub fn render_pose(rig: &FactoryRig, k: usize) -> (Vec<f32>, Vec<f32>, Vec<u8>) {
+    render_pose_with(rig, &depth_rays(rig), k)
+}
+
+fn render_pose_with(
+    rig: &FactoryRig,
+    rays: &[[f64; 2]],
+    k: usize,
+) -> (Vec<f32>, Vec<f32>, Vec<u8>) {
     let pose = BoardPose::of_index(k);
     let mut rng = ChaCha8Rng::seed_from_u64(0x5EED_0000 + k as u64);
     let mut depth = vec![0f32; WIDTH * HEIGHT];
@@ -237,15 +269,10 @@ pub fn render_pose(rig: &FactoryRig, k: usize) -> (Vec<f32>, Vec<f32>, Vec<u8>) 
     depth.par_chunks_mut(WIDTH).zip(ir.par_chunks_mut(WIDTH)).enumerate().for_each(
         |(v, (drow, irow))| {
             for u in 0..WIDTH {
-                let mut sum = 0.0;
-                for a in 0..IR_SAMPLES {
-                    for b in 0..IR_SAMPLES {
-                        let (du, dv) = ((b as f64 + 0.5) / n - 0.5, (a as f64 + 0.5) / n - 0.5);
-                        let [x, y] = rig.depth_ray(u as f64 + du, v as f64 + dv);
-                        sum += ir_sample(&pose, x, y).0;
-                    }
-                }
-                let [x, y] = rig.depth_ray(u as f64, v as f64);
+                let px = &rays[(v * WIDTH + u) * RAYS_PER_PIXEL..][..RAYS_PER_PIXEL];
+                let sum: f64 =
+                    px[..RAYS_PER_PIXEL - 1].iter().map(|&[x, y]| ir_sample(&pose, x, y).0).sum();
+                let [x, y] = px[RAYS_PER_PIXEL - 1];
                 drow[u] = ir_sample(&pose, x, y).1 as f32;
                 irow[u] = (sum / (n * n)) as f32;
             }
@@ -258,13 +285,24 @@ pub fn render_pose(rig: &FactoryRig, k: usize) -> (Vec<f32>, Vec<f32>, Vec<u8>) 
     let (cw, ch) = (1920usize, 1080usize);
     let [fx, fy, cx, cy] = rig.color;
     let o = [-rig.t_m[0], -rig.t_m[1], -rig.t_m[2]];
-    let m = COLOR_SAMPLES as f64;
+    // The board's bounding box in the colour image (+2 px): only there are pixels
+    // supersampled; the smooth wall elsewhere takes one sample (a tenth of the cost).
+    let (sq, mg) = (BOARD_SQUARE_M, BOARD_MARGIN_M);
+    let (bw, bh) = (BOARD_INNER_CORNERS.0 as f64 * sq + mg, BOARD_INNER_CORNERS.1 as f64 * sq + mg);
+    let outline = [(-sq - mg, -sq - mg), (bw, -sq - mg), (-sq - mg, bh), (bw, bh)]
+        .map(|(x, y)| rig.project_color(pose.point(x, y)));
+    let lo = |i: usize| outline.iter().map(|p| p[i]).fold(f64::INFINITY, f64::min) - 2.0;
+    let hi = |i: usize| outline.iter().map(|p| p[i]).fold(f64::NEG_INFINITY, f64::max) + 2.0;
+    let (umin, umax, vmin, vmax) = (lo(0), hi(0), lo(1), hi(1));
     let mut rgb = vec![0u8; cw * ch * 3];
     rgb.par_chunks_mut(cw * 3).enumerate().for_each(|(v, row)| {
         for u in 0..cw {
+            let near = (umin..=umax).contains(&(u as f64)) && (vmin..=vmax).contains(&(v as f64));
+            let ns = if near { COLOR_SAMPLES } else { 1 };
+            let m = ns as f64;
             let mut acc = [0.0f64; 3];
-            for a in 0..COLOR_SAMPLES {
-                for b in 0..COLOR_SAMPLES {
+            for a in 0..ns {
+                for b in 0..ns {
                     let (du, dv) = ((b as f64 + 0.5) / m - 0.5, (a as f64 + 0.5) / m - 0.5);
                     let d = [(u as f64 + du - cx) / fx, (v as f64 + dv - cy) / fy, 1.0];
                     let (mat, p) = pose.hit(o, d);
@@ -299,14 +337,22 @@ fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
 /// ([`FactoryRig::of_profile`]).
 pub fn calibration_scene(profile: &SimProfile) -> Option<SimScene> {
     let rig = FactoryRig::of_profile(profile)?;
+    let rays = depth_rays(&rig);
+    let frames: Vec<Option<_>> = (0..BOARD_POSES.len())
+        .into_par_iter()
+        .map(|k| {
+            let (depth, ir, rgb) = render_pose_with(&rig, &rays, k);
+            let mut jpeg = Vec::new();
+            let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, JPEG_QUALITY);
+            image::ImageEncoder::write_image(enc, &rgb, 1920, 1080, image::ExtendedColorType::Rgb8)
+                .ok()?;
+            Some(((depth, ir), jpeg))
+        })
+        .collect();
     let mut scene = SimScene::default();
-    for k in 0..BOARD_POSES.len() {
-        let (depth, ir, rgb) = render_pose(&rig, k);
-        let mut jpeg = Vec::new();
-        let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, JPEG_QUALITY);
-        image::ImageEncoder::write_image(enc, &rgb, 1920, 1080, image::ExtendedColorType::Rgb8)
-            .ok()?;
-        scene.depth_frames.push((depth, ir));
+    for f in frames {
+        let (d, jpeg) = f?;
+        scene.depth_frames.push(d);
         scene.color_jpegs.push(jpeg);
     }
     Some(scene)
