@@ -66,7 +66,12 @@ impl Backend {
 #[derive(Args, Debug)]
 #[command(after_help = "Examples:\n  kfuse devices\n\nExits non-zero when no Kinect v2 is found.")]
 pub struct DevicesArgs {
-    #[arg(long, value_enum, default_value_t = Backend::Usb, hide = true)]
+    /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
+    /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
+    /// checkerboard of 40 mm squares in 12 tilted poses at 0.6–1.5 m (one pose per frame:
+    /// `--count 12 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
+    /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
+    #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
 }
 
@@ -90,8 +95,16 @@ pub struct CommonArgs {
     /// ~2× slower) instead of the default fast decoder (within 0.01 mm of it).
     #[arg(long)]
     exact_decoder: bool,
-    #[arg(long, value_enum, default_value_t = Backend::Usb, hide = true)]
+    /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
+    /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
+    /// checkerboard of 40 mm squares in 12 tilted poses at 0.6–1.5 m (one pose per frame:
+    /// `--count 12 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
+    /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
+    #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
+    /// Set by `capture calib`: the simulated sensor shows its calibration scene.
+    #[arg(skip)]
+    sim_calib_scene: bool,
     /// Simulated device: disappear after this many frame periods.
     #[arg(long, hide = true)]
     sim_unplug_after: Option<u64>,
@@ -249,6 +262,7 @@ impl CommonArgs {
                 unplug_after: self.sim_unplug_after,
                 busy: self.sim_busy,
                 iso_drop: self.sim_iso_drop,
+                calib_scene: self.sim_calib_scene,
             }),
         }
     }
@@ -282,6 +296,7 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
     crate::interrupt::install()?;
     match args.mode {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
+            let common = CommonArgs { sim_calib_scene: true, ..common };
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
             shots(&out, &names, ShotKind::Calib, interval, overwrite, &common)
         }

@@ -119,7 +119,7 @@ impl Session {
                         o.iso_drop
                     )));
                 }
-                let h = Arc::new(Mutex::new(sim_device(o)));
+                let h = Arc::new(Mutex::new(sim_device(o)?));
                 sim = Some(h.clone());
                 Box::new(h)
             }

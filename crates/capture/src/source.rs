@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use crate::CaptureError;
 use kinect_usb::params::DepthParams;
 use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
 
@@ -39,6 +40,9 @@ pub struct SimOptions {
     pub busy: bool,
     /// Fraction of isochronous packets lost, `0..=1`.
     pub iso_drop: f64,
+    /// Show the calibration scene (`kinect_usb::sim::calib_scene`: a 7x5-corner board of
+    /// 40 mm squares in 12 tilted poses, one per frame) instead of the Kinect preset.
+    pub calib_scene: bool,
 }
 
 /// How to read a recording.
@@ -73,7 +77,26 @@ impl SensorSource {
 /// The simulated scene (depth in mm, IR) and device profile of [`SensorSource::Sim`]:
 /// `geometry::synth`'s Kinect preset without noise, colour as a JPEG.
 pub fn sim_scene() -> (SimScene, SimProfile) {
-    let setup = geometry::synth::kinect_preset(false);
+    let mut setup = geometry::synth::kinect_preset(false);
+    let profile = sim_profile(&setup.rig);
+    // Rendered with the rig the profile's factory parameters describe
+    // (`FactoryRig::of_profile`: pinhole colour camera, `color_from_depth` = +52 mm along x as
+    // on real devices, protocol §4.7, §11.2), so that `kinect_params.json` maps every point
+    // where the images show it.
+    if let Some(f) = kinect_usb::sim::calib_scene::FactoryRig::of_profile(&profile) {
+        let [fx, fy, cx, cy] = f.color;
+        let (w, h) = (setup.rig.color.width, setup.rig.color.height);
+        setup.rig.color = geometry::CameraModel::new(
+            w,
+            h,
+            geometry::Intrinsics::new(fx, fy, cx, cy),
+            geometry::Distortion::NONE,
+        );
+        setup.rig.color_from_depth = geometry::RigidTransform::from_axis_angle(
+            nalgebra::Vector3::zeros(),
+            nalgebra::Vector3::from(f.t_m),
+        );
+    }
     let frame = geometry::synth::render(&setup);
     let depth_mm: Vec<f32> = frame
         .depth
@@ -94,7 +117,16 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
         image::ExtendedColorType::Rgb8,
     )
     .is_ok();
-    let d = &setup.rig.depth;
+    let scene = SimScene {
+        depth_frames: vec![(depth_mm, ir)],
+        color_jpegs: if ok { vec![jpeg] } else { vec![] },
+    };
+    (scene, profile)
+}
+
+/// The simulated sensor's profile for `rig`'s depth camera and colour focal length.
+fn sim_profile(rig: &geometry::Rig) -> SimProfile {
+    let d = &rig.depth;
     let params = DepthParams {
         fx: d.intrinsics.fx as f32,
         fy: d.intrinsics.fy as f32,
@@ -106,17 +138,19 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
         p1: d.distortion.p1 as f32,
         p2: d.distortion.p2 as f32,
     };
-    let profile = SimProfile::synthetic(params, setup.rig.color.intrinsics.fx as f32);
-    let scene = SimScene {
-        depth_frames: vec![(depth_mm, ir)],
-        color_jpegs: if ok { vec![jpeg] } else { vec![] },
-    };
-    (scene, profile)
+    SimProfile::synthetic(params, rig.color.intrinsics.fx as f32)
 }
 
 /// The simulated device of [`SensorSource::Sim`] (fixed seed 1: runs are reproducible).
-pub fn sim_device(options: &SimOptions) -> SimDevice {
-    let (scene, profile) = sim_scene();
+pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
+    let (mut scene, profile) = sim_scene();
+    if options.calib_scene {
+        scene = kinect_usb::sim::calib_scene::calibration_scene(&profile).ok_or_else(|| {
+            CaptureError::Config(
+                "the simulated sensor's colour parameters are not a pinhole camera".into(),
+            )
+        })?;
+    }
     let faults = SimFaults {
         seed: 1,
         busy: options.busy,
@@ -124,5 +158,5 @@ pub fn sim_device(options: &SimOptions) -> SimDevice {
         unplug_after_frames: options.unplug_after,
         ..SimFaults::default()
     };
-    SimDevice::new(profile, scene, faults)
+    Ok(SimDevice::new(profile, scene, faults))
 }

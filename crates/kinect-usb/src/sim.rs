@@ -6,7 +6,10 @@
 //! Size (~950 lines, one file): the simulated device is one state machine whose command
 //! handlers, stream generator, replay source and fault injection all read and change the same
 //! private state; split into modules, that state would have to become crate-visible. It is
-//! compiled only with the `sim` feature.
+//! compiled only with the `sim` feature. The calibration scene it can show (a checkerboard in
+//! tilted poses, labs L1–L3) is [`calib_scene`].
+
+pub mod calib_scene;
 
 use std::collections::VecDeque;
 use std::time::Duration;
