@@ -450,10 +450,12 @@ fn ctrl_c_during_calibrate_detection_exits_130_within_a_second_and_writes_nothin
 /// Replay of a recording of more than 1 GiB stays under 300 MB peak RSS (issue 12), read from
 /// /proc/self/status (VmHWM) by the replaying process itself (`KFUSE_REPORT_PEAK_RSS`).
 /// Ignored by default: it writes 2 GiB to the temp folder (the recording and its copy through
-/// replay) and takes about a minute; run it with `cargo test --test cli_reliability --
-/// --ignored replay_of_a_1_gib`. The 400 MB case runs every time (capture_cli.rs).
+/// replay), more than a CI runner's or a shared machine's free disk may hold; run it with
+/// `TMPDIR=/dev/shm cargo test --test cli_reliability -- --ignored replay_of_a_1_gib`
+/// (measured: 1 074 742 505 bytes replayed at 24 MiB peak RSS, 15 s in the dev profile). The
+/// 400 MB case runs every time (capture_cli.rs).
 #[test]
-#[ignore = "writes 2 GiB to the temp folder and takes about a minute"]
+#[ignore = "writes 2 GiB to the temp folder (set TMPDIR to a folder with room)"]
 fn replay_of_a_1_gib_recording_stays_under_300_mb() {
     use kinect_usb::recording::{RecordingWriter, read_recording};
     /// The bound of issue 12, bytes.
@@ -467,11 +469,11 @@ fn replay_of_a_1_gib_recording_stays_under_300_mb() {
     let big = dir.join("big.kfrec");
     let f = std::io::BufWriter::new(std::fs::File::create(&big).unwrap());
     let mut w = RecordingWriter::new(f, &r.meta).unwrap();
-    let one = std::fs::metadata(&rec).unwrap().len();
-    for _ in 0..=(1u64 << 30) / one {
+    while std::fs::metadata(&big).unwrap().len() <= 1 << 30 {
         for e in &r.events {
             w.write_event(e.kind, &e.to_event()).unwrap();
         }
+        w.flush().unwrap();
     }
     w.finish().unwrap();
     let size = std::fs::metadata(&big).unwrap().len();
