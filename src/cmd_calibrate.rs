@@ -252,6 +252,7 @@ fn load_and_detect(
         .zip(&images)
         .filter_map(|(f, i)| Some((file_name(f), i.as_ref().ok()?)))
         .collect();
+    println!("{camera}: detecting the board in {} image(s)", names.len());
     let mut board = *board;
     if auto {
         let Some(((a, b), n)) = common_grid_size(&names) else {
@@ -266,7 +267,6 @@ fn load_and_detect(
         );
         (board.cols, board.rows) = (a, b);
     }
-    println!("{camera}: detecting the board in {} image(s)", names.len());
     let pb = bar(names.len(), &format!("detecting {camera}"));
     let (found, board) = detect_views_with(&names, &board, refinement, &|| pb.inc(1));
     pb.finish();
