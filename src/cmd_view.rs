@@ -51,6 +51,11 @@ pub struct ViewArgs {
     /// Live mode: folder for the shots saved with C and S.
     #[arg(long, default_value = "kfuse-live", requires = "backend")]
     pub out: PathBuf,
+    /// Show a folder whose rig fails the plausibility check of `kfuse fuse` (focal lengths
+    /// 50-20000 px, image sides up to 16384 px, baseline up to 0.5 m; see README "Limits"),
+    /// with a warning per problem.
+    #[arg(long, requires = "dir")]
+    pub force: bool,
     /// Simulated device: unplug after this many frame periods.
     #[arg(long, hide = true)]
     pub sim_unplug_after: Option<u64>,
@@ -76,9 +81,12 @@ pub fn run(args: &ViewArgs) -> Result<()> {
             eprintln!("rendering and fusing the synthetic Kinect v2 scene ...");
             ViewerApp::demo(engine)
         }
-        (Some(dir), false) => ViewerApp::open(dir, engine),
+        (Some(dir), false) => ViewerApp::open_with(dir, engine, args.force),
         (None, false) => bail!("give a folder or --demo (see kfuse view --help)"),
     };
+    for warning in &app.warnings {
+        eprintln!("warning: {warning}");
+    }
     if let Some(e) = &app.error {
         // The window shows it too; say it on the terminal for scripts.
         eprintln!("error: {e}");

@@ -42,3 +42,32 @@ pub struct Interrupted(pub String);
 pub fn check(what: &str) -> Result<(), Interrupted> {
     if requested() { Err(Interrupted(what.to_string())) } else { Ok(()) }
 }
+
+/// How often [`run_until_interrupted`] looks at the flag: a signal is answered within this
+/// (plus the time to exit), far inside the ~1 s a user waits for Ctrl-C to take effect.
+const POLL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Runs `work` on its own thread while this one polls the flag every [`POLL`]: returns its
+/// result, or `Err(Interrupted(what))` as soon as Ctrl-C or SIGTERM arrives, without waiting
+/// for `work` (it keeps running until the process exits, which the caller then does).
+///
+/// For stages that write nothing (checkerboard detection, the calibration fits): the library
+/// code needs no cancellation points, and a signal is answered within [`POLL`] whatever
+/// stage or loop the work is in. A panic in `work` is passed on.
+pub fn run_until_interrupted<T: Send + 'static>(
+    what: &str,
+    work: impl FnOnce() -> T + Send + 'static,
+) -> anyhow::Result<T> {
+    let worker = std::thread::Builder::new()
+        .name("kfuse-work".into())
+        .spawn(work)
+        .map_err(|e| anyhow::anyhow!("cannot start a worker thread: {e}"))?;
+    while !worker.is_finished() {
+        check(what)?;
+        std::thread::sleep(POLL);
+    }
+    match worker.join() {
+        Ok(value) => Ok(value),
+        Err(panic) => std::panic::resume_unwind(panic),
+    }
+}

@@ -8,6 +8,7 @@ mod figures;
 
 use clap::{Parser, Subcommand};
 
+mod calibrate_report;
 mod cmd_calibrate;
 mod cmd_capture;
 mod cmd_rig;

@@ -206,13 +206,16 @@ impl FusionContext {
             desc.backends = wgpu::Backends::VULKAN;
         }
         let backends = "Vulkan".to_string();
-        let instance = wgpu::Instance::new(desc);
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: false,
-            compatible_surface: None,
-            apply_limit_buckets: false,
-        }))
+        // Listing the adapters makes libwayland print a line on headless machines.
+        let adapter = crate::quiet::without_wayland_noise(|| {
+            let instance = wgpu::Instance::new(desc);
+            pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::HighPerformance,
+                force_fallback_adapter: false,
+                compatible_surface: None,
+                apply_limit_buckets: false,
+            }))
+        })
         .map_err(|_| GpuError::NoAdapter { backends })?;
         let info = adapter.get_info();
         let limits = adapter.limits();

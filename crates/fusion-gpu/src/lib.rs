@@ -51,6 +51,7 @@
 mod context;
 mod engine;
 mod error;
+mod quiet;
 mod run;
 pub mod shaders;
 mod stages;

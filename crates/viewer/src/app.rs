@@ -56,6 +56,8 @@ pub struct ViewerApp {
     pub fused: Option<Fused>,
     /// What went wrong (shown in an error panel).
     pub error: Option<ViewerError>,
+    /// Problems of a rig used with `--force` (one line each; `kfuse view` prints them).
+    pub warnings: Vec<String>,
     /// Shown page.
     pub page: Page,
     /// Shown 2D pane.
@@ -111,6 +113,7 @@ impl ViewerApp {
             frame: None,
             fused: None,
             error: None,
+            warnings: Vec::new(),
             page: Page::Images,
             pane: Pane::Color,
             toggles: Toggles::default(),
@@ -190,11 +193,21 @@ impl ViewerApp {
     /// calibration page, anything else is opened as a frame; a folder that cannot be opened
     /// gives an app showing the error.
     pub fn open(dir: &Path, engine: Engine) -> Self {
+        Self::open_with(dir, engine, false)
+    }
+
+    /// [`ViewerApp::open`]; with `force` a frame whose rig fails the plausibility check is
+    /// shown anyway, its problems in [`ViewerApp::warnings`] ([`data::open_folder_with`]).
+    pub fn open_with(dir: &Path, engine: Engine, force: bool) -> Self {
         if dir.is_file() || crate::calibration::is_calibration_folder(dir) {
             return Self::open_calibration(dir);
         }
-        match data::open_folder(dir) {
-            Ok(frame) => Self::with_frame(frame, engine),
+        match data::open_folder_with(dir, force) {
+            Ok((frame, warnings)) => {
+                let mut app = Self::with_frame(frame, engine);
+                app.warnings = warnings;
+                app
+            }
             Err(e) => {
                 let mut app = Self::empty(Engine::Cpu);
                 app.error = Some(e);

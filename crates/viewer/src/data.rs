@@ -47,19 +47,50 @@ pub fn demo_frame() -> Frame {
     }
 }
 
-/// Opens a `kfuse fuse` output folder or a capture folder (see the module docs).
+/// Opens a `kfuse fuse` output folder or a capture folder (see the module docs); a rig that
+/// fails the plausibility check is refused, as by `kfuse fuse` ([`open_folder_with`]).
 pub fn open_folder(dir: &Path) -> Result<Frame, ViewerError> {
+    open_folder_with(dir, false).map(|(frame, _)| frame)
+}
+
+/// [`open_folder`], with the rig plausibility check of `kfuse fuse` ([`Rig::check_plausible`]:
+/// focal lengths in pixels, image sides, baseline). Without `force` an implausible rig file is
+/// refused (the error names it and `--force`); with `force` it is used and its problems come
+/// back as warnings, one line each. A `synthdata.mat` (course data) is not checked, as in
+/// `kfuse fuse --mat`: its importer converts the course's units itself.
+pub fn open_folder_with(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerError> {
     if !dir.is_dir() {
         return Err(ViewerError::NotAFolder { path: dir.to_path_buf() });
     }
     let summary = dir.join("summary.json");
     if summary.is_file() {
-        return open_fuse_output(dir, &summary);
+        return open_fuse_output(dir, &summary, force);
     }
     if dir.join("rig.json").exists() {
-        return open_capture(dir);
+        return open_capture(dir, force);
     }
     Err(ViewerError::UnknownFolder { path: dir.to_path_buf() })
+}
+
+/// Reads a rig file and applies [`Rig::check_plausible`], or with `force` returns its problems
+/// as warnings.
+fn read_rig_checked(path: &Path, force: bool) -> Result<(Rig, Vec<String>), ViewerError> {
+    let rig = rigio::read_rig_unchecked(path).map_err(|e| bad(path, e))?;
+    if force {
+        let warnings = rig
+            .plausibility_problems()
+            .into_iter()
+            .map(|p| format!("{}: {p} (--force)", path.display()))
+            .collect();
+        return Ok((rig, warnings));
+    }
+    rig.check_plausible().map_err(|e| ViewerError::BadFile {
+        path: path.to_path_buf(),
+        message: format!(
+            "{e}; fix the rig, or pass --force (kfuse view --force DIR) if it really is meant this way"
+        ),
+    })?;
+    Ok((rig, Vec::new()))
 }
 
 fn bad(path: &Path, e: GeometryError) -> ViewerError {
@@ -93,18 +124,16 @@ fn check_size(
     })
 }
 
+/// The frame of a rig (read by [`read_rig_checked`], with its warnings) and its image files.
 fn load(
     name: String,
-    rig_path: &Path,
+    (rig, warnings): (Rig, Vec<String>),
     color_path: &Path,
     depth_path: &Path,
     scale: f64,
     kind: DepthKind,
     ir_path: Option<&Path>,
-) -> Result<Frame, ViewerError> {
-    // Not yet the plausibility check of `read_rig`: the viewer has no --force, and synth's
-    // course preset (used by its tests) has a 1.02 m baseline. See issue 12/13.
-    let rig = rigio::read_rig_unchecked(rig_path).map_err(|e| bad(rig_path, e))?;
+) -> Result<(Frame, Vec<String>), ViewerError> {
     let color = images::read_color(color_path).map_err(|e| bad(color_path, e))?;
     check_size(color_path, "colour", color.size(), (rig.color.width, rig.color.height))?;
     let depth = images::read_depth(depth_path, scale).map_err(|e| bad(depth_path, e))?;
@@ -117,10 +146,10 @@ fn load(
         }
         None => None,
     };
-    Ok(Frame { name, rig, depth, kind, color, ir })
+    Ok((Frame { name, rig, depth, kind, color, ir }, warnings))
 }
 
-fn open_capture(dir: &Path) -> Result<Frame, ViewerError> {
+fn open_capture(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerError> {
     const HINT: &str = "a capture folder holds rig.json, color.png and depth.png (16-bit mm), as `kfuse demo` writes into input/";
     let rig = require(dir.join("rig.json"), HINT)?;
     let color = require(dir.join("color.png"), HINT)?;
@@ -129,7 +158,7 @@ fn open_capture(dir: &Path) -> Result<Frame, ViewerError> {
     let ir = ir.is_file().then_some(ir);
     load(
         dir.display().to_string(),
-        &rig,
+        read_rig_checked(&rig, force)?,
         &color,
         &depth,
         images::MILLIMETRES,
@@ -159,7 +188,11 @@ fn resolve(dir: &Path, recorded: &str, summary: &Path) -> Result<PathBuf, Viewer
     })
 }
 
-fn open_fuse_output(dir: &Path, summary: &Path) -> Result<Frame, ViewerError> {
+fn open_fuse_output(
+    dir: &Path,
+    summary: &Path,
+    force: bool,
+) -> Result<(Frame, Vec<String>), ViewerError> {
     let text = std::fs::read_to_string(summary)
         .map_err(|e| ViewerError::BadFile { path: summary.into(), message: e.to_string() })?;
     let json: serde_json::Value =
@@ -176,14 +209,15 @@ fn open_fuse_output(dir: &Path, summary: &Path) -> Result<Frame, ViewerError> {
     if let Some(mat) = field("mat") {
         let mat = resolve(dir, mat, summary)?;
         let data = course::read_course(&mat).map_err(|e| bad(&mat, e))?;
-        return Ok(Frame {
+        let frame = Frame {
             name,
             rig: data.rig,
             depth: data.depth,
             kind: data.depth_kind,
             color: data.color,
             ir: None,
-        });
+        };
+        return Ok((frame, Vec::new()));
     }
     let (Some(rig), Some(color), Some(depth)) = (field("rig"), field("color"), field("depth"))
     else {
@@ -202,5 +236,5 @@ fn open_fuse_output(dir: &Path, summary: &Path) -> Result<Frame, ViewerError> {
         .unwrap_or(images::MILLIMETRES);
     let (rig, color, depth) =
         (resolve(dir, rig, summary)?, resolve(dir, color, summary)?, resolve(dir, depth, summary)?);
-    load(name, &rig, &color, &depth, scale, kind, None)
+    load(name, read_rig_checked(&rig, force)?, &color, &depth, scale, kind, None)
 }

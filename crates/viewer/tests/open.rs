@@ -5,10 +5,12 @@ use std::path::Path;
 
 use geometry::synth;
 use kfuse_io::{images, rig as rigio};
-use viewer::data::open_folder;
+use viewer::data::{open_folder, open_folder_with};
 use viewer::{Engine, ViewerApp, ViewerError};
 
-/// Writes the course-size synthetic scene (640×480, fast) as a capture folder.
+/// Writes the course-size synthetic scene (640×480, fast) as a capture folder. Its rig has
+/// the course data's 1.02 m baseline, over the plausibility limit: the tests open it with
+/// `force` (the check itself is tested in `implausible_rig_is_refused_unless_forced`).
 fn write_capture(dir: &Path) -> synth::SynthFrame {
     let setup = synth::course_preset();
     let frame = synth::render(&setup);
@@ -23,7 +25,9 @@ fn write_capture(dir: &Path) -> synth::SynthFrame {
 fn capture_folder_opens_and_fuses() {
     let tmp = tempfile::tempdir().unwrap();
     let truth = write_capture(tmp.path());
-    let frame = open_folder(tmp.path()).unwrap();
+    let (frame, warnings) = open_folder_with(tmp.path(), true).unwrap();
+    // One warning: synth::course_rig's 1.02 m baseline (over the 0.5 m limit) on purpose.
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
     // 640 × 480: synth::course_rig's depth camera, written above.
     assert_eq!(frame.depth.size(), (640, 480));
     // 16-bit millimetres: every value within half a millimetre of the truth.
@@ -37,7 +41,7 @@ fn capture_folder_opens_and_fuses() {
         .fold(0.0f32, f32::max);
     // 0.5 mm: rounding to whole millimetres; 1e-6 m: f32 rounding of metre values below 20 m.
     assert!(worst <= 0.0005 + 1e-6, "depth round trip error {worst} m");
-    let app = ViewerApp::open(tmp.path(), Engine::Cpu);
+    let app = ViewerApp::open_with(tmp.path(), Engine::Cpu, true);
     assert!(app.error.is_none(), "{:?}", app.error);
     // Guard: a 640 × 480 grid has up to 2 · 639 · 479 ≈ 612 000 faces and the course scene's plane
     // fills the view (synth::course_preset); 10 000 fails only for an (almost) empty mesh.
@@ -58,17 +62,17 @@ fn fuse_output_folder_resolves_its_inputs() {
         "rig": "input/rig.json", "color": "input/color.png", "depth": "input/depth.png",
         "depth_kind": "z", "depth_scale_m_per_unit": 0.001}});
     std::fs::write(fused.join("summary.json"), summary.to_string()).unwrap();
-    let frame = open_folder(&fused).unwrap();
+    let (frame, _) = open_folder_with(&fused, true).unwrap();
     // 640 × 480: synth::course_rig's colour camera, written by write_capture.
     assert_eq!(frame.color.size(), (640, 480));
 }
 
 fn expect_error_naming(dir: &Path, file: &str) -> ViewerError {
-    let err = open_folder(dir).expect_err("must fail");
+    let err = open_folder_with(dir, true).expect_err("must fail");
     let msg = err.to_string();
     assert!(msg.contains(file), "error {msg:?} does not name {file}");
     // The app shows it instead of panicking.
-    let app = ViewerApp::open(dir, Engine::Cpu);
+    let app = ViewerApp::open_with(dir, Engine::Cpu, true);
     assert!(app.error.as_ref().is_some_and(|e| e.to_string().contains(file)));
     assert!(app.fused.is_none());
     err
@@ -138,4 +142,49 @@ fn not_a_folder_and_unknown_folder() {
     let missing = tmp.path().join("nope");
     expect_error_naming(&missing, "nope");
     expect_error_naming(tmp.path(), "summary.json");
+}
+
+/// The viewer applies `kfuse fuse`'s rig check (`Rig::check_plausible`): a rig in the wrong
+/// units is refused with one message naming rig.json, the problem and `--force`, for a
+/// capture folder and a `kfuse fuse` output alike; with `force` it opens, the problems as
+/// warnings.
+#[test]
+fn implausible_rig_is_refused_unless_forced() {
+    let tmp = tempfile::tempdir().unwrap();
+    let setup = synth::course_preset();
+    write_capture(tmp.path());
+    // The course preset's 1.02 m baseline alone.
+    let err = open_folder(tmp.path()).expect_err("1.02 m baseline").to_string();
+    assert!(
+        err.contains("rig.json") && err.contains("baseline") && err.contains("--force"),
+        "{err}"
+    );
+    let app = ViewerApp::open(tmp.path(), Engine::Cpu);
+    assert!(app.error.is_some() && app.fused.is_none());
+    // A plausible baseline opens without a warning; focal lengths in metres do not.
+    let mut rig = setup.rig.clone();
+    rig.color_from_depth.translation *= 0.05 / rig.color_from_depth.translation.norm();
+    rigio::write_rig(&tmp.path().join("rig.json"), &rig).unwrap();
+    let (_, warnings) = open_folder_with(tmp.path(), false).unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    rig.depth.intrinsics.fx /= 1e5;
+    rigio::write_rig(&tmp.path().join("rig.json"), &rig).unwrap();
+    let err = open_folder(tmp.path()).expect_err("fx in metres").to_string();
+    assert!(err.contains("rig.json") && err.contains("fx") && err.contains("not metres"), "{err}");
+    // The course rig again (1.02 m), through a `kfuse fuse` output folder.
+    rigio::write_rig(&tmp.path().join("rig.json"), &setup.rig).unwrap();
+    let fused = tmp.path().join("fused");
+    std::fs::create_dir(&fused).unwrap();
+    let summary = serde_json::json!({"inputs": {"rig": tmp.path().join("rig.json"),
+        "color": tmp.path().join("color.png"), "depth": tmp.path().join("depth.png")}});
+    std::fs::write(fused.join("summary.json"), summary.to_string()).unwrap();
+    let err = open_folder(&fused).expect_err("through summary.json").to_string();
+    assert!(err.contains("rig.json") && err.contains("--force"), "{err}");
+    // --force: opened, one warning naming the file and the problem.
+    let (frame, warnings) = open_folder_with(&fused, true).unwrap();
+    assert_eq!(frame.depth.size(), (640, 480));
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(warnings[0].contains("rig.json") && warnings[0].contains("baseline"), "{warnings:?}");
+    let app = ViewerApp::open_with(&fused, Engine::Cpu, true);
+    assert!(app.error.is_none() && app.warnings == warnings, "{:?}", app.error);
 }

@@ -104,15 +104,38 @@ pub(super) fn parse_header(bytes: &[u8]) -> Result<(String, bool), String> {
     let little = match &bytes[126..128] {
         b"IM" => true,
         b"MI" => false,
-        _ => {
-            return Err(format!(
-                "not a MATLAB v5 .mat file (header says '{}'); expected the 'MATLAB 5.0 MAT-file' header",
-                header.chars().take(40).flat_map(char::escape_default).collect::<String>()
-            ));
-        }
+        _ => return Err(format!("{}; expected the 'MATLAB 5.0 MAT-file' header", not_mat(bytes))),
     };
     if !header.starts_with("MATLAB") {
         return Err("not a MATLAB v5 .mat file: header does not start with 'MATLAB'".into());
     }
     Ok((header, little))
+}
+
+/// What a file that is not a `.mat` file looks like, for the one-line error: a known image or
+/// archive kind by its signature, the start of a text file (printable ASCII only, at most 40
+/// characters), or "binary data" — never the file's raw bytes.
+fn not_mat(bytes: &[u8]) -> String {
+    const KINDS: [(&[u8], &str); 9] = [
+        (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+        (b"\xff\xd8\xff", "a JPEG image"),
+        (b"II*\0", "a TIFF image"),
+        (b"MM\0*", "a TIFF image"),
+        (b"\x76\x2f\x31\x01", "an OpenEXR image"),
+        (b"BM", "a BMP image"),
+        (b"PK\x03\x04", "a zip archive"),
+        (b"\x1f\x8b", "a gzip file"),
+        (b"KFUSEREC", "a kfuse recording (.kfrec)"),
+    ];
+    if let Some((_, kind)) = KINDS.iter().find(|(magic, _)| bytes.starts_with(magic)) {
+        return format!("is {kind}, not a MATLAB .mat file");
+    }
+    let start = &bytes[..bytes.len().min(40)];
+    let printable = |b: &u8| b.is_ascii_graphic() || *b == b' ';
+    if !start.is_empty() && start.iter().all(|b| printable(b) || b.is_ascii_whitespace()) {
+        let text: String =
+            start.iter().map(|&b| if printable(&b) { b as char } else { ' ' }).collect();
+        return format!("not a MATLAB v5 .mat file (it starts with '{}')", text.trim());
+    }
+    "not a MATLAB v5 .mat file (binary data of another kind)".into()
 }

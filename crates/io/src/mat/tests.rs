@@ -113,6 +113,34 @@ fn truncated_and_garbage_files_give_errors_naming_the_file() {
     assert!(err.contains("junk.mat") && err.contains("not a MATLAB v5"), "{err}");
 }
 
+/// Images and random bytes given as a `.mat` file: the error says what the file is and never
+/// echoes its bytes (printable ASCII only, one line).
+#[test]
+fn non_mat_files_are_named_without_their_bytes() {
+    let mut png = b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR".to_vec();
+    png.resize(300, 0xfe);
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let random: Vec<u8> = (0..300)
+        .map(|_| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 24) as u8 | 0x80
+        })
+        .collect();
+    let mut text = b"# some notes\nline two".to_vec();
+    text.resize(300, b' ');
+    for (bytes, says) in [
+        (&png, "is a PNG image, not a MATLAB .mat file"),
+        (&random, "binary data of another kind"),
+        (&text, "it starts with '# some notes line two'"),
+    ] {
+        let err = MatFile::parse(bytes, Path::new("x.mat")).unwrap_err().to_string();
+        assert!(err.starts_with("x.mat:") && err.contains(says), "{err}");
+        assert!(err.chars().all(|c| c.is_ascii_graphic() || c == ' '), "not plain text: {err:?}");
+    }
+}
+
 use geometry::testdata::shared_data_or_skip as shared_data;
 
 #[test]
