@@ -158,10 +158,13 @@ fn cloud_by_depth(cloud: &PointCloud, range: (f32, f32)) -> Result<Image<[u8; 3]
     let (w, h) = (PANEL_WIDTH as u32, CLOUD_PLOT_HEIGHT as u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
     let step = cloud.len().div_ceil(MAX_CLOUD_POINTS).max(1);
-    let idx: Vec<usize> = (0..cloud.len())
+    let mut idx: Vec<usize> = (0..cloud.len())
         .step_by(step)
         .filter(|&i| cloud.points[i].iter().all(|v| v.is_finite()))
         .collect();
+    // plotters has no depth test: draw far points first so near ones stay on top (the view
+    // below looks from the camera's side).
+    idx.sort_by(|&a, &b| cloud.points[b][2].total_cmp(&cloud.points[a][2]));
     let bound = |k: usize| -> (f64, f64) {
         let (lo, hi) = idx
             .iter()
@@ -175,8 +178,9 @@ fn cloud_by_depth(cloud: &PointCloud, range: (f32, f32)) -> Result<Image<[u8; 3]
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         let mut chart = ChartBuilder::on(&root)
             .margin(10)
-            // z reversed: near points in front.
-            .build_cartesian_3d(x.0..x.1, -y.1..-y.0, z.1..z.0)
+            // Plotted as (x, -y, -z): the camera frame turned 180° about x (y up, the camera's
+            // side towards the viewer), still right-handed, so the scene is not mirrored.
+            .build_cartesian_3d(x.0..x.1, -y.1..-y.0, -z.1..-z.0)
             .map_err(draw_err)?;
         chart.with_projection(|mut p| {
             p.yaw = 0.55;
@@ -189,7 +193,7 @@ fn cloud_by_depth(cloud: &PointCloud, range: (f32, f32)) -> Result<Image<[u8; 3]
             .label_style((FONT_NAME, 12))
             .x_formatter(&|v| format!("x {v:.1}"))
             .y_formatter(&|v| format!("-y {v:.1}"))
-            .z_formatter(&|v| format!("z {v:.1} m"))
+            .z_formatter(&|v| format!("z {:.1} m", -v))
             .draw()
             .map_err(draw_err)?;
         chart
@@ -197,7 +201,7 @@ fn cloud_by_depth(cloud: &PointCloud, range: (f32, f32)) -> Result<Image<[u8; 3]
                 let p = cloud.points[i];
                 let c = colormap((p[2] - lo) / (hi - lo));
                 Circle::new(
-                    (p[0] as f64, -(p[1] as f64), p[2] as f64),
+                    (p[0] as f64, -(p[1] as f64), -(p[2] as f64)),
                     1,
                     RGBColor(c[0], c[1], c[2]).filled(),
                 )
