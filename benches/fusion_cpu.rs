@@ -290,6 +290,36 @@ fn benches(c: &mut Criterion) {
     g.bench_function("h5_stretched_faces", |b| {
         b.iter(|| fusion::remove_stretched_faces(black_box(&mesh), options.stretch_ratio))
     });
+    // The default H4/H5: the mesh on the depth samples, the sample-scale rule.
+    let (cloud, cloud_pixels) = fusion::backproject_cloud(&frame.depth, &rays);
+    let (h6, h6_valid) = fusion::color_on_depth(
+        &frame.depth,
+        &rays,
+        &proj,
+        &frame.color,
+        Some(&nearest),
+        options.color_occlusion_tolerance,
+    );
+    let grid_mesh = |pts: &[[f32; 3]]| {
+        fusion::mesh_on_depth_grid(
+            rig.depth.width,
+            rig.depth.height,
+            pts,
+            &cloud_pixels,
+            &samples,
+            &rig.color_from_depth,
+            frame.color.size(),
+            &h6,
+            &h6_valid,
+        )
+        .0
+    };
+    g.bench_function("h4_mesh_depth_grid", |b| b.iter(|| grid_mesh(black_box(&cloud.points))));
+    let depth_grid = grid_mesh(&cloud.points);
+    let test = fusion::stretch_test(rig, &options);
+    g.bench_function("h5_sample_scale", |b| {
+        b.iter(|| fusion::remove_edge_faces(black_box(&depth_grid), &test))
+    });
     g.sample_size(10);
     g.bench_function("run_all", |b| {
         b.iter(|| {

@@ -14,7 +14,7 @@ use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
 use kfuse_io::{images, obj, ply};
 use serde::Serialize;
 
-use crate::figures::{self, Panel, titles};
+use crate::figures;
 
 mod checks;
 mod inputs;
@@ -85,11 +85,16 @@ pub struct FuseArgs {
     /// H3 resampling: both nearest and Delaunay-linear, or nearest only (faster).
     #[arg(long, value_enum, default_value_t = ResampleArg::Both)]
     pub resample: ResampleArg,
-    /// Which colour-frame depth H4 meshes.
-    #[arg(long, value_enum, default_value_t = MeshFromArg::Filled)]
+    /// What H4 meshes: the depth samples (depth-grid, default) or a colour-frame depth.
+    #[arg(long, value_enum, default_value_t = MeshFromArg::DepthGrid)]
     pub mesh_from: MeshFromArg,
-    /// H5 threshold: a face is removed when its normal's in-plane part exceeds RATIO times
-    /// its depth part (1.0 = 45°; larger keeps more slanted faces).
+    /// H5 rule: sample-scale (depth step per edge against one depth sample of a tilted
+    /// surface plus 3σ of Kinect noise, σ = 1.5 mm·z²) or normal (the handout's literal
+    /// face-normal test, which noise and staircases defeat on real depth).
+    #[arg(long, value_enum, default_value_t = H5Arg::SampleScale)]
+    pub h5: H5Arg,
+    /// H5 tilt limit: a face tilted more than atan(RATIO) from facing the camera is removed
+    /// (1.0 = 45°; larger keeps more slanted faces).
     #[arg(long, value_name = "RATIO", default_value_t = FusionOptions::default().stretch_ratio)]
     pub stretch_ratio: f32,
     /// Coverage radius of H3 nearest fill and H8 holes, in depth-sample spacings. Times the
@@ -155,9 +160,20 @@ pub enum ResampleArg {
     Nearest,
 }
 
+/// `--h5`.
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum H5Arg {
+    /// Per edge, at the scale of the depth samples, with a noise allowance.
+    SampleScale,
+    /// The handout's face-normal test.
+    Normal,
+}
+
 /// `--mesh-from`.
 #[derive(ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MeshFromArg {
+    /// The depth samples themselves (texture coordinates from their projection).
+    DepthGrid,
     /// Nearest fill with plane-filled holes.
     Filled,
     /// Nearest fill.
@@ -179,6 +195,7 @@ pub fn options(args: &FuseArgs) -> Result<FusionOptions> {
         bail!("--hole-radius must be a positive number, got {}", args.hole_radius);
     }
     let mesh_source = match args.mesh_from {
+        MeshFromArg::DepthGrid => MeshSource::DepthGrid,
         MeshFromArg::Filled => MeshSource::Filled,
         MeshFromArg::Nearest => MeshSource::Nearest,
         MeshFromArg::Linear => MeshSource::Linear,
@@ -189,6 +206,10 @@ pub fn options(args: &FuseArgs) -> Result<FusionOptions> {
     Ok(FusionOptions {
         linear: args.resample == ResampleArg::Both,
         mesh_source,
+        edge_rule: match args.h5 {
+            H5Arg::SampleScale => fusion::EdgeFaceRule::SampleScale,
+            H5Arg::Normal => fusion::EdgeFaceRule::Normal,
+        },
         stretch_ratio: args.stretch_ratio,
         hole_radius_factor: args.hole_radius,
         record_timings: true,
@@ -275,7 +296,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     crate::interrupt::check(STOPPED)?;
     if !args.no_figures {
         bar.set_message("drawing figures");
-        write_figures(&staged, &inputs, &output, &mut files)?;
+        write_figures(&staged, &inputs, &output, &options, &mut files)?;
     }
     bar.inc(1);
     crate::interrupt::check(STOPPED)?;
@@ -377,102 +398,22 @@ fn write_meshes(
     Ok(())
 }
 
-/// Width of mesh renders in the Task 4/5 figures, pixels.
-const MESH_RENDER_WIDTH: usize = 960;
-/// View of the mesh renders: turned 25° about the vertical and 12° down, so depth steps and
-/// the stretched faces along them are visible.
-const MESH_VIEW_DEG: (f64, f64) = (25.0, -12.0);
-
 fn write_figures(
     staged: &StagedDir,
     inputs: &Inputs,
     out: &FusionOutput,
+    options: &FusionOptions,
     files: &mut Vec<String>,
 ) -> Result<()> {
-    let (cw, ch) = inputs.color.size();
-    let mut save = |n: usize| {
-        let name = format!("task{n}.png");
-        files.push(name.clone());
-        staged.join(name)
+    let lab = figures::LabInputs {
+        rig: &inputs.rig,
+        color: &inputs.color,
+        depth: &inputs.depth,
+        depth_kind: inputs.kind,
+        options,
+        output: out,
     };
-    figures::save_cloud_3d(&save(1), titles::TASK1, &out.cloud)?;
-    let samples: Vec<[f32; 3]> = out.samples.iter().map(|s| [s.u, s.v, s.z]).collect();
-    figures::save_projected_scatter(&save(2), titles::TASK2, &samples, cw, ch)?;
-    // One colour range for every colour-frame depth image, so panels compare.
-    let range = figures::robust_range(out.nearest.data().iter().copied());
-    let mut task3 = vec![Panel::new("nearest", figures::depth_colors(&out.nearest, range))];
-    match &out.linear {
-        Some(l) => task3.push(Panel::new("Delaunay-linear", figures::depth_colors(l, range))),
-        None => task3.push(Panel::new(
-            "Delaunay-linear: not computed (--resample nearest)",
-            Image::filled(cw, ch, [255, 255, 255]),
-        )),
-    }
-    figures::save_panels(&save(3), titles::TASK3, &task3, 2)?;
-    let mh = MESH_RENDER_WIDTH * ch / cw.max(1);
-    for (n, title, mesh) in [(4, titles::TASK4, &out.mesh), (5, titles::TASK5, &out.mesh_clean)] {
-        let view =
-            figures::render_mesh(mesh, MESH_RENDER_WIDTH, mh, MESH_VIEW_DEG.0, MESH_VIEW_DEG.1);
-        let caption = format!(
-            "{} triangles, turned {}° / {}°",
-            mesh.faces.len(),
-            MESH_VIEW_DEG.0,
-            MESH_VIEW_DEG.1
-        );
-        figures::save_panels(&save(n), title, &[Panel::new(caption, view)], 1)?;
-    }
-    let depth_range = figures::robust_range(inputs.depth.data().iter().copied());
-    figures::save_panels(
-        &save(6),
-        titles::TASK6,
-        &[
-            Panel::new("colour sampled on the depth grid", out.color_on_depth.clone()),
-            Panel::new(
-                "input depth (depth camera)",
-                figures::depth_colors(&inputs.depth, depth_range),
-            ),
-        ],
-        2,
-    )?;
-    figures::save_panels(
-        &save(7),
-        titles::TASK7,
-        &[
-            Panel::new(
-                "z-buffer (nearest surface per colour pixel)",
-                figures::depth_colors(
-                    &figures::downsample_depth_min(&out.zbuffer, cw.div_ceil(figures::PANEL_WIDTH)),
-                    range,
-                ),
-            ),
-            Panel::new(
-                "filled depth over the colour image",
-                figures::depth_overlay(&inputs.color, &out.filled, 0.55),
-            ),
-        ],
-        2,
-    )?;
-    let plane = match &out.summary.plane {
-        Some(p) => format!(
-            "filled from plane ({} px, RMS {:.1} mm)",
-            out.summary.filled_pixels,
-            p.rms_m * 1e3
-        ),
-        None => "no plane found: holes left empty".into(),
-    };
-    figures::save_panels(
-        &save(8),
-        titles::TASK8,
-        &[
-            Panel::new(
-                format!("disocclusion holes ({} px)", out.summary.hole_pixels),
-                figures::mask_colors(&out.hole_mask),
-            ),
-            Panel::new(plane, figures::depth_colors(&out.filled, range)),
-        ],
-        2,
-    )?;
-    Ok(())
+    figures::save_lab_figures(|name| staged.join(name), &lab, files)
 }
 
 /// Prints where the results are.
@@ -480,13 +421,14 @@ pub fn report(result: &FuseResult) {
     let s = &result.summary;
     println!("fused {} depth samples into {} points", s.valid_depth_pixels, s.points);
     println!(
-        "  colour view: {} samples, z-buffer {} px, holes {} px (filled {}), mesh {} -> {} faces after H5",
+        "  colour view: {} samples, z-buffer {} px, holes {} px (filled {}), mesh {} -> {} faces after H5 ({:.1} % removed)",
         s.samples_in_view,
         s.zbuffer_pixels,
         s.hole_pixels,
         s.filled_pixels,
         s.faces_before,
-        s.faces_after
+        s.faces_after,
+        100.0 * s.faces_removed_fraction
     );
     let out = result.out.display();
     println!("results in {out}/");

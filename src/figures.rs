@@ -1,61 +1,62 @@
 //! PNG figures titled like the lab's ("Task 3: ..."): drawn by `kfuse_figures` (one colour
 //! map, robust range and font, shared with the viewer) and written atomically through
-//! `kfuse_io::images`.
+//! `kfuse_io::images`. [`save_lab_figures`] writes the eight figures of `kfuse fuse`
+//! (`kfuse_figures::lab`: axes on every panel, a colour bar in metres on every depth panel).
 
-use std::path::Path;
+use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use geometry::{Image, PointCloud};
-pub use kfuse_figures::{
-    PANEL_WIDTH, Panel, depth_colors, depth_overlay, downsample_depth_min, mask_colors,
-    render_mesh, robust_range, titles,
-};
+pub use kfuse_figures::lab::LabInputs;
 use kfuse_io::images::write_color_png;
 
-fn save(path: &Path, img: Result<Image<[u8; 3]>, kfuse_figures::FigureError>) -> Result<()> {
-    let img = img.with_context(|| format!("drawing figure {}", path.display()))?;
-    write_color_png(path, &img).with_context(|| format!("writing figure {}", path.display()))
-}
-
-/// Saves image panels side by side (up to `columns` per row) under a title
-/// ([`kfuse_figures::draw_panels`]).
-pub fn save_panels(path: &Path, title: &str, panels: &[Panel], columns: usize) -> Result<()> {
-    save(path, kfuse_figures::draw_panels(title, panels, columns))
-}
-
-/// Saves a 3D scatter of a coloured point cloud ([`kfuse_figures::draw_cloud_3d`]).
-pub fn save_cloud_3d(path: &Path, title: &str, cloud: &PointCloud) -> Result<()> {
-    save(path, kfuse_figures::draw_cloud_3d(title, cloud))
-}
-
-/// Saves a scatter of projected samples `(u, v, z)` over the `width × height` image frame
-/// ([`kfuse_figures::draw_projected_scatter`]).
-pub fn save_projected_scatter(
-    path: &Path,
-    title: &str,
-    samples: &[[f32; 3]],
-    width: usize,
-    height: usize,
+/// Draws the eight lab figures of one fusion ([`kfuse_figures::lab::lab_figures`]) and
+/// saves each as `path_of(name)`, adding its name to `files`.
+pub fn save_lab_figures(
+    path_of: impl Fn(&str) -> PathBuf,
+    inputs: &LabInputs,
+    files: &mut Vec<String>,
 ) -> Result<()> {
-    save(path, kfuse_figures::draw_projected_scatter(title, samples, width, height))
+    let figures = kfuse_figures::lab::lab_figures(inputs).context("drawing the lab figures")?;
+    for (name, figure) in figures {
+        let path = path_of(&name);
+        write_color_png(&path, &figure.image)
+            .with_context(|| format!("writing figure {}", path.display()))?;
+        files.push(name);
+    }
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use geometry::fusion::{self, FusionOptions};
+    use geometry::synth;
 
     #[test]
-    fn figures_are_written_as_png_files() {
+    fn lab_figures_are_written_as_png_files() {
         let dir = std::env::temp_dir().join(format!("kfuse-fig-save-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let red = Image::filled(320, 240, [250u8, 0, 0]);
-        let path = dir.join("p.png");
-        save_panels(&path, titles::TASK3, &[Panel::new("nearest", red)], 1).unwrap();
-        let img = image::open(&path).unwrap().into_rgb8();
-        assert_eq!(img.width() as usize, PANEL_WIDTH + 2 * kfuse_figures::GAP);
-        // The panel's own colour (PNG is lossless); (100, 200) lies inside the scaled panel.
-        assert_eq!(img.get_pixel(100, 200).0, [250, 0, 0]);
+        let setup = synth::course_preset();
+        let frame = synth::render(&setup);
+        let options = FusionOptions { linear: false, ..FusionOptions::default() };
+        let out = fusion::run(&setup.rig, &frame.depth, frame.depth_kind, &frame.color, &options)
+            .unwrap();
+        let lab = LabInputs {
+            rig: &setup.rig,
+            color: &frame.color,
+            depth: &frame.depth,
+            depth_kind: frame.depth_kind,
+            options: &options,
+            output: &out,
+        };
+        let mut files = Vec::new();
+        save_lab_figures(|n| dir.join(n), &lab, &mut files).unwrap();
+        assert_eq!(files, (1..=8).map(|n| format!("task{n}.png")).collect::<Vec<_>>());
+        for name in &files {
+            let img = image::open(dir.join(name)).unwrap().into_rgb8();
+            assert!(img.width() > 640 && img.height() > 300, "{name}: {:?}", img.dimensions());
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -26,6 +26,9 @@
 //!
 //! Random choices (dropouts, noise) come from a ChaCha8 generator seeded per row from
 //! [`SensorOptions::seed`], so renders are identical on any thread count.
+//!
+//! [`kinect_noisy_preset`] and [`render_noisy`] (module `noisy`) add the real sensor's
+//! depth-dependent noise and flying pixels at depth edges, with the flying pixels as truth.
 
 use nalgebra::{Rotation3, Vector3};
 use rand::{Rng, SeedableRng};
@@ -33,6 +36,12 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::{CameraModel, DepthKind, Distortion, Image, Intrinsics, Rig, RigidTransform};
+
+mod noisy;
+pub use noisy::{
+    FLYING_EDGE_JUMP, FLYING_MIX_MIN, FLYING_PIXEL_FRACTION, KinectNoise, NoisyFrame,
+    apply_kinect_noise, kinect_noisy_preset, render_noisy,
+};
 
 /// Relative tolerance of the "hidden" test: the first hit must be closer than
 /// `(1 - 1e-6)` times the distance to the point; f64 intersections are exact to ~1e-12, so

@@ -6,10 +6,14 @@
 //! | module | what |
 //! | --- | --- |
 //! | [`colors`] | [`colormap`] (viridis), [`robust_range`], depth and mask images |
+//! | [`layout`] | figures of panels with pixel axes and colour bars in metres |
+//! | [`lab`] | the eight lab figures (Task 1–8) of one fusion |
 //! | this file | the font, panel figures, 3D and projected scatter plots, mesh renders |
 #![deny(missing_docs)]
 
 pub mod colors;
+pub mod lab;
+pub mod layout;
 
 use std::sync::Once;
 
@@ -35,21 +39,21 @@ pub enum FigureError {
 /// The lab's figure titles, one per fusion stage.
 pub mod titles {
     /// H1.
-    pub const TASK1: &str = "Task 1: Point cloud in global (x,y,z) space";
+    pub const TASK1: &str = "Task 1: Colour and depth images, point cloud in global (x,y,z) space";
     /// H2.
     pub const TASK2: &str = "Task 2: Point cloud projected to the colour camera";
     /// H3.
-    pub const TASK3: &str = "Task 3: Resampled depth (nearest / Delaunay-linear)";
+    pub const TASK3: &str = "Task 3: Depth resampled onto the colour image";
     /// H4.
     pub const TASK4: &str = "Task 4: Textured mesh";
     /// H5.
     pub const TASK5: &str = "Task 5: Mesh after edge-face removal";
     /// H6.
-    pub const TASK6: &str = "Task 6: Colour on the depth grid";
+    pub const TASK6: &str = "Task 6: Colour resampled onto the depth image";
     /// H7.
-    pub const TASK7: &str = "Task 7: Z-buffered depth";
+    pub const TASK7: &str = "Task 7: Z-buffering, before and after";
     /// H8.
-    pub const TASK8: &str = "Task 8: Disocclusion holes and plane filling";
+    pub const TASK8: &str = "Task 8: Removed by the z-buffer, filled from the plane";
 }
 
 /// DejaVu Sans (`assets/fonts/`, 742 KiB), the one copy of the font in the binary.

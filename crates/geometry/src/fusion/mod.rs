@@ -5,8 +5,8 @@
 //! | H1 | [`backproject_cloud`] | depth pixels → points in the depth camera frame (z or range input) |
 //! | H2 | [`project_cloud`] | `X_c = R·X_d + T`, projected with the colour camera's distortion |
 //! | H3 | [`nearest_fill`], [`linear_resample`] | samples → colour pixel grid (nearest; Delaunay-linear) |
-//! | H4 | [`mesh_from_depth`] | textured triangle mesh from a colour-frame depth image |
-//! | H5 | [`remove_stretched_faces`] | faces at depth discontinuities dropped (face-normal test) |
+//! | H4 | [`mesh_on_depth_grid`], [`mesh_from_depth`] | textured triangle mesh on the depth samples (default) or on a colour-frame depth image |
+//! | H5 | [`remove_edge_faces`] ([`StretchTest`]) | faces at depth discontinuities dropped (sample-scale depth-step test, or the handout's face normal) |
 //! | H6 | [`color_on_depth`] | colour sampled onto the depth grid (bilinear) |
 //! | H7 | [`Registration`] | nearest surface per colour pixel (exact min z) |
 //! | H8 | [`hole_mask`], [`fit_plane_ransac`], [`fill_holes_with_plane`] | disocclusion holes, plane fill |
@@ -58,8 +58,14 @@ pub use holes::{
     HoleMasker, PlaneFit, PlaneFitOptions, fill_holes_with_plane, fit_plane_ransac, hole_mask,
     plane_depth_pixel,
 };
-pub use mesh::{face_normal, is_stretched, mesh_from_depth, remove_stretched_faces};
-pub use pipeline::{CpuPixels, PerPixel, PerPixelOutput, PixelParams, cloud_colors, run, run_on};
+pub use mesh::{
+    EdgeFaceRule, HIDDEN_VERTEX_GREY, KINECT_NOISE_1M_M, NOISE_ALLOWANCE_SIGMAS, StretchTest,
+    face_normal, is_stretched, mesh_from_depth, mesh_on_depth_grid, remove_edge_faces,
+    remove_stretched_faces,
+};
+pub use pipeline::{
+    CpuPixels, PerPixel, PerPixelOutput, PixelParams, cloud_colors, run, run_on, stretch_test,
+};
 pub use pixel::{
     ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32,
     project_color_point, project_point, register_pixel, transform_point, zbuffer_index,
@@ -99,16 +105,22 @@ pub const MAX_COVERAGE_RADIUS_PX: f32 = 16.0;
 /// would size the coverage disc, the hole mask and the linear resampling's edge test by it.
 pub const MAX_SAMPLE_SPACING_PX: f32 = 8.0;
 
-/// Which colour-frame depth image H4 meshes.
+/// What H4 meshes: the depth samples themselves (default) or a colour-frame depth image.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum MeshSource {
+    /// One vertex per depth sample that lands on the colour image, faces on the depth pixel
+    /// grid, texture coordinates from H2's projection ([`mesh_on_depth_grid`]): no
+    /// staircase, every vertex a measurement. Disocclusion holes stay open (H5 removes the
+    /// faces across them); [`FusionOptions::mesh_step`] does not apply.
+    #[default]
+    #[serde(rename = "depth_grid")]
+    DepthGrid,
     /// H3 nearest fill.
     Nearest,
     /// H3 Delaunay-linear (falls back to nearest when linear is off).
     Linear,
     /// Nearest fill with H8's plane-filled holes.
-    #[default]
     Filled,
     /// H3 Delaunay-linear with H8's plane-filled holes (the viewer's Delaunay + hole filling;
     /// falls back to [`MeshSource::Linear`] without a plane and to nearest without linear).
@@ -136,11 +148,21 @@ pub struct FusionOptions {
     pub linear_max_edge_factor: f32,
     /// Which depth H4 meshes.
     pub mesh_source: MeshSource,
-    /// H4 grid step in colour pixels: 2 gives ~1 vertex per depth sample at Kinect scale.
+    /// H4 grid step in colour pixels for the colour-grid sources: 2 gives ~1 vertex per
+    /// depth sample at Kinect scale.
     pub mesh_step: usize,
-    /// H5 threshold: a face is removed when `|n_xy| > stretch_ratio · |n_z|`. 1.0 is the
-    /// handout's "in-plane component larger than the depth component" (45°).
+    /// H5 rule ([`EdgeFaceRule`]): the sample-scale depth-step test (default) or the
+    /// handout's literal face-normal test.
+    pub edge_rule: EdgeFaceRule,
+    /// H5 tilt limit, `tan(angle)`: with [`EdgeFaceRule::Normal`] a face goes when
+    /// `|n_xy| > stretch_ratio · |n_z|`; with [`EdgeFaceRule::SampleScale`] an edge is
+    /// stretched when its depth step exceeds `stretch_ratio` times its lateral extent plus
+    /// the noise allowance. 1.0 is the handout's "in-plane component larger than the depth
+    /// component" (45°).
     pub stretch_ratio: f32,
+    /// H5 [`EdgeFaceRule::SampleScale`]: the depth noise σ at 1 m, metres, growing with z²
+    /// ([`KINECT_NOISE_1M_M`] for a Kinect; 0 for noise-free data).
+    pub depth_noise_1m_m: f32,
     /// H6: a depth pixel's colour is rejected as occluded when its point is farther than the
     /// surface the colour camera sees there by more than this fraction. 2 %: above nearest
     /// fill's depth steps on slanted surfaces, below object/background gaps.
@@ -169,9 +191,11 @@ impl Default for FusionOptions {
             depth_jump: 0.05,
             linear: true,
             linear_max_edge_factor: 3.0,
-            mesh_source: MeshSource::Filled,
+            mesh_source: MeshSource::DepthGrid,
             mesh_step: 2,
+            edge_rule: EdgeFaceRule::SampleScale,
             stretch_ratio: 1.0,
+            depth_noise_1m_m: KINECT_NOISE_1M_M,
             color_occlusion_tolerance: 0.02,
             plane: PlaneFitOptions::default(),
             fill_holes: true,
@@ -235,6 +259,8 @@ pub struct FusionSummary {
     pub faces_before: usize,
     /// Faces kept by H5.
     pub faces_after: usize,
+    /// Fraction of H4's faces H5 removed (0 for an empty mesh).
+    pub faces_removed_fraction: f64,
     /// H6 depth pixels with a trusted colour.
     pub color_on_depth_pixels: usize,
     /// H8 hole pixels.
@@ -286,10 +312,11 @@ pub struct FusionOutput {
 
 impl FusionOutput {
     /// The colour-frame depth H4 meshed for `source` (the [`FusionOptions::mesh_source`] of
-    /// the run), with the same fallbacks as the run.
+    /// the run), with the same fallbacks as the run; for [`MeshSource::DepthGrid`] (which
+    /// meshes the samples, not an image) the nearest fill, the depth it is closest to.
     pub fn meshed_depth(&self, source: MeshSource) -> &Image<f32> {
         match (source, &self.linear_filled) {
-            (MeshSource::Nearest, _) => &self.nearest,
+            (MeshSource::Nearest | MeshSource::DepthGrid, _) => &self.nearest,
             (MeshSource::Filled, _) => &self.filled,
             (MeshSource::LinearFilled, Some(d)) => d,
             (MeshSource::Linear | MeshSource::LinearFilled, _) => {

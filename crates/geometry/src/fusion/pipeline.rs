@@ -12,16 +12,17 @@
 //! The switches of the viewer are options of the same run: [`FusionOptions::zbuffer`] off
 //! (first write wins, H6 without its occlusion test; a teaching switch that always runs on
 //! [`CpuPixels`]), [`FusionOptions::linear`] and [`MeshSource`] (which depth is meshed, with
-//! or without the plane fill), [`FusionOptions::stretch_ratio`] (H5).
+//! or without the plane fill), [`FusionOptions::edge_rule`] and
+//! [`FusionOptions::stretch_ratio`] (H5).
 
 use std::time::Instant;
 
 use super::{
     ColorProjection, ColorSample, FusionOptions, FusionOutput, FusionSummary, MeshSource, PlaneFit,
-    Registration, StageTimings, backproject_cloud, check_inputs, color_on_depth,
+    Registration, StageTimings, StretchTest, backproject_cloud, check_inputs, color_on_depth,
     coverage_radius_px, depth_ray_table, fill_holes_with_plane, first_write_wins, fit_plane_ransac,
-    hole_grow_px, hole_mask, linear_resample, mesh_from_depth, nearest_fill, project_cloud,
-    remove_stretched_faces, sample_spacing_px,
+    hole_grow_px, hole_mask, linear_resample, mesh_from_depth, mesh_on_depth_grid, nearest_fill,
+    project_cloud, remove_edge_faces, sample_spacing_px,
 };
 use crate::{CameraModel, DepthKind, GeometryError, Image, PointCloud, Rig};
 
@@ -212,6 +213,18 @@ pub fn cloud_colors(
         .collect()
 }
 
+/// H5's test for `rig` and `options`: the rule, tilt limit and noise of `options`, at the
+/// scale of the rig's depth samples (the depth camera's mean focal length).
+pub fn stretch_test(rig: &Rig, options: &FusionOptions) -> StretchTest {
+    let k = rig.depth.intrinsics;
+    StretchTest {
+        rule: options.edge_rule,
+        ratio: options.stretch_ratio,
+        depth_focal_px: (k.fx * k.fy).sqrt() as f32,
+        noise_1m_m: options.depth_noise_1m_m,
+    }
+}
+
 /// Runs H1–H8 on one frame with the per-pixel stages on `engine` (see the module docs).
 /// With [`FusionOptions::zbuffer`] off the per-pixel stages run on [`CpuPixels`] whatever
 /// the engine.
@@ -269,23 +282,38 @@ pub fn run_on<E: PerPixel>(
     };
     timings.h8_ms += ms(t);
 
-    let mut cloud = PointCloud { points: px.points, ..PointCloud::default() };
-    cloud.colors = cloud_colors(&px.cloud_pixels, &px.color_on_depth, &px.color_on_depth_valid);
-
     let t = Instant::now();
-    let (mesh_depth, mesh_filled_pixels) = match (options.mesh_source, &linear_filled) {
-        (MeshSource::Nearest, _) => (&px.nearest, 0),
-        (MeshSource::Filled, _) => (&filled, filled_pixels),
-        (MeshSource::LinearFilled, Some((d, n))) => (d, *n),
-        (MeshSource::Linear | MeshSource::LinearFilled, _) => {
-            (linear.as_ref().unwrap_or(&px.nearest), 0)
-        }
+    let (mesh, mesh_filled_pixels) = if options.mesh_source == MeshSource::DepthGrid {
+        let (mesh, _) = mesh_on_depth_grid(
+            rig.depth.width,
+            rig.depth.height,
+            &px.points,
+            &px.cloud_pixels,
+            &px.samples,
+            &rig.color_from_depth,
+            color.size(),
+            &px.color_on_depth,
+            &px.color_on_depth_valid,
+        );
+        (mesh, 0)
+    } else {
+        let (mesh_depth, filled) = match (options.mesh_source, &linear_filled) {
+            (MeshSource::Nearest | MeshSource::DepthGrid, _) => (&px.nearest, 0),
+            (MeshSource::Filled, _) => (&filled, filled_pixels),
+            (MeshSource::LinearFilled, Some((d, n))) => (d, *n),
+            (MeshSource::Linear | MeshSource::LinearFilled, _) => {
+                (linear.as_ref().unwrap_or(&px.nearest), 0)
+            }
+        };
+        (mesh_from_depth(mesh_depth, &rig.color, color, options.mesh_step), filled)
     };
-    let mesh = mesh_from_depth(mesh_depth, &rig.color, color, options.mesh_step);
     timings.h4_ms = ms(t);
     let t = Instant::now();
-    let mesh_clean = remove_stretched_faces(&mesh, options.stretch_ratio);
+    let mesh_clean = remove_edge_faces(&mesh, &stretch_test(rig, options));
     timings.h5_ms = ms(t);
+
+    let mut cloud = PointCloud { points: px.points, ..PointCloud::default() };
+    cloud.colors = cloud_colors(&px.cloud_pixels, &px.color_on_depth, &px.color_on_depth_valid);
 
     let count = |img: &Image<f32>| img.data().iter().filter(|z| z.is_finite()).count();
     let summary = FusionSummary {
@@ -303,6 +331,11 @@ pub fn run_on<E: PerPixel>(
         mesh_vertices: mesh.vertices.len(),
         faces_before: mesh.faces.len(),
         faces_after: mesh_clean.faces.len(),
+        faces_removed_fraction: if mesh.faces.is_empty() {
+            0.0
+        } else {
+            1.0 - mesh_clean.faces.len() as f64 / mesh.faces.len() as f64
+        },
         color_on_depth_pixels: px.color_on_depth_valid.data().iter().filter(|&&v| v).count(),
         hole_pixels: px.hole_mask.data().iter().filter(|&&m| m).count(),
         filled_pixels,
