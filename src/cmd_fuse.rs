@@ -251,8 +251,10 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let bar = progress(6);
     bar.set_message("reading inputs");
     let options = options(args)?;
-    // --out is checked (and its staging folder made) before any work.
+    // --out is checked (and its staging folder made) before any work, including entries of
+    // the user's that carry an output's name.
     let staged = StagedDir::new(&args.out)?;
+    staged.refuse_foreign(&output_names())?;
     crate::interrupt::install()?;
     let inputs = load_inputs(args)?;
     // Before any work: the coverage radius this rig and --hole-radius give, and the rig's
@@ -376,13 +378,33 @@ fn write_data(
     Ok(())
 }
 
+/// Every name `fuse` may write into `--out` (a run writes a subset: `depth_linear.*` only with
+/// `--linear`, figures unless `--no-figures`); checked against real runs by a test.
+fn output_names() -> Vec<String> {
+    let mut names: Vec<String> =
+        ["summary.json", "cloud.ply", "hole_mask.png", "color_on_depth.png"]
+            .map(String::from)
+            .into();
+    for depth in ["depth_zbuffer", "depth_nearest", "depth_linear", "depth_filled"] {
+        names.extend([format!("{depth}.png"), format!("{depth}.exr")]);
+    }
+    for mesh in MESH_NAMES {
+        names.extend([".ply", ".obj", ".mtl", "_texture.png"].map(|ext| format!("{mesh}{ext}")));
+    }
+    names.extend((1..=figures::LAB_FIGURES).map(|n| format!("task{n}.png")));
+    names
+}
+
+/// The two meshes `fuse` writes: before and after H5.
+const MESH_NAMES: [&str; 2] = ["mesh", "mesh_clean"];
+
 fn write_meshes(
     staged: &StagedDir,
     inputs: &Inputs,
     out: &FusionOutput,
     files: &mut Vec<String>,
 ) -> Result<()> {
-    for (name, mesh) in [("mesh", &out.mesh), ("mesh_clean", &out.mesh_clean)] {
+    for (name, mesh) in MESH_NAMES.into_iter().zip([&out.mesh, &out.mesh_clean]) {
         let texture = format!("{name}_texture.png");
         ply::write_mesh_ply(
             &staged.join(format!("{name}.ply")),

@@ -9,6 +9,10 @@ use anyhow::{Context, Result};
 pub use kfuse_figures::lab::LabInputs;
 use kfuse_io::images::write_color_png;
 
+/// How many lab figures [`save_lab_figures`] writes (`task1.png` … `task8.png`: the handout's
+/// eight tasks).
+pub const LAB_FIGURES: usize = 8;
+
 /// Draws the eight lab figures of one fusion ([`kfuse_figures::lab::lab_figures`]) and
 /// saves each as `path_of(name)`, adding its name to `files`.
 pub fn save_lab_figures(
@@ -52,7 +56,7 @@ mod tests {
         };
         let mut files = Vec::new();
         save_lab_figures(|n| dir.join(n), &lab, &mut files).unwrap();
-        assert_eq!(files, (1..=8).map(|n| format!("task{n}.png")).collect::<Vec<_>>());
+        assert_eq!(files, (1..=LAB_FIGURES).map(|n| format!("task{n}.png")).collect::<Vec<_>>());
         for name in &files {
             let img = image::open(dir.join(name)).unwrap().into_rgb8();
             assert!(img.width() > 640 && img.height() > 300, "{name}: {:?}", img.dimensions());

@@ -204,6 +204,21 @@ fn fuse_outputs_are_all_or_nothing_and_never_touch_the_users_files() {
     assert_one_line_failure(&o, "summary.json", "not written by kfuse");
     assert_eq!(names(&theirs), ["summary.json"]);
     assert_eq!(std::fs::read_to_string(theirs.join("summary.json/precious.txt")).unwrap(), "x");
+
+    // Refused before the work: with a colour image that does not exist, the run still stops at
+    // --out (the inputs are read after the check). Every name the first run (with figures)
+    // wrote is checked up front, not only summary.json.
+    let missing = case.dir.join("no-such-colour.png");
+    for name in first.iter().filter(|n| n.as_str() != MANIFEST) {
+        let theirs = case.dir.join("theirs-early");
+        let _ = std::fs::remove_dir_all(&theirs);
+        std::fs::create_dir_all(&theirs).unwrap();
+        std::fs::write(theirs.join(name), "mine").unwrap();
+        let o = fuse(&case, &case.rig, &missing, &theirs, &[]);
+        assert_one_line_failure(&o, name, "not written by kfuse");
+        assert_eq!(std::fs::read_to_string(theirs.join(name)).unwrap(), "mine");
+        assert_eq!(names(&theirs), [name.clone()], "nothing staged or left beside {name}");
+    }
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 

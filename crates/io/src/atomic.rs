@@ -205,6 +205,23 @@ impl StagedDir {
         })
     }
 
+    /// Refuses, before any work, when one of `names` (the entries this run may write) is
+    /// taken in an existing destination by an entry kfuse did not write (not listed in its
+    /// [`MANIFEST`]): [`StagedDir::commit`] would refuse the same after the work.
+    pub fn refuse_foreign(&self, names: &[String]) -> Result<(), GeometryError> {
+        if !self.inside {
+            return Ok(());
+        }
+        let old = read_manifest(&self.destination);
+        for name in names {
+            let target = self.destination.join(name);
+            if fs::symlink_metadata(&target).is_ok() && !old.contains(name) {
+                return Err(foreign_entry(&self.destination, target));
+            }
+        }
+        Ok(())
+    }
+
     /// Where to write the files now.
     pub fn path(&self) -> &Path {
         &self.staging
@@ -254,13 +271,7 @@ impl StagedDir {
         for name in &names {
             let target = dest.join(name);
             if fs::symlink_metadata(&target).is_ok() && !old.contains(name) {
-                return Err(GeometryError::Format {
-                    path: target,
-                    message: format!(
-                        "exists and was not written by kfuse (it is not listed in {}); move it away or choose another output folder",
-                        dest.join(MANIFEST).display()
-                    ),
-                });
+                return Err(foreign_entry(&dest, target));
             }
         }
         // The manifest first lists old and new entries, so a run killed during the moves
@@ -291,6 +302,17 @@ impl StagedDir {
         fs::remove_dir_all(&self.staging).map_err(io_err(&self.staging))?;
         self.committed = true;
         Ok(dest)
+    }
+}
+
+/// The error for `target`, an entry in `dest` with an output's name that kfuse did not write.
+fn foreign_entry(dest: &Path, target: PathBuf) -> GeometryError {
+    GeometryError::Format {
+        path: target,
+        message: format!(
+            "exists and was not written by kfuse (it is not listed in {}); move it away or choose another output folder",
+            dest.join(MANIFEST).display()
+        ),
     }
 }
 
