@@ -146,6 +146,8 @@ pub fn run(args: UndistortArgs) -> Result<()> {
         }
     }
     let staged = StagedDir::new(&args.out)?;
+    // Before the work: an entry of the user's carrying one of this run's output names.
+    staged.refuse_foreign(&images.iter().map(|p| output_name(p)).collect::<Vec<_>>())?;
     crate::interrupt::install()?;
     let map = UndistortMap::new(&cam);
     if let Some(r) = cam.distortion.fold_radius() {
