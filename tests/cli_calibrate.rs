@@ -1,4 +1,7 @@
 //! End-to-end tests of `kfuse calibrate` and `kfuse undistort` on the shared data.
+//!
+//! Size (~640 lines, one file): the calibrate and undistort flows share the shared-data sets,
+//! the binary runner above and the board renderer below; each test reads as one user session.
 
 use geometry::testdata::shared_data_or_skip as shared;
 use std::path::Path;

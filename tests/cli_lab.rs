@@ -4,6 +4,9 @@
 //! real uint16 depth against the scene's truth and against the same scene as separate files;
 //! `--color`/`--depth` replacing the file's images; `--rectified`; `undistort` keeping the
 //! format and pixel type of every input.
+//!
+//! Size (~640 lines, one file): the tests follow the handout's flow in order and share the
+//! output readers, the KinectData.mat builder and the rectified scene defined beside them.
 
 mod common;
 

@@ -29,6 +29,9 @@
 //!
 //! [`kinect_noisy_preset`] and [`render_noisy`] (module `noisy`) add the real sensor's
 //! depth-dependent noise and flying pixels at depth edges, with the flying pixels as truth.
+//!
+//! Size (~780 lines): the ray caster, its scene types and the presets every test and the demo
+//! render; the noisy sensor model lives in `synth/noisy.rs`.
 
 use nalgebra::{Rotation3, Vector3};
 use rand::{Rng, SeedableRng};

@@ -1,6 +1,11 @@
 //! The calibration page: per-image RMS bars, detected corners over each image, residual
 //! vectors, board poses around the cameras in 3D (a wireframe painted with egui's painter)
 //! and the parameter table with ±3σ. The numbers come from [`crate::calibration`].
+//!
+//! Size (~690 lines, one file): the five views (errors, corners, residuals, poses,
+//! parameters) are methods of one [`CalibPage`] that share its state (selected camera and
+//! image, orbit camera, texture cache, drawn counts the tests read); split, that private
+//! state would become crate-visible for one page.
 
 use std::collections::HashMap;
 
