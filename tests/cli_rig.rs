@@ -3,6 +3,8 @@
 //! the MATLAB files' own numbers, kinect-usb's registration (the f32 reference that
 //! reproduces libfreenect2's vectors) and the simulated sensor's known parameters.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -301,37 +303,6 @@ fn error_vs_registration(
 
 const DEPTHS_MM: [f32; 6] = [500.0, 800.0, 1200.0, 2000.0, 3000.0, 4500.0];
 
-fn params_of(path: &Path) -> (DepthParams, ColorParams) {
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-    let f = |o: &str, k: &str| v[o][k].as_f64().unwrap() as f32;
-    let arr = |k: &str| -> [f32; 10] {
-        std::array::from_fn(|i| v["color"][k][i].as_f64().unwrap() as f32)
-    };
-    (
-        DepthParams {
-            fx: f("depth", "fx"),
-            fy: f("depth", "fy"),
-            cx: f("depth", "cx"),
-            cy: f("depth", "cy"),
-            k1: f("depth", "k1"),
-            k2: f("depth", "k2"),
-            k3: f("depth", "k3"),
-            p1: f("depth", "p1"),
-            p2: f("depth", "p2"),
-        },
-        ColorParams {
-            f: f("color", "fx"),
-            cx: f("color", "cx"),
-            cy: f("color", "cy"),
-            shift_d: f("color", "shift_d"),
-            shift_m: f("color", "shift_m"),
-            mx: arr("mx"),
-            my: arr("my"),
-        },
-    )
-}
-
 /// `kfuse capture scene --backend sim` → kinect_params.json → rig. The sim's colour
 /// polynomial is affine (a pinhole colour camera), so the rig is exact: it reproduces
 /// kinect-usb's registration to f32 rounding (< 0.01 px) and has the sim profile's numbers.
@@ -345,7 +316,9 @@ fn kinect_params_of_the_simulated_sensor_become_an_exact_rig() {
     let text = ok(&["rig", "import", s(&params), "--out", s(&out)]);
     assert!(text.contains("RMS"), "{text}");
     let rig = read_rig(&out);
-    let (d, c) = params_of(&params);
+    let (d, c) = common::kinect_params_of(
+        &serde_json::from_str(&std::fs::read_to_string(&params).unwrap()).unwrap(),
+    );
     let (rms, max, n) = error_vs_registration(&rig, &d, &c, &DEPTHS_MM);
     eprintln!(
         "sim kinect_params → rig vs registration: RMS {rms:.2e} px, max {max:.2e} px, {n} samples"

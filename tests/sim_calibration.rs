@@ -20,36 +20,6 @@ const FLOOR_PX: f64 = 0.5;
 const FLOOR_ROT_DEG: f64 = 0.05;
 const FLOOR_T_MM: f64 = 0.2;
 
-fn params_of(v: &Value) -> (DepthParams, ColorParams) {
-    let f = |o: &str, k: &str| v[o][k].as_f64().unwrap() as f32;
-    let arr = |k: &str| -> [f32; 10] {
-        let a = v["color"][k].as_array().unwrap();
-        std::array::from_fn(|i| a[i].as_f64().unwrap() as f32)
-    };
-    (
-        DepthParams {
-            fx: f("depth", "fx"),
-            fy: f("depth", "fy"),
-            cx: f("depth", "cx"),
-            cy: f("depth", "cy"),
-            k1: f("depth", "k1"),
-            k2: f("depth", "k2"),
-            k3: f("depth", "k3"),
-            p1: f("depth", "p1"),
-            p2: f("depth", "p2"),
-        },
-        ColorParams {
-            f: f("color", "fx"),
-            cx: f("color", "cx"),
-            cy: f("color", "cy"),
-            shift_d: f("color", "shift_d"),
-            shift_m: f("color", "shift_m"),
-            mx: arr("mx"),
-            my: arr("my"),
-        },
-    )
-}
-
 /// The pinhole colour camera and translation the factory registration describes, measured
 /// from kinect-usb's `Registration::map_point` (the libfreenect2-exact reference, not the
 /// simulator's own derivation): `[fx, fy, cx, cy]` of the colour camera and `T.x` (m).
@@ -92,7 +62,7 @@ fn calibrating_the_simulated_sensor_recovers_its_factory_parameters() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let params: Value =
         serde_json::from_slice(&std::fs::read(caps.join("kinect_params.json")).unwrap()).unwrap();
-    let (d, c) = params_of(&params);
+    let (d, c) = common::kinect_params_of(&params);
     // Every shot shows a different pose (the scene is not one frame repeated).
     let first = std::fs::read(caps.join("ir_0001.png")).unwrap();
     assert!(

@@ -55,3 +55,37 @@ pub fn small_case(name: &str) -> Case {
         .unwrap();
     Case { dir, rig, color, depth }
 }
+
+/// The sensor's factory parameters from a `kinect_params.json` (what `kfuse capture` writes
+/// beside its shots), read field by field with serde_json: independent of the simulator's and
+/// of `rig import`'s own readers, so tests can hold those against it.
+pub fn kinect_params_of(
+    v: &serde_json::Value,
+) -> (kinect_usb::params::DepthParams, kinect_usb::params::ColorParams) {
+    let f = |o: &str, k: &str| v[o][k].as_f64().unwrap() as f32;
+    let arr = |k: &str| -> [f32; 10] {
+        std::array::from_fn(|i| v["color"][k][i].as_f64().unwrap() as f32)
+    };
+    (
+        kinect_usb::params::DepthParams {
+            fx: f("depth", "fx"),
+            fy: f("depth", "fy"),
+            cx: f("depth", "cx"),
+            cy: f("depth", "cy"),
+            k1: f("depth", "k1"),
+            k2: f("depth", "k2"),
+            k3: f("depth", "k3"),
+            p1: f("depth", "p1"),
+            p2: f("depth", "p2"),
+        },
+        kinect_usb::params::ColorParams {
+            f: f("color", "fx"),
+            cx: f("color", "cx"),
+            cy: f("color", "cy"),
+            shift_d: f("color", "shift_d"),
+            shift_m: f("color", "shift_m"),
+            mx: arr("mx"),
+            my: arr("my"),
+        },
+    )
+}
