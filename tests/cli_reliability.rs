@@ -217,7 +217,7 @@ fn fuse_outputs_are_all_or_nothing_and_never_touch_the_users_files() {
         let o = fuse(&case, &case.rig, &missing, &theirs, &[]);
         assert_one_line_failure(&o, name, "not written by kfuse");
         assert_eq!(std::fs::read_to_string(theirs.join(name)).unwrap(), "mine");
-        assert_eq!(names(&theirs), [name.clone()], "nothing staged or left beside {name}");
+        assert_eq!(names(&theirs), [name.as_str()], "nothing staged or left beside {name}");
     }
     let _ = std::fs::remove_dir_all(&case.dir);
 }
