@@ -18,6 +18,7 @@ Examples:
   kfuse view --demo              # the synthetic Kinect v2 scene, fused in-process
   kfuse view kfuse-demo/fused    # a `kfuse fuse` output folder (re-fuses its inputs)
   kfuse view kfuse-demo/input    # a capture folder: rig.json, color.png, depth.png [, ir.png]
+  kfuse view shots               # a `kfuse capture` folder: its last scene shot, rig from kinect_params.json
   kfuse view DIR --engine cpu    # keep the GPU for the display only
   kfuse view calib/report        # a `kfuse calibrate --report` folder (or its rig.json)
   kfuse view --backend usb --out shots   # live mode on a connected Kinect v2

@@ -5,8 +5,13 @@
 //! * **fuse output** (`summary.json`): its `inputs` name the rig, colour and depth files (or a
 //!   `synthdata.mat`); relative paths are tried against the current directory, then the
 //!   folder's parent, then the folder itself by file name.
-//! * **capture** (`rig.json`): `rig.json`, `color.png`, `depth.png` (16-bit millimetres, z),
-//!   optional `ir.png` (16-bit amplitude).
+//! * **capture** (`rig.json` with `color.png`): `rig.json`, `color.png`, `depth.png` (16-bit
+//!   millimetres, z), optional `ir.png` (16-bit amplitude), as `kfuse demo` writes.
+//! * **`kfuse capture`** (`kinect_params.json`): the shot shown is the last scene shot by name
+//!   (`NAME_color.jpg`, `NAME_depth.png` (16-bit millimetres, z), optional `NAME_ir.png`),
+//!   else the last calibration shot (`color_NNNN.jpg`, `depth_NNNN.png`, `ir_NNNN.png`); the
+//!   rig is `rig.json` if the folder has one, else the one fitted to the sensor's factory
+//!   parameters (`calib::rig_io::kinect`, as `kfuse rig import kinect_params.json`).
 
 use std::path::{Path, PathBuf};
 
@@ -66,6 +71,9 @@ pub fn open_folder_with(dir: &Path, force: bool) -> Result<(Frame, Vec<String>),
     if summary.is_file() {
         return open_fuse_output(dir, &summary, force);
     }
+    if dir.join("kinect_params.json").exists() {
+        return open_kfuse_capture(dir, force);
+    }
     if dir.join("rig.json").exists() {
         return open_capture(dir, force);
     }
@@ -76,6 +84,11 @@ pub fn open_folder_with(dir: &Path, force: bool) -> Result<(Frame, Vec<String>),
 /// as warnings.
 fn read_rig_checked(path: &Path, force: bool) -> Result<(Rig, Vec<String>), ViewerError> {
     let rig = rigio::read_rig_unchecked(path).map_err(|e| bad(path, e))?;
+    check_rig(rig, path, force)
+}
+
+/// [`Rig::check_plausible`] on a rig read from `path`, or with `force` its problems as warnings.
+fn check_rig(rig: Rig, path: &Path, force: bool) -> Result<(Rig, Vec<String>), ViewerError> {
     if force {
         let warnings = rig
             .plausibility_problems()
@@ -165,6 +178,75 @@ fn open_capture(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerE
         DepthKind::Z,
         ir.as_deref(),
     )
+}
+
+/// At most this many folder entries are looked at for shots: far more than a capture session
+/// writes (3 files a shot), and a bound on a folder that is not one.
+const MAX_FOLDER_ENTRIES: usize = 1_000_000;
+
+/// The colour, depth and IR files of the shot [`open_kfuse_capture`] shows: the last scene
+/// shot by name, else the last calibration shot (names as `kfuse_capture::shot_files`).
+fn newest_shot(dir: &Path) -> Result<Option<(String, [PathBuf; 3])>, ViewerError> {
+    use kfuse_capture::{ShotKind, shot_files};
+    let entries = std::fs::read_dir(dir)
+        .map_err(|e| ViewerError::BadFile { path: dir.into(), message: e.to_string() })?;
+    let names: Vec<String> = entries
+        .take(MAX_FOLDER_ENTRIES)
+        .flatten()
+        .filter_map(|e| e.file_name().into_string().ok())
+        .collect();
+    let complete = |name: &str, kind: ShotKind| {
+        let [color, ir, depth] = shot_files(dir, name, kind);
+        (color.is_file() && depth.is_file()).then(|| (name.to_string(), [color, depth, ir]))
+    };
+    let last = |kind: ShotKind, shot_name: fn(&str) -> Option<&str>| {
+        let mut shots: Vec<&str> = names.iter().filter_map(|n| shot_name(n)).collect();
+        shots.sort_unstable();
+        shots.into_iter().rev().find_map(|n| complete(n, kind))
+    };
+    Ok(last(ShotKind::Scene, |n| n.strip_suffix("_depth.png").filter(|s| !s.is_empty())).or_else(
+        || last(ShotKind::Calib, |n| n.strip_prefix("depth_").and_then(|s| s.strip_suffix(".png"))),
+    ))
+}
+
+/// A `kfuse capture` folder (module docs).
+fn open_kfuse_capture(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerError> {
+    let Some((shot, [color, depth, ir])) = newest_shot(dir)? else {
+        return Err(ViewerError::NoShot { path: dir.to_path_buf() });
+    };
+    let rig_path = dir.join("rig.json");
+    let rig = if rig_path.is_file() {
+        read_rig_checked(&rig_path, force)?
+    } else {
+        let params = dir.join("kinect_params.json");
+        check_rig(factory_rig(&params)?, &params, force)?
+    };
+    let ir = ir.is_file().then_some(ir);
+    load(
+        format!("{} ({shot})", dir.display()),
+        rig,
+        &color,
+        &depth,
+        images::MILLIMETRES,
+        DepthKind::Z,
+        ir.as_deref(),
+    )
+}
+
+/// The rig fitted to the factory parameters in `kinect_params.json`.
+fn factory_rig(path: &Path) -> Result<Rig, ViewerError> {
+    use calib::rig_io::{kinect::FactoryParams, yaml::read_text};
+    let calib_err = |e: calib::CalibError| match e {
+        calib::CalibError::Format { path, message } => ViewerError::BadFile { path, message },
+        e => ViewerError::BadFile { path: path.to_path_buf(), message: e.to_string() },
+    };
+    let text = read_text(path).map_err(calib_err)?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| ViewerError::BadFile {
+        path: path.into(),
+        message: format!("not valid JSON ({e}); it is written by `kfuse capture`"),
+    })?;
+    let fit = FactoryParams::from_json(&v, path).and_then(|p| p.to_rig()).map_err(calib_err)?;
+    Ok(fit.rig)
 }
 
 /// Resolves an input path recorded in summary.json (see the module docs).

@@ -14,11 +14,19 @@ pub enum ViewerError {
         /// The path given.
         path: PathBuf,
     },
-    /// The folder holds neither `summary.json` nor `rig.json`.
+    /// The folder holds neither `summary.json`, `rig.json` nor `kinect_params.json`.
     #[error(
-        "{path}: neither summary.json (a `kfuse fuse` output) nor rig.json (a capture folder) is in this folder"
+        "{path}: neither summary.json (a `kfuse fuse` output) nor rig.json or kinect_params.json (a capture folder) is in this folder"
     )]
     UnknownFolder {
+        /// The folder.
+        path: PathBuf,
+    },
+    /// A `kfuse capture` folder (`kinect_params.json`) without a complete shot.
+    #[error(
+        "{path}: no shot to show; expected NAME_color.jpg + NAME_depth.png (`kfuse capture scene`) or color_NNNN.jpg + depth_NNNN.png (`kfuse capture calib`) next to kinect_params.json"
+    )]
+    NoShot {
         /// The folder.
         path: PathBuf,
     },

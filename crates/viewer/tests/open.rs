@@ -188,3 +188,95 @@ fn implausible_rig_is_refused_unless_forced() {
     let app = ViewerApp::open_with(&fused, Engine::Cpu, true);
     assert!(app.error.is_none() && app.warnings == warnings, "{:?}", app.error);
 }
+
+/// Writes what `kfuse capture scene --backend sim` writes for one shot named `name`: the
+/// simulated sensor's colour JPEG and depth (mm) through `kfuse_capture`'s own writer and
+/// names, and `kinect_params.json` in `kfuse_capture::write_params_json`'s layout, from the
+/// simulator's factory parameters.
+fn write_kfuse_capture(dir: &Path, name: &str) {
+    let (scene, profile) = kfuse_capture::source::sim_scene();
+    let writer = kfuse_capture::ShotWriter::new(dir).unwrap();
+    let files = kfuse_capture::shot_files(dir, name, kfuse_capture::ShotKind::Scene);
+    let (depth_mm, ir) = &scene.depth_frames[0];
+    writer.write(&files, &scene.color_jpegs[0], ir, depth_mm).unwrap();
+    let (d, c) = (&profile.depth_params, &profile.color_params);
+    let v = serde_json::json!({
+        "format": "kfuse-kinect-params", "version": 1, "serial": profile.serial,
+        "units": "pixels; shift_d and shift_m in millimetres",
+        "depth": { "width": 512, "height": 424, "fx": d.fx, "fy": d.fy, "cx": d.cx, "cy": d.cy,
+                   "k1": d.k1, "k2": d.k2, "k3": d.k3, "p1": d.p1, "p2": d.p2 },
+        "color": { "width": 1920, "height": 1080, "fx": c.f, "fy": c.f, "cx": c.cx, "cy": c.cy,
+                   "shift_d": c.shift_d, "shift_m": c.shift_m, "mx": c.mx, "my": c.my },
+    });
+    std::fs::write(dir.join("kinect_params.json"), v.to_string()).unwrap();
+}
+
+/// A `kfuse capture` folder (kinect_params.json, NAME_color.jpg, NAME_depth.png, no rig.json)
+/// opens: the newest scene shot by name, depth as written, the rig fitted to the factory
+/// parameters as `kfuse rig import` fits it.
+#[test]
+fn kfuse_capture_folder_opens_its_newest_shot() {
+    let tmp = tempfile::tempdir().unwrap();
+    write_kfuse_capture(tmp.path(), "scene_0002");
+    // An older shot whose depth is all invalid: opening it instead would fail the check below.
+    let old = kfuse_capture::shot_files(tmp.path(), "scene_0001", kfuse_capture::ShotKind::Scene);
+    std::fs::copy(tmp.path().join("scene_0002_color.jpg"), &old[0]).unwrap();
+    images::write_depth_png16(&old[2], &geometry::Image::filled(512, 424, 0.0)).unwrap();
+    let (frame, warnings) = open_folder_with(tmp.path(), false).unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert!(frame.name.contains("scene_0002"), "{}", frame.name);
+    assert_eq!(frame.kind, geometry::DepthKind::Z);
+    // Truth: the simulator's scene (geometry::synth's Kinect preset without noise), z in metres.
+    let truth = synth::render(&synth::kinect_preset(false));
+    assert_eq!(frame.depth.size(), truth.true_depth_z.size());
+    let (mut worst, mut n) = (0.0f32, 0usize);
+    for (a, b) in frame.depth.data().iter().zip(truth.true_depth_z.data()) {
+        // The simulated sensor drops what it cannot see (no surface, out of range): 0 = no sample.
+        if *a > 0.0 {
+            assert!(b.is_finite() && *b > 0.0, "a sample where the truth has no surface");
+            worst = worst.max((a - b).abs());
+            n += 1;
+        }
+    }
+    eprintln!("kfuse capture folder: depth error max {worst:.2e} m over {n} pixels");
+    // The scene fills most of the 512 × 424 view (synth::kinect_preset).
+    assert!(n > 100_000, "{n} valid pixels");
+    // 0.5 mm: rounding to whole millimetres; 1e-6 m: f32 rounding of metre values below 20 m.
+    assert!(worst <= 0.0005 + 1e-6, "depth error {worst} m over {n} pixels");
+    // The rig: the factory fit of the same kinect_params.json, done here independently.
+    let params = tmp.path().join("kinect_params.json");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&params).unwrap()).unwrap();
+    let fit =
+        calib::rig_io::kinect::FactoryParams::from_json(&v, &params).unwrap().to_rig().unwrap();
+    assert_eq!(frame.rig, fit.rig);
+    // The sim's colour camera is 1920 × 1080, the JPEG decoded at that size.
+    assert_eq!(frame.color.size(), (1920, 1080));
+    // A rig.json next to it wins over the factory parameters.
+    let mut rig = fit.rig.clone();
+    rig.color_from_depth.translation.x += 0.01;
+    rigio::write_rig(&tmp.path().join("rig.json"), &rig).unwrap();
+    let (frame, _) = open_folder_with(tmp.path(), false).unwrap();
+    assert_eq!(frame.rig.color_from_depth.translation, rig.color_from_depth.translation);
+}
+
+/// A `kfuse capture` folder without a complete shot: one line naming the folder and the files
+/// expected.
+#[test]
+fn kfuse_capture_folder_without_a_shot_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    write_kfuse_capture(tmp.path(), "scene_0001");
+    std::fs::remove_file(tmp.path().join("scene_0001_depth.png")).unwrap();
+    let err = expect_error_naming(tmp.path(), &tmp.path().display().to_string());
+    assert!(matches!(err, ViewerError::NoShot { .. }), "{err:?}");
+    let msg = err.to_string();
+    assert!(
+        !msg.contains('\n') && msg.contains("NAME_depth.png") && msg.contains("depth_NNNN.png")
+    );
+    for f in std::fs::read_dir(tmp.path()).unwrap() {
+        let f = f.unwrap().path();
+        if f.file_name().is_some_and(|n| n != "kinect_params.json") {
+            std::fs::remove_file(f).unwrap();
+        }
+    }
+    assert!(matches!(open_folder_with(tmp.path(), true), Err(ViewerError::NoShot { .. })));
+}
