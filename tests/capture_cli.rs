@@ -25,6 +25,19 @@ fn scene_mm() -> Vec<f32> {
         .collect()
 }
 
+/// Records 3 frames of the simulated sensor to `dir/s.kfrec` through the binary (it must
+/// succeed) and returns the file's path.
+fn record_three_sim_frames(dir: &Path) -> std::path::PathBuf {
+    let rec = dir.join("s.kfrec");
+    let st = kfuse()
+        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"])
+        .arg(&rec)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    rec
+}
+
 /// The calibration scene's depth (mm) at pose `k` (`kinect_usb::sim::calib_scene`), rendered
 /// with the simulated sensor's profile.
 fn calib_scene_mm(k: usize) -> Vec<f32> {
@@ -162,13 +175,7 @@ fn scene_capture_on_keypress_via_stdin() {
 #[test]
 fn record_replay_unplug_busy() {
     let dir = tempfile::tempdir().unwrap();
-    let rec = dir.path().join("s.kfrec");
-    let st = kfuse()
-        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"])
-        .arg(&rec)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let rec = record_three_sim_frames(dir.path());
     let a = dir.path().join("a");
     let b = dir.path().join("b");
     for (out, extra) in
@@ -412,13 +419,7 @@ fn replay_scene(rec: &Path, out: &Path, extra: &[&str]) -> (bool, String, Option
 #[test]
 fn corrupt_recordings_are_detected_never_replayed_as_wrong_depth() {
     let dir = tempfile::tempdir().unwrap();
-    let rec = dir.path().join("s.kfrec");
-    let st = kfuse()
-        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"])
-        .arg(&rec)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let rec = record_three_sim_frames(dir.path());
     let bytes = std::fs::read(&rec).unwrap();
     let (ok, err, reference) = replay_scene(&rec, &dir.path().join("ref"), &[]);
     assert!(ok, "{err}");
@@ -489,13 +490,7 @@ fn corrupt_recordings_are_detected_never_replayed_as_wrong_depth() {
 #[test]
 fn truncated_recording_names_allow_truncated() {
     let dir = tempfile::tempdir().unwrap();
-    let rec = dir.path().join("s.kfrec");
-    let st = kfuse()
-        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"])
-        .arg(&rec)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let rec = record_three_sim_frames(dir.path());
     let bytes = std::fs::read(&rec).unwrap();
     let cut = dir.path().join("cut.kfrec");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
@@ -514,13 +509,7 @@ fn truncated_recording_names_allow_truncated() {
 fn replay_memory_is_bounded_whatever_the_file_size() {
     use kinect_usb::recording::{RecordingWriter, read_recording};
     let dir = tempfile::tempdir().unwrap();
-    let rec = dir.path().join("s.kfrec");
-    let st = kfuse()
-        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"])
-        .arg(&rec)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let rec = record_three_sim_frames(dir.path());
     let r = read_recording(&std::fs::read(&rec).unwrap(), &rec, false).unwrap();
     let big = dir.path().join("big.kfrec");
     let f = std::io::BufWriter::new(std::fs::File::create(&big).unwrap());
