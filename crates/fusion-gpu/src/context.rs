@@ -12,10 +12,10 @@ use geometry::{CameraModel, DepthKind, Image, Rig};
 
 use geometry::fusion::disc_offsets;
 
-use crate::GpuError;
 use crate::stages::{backproject, color, holes, nearest, plane, project, zbuffer};
 use crate::submit::write_padded;
 use crate::tables::hole_half_widths;
+use crate::{GpuDecoder, GpuError};
 
 /// Invocations per workgroup of every kernel (the `@workgroup_size` in the shaders): 256 is a
 /// multiple of every vendor's SIMD width and within WebGPU's default limit.
@@ -169,9 +169,22 @@ pub(crate) struct Pending {
     pub(crate) maps: usize,
 }
 
+/// Source of the per-context ids that tie a [`crate::GpuDecoder`] to its context.
+static NEXT_CONTEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// Where a frame's depth comes from.
+pub(crate) enum DepthInput<'a> {
+    /// A depth image in metres, uploaded.
+    Metres(&'a Image<f32>),
+    /// A raw Kinect v2 frame, uploaded and decoded on the GPU into the depth buffer.
+    Raw { decoder: &'a GpuDecoder, raw: &'a [u8] },
+}
+
 /// The GPU fusion engine: device, queue, compiled pipelines and buffers reused from frame to
 /// frame (re-allocated only when the image sizes change). Create once, run many frames.
 pub struct FusionContext {
+    /// Unique per context (a decoder's buffers belong to one device).
+    pub(crate) id: u64,
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
     pub(crate) info: wgpu::AdapterInfo,
@@ -252,6 +265,7 @@ impl FusionContext {
             plane_fill: plane::pipeline(&device),
         };
         let ctx = Self {
+            id: NEXT_CONTEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             device,
             queue,
             info,
@@ -376,10 +390,27 @@ impl FusionContext {
         kind: DepthKind,
         frames: I,
         plan: FramePlan,
-        mut sink: F,
+        sink: F,
     ) -> Result<usize, GpuError>
     where
         I: IntoIterator<Item = (&'a Image<f32>, Option<&'a Image<[u8; 3]>>)>,
+        F: FnMut(usize, GpuFrame),
+    {
+        let frames = frames.into_iter().map(|(d, c)| (DepthInput::Metres(d), c));
+        self.stream_inputs(rig, kind, frames, plan, sink)
+    }
+
+    /// [`FusionContext::stream`] on any [`DepthInput`].
+    pub(crate) fn stream_inputs<'a, I, F>(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        frames: I,
+        plan: FramePlan,
+        mut sink: F,
+    ) -> Result<usize, GpuError>
+    where
+        I: IntoIterator<Item = (DepthInput<'a>, Option<&'a Image<[u8; 3]>>)>,
         F: FnMut(usize, GpuFrame),
     {
         rig.validate()?;
@@ -394,19 +425,24 @@ impl FusionContext {
         let mut pending: VecDeque<Pending> = VecDeque::new();
         let mut count = 0;
         for (k, (depth, color)) in frames.into_iter().enumerate() {
-            let sizes =
-                depth.expect_size("depth image", depth_size.0, depth_size.1).and_then(|()| {
-                    color.map_or(Ok(()), |c| {
-                        c.expect_size("colour image", color_size.0, color_size.1)
-                    })
-                });
+            let sizes = match &depth {
+                DepthInput::Metres(d) => {
+                    d.expect_size("depth image", depth_size.0, depth_size.1).map_err(GpuError::from)
+                }
+                DepthInput::Raw { raw, .. } => GpuDecoder::check_raw(raw),
+            }
+            .and_then(|()| {
+                color.map_or(Ok(()), |c| {
+                    c.expect_size("colour image", color_size.0, color_size.1).map_err(Into::into)
+                })
+            });
             if let Err(e) = sizes {
                 // Let the frames in flight complete so their read-back buffers are unmapped
                 // and the context stays usable; their results are dropped with the error.
                 while let Some(p) = pending.pop_front() {
                     let _ = self.finish(p);
                 }
-                return Err(e.into());
+                return Err(e);
             }
             let slot = k % STREAM_SLOTS;
             if let Some(pos) = pending.iter().position(|p| p.slot == slot) {

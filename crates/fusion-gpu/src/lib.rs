@@ -16,6 +16,13 @@
 //! | H8 plane fill (plane from the CPU RANSAC) | `shaders/plane_fill.wgsl` | [`geometry::fusion::plane_depth_pixel`] |
 //! | H6 colour onto the depth grid (bilinear) | `shaders/color_on_depth.wgsl` | [`geometry::fusion::bilinear_rgb`] |
 //!
+//! Kinect v2 depth decoding ([`GpuDecoder`], module `decode`): the CPU decoder's three passes
+//! (`kinect_usb::decoder`, `DecoderPrecision::Fast`) as `shaders/decode_stage1.wgsl`,
+//! `decode_filter.wgsl` and `decode_edge.wgsl`, within protocol §9.9's 0.01 mm with no
+//! validity flips on every oracle frame (`tests/decode.rs`).
+//! [`FusionContext::decode_and_register`] and [`FusionContext::stream_raw`] decode raw frames
+//! straight into the registration's depth buffer.
+//!
 //! Not on the GPU: the RANSAC plane fit (a few hundred sequential hypotheses over ≤ 20 000
 //! points), H3 Delaunay-linear (spade), H4 meshing and H5 face removal; [`FusionContext::run`]
 //! runs them on the CPU between and after the GPU passes. Hardware GPUs may round division
@@ -49,6 +56,7 @@
 #![deny(missing_docs)]
 
 mod context;
+mod decode;
 mod engine;
 mod error;
 mod quiet;
@@ -59,6 +67,7 @@ mod submit;
 mod tables;
 
 pub use context::{FramePlan, FusionContext, GpuFrame, StageOptions};
+pub use decode::{GpuDecoder, METRES_PER_MM};
 pub use engine::Engine;
 pub use error::GpuError;
 pub use run::{EngineUsed, fuse};

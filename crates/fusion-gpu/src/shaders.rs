@@ -16,10 +16,20 @@ pub const PLANE_FILL: &str = include_str!("../../../shaders/plane_fill.wgsl");
 /// H6 colour sampled onto the depth grid, bilinear (`main`).
 pub const COLOR_ON_DEPTH: &str = include_str!("../../../shaders/color_on_depth.wgsl");
 
+/// Kinect v2 depth decoding, stage 1: unpacking, phasors, IR (`main`).
+pub const DECODE_STAGE1: &str = include_str!("../../../shaders/decode_stage1.wgsl");
+/// Kinect v2 depth decoding: bilateral filter, stage 2, unwrapping, depth (`main`).
+pub const DECODE_FILTER: &str = include_str!("../../../shaders/decode_filter.wgsl");
+/// Kinect v2 depth decoding: edge-aware filter and flip to upright rows (`main`).
+pub const DECODE_EDGE: &str = include_str!("../../../shaders/decode_edge.wgsl");
+
 /// Every shader as `(file name, source)`, for validation and tooling.
 pub const ALL: &[(&str, &str)] = &[
     ("backproject.wgsl", BACKPROJECT),
     ("color_on_depth.wgsl", COLOR_ON_DEPTH),
+    ("decode_edge.wgsl", DECODE_EDGE),
+    ("decode_filter.wgsl", DECODE_FILTER),
+    ("decode_stage1.wgsl", DECODE_STAGE1),
     ("hole_mask.wgsl", HOLE_MASK),
     ("nearest_fill.wgsl", NEAREST_FILL),
     ("plane_fill.wgsl", PLANE_FILL),

@@ -8,8 +8,8 @@ use geometry::Image;
 use geometry::fusion::ColorProjection;
 
 use crate::context::{
-    FusionContext, Pending, Reads, U_BACKPROJECT, U_COLOR, U_HOLE, U_HOLE_CLEAR, U_NEAREST,
-    U_PROJECT, U_ZCLEAR, U_ZSCATTER,
+    DepthInput, FusionContext, Pending, Reads, U_BACKPROJECT, U_COLOR, U_HOLE, U_HOLE_CLEAR,
+    U_NEAREST, U_PROJECT, U_ZCLEAR, U_ZSCATTER,
 };
 use crate::stages::holes::EXTENT_WORKGROUP_SIZE;
 use crate::stages::{backproject, color, holes, nearest, project, zbuffer};
@@ -20,7 +20,7 @@ impl FusionContext {
         &self,
         slot: usize,
         frame: usize,
-        depth: &Image<f32>,
+        depth: DepthInput<'_>,
         color: Option<&Image<[u8; 3]>>,
         proj: &ColorProjection,
         plan: &FramePlan,
@@ -32,7 +32,7 @@ impl FusionContext {
         let half_widths = self.half_widths.as_ref().ok_or_else(missing)?;
         let grow_half_widths = self.grow_half_widths.as_ref().ok_or_else(missing)?;
         let s = &self.slots[slot];
-        let n = depth.data().len() as u32;
+        let n = (s.depth_size.0 * s.depth_size.1) as u32;
         let (cw, ch) = (proj.width, proj.height);
         let m = cw * ch;
         let (dx, dy, dstride) = self.grid(n);
@@ -62,7 +62,18 @@ impl FusionContext {
             0,
             bytemuck::bytes_of(&zbuffer::Params { size: [cw, ch, n, dstride] }),
         );
-        q.write_buffer(&s.depth, 0, bytemuck::cast_slice(depth.data()));
+        // A raw frame is decoded in this command buffer, the depth in metres written straight
+        // into the slot's depth buffer.
+        let decode = match depth {
+            DepthInput::Metres(d) => {
+                q.write_buffer(&s.depth, 0, bytemuck::cast_slice(d.data()));
+                None
+            }
+            DepthInput::Raw { decoder, raw } => {
+                decoder.write_raw(raw);
+                Some((decoder, decoder.edge_bind_group(&s.depth)))
+            }
+        };
 
         let mut groups = vec![
             (
@@ -229,6 +240,9 @@ impl FusionContext {
                 label: Some("fusion"),
                 timestamp_writes: None,
             });
+            if let Some((decoder, edge_group)) = &decode {
+                decoder.record(&mut pass, edge_group);
+            }
             for (pipe, group, (gx, gy)) in &groups {
                 pass.set_pipeline(pipe);
                 pass.set_bind_group(0, group, &[]);

@@ -11,11 +11,13 @@
 //! | H8 hole mask | [`holes`] | `hole_mask.wgsl` | `extents`, `coverage`, `core_mask`, `grow` |
 //! | H6 colour on depth | [`color`] | `color_on_depth.wgsl` | `main` |
 //! | H8 plane fill | [`plane`] | `plane_fill.wgsl` | `main` |
+//! | Kinect v2 depth decoding (stage 1, filter + stage 2, edge filter) | [`decode`] | `decode_stage1.wgsl`, `decode_filter.wgsl`, `decode_edge.wgsl` | `main` each |
 //!
 //! `FusionContext::submit` chains them for one frame, naming every binding by its constant.
 
 pub(crate) mod backproject;
 pub(crate) mod color;
+pub(crate) mod decode;
 pub(crate) mod holes;
 pub(crate) mod nearest;
 pub(crate) mod plane;
@@ -39,7 +41,7 @@ pub(crate) struct Shader {
 
 /// Every stage's shader (for the binding test).
 #[cfg(test)]
-pub(crate) const ALL: [&Shader; 7] = [
+pub(crate) const ALL: [&Shader; 10] = [
     &backproject::SHADER,
     &project::SHADER,
     &zbuffer::SHADER,
@@ -47,6 +49,9 @@ pub(crate) const ALL: [&Shader; 7] = [
     &holes::SHADER,
     &color::SHADER,
     &plane::SHADER,
+    &decode::STAGE1,
+    &decode::FILTER,
+    &decode::EDGE,
 ];
 
 /// The uniform of the stages that only need sizes: `size = [a, b, count, row stride]` (see

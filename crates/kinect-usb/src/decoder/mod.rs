@@ -77,6 +77,7 @@ use crate::params::{P0Tables, XzTables};
 use crate::raw::{HEIGHT, PIXELS, RAW_FRAME_BYTES, SATURATED, WIDTH, lut};
 use bilateral::{bilateral_k, copy_unfiltered, edge_weights};
 use edge::output_row;
+pub use stage1::phase_step_coefficients;
 use stage1::{TRIG_TABLE_MAX_SPAN, Trig, ir_row, stage1_row};
 use stage2::stage2_row;
 

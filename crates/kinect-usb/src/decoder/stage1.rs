@@ -24,21 +24,27 @@ pub(super) enum Trig {
     Table { table: [Vec<[f32; 8]>; 3], index: Vec<[[u16; W]; 3]> },
 }
 
+/// The phase-step coefficients of protocol §9.3 for a pixel whose P0 value is `p0`:
+/// `[cos ψ_0, cos ψ_1, cos ψ_2, 0, sin(−ψ_0), sin(−ψ_1), sin(−ψ_2), 0]` with
+/// `ψ_j = θ + phase_in_rad[j]`, `θ = −P0 · 0.000031 · π` (f64, rounded to f32), in the f32
+/// precision both CPU decoders use. Public so that other decoders (the GPU one in `fusion-gpu`)
+/// upload exactly the CPU's coefficients.
+pub fn phase_step_coefficients(params: &DecoderParams, p0: u16) -> [f32; 8] {
+    let theta = (-(p0 as f64) * 0.000031 * std::f64::consts::PI) as f32;
+    let mut e = [0f32; 8];
+    for j in 0..3 {
+        let psi = theta + params.phase_in_rad[j];
+        e[j] = psi.cos();
+        e[4 + j] = (-psi).sin();
+    }
+    e
+}
+
 impl Trig {
     /// A table if every frequency's P0 values span less than `max_span` values, else planes.
     #[allow(clippy::needless_range_loop)] // x indexes the P0 table and 18 planes.
     pub(super) fn new(params: &DecoderParams, p0: &P0Tables, max_span: usize) -> Self {
-        // Protocol §9.3, in this precision.
-        let coefficients = |p: u16| -> [f32; 8] {
-            let theta = (-(p as f64) * 0.000031 * std::f64::consts::PI) as f32;
-            let mut e = [0f32; 8];
-            for j in 0..3 {
-                let psi = theta + params.phase_in_rad[j];
-                e[j] = psi.cos();
-                e[4 + j] = (-psi).sin();
-            }
-            e
-        };
+        let coefficients = |p: u16| phase_step_coefficients(params, p);
         let range = |t: &[u16]| {
             (t.iter().copied().min().unwrap_or(0), t.iter().copied().max().unwrap_or(0))
         };

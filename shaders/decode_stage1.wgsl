@@ -1,0 +1,152 @@
+// Kinect v2 depth decoding, stage 1 (protocol §8, §9.3, §9.4, §9.6 step 5): one invocation per
+// pixel of the 512 x 424 frame, in *processing* coordinates (row y = 423 - output row).
+// CPU twin: kinect_usb::decoder (stage1.rs: unpack_row, stage1_row, ir_row). Mirrors it
+// operation by operation (same f32 order; every product that feeds a sum goes through keep()
+// so that no compiler contracts it into a fused multiply-add).
+//
+// In:  the raw frame (10 sub-images of 424 stored rows of 704 bytes; 9 are read), the 11-bit
+//      LUT, the phase-step coefficient table (by P0 value) and each pixel's entries in it, the
+//      z table.
+// Out: per pixel and frequency k, (a, b, a*g, b*g) with g = 1/sqrt(a^2 + b^2) (NaN -> +inf),
+//      the three n^2 = a^2 + b^2, and the upright IR image.
+
+// Shared by the three decode shaders (decode_stage1/_filter/_edge.wgsl), field for field the
+// Rust struct fusion_gpu::stages::decode::Params.
+struct Params {
+    // (pixels, row stride of the dispatch, opaque 0, unused)
+    size: vec4<u32>,
+    // (bilateral filter on, edge-aware filter on, A* is the minimum amplitude, unused)
+    flags: vec4<u32>,
+    // (ab_multiplier_per_frq[0..3], ab_multiplier)
+    ab: vec4<f32>,
+    // (ab_output_multiplier, bilateral tau, bilateral exponent factor, joint_bilateral_max_edge)
+    bil: vec4<f32>,
+    gauss0: vec4<f32>,
+    gauss1: vec4<f32>,
+    // (gaussian_kernel[8], individual_ab_threshold, ab_threshold, ab_confidence_slope)
+    gauss2: vec4<f32>,
+    // (ab_confidence_offset, min_dealias_confidence, max_dealias_confidence, phase_offset)
+    conf: vec4<f32>,
+    // (unambiguous_dist, edge_ab_avg_min_value, edge_ab_std_dev_threshold, edge_close_delta)
+    edge0: vec4<f32>,
+    // (edge_far_delta, edge_max_delta, edge_avg_delta, min_depth)
+    edge1: vec4<f32>,
+    // (max_depth, metres per millimetre of the registration output, unused, unused)
+    edge2: vec4<f32>,
+    // f64 constants split into f32 parts (see decode_filter.wgsl): 2 pi as (hi, lo, -, -), and
+    // 3/2pi, 15/2pi, 2/2pi, 2pi as products (hi, lo, hi's upper 12 bits, hi's lower bits).
+    two_pi_add: vec4<f32>,
+    mul_t0: vec4<f32>,
+    mul_t1: vec4<f32>,
+    mul_t2: vec4<f32>,
+    mul_two_pi: vec4<f32>,
+}
+
+const W: u32 = 512u;
+const H: u32 = 424u;
+const ROW_BYTES: u32 = 704u;
+const SUB_IMAGE_BYTES: u32 = 298496u; // 704 * 424
+// LUT value of a saturated code (i16 32767).
+const SAT: f32 = 32767.0f;
+
+@group(0) @binding(0) var<uniform> params: Params;
+// The raw frame as little-endian 32-bit words (2 984 960 bytes).
+@group(0) @binding(1) var<storage, read> raw: array<u32>;
+// The 2048-entry companding LUT (protocol §8) as f32.
+@group(0) @binding(2) var<storage, read> lut: array<f32>;
+// Phase-step coefficients by P0 value (minus the frequency's smallest): two entries per value,
+// (cos psi_0, cos psi_1, cos psi_2, 0) and (sin -psi_0, sin -psi_1, sin -psi_2, 0); the three
+// frequencies' tables one after the other.
+@group(0) @binding(3) var<storage, read> trig: array<vec4<f32>>;
+// Per processing pixel: the entry index (in vec4 pairs) of each frequency in `trig`.
+@group(0) @binding(4) var<storage, read> trig_index: array<vec4<u32>>;
+// z table, processing order.
+@group(0) @binding(5) var<storage, read> ztab: array<f32>;
+// Per processing pixel and frequency (index 3 * pixel + k): (a, b, ua, ub).
+@group(0) @binding(6) var<storage, read_write> s1: array<vec4<f32>>;
+// Per processing pixel: (n2_0, n2_1, n2_2, 0).
+@group(0) @binding(7) var<storage, read_write> n2: array<vec4<f32>>;
+// Upright IR image.
+@group(0) @binding(8) var<storage, read_write> ir: array<f32>;
+
+// x unchanged, but opaque to the compiler (params.size.z is always 0): a product passed through
+// keep() cannot be contracted into a fused multiply-add with the sum it feeds.
+fn keep(x: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(x) ^ params.size.z);
+}
+
+fn is_nan(x: f32) -> bool {
+    return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
+}
+
+// Stored row of processing row y (kinect_usb::raw::stored_row_of_processing_row).
+fn stored_row(y: u32) -> u32 {
+    if y < 212u {
+        return y + 212u;
+    }
+    return 423u - y;
+}
+
+// LUT value of image column x of sub-image s in stored row `stored`: slot
+// q = x / 4 + 128 * (x mod 4) holds bits 11q .. 11q + 10 of the row (little-endian).
+fn measurement(s: u32, stored: u32, x: u32) -> f32 {
+    let q = (x >> 2u) + 128u * (x & 3u);
+    let bit = (s * SUB_IMAGE_BYTES + stored * ROW_BYTES) * 8u + 11u * q;
+    let w = bit >> 5u;
+    let sh = bit & 31u;
+    var v = raw[w] >> sh;
+    if sh > 21u {
+        v = v | (raw[w + 1u] << (32u - sh));
+    }
+    return lut[v & 0x7ffu];
+}
+
+@compute @workgroup_size(256)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.y * params.size.y + gid.x;
+    if i >= params.size.x {
+        return;
+    }
+    let y = i / W;
+    let x = i % W;
+    let stored = stored_row(y);
+    // Columns 0 and 511 are never decoded: 0 (as unpack_row).
+    let edge_col = x == 0u || x == W - 1u;
+    var m: array<f32, 9>;
+    for (var s = 0u; s < 9u; s++) {
+        m[s] = select(measurement(s, stored, x), 0.0f, edge_col);
+    }
+    let zt = ztab[i];
+    let invalid = zt <= 0.0f;
+    let idx = trig_index[i];
+    let abm = params.ab.w;
+    var amp: array<f32, 3>;
+    var nn = vec4<f32>(0.0f, 0.0f, 0.0f, 0.0f);
+    for (var k = 0u; k < 3u; k++) {
+        let v0 = m[3u * k];
+        let v1 = m[3u * k + 1u];
+        let v2 = m[3u * k + 2u];
+        let c = trig[2u * idx[k]];
+        let sn = trig[2u * idx[k] + 1u];
+        let mk = params.ab[k];
+        var a = (keep(keep(c.x * v0) + keep(c.y * v1)) + keep(c.z * v2)) * mk;
+        var b = (keep(keep(sn.x * v0) + keep(sn.y * v1)) + keep(sn.z * v2)) * mk;
+        let am = sqrt(keep(a * a) + keep(b * b)) * abm;
+        let is_sat = v0 == SAT || v1 == SAT || v2 == SAT;
+        if invalid || is_sat {
+            a = 0.0f;
+            b = 0.0f;
+        }
+        amp[k] = select(select(am, 65535.0f, is_sat), 0.0f, invalid);
+        let n = keep(a * a) + keep(b * b);
+        var g = 1.0f / sqrt(n);
+        if is_nan(g) {
+            g = bitcast<f32>(0x7f800000u | params.size.z);
+        }
+        s1[3u * i + k] = vec4<f32>(a, b, a * g, b * g);
+        nn[k] = n;
+    }
+    n2[i] = nn;
+    let v = (amp[0] + amp[1] + amp[2]) * 0.3333333f * params.bil.x;
+    ir[(H - 1u - y) * W + x] = select(v, 65535.0f, v > 65535.0f);
+}
