@@ -1,7 +1,8 @@
 //! Kinect v2 depth decoding on the GPU (issue 15 item 4): one raw frame decoded and read back
 //! (`GpuDecoder::decode`), decoded + registered without the depth leaving the GPU
 //! (`FusionContext::decode_and_register`, z-buffer read back), and the same streamed with two
-//! frames in flight (`FusionContext::stream_raw`), against the CPU `Fast` decoder on the same
+//! frames in flight (`FusionContext::stream_raw`), decoding without the two filters (their
+//! cost), against the CPU `Fast` decoder on the same
 //! frame for scale. Needs the shared vectors (`../shared/data/kinect-v2-vectors`) and a Vulkan
 //! adapter; prints what it skips otherwise.
 //!
@@ -54,6 +55,12 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("gpu_frame", |b| {
         b.iter(|| gpu.decode(black_box(&raw), &mut depth, &mut ir).unwrap())
+    });
+    // The same without the bilateral and edge-aware filters: what the filters cost.
+    let bare = DecoderConfig { bilateral: false, edge_aware: false, parallel: true };
+    let mut gpu_bare = GpuDecoder::new(&ctx, DecoderParams::default(), bare, &xz, &p0).unwrap();
+    g.bench_function("gpu_frame_without_filters", |b| {
+        b.iter(|| gpu_bare.decode(black_box(&raw), &mut depth, &mut ir).unwrap())
     });
     g.bench_function("gpu_decode_register_frame", |b| {
         b.iter(|| black_box(ctx.decode_and_register(&gpu, &raw, &rig, false).unwrap()))

@@ -98,6 +98,10 @@ const MAX_DEPTH_DIFF_MM: f32 = 0.01;
 /// pixels flipping", read as at most 5 of 217 088 per file, as kinect-usb's oracle test does.
 const MAX_FLIPS_VS_ORACLE: usize = 5;
 
+/// IR on a hardware adapter: relative difference allowed (about 8 f32 ulp; Vulkan allows
+/// square root and division a few ulp off, and IR is a sum of three square roots).
+const MAX_IR_REL_DIFF_HARDWARE: f32 = 1e-6;
+
 /// Depth comparison of two decoded images.
 #[derive(Debug, Default)]
 struct DepthDiff {
@@ -134,10 +138,20 @@ fn xz_tables(dir: &Path, xt: &str, zt: &str) -> XzTables {
 
 /// Every oracle run decoded on the GPU and by the CPU `Fast` decoder (which the shaders
 /// mirror). Tolerances per file: depth within [`MAX_DEPTH_DIFF_MM`] where both are valid and
-/// no pixel valid on one side only (issue 15's bar, stricter than §9.9's "a handful"); IR is computed without transcendental functions or
-/// f64 steps and must be bit-identical (tolerance none). The GPU output is also held to the
-/// oracle of the independent reference decoder with protocol §9.9's policy
-/// ([`MAX_DEPTH_DIFF_MM`], [`MAX_FLIPS_VS_ORACLE`]). `--nocapture` prints the measured table.
+/// no pixel valid on one side only (issue 15's bar, stricter than §9.9's "a handful"). IR
+/// involves neither transcendental functions nor f64 steps: bit-identical on a software
+/// adapter with IEEE division and square root (lavapipe), within [`MAX_IR_REL_DIFF_HARDWARE`]
+/// on hardware (Vulkan allows a few ulp there). The GPU output is also held to the oracle of
+/// the independent reference decoder with protocol §9.9's policy ([`MAX_DEPTH_DIFF_MM`],
+/// [`MAX_FLIPS_VS_ORACLE`]). `--nocapture` prints the measured table.
+///
+/// Measured on lavapipe (llvmpipe, LLVM 15.0.6; 2026-12-01): on all 8 runs the depth and IR
+/// are bit-identical to the CPU `Fast` decoder (217 088 of 217 088 pixels, max |Δ| 0 mm, 0
+/// flips); against the oracle max |Δ| 0.00049–0.00293 mm and 0 flips (the CPU `Fast` figures
+/// of kinect-usb's oracle test). Two variants show what makes the bar reachable: WGSL's
+/// built-in `atan2`/`exp`/`log` instead of fastmath's give 0.043 mm on `random_nofilt` (fails);
+/// plain f32 products instead of the double-word emulation of the CPU's f64 steps give one
+/// validity flip on `random_nofilt` (fails).
 #[test]
 fn gpu_decoder_matches_cpu_fast_decoder_on_every_oracle_run() {
     let test = "gpu_decoder_matches_cpu_fast_decoder_on_every_oracle_run";
@@ -174,8 +188,18 @@ fn gpu_decoder_matches_cpu_fast_decoder_on_every_oracle_run() {
         if !(oracle.max_abs_mm <= MAX_DEPTH_DIFF_MM && oracle.flips <= MAX_FLIPS_VS_ORACLE) {
             failures.push(format!("{dref} vs oracle: {oracle:?}"));
         }
-        let ir_diff =
-            gpu_ir.iter().zip(&cpu_ir).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+        let software = ctx.is_software();
+        let ir_diff = gpu_ir
+            .iter()
+            .zip(&cpu_ir)
+            .filter(|&(&g, &c)| {
+                if software {
+                    g.to_bits() != c.to_bits()
+                } else {
+                    (g - c).abs() > MAX_IR_REL_DIFF_HARDWARE * c.abs().max(1.0)
+                }
+            })
+            .count();
         if ir_diff > 0 {
             failures.push(format!("{iref}: {ir_diff} GPU IR pixels differ from the CPU's"));
         }
