@@ -1,6 +1,7 @@
 //! [`FusionContext`]: the wgpu device, queue, compute pipelines and per-frame buffers, reused
-//! across frames. (About 650 lines: the context's state, its buffers and the streaming loop
-//! that owns them; the stages are in [`crate::stages`], a frame's wiring in `submit.rs`.)
+//! across frames. (About 700 lines: the context's state, its buffers and the streaming loop
+//! that owns them, over depth images or raw frames decoded on the GPU; the stages are in
+//! [`crate::stages`], a frame's wiring in `submit.rs`, the decoder in `decode.rs`.)
 
 use std::collections::VecDeque;
 use std::sync::mpsc;
