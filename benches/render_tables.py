@@ -203,6 +203,13 @@ def dec(name):
     return ("bench", DEC, "decode_frame/" + name)
 
 
+GD = "GPU / CPU Fast"
+
+
+def gd(name):
+    return ("bench", "fusion-gpu/decode", "decode/" + name)
+
+
 TABLES = {
     "registration": {
         "kind": "list",
@@ -231,6 +238,21 @@ TABLES = {
             ("kfuse Exact, filters off, 1 thread", dec("exact/filters_off_1_thread"), {}),
             ("libfreenect2 `CpuDepthPacketProcessor`, filters on, 1 thread, g++ -O2", LF2_O2, {}),
             ("libfreenect2, filters on, 1 thread, g++ -O3 -march=native", LF2_O3, {}),
+        ],
+    },
+    # issue 15's GPU decoder (`crates/fusion-gpu/benches/decode.rs`, branch gpudec15): shown
+    # where BENCHMARKS.md has a `gpu_decode` marker pair.
+    "gpu_decode": {
+        "kind": "list",
+        "caption": "Kinect v2 depth decoding on the GPU (upload of the raw frame and read-back "
+        "included) against the CPU `Fast` decoder of the same run",
+        "ratios": [GD],
+        "rows": [
+            ("CPU `Fast` decoder, 2 threads (`decode/cpu_fast_frame`)", gd("cpu_fast_frame"), {}),
+            ("GPU decode, depth + IR read back (`decode/gpu_frame`)", gd("gpu_frame"), {GD: gd("cpu_fast_frame")}),
+            ("GPU decode without the two filters (`decode/gpu_frame_without_filters`)", gd("gpu_frame_without_filters"), {}),
+            ("GPU decode + H1/H2/H7, z-buffer read back (`decode/gpu_decode_register_frame`)", gd("gpu_decode_register_frame"), {GD: gd("cpu_fast_frame")}),
+            ("the same streamed, 8 frames, two in flight (`decode/gpu_decode_register_stream`)", gd("gpu_decode_register_stream"), {}),
         ],
     },
     "calib": {
