@@ -7,7 +7,7 @@
 use std::hint::black_box;
 use std::sync::atomic::AtomicU32;
 
-use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{Criterion, SamplingMode, Throughput, criterion_group, criterion_main};
 use fusion_gpu::{FramePlan, FusionContext, StageOptions};
 use geometry::fusion::{
     ColorProjection, FusionOptions, PlaneFit, backproject_cloud, color_on_depth,
@@ -76,6 +76,9 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("end_to_end");
     // Frames of 10-200 ms: 10 samples keep the run within minutes on lavapipe.
     g.sample_size(10);
+    // Flat: every sample runs the same number of iterations (10 calls of ~0.1–1 s here, not
+    // the 55 of linear sampling), so `benches/run_all.sh` stays minutes long.
+    g.sampling_mode(SamplingMode::Flat);
     g.bench_function("cpu_run", |b| {
         b.iter(|| black_box(run(rig, depth, kind, &frame.color, &options).expect("CPU run")))
     });
@@ -108,6 +111,8 @@ fn bench(c: &mut Criterion) {
     let all = FramePlan { stages: Some(stages), read_intermediates: false };
     let mut g = c.benchmark_group("gpu");
     g.sample_size(10);
+    // Flat sampling, as above.
+    g.sampling_mode(SamplingMode::Flat);
     g.bench_function("h1_h2_h7_with_upload_readback", |b| {
         b.iter(|| black_box(ctx.register(rig, depth, kind, false).expect("GPU frame")))
     });
@@ -133,6 +138,8 @@ fn bench(c: &mut Criterion) {
         (0..STREAM_FRAMES).map(|k| depth.map(|&z| z * (1.0 + 0.01 * k as f32))).collect();
     let mut g = c.benchmark_group("gpu_stream");
     g.sample_size(10);
+    // Flat sampling, as above.
+    g.sampling_mode(SamplingMode::Flat);
     g.throughput(Throughput::Elements(STREAM_FRAMES as u64));
     g.bench_function("streamed_two_slots", |b| {
         b.iter(|| {

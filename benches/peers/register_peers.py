@@ -14,7 +14,10 @@ Setup (CPU-only wheels):
 
     python3 -m venv /tmp/peers-venv
     /tmp/peers-venv/bin/pip install opencv-contrib-python-headless open3d-cpu numpy
-    /tmp/peers-venv/bin/python benches/peers/register_peers.py [FRAME_DIR]
+    /tmp/peers-venv/bin/python benches/peers/register_peers.py [FRAME_DIR] [--json FILE]
+
+`--json FILE` also writes the figures as JSON for `benches/run_all.sh`
+(`{"versions": {...}, "results": {name: {"median_ms", "min_ms", "cpu_ms"}}}`).
 
 What is timed (median and minimum wall-clock and median process CPU time of repeated runs, one frame, single-threaded where the library allows):
 
@@ -27,6 +30,7 @@ Compare with kfuse's `register+holes/single` (registration + hole mask, with bot
 distortion) in the criterion report.
 """
 
+import argparse
 import json
 import os
 import statistics
@@ -56,7 +60,14 @@ def camera_matrix(cam):
 
 def main():
     default = Path(os.environ.get("CARGO_TARGET_DIR", Path(__file__).resolve().parents[2] / "target")) / "peer-frame"
-    frame_dir = Path(sys.argv[1]) if len(sys.argv) > 1 else default
+    ap = argparse.ArgumentParser(description="OpenCV and Open3D registration on kfuse's bench frame")
+    ap.add_argument("frame_dir", nargs="?", type=Path, default=default)
+    ap.add_argument("--json", type=Path, help="also write the figures here as JSON (for benches/run_all.sh)")
+    args = ap.parse_args()
+    frame_dir = args.frame_dir
+    if not (frame_dir / "rig.json").is_file():
+        sys.exit(f"{frame_dir / 'rig.json'} not found: write the frame first with "
+                 "KFUSE_WRITE_PEER_FRAME=1 cargo bench --bench fusion_cpu")
     rig = json.loads((frame_dir / "rig.json").read_text())
     dcam, ccam = rig["depth_camera"], rig["color_camera"]
     extr = np.eye(4)
@@ -116,6 +127,13 @@ def main():
     print(f"{'method':40s} {'median ms':>10s} {'min ms':>10s} {'CPU ms':>10s}")
     for k, (med, mn, c) in results.items():
         print(f"{k:40s} {med:10.2f} {mn:10.2f} {c:10.2f}")
+    if args.json:
+        out = {
+            "versions": {"opencv": cv2.__version__, "open3d": o3d.__version__, "numpy": np.__version__},
+            "frame": str(frame_dir),
+            "results": {k: {"median_ms": med, "min_ms": mn, "cpu_ms": c} for k, (med, mn, c) in results.items()},
+        }
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use calib::detect::{DetectorParams, detect, detect_views, to_f32};
 use calib::{Board, CalibFlags, StereoOptions, ViewCorners, calibrate_mono, calibrate_stereo};
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
 use geometry::Image;
 
 fn data() -> Option<PathBuf> {
@@ -51,6 +51,9 @@ fn benches(c: &mut Criterion) {
         dv.iter().zip(&cv).map(|(d, c)| calib::detect::align_pair(d, c, &board)).collect();
     let mut g = c.benchmark_group("calibration");
     g.sample_size(10);
+    // Flat: every sample runs the same number of iterations (10 calls of ~0.1–1 s here, not
+    // the 55 of linear sampling), so `benches/run_all.sh` stays minutes long.
+    g.sampling_mode(SamplingMode::Flat);
     g.bench_function("mono 25 views (IR corners)", |b| {
         b.iter(|| {
             calibrate_mono("ir", &board, &dv, &CalibFlags::default(), None).expect("calibrates")

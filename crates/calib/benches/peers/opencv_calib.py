@@ -10,12 +10,14 @@ Setup (CPU-only wheel):
 
     python3 -m venv /tmp/peers-venv
     /tmp/peers-venv/bin/pip install opencv-contrib-python-headless numpy
-    /tmp/peers-venv/bin/python crates/calib/benches/peers/opencv_calib.py [--kfuse] [--threads N]
+    /tmp/peers-venv/bin/python crates/calib/benches/peers/opencv_calib.py [--kfuse] [--threads N] [--json FILE]
 
 `--kfuse` first runs `cargo bench -p calib --bench calib` (criterion; uses `CARGO_TARGET_DIR`)
 and prints its medians beside OpenCV's, so both are measured back to back under the same
 machine load. `--threads N` sets `cv2.setNumThreads` (default: OpenCV's default, all cores;
-kfuse's rayon also uses all cores).
+kfuse's rayon also uses all cores). `--json FILE` also writes OpenCV's figures as JSON for
+`benches/run_all.sh` (`{"versions", "threads", "results": {bench name: {"median_ms", "min_ms",
+"cpu_ms"}}}`, the names those of the criterion bench).
 
 What is timed (median and minimum wall-clock of repeated runs, and median process CPU time):
 
@@ -122,6 +124,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--kfuse", action="store_true", help="also run kfuse's criterion bench first, in the same run")
     ap.add_argument("--threads", type=int, default=None, help="cv2.setNumThreads (default: OpenCV's default)")
+    ap.add_argument("--json", type=Path, help="also write OpenCV's figures here as JSON (for benches/run_all.sh)")
     ap.add_argument("--data", default=None, help="shared data folder (default: $KFUSE_SHARED_DATA or ../shared/data)")
     args = ap.parse_args()
     here = Path(__file__).resolve()
@@ -166,6 +169,14 @@ def main():
             k = kfuse.get(name) or kfuse.get(name.split("/", 1)[-1])
             line += f" {k:10.1f} ms" if k is not None else "          n/a"
         print(line)
+    if args.json:
+        out = {
+            "versions": {"opencv": cv2.__version__, "numpy": np.__version__},
+            "threads": cv2.getNumThreads(),
+            "sanity": {"stereo_rms_px": float(res[0]), "dT_mm": float(t_err)},
+            "results": {name: {"median_ms": med, "min_ms": mn, "cpu_ms": cpu} for name, (med, mn, cpu) in rows},
+        }
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":
