@@ -9,6 +9,7 @@ use calib::undistort::UndistortMap;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
 use kfuse_io::image_header::image_size;
+use kfuse_io::images;
 use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster};
 
 /// Arguments of `kfuse undistort`.
@@ -19,9 +20,12 @@ use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster};
   kfuse fuse --rig rig.json --color rect/Colour_rect.tif --depth rect/Depth_rect.tif --rectified --out f
 
 Writes NAME_rect.EXT per input NAME.EXT (Colour.tif -> Colour_rect.tif), in the input's format
-and pixel type: TIFF stays TIFF, grey stays grey, 16-bit stays 16-bit, float TIFF stays float.
-Colour and 8-bit grey (IR) images are resampled bilinearly; 16-bit (depth in millimetres, 16-bit
-IR) and float (depth in metres) by nearest neighbour, so no depth is ever blended across an edge.
+and pixel type: TIFF stays TIFF, grey stays grey, 16-bit stays 16-bit, float TIFF stays float,
+OpenEXR (float depth in metres, NaN = none) stays OpenEXR. Colour and 8-bit grey (IR) images are
+resampled bilinearly; 16-bit (depth in millimetres, 16-bit IR) and float (depth in metres) by
+nearest neighbour, so no depth is ever blended across an edge. Runs into the same --out add up
+(undistort the colour, then the depth images into one folder); an output of the same name is
+replaced.
 Fuse the results with --rectified (they would be undistorted a second time otherwise).
 Pixels whose ray falls where the distortion model folds (the lab's IR k1/k2 fold near the image
 corners), or outside the input image, are masked: black, or depth 0 (no sample).")]
@@ -100,6 +104,38 @@ fn remap(map: &UndistortMap, raster: &Raster) -> Raster {
     }
 }
 
+/// OpenEXR's magic number (the first four bytes of every `.exr` file).
+const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+
+/// True when `path` is an OpenEXR file (by its magic number, not its name).
+fn is_exr(path: &Path) -> Result<bool> {
+    use std::io::Read;
+    let mut head = [0u8; 4];
+    let mut file = std::fs::File::open(path)
+        .map_err(|e| anyhow::anyhow!("{}: cannot open: {e}", path.display()))?;
+    Ok(file.read_exact(&mut head).is_ok() && head == EXR_MAGIC)
+}
+
+/// The decoded image has the camera's size (its header said so; this guards the decoder).
+fn check_read_size(
+    path: &Path,
+    size: (usize, usize),
+    camera: &str,
+    cam: &geometry::CameraModel,
+) -> Result<()> {
+    if size != (cam.width, cam.height) {
+        bail!(
+            "{}: image is {}x{} but the rig's {camera} camera is {}x{}",
+            path.display(),
+            size.0,
+            size.1,
+            cam.width,
+            cam.height
+        );
+    }
+    Ok(())
+}
+
 /// Runs the command.
 pub fn run(args: UndistortArgs) -> Result<()> {
     // A rig or the single-camera JSON that `kfuse calibrate --ir/--color --out` writes.
@@ -164,24 +200,23 @@ pub fn run(args: UndistortArgs) -> Result<()> {
     );
     for path in &images {
         let out = staged.join(output_name(path));
-        let (raster, format) = read_raster(path)?;
-        if raster.size() != (cam.width, cam.height) {
-            bail!(
-                "{}: image is {}x{} but the rig's {} camera is {}x{}",
-                path.display(),
-                raster.size().0,
-                raster.size().1,
-                args.camera,
-                cam.width,
-                cam.height
-            );
+        if is_exr(path)? {
+            // Float depth in metres (NaN = none), as `kfuse fuse` writes and reads it (the
+            // scale applies to integer files only).
+            let depth = images::read_depth(path, 1.0)?;
+            check_read_size(path, depth.size(), &args.camera, &cam)?;
+            images::write_depth_exr(&out, &map.remap_nearest(&depth, f32::NAN))?;
+        } else {
+            let (raster, format) = read_raster(path)?;
+            check_read_size(path, raster.size(), &args.camera, &cam)?;
+            write_raster(&out, &remap(&map, &raster), format)?;
         }
-        write_raster(&out, &remap(&map, &raster), format)?;
         pb.inc(1);
         crate::interrupt::check(": stopped; nothing was written to --out")?;
     }
     pb.finish();
-    staged.commit()?;
+    // Runs into one folder add up (the colour, then the depth images of a session).
+    staged.commit_adding()?;
     println!("wrote {} image(s) to {}", images.len(), args.out.display());
     Ok(())
 }

@@ -19,6 +19,7 @@ Examples:
   kfuse view kfuse-demo/fused    # a `kfuse fuse` output folder (re-fuses its inputs)
   kfuse view kfuse-demo/input    # a capture folder: rig.json, color.png, depth.png [, ir.png]
   kfuse view shots               # a `kfuse capture` folder: its last scene shot, rig from kinect_params.json
+  kfuse view data/calib --shot 0002   # a named shot of a capture folder (scene NAME or calib NNNN)
   kfuse view DIR --engine cpu    # keep the GPU for the display only
   kfuse view calib/report        # a `kfuse calibrate --report` folder (or its rig.json)
   kfuse view --backend usb --out shots   # live mode on a connected Kinect v2
@@ -57,6 +58,11 @@ pub struct ViewArgs {
     /// with a warning per problem.
     #[arg(long, requires = "dir")]
     pub force: bool,
+    /// In a `kfuse capture` folder, the shot to show: a scene's NAME (NAME_color.jpg,
+    /// NAME_depth.png) or a calibration shot's number NNNN (color_NNNN.jpg, depth_NNNN.png).
+    /// Default: the last scene shot, else the last calibration shot.
+    #[arg(long, value_name = "NAME", requires = "dir")]
+    pub shot: Option<String>,
     /// Simulated device: unplug after this many frame periods.
     #[arg(long, hide = true)]
     pub sim_unplug_after: Option<u64>,
@@ -82,7 +88,7 @@ pub fn run(args: &ViewArgs) -> Result<()> {
             eprintln!("rendering and fusing the synthetic Kinect v2 scene ...");
             ViewerApp::demo(engine)
         }
-        (Some(dir), false) => ViewerApp::open_with(dir, engine, args.force),
+        (Some(dir), false) => ViewerApp::open_shot(dir, engine, args.force, args.shot.as_deref()),
         (None, false) => bail!("give a folder or --demo (see kfuse view --help)"),
     };
     for warning in &app.warnings {

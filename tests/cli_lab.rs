@@ -15,7 +15,9 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use calib::rig_io::{Role, camera_file_json};
-use common::{kfuse, scratch, small_case, small_rig};
+use common::{
+    depth_mm, kfuse, read_exr, scratch, small_case, small_rig, summary, zbuffer_vs_truth,
+};
 use geometry::synth::{self, SynthFrame};
 use geometry::testdata::shared_data_or_skip as shared_data;
 use geometry::{Distortion, Image, Rig, RigidTransform};
@@ -40,16 +42,6 @@ fn one_error_line(o: &Output) -> String {
     assert_eq!(lines.len(), 1, "expected one error line: {err}");
     assert!(!err.contains("panicked"), "{err}");
     lines[0].to_string()
-}
-
-fn summary(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
-}
-
-fn read_exr(path: &Path) -> Vec<f32> {
-    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
-    let ch = &img.layer_data.channel_data.list[0];
-    (0..ch.sample_data.len()).map(|i| ch.sample_data.value_by_flat_index(i).to_f32()).collect()
 }
 
 #[test]
@@ -257,11 +249,6 @@ fn write_kinect_data(path: &Path, rig: &Rig, frame: &SynthFrame, depth: MatValue
     .unwrap();
 }
 
-fn depth_mm(frame: &SynthFrame) -> Image<u16> {
-    let (w, h) = frame.depth.size();
-    Image::from_vec(w, h, images::depth_to_mm(&frame.depth)).unwrap()
-}
-
 fn uint16_depth(frame: &SynthFrame) -> MatValue {
     let (w, h) = frame.depth.size();
     let mm = depth_mm(frame);
@@ -275,28 +262,18 @@ fn fuse_args(out: &Path, args: &[&str]) -> Output {
     kfuse(&all)
 }
 
-/// The fused z-buffer against the scene's true colour-frame depth: (median |error|, fraction
-/// of compared pixels within 10 mm, compared pixels).
-fn zbuffer_vs_truth(out: &Path, frame: &SynthFrame) -> (f64, f64, usize) {
-    let z = read_exr(&out.join("depth_zbuffer.exr"));
-    let mut errors: Vec<f64> = z
-        .iter()
-        .zip(frame.true_color_depth.data())
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .map(|(a, b)| (a - b).abs() as f64)
-        .collect();
-    errors.sort_by(f64::total_cmp);
-    let n = errors.len();
-    let within = errors.iter().filter(|&&e| e <= 0.010).count();
-    (errors[n / 2], within as f64 / n as f64, n)
-}
-
 #[test]
 fn fuse_mat_kinect_data_with_real_depth_matches_truth_and_the_separate_files() {
     let dir = scratch("lab-kinectdata");
     let (rig, frame) = rectified_kinect_scene();
     let mat = dir.join("KinectData.mat");
     write_kinect_data(&mat, &rig, &frame, uint16_depth(&frame));
+
+    // `rig import` takes the depth camera's size from the real Depth and says so.
+    let o = kfuse(&["rig", "import", s(&mat), "--out", s(&dir.join("kd_rig.json"))]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("depth camera 512x424 (the size of its 'Depth')"), "{said}");
 
     let from_mat = dir.join("from_mat");
     let o = fuse_args(&from_mat, &["--mat", s(&mat)]);

@@ -8,8 +8,9 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use common::{cam_values, rig_diff};
+use geometry::Rig;
 use geometry::testdata::shared_data_or_skip as shared;
-use geometry::{CameraModel, Rig};
 use kinect_usb::params::{ColorParams, DepthParams};
 use kinect_usb::registration::Registration;
 
@@ -34,29 +35,6 @@ fn s(p: &Path) -> &str {
 
 fn read_rig(p: &Path) -> Rig {
     kfuse_io::rig::read_rig(p).unwrap()
-}
-
-fn cam_values(c: &CameraModel) -> Vec<f64> {
-    let k = c.intrinsics;
-    let mut v = vec![c.width as f64, c.height as f64, k.fx, k.fy, k.cx, k.cy, k.skew];
-    v.extend(c.distortion.to_array());
-    v
-}
-
-/// Largest absolute difference over every parameter of two rigs (pixels, unitless
-/// coefficients, rotation matrix entries, metres).
-fn rig_diff(a: &Rig, b: &Rig) -> f64 {
-    let mut d = 0f64;
-    for (x, y) in cam_values(&a.depth).iter().zip(cam_values(&b.depth)) {
-        d = d.max((x - y).abs());
-    }
-    for (x, y) in cam_values(&a.color).iter().zip(cam_values(&b.color)) {
-        d = d.max((x - y).abs());
-    }
-    let r =
-        (a.color_from_depth.rotation.matrix() - b.color_from_depth.rotation.matrix()).abs().max();
-    let t = (a.color_from_depth.translation - b.color_from_depth.translation).abs().max();
-    d.max(r).max(t)
 }
 
 fn lab(data: &Path, f: &str) -> PathBuf {

@@ -89,3 +89,64 @@ pub fn kinect_params_of(
         },
     )
 }
+
+/// The `summary.json` a `kfuse fuse` run wrote into `dir`.
+pub fn summary(dir: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+/// The first channel of an OpenEXR file (`kfuse fuse`'s `depth_*.exr`: metres, NaN = none).
+pub fn read_exr(path: &std::path::Path) -> Vec<f32> {
+    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
+    let ch = &img.layer_data.channel_data.list[0];
+    (0..ch.sample_data.len()).map(|i| ch.sample_data.value_by_flat_index(i).to_f32()).collect()
+}
+
+/// A synthetic frame's depth as the 16-bit millimetres of a depth file.
+pub fn depth_mm(frame: &geometry::synth::SynthFrame) -> Image<u16> {
+    let (w, h) = frame.depth.size();
+    Image::from_vec(w, h, images::depth_to_mm(&frame.depth)).unwrap()
+}
+
+/// The fused z-buffer (`depth_zbuffer.exr` in `out`) against the scene's true colour-frame
+/// depth: (median |error|, fraction of compared pixels within 10 mm, compared pixels).
+pub fn zbuffer_vs_truth(
+    out: &std::path::Path,
+    frame: &geometry::synth::SynthFrame,
+) -> (f64, f64, usize) {
+    let z = read_exr(&out.join("depth_zbuffer.exr"));
+    let mut errors: Vec<f64> = z
+        .iter()
+        .zip(frame.true_color_depth.data())
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .map(|(a, b)| (a - b).abs() as f64)
+        .collect();
+    errors.sort_by(f64::total_cmp);
+    let n = errors.len();
+    let within = errors.iter().filter(|&&e| e <= 0.010).count();
+    (errors[n / 2], within as f64 / n as f64, n)
+}
+
+/// Every parameter of a camera: size, intrinsics (pixels), distortion coefficients.
+pub fn cam_values(c: &CameraModel) -> Vec<f64> {
+    let k = c.intrinsics;
+    let mut v = vec![c.width as f64, c.height as f64, k.fx, k.fy, k.cx, k.cy, k.skew];
+    v.extend(c.distortion.to_array());
+    v
+}
+
+/// Largest absolute difference over every parameter of two rigs (pixels, unitless
+/// coefficients, rotation matrix entries, metres).
+pub fn rig_diff(a: &Rig, b: &Rig) -> f64 {
+    let mut d = 0f64;
+    for (x, y) in cam_values(&a.depth).iter().zip(cam_values(&b.depth)) {
+        d = d.max((x - y).abs());
+    }
+    for (x, y) in cam_values(&a.color).iter().zip(cam_values(&b.color)) {
+        d = d.max((x - y).abs());
+    }
+    let r =
+        (a.color_from_depth.rotation.matrix() - b.color_from_depth.rotation.matrix()).abs().max();
+    let t = (a.color_from_depth.translation - b.color_from_depth.translation).abs().max();
+    d.max(r).max(t)
+}

@@ -251,7 +251,18 @@ impl StagedDir {
     }
 
     /// Publishes the staged entries (see the type's docs) and returns the destination.
-    pub fn commit(mut self) -> Result<PathBuf, GeometryError> {
+    pub fn commit(self) -> Result<PathBuf, GeometryError> {
+        self.publish(false)
+    }
+
+    /// [`StagedDir::commit`] for outputs that accumulate over runs (`kfuse undistort` of the
+    /// colour, then of the depth images into one folder): the entries earlier runs wrote stay
+    /// (an entry of the same name is replaced) and the [`MANIFEST`] lists them all.
+    pub fn commit_adding(self) -> Result<PathBuf, GeometryError> {
+        self.publish(true)
+    }
+
+    fn publish(mut self, keep_previous: bool) -> Result<PathBuf, GeometryError> {
         let names = self.staged_names()?;
         if !self.inside {
             write_bytes_atomic(&self.staging.join(MANIFEST), manifest_json(&names).as_bytes())?;
@@ -281,7 +292,7 @@ impl StagedDir {
         union.dedup();
         write_bytes_atomic(&dest.join(MANIFEST), manifest_json(&union).as_bytes())?;
         for name in &old {
-            if names.contains(name) {
+            if keep_previous || names.contains(name) {
                 continue;
             }
             let stale = dest.join(name);
@@ -298,7 +309,8 @@ impl StagedDir {
             }
             fs::rename(self.staging.join(name), &target).map_err(io_err(&target))?;
         }
-        write_bytes_atomic(&dest.join(MANIFEST), manifest_json(&names).as_bytes())?;
+        let listed = if keep_previous { &union } else { &names };
+        write_bytes_atomic(&dest.join(MANIFEST), manifest_json(listed).as_bytes())?;
         fs::remove_dir_all(&self.staging).map_err(io_err(&self.staging))?;
         self.committed = true;
         Ok(dest)
@@ -473,6 +485,25 @@ mod tests {
         assert_eq!(read_manifest(&dest), ["a.png", "summary.json"]);
         assert_eq!(fs::read_to_string(dest.join("notes.txt")).unwrap(), "mine");
         assert_eq!(names(&dir), ["out"], "staging folder left behind");
+    }
+
+    #[test]
+    fn commit_adding_keeps_the_earlier_runs_files() {
+        let dir = scratch("adding");
+        let dest = dir.join("out");
+        publish(&dest, &["Colour_rect.tif"]).unwrap();
+        fs::write(dest.join("notes.txt"), "mine").unwrap();
+        let staged = StagedDir::new(&dest).unwrap();
+        for f in ["Depth_rect.tif", "Colour_rect.tif"] {
+            fs::write(staged.join(f), "second").unwrap();
+        }
+        staged.commit_adding().unwrap();
+        assert_eq!(names(&dest), [MANIFEST, "Colour_rect.tif", "Depth_rect.tif", "notes.txt"]);
+        assert_eq!(read_manifest(&dest), ["Colour_rect.tif", "Depth_rect.tif"]);
+        assert_eq!(fs::read_to_string(dest.join("Colour_rect.tif")).unwrap(), "second");
+        // A plain commit afterwards removes what it did not write again.
+        publish(&dest, &["Depth_rect.tif"]).unwrap();
+        assert_eq!(names(&dest), [MANIFEST, "Depth_rect.tif", "notes.txt"]);
     }
 
     #[test]

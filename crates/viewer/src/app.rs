@@ -199,10 +199,16 @@ impl ViewerApp {
     /// [`ViewerApp::open`]; with `force` a frame whose rig fails the plausibility check is
     /// shown anyway, its problems in [`ViewerApp::warnings`] ([`data::open_folder_with`]).
     pub fn open_with(dir: &Path, engine: Engine, force: bool) -> Self {
-        if dir.is_file() || crate::calibration::is_calibration_folder(dir) {
+        Self::open_shot(dir, engine, force, None)
+    }
+
+    /// [`ViewerApp::open_with`] on shot `shot` of a `kfuse capture` folder
+    /// ([`data::open_folder_shot`]; `None`: the last one).
+    pub fn open_shot(dir: &Path, engine: Engine, force: bool, shot: Option<&str>) -> Self {
+        if shot.is_none() && (dir.is_file() || crate::calibration::is_calibration_folder(dir)) {
             return Self::open_calibration(dir);
         }
-        match data::open_folder_with(dir, force) {
+        match data::open_folder_shot(dir, force, shot) {
             Ok((frame, warnings)) => {
                 let mut app = Self::with_frame(frame, engine);
                 app.warnings = warnings;

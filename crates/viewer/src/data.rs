@@ -5,9 +5,13 @@
 //! * **fuse output** (`summary.json`): its `inputs` name the rig, colour and depth files (or a
 //!   `synthdata.mat`); relative paths are tried against the current directory, then the
 //!   folder's parent, then the folder itself by file name.
+//!
+//! A rig with `"rectified": true` (or a fuse output whose `inputs` say `"rectified": true`,
+//! `kfuse fuse --rectified`) is used without its distortion, as `kfuse fuse` does.
 //! * **capture** (`rig.json` with `color.png`): `rig.json`, `color.png`, `depth.png` (16-bit
 //!   millimetres, z), optional `ir.png` (16-bit amplitude), as `kfuse demo` writes.
-//! * **`kfuse capture`** (`kinect_params.json`): the shot shown is the last scene shot by name
+//! * **`kfuse capture`** (`kinect_params.json`): the shot shown is the one asked for by name
+//!   ([`open_folder_shot`], `kfuse view --shot NAME`), else the last scene shot by name
 //!   (`NAME_color.jpg`, `NAME_depth.png` (16-bit millimetres, z), optional `NAME_ir.png`),
 //!   else the last calibration shot (`color_NNNN.jpg`, `depth_NNNN.png`, `ir_NNNN.png`); the
 //!   rig is `rig.json` if the folder has one, else the one fitted to the sensor's factory
@@ -15,7 +19,7 @@
 
 use std::path::{Path, PathBuf};
 
-use geometry::{DepthKind, GeometryError, Image, Rig, synth};
+use geometry::{DepthKind, Distortion, GeometryError, Image, Rig, synth};
 use kfuse_io::{course, images, rig as rigio};
 
 use crate::ViewerError;
@@ -64,15 +68,35 @@ pub fn open_folder(dir: &Path) -> Result<Frame, ViewerError> {
 /// back as warnings, one line each. A `synthdata.mat` (course data) is not checked, as in
 /// `kfuse fuse --mat`: its importer converts the course's units itself.
 pub fn open_folder_with(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerError> {
+    open_folder_shot(dir, force, None)
+}
+
+/// [`open_folder_with`]; `shot` picks the shot of a `kfuse capture` folder by name: a scene's
+/// `NAME` (`NAME_color.jpg`, `NAME_depth.png`) or a calibration shot's number `NNNN`
+/// (`color_NNNN.jpg`, `depth_NNNN.png`). A name the folder does not hold, or a shot asked of
+/// another kind of folder, is an error that lists the shots there are.
+pub fn open_folder_shot(
+    dir: &Path,
+    force: bool,
+    shot: Option<&str>,
+) -> Result<(Frame, Vec<String>), ViewerError> {
     if !dir.is_dir() {
         return Err(ViewerError::NotAFolder { path: dir.to_path_buf() });
+    }
+    let is_capture = dir.join("kinect_params.json").exists();
+    if let (Some(shot), false) = (shot, is_capture) {
+        return Err(ViewerError::UnknownShot {
+            path: dir.to_path_buf(),
+            shot: shot.to_string(),
+            shots: "none: shots are picked in a `kfuse capture` folder (kinect_params.json)".into(),
+        });
     }
     let summary = dir.join("summary.json");
     if summary.is_file() {
         return open_fuse_output(dir, &summary, force);
     }
-    if dir.join("kinect_params.json").exists() {
-        return open_kfuse_capture(dir, force);
+    if is_capture {
+        return open_kfuse_capture(dir, force, shot);
     }
     if dir.join("rig.json").exists() {
         return open_capture(dir, force);
@@ -140,13 +164,19 @@ fn check_size(
 /// The frame of a rig (read by [`read_rig_checked`], with its warnings) and its image files.
 fn load(
     name: String,
-    (rig, warnings): (Rig, Vec<String>),
+    (mut rig, warnings): (Rig, Vec<String>),
     color_path: &Path,
     depth_path: &Path,
     scale: f64,
     kind: DepthKind,
     ir_path: Option<&Path>,
 ) -> Result<(Frame, Vec<String>), ViewerError> {
+    if rig.rectified {
+        // Already undistorted images (`kfuse undistort`, the lab's `*_rect`): fused as by
+        // `kfuse fuse --rectified`, without the rig's distortion, never distorted twice.
+        rig.depth.distortion = Distortion::NONE;
+        rig.color.distortion = Distortion::NONE;
+    }
     let color = images::read_color(color_path).map_err(|e| bad(color_path, e))?;
     check_size(color_path, "colour", color.size(), (rig.color.width, rig.color.height))?;
     let depth = images::read_depth(depth_path, scale).map_err(|e| bad(depth_path, e))?;
@@ -184,9 +214,13 @@ fn open_capture(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerE
 /// writes (3 files a shot), and a bound on a folder that is not one.
 const MAX_FOLDER_ENTRIES: usize = 1_000_000;
 
-/// The colour, depth and IR files of the shot [`open_kfuse_capture`] shows: the last scene
-/// shot by name, else the last calibration shot (names as `kfuse_capture::shot_files`).
-fn newest_shot(dir: &Path) -> Result<Option<(String, [PathBuf; 3])>, ViewerError> {
+/// One complete shot of a capture folder: its name, whether it is a scene shot (else a
+/// calibration shot), and its colour, depth and IR files.
+type Shot = (String, bool, [PathBuf; 3]);
+
+/// Every complete shot of a capture folder, sorted by name within each kind: scenes first,
+/// then calibration shots (names as `kfuse_capture::shot_files`).
+fn shots_in(dir: &Path) -> Result<Vec<Shot>, ViewerError> {
     use kfuse_capture::{ShotKind, shot_files};
     let entries = std::fs::read_dir(dir)
         .map_err(|e| ViewerError::BadFile { path: dir.into(), message: e.to_string() })?;
@@ -197,21 +231,53 @@ fn newest_shot(dir: &Path) -> Result<Option<(String, [PathBuf; 3])>, ViewerError
         .collect();
     let complete = |name: &str, kind: ShotKind| {
         let [color, ir, depth] = shot_files(dir, name, kind);
-        (color.is_file() && depth.is_file()).then(|| (name.to_string(), [color, depth, ir]))
+        let scene = kind == ShotKind::Scene;
+        (color.is_file() && depth.is_file()).then(|| (name.to_string(), scene, [color, depth, ir]))
     };
-    let last = |kind: ShotKind, shot_name: fn(&str) -> Option<&str>| {
+    let of_kind = |kind: ShotKind, shot_name: fn(&str) -> Option<&str>| {
         let mut shots: Vec<&str> = names.iter().filter_map(|n| shot_name(n)).collect();
         shots.sort_unstable();
-        shots.into_iter().rev().find_map(|n| complete(n, kind))
+        shots.into_iter().filter_map(|n| complete(n, kind)).collect::<Vec<_>>()
     };
-    Ok(last(ShotKind::Scene, |n| n.strip_suffix("_depth.png").filter(|s| !s.is_empty())).or_else(
-        || last(ShotKind::Calib, |n| n.strip_prefix("depth_").and_then(|s| s.strip_suffix(".png"))),
-    ))
+    let mut all =
+        of_kind(ShotKind::Scene, |n| n.strip_suffix("_depth.png").filter(|s| !s.is_empty()));
+    all.extend(of_kind(ShotKind::Calib, |n| {
+        n.strip_prefix("depth_").and_then(|s| s.strip_suffix(".png"))
+    }));
+    Ok(all)
+}
+
+/// The shot [`open_kfuse_capture`] shows: `wanted` by name, else the last scene shot by name,
+/// else the last calibration shot.
+fn pick_shot(dir: &Path, wanted: Option<&str>) -> Result<Option<Shot>, ViewerError> {
+    let shots = shots_in(dir)?;
+    let Some(wanted) = wanted else {
+        let last_scene = shots.iter().rfind(|s| s.1).cloned();
+        return Ok(last_scene.or_else(|| shots.last().cloned()));
+    };
+    if let Some(found) = shots.iter().find(|s| s.0 == wanted) {
+        return Ok(Some(found.clone()));
+    }
+    /// At most this many shot names are listed in the error.
+    const LISTED: usize = 20;
+    let mut list: Vec<&str> = shots.iter().map(|s| s.0.as_str()).take(LISTED).collect();
+    if shots.len() > LISTED {
+        list.push("…");
+    }
+    Err(ViewerError::UnknownShot {
+        path: dir.to_path_buf(),
+        shot: wanted.to_string(),
+        shots: if list.is_empty() { "none".into() } else { list.join(", ") },
+    })
 }
 
 /// A `kfuse capture` folder (module docs).
-fn open_kfuse_capture(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerError> {
-    let Some((shot, [color, depth, ir])) = newest_shot(dir)? else {
+fn open_kfuse_capture(
+    dir: &Path,
+    force: bool,
+    wanted: Option<&str>,
+) -> Result<(Frame, Vec<String>), ViewerError> {
+    let Some((shot, _, [color, depth, ir])) = pick_shot(dir, wanted)? else {
         return Err(ViewerError::NoShot { path: dir.to_path_buf() });
     };
     let rig_path = dir.join("rig.json");
@@ -318,5 +384,8 @@ fn open_fuse_output(
         .unwrap_or(images::MILLIMETRES);
     let (rig, color, depth) =
         (resolve(dir, rig, summary)?, resolve(dir, color, summary)?, resolve(dir, depth, summary)?);
-    load(name, read_rig_checked(&rig, force)?, &color, &depth, scale, kind, None)
+    let (mut rig, warnings) = read_rig_checked(&rig, force)?;
+    // `kfuse fuse --rectified` records it among the inputs.
+    rig.rectified |= inputs.get("rectified").and_then(|v| v.as_bool()) == Some(true);
+    load(name, (rig, warnings), &color, &depth, scale, kind, None)
 }

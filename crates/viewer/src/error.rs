@@ -30,6 +30,16 @@ pub enum ViewerError {
         /// The folder.
         path: PathBuf,
     },
+    /// `kfuse view --shot NAME`: no such shot in the folder.
+    #[error("{path}: no shot '{shot}' (--shot); shots there: {shots}")]
+    UnknownShot {
+        /// The folder.
+        path: PathBuf,
+        /// The name asked for.
+        shot: String,
+        /// The shots the folder has (or why there are none).
+        shots: String,
+    },
     /// A file the folder needs is missing.
     #[error("{path}: missing; {hint}")]
     MissingFile {

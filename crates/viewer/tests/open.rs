@@ -280,3 +280,87 @@ fn kfuse_capture_folder_without_a_shot_is_named() {
     }
     assert!(matches!(open_folder_with(tmp.path(), true), Err(ViewerError::NoShot { .. })));
 }
+
+/// `kfuse view --shot NAME`: a named scene shot or calibration shot of a `kfuse capture`
+/// folder instead of the newest; an unknown name (or a shot asked of another kind of folder)
+/// is one line listing the shots there are.
+#[test]
+fn kfuse_capture_folder_opens_the_shot_asked_for() {
+    use viewer::data::open_folder_shot;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_kfuse_capture(dir, "scene_0002");
+    // "desk" (sorted before scene_0002, so never the default): a flat 1.5 m depth.
+    let desk = kfuse_capture::shot_files(dir, "desk", kfuse_capture::ShotKind::Scene);
+    std::fs::copy(dir.join("scene_0002_color.jpg"), &desk[0]).unwrap();
+    images::write_depth_png16(&desk[2], &geometry::Image::filled(512, 424, 1.5)).unwrap();
+    // Calibration shot 0003: a flat 0.9 m depth.
+    let calib = kfuse_capture::shot_files(dir, "0003", kfuse_capture::ShotKind::Calib);
+    std::fs::copy(dir.join("scene_0002_color.jpg"), &calib[0]).unwrap();
+    images::write_depth_png16(&calib[2], &geometry::Image::filled(512, 424, 0.9)).unwrap();
+
+    let flat = |shot: Option<&str>| {
+        let (frame, _) = open_folder_shot(dir, false, shot).unwrap();
+        let d = frame.depth.data();
+        (frame.name.clone(), d.iter().all(|&z| z == d[0]).then_some(d[0]))
+    };
+    let (name, constant) = flat(None);
+    assert!(name.contains("scene_0002") && constant.is_none(), "{name}");
+    let (name, constant) = flat(Some("desk"));
+    assert!(name.contains("(desk)") && constant == Some(1.5), "{name} {constant:?}");
+    let (name, constant) = flat(Some("0003"));
+    assert!(name.contains("(0003)") && constant == Some(0.9), "{name} {constant:?}");
+
+    let err = open_folder_shot(dir, false, Some("nope")).unwrap_err();
+    let msg = err.to_string();
+    assert!(matches!(err, ViewerError::UnknownShot { .. }), "{err:?}");
+    assert!(
+        !msg.contains('\n') && msg.contains("'nope'") && msg.contains("desk, scene_0002, 0003"),
+        "{msg}"
+    );
+    // A capture folder of `kfuse demo` (rig.json, no kinect_params.json) has no named shots.
+    let demo = tempfile::tempdir().unwrap();
+    write_capture(demo.path());
+    let err = open_folder_shot(demo.path(), false, Some("desk")).unwrap_err();
+    assert!(err.to_string().contains("kfuse capture"), "{err}");
+}
+
+/// A rectified rig (`"rectified": true`, or a fuse output of `kfuse fuse --rectified`) is used
+/// without its distortion, as `kfuse fuse` uses it; otherwise the distortion is kept.
+#[test]
+fn rectified_rigs_are_used_without_distortion() {
+    let lens = geometry::Distortion { k1: -0.1, k2: 0.02, p1: 0.0, p2: 0.0, k3: 0.0 };
+    let tmp = tempfile::tempdir().unwrap();
+    let input = tmp.path().join("input");
+    std::fs::create_dir(&input).unwrap();
+    write_capture(&input);
+    let mut rig = rigio::read_rig_unchecked(&input.join("rig.json")).unwrap();
+    rig.depth.distortion = lens;
+    rig.color.distortion = lens;
+    rigio::write_rig(&input.join("rig.json"), &rig).unwrap();
+    let (frame, _) = open_folder_with(&input, true).unwrap();
+    assert_eq!((frame.rig.depth.distortion, frame.rig.color.distortion), (lens, lens));
+
+    // The fuse output of the same rig, fused with --rectified.
+    let fused = tmp.path().join("fused");
+    std::fs::create_dir(&fused).unwrap();
+    let summary = |rectified: bool| {
+        serde_json::json!({"format": "kfuse-fuse-summary", "inputs": {
+            "rig": "input/rig.json", "color": "input/color.png", "depth": "input/depth.png",
+            "depth_kind": "z", "depth_scale_m_per_unit": 0.001, "rectified": rectified}})
+        .to_string()
+    };
+    std::fs::write(fused.join("summary.json"), summary(true)).unwrap();
+    let (frame, _) = open_folder_with(&fused, true).unwrap();
+    let none = geometry::Distortion::NONE;
+    assert_eq!((frame.rig.depth.distortion, frame.rig.color.distortion), (none, none));
+    std::fs::write(fused.join("summary.json"), summary(false)).unwrap();
+    let (frame, _) = open_folder_with(&fused, true).unwrap();
+    assert_eq!(frame.rig.color.distortion, lens);
+
+    // The rig's own field.
+    rig.rectified = true;
+    rigio::write_rig(&input.join("rig.json"), &rig).unwrap();
+    let (frame, _) = open_folder_with(&input, true).unwrap();
+    assert_eq!((frame.rig.depth.distortion, frame.rig.color.distortion), (none, none));
+}

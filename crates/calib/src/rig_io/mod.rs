@@ -315,11 +315,22 @@ fn import_mat(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
         // synthdata.mat's Dparam has fx too (beside fp): fp decides.
         if kfuse_io::kinect_data::is_kinect_data(&m) {
             let kd = kfuse_io::course::read_kinect_data(path)?;
+            let (w, h) = (kd.rig.depth.width, kd.rig.depth.height);
+            // The depth camera's size is its 'Depth' image's when that holds millimetres; a
+            // broken 8-bit one is not trusted and the Kinect v2's size is used instead.
+            let size_from = match kd.depth {
+                kfuse_io::kinect_data::KinectDepth::Millimetres(_) => "the size of its 'Depth'",
+                kfuse_io::kinect_data::KinectDepth::Unusable(_) => {
+                    "the Kinect v2's size: its 'Depth' is not depth measurements"
+                }
+            };
             return Ok(imported(
                 Calibration::Rig(kd.rig),
                 "the lab's KinectData.mat",
                 vec![
-                    "KinectData.mat stores no distortion (its colour image is rectified): both cameras have none; depth camera 512x424 (the Kinect v2 size; the file does not say)".into(),
+                    format!(
+                        "KinectData.mat stores no distortion (its colour image is rectified): both cameras have none; depth camera {w}x{h} ({size_from})"
+                    ),
                     "R, T read as Bouguet's X_color = R·X_depth + T with T in millimetres".into(),
                 ],
             ));
