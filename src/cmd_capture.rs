@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
+use geometry::depth_correction::DepthCorrection;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_capture::session::{decoder_summary, list_devices};
 use kfuse_capture::settings::{LedState, parse_exposure, parse_led};
@@ -20,6 +21,8 @@ use kfuse_capture::{
 use kinect_usb::KinectError;
 use kinect_usb::decoder::DecoderPrecision;
 use kinect_usb::protocol::Exposure;
+use kinect_usb::raw::{HEIGHT, WIDTH};
+use kinect_usb::sim::depth_error::DepthError;
 
 /// The colour-camera and LED options' help, shared by every capture mode.
 macro_rules! settings_help {
@@ -68,8 +71,8 @@ impl Backend {
 pub struct DevicesArgs {
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
-    /// checkerboard of 40 mm squares in 12 tilted poses at 0.6–1.5 m (one pose per frame:
-    /// `--count 12 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
+    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–3.0 m (one pose per frame:
+    /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
     /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
@@ -97,8 +100,8 @@ pub struct CommonArgs {
     exact_decoder: bool,
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
-    /// checkerboard of 40 mm squares in 12 tilted poses at 0.6–1.5 m (one pose per frame:
-    /// `--count 12 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
+    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–3.0 m (one pose per frame:
+    /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
     /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
@@ -114,6 +117,12 @@ pub struct CommonArgs {
     /// Simulated device: fraction of isochronous packets lost, 0..1.
     #[arg(long, hide = true, default_value_t = 0.0, value_parser = parse_fraction)]
     sim_iso_drop: f64,
+    /// Simulated device: make this depth error on purpose (issue 16), `OFFSET_MM,SCALE,RADIAL_MM`
+    /// (measured z = (1 + SCALE)·z + OFFSET + RADIAL·ρ², ρ = 1 at the image corners), or
+    /// `kinect` for 24,0.005,10 (libfreenect2 issue 144's 24 mm, 0.5 %, 10 mm at the corners).
+    /// `kfuse calibrate --depth` measures it back.
+    #[arg(long, value_name = "OFFSET_MM,SCALE,RADIAL_MM", value_parser = parse_depth_error)]
+    sim_depth_error: Option<DepthError>,
     /// Simulated device: write its colour settings, LED state and protocol violations as JSON
     /// to this file when the capture ends.
     #[arg(long, hide = true, value_name = "FILE")]
@@ -150,6 +159,36 @@ pub fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
         return Err(format!("{v} is outside [0, 1]"));
     }
     Ok(v)
+}
+
+/// Largest injected offset or radial term, mm, and scale accepted by `--sim-depth-error`: a
+/// metre of error or a scale of 50 % is a typing mistake, not a sensor.
+const MAX_SIM_DEPTH_ERROR_MM: f64 = 1000.0;
+const MAX_SIM_DEPTH_SCALE: f64 = 0.5;
+
+/// Parses `--sim-depth-error`: `OFFSET_MM,SCALE,RADIAL_MM` or `kinect`.
+pub fn parse_depth_error(s: &str) -> std::result::Result<DepthError, String> {
+    if s.trim() == "kinect" {
+        return Ok(kinect_usb::sim::depth_error::KINECT_LIKE);
+    }
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|_| format!("`{p}` is not a number")))
+        .collect::<std::result::Result<_, _>>()?;
+    let [offset_mm, scale, radial_mm] = v[..] else {
+        return Err(format!(
+            "give OFFSET_MM,SCALE,RADIAL_MM (3 numbers, e.g. 24,0.005,10) or kinect, not `{s}`"
+        ));
+    };
+    if !(offset_mm.abs() <= MAX_SIM_DEPTH_ERROR_MM && radial_mm.abs() <= MAX_SIM_DEPTH_ERROR_MM) {
+        return Err(format!("offset and radial must be within ±{MAX_SIM_DEPTH_ERROR_MM} mm"));
+    }
+    if !(scale.abs() <= MAX_SIM_DEPTH_SCALE) {
+        return Err(format!(
+            "the scale is a fraction (0.005 = 0.5 %) within ±{MAX_SIM_DEPTH_SCALE}"
+        ));
+    }
+    Ok(DepthError { offset_mm, scale, radial_mm })
 }
 
 /// Parses `--name`: a plain file name, so that every file lands inside `--out` (no separators,
@@ -220,6 +259,10 @@ enum CaptureMode {
         /// Replace existing files.
         #[arg(long)]
         overwrite: bool,
+        /// A rig with a depth correction (`kfuse calibrate --depth`): each shot also gets
+        /// NAME_depth_corrected.png (16-bit mm, corrected z) beside its raw NAME_depth.png.
+        #[arg(long, value_name = "RIG.json")]
+        rig: Option<PathBuf>,
         #[command(flatten)]
         common: CommonArgs,
     },
@@ -263,6 +306,7 @@ impl CommonArgs {
                 busy: self.sim_busy,
                 iso_drop: self.sim_iso_drop,
                 calib_scene: self.sim_calib_scene,
+                depth_error: self.sim_depth_error,
             }),
         }
     }
@@ -298,15 +342,16 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
             let common = CommonArgs { sim_calib_scene: true, ..common };
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
-            shots(&out, &names, ShotKind::Calib, interval, overwrite, &common)
+            shots(&out, &names, ShotKind::Calib, interval, overwrite, &common, None)
         }
-        CaptureMode::Scene { out, name, count, interval, overwrite, common } => {
+        CaptureMode::Scene { out, name, count, interval, overwrite, rig, common } => {
+            let correction = rig.as_deref().map(scene_depth_correction).transpose()?;
             let names: Vec<String> = if count == 1 {
                 vec![name.clone()]
             } else {
                 (1..=count).map(|i| format!("{name}_{i:04}")).collect()
             };
-            shots(&out, &names, ShotKind::Scene, interval, overwrite, &common)
+            shots(&out, &names, ShotKind::Scene, interval, overwrite, &common, correction.as_ref())
         }
         CaptureMode::Record { output, frames, overwrite, common } => {
             record(&output, frames, overwrite, &common)
@@ -400,6 +445,32 @@ fn wait(trigger: &Trigger, session: &mut Session) -> Result<Waited, CaptureError
     Ok(if crate::interrupt::requested() { Waited::Interrupted } else { Waited::Shoot })
 }
 
+/// `capture scene --rig`: the rig's depth correction (a rig without one is refused: the
+/// corrected file would be the raw one again).
+fn scene_depth_correction(path: &Path) -> Result<DepthCorrection> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| anyhow::anyhow!("--rig {}: {e}", path.display()))?;
+    let rig = geometry::Rig::from_json(&text, path)?;
+    match rig.depth_correction {
+        Some(c) => Ok(c),
+        None => bail!(
+            "--rig {}: the rig has no depth_correction; add one with `kfuse calibrate --rig {} --ir 'ir_*.png' --depth 'depth_*.png'`",
+            path.display(),
+            path.display()
+        ),
+    }
+}
+
+/// Writes `NAME_depth_corrected.png` beside a scene shot's raw depth (16-bit mm).
+fn write_corrected(raw_depth: &Path, depth_mm: &[f32], c: &DepthCorrection) -> Result<()> {
+    let name = raw_depth.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let path = raw_depth.with_file_name(name.replace("_depth.png", "_depth_corrected.png"));
+    let mut img = geometry::Image::from_vec(WIDTH, HEIGHT, depth_mm.to_vec())?;
+    c.correct_image(&mut img, 1e-3)?;
+    kfuse_capture::shots::write_png16(&path, img.data(), WIDTH, HEIGHT)?;
+    Ok(())
+}
+
 fn shots(
     out: &Path,
     names: &[String],
@@ -407,6 +478,7 @@ fn shots(
     interval: Option<f64>,
     overwrite: bool,
     common: &CommonArgs,
+    correction: Option<&DepthCorrection>,
 ) -> Result<()> {
     let files = |n: &str| shot_files(out, n, kind);
     if !overwrite && let Some(p) = names.iter().flat_map(|n| files(n)).find(|p| p.exists()) {
@@ -454,6 +526,9 @@ fn shots(
             break;
         }
         writer.write(&files(n), pump.color_jpeg(), pump.ir(), pump.depth_mm())?;
+        if let Some(c) = correction {
+            write_corrected(&files(n)[2], pump.depth_mm(), c)?;
+        }
         saved += 1;
         bar.inc(1);
     }
