@@ -71,7 +71,7 @@ impl Backend {
 pub struct DevicesArgs {
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
-    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–3.0 m (one pose per frame:
+    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–2.5 m (one pose per frame:
     /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
     /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
@@ -100,7 +100,7 @@ pub struct CommonArgs {
     exact_decoder: bool,
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
-    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–3.0 m (one pose per frame:
+    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–2.5 m (one pose per frame:
     /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
     /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]

@@ -133,11 +133,13 @@ pub fn print_fit(fit: &DepthFit) {
         );
     }
     println!("  model order (from the data):");
-    for (terms, rms, kept) in &fit.order_steps {
+    for o in &fit.order_steps {
         println!(
-            "    {terms:<16} RMS {:.3} mm  {}",
-            1e3 * rms,
-            if *kept { "kept" } else { "not kept" }
+            "    {:<16} RMS {:.3} mm, leave-one-view-out {:.3} mm  {}",
+            o.terms,
+            1e3 * o.rms_m,
+            1e3 * o.cv_rms_m,
+            if o.kept { "kept" } else { "not kept" }
         );
     }
     let (lo, hi) = fit.distance_range_m;

@@ -13,6 +13,9 @@ use kfuse_io::atomic::StagedDir;
 use kfuse_io::images::write_color_png;
 use plotters::prelude::*;
 
+/// The colour range of the residual maps: this percentile of |residual| (a few extreme
+/// pixels must not wash the map out).
+const RANGE_PERCENTILE: usize = 98;
 /// Points drawn per series of the scatter plot at most (every n-th sample beyond).
 const MAX_SCATTER: usize = 20_000;
 
@@ -115,23 +118,18 @@ fn colour(map: &Image<f32>, lo: f32, hi: f32) -> Image<[u8; 3]> {
 fn residual_map(path: &Path, fit: &DepthFit) -> Result<()> {
     let base = mean_map(fit, &model(fit, &fit.base));
     let after = mean_map(fit, &fit.correction);
-    let range = |m: &Image<f32>| {
-        m.data()
-            .iter()
-            .filter(|v| v.is_finite())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)))
-    };
-    let (blo, bhi) = range(&base);
-    let (alo, ahi) = range(&after);
+    // One symmetric range for both panels (the base map's robust extent), so that what the
+    // model removed shows as colour that went away.
+    let mut mags: Vec<f32> =
+        base.data().iter().filter(|v| v.is_finite()).map(|v| v.abs()).collect();
+    mags.sort_by(f32::total_cmp);
+    let r = mags.get(mags.len() * RANGE_PERCENTILE / 100).copied().unwrap_or(1.0).max(0.1);
     let panels = [
         Panel::new(
-            format!("after offset + scale only: {blo:+.1} (dark) … {bhi:+.1} mm (yellow)"),
-            colour(&base, blo, bhi),
+            format!("after offset + scale only (dark {:+.1} … yellow {:+.1} mm)", -r, r),
+            colour(&base, -r, r),
         ),
-        Panel::new(
-            format!("after the fitted model: {alo:+.1} … {ahi:+.1} mm"),
-            colour(&after, alo, ahi),
-        ),
+        Panel::new("after the fitted model (same colours)", colour(&after, -r, r)),
     ];
     let img =
         draw_panels("Depth residual over the depth image (mean over the board views)", &panels, 2)?;

@@ -16,8 +16,8 @@
 //!    parameter from `(AᵀA)⁻¹·s²` and from a jackknife over views (the larger; module
 //!    constants say why), per-view RMS before and after.
 //! 3. **order from the data**: the spatial term groups `radial2`, `x`+`y`, `radial4` are added
-//!    one at a time while the best one is significant ([`TERM_SIGNIFICANCE`]) and lowers the
-//!    RMS by [`MIN_RMS_GAIN_M`].
+//!    one at a time while the best one lowers the leave-one-view-out prediction RMS by
+//!    [`MIN_CV_GAIN`].
 //! 4. **views that disagree** (per-view median residual after the fit beyond [`VIEW_MAD_K`]
 //!    robust σ of all views' medians) are rejected and the fit repeated.
 
@@ -45,21 +45,23 @@ pub const PIXEL_GATE_M: f64 = 0.03;
 /// IR value (16-bit, decoder units) at and above which a pixel is glare: the decoder's
 /// amplitude saturates at 65 535, where the depth is no longer trustworthy.
 pub const IR_SATURATED: u16 = 65_535;
-/// A spatial term group is kept when each of its coefficients is at least this many σ from 0:
-/// 5. With thousands of correlated pixels per view, smaller "significances" are pose noise.
-pub const TERM_SIGNIFICANCE: f64 = 5.0;
-/// ... and it lowers the RMS of the residual by at least this much, metres: 0.1 mm (a fifth of
-/// the 16-bit millimetre depth's quantisation noise, 0.29 mm): smaller gains change no
-/// point of a fused model.
-pub const MIN_RMS_GAIN_M: f64 = 1e-4;
+/// A spatial term group is kept when it lowers the leave-one-view-out prediction RMS (every
+/// view predicted by the fit of the others) by at least this fraction: 1 %. Cross-validation
+/// over views, not the fit's own RMS, because a term that only bends the fit to the pose
+/// errors of a few views makes the views left out worse; 1 % is well above the few 0.1 % that
+/// chance moves the cross-validated RMS of views that agree.
+pub const MIN_CV_GAIN: f64 = 0.01;
 /// A view is rejected when its median residual after the fit is more than this many robust σ
 /// (1.4826·MAD of all views' medians) from their median: 4. Between views that agree the
 /// medians scatter by the pose noise only; a moved board, a wrong IR/depth pairing or a
 /// board-sized glare spot puts a view tens of σ away, and 4σ keeps a normal view with
 /// probability 0.9999.
 pub const VIEW_MAD_K: f64 = 4.0;
-/// Floor of that robust σ, metres: 0.5 mm. Views of a noise-free simulation agree to a few
-/// µm, and a view 20 µm off is no disagreement worth rejecting.
+/// Floor of that robust σ at 1 m, metres: 0.5 mm, growing with z² beyond 1 m. The plane of
+/// a board pose from IR corners is uncertain by about z²·σ_corner/(f·board size)/√corners
+/// (0.1 px corners, f = 365 px, a 24 cm board of 35 corners: 0.2 mm at 1 m, 0.8 mm at 2 m), so
+/// a far view's median legitimately sits further off than the near views' spread says; and
+/// views of a noise-free simulation agree to a few µm, where 20 µm is no disagreement.
 pub const VIEW_SIGMA_FLOOR_M: f64 = 5e-4;
 /// Rejection rounds at most (each round refits; a stable set ends earlier).
 const MAX_REJECTION_ROUNDS: usize = 3;
@@ -114,6 +116,19 @@ pub struct DepthViewReport {
     pub rejected: Option<String>,
 }
 
+/// One step of choosing the model's order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OrderStep {
+    /// The terms ("offset+scale", "+radial2").
+    pub terms: String,
+    /// RMS of the fit's residual, metres.
+    pub rms_m: f64,
+    /// Leave-one-view-out prediction RMS, metres.
+    pub cv_rms_m: f64,
+    /// Whether the terms were kept.
+    pub kept: bool,
+}
+
 /// The fit (module docs).
 #[derive(Debug, Clone)]
 pub struct DepthFit {
@@ -129,8 +144,8 @@ pub struct DepthFit {
     pub rms_after_m: f64,
     /// Residual σ² of the final fit, m².
     pub residual_variance: f64,
-    /// The term groups tried and what they gave: (terms, RMS after, whether kept).
-    pub order_steps: Vec<(String, f64, bool)>,
+    /// The term groups tried and what they gave.
+    pub order_steps: Vec<OrderStep>,
     /// Distance range of the used views' median z, metres.
     pub distance_range_m: (f64, f64),
     /// Offset + scale alone on the used views: its residual map shows the spatial structure
@@ -308,6 +323,8 @@ struct Fitted {
     std: Vec<f64>,
     variance: f64,
     rms: f64,
+    /// Leave-one-view-out prediction RMS (NaN with fewer than 3 views).
+    cv_rms: f64,
 }
 
 fn fit_terms(
@@ -325,6 +342,7 @@ fn fit_terms(
     // square root of the pixels per view; leaving out one view at a time measures it.
     let m = views.len();
     let mut jk = vec![0.0; p];
+    let mut cv_rms = f64::NAN;
     if m >= 3 {
         let subs: Vec<DVector<f64>> = (0..m)
             .filter_map(|leave| {
@@ -338,6 +356,15 @@ fn fit_terms(
             })
             .collect();
         if subs.len() == m {
+            // The left-out view's residual sum of squares under the others' fit.
+            let cv: f64 = views
+                .iter()
+                .zip(&subs)
+                .map(|(&v, x)| {
+                    (s.yy[v] - 2.0 * x.dot(&s.atb[v]) + x.dot(&(&s.ata[v] * x))).max(0.0)
+                })
+                .sum();
+            cv_rms = (cv / n.max(1) as f64).sqrt();
             let mean: DVector<f64> = subs.iter().fold(DVector::zeros(p), |a, s| a + s) / m as f64;
             for (j, jv) in jk.iter_mut().enumerate() {
                 let ss: f64 = subs.iter().map(|s| (s[j] - mean[j]).powi(2)).sum();
@@ -346,7 +373,7 @@ fn fit_terms(
         }
     }
     let std = (0..p).map(|j| (inv[(j, j)] * variance).max(0.0).sqrt().max(jk[j])).collect();
-    Some(Fitted { x, std, variance, rms: (rss / n.max(1) as f64).sqrt() })
+    Some(Fitted { x, std, variance, rms: (rss / n.max(1) as f64).sqrt(), cv_rms })
 }
 
 fn terms_name(terms: &[DepthTermKind]) -> String {
@@ -358,7 +385,7 @@ fn choose_terms(
     coords: &ImageCoords,
     samples: &[Vec<Sample>],
     views: &[usize],
-    steps: &mut Vec<(String, f64, bool)>,
+    steps: &mut Vec<OrderStep>,
 ) -> Result<Vec<DepthTermKind>, CalibError> {
     let mut terms = vec![DepthTermKind::Offset, DepthTermKind::Scale];
     let singular = || {
@@ -367,7 +394,13 @@ fn choose_terms(
     }
     };
     let mut current = fit_terms(coords, &terms, samples, views).ok_or_else(singular)?;
-    steps.push((terms_name(&terms), current.rms, true));
+    let step = |terms: String, f: &Fitted, kept: bool| OrderStep {
+        terms,
+        rms_m: f.rms,
+        cv_rms_m: f.cv_rms,
+        kept,
+    };
+    steps.push(step(terms_name(&terms), &current, true));
     let mut left: Vec<&[DepthTermKind]> = CANDIDATE_GROUPS.to_vec();
     while !left.is_empty() {
         let mut best: Option<(usize, Vec<DepthTermKind>, Fitted)> = None;
@@ -375,17 +408,14 @@ fn choose_terms(
             let mut t = terms.clone();
             t.extend_from_slice(g);
             if let Some(f) = fit_terms(coords, &t, samples, views)
-                && best.as_ref().is_none_or(|b| f.rms < b.2.rms)
+                && best.as_ref().is_none_or(|b| f.cv_rms < b.2.cv_rms)
             {
                 best = Some((gi, t, f));
             }
         }
         let Some((gi, t, f)) = best else { break };
-        let new = &t[terms.len()..];
-        let significant =
-            (terms.len()..t.len()).all(|j| f.x[j].abs() >= TERM_SIGNIFICANCE * f.std[j]);
-        let keep = significant && current.rms - f.rms >= MIN_RMS_GAIN_M;
-        steps.push((format!("+{}", terms_name(new)), f.rms, keep));
+        let keep = f.cv_rms <= current.cv_rms * (1.0 - MIN_CV_GAIN);
+        steps.push(step(format!("+{}", terms_name(&t[terms.len()..])), &f, keep));
         if !keep {
             break;
         }
@@ -467,12 +497,13 @@ pub fn fit_depth_correction(
             .collect();
         let centre = median(meds.iter().map(|m| m.1).collect());
         let mad = median(meds.iter().map(|m| (m.1 - centre).abs()).collect());
-        let sigma = (1.4826 * mad).max(VIEW_SIGMA_FLOOR_M);
         let mut changed = false;
         for &(i, m) in &meds {
+            let z2 = median_z[i].max(1.0).powi(2);
+            let sigma = (1.4826 * mad).max(VIEW_SIGMA_FLOOR_M * z2);
             if (m - centre).abs() > VIEW_MAD_K * sigma && idx.len() > MIN_DEPTH_VIEWS {
                 rejected[i] = Some(format!(
-                    "median residual {:+.2} mm is {:.1} robust σ ({:.2} mm) from the views' median: the view disagrees (board moved between IR and depth, glare, wrong pairing?)",
+                    "median residual {:+.2} mm is {:.1} σ ({:.2} mm) from the views' median: the view disagrees (board moved between IR and depth, glare, wrong pairing?)",
                     1e3 * (m - centre),
                     (m - centre).abs() / sigma,
                     1e3 * sigma
@@ -574,7 +605,7 @@ impl DepthFit {
             "rms_after_m": self.rms_after_m,
             "residual_sigma_m": self.residual_variance.sqrt(),
             "std": "1σ: the larger of sqrt(diag((AᵀA)⁻¹)·s²) and a jackknife over views",
-            "order_steps": self.order_steps.iter().map(|(t, r, k)| serde_json::json!({"terms": t, "rms_m": r, "kept": k})).collect::<Vec<_>>(),
+            "order_steps": self.order_steps.iter().map(|o| serde_json::json!({"terms": o.terms, "rms_m": o.rms_m, "leave_one_view_out_rms_m": o.cv_rms_m, "kept": o.kept})).collect::<Vec<_>>(),
             "views": self.views.iter().map(|v| serde_json::json!({
                 "name": v.name, "pixels": v.pixels, "median_z_m": v.median_z_m,
                 "rms_before_m": v.rms_before_m, "rms_after_m": v.rms_after_m,

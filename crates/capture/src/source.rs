@@ -41,7 +41,7 @@ pub struct SimOptions {
     /// Fraction of isochronous packets lost, `0..=1`.
     pub iso_drop: f64,
     /// Show the calibration scene (`kinect_usb::sim::calib_scene`: a 7x5-corner board of
-    /// 40 mm squares in 17 tilted poses at 0.6–3 m, one per frame) instead of the Kinect preset.
+    /// 40 mm squares in 17 tilted poses at 0.6–2.5 m, one per frame) instead of the Kinect preset.
     pub calib_scene: bool,
     /// A depth error the sensor makes on purpose (issue 16), applied to every depth frame of
     /// either scene; `None`: the depth is exact.
