@@ -489,7 +489,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         if !depth_files.is_empty() {
             let fit = fit_depth(rig.depth)??;
             depth::print_fit(&fit);
-            rig.depth_correction = Some(depth::correction_of(&fit));
+            rig.depth_correction = Some(Box::new(depth::correction_of(&fit)));
             report["depth_correction"] = fit.report_json();
             depth_fit = Some(fit);
         }
@@ -503,7 +503,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         // --depth with --rig: the rig's IR intrinsics, only the correction is new.
         let fit = fit_depth(rig.depth)??;
         depth::print_fit(&fit);
-        rig.depth_correction = Some(depth::correction_of(&fit));
+        rig.depth_correction = Some(Box::new(depth::correction_of(&fit)));
         report = serde_json::json!({ "depth_correction": fit.report_json() });
         outputs.push((args.out.clone(), rig.to_json()));
         depth_fit = Some(fit);

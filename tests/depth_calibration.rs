@@ -267,7 +267,7 @@ fn fuse_applies_the_rigs_depth_correction() {
         ],
         fit: None,
     };
-    rig.depth_correction = Some(c.clone());
+    rig.depth_correction = Some(Box::new(c.clone()));
     let corrected_rig = case.dir.join("rig_corrected.json");
     std::fs::write(&corrected_rig, rig.to_json()).unwrap();
     let cloud = |rig: &Path, out: &str| -> Vec<[f32; 3]> {

@@ -65,7 +65,8 @@ pub struct Rig {
     pub rectified: bool,
     /// The measured-depth correction of the depth camera (`kfuse calibrate --depth`), applied
     /// wherever depth becomes 3D; `None` (absent in the file) = the depth is taken as exact.
-    pub depth_correction: Option<DepthCorrection>,
+    /// Boxed: a rig is passed by value in enums of calibration sources, most without one.
+    pub depth_correction: Option<Box<DepthCorrection>>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -177,7 +178,7 @@ impl Rig {
             color_from_depth: self.color_from_depth,
             calibration: self.calibration.clone(),
             rectified: self.rectified,
-            depth_correction: self.depth_correction.as_ref().map(DepthCorrection::to_file),
+            depth_correction: self.depth_correction.as_deref().map(DepthCorrection::to_file),
         };
         // Serialising plain numbers and strings cannot fail.
         serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -204,7 +205,7 @@ impl Rig {
         }
         let depth_correction = file
             .depth_correction
-            .map(DepthCorrection::from_file)
+            .map(|f| DepthCorrection::from_file(f).map(Box::new))
             .transpose()
             .map_err(format_err)?;
         if let Some(c) = &depth_correction
@@ -278,7 +279,7 @@ mod tests {
         assert_eq!(back, kinect());
         let mut rig = kinect();
         let term = |kind, value, std| DepthTerm { kind, value, std };
-        rig.depth_correction = Some(DepthCorrection {
+        rig.depth_correction = Some(Box::new(DepthCorrection {
             width: 512,
             height: 424,
             terms: vec![
@@ -286,7 +287,7 @@ mod tests {
                 term(DepthTermKind::Scale, 0.0049, 2e-5),
             ],
             fit: Some(serde_json::json!({"views_used": 14})),
-        });
+        }));
         let text = rig.to_json();
         assert!(text.contains("\"depth_correction\"") && text.contains("\"version\": 1"));
         assert_eq!(Rig::from_json(&text, Path::new("new.json")).unwrap(), rig);
