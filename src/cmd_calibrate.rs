@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use calib::detect::{Refinement, align_pair, common_grid_size, detect_views_with};
 use calib::files::{
     COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX, add_detections, camera_json, opencv_yaml_camera,
-    opencv_yaml_rig, stereo_rig,
+    opencv_yaml_rig, stereo_rig, write_text,
 };
 use calib::{
     Board, CalibError, CalibFlags, StereoOptions, ViewCorners, calibrate_mono, calibrate_stereo,
@@ -17,6 +17,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::{StagedDir, StagedFiles};
 
 use crate::calibrate_report::{Figures, print_mono, print_stereo};
+
+mod depth;
+mod depth_figures;
 
 /// Arguments of `kfuse calibrate`.
 #[derive(clap::Args, Debug)]
@@ -28,6 +31,14 @@ use crate::calibrate_report::{Figures, print_mono, print_stereo};
     kfuse calibrate --ir 'kinect-lab/ir_*.bmp' --lab-settings --out ir.json
 
 The handout's bars: RMS below 0.2 px (colour) and 0.4 px (IR); a warning is printed above them.
+Depth calibration (the time-of-flight depth's offset, scale and spatial error, issue 16): add
+the depth images of the IR shots; the correction goes into the rig (\"depth_correction\"):
+    kfuse calibrate --ir 'caps/ir_*.png' --color 'caps/color_*.jpg' --depth 'caps/depth_*.png' \\
+        --out rig.json --report caps/report
+    kfuse calibrate --rig rig.json --ir 'caps/ir_*.png' --depth 'caps/depth_*.png' --out rig2.json
+It needs at least 4 boards whose distances span at least 0.5 m (e.g. 0.8, 1.2, 1.8, 2.5 m),
+tilted 10-40 degrees and spread over the image, without glare on the board.
+
 Views and corners rejected as outliers are always listed. The stereo joint fit weights each
 view by its own noise (never above its camera's level): the table's weight column shows which
 views counted less. Outputs are written atomically: a run that fails leaves no file behind.")]
@@ -38,6 +49,14 @@ pub struct CalibrateArgs {
     /// IR (depth-camera) images: a glob pattern (quote it) or a file; repeatable.
     #[arg(long, value_name = "GLOB")]
     ir: Vec<String>,
+    /// Depth images (16-bit PNG, mm) of the IR shots, matched with --ir in sorted order:
+    /// fits the depth correction (offset, scale, spatial terms) into the rig.
+    #[arg(long, value_name = "GLOB")]
+    depth: Vec<String>,
+    /// With --depth and --ir only: the rig (IR intrinsics) the correction is added to; the
+    /// output is this rig with its depth_correction.
+    #[arg(long, value_name = "RIG.json")]
+    rig: Option<PathBuf>,
     /// Inner corners per row x per column, e.g. 7x5 for a board of 8x6 squares (OpenCV's
     /// sample board is 9x6), or `auto`: the size of the complete board most images show.
     #[arg(long, default_value = "7x5")]
@@ -384,6 +403,9 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     }
     let color_files = if args.color.is_empty() { vec![] } else { expand(&args.color, "color")? };
     let ir_files = if args.ir.is_empty() { vec![] } else { expand(&args.ir, "ir")? };
+    let depth_files = if args.depth.is_empty() { vec![] } else { expand(&args.depth, "depth")? };
+    depth::check_args(&ir_files, &color_files, &depth_files, args.rig.as_deref())?;
+    let base_rig = args.rig.as_deref().map(depth::read_rig).transpose()?;
     let both = !color_files.is_empty() && !ir_files.is_empty();
     if both && color_files.len() != ir_files.len() {
         bail!(
@@ -392,7 +414,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             ir_files.len()
         );
     }
-    check_outputs(&args, color_files.iter().chain(&ir_files))?;
+    check_outputs(&args, color_files.iter().chain(&ir_files).chain(&depth_files))?;
     crate::interrupt::install()?;
     let flags = flags(&args);
     // Detection and the fits write nothing; they run on a worker thread so that Ctrl-C is
@@ -417,8 +439,14 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
 
     // Output staging: nothing is written unless everything succeeds.
     let mut outputs: Vec<(PathBuf, String)> = Vec::new();
-    let report;
+    let mut report;
     let mut figs = Figures { board: Some(board), ..Figures::default() };
+    let mut depth_fit = None;
+    let fit_depth = |camera: geometry::CameraModel| {
+        let (views, ir, depth) = (ir_views.clone(), ir_files.clone(), depth_files.clone());
+        let reject = flags.reject_outliers;
+        interruptible(STOPPED, move || depth::fit(&camera, &board, &views, &ir, &depth, reject))
+    };
     if both {
         for i in 0..ir_views.len() {
             let (d, c) = (!ir_views[i].corners.is_empty(), !color_views[i].corners.is_empty());
@@ -458,12 +486,27 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             add_detections(&mut cal["color_single_camera"], &color_views, &color_files);
         }
         report = rig.calibration.clone().unwrap_or_default();
+        if !depth_files.is_empty() {
+            let fit = fit_depth(rig.depth)??;
+            depth::print_fit(&fit);
+            rig.depth_correction = Some(Box::new(depth::correction_of(&fit)));
+            report["depth_correction"] = fit.report_json();
+            depth_fit = Some(fit);
+        }
         outputs.push((args.out.clone(), rig.to_json()));
         if let Some(y) = &args.opencv_yaml {
             outputs.push((y.clone(), opencv_yaml_rig(&rig)));
         }
         figs.cameras.push(("IR", s.depth, s.depth_mono.clone(), DEPTH_RMS_LIMIT_PX));
         figs.cameras.push(("colour", s.color, s.color_mono.clone(), COLOR_RMS_LIMIT_PX));
+    } else if let Some(mut rig) = base_rig {
+        // --depth with --rig: the rig's IR intrinsics, only the correction is new.
+        let fit = fit_depth(rig.depth)??;
+        depth::print_fit(&fit);
+        rig.depth_correction = Some(Box::new(depth::correction_of(&fit)));
+        report = serde_json::json!({ "depth_correction": fit.report_json() });
+        outputs.push((args.out.clone(), rig.to_json()));
+        depth_fit = Some(fit);
     } else {
         let (name, views, files, limit) = if ir_files.is_empty() {
             ("colour", &color_views, &color_files, COLOR_RMS_LIMIT_PX)
@@ -503,7 +546,14 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         let staged = StagedDir::new(dir)?;
         figs.ir_images = with_images(&ir_files, &ir_images, &ir_views);
         figs.color_images = with_images(&color_files, &color_images, &color_views);
-        figs.write(&staged, &report)?;
+        if figs.cameras.is_empty() {
+            write_text(&staged.join("report.json"), &serde_json::to_string_pretty(&report)?)?;
+        } else {
+            figs.write(&staged, &report)?;
+        }
+        if let Some(fit) = &depth_fit {
+            depth_figures::write(&staged, fit)?;
+        }
         crate::interrupt::check(STOPPED)?;
         staged.commit()?;
         println!("\nreport: {}", dir.display());

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
+use geometry::depth_correction::DepthCorrection;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_capture::session::{decoder_summary, list_devices};
 use kfuse_capture::settings::{LedState, parse_exposure, parse_led};
@@ -20,6 +21,10 @@ use kfuse_capture::{
 use kinect_usb::KinectError;
 use kinect_usb::decoder::DecoderPrecision;
 use kinect_usb::protocol::Exposure;
+use kinect_usb::sim::depth_error::DepthError;
+
+mod depth;
+use depth::{parse_depth_error, scene_depth_correction, write_corrected};
 
 /// The colour-camera and LED options' help, shared by every capture mode.
 macro_rules! settings_help {
@@ -68,8 +73,8 @@ impl Backend {
 pub struct DevicesArgs {
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
-    /// checkerboard of 40 mm squares in 12 tilted poses at 0.6–1.5 m (one pose per frame:
-    /// `--count 12 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
+    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–2.5 m (one pose per frame:
+    /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
     /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
@@ -97,8 +102,8 @@ pub struct CommonArgs {
     exact_decoder: bool,
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
-    /// checkerboard of 40 mm squares in 12 tilted poses at 0.6–1.5 m (one pose per frame:
-    /// `--count 12 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
+    /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–2.5 m (one pose per frame:
+    /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
     /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
@@ -114,6 +119,12 @@ pub struct CommonArgs {
     /// Simulated device: fraction of isochronous packets lost, 0..1.
     #[arg(long, hide = true, default_value_t = 0.0, value_parser = parse_fraction)]
     sim_iso_drop: f64,
+    /// Simulated device: make this depth error on purpose (issue 16), `OFFSET_MM,SCALE,RADIAL_MM`
+    /// (measured z = (1 + SCALE)·z + OFFSET + RADIAL·ρ², ρ = 1 at the image corners), or
+    /// `kinect` for 24,0.005,10 (libfreenect2 issue 144's 24 mm, 0.5 %, 10 mm at the corners).
+    /// `kfuse calibrate --depth` measures it back.
+    #[arg(long, value_name = "OFFSET_MM,SCALE,RADIAL_MM", value_parser = parse_depth_error)]
+    sim_depth_error: Option<DepthError>,
     /// Simulated device: write its colour settings, LED state and protocol violations as JSON
     /// to this file when the capture ends.
     #[arg(long, hide = true, value_name = "FILE")]
@@ -220,6 +231,10 @@ enum CaptureMode {
         /// Replace existing files.
         #[arg(long)]
         overwrite: bool,
+        /// A rig with a depth correction (`kfuse calibrate --depth`): each shot also gets
+        /// NAME_depth_corrected.png (16-bit mm, corrected z) beside its raw NAME_depth.png.
+        #[arg(long, value_name = "RIG.json")]
+        rig: Option<PathBuf>,
         #[command(flatten)]
         common: CommonArgs,
     },
@@ -263,6 +278,7 @@ impl CommonArgs {
                 busy: self.sim_busy,
                 iso_drop: self.sim_iso_drop,
                 calib_scene: self.sim_calib_scene,
+                depth_error: self.sim_depth_error,
             }),
         }
     }
@@ -298,15 +314,16 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
             let common = CommonArgs { sim_calib_scene: true, ..common };
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
-            shots(&out, &names, ShotKind::Calib, interval, overwrite, &common)
+            shots(&out, &names, ShotKind::Calib, interval, overwrite, &common, None)
         }
-        CaptureMode::Scene { out, name, count, interval, overwrite, common } => {
+        CaptureMode::Scene { out, name, count, interval, overwrite, rig, common } => {
+            let correction = rig.as_deref().map(scene_depth_correction).transpose()?;
             let names: Vec<String> = if count == 1 {
                 vec![name.clone()]
             } else {
                 (1..=count).map(|i| format!("{name}_{i:04}")).collect()
             };
-            shots(&out, &names, ShotKind::Scene, interval, overwrite, &common)
+            shots(&out, &names, ShotKind::Scene, interval, overwrite, &common, correction.as_ref())
         }
         CaptureMode::Record { output, frames, overwrite, common } => {
             record(&output, frames, overwrite, &common)
@@ -407,6 +424,7 @@ fn shots(
     interval: Option<f64>,
     overwrite: bool,
     common: &CommonArgs,
+    correction: Option<&DepthCorrection>,
 ) -> Result<()> {
     let files = |n: &str| shot_files(out, n, kind);
     if !overwrite && let Some(p) = names.iter().flat_map(|n| files(n)).find(|p| p.exists()) {
@@ -454,6 +472,9 @@ fn shots(
             break;
         }
         writer.write(&files(n), pump.color_jpeg(), pump.ir(), pump.depth_mm())?;
+        if let Some(c) = correction {
+            write_corrected(&files(n)[2], pump.depth_mm(), c)?;
+        }
         saved += 1;
         bar.inc(1);
     }

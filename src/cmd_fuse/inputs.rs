@@ -120,6 +120,7 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
         inputs.rig.rectified = true;
     }
     inputs.description["rectified"] = serde_json::json!(rectified);
+    apply_depth_correction(&mut inputs)?;
     // Units and emptiness (see `checks`), before any work.
     let mut problems = Vec::new();
     if let Some(source) = &depth_source
@@ -140,6 +141,21 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
         eprintln!("warning: {problem} (--force)");
     }
     Ok(inputs)
+}
+
+/// The rig's `depth_correction` (`kfuse calibrate --depth`), applied to the depth before it
+/// becomes 3D (`DepthCorrection::correct_image`); z depth only (the model is of the Kinect's z).
+fn apply_depth_correction(inputs: &mut Inputs) -> Result<()> {
+    let Some(c) = &inputs.rig.depth_correction else { return Ok(()) };
+    if inputs.kind != DepthKind::Z {
+        bail!(
+            "the rig has a depth_correction (of z depth) but the depth is --depth-kind range; fuse z depth, or remove the rig's depth_correction"
+        );
+    }
+    let n = c.correct_image(&mut inputs.depth, 1.0)?;
+    inputs.description["depth_correction"] =
+        serde_json::json!({ "applied": true, "samples": n, "terms": c.describe() });
+    Ok(())
 }
 
 type Loaded = (Inputs, Option<DepthSource>, String);

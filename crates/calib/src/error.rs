@@ -93,6 +93,27 @@ pub enum CalibError {
         /// What is wrong and how to fix it.
         message: String,
     },
+    /// Depth calibration (`depth`): not enough views or distance range for a fit.
+    #[error(
+        "depth calibration: {views} view(s) with the board in the depth image{}; it needs at least {needed} views whose board distances span at least {span_needed:.2} m: take boards at e.g. 0.8, 1.2, 1.8 and 2.5 m, tilted 10–40°, spread over the whole image",
+        match range { Some((a, b)) => format!(", at {a:.2}–{b:.2} m (span {:.2} m)", b - a), None => String::new() }
+    )]
+    DepthData {
+        /// Usable views.
+        views: usize,
+        /// Views needed.
+        needed: usize,
+        /// Smallest and largest median board distance of the usable views, metres.
+        range: Option<(f64, f64)>,
+        /// Smallest distance span, metres.
+        span_needed: f64,
+    },
+    /// Depth calibration (`depth`): the fit itself failed.
+    #[error("depth calibration: {message}")]
+    DepthFit {
+        /// What went wrong and what to do.
+        message: String,
+    },
     /// An error of the geometry core (rig file, atomic write).
     #[error(transparent)]
     Geometry(#[from] geometry::GeometryError),

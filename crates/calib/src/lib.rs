@@ -21,6 +21,7 @@
 mod board;
 pub mod bouguet;
 mod bundle;
+pub mod depth;
 pub mod detect;
 mod error;
 pub mod files;

@@ -41,8 +41,11 @@ pub struct SimOptions {
     /// Fraction of isochronous packets lost, `0..=1`.
     pub iso_drop: f64,
     /// Show the calibration scene (`kinect_usb::sim::calib_scene`: a 7x5-corner board of
-    /// 40 mm squares in 12 tilted poses, one per frame) instead of the Kinect preset.
+    /// 40 mm squares in 17 tilted poses at 0.6–2.5 m, one per frame) instead of the Kinect preset.
     pub calib_scene: bool,
+    /// A depth error the sensor makes on purpose (issue 16), applied to every depth frame of
+    /// either scene; `None`: the depth is exact.
+    pub depth_error: Option<kinect_usb::sim::depth_error::DepthError>,
 }
 
 /// How to read a recording.
@@ -150,6 +153,11 @@ pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
                 "the simulated sensor's colour parameters are not a pinhole camera".into(),
             )
         })?;
+    }
+    if let Some(e) = &options.depth_error {
+        for (depth_mm, _) in &mut scene.depth_frames {
+            e.apply(depth_mm);
+        }
     }
     let faults = SimFaults {
         seed: 1,

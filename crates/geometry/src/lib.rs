@@ -25,6 +25,7 @@
 
 pub mod camera;
 pub mod cloud;
+pub mod depth_correction;
 pub mod error;
 pub mod fusion;
 pub mod image;

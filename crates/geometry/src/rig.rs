@@ -9,13 +9,15 @@
 //!   "color_camera": { ... same fields ... },
 //!   "color_from_depth": { "rotation": [[...],[...],[...]], "translation_m": [x, y, z] },
 //!   "calibration": { ... optional report written by `kfuse calibrate` ... },
-//!   "rectified": true   (optional, default false: the images are already undistorted)
+//!   "rectified": true   (optional, default false: the images are already undistorted),
+//!   "depth_correction": { "version": 1, ... }   (optional: `crate::depth_correction`)
 //! }
 //! ```
 //! `color_from_depth` maps depth-camera points into the colour camera: `X_c = R·X_d + T`.
 
 use serde::{Deserialize, Serialize};
 
+use crate::depth_correction::{DepthCorrection, DepthCorrectionFile};
 use crate::{CameraModel, GeometryError, RigidTransform};
 
 /// The value of the `format` field.
@@ -61,6 +63,10 @@ pub struct Rig {
     /// `*_rect` files): fusion then uses both cameras without their distortion. Optional in
     /// the file (absent = false, so version-1 files without it read unchanged).
     pub rectified: bool,
+    /// The measured-depth correction of the depth camera (`kfuse calibrate --depth`), applied
+    /// wherever depth becomes 3D; `None` (absent in the file) = the depth is taken as exact.
+    /// Boxed: a rig is passed by value in enums of calibration sources, most without one.
+    pub depth_correction: Option<Box<DepthCorrection>>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -76,6 +82,8 @@ struct RigFile {
     calibration: Option<serde_json::Value>,
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     rectified: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    depth_correction: Option<DepthCorrectionFile>,
 }
 
 /// What makes one camera implausible (focal lengths outside [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`],
@@ -108,7 +116,14 @@ pub fn camera_plausibility_problems(name: &str, cam: &CameraModel) -> Vec<String
 impl Rig {
     /// A rig without a calibration report.
     pub fn new(depth: CameraModel, color: CameraModel, color_from_depth: RigidTransform) -> Self {
-        Self { depth, color, color_from_depth, calibration: None, rectified: false }
+        Self {
+            depth,
+            color,
+            color_from_depth,
+            calibration: None,
+            rectified: false,
+            depth_correction: None,
+        }
     }
 
     /// Checks both cameras.
@@ -163,6 +178,7 @@ impl Rig {
             color_from_depth: self.color_from_depth,
             calibration: self.calibration.clone(),
             rectified: self.rectified,
+            depth_correction: self.depth_correction.as_deref().map(DepthCorrection::to_file),
         };
         // Serialising plain numbers and strings cannot fail.
         serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -187,7 +203,21 @@ impl Rig {
                 file.version
             )));
         }
+        let depth_correction = file
+            .depth_correction
+            .map(|f| DepthCorrection::from_file(f).map(Box::new))
+            .transpose()
+            .map_err(format_err)?;
+        if let Some(c) = &depth_correction
+            && (c.width, c.height) != (file.depth_camera.width, file.depth_camera.height)
+        {
+            return Err(format_err(format!(
+                "depth_correction is for {}x{} depth images but the depth camera is {}x{}",
+                c.width, c.height, file.depth_camera.width, file.depth_camera.height
+            )));
+        }
         let rig = Rig {
+            depth_correction,
             depth: file.depth_camera,
             color: file.color_camera,
             color_from_depth: file.color_from_depth,
@@ -236,6 +266,39 @@ mod tests {
         rig.rectified = true;
         let back = Rig::from_json(&rig.to_json(), Path::new("rig.json")).unwrap();
         assert!(back.rectified, "the rectified flag is lost");
+    }
+
+    /// A rig written before the depth correction existed reads unchanged (no field, `None`)
+    /// and writes no field; one with a correction keeps every term through the text.
+    #[test]
+    fn depth_correction_is_optional_and_round_trips() {
+        use crate::depth_correction::{DepthCorrection, DepthTerm, DepthTermKind};
+        let old = kinect().to_json();
+        assert!(!old.contains("depth_correction"));
+        let back = Rig::from_json(&old, Path::new("old.json")).unwrap();
+        assert_eq!(back, kinect());
+        let mut rig = kinect();
+        let term = |kind, value, std| DepthTerm { kind, value, std };
+        rig.depth_correction = Some(Box::new(DepthCorrection {
+            width: 512,
+            height: 424,
+            terms: vec![
+                term(DepthTermKind::Offset, 0.0241, 1e-4),
+                term(DepthTermKind::Scale, 0.0049, 2e-5),
+            ],
+            fit: Some(serde_json::json!({"views_used": 14})),
+        }));
+        let text = rig.to_json();
+        assert!(text.contains("\"depth_correction\"") && text.contains("\"version\": 1"));
+        assert_eq!(Rig::from_json(&text, Path::new("new.json")).unwrap(), rig);
+        // A correction for another image size is refused, naming both sizes.
+        let bad = text.replace(
+            "\"width\": 512,\n    \"height\": 424,\n    \"model\"",
+            "\"width\": 640,\n    \"height\": 424,\n    \"model\"",
+        );
+        assert_ne!(bad, text);
+        let err = Rig::from_json(&bad, Path::new("new.json")).unwrap_err().to_string();
+        assert!(err.contains("640x424") && err.contains("512x424"), "{err}");
     }
 
     fn kinect() -> Rig {

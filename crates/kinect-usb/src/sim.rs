@@ -10,6 +10,7 @@
 //! tilted poses, labs L1–L3) is [`calib_scene`].
 
 pub mod calib_scene;
+pub mod depth_error;
 
 use std::collections::VecDeque;
 use std::time::Duration;

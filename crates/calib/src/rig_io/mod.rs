@@ -63,6 +63,10 @@ impl Role {
 }
 
 /// What a calibration file holds: a rig, or one camera.
+// A rig (two cameras, a transform, its report and depth correction) is larger than one
+// camera; a file holds one value read once per command, so boxing it would only add noise to
+// every match.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Calibration {
     /// Both cameras and `color_from_depth`.

@@ -197,6 +197,21 @@ pub fn describe(name: &str, c: &Calibration) -> (String, usize) {
                 centre.y,
                 centre.z
             );
+            match &rig.depth_correction {
+                None => {
+                    let _ = writeln!(s, "depth correction: none (the depth is taken as exact)");
+                }
+                Some(c) => {
+                    let _ = writeln!(
+                        s,
+                        "depth correction: z_measured = (1 + scale)·z_true + Σ terms ({}x{} raw depth pixels; ρ = 1 at the corners)",
+                        c.width, c.height
+                    );
+                    for line in c.describe() {
+                        let _ = writeln!(s, "  {line}");
+                    }
+                }
+            }
             rig_checks(rig)
         }
         Calibration::Camera { camera, role, .. } => {

@@ -28,7 +28,8 @@ const BOARD_MARGIN_M: f64 = 0.03;
 const ALBEDO: [f64; 3] = [0.85, 0.10, 0.5];
 /// Colour of the white squares, black squares and wall (RGB).
 const COLOR_RGB: [[f64; 3]; 3] = [[235.0, 235.0, 228.0], [25.0, 25.0, 28.0], [120.0, 110.0, 95.0]];
-/// The wall behind the board: a plane z = this many metres (inside the Kinect's 4.5 m range).
+/// The wall behind the board: a plane z = this many metres (inside the Kinect's 4.5 m range,
+/// 5 cm behind the farthest pose's corners).
 const WALL_Z_M: f64 = 2.6;
 /// Scale from amplitude (albedo·cos/r², r in metres) to decoder IR units: the same as the
 /// default scene's (`SIM_IR_SCALE` of the capture code), white at 1 m ≈ 17 000.
@@ -49,8 +50,12 @@ const UNDISTORT_ITERATIONS: usize = 20;
 
 /// Board poses: centre `(x/z, y/z, z in m)` in the depth camera, then rotations about the
 /// board's x, y and z axes in degrees (tilt from facing the camera 10–40°, distances
-/// 0.6–1.5 m, centres spread over the image).
-pub const BOARD_POSES: [[f64; 6]; 12] = [
+/// 0.6–2.5 m, centres spread over the image). The first 12 (0.6–1.5 m) are the intrinsic
+/// calibration's; the last 5 (1.7–2.5 m, four of them towards the image corners) give the
+/// depth calibration (issue 16) the range that separates offset from scale and the corners
+/// where a radial error shows. Beyond ~2.5 m the 40 mm squares are under 6 IR pixels and the
+/// board is no longer detected (measured: poses at 2.7 and 3.0 m gave no board).
+pub const BOARD_POSES: [[f64; 6]; 17] = [
     [0.00, 0.00, 0.70, 15.0, -20.0, 5.0],
     [-0.25, -0.12, 0.90, -20.0, 25.0, -8.0],
     [0.25, -0.12, 0.90, 20.0, -25.0, 10.0],
@@ -63,6 +68,11 @@ pub const BOARD_POSES: [[f64; 6]; 12] = [
     [0.10, 0.05, 0.60, 8.0, 12.0, 20.0],
     [-0.15, -0.05, 1.50, -25.0, -25.0, 0.0],
     [0.18, 0.12, 1.10, 12.0, -8.0, 25.0],
+    [0.45, 0.32, 1.70, 15.0, -15.0, 5.0],
+    [-0.45, 0.32, 1.90, -12.0, 18.0, -6.0],
+    [0.45, -0.32, 2.10, 18.0, 10.0, 8.0],
+    [-0.45, -0.32, 2.30, -10.0, -15.0, 0.0],
+    [0.00, 0.00, 2.50, 12.0, 12.0, 4.0],
 ];
 
 /// The pinhole rig the factory parameters describe when their colour polynomial is affine
@@ -402,7 +412,7 @@ mod tests {
         }
     }
 
-    /// Every pose is tilted 10–40°, at 0.6–1.5 m, with every inner corner at least 15 px
+    /// Every pose is tilted 10–40°, at 0.6–2.6 m, with every inner corner at least 15 px
     /// inside both images (the whole board is detectable).
     #[test]
     fn every_pose_shows_the_whole_board_tilted() {
@@ -414,7 +424,7 @@ mod tests {
             for j in 0..BOARD_INNER_CORNERS.1 {
                 for i in 0..BOARD_INNER_CORNERS.0 {
                     let p = pose.point(i as f64 * BOARD_SQUARE_M, j as f64 * BOARD_SQUARE_M);
-                    assert!((0.5..1.7).contains(&p[2]), "pose {k}: z {}", p[2]);
+                    assert!((0.5..2.7).contains(&p[2]), "pose {k}: z {}", p[2]);
                     let [u, v] = rig.project_depth(p);
                     assert!(u > 15.0 && u < 496.0 && v > 15.0 && v < 408.0, "pose {k} ir {u} {v}");
                     let [u, v] = rig.project_color(p);
