@@ -18,12 +18,12 @@
 //! 3. **order from the data**: the spatial term groups `radial2`, `x`+`y`, `radial4` are added
 //!    one at a time while the best one lowers the leave-one-view-out prediction RMS by
 //!    [`MIN_CV_GAIN`].
-//!
-//! Size (~620 lines): the three stages share the sample and design-matrix types and the
-//! view-rejection loop wraps all three, so splitting them would only move private helpers
-//! into `pub(crate)`; the unit tests live in `tests.rs`.
 //! 4. **views that disagree** (per-view median residual after the fit beyond [`VIEW_MAD_K`]
 //!    robust σ of all views' medians) are rejected and the fit repeated.
+//!
+//! Size (~620 lines): the four stages share the sample and design-matrix types and the
+//! view-rejection loop wraps all three, so splitting them would only move private helpers
+//! into `pub(crate)`; the unit tests live in `tests.rs`.
 
 use geometry::depth_correction::{DepthCorrection, DepthTerm, DepthTermKind, ImageCoords};
 use geometry::{CameraModel, Image, RigidTransform};
