@@ -92,8 +92,10 @@ fn truth(rec: &Path) -> (Vec<TruthFrame>, Vec<TruthColor>, DepthDecoder) {
     (depth, color, DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap())
 }
 
+/// The rig of a rig file or of the sensor's kinect_params.json (fitted, as `kfuse rig import`).
 fn rig_of(path: &Path) -> geometry::Rig {
-    match calib::rig_io::load(path).unwrap() {
+    let opts = calib::rig_io::ImportOptions::default();
+    match calib::rig_io::import(&[path.to_path_buf()], &opts).unwrap().calibration {
         calib::rig_io::Calibration::Rig(r) => r,
         _ => panic!("{} is not a rig", path.display()),
     }
@@ -345,12 +347,22 @@ fn frame_folder_equals_single_frame_fuse_per_shot() {
     let shots = dir.path().join("shots");
     for name in ["a", "b"] {
         let out = kfuse()
-            .args(["capture", "scene", "--backend", "sim", "--name", name, "--out"])
+            .args(["capture", "scene", "--backend", "sim", "--interval", "0", "--name", name])
+            .arg("--out")
             .arg(&shots)
             .output()
             .unwrap();
         ok(&out);
     }
+    // The single-frame path takes a rig file: the fitted rig, as `kfuse rig import` writes it.
+    let rig = dir.path().join("rig.json");
+    ok(&kfuse()
+        .args(["rig", "import"])
+        .arg(shots.join("kinect_params.json"))
+        .arg("--out")
+        .arg(&rig)
+        .output()
+        .unwrap());
     let out = dir.path().join("seq");
     let run = kfuse()
         .args(["fuse", "--frames"])
@@ -368,7 +380,7 @@ fn frame_folder_equals_single_frame_fuse_per_shot() {
         let single = dir.path().join(format!("single-{name}"));
         let one = kfuse()
             .args(["fuse", "--rig"])
-            .arg(shots.join("kinect_params.json"))
+            .arg(&rig)
             .arg("--color")
             .arg(shots.join(format!("{name}_color.jpg")))
             .arg("--depth")
