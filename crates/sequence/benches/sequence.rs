@@ -30,7 +30,9 @@ fn record(dir: &Path) -> (std::path::PathBuf, geometry::Rig) {
     let mut session = Session::open(&SensorSource::Sim(SimOptions::default())).unwrap();
     kfuse_capture::record::record(&mut session, &path, FRAMES, &|| false, &mut |_| {}).unwrap();
     kfuse_capture::write_params_json(dir, session.info()).unwrap();
-    let rig = match calib::rig_io::load(&dir.join("kinect_params.json")).unwrap() {
+    let params = [dir.join("kinect_params.json")];
+    let opts = calib::rig_io::ImportOptions::default();
+    let rig = match calib::rig_io::import(&params, &opts).unwrap().calibration {
         calib::rig_io::Calibration::Rig(r) => r,
         _ => panic!("kinect_params.json is a rig"),
     };

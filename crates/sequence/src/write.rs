@@ -3,8 +3,8 @@
 //! byte), named by the [`Layout`], and the sequence's `index.json`.
 //!
 //! PNG settings ([`PNG_COMPRESSION`], [`PNG_FILTER`]): measured on a registered Kinect v2
-//! depth frame (1920 × 1080, 16 bit, ~10 % of the pixels set) by `benches/sequence.rs`; see
-//! BENCHMARKS.md "Sequences (issue 15)".
+//! depth frame (1920 × 1080, 16 bit) by `benches/sequence.rs`; see BENCHMARKS.md
+//! "Sequences (issue 15)".
 
 use std::path::{Path, PathBuf};
 
@@ -16,15 +16,18 @@ use crate::matching::Missing;
 use crate::source::TICKS_PER_SECOND;
 use crate::{Result, SequenceError};
 
-/// zlib level of every PNG written per frame: `Fast` (fdeflate's fast mode in png 0.18)
-/// encodes a registered depth frame several times faster than the default level, for files
-/// about a third larger (BENCHMARKS.md).
-pub const PNG_COMPRESSION: png::Compression = png::Compression::Fast;
+/// zlib level of every PNG written per frame: `Fastest` (fdeflate). Measured on a registered
+/// depth frame of the simulated Kinect (1920 × 1080, 16 bit, ~9 % of the pixels set;
+/// `benches/sequence.rs`, BENCHMARKS.md): `Fastest` and `Fast` give the same bytes here and
+/// `Fastest` is the quicker; `Balanced` (zlib level 6) is 1.8x smaller but ~20x slower, which
+/// would make encoding the pipeline's slowest stage.
+pub const PNG_COMPRESSION: png::Compression = png::Compression::Fastest;
 
-/// Row filter of every PNG written per frame: `Up` costs one subtraction per byte and suits the
-/// sparse, row-coherent registered depth; `Adaptive` (per-row choice) costs more time for a
-/// few per cent of size (BENCHMARKS.md).
-pub const PNG_FILTER: png::Filter = png::Filter::Up;
+/// Row filter of every PNG written per frame: none. The registered depth is sparse (runs of
+/// zeros between isolated samples), where a filter turns each sample into two non-zero
+/// differences: `NoFilter` gave the smallest file (0.63 MB vs 0.97 `Sub`, 1.23 `Up`, 0.86
+/// `Adaptive`) and the fastest encode (BENCHMARKS.md).
+pub const PNG_FILTER: png::Filter = png::Filter::NoFilter;
 
 /// Where the frames go and in which units.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
