@@ -94,6 +94,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         engine: fusion_gpu::Engine::Cpu,
         gpu: None,
         force: false,
+        sequence: Default::default(),
     };
     let result = cmd_fuse::run(&fuse)?;
     cmd_fuse::report(&result);

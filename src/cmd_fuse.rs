@@ -18,6 +18,7 @@ use crate::figures;
 
 mod checks;
 mod inputs;
+pub mod sequence;
 
 pub use inputs::{Inputs, load_inputs};
 
@@ -33,6 +34,9 @@ Examples:
   kfuse fuse --rig rig.json --color c.png --depth d.png --resample nearest --no-figures --out quick
   kfuse fuse --mat synthdata.mat --engine gpu --out gpu-fused  (GPU required; prints the adapter)
   kfuse fuse --mat synthdata.mat --engine auto --out fused     (GPU if any, else CPU with a warning)
+  kfuse fuse --recording session.kfrec --out seq               (every frame: depth/NNNNNN.png, index.json)
+  kfuse fuse --recording session.kfrec --layout tum --out tum  (TUM RGB-D: rgb/, depth/, associations.txt)
+  kfuse fuse --rig rig.json --frames shots --write holes,color-on-depth --out seq
 
 Inputs are the raw (distorted) camera images; the rig's distortion is applied exactly.
 Images from `kfuse undistort` are rectified: pass --rectified, or they are distorted twice.
@@ -54,15 +58,16 @@ Outputs (in --out; the folder appears only when everything was written):
 pub struct FuseArgs {
     /// Rig file (JSON from `kfuse calibrate` or `kfuse rig import`) describing both cameras
     /// and color_from_depth. A single-camera file is not enough.
-    #[arg(long, value_name = "RIG.json", required_unless_present = "mat", requires_all = ["color", "depth"])]
+    /// With --recording or --frames: optional (the sensor's factory parameters).
+    #[arg(long, value_name = "RIG.json", required_unless_present_any = ["mat", "recording", "frames"])]
     pub rig: Option<PathBuf>,
     /// Colour image (PNG, JPEG, TIFF or BMP), as captured (distorted) or rectified (then
     /// --rectified). With --mat it replaces the file's image.
-    #[arg(long, value_name = "C.png")]
+    #[arg(long, value_name = "C.png", required_unless_present_any = ["mat", "recording", "frames"])]
     pub color: Option<PathBuf>,
     /// Depth image of the depth camera, as captured or rectified. With --mat it replaces the
     /// file's depth (e.g. the handout's Depth_rect.tif).
-    #[arg(long, value_name = "D.png")]
+    #[arg(long, value_name = "D.png", required_unless_present_any = ["mat", "recording", "frames"])]
     pub depth: Option<PathBuf>,
     /// What the depth values measure: z (along the optical axis, Kinect) or range (distance to
     /// the optical centre).
@@ -119,6 +124,9 @@ pub struct FuseArgs {
     /// in the colour image); see README "Limits".
     #[arg(long)]
     pub force: bool,
+    /// A whole recording or frame folder instead of one frame.
+    #[command(flatten)]
+    pub sequence: sequence::SequenceArgs,
 }
 
 /// `--engine cpu|gpu|auto` (the CLI of `fuse` and `view`).

@@ -27,7 +27,8 @@ struct Cli {
 enum Command {
     /// Print the camera conventions kfuse uses (pixels, frames, units).
     Conventions,
-    /// Fuse a depth frame with a colour frame: cloud, registered depth, meshes, holes, figures.
+    /// Fuse a depth frame with a colour frame (cloud, registered depth, meshes, holes, figures),
+    /// or every frame of a recording or frame folder (registered depth, TUM RGB-D export).
     Fuse(cmd_fuse::FuseArgs),
     /// Render a synthetic Kinect v2 frame, write it as input files and fuse it.
     Demo(cmd_demo::DemoArgs),
@@ -78,6 +79,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("frames: x right, y down, z forward; the depth camera is the reference");
             println!("poses: color_from_depth maps X_depth to X_color = R X_depth + T (metres)");
         }
+        Command::Fuse(args) if args.is_sequence() => cmd_fuse::sequence::run(&args)?,
         Command::Fuse(args) => {
             let result = cmd_fuse::run(&args)?;
             cmd_fuse::report(&result);

@@ -1,0 +1,112 @@
+//! Per-stage benchmarks of the sequence pipeline on frames of the simulated Kinect v2
+//! (recorded through the same USB protocol path as `kfuse capture record --backend sim`):
+//!
+//! * `stage/read_frame`: reading one frame's records (CRC-32 checked) and assembling the
+//!   depth frame and colour JPEG (a 10-frame recording read whole, per frame);
+//! * `stage/decode`: the `Fast` depth decoder, one thread;
+//! * `stage/register`: `Registration` + the 16-bit conversion of the z-buffer, one thread;
+//! * `stage/write`: writing one encoded depth PNG (atomic rename) into a temporary folder;
+//! * `png16/<compression>_<filter>`: the registered depth frame (1920×1080, 16 bit) encoded
+//!   with each zlib level and row filter considered for [`kfuse_sequence::write::PNG_COMPRESSION`]
+//!   and [`kfuse_sequence::write::PNG_FILTER`]; each variant's size is printed once.
+//!
+//! End to end (threads, queues, the binary): `benches/sequence_e2e.sh`.
+
+use std::hint::black_box;
+use std::path::Path;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use kfuse_capture::{SensorSource, Session, SimOptions};
+use kfuse_sequence::process::{self, Decoded, Extras, Processor};
+use kfuse_sequence::source::{RecordingSource, SourceEvent};
+use kfuse_sequence::write::{KFUSE_UNITS_PER_METRE, encode_png};
+use kinect_usb::recording::ReadOptions;
+
+/// Frames of the benchmark recording.
+const FRAMES: u64 = 10;
+
+fn record(dir: &Path) -> (std::path::PathBuf, geometry::Rig) {
+    let path = dir.join("bench.kfrec");
+    let mut session = Session::open(&SensorSource::Sim(SimOptions::default())).unwrap();
+    kfuse_capture::record::record(&mut session, &path, FRAMES, &|| false, &mut |_| {}).unwrap();
+    kfuse_capture::write_params_json(dir, session.info()).unwrap();
+    let params = [dir.join("kinect_params.json")];
+    let opts = calib::rig_io::ImportOptions::default();
+    let rig = match calib::rig_io::import(&params, &opts).unwrap().calibration {
+        calib::rig_io::Calibration::Rig(r) => r,
+        _ => panic!("kinect_params.json is a rig"),
+    };
+    (path, rig)
+}
+
+fn read_all(path: &Path) -> (Vec<Vec<u8>>, usize) {
+    let mut src = RecordingSource::open(path, ReadOptions::default()).unwrap();
+    let mut raws = Vec::new();
+    let mut colors = 0;
+    while let Some(ev) = src.next_event().unwrap() {
+        match ev {
+            SourceEvent::Depth { frame, .. } => raws.push(frame.data),
+            SourceEvent::Color(_) => colors += 1,
+        }
+    }
+    (raws, colors)
+}
+
+fn benches(c: &mut Criterion) {
+    let dir = tempfile::tempdir().unwrap();
+    let (path, rig) = record(dir.path());
+    let (raws, _) = read_all(&path);
+    let n = raws.len() as u32;
+    let src = RecordingSource::open(&path, ReadOptions::default()).unwrap();
+    let decoder = process::recording_decoder(src.info()).unwrap();
+    let mut p =
+        Processor::new(&rig, Some(decoder), Extras::default(), KFUSE_UNITS_PER_METRE, false)
+            .unwrap();
+
+    let mut g = c.benchmark_group("stage");
+    g.sample_size(20);
+    g.bench_function("read_frame", |b| {
+        b.iter_custom(|iters| {
+            let t = std::time::Instant::now();
+            for _ in 0..iters.div_ceil(u64::from(n)) {
+                black_box(read_all(&path));
+            }
+            t.elapsed() / n
+        })
+    });
+    g.bench_function("decode", |b| b.iter(|| black_box(p.decode_raw(&raws[0]).unwrap())));
+    let depth = p.decode_raw(&raws[0]).unwrap();
+    let frame = [Decoded { depth, color: None }];
+    g.bench_function("register", |b| b.iter(|| black_box(p.register(&frame).unwrap())));
+    let registered = p.register(&frame).unwrap().remove(0);
+    let (w, h) = (rig.color.width, rig.color.height);
+    let be: Vec<u8> = registered.depth_units.iter().flat_map(|v| v.to_be_bytes()).collect();
+    let encode = |c, f| {
+        encode_png(w, h, png::ColorType::Grayscale, png::BitDepth::Sixteen, &be, c, f).unwrap()
+    };
+    let chosen = encode(kfuse_sequence::write::PNG_COMPRESSION, kfuse_sequence::write::PNG_FILTER);
+    let out = dir.path().join("depth.png");
+    g.bench_function("write", |b| {
+        b.iter(|| kfuse_io::atomic::write_bytes_atomic(&out, black_box(&chosen)).unwrap())
+    });
+    g.finish();
+
+    let mut g = c.benchmark_group("png16");
+    g.sample_size(10);
+    use png::{Compression as C, Filter as F};
+    for (cn, comp) in [("fastest", C::Fastest), ("fast", C::Fast), ("balanced", C::Balanced)] {
+        for (fname, filter) in
+            [("none", F::NoFilter), ("sub", F::Sub), ("up", F::Up), ("adaptive", F::Adaptive)]
+        {
+            let size = encode(comp, filter).len();
+            eprintln!("png16/{cn}_{fname}: {size} bytes ({:.2} MB)", size as f64 / 1e6);
+            g.bench_function(format!("{cn}_{fname}"), |b| {
+                b.iter(|| black_box(encode(comp, filter)))
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(sequence, benches);
+criterion_main!(sequence);

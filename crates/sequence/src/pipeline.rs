@@ -1,0 +1,411 @@
+//! The streamed pipeline: read → match → decode → register (worker A) and encode → write
+//! (worker B), connected by bounded queues, so that with two threads both cores are busy at
+//! once and memory stays bounded whatever the recording's length: at most
+//! [`QUEUE_FRAMES`] registered frames wait between the workers, [`REPORT_QUEUE`] results
+//! wait for the caller, the matcher holds [`crate::matching::MAX_PENDING_DEPTH`] raw frames
+//! and the GPU path [`GPU_BATCH`] decoded ones. With one thread, one worker runs every stage
+//! in turn.
+//!
+//! A stop request (Ctrl-C) is polled before each frame is read: the frames already read are
+//! finished and reported, so the caller's index lists every complete frame.
+
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::time::Instant;
+
+use geometry::Image;
+use kinect_usb::recording::ReadReport;
+
+use crate::matching::{Matched, Matcher, Missing};
+use crate::process::{Decoded, GPU_BATCH, Processor};
+use crate::source::{FolderSource, RecordingSource};
+use crate::write::{
+    ColorRef, FrameMeta, FrameWriter, IndexEntry, SkippedShot, StageSeconds, seconds_text,
+};
+use crate::{Result, SequenceError};
+
+/// Registered frames that may wait for the encoder: two keep the encoder fed while the
+/// register worker is one frame ahead (each holds a 4 MB 16-bit colour-grid depth).
+pub const QUEUE_FRAMES: usize = 2;
+
+/// Results that may wait for the caller (progress, index, figures).
+pub const REPORT_QUEUE: usize = 4;
+
+/// Where the frames come from.
+pub enum Input {
+    /// A `.kfrec` recording, with the matcher's skew limit in ticks.
+    Recording(Box<RecordingSource>, u64),
+    /// A frame folder's shots.
+    Folder(FolderSource),
+}
+
+/// A frame's depth (metres) and colour JPEG, handed to the caller for figures.
+pub struct Kept {
+    /// The frame number.
+    pub number: u64,
+    /// Depth, metres, 0 = no sample.
+    pub depth: Image<f32>,
+    /// The colour JPEG.
+    pub jpeg: Option<Vec<u8>>,
+}
+
+/// What the pipeline reports, in frame order.
+pub enum Report {
+    /// A frame was written.
+    Frame(IndexEntry, Option<Box<Kept>>),
+    /// A depth frame of the recording is missing.
+    Missing(Missing),
+    /// A shot of a frame folder was left out.
+    Skipped(SkippedShot),
+}
+
+/// How the pipeline runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Config {
+    /// Worker threads: 1 (one worker runs every stage) or 2 (read…register | encode+write).
+    pub threads: usize,
+    /// Hand every `n`-th frame's depth and JPEG to the caller ([`Report::Frame`]'s `Kept`).
+    pub keep_every: Option<u64>,
+}
+
+/// How a run ended.
+#[derive(Debug, Clone, Default)]
+pub struct Outcome {
+    /// Stopped by the stop request.
+    pub interrupted: bool,
+    /// Seconds per stage, summed over frames.
+    pub stage_s: StageSeconds,
+    /// Wall-clock seconds.
+    pub wall_s: f64,
+    /// Colour frames without a depth partner.
+    pub unmatched_colors: u64,
+    /// The recording reader's report (skipped corrupt records, truncated prefix used).
+    pub read_report: ReadReport,
+}
+
+/// One frame between worker A and worker B.
+struct Item {
+    meta: FrameMeta,
+    registered: crate::process::Registered,
+    jpeg: Option<Vec<u8>>,
+    kept: Option<Box<Kept>>,
+}
+
+enum Stage2 {
+    Frame(Box<Item>),
+    Missing(Missing),
+    Skipped(SkippedShot),
+}
+
+/// A frame read, before decoding.
+struct Job {
+    meta: FrameMeta,
+    raw: Option<Vec<u8>>,
+    depth_png: Option<std::path::PathBuf>,
+    jpeg: Option<Vec<u8>>,
+}
+
+/// The reading end: recording + matcher, or the folder's shots.
+struct Reader {
+    input: Input,
+    matcher: Option<Matcher>,
+    finished: bool,
+    next_shot: usize,
+}
+
+impl Reader {
+    fn new(input: Input) -> Self {
+        let matcher = match &input {
+            Input::Recording(_, skew) => Some(Matcher::new(*skew)),
+            Input::Folder(_) => None,
+        };
+        Self { input, matcher, finished: false, next_shot: 0 }
+    }
+
+    /// The next job or gap, `None` at the end.
+    fn next(&mut self) -> Result<Option<Result<Job, Stage2>>> {
+        match (&mut self.input, &mut self.matcher) {
+            (Input::Recording(src, _), Some(m)) => loop {
+                if let Some(r) = m.pop() {
+                    return Ok(Some(match r {
+                        Matched::Missing(x) => Err(Stage2::Missing(x)),
+                        Matched::Frame(p) => Ok(Job {
+                            meta: FrameMeta {
+                                number: p.number,
+                                name: None,
+                                depth_sequence: Some(p.depth.sequence),
+                                depth_time: Some(p.depth.timestamp),
+                                color: p.color.as_ref().map(|c| ColorRef {
+                                    sequence: Some(c.sequence),
+                                    time_s: Some(seconds_text(c.timestamp)),
+                                    time_ticks: Some(c.timestamp),
+                                }),
+                            },
+                            raw: Some(p.depth.data),
+                            depth_png: None,
+                            jpeg: p.color.map(|c| c.jpeg),
+                        }),
+                    }));
+                }
+                if self.finished {
+                    return Ok(None);
+                }
+                match src.next_event()? {
+                    Some(ev) => m.push(ev),
+                    None => {
+                        m.finish();
+                        self.finished = true;
+                    }
+                }
+            },
+            (Input::Folder(f), _) => {
+                let Some(shot) = f.shots.get(self.next_shot).cloned() else { return Ok(None) };
+                let number = self.next_shot as u64;
+                self.next_shot += 1;
+                let Some(depth) = shot.depth else {
+                    return Ok(Some(Err(Stage2::Skipped(SkippedShot {
+                        name: shot.name,
+                        reason: "no depth file (only its colour JPEG is there)".into(),
+                    }))));
+                };
+                let jpeg = match &shot.color {
+                    Some(c) => Some(std::fs::read(c).map_err(|e| {
+                        SequenceError::input(c, format!("cannot read the colour JPEG: {e}"))
+                    })?),
+                    None => None,
+                };
+                Ok(Some(Ok(Job {
+                    meta: FrameMeta {
+                        number,
+                        name: Some(shot.name),
+                        depth_sequence: None,
+                        depth_time: None,
+                        color: shot.color.is_some().then_some(ColorRef {
+                            sequence: None,
+                            time_s: None,
+                            time_ticks: None,
+                        }),
+                    },
+                    raw: None,
+                    depth_png: Some(depth),
+                    jpeg,
+                })))
+            }
+            (Input::Recording(..), None) => Ok(None),
+        }
+    }
+
+    fn finish(self) -> (u64, ReadReport) {
+        let unmatched = self.matcher.as_ref().map_or(0, Matcher::unmatched_colors);
+        match self.input {
+            Input::Recording(src, _) => (unmatched, src.report()),
+            Input::Folder(_) => (unmatched, ReadReport::default()),
+        }
+    }
+}
+
+fn secs(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64()
+}
+
+/// Worker A: reads, decodes and registers every frame, handing each to `emit`.
+fn produce(
+    reader: &mut Reader,
+    processor: &mut Processor,
+    config: &Config,
+    stop: &(dyn Fn() -> bool + Sync),
+    emit: &mut dyn FnMut(Stage2) -> Result<bool>,
+    times: &mut StageSeconds,
+) -> Result<bool> {
+    let batch_size = if processor.on_gpu() { GPU_BATCH } else { 1 };
+    let mut batch: Vec<(Job, Decoded)> = Vec::with_capacity(batch_size);
+    let mut interrupted = false;
+    loop {
+        let mut end = false;
+        if stop() {
+            interrupted = true;
+            end = true;
+        } else {
+            let t = Instant::now();
+            let next = reader.next()?;
+            times.read += secs(t);
+            match next {
+                None => end = true,
+                Some(Err(gap)) => {
+                    if !emit(gap)? {
+                        return Ok(interrupted);
+                    }
+                }
+                Some(Ok(job)) => {
+                    let t = Instant::now();
+                    let depth = match (&job.raw, &job.depth_png) {
+                        (Some(raw), _) => processor.decode_raw(raw)?,
+                        (None, Some(p)) => processor.read_depth_png(p)?,
+                        (None, None) => {
+                            return Err(SequenceError::Pipeline("a frame without depth".into()));
+                        }
+                    };
+                    let name = std::path::PathBuf::from(format!("frame {}", job.meta.number));
+                    let color = match &job.jpeg {
+                        Some(j) => processor.decode_color(j, &name)?,
+                        None => None,
+                    };
+                    times.decode += secs(t);
+                    batch.push((job, Decoded { depth, color }));
+                }
+            }
+        }
+        if batch.len() == batch_size || (end && !batch.is_empty()) {
+            let t = Instant::now();
+            let decoded: Vec<Decoded> = batch.iter_mut().map(|(_, d)| take_decoded(d)).collect();
+            let registered = processor.register(&decoded)?;
+            times.register += secs(t);
+            for (((job, _), d), r) in batch.drain(..).zip(decoded).zip(registered) {
+                let kept =
+                    config.keep_every.filter(|&n| n > 0 && job.meta.number % n == 0).map(|_| {
+                        Box::new(Kept {
+                            number: job.meta.number,
+                            depth: d.depth,
+                            jpeg: job.jpeg.clone(),
+                        })
+                    });
+                let item = Item { meta: job.meta, registered: r, jpeg: job.jpeg, kept };
+                if !emit(Stage2::Frame(Box::new(item)))? {
+                    return Ok(interrupted);
+                }
+            }
+        }
+        if end {
+            return Ok(interrupted);
+        }
+    }
+}
+
+fn take_decoded(d: &mut Decoded) -> Decoded {
+    Decoded {
+        depth: std::mem::replace(&mut d.depth, Image::filled(0, 0, 0.0)),
+        color: d.color.take(),
+    }
+}
+
+/// Worker B's step: encodes and writes a frame (or passes a gap on) as a report.
+fn consume(writer: &FrameWriter, s: Stage2, times: &mut StageSeconds) -> Result<Report> {
+    Ok(match s {
+        Stage2::Missing(m) => Report::Missing(m),
+        Stage2::Skipped(k) => Report::Skipped(k),
+        Stage2::Frame(item) => {
+            let Item { meta, registered, jpeg, kept } = *item;
+            let t = Instant::now();
+            let encoded = writer.encode(meta, &registered, jpeg.as_deref())?;
+            drop(registered);
+            times.encode += secs(t);
+            let t = Instant::now();
+            let entry = writer.write(encoded)?;
+            times.write += secs(t);
+            Report::Frame(entry, kept)
+        }
+    })
+}
+
+fn send<T>(tx: &SyncSender<T>, v: T) -> bool {
+    tx.send(v).is_ok()
+}
+
+/// Runs the pipeline over `input`: every frame through `processor` and `writer`, each result
+/// handed to `on_report` on the calling thread in frame order. `stop` is polled before each
+/// frame is read.
+///
+/// Errors: the first error of any stage (the other stages stop at their next frame); a
+/// worker thread that cannot start.
+pub fn run(
+    input: Input,
+    mut processor: Processor,
+    writer: &FrameWriter,
+    config: Config,
+    stop: &(dyn Fn() -> bool + Sync),
+    on_report: &mut dyn FnMut(Report) -> Result<()>,
+) -> Result<Outcome> {
+    let start = Instant::now();
+    let mut reader = Reader::new(input);
+    let (report_tx, report_rx): (SyncSender<Report>, Receiver<Report>) = sync_channel(REPORT_QUEUE);
+    let result = std::thread::scope(|s| -> Result<(bool, StageSeconds)> {
+        let reader = &mut reader;
+        let processor = &mut processor;
+        let worker_a;
+        let mut worker_b = None;
+        if config.threads >= 2 {
+            let (tx, rx) = sync_channel::<Stage2>(QUEUE_FRAMES);
+            let report_tx = report_tx.clone();
+            worker_b = Some(
+                std::thread::Builder::new()
+                    .name("kfuse-seq-write".into())
+                    .spawn_scoped(s, move || -> Result<StageSeconds> {
+                        let mut times = StageSeconds::default();
+                        for item in rx {
+                            let r = consume(writer, item, &mut times)?;
+                            if !send(&report_tx, r) {
+                                break;
+                            }
+                        }
+                        Ok(times)
+                    })
+                    .map_err(|e| SequenceError::Pipeline(format!("cannot start a thread: {e}")))?,
+            );
+            worker_a = std::thread::Builder::new()
+                .name("kfuse-seq-read".into())
+                .spawn_scoped(s, move || -> Result<(bool, StageSeconds)> {
+                    let mut times = StageSeconds::default();
+                    let mut emit = |x: Stage2| Ok(send(&tx, x));
+                    let i = produce(reader, processor, &config, stop, &mut emit, &mut times)?;
+                    Ok((i, times))
+                })
+                .map_err(|e| SequenceError::Pipeline(format!("cannot start a thread: {e}")))?;
+        } else {
+            let report_tx = report_tx.clone();
+            worker_a = std::thread::Builder::new()
+                .name("kfuse-seq".into())
+                .spawn_scoped(s, move || -> Result<(bool, StageSeconds)> {
+                    let mut times = StageSeconds::default();
+                    let mut b_times = StageSeconds::default();
+                    let mut emit = |x: Stage2| -> Result<bool> {
+                        Ok(send(&report_tx, consume(writer, x, &mut b_times)?))
+                    };
+                    let i = produce(reader, processor, &config, stop, &mut emit, &mut times)?;
+                    times.encode = b_times.encode;
+                    times.write = b_times.write;
+                    Ok((i, times))
+                })
+                .map_err(|e| SequenceError::Pipeline(format!("cannot start a thread: {e}")))?;
+        }
+        drop(report_tx);
+        let mut caller_error = None;
+        for r in report_rx {
+            if caller_error.is_none()
+                && let Err(e) = on_report(r)
+            {
+                // Stop taking results: the workers see the closed queue and stop.
+                caller_error = Some(e);
+                break;
+            }
+        }
+        let a: Result<(bool, StageSeconds)> = joined(worker_a);
+        let b: Option<Result<StageSeconds>> = worker_b.map(joined);
+        if let Some(e) = caller_error {
+            return Err(e);
+        }
+        let (interrupted, mut times) = a?;
+        if let Some(b) = b {
+            let b = b?;
+            times.encode = b.encode;
+            times.write = b.write;
+        }
+        Ok((interrupted, times))
+    });
+    let (interrupted, stage_s) = result?;
+    let (unmatched_colors, read_report) = reader.finish();
+    Ok(Outcome { interrupted, stage_s, wall_s: secs(start), unmatched_colors, read_report })
+}
+
+/// A worker's result; a worker's panic is passed on.
+fn joined<T>(h: std::thread::ScopedJoinHandle<'_, T>) -> T {
+    h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))
+}

@@ -1,0 +1,321 @@
+//! Stages 3 and 4, decode and register: a frame's depth (raw sensor data through the
+//! `kinect_usb` decoder, or a 16-bit millimetre PNG of a frame folder) in metres, then its
+//! registration on the colour grid (`geometry::fusion::Registration`, one thread, or
+//! `fusion_gpu::FusionContext::stream` with `--gpu`), and what the caller asked for besides:
+//! the H8 hole mask, H6 colour on the depth grid, the coloured H1 cloud.
+//!
+//! Every output is what `kfuse fuse` computes for one frame with the same rig and options:
+//! the same functions, in the same order.
+
+use std::path::Path;
+
+use fusion_gpu::{FramePlan, FusionContext, GpuFrame, StageOptions};
+use geometry::fusion::pixel::ColorProjection;
+use geometry::fusion::{
+    self, FusionOptions, Registration, backproject_cloud, color_on_depth, depth_ray_table,
+    nearest_fill,
+};
+use geometry::{DepthKind, Image, PointCloud, Rig};
+use kfuse_io::images::png16_value;
+use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
+use kinect_usb::device::DeviceInfo;
+use kinect_usb::params::XzTables;
+use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
+
+use crate::{Result, SequenceError};
+
+/// Frames registered per call of `FusionContext::stream` on the GPU path: the context keeps
+/// two frames in flight, so four per call keep it busy while bounding the decoded frames
+/// held (4 × 0.9 MB of depth, plus their colour images when H6 is asked for).
+pub const GPU_BATCH: usize = 4;
+
+/// Which per-frame results to compute besides the registered depth.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Extras {
+    /// H8 disocclusion hole mask on the colour grid.
+    pub holes: bool,
+    /// H6 colour on the depth grid (needs the colour JPEG decoded).
+    pub color_on_depth: bool,
+    /// H1 cloud in the depth camera frame, coloured by H6 where the frame has colour.
+    pub cloud: bool,
+}
+
+/// A frame's depth in metres (0 = no sample) and, when an output needs it, its decoded colour.
+pub struct Decoded {
+    /// Depth, metres, the depth camera's size.
+    pub depth: Image<f32>,
+    /// The colour image, decoded only when H6 or the cloud needs it and the frame has colour.
+    pub color: Option<Image<[u8; 3]>>,
+}
+
+/// What registration produced for one frame.
+pub struct Registered {
+    /// Registered depth on the colour grid, in the writer's units (`png16_value` of
+    /// `z · units_per_metre`; 0 = no sample), row-major.
+    pub depth_units: Vec<u16>,
+    /// Depth samples that landed on the colour image.
+    pub landed: usize,
+    /// H8 hole mask (255 = hole), colour grid, row-major.
+    pub holes: Option<Vec<u8>>,
+    /// H6 colour on the depth grid (black where invalid).
+    pub color_on_depth: Option<Image<[u8; 3]>>,
+    /// H1 cloud, depth camera frame, metres.
+    pub cloud: Option<PointCloud>,
+}
+
+/// Where registration runs.
+enum Engine {
+    Cpu(Box<Registration>),
+    Gpu(Box<FusionContext>),
+}
+
+/// The decoder (recordings only), the registration and the constants of the extras.
+pub struct Processor {
+    decoder: Option<DepthDecoder>,
+    depth_mm: Vec<f32>,
+    ir: Vec<f32>,
+    engine: Engine,
+    rig: Rig,
+    rays: Vec<[f32; 3]>,
+    proj: ColorProjection,
+    extras: Extras,
+    units_per_metre: f64,
+    stages: StageOptions,
+    mask: Vec<bool>,
+}
+
+/// The depth decoder for a recording's calibration tables, with both filters, one thread
+/// (the pipeline runs its stages on their own threads) and the `Fast` precision (within
+/// 0.01 mm of libfreenect2's CPU decoder, protocol §9.9).
+pub fn recording_decoder(info: &DeviceInfo) -> Result<DepthDecoder> {
+    let xz = XzTables::from_params(&info.depth_params);
+    let cfg = DecoderConfig { bilateral: true, edge_aware: true, parallel: false };
+    Ok(DepthDecoder::new(DecoderParams::default(), cfg, &xz, &info.p0)?
+        .with_precision(DecoderPrecision::Fast))
+}
+
+impl Processor {
+    /// A processor for frames of `rig` (a Kinect v2's depth camera: 512 × 424, z depth),
+    /// decoding raw frames with `decoder` when given, writing depth at `units_per_metre`,
+    /// on the GPU with `gpu` (errors: no adapter, frames too large for it).
+    ///
+    /// Errors: [`SequenceError::Geometry`] for a rig that is invalid, not of a Kinect v2's
+    /// depth size, or whose coverage radius is out of bounds; [`SequenceError::Gpu`].
+    pub fn new(
+        rig: &Rig,
+        decoder: Option<DepthDecoder>,
+        extras: Extras,
+        units_per_metre: f64,
+        gpu: bool,
+    ) -> Result<Self> {
+        if decoder.is_some() && (rig.depth.width, rig.depth.height) != (WIDTH, HEIGHT) {
+            return Err(SequenceError::Geometry(geometry::GeometryError::InvalidInput(format!(
+                "the rig's depth camera is {}x{}, a Kinect v2 recording's depth is {WIDTH}x{HEIGHT}; \
+                 give the rig of the sensor that made the recording",
+                rig.depth.width, rig.depth.height
+            ))));
+        }
+        let options = FusionOptions::default();
+        let radius = fusion::checked_coverage_radius_px(rig, &options)?;
+        let stages = StageOptions {
+            nearest_radius_px: radius,
+            depth_jump: options.depth_jump,
+            hole_radius_px: radius,
+            hole_grow_px: fusion::hole_grow_px(rig, &options),
+            occlusion_tolerance: Some(options.color_occlusion_tolerance),
+        };
+        let engine = if gpu {
+            let ctx = FusionContext::new()?;
+            ctx.check_frame_size(
+                (rig.depth.width, rig.depth.height),
+                (rig.color.width, rig.color.height),
+            )?;
+            Engine::Gpu(Box::new(ctx))
+        } else {
+            Engine::Cpu(Box::new(Registration::new(rig, DepthKind::Z, &options)?))
+        };
+        Ok(Self {
+            decoder,
+            depth_mm: vec![0.0; PIXELS],
+            ir: vec![0.0; PIXELS],
+            engine,
+            rig: rig.clone(),
+            rays: depth_ray_table(&rig.depth, DepthKind::Z),
+            proj: ColorProjection::from_rig(rig),
+            extras,
+            units_per_metre,
+            stages,
+            mask: Vec::new(),
+        })
+    }
+
+    /// The GPU adapter in use, `None` on the CPU path.
+    pub fn adapter(&self) -> Option<String> {
+        match &self.engine {
+            Engine::Gpu(ctx) => Some(ctx.adapter_summary()),
+            Engine::Cpu(_) => None,
+        }
+    }
+
+    /// Whether registration runs on the GPU (frames are then registered in batches of
+    /// [`GPU_BATCH`]).
+    pub fn on_gpu(&self) -> bool {
+        matches!(self.engine, Engine::Gpu(_))
+    }
+
+    /// Whether a frame's colour must be decoded for the extras asked for.
+    pub fn needs_color(&self) -> bool {
+        self.extras.color_on_depth || self.extras.cloud
+    }
+
+    /// Decodes a raw depth frame into metres. Error: no decoder (a frame folder's processor)
+    /// or a frame of the wrong size.
+    pub fn decode_raw(&mut self, raw: &[u8]) -> Result<Image<f32>> {
+        let decoder = self.decoder.as_mut().ok_or_else(|| {
+            SequenceError::Pipeline("a raw depth frame reached a processor without decoder".into())
+        })?;
+        decoder.decode(raw, &mut self.depth_mm, &mut self.ir)?;
+        depth_in_metres(&self.depth_mm, WIDTH, HEIGHT)
+    }
+
+    /// Reads a frame folder's depth PNG (16-bit millimetres) into metres, checked against the
+    /// rig's depth size.
+    pub fn read_depth_png(&self, path: &Path) -> Result<Image<f32>> {
+        let depth = kfuse_io::images::read_depth(path, kfuse_io::images::MILLIMETRES)?;
+        let (w, h) = (self.rig.depth.width, self.rig.depth.height);
+        if depth.size() != (w, h) {
+            return Err(SequenceError::input(
+                path,
+                format!(
+                    "is {}x{}, the rig's depth camera is {w}x{h}; give the rig of the sensor that took it",
+                    depth.width(),
+                    depth.height()
+                ),
+            ));
+        }
+        // NaN (no sample) as 0, the decoder's convention.
+        let data = depth.into_vec().into_iter().map(|v| if v > 0.0 { v } else { 0.0 }).collect();
+        Ok(Image::from_vec(w, h, data)?)
+    }
+
+    /// Decodes a colour JPEG when the extras need it, checked against the rig's colour size.
+    pub fn decode_color(&self, jpeg: &[u8], name: &Path) -> Result<Option<Image<[u8; 3]>>> {
+        if !self.needs_color() {
+            return Ok(None);
+        }
+        let img = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
+            .map_err(|e| SequenceError::input(name, format!("colour JPEG does not decode: {e}")))?
+            .into_rgb8();
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        if (w, h) != (self.rig.color.width, self.rig.color.height) {
+            return Err(SequenceError::input(
+                name,
+                format!(
+                    "colour image is {w}x{h}, the rig's colour camera is {}x{}",
+                    self.rig.color.width, self.rig.color.height
+                ),
+            ));
+        }
+        let px = img.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        Ok(Some(Image::from_vec(w, h, px)?))
+    }
+
+    /// Registers `frames` (one on the CPU path; up to [`GPU_BATCH`] on the GPU path, streamed
+    /// with two in flight) and computes the extras; results in order.
+    pub fn register(&mut self, frames: &[Decoded]) -> Result<Vec<Registered>> {
+        let mut out = Vec::with_capacity(frames.len());
+        let needs_color = self.needs_color();
+        match &mut self.engine {
+            Engine::Cpu(reg) => {
+                for f in frames {
+                    let landed = reg.register(&f.depth)?;
+                    let depth_units = to_units(reg.zbuffer(), self.units_per_metre);
+                    let holes = if self.extras.holes {
+                        self.mask.resize(reg.zbuffer().len(), false);
+                        reg.hole_mask(&mut self.mask);
+                        Some(self.mask.iter().map(|&m| if m { 255 } else { 0 }).collect())
+                    } else {
+                        None
+                    };
+                    let color_on_depth = match &f.color {
+                        Some(color) if needs_color => {
+                            // H6 as `kfuse fuse` does it: occlusion against H3's nearest fill.
+                            let nearest = nearest_fill(
+                                &reg.zbuffer_image(),
+                                self.stages.nearest_radius_px,
+                                self.stages.depth_jump,
+                            );
+                            let tolerance = self.stages.occlusion_tolerance.unwrap_or(0.0);
+                            let (c, _) = color_on_depth(
+                                &f.depth,
+                                &self.rays,
+                                &self.proj,
+                                color,
+                                Some(&nearest),
+                                tolerance,
+                            );
+                            Some(c)
+                        }
+                        _ => None,
+                    };
+                    out.push(Registered {
+                        depth_units,
+                        landed,
+                        holes,
+                        color_on_depth,
+                        cloud: None,
+                    });
+                }
+            }
+            Engine::Gpu(ctx) => {
+                let plan = FramePlan {
+                    stages: (self.extras.holes || needs_color).then_some(self.stages),
+                    read_intermediates: false,
+                };
+                let inputs = frames.iter().map(|f| (&f.depth, f.color.as_ref()));
+                let mut results: Vec<GpuFrame> = Vec::with_capacity(frames.len());
+                ctx.stream(&self.rig, DepthKind::Z, inputs, plan, |_, r| results.push(r))?;
+                for r in results {
+                    let z = r.zbuffer.data();
+                    let landed = z.iter().filter(|v| !v.is_nan()).count();
+                    let holes = if self.extras.holes {
+                        r.holes.map(|m| m.data().iter().map(|&h| if h { 255 } else { 0 }).collect())
+                    } else {
+                        None
+                    };
+                    out.push(Registered {
+                        depth_units: to_units(z, self.units_per_metre),
+                        landed,
+                        holes,
+                        color_on_depth: r.color_on_depth.map(|(c, _)| c),
+                        cloud: None,
+                    });
+                }
+            }
+        }
+        if self.extras.cloud {
+            for (f, r) in frames.iter().zip(&mut out) {
+                let (mut cloud, pixels) = backproject_cloud(&f.depth, &self.rays);
+                if let Some(c) = &r.color_on_depth {
+                    cloud.colors = pixels.iter().map(|&i| c.data()[i as usize]).collect();
+                }
+                r.cloud = Some(cloud);
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// The decoder's depth (millimetres, 0 = invalid) in metres: the one place where a frame's
+/// depth enters the metric pipeline, and so where a per-frame depth correction (a rig's
+/// fitted depth model) belongs, between decoding and registration.
+/// Error: `mm` is not `width × height`.
+pub fn depth_in_metres(mm: &[f32], width: usize, height: usize) -> Result<Image<f32>> {
+    let data = mm.iter().map(|&v| if v > 0.0 { v * 1e-3 } else { 0.0 }).collect();
+    Ok(Image::from_vec(width, height, data)?)
+}
+
+/// A z-buffer (metres, NaN = empty) in 16-bit units by `png16_value`'s rule.
+pub fn to_units(zbuffer: &[f32], units_per_metre: f64) -> Vec<u16> {
+    zbuffer.iter().map(|&z| png16_value(f64::from(z) * units_per_metre)).collect()
+}
