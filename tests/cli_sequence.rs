@@ -433,3 +433,48 @@ fn bad_sequence_flags_are_refused_before_any_work() {
     assert!(err.contains("bogus.kfrec"), "{err}");
     assert!(!out.exists());
 }
+
+/// `--gpu` on a recording decodes the raw frames on the GPU too (fusion-gpu's `GpuDecoder`,
+/// the frame never leaving the GPU) and writes exactly the CPU path's files: every registered
+/// depth PNG and hole mask equal, byte for byte (the GPU decoder is bit-identical to the CPU
+/// `Fast` decoder on lavapipe, and the GPU registration to `Registration`). With a figure
+/// request the depth is needed on the CPU, so decoding stays there.
+#[test]
+fn gpu_decodes_and_registers_a_recording_like_the_cpu() {
+    let test = "gpu_decodes_and_registers_a_recording_like_the_cpu";
+    let dir = tempfile::tempdir().unwrap();
+    let rec = record(dir.path(), 6, 0.0);
+    let (cpu, gpu) = (dir.path().join("cpu"), dir.path().join("gpu"));
+    let run = |out: &Path, engine: &str| {
+        kfuse()
+            .args(["fuse", "--recording"])
+            .arg(&rec)
+            .args(["--engine", engine, "--write", "holes", "--out"])
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    ok(&run(&cpu, "cpu"));
+    let g = run(&gpu, "gpu");
+    let err = String::from_utf8_lossy(&g.stderr).to_string();
+    if !g.status.success() {
+        assert!(err.contains("no GPU adapter"), "{err}");
+        assert!(
+            std::env::var("KFUSE_REQUIRE_GPU").map_or(true, |v| v != "1"),
+            "{test}: no adapter in CI: {err}"
+        );
+        test_skip::skip(test, "no GPU adapter");
+        return;
+    }
+    assert!(err.contains("depth decoding: on the GPU"), "{err}");
+    let listed = index(&cpu)["frames"].as_array().unwrap().len();
+    assert_eq!(listed, 6, "six complete frames");
+    assert_eq!(index(&gpu)["frames"].as_array().unwrap().len(), listed);
+    for n in 0..listed {
+        for f in [format!("depth/{n:06}.png"), format!("holes/{n:06}.png")] {
+            let a = std::fs::read(cpu.join(&f)).expect("CPU output");
+            let b = std::fs::read(gpu.join(&f)).expect("GPU output");
+            assert!(a == b, "{f} differs between the GPU-decoded and the CPU path");
+        }
+    }
+}

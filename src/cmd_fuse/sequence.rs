@@ -232,7 +232,7 @@ pub fn run(args: &FuseArgs) -> Result<()> {
                 rig
             }
         };
-        let decoder = process::recording_decoder(src.info())?;
+        let decoder = (process::recording_decoder(src.info())?, src.info().clone());
         let (count, len) = src.progress();
         let progress = Progress::Bytes(count, len);
         (Input::Recording(Box::new(src), max_skew), rig, Some(decoder), path.clone(), progress)
@@ -263,8 +263,16 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         Engine::Gpu => true,
         Engine::Auto => fusion_gpu::FusionContext::new().is_ok(),
     };
-    let processor = Processor::new(&rig, decoder, extras, layout.units_per_metre(), gpu)
+    let (decoder, info) = decoder.map_or((None, None), |(d, i)| (Some(d), Some(i)));
+    let mut processor = Processor::new(&rig, decoder, extras, layout.units_per_metre(), gpu)
         .with_context(|| format!("setting up registration for {}", source_name.display()))?;
+    // On the GPU, a recording's depth is decoded there too (the frame never leaves the GPU)
+    // unless the depth is needed on the CPU: figures, the cloud, a depth correction.
+    if let (Some(info), None) = (&info, seq.figures)
+        && processor.decode_on_gpu(info).context("setting up depth decoding on the GPU")?
+    {
+        eprintln!("depth decoding: on the GPU");
+    }
     let engine = processor.adapter().unwrap_or_else(|| "cpu".into());
     if gpu {
         eprintln!("GPU adapter: {engine}");

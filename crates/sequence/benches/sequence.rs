@@ -76,7 +76,7 @@ fn benches(c: &mut Criterion) {
     });
     g.bench_function("decode", |b| b.iter(|| black_box(p.decode_raw(&raws[0]).unwrap())));
     let depth = p.decode_raw(&raws[0]).unwrap();
-    let frame = [Decoded { depth, color: None }];
+    let frame = [Decoded { depth, raw: None, color: None }];
     g.bench_function("register", |b| b.iter(|| black_box(p.register(&frame).unwrap())));
     let registered = p.register(&frame).unwrap().remove(0);
     let (w, h) = (rig.color.width, rig.color.height);

@@ -235,9 +235,14 @@ fn produce(
                         return Ok(interrupted);
                     }
                 }
-                Some(Ok(job)) => {
+                Some(Ok(mut job)) => {
                     let t = Instant::now();
+                    let mut raw_for_gpu = None;
                     let depth = match (&job.raw, &job.depth_png) {
+                        (Some(_), _) if processor.decodes_on_gpu() => {
+                            raw_for_gpu = job.raw.take();
+                            Image::filled(0, 0, 0.0)
+                        }
                         (Some(raw), _) => processor.decode_raw(raw)?,
                         (None, Some(p)) => processor.read_depth_png(p)?,
                         (None, None) => {
@@ -250,7 +255,7 @@ fn produce(
                         None => None,
                     };
                     times.decode += secs(t);
-                    batch.push((job, Decoded { depth, color }));
+                    batch.push((job, Decoded { depth, raw: raw_for_gpu, color }));
                 }
             }
         }
@@ -283,6 +288,7 @@ fn produce(
 fn take_decoded(d: &mut Decoded) -> Decoded {
     Decoded {
         depth: std::mem::replace(&mut d.depth, Image::filled(0, 0, 0.0)),
+        raw: d.raw.take(),
         color: d.color.take(),
     }
 }

@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use fusion_gpu::{FramePlan, FusionContext, GpuFrame, StageOptions};
+use fusion_gpu::{FramePlan, FusionContext, GpuDecoder, GpuFrame, StageOptions};
 use geometry::fusion::pixel::ColorProjection;
 use geometry::fusion::{
     self, FusionOptions, Registration, backproject_cloud, color_on_depth, depth_ray_table,
@@ -42,8 +42,11 @@ pub struct Extras {
 
 /// A frame's depth in metres (0 = no sample) and, when an output needs it, its decoded colour.
 pub struct Decoded {
-    /// Depth, metres, the depth camera's size.
+    /// Depth, metres, the depth camera's size; empty (0 × 0) when the frame is decoded on the
+    /// GPU ([`Processor::decodes_on_gpu`]), which then reads `raw` instead.
     pub depth: Image<f32>,
+    /// The raw depth frame, kept only when it is decoded on the GPU.
+    pub raw: Option<Vec<u8>>,
     /// The colour image, decoded only when H6 or the cloud needs it and the frame has colour.
     pub color: Option<Image<[u8; 3]>>,
 }
@@ -72,6 +75,9 @@ enum Engine {
 /// The decoder (recordings only), the registration and the constants of the extras.
 pub struct Processor {
     decoder: Option<DepthDecoder>,
+    /// The depth decoder on the GPU (`--gpu` on a recording): raw frames are decoded and
+    /// registered without the depth leaving the GPU.
+    gpu_decoder: Option<GpuDecoder>,
     depth_mm: Vec<f32>,
     ir: Vec<f32>,
     engine: Engine,
@@ -136,6 +142,7 @@ impl Processor {
         };
         Ok(Self {
             decoder,
+            gpu_decoder: None,
             depth_mm: vec![0.0; PIXELS],
             ir: vec![0.0; PIXELS],
             engine,
@@ -163,6 +170,29 @@ impl Processor {
         matches!(self.engine, Engine::Gpu(_))
     }
 
+    /// Moves depth decoding onto the GPU for a recording made by the sensor `info` describes
+    /// (the GPU path only). Decoding stays on the CPU, and this returns `false`, when the depth
+    /// is needed on the CPU: a rig with a `depth_correction` (applied to decoded depth), the
+    /// cloud, or no decoder (a frame folder). On the GPU the frame's depth equals the CPU
+    /// `Fast` decoder's (fusion-gpu's parity test: bit-identical on lavapipe).
+    pub fn decode_on_gpu(&mut self, info: &DeviceInfo) -> Result<bool> {
+        let Engine::Gpu(ctx) = &self.engine else { return Ok(false) };
+        if self.decoder.is_none() || self.rig.depth_correction.is_some() || self.extras.cloud {
+            return Ok(false);
+        }
+        let xz = XzTables::from_params(&info.depth_params);
+        let cfg = DecoderConfig { bilateral: true, edge_aware: true, parallel: false };
+        self.gpu_decoder =
+            Some(GpuDecoder::new(ctx, DecoderParams::default(), cfg, &xz, &info.p0)?);
+        Ok(true)
+    }
+
+    /// Whether raw frames go to [`Processor::register`] undecoded (see
+    /// [`Processor::decode_on_gpu`]).
+    pub fn decodes_on_gpu(&self) -> bool {
+        self.gpu_decoder.is_some()
+    }
+
     /// Whether a frame's colour must be decoded for the extras asked for.
     pub fn needs_color(&self) -> bool {
         self.extras.color_on_depth || self.extras.cloud
@@ -175,7 +205,18 @@ impl Processor {
             SequenceError::Pipeline("a raw depth frame reached a processor without decoder".into())
         })?;
         decoder.decode(raw, &mut self.depth_mm, &mut self.ir)?;
-        depth_in_metres(&self.depth_mm, WIDTH, HEIGHT)
+        let mut depth = depth_in_metres(&self.depth_mm, WIDTH, HEIGHT)?;
+        self.correct(&mut depth)?;
+        Ok(depth)
+    }
+
+    /// The rig's `depth_correction` (`kfuse calibrate --depth`) applied to a frame's depth in
+    /// metres, as `kfuse fuse` applies it to one frame (`DepthCorrection::correct_image`).
+    fn correct(&self, depth: &mut Image<f32>) -> Result<()> {
+        if let Some(c) = &self.rig.depth_correction {
+            c.correct_image(depth, 1.0)?;
+        }
+        Ok(())
     }
 
     /// Reads a frame folder's depth PNG (16-bit millimetres) into metres, checked against the
@@ -195,7 +236,9 @@ impl Processor {
         }
         // NaN (no sample) as 0, the decoder's convention.
         let data = depth.into_vec().into_iter().map(|v| if v > 0.0 { v } else { 0.0 }).collect();
-        Ok(Image::from_vec(w, h, data)?)
+        let mut depth = Image::from_vec(w, h, data)?;
+        self.correct(&mut depth)?;
+        Ok(depth)
     }
 
     /// Decodes a colour JPEG when the extras need it, checked against the rig's colour size.
@@ -272,9 +315,23 @@ impl Processor {
                     stages: (self.extras.holes || needs_color).then_some(self.stages),
                     read_intermediates: false,
                 };
-                let inputs = frames.iter().map(|f| (&f.depth, f.color.as_ref()));
                 let mut results: Vec<GpuFrame> = Vec::with_capacity(frames.len());
-                ctx.stream(&self.rig, DepthKind::Z, inputs, plan, |_, r| results.push(r))?;
+                if let Some(decoder) = &self.gpu_decoder {
+                    let raws = frames
+                        .iter()
+                        .map(|f| f.raw.as_deref().map(|r| (r, f.color.as_ref())))
+                        .collect::<Option<Vec<_>>>()
+                        .ok_or_else(|| {
+                            SequenceError::Pipeline(
+                                "a decoded frame reached the GPU decoder without its raw data"
+                                    .into(),
+                            )
+                        })?;
+                    ctx.stream_raw(decoder, &self.rig, raws, plan, |_, r| results.push(r))?;
+                } else {
+                    let inputs = frames.iter().map(|f| (&f.depth, f.color.as_ref()));
+                    ctx.stream(&self.rig, DepthKind::Z, inputs, plan, |_, r| results.push(r))?;
+                }
                 for r in results {
                     let z = r.zbuffer.data();
                     let landed = z.iter().filter(|v| !v.is_nan()).count();
