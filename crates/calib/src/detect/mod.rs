@@ -15,7 +15,9 @@
 //! 1. **Candidates**: the ChESS X-junction response on a ring of 16 samples (radius
 //!    [`DetectorParams::ring_radius`]). It compares opposite and adjacent ring sectors, so it
 //!    depends only on local contrast, not on the absolute brightness that the IR glare ruins;
-//!    local maxima above a small fraction of the strongest response are kept.
+//!    local maxima above a small fraction of the strongest response are kept. On images wider
+//!    than 800 px it runs on the 2×2 box mean ([`DetectorParams::response_decimation`]), a
+//!    quarter of the pixels; the maxima are refined on the full image.
 //! 2. **Sub-pixel**: OpenCV's `cornerSubPix` normal equations (gradient ⟂ (corner − pixel),
 //!    Gaussian-weighted window), iterated to 1e-4 px; the same estimator that Bouguet's
 //!    toolbox uses.
