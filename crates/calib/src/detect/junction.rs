@@ -9,10 +9,10 @@ use wide::f32x8;
 /// IR camera's glare clips white paper at 255, and a clipped pixel only says "at least 255".
 const SATURATED: f64 = 254.5;
 /// Iterations and convergence threshold (px) of [`fit_junction`]'s Levenberg–Marquardt. The
-/// rendered set's corner errors, stereo and intrinsics errors are the same to the printed
-/// digits with 1e-5 px, 1e-4 and 3e-4 (tried; 3e-4 spares the last confirming step).
+/// rendered set's figures are the same to the printed digits with 1e-5, 1e-4 and 3e-4 px
+/// (3e-4 spares one confirming evaluation; not taken, to keep this change small).
 const FIT_MAX_ITERATIONS: usize = 40;
-const FIT_EPS: f64 = 3e-4;
+const FIT_EPS: f64 = 1e-5;
 /// Wider junction-fit windows first converge on the pixels within this radius (px), then
 /// take at most [`FIT_FINAL_ITERATIONS`] steps on the whole window: same result (the full
 /// window's minimum), a fraction of the cost on 1080p boards.
