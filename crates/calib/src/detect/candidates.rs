@@ -60,8 +60,42 @@ pub fn chess_response(img: &Image<f32>, radius: usize) -> Image<f32> {
 
 /// Candidate X-junctions: local maxima of the ChESS response, refined to sub-pixel.
 pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64>, f32)> {
-    let resp = chess_response(img, params.ring_radius);
-    refine_peaks(img, &peaks(&resp, params), params)
+    refine_peaks(img, &peaks(&response(img, params), params), params)
+}
+
+/// Ring radius of the response at [`DetectorParams::response_decimation`]'s scale.
+fn response_radius(params: &DetectorParams) -> usize {
+    params.ring_radius.div_ceil(params.response_decimation.max(1)).max(3)
+}
+
+/// The ChESS response at [`DetectorParams::response_decimation`]'s scale: on the image, or
+/// on its 2×2 box mean (a box mean, not every second pixel: a sharp corner's response is
+/// only 1–2 px wide, and sampling every second pixel missed strong corners).
+pub(super) fn response(img: &Image<f32>, params: &DetectorParams) -> Image<f32> {
+    if params.response_decimation == 2 {
+        chess_response(&halve(img), response_radius(params))
+    } else {
+        chess_response(img, params.ring_radius)
+    }
+}
+
+/// The 2×2 box mean of `img` (an odd last row or column is dropped): pixel `(x, y)` is the
+/// mean of full-size pixels `2x, 2x + 1` × `2y, 2y + 1`, centred at `(2x + 0.5, 2y + 0.5)`.
+pub(super) fn halve(img: &Image<f32>) -> Image<f32> {
+    let (w, h) = img.size();
+    let (hw, hh) = (w / 2, h / 2);
+    let data = img.data();
+    let mut out = vec![0.0f32; hw * hh];
+    for (y, row) in out.chunks_mut(hw.max(1)).enumerate().take(hh) {
+        let (a, b) = (
+            &data[2 * y * w..2 * y * w + 2 * hw],
+            &data[(2 * y + 1) * w..(2 * y + 1) * w + 2 * hw],
+        );
+        for (x, o) in row.iter_mut().enumerate() {
+            *o = ((a[2 * x] + a[2 * x + 1]) + (b[2 * x] + b[2 * x + 1])) * 0.25;
+        }
+    }
+    Image::from_vec(hw, hh, out).expect("hw × hh values")
 }
 
 /// Local maxima of the response above [`DetectorParams::min_response_fraction`] of its
@@ -73,7 +107,7 @@ pub(super) fn peaks(resp: &Image<f32>, params: &DetectorParams) -> Vec<(usize, u
         return Vec::new();
     }
     let thr = max * params.min_response_fraction;
-    let nms = params.ring_radius as isize;
+    let nms = response_radius(params) as isize;
     let mut peaks = Vec::new();
     for y in 0..h {
         for x in 0..w {
@@ -126,19 +160,21 @@ pub(super) fn peaks(resp: &Image<f32>, params: &DetectorParams) -> Vec<(usize, u
     peaks
 }
 
-/// Each peak refined by [`refine_corner`]; of two peaks refining onto one corner the stronger
-/// is kept.
+/// Each peak (at the response's scale) refined on the full image by [`refine_corner`]; of two
+/// peaks refining onto one corner the stronger is kept.
 pub(super) fn refine_peaks(
     img: &Image<f32>,
     peaks: &[(usize, usize, f32)],
     params: &DetectorParams,
 ) -> Vec<(Vector2<f64>, f32)> {
     use rayon::prelude::*;
+    let scale = params.response_decimation.max(1) as f64;
+    let offset = (scale - 1.0) / 2.0;
     let mut refined: Vec<(Vector2<f64>, f32)> = peaks
         .par_iter()
         .filter_map(|&(x, y, v)| {
-            refine_corner(img, Vector2::new(x as f64, y as f64), params.subpix_half_window)
-                .map(|p| (p, v))
+            let at = Vector2::new(x as f64 * scale + offset, y as f64 * scale + offset);
+            refine_corner(img, at, params.subpix_half_window).map(|p| (p, v))
         })
         .collect();
     // Two peaks refining onto one corner: keep the stronger.

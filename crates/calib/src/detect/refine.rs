@@ -39,9 +39,10 @@ pub(super) fn refine(img: &Image<f32>, l: &LabelledGrid, params: &DetectorParams
     } else {
         FINAL_WINDOW_FRACTION_SMALL
     };
+    use rayon::prelude::*;
     let mut corners: Vec<Corner> = l
         .corners
-        .iter()
+        .par_iter()
         .map(|&((i, j), p, id)| {
             let step = [(1, 0), (-1, 0), (0, 1), (0, -1)]
                 .iter()
