@@ -12,7 +12,7 @@ use crate::camera3d::OrbitCamera;
 use crate::data::{self, Frame};
 use crate::live::LivePage;
 use crate::panes::{self, Pane, Probe};
-use crate::pipeline::{self, Fused, Resampling, Toggles};
+use crate::pipeline::{self, Fused, MeshGrid, Resampling, Toggles};
 use crate::render3d::{DrawParams, Geometry3d, View3dCallback};
 use crate::view2d::View2d;
 use fusion_gpu::Engine;
@@ -440,6 +440,9 @@ impl ViewerApp {
             ui.label("Resampling (H3)");
             ui.radio_value(&mut t.resampling, Resampling::Nearest, "Nearest");
             ui.radio_value(&mut t.resampling, Resampling::Delaunay, "Delaunay");
+            ui.label("Mesh (H4)");
+            ui.radio_value(&mut t.mesh_grid, MeshGrid::Depth, "Depth grid (as fuse)");
+            ui.radio_value(&mut t.mesh_grid, MeshGrid::Color, "H3 grid (handout)");
             ui.checkbox(&mut t.zbuffer, "Z-buffer (H7)");
             ui.checkbox(&mut t.remove_edges, "Remove edge faces (H5)");
             ui.add_enabled(

@@ -178,13 +178,16 @@ fn bad(path: &Path, message: impl Into<String>) -> ViewerError {
 }
 
 /// True when `dir` looks like a `kfuse calibrate` output: it holds `report.json`, or a
-/// `rig.json` with a `calibration` report and no capture images.
+/// `rig.json` with a `calibration` report and no capture images. A `kfuse capture` folder
+/// (`kinect_params.json`) is a frame even with a calibrated `rig.json` beside its shots (the
+/// bundled `data/kinect`).
 pub fn is_calibration_folder(dir: &Path) -> bool {
     if dir.join("report.json").is_file() {
         return true;
     }
     let rig = dir.join("rig.json");
-    if !rig.is_file() || dir.join("color.png").exists() || dir.join("depth.png").exists() {
+    let frame_files = ["color.png", "depth.png", "kinect_params.json"];
+    if !rig.is_file() || frame_files.iter().any(|f| dir.join(f).exists()) {
         return false;
     }
     std::fs::read_to_string(&rig)

@@ -2,6 +2,8 @@
 //! pipeline's switches re-running the fusion live; a `kfuse calibrate` report
 //! ([`calibration`], [`calib_page`]); and a live sensor or the simulated one ([`live`]), saving
 //! shots with the files of `kfuse capture` (both use the `kfuse-capture` library).
+//! The 3D view's mesh is by default `kfuse fuse`'s default mesh (H4 on the depth grid,
+//! [`pipeline::MeshGrid::Depth`]), the handout's H3-grid mesh a switch away.
 //!
 //! Library-first: [`ViewerApp`] holds all state and draws into any `egui::Ui`, so the
 //! headless tests (`egui_kittest`) drive exactly what `kfuse view` shows. The pure parts

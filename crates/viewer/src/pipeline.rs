@@ -4,8 +4,17 @@
 //! * **z-buffer off**: [`FusionOptions::zbuffer`] (first write wins, H6 without its occlusion
 //!   test; always on the CPU, see `geometry::fusion::first_write_wins`). Delaunay on such a
 //!   buffer is not defined: the nearest fill is shown instead.
-//! * **Delaunay + hole filling**: [`MeshSource::LinearFilled`].
+//! * **mesh grid**: [`MeshGrid::Depth`] (default) meshes the depth samples on the depth pixel
+//!   grid ([`MeshSource::DepthGrid`], what `kfuse fuse` writes by default), so the 3D view
+//!   shows exactly the mesh of `fuse`; [`MeshGrid::Color`] meshes the colour-frame depth the
+//!   H3/H8 switches produce on the colour pixel grid (the handout's H3-grid mesh, below).
+//! * **Delaunay + hole filling** with the H3-grid mesh: [`MeshSource::LinearFilled`].
 //! * **edge-face removal off**: the 3D view shows H4's mesh instead of H5's.
+//!
+//! The 2D panes show the colour-frame depth the H3/H8 switches produce ([`Fused::shown_depth`])
+//! whichever grid is meshed. With the depth-grid mesh the pipeline fills only the nearest
+//! depth (it fills the Delaunay depth only to mesh it), so Delaunay + hole filling shows the
+//! unfilled Delaunay depth there.
 
 use fusion_gpu::Engine;
 use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
@@ -23,6 +32,17 @@ pub enum Resampling {
     Delaunay,
 }
 
+/// Which grid H4 meshes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeshGrid {
+    /// The depth samples on the depth pixel grid ([`MeshSource::DepthGrid`]): `kfuse fuse`'s
+    /// default mesh, every vertex a measurement, disocclusion holes left open.
+    Depth,
+    /// The colour-frame depth of H3 (with H8's fill when on) on the colour pixel grid: the
+    /// handout's H3-grid mesh.
+    Color,
+}
+
 /// The switches of the 3D page.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Toggles {
@@ -36,6 +56,8 @@ pub struct Toggles {
     pub stretch_ratio: f32,
     /// H8 plane fill of disocclusion holes.
     pub fill_holes: bool,
+    /// H4's grid.
+    pub mesh_grid: MeshGrid,
 }
 
 impl Default for Toggles {
@@ -47,6 +69,7 @@ impl Default for Toggles {
             remove_edges: true,
             stretch_ratio: d.stretch_ratio,
             fill_holes: true,
+            mesh_grid: MeshGrid::Depth,
         }
     }
 }
@@ -54,21 +77,30 @@ impl Default for Toggles {
 impl Toggles {
     /// The options the pipeline is called with.
     pub fn options(&self) -> FusionOptions {
-        // Delaunay on a first-write-wins buffer is computed (the Summary shows its counts) but
-        // not meshed: the nearest fill is shown instead (see the module docs).
-        let delaunay = self.resampling == Resampling::Delaunay && self.zbuffer;
         FusionOptions {
             linear: self.resampling == Resampling::Delaunay,
-            mesh_source: match (delaunay, self.fill_holes) {
-                (true, true) => MeshSource::LinearFilled,
-                (true, false) => MeshSource::Linear,
-                (false, true) => MeshSource::Filled,
-                (false, false) => MeshSource::Nearest,
+            mesh_source: match self.mesh_grid {
+                MeshGrid::Depth => MeshSource::DepthGrid,
+                MeshGrid::Color => self.color_depth_source(),
             },
             fill_holes: self.fill_holes,
             stretch_ratio: self.stretch_ratio,
             zbuffer: self.zbuffer,
             ..FusionOptions::default()
+        }
+    }
+
+    /// The colour-frame depth the H3/H8 switches pick (what the H3-grid mesh meshes and the
+    /// 2D panes show).
+    pub fn color_depth_source(&self) -> MeshSource {
+        // Delaunay on a first-write-wins buffer is computed (the Summary shows its counts) but
+        // not meshed: the nearest fill is shown instead (see the module docs).
+        let delaunay = self.resampling == Resampling::Delaunay && self.zbuffer;
+        match (delaunay, self.fill_holes) {
+            (true, true) => MeshSource::LinearFilled,
+            (true, false) => MeshSource::Linear,
+            (false, true) => MeshSource::Filled,
+            (false, false) => MeshSource::Nearest,
         }
     }
 }
@@ -80,11 +112,12 @@ pub struct Fused {
     pub toggles: Toggles,
     /// The pipeline's output (with the z-buffer-off replacements applied).
     pub output: FusionOutput,
-    /// The colour-frame depth that was meshed (H3 result, plane-filled when on), metres, NaN = none.
+    /// The colour-frame depth of the H3/H8 switches (H3 result, plane-filled when on; the
+    /// depth the H3-grid mesh meshes), metres, NaN = none.
     pub shown_depth: Image<f32>,
     /// The mesh the 3D view draws (H5's when edge removal is on, else H4's).
     pub mesh: Mesh,
-    /// Colour pixels whose depth the plane fill supplied.
+    /// Pixels of `shown_depth` the plane fill supplied.
     pub filled_pixels: usize,
     /// Which engine ran it ([`Engine::Cpu`] or [`Engine::Gpu`]).
     pub engine: Engine,
@@ -111,8 +144,14 @@ pub fn fuse(
             Engine::Cpu,
         ),
     };
-    let shown_depth = output.meshed_depth(options.mesh_source).clone();
-    let filled_pixels = output.mesh_filled_pixels;
+    let source = toggles.color_depth_source();
+    let shown_depth = output.meshed_depth(source).clone();
+    let filled_pixels = match (toggles.mesh_grid, source) {
+        (MeshGrid::Color, _) => output.mesh_filled_pixels,
+        // The depth-grid run fills the nearest depth only (see the module docs).
+        (MeshGrid::Depth, MeshSource::Filled) => output.summary.filled_pixels,
+        (MeshGrid::Depth, _) => 0,
+    };
     let mesh = if toggles.remove_edges { output.mesh_clean.clone() } else { output.mesh.clone() };
     Ok(Fused { toggles, output, shown_depth, mesh, filled_pixels, engine })
 }

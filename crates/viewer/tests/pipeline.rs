@@ -3,7 +3,7 @@
 
 mod common;
 
-use viewer::pipeline::{Resampling, Toggles};
+use viewer::pipeline::{MeshGrid, Resampling, Toggles};
 use viewer::{Engine, ViewerApp};
 
 fn app() -> ViewerApp {
@@ -86,14 +86,22 @@ fn hole_filling_toggles_filled_pixels() {
     let added = finite(&f.shown_depth) - finite(nearest);
     // Same derivation as filled_on; at most filled_on because only filled pixels can be added.
     assert!(added > 1000 && added <= filled_on, "added {added} finite pixels, filled {filled_on}");
-    let vertices_on = app.geometry().unwrap().vertices.len();
+    // The default depth-grid mesh meshes the samples: the fill leaves it as it is (its
+    // disocclusion holes stay open).
+    let depth_grid_on = app.geometry().unwrap().vertices.len();
     app.set_toggles(Toggles { fill_holes: false, ..app.toggles });
     let f = app.fused.as_ref().unwrap();
     assert_eq!(f.filled_pixels, 0);
     assert_eq!(finite(&f.shown_depth), finite(&f.output.nearest));
+    assert_eq!(app.geometry().unwrap().vertices.len(), depth_grid_on);
+    // The H3-grid mesh meshes the shown depth: the filled pixels add vertices.
+    app.set_toggles(Toggles { mesh_grid: MeshGrid::Color, ..app.toggles });
+    let vertices_off = app.geometry().unwrap().vertices.len();
+    app.set_toggles(Toggles { fill_holes: true, ..app.toggles });
+    assert_eq!(app.fused.as_ref().unwrap().filled_pixels, filled_on);
     assert!(
-        app.geometry().unwrap().vertices.len() < vertices_on,
-        "fewer mesh vertices without the fill"
+        app.geometry().unwrap().vertices.len() > vertices_off,
+        "fewer H3-grid mesh vertices without the fill"
     );
 }
 
@@ -153,7 +161,8 @@ fn zbuffer_off_lets_the_background_through() {
 #[test]
 fn delaunay_resampling_is_closer_to_the_truth_inside_surfaces() {
     let mut app = app();
-    app.set_toggles(Toggles { fill_holes: false, ..app.toggles });
+    // The H3-grid mesh: it meshes the resampled depth (the depth-grid mesh does not).
+    app.set_toggles(Toggles { fill_holes: false, mesh_grid: MeshGrid::Color, ..app.toggles });
     let truth = &common::synth_frame().1.true_color_depth;
     let err = |app: &ViewerApp| {
         let s = &app.fused.as_ref().unwrap().shown_depth;

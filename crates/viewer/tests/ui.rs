@@ -8,6 +8,7 @@ use egui_kittest::kittest::Queryable;
 use egui_kittest::wgpu::{WgpuTestRenderer, create_render_state, default_wgpu_setup};
 use egui_kittest::{Harness, SnapshotOptions};
 use viewer::panes::Pane;
+use viewer::pipeline::MeshGrid;
 use viewer::{Engine, ViewerApp};
 
 /// Window size of every snapshot, points.
@@ -141,7 +142,21 @@ fn view3d_page_toggles_rerun_the_fusion() {
     h.run();
     assert!(!h.state().toggles.fill_holes);
     assert_eq!(h.state().fused.as_ref().unwrap().filled_pixels, 0);
-    assert!(h.state().drawn_triangles() < faces_all, "no plane fill: fewer faces");
+    // The default depth-grid mesh meshes the samples: the fill leaves it as it is.
+    assert_eq!(h.state().drawn_triangles(), faces_all);
+    // The H3-grid mesh meshes the colour-frame depth: the fill adds faces to it.
+    h.get_by_label("H3 grid (handout)").click();
+    h.run();
+    assert_eq!(h.state().toggles.mesh_grid, MeshGrid::Color);
+    let h3_unfilled = h.state().drawn_triangles();
+    assert_ne!(h3_unfilled, faces_all, "the H3 grid is another mesh");
+    h.get_by_label("Fill holes (H8)").click();
+    h.run();
+    assert!(h3_unfilled < h.state().drawn_triangles(), "no plane fill: fewer H3-grid faces");
+    h.get_by_label("Fill holes (H8)").click();
+    h.get_by_label("Depth grid (as fuse)").click();
+    h.run();
+    assert_eq!(h.state().drawn_triangles(), faces_all);
 
     h.get_by_label("Z-buffer (H7)").click();
     h.run();
