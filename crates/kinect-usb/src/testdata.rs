@@ -49,3 +49,81 @@ pub fn read_f32(path: &Path) -> Result<Vec<f32>> {
     }
     Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
 }
+
+/// Every oracle run of the vectors' manifest (`oracle_runs`), paths relative to the vectors
+/// folder: (frame, bilateral, edge_aware, xtable, ztable, depth oracle, IR oracle). Used by
+/// the CPU decoder's golden tests and the GPU decoder's parity test.
+pub const ORACLE_RUNS: &[(&str, bool, bool, &str, &str, &str, &str)] = &[
+    (
+        "frames/scene.raw",
+        true,
+        true,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/scene_filt_depth.f32",
+        "oracle/scene_ir.f32",
+    ),
+    (
+        "frames/scene.raw",
+        false,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/scene_nofilt_depth.f32",
+        "oracle/scene_ir.f32",
+    ),
+    (
+        "frames/scene.raw",
+        true,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/scene_bilonly_depth.f32",
+        "oracle/scene_ir.f32",
+    ),
+    (
+        "frames/random.raw",
+        false,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/random_nofilt_depth.f32",
+        "oracle/random_ir.f32",
+    ),
+    (
+        "frames/edge_cases.raw",
+        true,
+        true,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/edge_cases_filt_depth.f32",
+        "oracle/edge_cases_ir.f32",
+    ),
+    (
+        "frames/edge_cases.raw",
+        false,
+        false,
+        "tables/xtable.f32",
+        "tables/ztable.f32",
+        "oracle/edge_cases_nofilt_depth.f32",
+        "oracle/edge_cases_ir.f32",
+    ),
+    (
+        "frames/scene_realtables.raw",
+        true,
+        true,
+        "real/libfreenect2-history/xTable.bin",
+        "real/libfreenect2-history/zTable.bin",
+        "oracle/scene_realtables_filt_depth.f32",
+        "oracle/scene_realtables_ir.f32",
+    ),
+    (
+        "frames/scene_realtables.raw",
+        false,
+        false,
+        "real/libfreenect2-history/xTable.bin",
+        "real/libfreenect2-history/zTable.bin",
+        "oracle/scene_realtables_nofilt_depth.f32",
+        "oracle/scene_realtables_ir.f32",
+    ),
+];
