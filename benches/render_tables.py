@@ -10,8 +10,10 @@ Two sub-commands:
 `collect` reads the run's facts (META: `key=value` lines written by run_all.sh), criterion's
 `DIR/<package>/<bench>/**/new/{benchmark,estimates}.json` (run_all.sh gives every bench target
 its own `CRITERION_HOME` there), the bench logs (`DIR/<package>/<bench>.log` under `--log`: the
-GPU adapter, the decoder's kernels, the CPU-time probe lines) and the peers' JSON outputs, and
-writes one results file.
+GPU adapter, the decoder's kernels, the CPU-time probe lines, the PNG sizes), the peers' JSON
+outputs and the logs of the steps that are not criterion benches (`step-NAME.log` under
+`--log` for every `step.NAME=status` of META: detect_stages, sequence_e2e, viewer_frame_time,
+parsed from the lines those programs print), and writes one results file.
 
 `render` rewrites, in DOC, the text between each pair of generated-section markers
 
@@ -20,7 +22,9 @@ writes one results file.
     <!-- run_all:end KEY -->
 
 and nothing outside them. KEY is `run` (the run's header), the name of a table in `TABLES`
-below (curated rows with ratios to the peer measured in the same run), or
+below (curated rows with ratios to the peer measured in the same run), one of `RENDERERS`
+(`detect_stages`, `sequence_e2e`, `viewer_frame_time`: the steps' own tables; `png16`: the
+sequence bench's PNG encodings with their sizes), or
 `bench:PACKAGE/BENCH` (every criterion result of that bench target, for benches with no
 curated table: a new bench needs only such a marker pair). `bench:*` lists the targets found in
 the results. An unknown KEY, an unpaired marker or a missing results file is an error with one
@@ -49,6 +53,7 @@ LOG_FACTS = {
     "gpu_skipped": re.compile(r"^SKIP GPU benches: (.+)$"),
     "decoder_kernels": re.compile(r"^decode bench: default kernels on this CPU: (.+)$"),
 }
+PNG_SIZE = re.compile(r"^png16/(\S+): (\d+) bytes")
 CPU_PROBE = re.compile(r"^cpu-time (\S+): ([0-9.]+) ms per call")
 DECODE_PROBE = re.compile(r"^cpu probe (\S+): ([0-9.]+) ms thread CPU time per frame")
 
@@ -103,10 +108,127 @@ def log_facts(log_path):
             m = rx.match(line)
             if m:
                 facts[key] = m.group(1)
+        m = PNG_SIZE.match(line)
+        if m:
+            facts.setdefault("png_bytes", {})[m.group(1)] = int(m.group(2))
         m = CPU_PROBE.match(line) or DECODE_PROBE.match(line)
         if m:
             probe[m.group(1)] = float(m.group(2))
     return facts, probe
+
+
+# ---- the steps that are not criterion benches: their printed lines, parsed -------------------
+
+# crates/calib/examples/detect_stages.rs: "median ms per image over N runs of each image" and a
+# table "| images | n | found | response | peaks | subpix | grid | label | final fit | total |".
+DETECT_REPS = re.compile(r"^median ms per image over (\d+) runs")
+DETECT_STAGES = ("response", "peaks", "subpix", "grid", "label", "final_fit", "total")
+# benches/sequence_e2e.sh, one line per run and one for the recording.
+SEQ_RECORDING = re.compile(r"^recording: (\d+) frames, (\d+) MB$")
+SEQ_RUN = re.compile(
+    r"^layout (\S+) +threads (\d+): (\d+) frames, ([0-9.]+) frames/s in the pipeline \(([0-9.]+) frames/s process, "
+    r"start-up included\); per frame ms: read ([0-9.]+) decode ([0-9.]+) register ([0-9.]+) encode ([0-9.]+) "
+    r"write ([0-9.]+); missing (\d+); load before (.+)$"
+)
+SEQ_OUTPUT = re.compile(r"^output: (\d+) MB$")
+# crates/viewer/tests/frame_time.rs.
+VIEWER_FRAME = re.compile(
+    r"^3D view frame time: ([0-9.]+) ms/frame \((\d+) textured triangles, (\d+) vertices, (\d+)x(\d+), "
+    r"adapter (.*)\); upload ([0-9.]+) ms$"
+)
+VIEWER_COVER = re.compile(r"^mesh covers ([0-9.]+) % of the view$")
+SKIP_LINE = re.compile(r"^SKIP \S+: (.+)$")
+
+
+def parse_detect_stages(lines):
+    out = {"classes": []}
+    for line in lines:
+        m = DETECT_REPS.match(line)
+        if m:
+            out["reps"] = int(m.group(1))
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if not line.startswith("|") or len(cells) != 3 + len(DETECT_STAGES) or not cells[1].isdigit():
+            continue
+        row = {"images": cells[0], "n": int(cells[1]), "found": int(cells[2])}
+        row.update({k + "_ms": float(v) for k, v in zip(DETECT_STAGES, cells[3:])})
+        out["classes"].append(row)
+    return out
+
+
+def parse_sequence(lines):
+    out = {"runs": []}
+    for line in lines:
+        line = line.strip()
+        m = SEQ_RECORDING.match(line)
+        if m:
+            out["recording_frames"], out["recording_mb"] = int(m.group(1)), int(m.group(2))
+        m = SEQ_RUN.match(line)
+        if m:
+            g = m.groups()
+            out["runs"].append({
+                "layout": g[0], "threads": int(g[1]), "frames": int(g[2]),
+                "pipeline_fps": float(g[3]), "process_fps": float(g[4]),
+                "stage_ms": dict(zip(("read", "decode", "register", "encode", "write"), map(float, g[5:10]))),
+                "missing": int(g[10]), "load_before": floats(g[11]),
+            })
+        m = SEQ_OUTPUT.match(line)
+        if m and out["runs"]:
+            out["runs"][-1]["output_mb"] = int(m.group(1))
+    return out
+
+
+def parse_viewer(lines):
+    out = {}
+    for line in lines:
+        line = line.strip()
+        m = VIEWER_FRAME.match(line)
+        if m:
+            g = m.groups()
+            out.update({"ms_per_frame": float(g[0]), "triangles": int(g[1]), "vertices": int(g[2]),
+                        "viewport": [int(g[3]), int(g[4])], "adapter": g[5], "upload_ms": float(g[6])})
+        m = VIEWER_COVER.match(line)
+        if m:
+            out["coverage_pct"] = float(m.group(1))
+    return out
+
+
+STEP_PARSERS = {"detect_stages": parse_detect_stages, "sequence_e2e": parse_sequence, "viewer_frame_time": parse_viewer}
+# What a step's log must yield for its status to stay "ok".
+STEP_NEEDS = {"detect_stages": "classes", "sequence_e2e": "runs", "viewer_frame_time": "ms_per_frame"}
+
+
+def collect_steps(meta, log_dir):
+    """{step: {status, start, load_start, facts of meta step.NAME.KEY, parsed figures}}."""
+    steps = {}
+    for key, value in meta.items():
+        if not key.startswith("step."):
+            continue
+        name, _, sub = key[len("step."):].partition(".")
+        entry = steps.setdefault(name, {})
+        if not sub:
+            entry["status"] = value
+        elif sub == "load_start":
+            entry["load_start"] = floats(value)
+        elif sub in ("reps", "frames"):
+            entry[sub] = int(value)
+        else:
+            entry[sub] = value
+    for name, entry in steps.items():
+        if name not in STEP_PARSERS:
+            raise ValueError(f"meta: unknown step '{name}' (known: {', '.join(STEP_PARSERS)})")
+        entry.setdefault("status", "not run")
+        log = os.path.join(log_dir or "", f"step-{name}.log")
+        if not log_dir or not os.path.exists(log):
+            continue
+        lines = Path(log).read_text(errors="replace").splitlines()
+        entry.update(STEP_PARSERS[name](lines))
+        skip = next((m.group(1) for m in map(SKIP_LINE.match, lines) if m), None)
+        if entry["status"] == "ok" and skip:
+            entry["status"] = f"skipped: {skip}"
+        elif entry["status"] == "ok" and not entry.get(STEP_NEEDS[name]):
+            entry["status"] = "failed: printed no figures"
+    return steps
 
 
 def collect(args):
@@ -169,7 +291,10 @@ def collect(args):
         },
         "benches": benches,
         "peers": peers,
+        "steps": collect_steps(meta, args.log),
     }
+    if meta.get("only"):
+        results["only"] = meta["only"]
     tmp = args.out + ".tmp"
     Path(tmp).write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
     os.replace(tmp, args.out)
@@ -210,7 +335,22 @@ def gd(name):
     return ("bench", "fusion-gpu/decode", "decode/" + name)
 
 
+SEQ = "kfuse-sequence/sequence"
+
 TABLES = {
+    # The per-frame stages of `kfuse fuse --recording` (`crates/sequence/benches/sequence.rs`).
+    "sequence_stages": {
+        "kind": "list",
+        "caption": "The stages of `kfuse fuse --recording`, one frame of the simulated recording, one thread "
+        "(`crates/sequence/benches/sequence.rs`)",
+        "ratios": [],
+        "rows": [
+            ("`stage/read_frame` (records, CRC-32, assembly)", ("bench", SEQ, "stage/read_frame"), {}),
+            ("`stage/decode` (`Fast`, one thread)", ("bench", SEQ, "stage/decode"), {}),
+            ("`stage/register` (`Registration` + z-buffer to 16-bit units)", ("bench", SEQ, "stage/register"), {}),
+            ("`stage/write` (one depth PNG of the chosen settings, atomic rename)", ("bench", SEQ, "stage/write"), {}),
+        ],
+    },
     "registration": {
         "kind": "list",
         "caption": "Depth → colour registration of one Kinect frame (512×424 → 1920×1080); "
@@ -355,6 +495,8 @@ def header(res):
     else:
         wait = f"**not idle**: 1-min load stayed ≥ {load['idle_threshold']:g} for the {load['waited_s']} s allowed, run anyway"
     mode = " · **quick mode** (short criterion times: for testing the script, not for comparison)" if d["mode"] == "quick" else ""
+    if d.get("only"):
+        mode += f" · **partial run** (`--only {d['only']}`: for testing the script)"
     return (
         f"Run {start} → {end} UTC · commit `{c['hash'][:10]}`{dirty} · {m['cpu']}, {m['cores']} cores, "
         f"{m['memory_gib']:.0f} GiB · load (1/5/15 min) {ls} at start, {le} at end; {wait}{mode}"
@@ -380,13 +522,21 @@ def render_run(res):
         if p.get("status") == "recorded":
             extra.append(f"recorded {p.get('date', '?')}")
         lines.append(f"* peer `{name}`: " + "; ".join(extra))
+    for name, st in sorted(d.get("steps", {}).items()):
+        extra = [st["status"]]
+        for key, what in (("reps", "repetitions"), ("frames", "frames")):
+            if key in st:
+                extra.append(f"{st[key]} {what}")
+        if st.get("start"):
+            extra.append(f"started {st['start']} UTC")
+        lines.append(f"* step `{name}`: " + "; ".join(extra))
     return lines
 
 
 def render_list(res, t):
     cols = t["ratios"]
     lines = [f"{t['caption']}. {header(res)}", ""]
-    lines.append("| what | median | spread (95 % interval; peers: min, CPU) | " + " | ".join(cols) + " |")
+    lines.append("| what | median | spread (95 % interval; peers: min, CPU) |" + "".join(f" {c} |" for c in cols))
     lines.append("| --- | --- | --- |" + " --- |" * len(cols))
     recorded = False
     for label, src, refs in t["rows"]:
@@ -402,7 +552,9 @@ def render_list(res, t):
             rv = res.value(refs.get(col))
             cells.append(fmt_ratio(med, rv[0]) + (" †" if rv[2] else "") if rv else "—")
             recorded = recorded or bool(rv and rv[2])
-        lines.append(f"| {label} | {fmt_ms(med)} | {spread} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label} | {fmt_ms(med)} | {spread} |" + "".join(f" {c} |" for c in cells))
+    if not cols:
+        return lines
     lines.append("")
     lines.append("Ratios are time / time: below 1× the first named takes less time.")
     if recorded:
@@ -445,9 +597,115 @@ def render_bench(res, target):
     return lines
 
 
+def step_intro(res, name, caption):
+    """(the step's entry or None, the lines above its table: caption, when it ran, the run's header)."""
+    st = res.d.get("steps", {}).get(name)
+    if st is None:
+        return None, [f"{caption}. Not measured: `{name}` was not run by this run_all. {header(res)}"]
+    when = ""
+    if st.get("start"):
+        load = "/".join(f"{x:.2f}" for x in st.get("load_start", [])) or "?"
+        when = f" This step ran at {st['start']} UTC, load (1/5/15 min) {load} at its start."
+    if st["status"] != "ok":
+        return None, [f"{caption}. Not measured: {st['status']}.{when} {header(res)}"]
+    return st, [f"{caption}.{when} {header(res)}", ""]
+
+
+def render_detect_stages(res):
+    st, lines = step_intro(
+        res, "detect_stages",
+        "Where checkerboard detection spends its time (`crates/calib/examples/detect_stages.rs`, one thread: "
+        "`RAYON_NUM_THREADS=1`): per image class, the median over every run of every image, ms per image",
+    )
+    if st is None:
+        return lines
+    lines[0] = lines[0].replace("every run of", f"{st.get('reps', '?')} runs of", 1)
+    lines.append("| images | n | found | ChESS response | peak search | cornerSubPix | grid | label | junction fit | total |")
+    lines.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for c in st["classes"]:
+        ms = " | ".join(f"{c[k + '_ms']:.2f}" for k in DETECT_STAGES)
+        lines.append(f"| {c['images']} | {c['n']} | {c['found']} | {ms} |")
+    lines.append("")
+    lines.append("found: boards detected complete (first run of each image); ms per image, wall.")
+    return lines
+
+
+def render_sequence(res):
+    st, lines = step_intro(
+        res, "sequence_e2e",
+        "`kfuse fuse --recording` end to end (`benches/sequence_e2e.sh` with this run's kfuse binary): a simulated "
+        "recording (`kfuse capture record --backend sim`) in the kfuse layout (registered depth only: decode + "
+        "register + write) and the TUM layout (plus the JPEG copies and lists)",
+    )
+    if st is None:
+        return lines
+    lines[0] = lines[0].replace("a simulated recording", f"a {st.get('recording_frames', '?')}-frame simulated recording "
+                                f"of {st.get('recording_mb', '?')} MB", 1)
+    lines.append("| layout | threads | frames written (missing) | frames/s (pipeline) | frames/s (process, start-up incl.) "
+                 "| read | decode | register | encode | write (ms per frame, wall, summed per stage) | output | "
+                 "load before (1/5/15 min) |")
+    lines.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in st["runs"]:
+        stages = " | ".join(f"{r['stage_ms'][k]:.2f}" for k in ("read", "decode", "register", "encode", "write"))
+        out = f"{r['output_mb']} MB" if "output_mb" in r else "—"
+        load = "/".join(f"{x:.2f}" for x in r["load_before"]) or "?"
+        lines.append(f"| {r['layout']} | {r['threads']} | {r['frames']} ({r['missing']}) | {r['pipeline_fps']:.1f} | "
+                     f"{r['process_fps']:.1f} | {stages} | {out} | {load} |")
+    return lines
+
+
+def render_png16(res):
+    b = res.d["benches"].get(SEQ)
+    if b is None:
+        return [f"`{SEQ}` was not run by this run_all ({header(res)})."]
+    lines = [f"PNG encoding of one registered depth frame (1920×1080, 16 bit; `png16/*` of "
+             f"`crates/sequence/benches/sequence.rs`, sizes as that bench printed them). {header(res)}", ""]
+    lines.append("| compression | filter | size | encode time (median) | 95 % interval |")
+    lines.append("| --- | --- | --- | --- | --- |")
+    sizes = b.get("png_bytes", {})
+    for c in ("fastest", "fast", "balanced"):
+        for f in ("none", "sub", "up", "adaptive"):
+            r = b["results"].get(f"png16/{c}_{f}")
+            size = f"{sizes[c + '_' + f] / 1e6:.2f} MB" if c + "_" + f in sizes else "—"
+            if r is None:
+                lines.append(f"| {c} | {f} | {size} | {'no result' if b['status'] == 'ok' else b['status']} | |")
+            else:
+                lines.append(f"| {c} | {f} | {size} | {fmt_ms(r['median_ns'] / 1e6)} | "
+                             f"{fmt_ms(r['low_ns'] / 1e6)} – {fmt_ms(r['high_ns'] / 1e6)} |")
+    return lines
+
+
+def render_viewer(res):
+    st, lines = step_intro(
+        res, "viewer_frame_time",
+        "The viewer's 3D view (`crates/viewer/tests/frame_time.rs`): the Kinect-size textured mesh of the synthetic "
+        "scene drawn into an offscreen target with depth buffer, 10 frames while orbiting, each submitted and "
+        "waited for (excluding egui's own pass)",
+    )
+    if st is None:
+        return lines
+    lines.append("| adapter | viewport | textured triangles | vertices | ms / frame | upload (once per fusion) | mesh covers |")
+    lines.append("| --- | --- | --- | --- | --- | --- | --- |")
+    w, h = st["viewport"]
+    cover = f"{st['coverage_pct']:.1f} % of the view" if "coverage_pct" in st else "—"
+    lines.append(f"| {st['adapter']} | {w}×{h} | {st['triangles']} | {st['vertices']} | {st['ms_per_frame']:.2f} | "
+                 f"{st['upload_ms']:.1f} ms | {cover} |")
+    return lines
+
+
+RENDERERS = {
+    "detect_stages": render_detect_stages,
+    "sequence_e2e": render_sequence,
+    "png16": render_png16,
+    "viewer_frame_time": render_viewer,
+}
+
+
 def render_key(res, key):
     if key == "run":
         return render_run(res)
+    if key in RENDERERS:
+        return RENDERERS[key](res)
     if key in TABLES:
         t = TABLES[key]
         return render_list(res, t) if t["kind"] == "list" else render_paired(res, t)
@@ -475,7 +733,7 @@ def render_doc(text, res, doc_name):
                 try:
                     body = render_key(res, key)
                 except KeyError:
-                    raise ValueError(f"{doc_name}:{n}: unknown table '{key}' (known: run, {', '.join(TABLES)}, bench:PACKAGE/BENCH, bench:*)")
+                    raise ValueError(f"{doc_name}:{n}: unknown table '{key}' (known: run, {', '.join([*TABLES, *RENDERERS])}, bench:PACKAGE/BENCH, bench:*)")
                 open_key = (key, n)
                 out += [""] + body + [""]
             elif m:

@@ -2,11 +2,20 @@
 # Every benchmark of the workspace and every peer, back to back, into one results file and the
 # tables of BENCHMARKS.md (issue 17): a figure in a generated table is always one this printed.
 #
-#   benches/run_all.sh [--quick] [--max-wait SECONDS] [--idle-load LOAD] [--no-peers]
+#   benches/run_all.sh [--quick] [--max-wait SECONDS] [--idle-load LOAD] [--no-peers] [--only STEPS]
+#
+# --quick: short criterion times, 1 repetition of detect_stages, a 60-frame recording (tests the
+#   script; the tables say "quick mode").
+# --only STEPS: for testing the script, run only these comma-separated steps: `benches` (every
+#   criterion bench and its peers), `bench:PACKAGE/BENCH` (one bench and its peers),
+#   `detect_stages`, `sequence_e2e`, `viewer_frame_time`. Everything is still built; the
+#   results and the document go to $CARGO_TARGET_DIR/run_all/{last-run.json,BENCHMARKS.md},
+#   never to the repository's files (a partial run is not a run of the tables).
 #
 # 1. builds every criterion bench of the workspace (`cargo metadata`: every `[[bench]]` target
-#    of every member, so a bench added later is included with no change here) in one profile,
-#    see PROFILE_FLAGS below;
+#    of every member, so a bench added later is included with no change here), the workspace's
+#    binaries and examples and the viewer's frame-time test, in one profile, see PROFILE_FLAGS
+#    below;
 # 2. sets up a throwaway venv (OpenCV, Open3D, numpy from PyPI) in $KFUSE_BENCH_VENV
 #    (default ~/.cache/kfuse-bench-venv) unless --no-peers;
 # 3. waits until the machine is idle (1-minute load average below IDLE_LOAD), at most
@@ -16,7 +25,14 @@
 #    frame the bench wrote), calib → crates/calib/benches/peers/opencv_calib.py, decode →
 #    libfreenect2 if LIBFREENECT2_BUILD names an executable (else its recorded row,
 #    benches/results/libfreenect2-recorded.json, is shown with its date);
-# 5. writes benches/results/last-run.json (machine, date UTC, commit + dirty flag, load at start
+# 5. then the measurements that are not criterion benches, each into the results file and a
+#    table: `crates/calib/examples/detect_stages.rs` (detection time per stage and image class,
+#    one thread, KFUSE_REPS repetitions, default 5; skipped with a note without the shared
+#    data), `benches/sequence_e2e.sh` with the kfuse binary of this build (a FRAMES-frame
+#    simulated recording, default 300, under the run folder, deleted after; kfuse and TUM
+#    layouts, 1 and 2 threads) and the viewer's frame-time test
+#    (`crates/viewer/tests/frame_time.rs`, the 3D view's textured mesh on the wgpu adapter);
+# 6. writes benches/results/last-run.json (machine, date UTC, commit + dirty flag, load at start
 #    and end, every criterion median with its 95 % interval, the peers' figures) and rewrites
 #    the generated sections of BENCHMARKS.md (`<!-- run_all:begin KEY -->` … `end KEY`, see
 #    benches/render_tables.py; nothing outside the markers changes).
@@ -39,20 +55,39 @@ POLL_S=15
 MAX_WAIT_S=3600
 QUICK=0
 PEERS=1
+ONLY=
 
-usage() { sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,45p' "$0" | sed 's/^# \{0,1\}//'; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --quick) QUICK=1 ;;
     --no-peers) PEERS=0 ;;
     --max-wait) MAX_WAIT_S=${2:?--max-wait needs a number of seconds}; shift ;;
     --idle-load) IDLE_LOAD=${2:?--idle-load needs a load average}; shift ;;
+    --only) ONLY=${2:?--only needs a comma-separated list of steps}; shift ;;
     -h|--help) usage; exit 0 ;;
     *) echo "run_all.sh: unknown option '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
 done
 [[ $MAX_WAIT_S =~ ^[0-9]+$ ]] || { echo "run_all.sh: --max-wait '$MAX_WAIT_S' is not a whole number of seconds" >&2; exit 2; }
+STEPS_KNOWN="benches bench:PACKAGE/BENCH detect_stages sequence_e2e viewer_frame_time"
+IFS=, read -ra SELECTED <<<"$ONLY"
+for s in "${SELECTED[@]}"; do
+  case "$s" in
+    benches|bench:*/*|detect_stages|sequence_e2e|viewer_frame_time) ;;
+    *) echo "run_all.sh: --only: unknown step '$s' (known: $STEPS_KNOWN)" >&2; exit 2 ;;
+  esac
+done
+want() { # STEP: whether this run runs STEP (every step without --only)
+  [ -z "$ONLY" ] && return 0
+  local s
+  for s in "${SELECTED[@]}"; do
+    [ "$s" = "$1" ] && return 0
+    [ "$s" = benches ] && [[ $1 == bench:* ]] && return 0
+  done
+  return 1
+}
 [[ $IDLE_LOAD =~ ^[0-9]+(\.[0-9]+)?$ ]] || { echo "run_all.sh: --idle-load '$IDLE_LOAD' is not a number" >&2; exit 2; }
 command -v python3 >/dev/null || { echo "run_all.sh: python3 is needed to collect the results and write the tables" >&2; exit 1; }
 
@@ -83,10 +118,16 @@ while read -r pkg rest; do
 done <<<"$members"
 [ ${#BENCHES[@]} -gt 0 ] || { echo "run_all.sh: cargo metadata lists no bench target" >&2; exit 1; }
 
+# detect_stages: repetitions of every image (the hand-taken issue-14 table used 5); the
+# sequence: frames of the simulated recording (300: the issue's 10 s at 30 frames/s, ~950 MB).
 if [ "$QUICK" = 1 ]; then
   CRIT_ARGS=(--warm-up-time 1 --measurement-time 2 --sample-size 10 --noplot)
+  DETECT_REPS=1
+  SEQ_FRAMES=60
 else
   CRIT_ARGS=(--noplot)
+  DETECT_REPS=${KFUSE_REPS:-5}
+  SEQ_FRAMES=300
 fi
 
 META=$RUN/meta.txt
@@ -111,6 +152,32 @@ for line in open(sys.argv[1]):
         print(f'{names[m["manifest_path"]]}/{m["target"]["name"]} {m["executable"]} {os.path.dirname(m["manifest_path"])}')
 PY
 )
+# The workspace's binaries (kfuse, for the sequence), its examples (detect_stages) and the
+# viewer's frame-time test, in the same profile and with --workspace, so that features unify as
+# in the bench build and its crates are reused rather than rebuilt with other features.
+cargo build --workspace --bins --examples --message-format=json-render-diagnostics "${PROFILE_FLAGS[@]}" \
+  >"$RUN/build-bins.json" 2>>"$RUN/logs/build.log" \
+  && cargo test --workspace --test frame_time --no-run --message-format=json-render-diagnostics "${PROFILE_FLAGS[@]}" \
+  >>"$RUN/build-bins.json" 2>>"$RUN/logs/build.log" \
+  || { tail -n 30 "$RUN/logs/build.log"; echo "run_all.sh: the build of the binaries, examples or the frame-time test failed (log: $RUN/logs/build.log)" >&2; exit 1; }
+# "kind/name executable" of the kfuse binary, the detect_stages example and the frame_time test.
+ARTIFACTS=$(python3 - "$RUN/build-bins.json" <<'PY'
+import json, sys
+for line in open(sys.argv[1]):
+    m = json.loads(line)
+    t = m.get("target", {})
+    if m.get("reason") == "compiler-artifact" and m.get("executable") and \
+            (t.get("kind"), t.get("name")) in ((["bin"], "kfuse"), (["example"], "detect_stages"), (["test"], "frame_time")):
+        print(f'{t["kind"][0]}/{t["name"]} {m["executable"]}')
+PY
+)
+artifact() { awk -v k="$1" '$1 == k { print $2 }' <<<"$ARTIFACTS"; }
+KFUSE_BIN=$(artifact bin/kfuse)
+DETECT_STAGES=$(artifact example/detect_stages)
+FRAME_TIME=$(artifact test/frame_time)
+for a in "kfuse binary:$KFUSE_BIN" "detect_stages example:$DETECT_STAGES" "frame_time test:$FRAME_TIME"; do
+  [ -x "${a#*:}" ] || { echo "run_all.sh: cargo built no ${a%%:*} (messages: $RUN/build-bins.json)" >&2; exit 1; }
+done
 
 PY=python3
 if [ "$PEERS" = 1 ]; then
@@ -146,6 +213,7 @@ else
 fi
 
 meta mode "$([ "$QUICK" = 1 ] && echo quick || echo full)"
+[ -n "$ONLY" ] && meta only "$ONLY"
 meta criterion_args "${CRIT_ARGS[*]}"
 meta profile "$PROFILE_DESC"
 meta cpu "$(grep -m1 '^model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ *//')"
@@ -178,6 +246,7 @@ run_peer() { # NAME COMMAND...: a peer's JSON goes to $RUN/peers/NAME.json, its 
 for target in "${BENCHES[@]}"; do
   pkg=${target%%/*}
   name=${target#*/}
+  want "bench:$target" || continue
   mkdir -p "$RUN/criterion/$target" "$RUN/logs/$pkg"
   log=$RUN/logs/$target.log
   echo "== bench $target (load $(load_now))"
@@ -207,11 +276,55 @@ for target in "${BENCHES[@]}"; do
   esac
 done
 
+# The measurements that are not criterion benches: each writes its log to logs/step-NAME.log,
+# which render_tables.py collect reads; meta step.NAME is its status, step.NAME.KEY its facts.
+run_step() { # NAME DIR COMMAND...: runs COMMAND in DIR, its output to the step's log
+  local name=$1 dir=$2; shift 2
+  local log=$RUN/logs/step-$name.log
+  echo "== $name (load $(load_now))"
+  meta "step.$name.start" "$(date -u '+%H:%M:%S')"
+  meta "step.$name.load_start" "$(load_now)"
+  if (cd "$dir" && "$@") >"$log" 2>&1; then
+    meta "step.$name" ok
+  else
+    meta "step.$name" "failed: exit $? (log: ${log#"$ROOT"/})"
+    tail -n 5 "$log"
+  fi
+}
+if want detect_stages; then
+  if [ -d "$DATA/synthetic-calib" ] && [ -d "$DATA/calib-corpus" ]; then
+    meta step.detect_stages.reps "$DETECT_REPS"
+    # One thread: the stage times of one image, without the junction fit's rayon split.
+    run_step detect_stages crates/calib env RAYON_NUM_THREADS=1 KFUSE_REPS="$DETECT_REPS" KFUSE_SHARED_DATA="$DATA" "$DETECT_STAGES"
+  else
+    echo "== detect_stages: SKIPPED, no shared data at $DATA (synthetic-calib, calib-corpus); its table will say so"
+    meta step.detect_stages "skipped: no shared data at $DATA"
+  fi
+fi
+if want sequence_e2e; then
+  # The recording (~3.2 MB a frame) lives under the run folder and is deleted with it below.
+  meta step.sequence_e2e.frames "$SEQ_FRAMES"
+  mkdir -p "$RUN/sequence"
+  run_step sequence_e2e "$ROOT" env KFUSE_SEQ_WORK="$RUN/sequence" benches/sequence_e2e.sh "$KFUSE_BIN" "$SEQ_FRAMES"
+  rm -rf "$RUN/sequence"
+fi
+if want viewer_frame_time; then
+  run_step viewer_frame_time crates/viewer "$FRAME_TIME" frame_time_kinect_textured_mesh --exact --nocapture --test-threads 1
+fi
+
 meta end "$(date -u '+%Y-%m-%d %H:%M')"
 meta load_end "$(load_now)"
 
-mkdir -p benches/results
+if [ -n "$ONLY" ]; then
+  RESULTS=$RUN/last-run.json
+  DOC=$RUN/BENCHMARKS.md
+  cp BENCHMARKS.md "$DOC"
+else
+  RESULTS=benches/results/last-run.json
+  DOC=BENCHMARKS.md
+  mkdir -p benches/results
+fi
 python3 benches/render_tables.py collect --meta "$META" --criterion "$RUN/criterion" --log "$RUN/logs" \
-  "${PEER_ARGS[@]}" --recorded benches/results/libfreenect2-recorded.json --out benches/results/last-run.json
-python3 benches/render_tables.py render benches/results/last-run.json BENCHMARKS.md
-echo "== done: benches/results/last-run.json and BENCHMARKS.md (logs in $RUN/logs)"
+  "${PEER_ARGS[@]}" --recorded benches/results/libfreenect2-recorded.json --out "$RESULTS"
+python3 benches/render_tables.py render "$RESULTS" "$DOC"
+echo "== done: $RESULTS and $DOC (logs in $RUN/logs)"

@@ -9,10 +9,13 @@
 #   benches/sequence_e2e.sh [KFUSE_BINARY] [FRAMES]
 #
 # Default binary: $CARGO_TARGET_DIR/release/kfuse (build it with `cargo build --release -p kfuse`).
+# The recording (~3.2 MB a frame) and the outputs go to a temporary folder under
+# $KFUSE_SEQ_WORK (default $TMPDIR or /tmp), deleted on exit. benches/run_all.sh runs this with
+# its own build's binary and collects the lines printed here (benches/render_tables.py).
 set -euo pipefail
 bin=${1:-${CARGO_TARGET_DIR:-target}/release/kfuse}
 frames=${2:-300}
-work=$(mktemp -d)
+work=$(mktemp -d -p "${KFUSE_SEQ_WORK:-${TMPDIR:-/tmp}}")
 trap 'rm -rf "$work"' EXIT
 "$bin" capture record --backend sim --frames "$frames" --output "$work/s.kfrec" 2>/dev/null
 echo "recording: $frames frames, $(du -m "$work/s.kfrec" | cut -f1) MB"
