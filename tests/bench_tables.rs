@@ -259,3 +259,130 @@ fn collect_reads_criterion_estimates_logs_and_peers() {
     );
     assert!(lf2["source"].as_str().unwrap().contains("fd64c5d9b214df6f6a55b4419357e51083f15d93"));
 }
+
+/// `collect` + `render` of the steps that are not criterion benches (`detect_stages`,
+/// `sequence_e2e`, the viewer's frame-time test) and of the sequence bench's PNG table, from the
+/// logs of a fixture run folder (`tests/fixtures/bench_tables/run`, the lines those programs
+/// print): every cell is the printed figure, every table names the step's time and load.
+#[test]
+fn steps_tables_show_the_printed_figures_and_when_each_step_ran() {
+    let test = "steps_tables_show_the_printed_figures_and_when_each_step_ran";
+    let dir = tempfile::tempdir().unwrap();
+    let run = fixture("run");
+    let results = dir.path().join("results.json");
+    let Some(doc) =
+        collect_and_render(test, &run.join("meta.txt"), &run.join("logs"), &results, dir.path())
+    else {
+        return;
+    };
+    // detect_stages: one row per image class, the printed ms (two decimals) in the stage columns.
+    assert_eq!(
+        row(&doc, "gopro-wide-1280x960-8x6 (GOPR*)")[1..],
+        ["36", "33", "4.00", "0.32", "0.44", "0.11", "0.03", "42.00", "48.20"]
+    );
+    assert_eq!(row(&doc, "rendered IR 512x424 (bench image)")[9], "2.41");
+    assert!(doc.contains(
+        "the median over 5 runs of every image, ms per image. This step ran at 03:10:05 UTC, \
+         load (1/5/15 min) 1.02/0.80/0.70 at its start. Run 2026-12-02 03:00 → 03:14 UTC"
+    ));
+    // sequence_e2e: frames (missing), both frames/s, five stages, output size, load before.
+    assert_eq!(
+        row(&doc, "kfuse | 2 ")[2..],
+        [
+            "300 (0)",
+            "48.4",
+            "40.5",
+            "1.90",
+            "10.99",
+            "7.69",
+            "3.84",
+            "1.40",
+            "181 MB",
+            "1.05/0.71/0.81"
+        ]
+    );
+    assert_eq!(row(&doc, "tum | 1 ")[2..4], ["298 (2)", "38.3"]);
+    assert!(doc.contains("a 300-frame simulated recording of 950 MB"));
+    assert!(!doc.contains("stale"));
+    // The sequence bench's stages and PNG encodings (criterion medians, sizes from its log).
+    assert_eq!(row(&doc, "`stage/decode`")[1..], ["10.4 ms", "10.2 ms – 11.2 ms"]);
+    assert_eq!(row(&doc, "`stage/write`")[1], "no result");
+    assert_eq!(row(&doc, "fastest | none")[2..], ["0.63 MB", "2.60 ms", "2.50 ms – 2.90 ms"]);
+    assert_eq!(row(&doc, "balanced | none")[2..], ["0.35 MB", "73.7 ms", "68.6 ms – 86.0 ms"]);
+    assert_eq!(row(&doc, "fast | up")[2..4], ["—", "no result"]);
+    // The viewer: adapter (with its parentheses), viewport, counts, ms per frame, upload, coverage.
+    assert_eq!(
+        row(&doc, "llvmpipe (LLVM 15.0.6, 256 bits)")[1..],
+        ["1280×720", "368538", "186819", "100.25", "42.0 ms", "87.3 % of the view"]
+    );
+    // The run's header lists every step.
+    assert!(doc.contains("* step `sequence_e2e`: ok; 300 frames; started 03:11:40 UTC"));
+}
+
+/// A step that failed, was skipped, or printed no figures renders one "Not measured" line saying
+/// why, never a table of stale or invented figures.
+#[test]
+fn a_step_without_figures_says_why() {
+    let test = "a_step_without_figures_says_why";
+    let dir = tempfile::tempdir().unwrap();
+    let logs = dir.path().join("logs");
+    std::fs::create_dir_all(&logs).unwrap();
+    let meta = std::fs::read_to_string(fixture("run/meta.txt"))
+        .unwrap()
+        .replace("step.detect_stages=ok", "step.detect_stages=skipped: no shared data at /nowhere");
+    std::fs::write(dir.path().join("meta.txt"), meta).unwrap();
+    // The sequence printed only its recording line; the viewer test found no adapter.
+    std::fs::write(logs.join("step-sequence_e2e.log"), "recording: 300 frames, 950 MB\n").unwrap();
+    std::fs::write(
+        logs.join("step-viewer_frame_time.log"),
+        "SKIP frame_time_kinect_textured_mesh: no wgpu adapter\ntest frame_time_kinect_textured_mesh ... ok\n",
+    )
+    .unwrap();
+    let results = dir.path().join("results.json");
+    let Some(doc) =
+        collect_and_render(test, &dir.path().join("meta.txt"), &logs, &results, dir.path())
+    else {
+        return;
+    };
+    for says in [
+        "Not measured: skipped: no shared data at /nowhere. This step ran at 03:10:05 UTC",
+        "Not measured: failed: printed no figures. This step ran at 03:11:40 UTC",
+        "Not measured: skipped: no wgpu adapter. This step ran at 03:13:20 UTC",
+    ] {
+        assert!(doc.contains(says), "no '{says}' in:\n{doc}");
+    }
+    assert!(!doc.contains("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&results).unwrap()).unwrap();
+    assert_eq!(r["steps"]["viewer_frame_time"]["status"], "skipped: no wgpu adapter");
+    assert_eq!(r["steps"]["sequence_e2e"]["recording_mb"].as_u64(), Some(950));
+}
+
+/// `collect --meta META --criterion run/criterion --log LOGS --out RESULTS`, then `render` of
+/// `doc-steps.md` into DIR; the rendered text, or `None` where python3 is missing.
+fn collect_and_render(
+    test: &str,
+    meta: &Path,
+    logs: &Path,
+    results: &Path,
+    dir: &Path,
+) -> Option<String> {
+    let criterion = fixture("run/criterion");
+    let args: Vec<&std::ffi::OsStr> = vec![
+        "collect".as_ref(),
+        "--meta".as_ref(),
+        meta.as_os_str(),
+        "--criterion".as_ref(),
+        criterion.as_os_str(),
+        "--log".as_ref(),
+        logs.as_os_str(),
+        "--out".as_ref(),
+        results.as_os_str(),
+    ];
+    let run = render_tables(test, &args)?;
+    assert!(run.status.success(), "collect failed: {}", String::from_utf8_lossy(&run.stderr));
+    let out = dir.join("doc.md");
+    let run = render(test, results, &fixture("doc-steps.md"), &out)?;
+    assert!(run.status.success(), "render failed: {}", String::from_utf8_lossy(&run.stderr));
+    Some(std::fs::read_to_string(out).unwrap())
+}
