@@ -524,9 +524,9 @@ def render_run(res):
         lines.append(f"* peer `{name}`: " + "; ".join(extra))
     for name, st in sorted(d.get("steps", {}).items()):
         extra = [st["status"]]
-        for key, what in (("reps", "repetitions"), ("frames", "frames")):
+        for key, what in (("reps", "repetitions of every image"), ("frames", "frames recorded")):
             if key in st:
-                extra.append(f"{st[key]} {what}")
+                extra.append(f"{what}: {st[key]}")
         if st.get("start"):
             extra.append(f"started {st['start']} UTC")
         lines.append(f"* step `{name}`: " + "; ".join(extra))
@@ -619,7 +619,8 @@ def render_detect_stages(res):
     )
     if st is None:
         return lines
-    lines[0] = lines[0].replace("every run of", f"{st.get('reps', '?')} runs of", 1)
+    reps = st.get("reps", "?")
+    lines[0] = lines[0].replace("every run of", f"{reps} run{'' if reps == 1 else 's'} of", 1)
     lines.append("| images | n | found | ChESS response | peak search | cornerSubPix | grid | label | junction fit | total |")
     lines.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for c in st["classes"]:

@@ -316,7 +316,7 @@ fn steps_tables_show_the_printed_figures_and_when_each_step_ran() {
         ["1280×720", "368538", "186819", "100.25", "42.0 ms", "87.3 % of the view"]
     );
     // The run's header lists every step.
-    assert!(doc.contains("* step `sequence_e2e`: ok; 300 frames; started 03:11:40 UTC"));
+    assert!(doc.contains("* step `sequence_e2e`: ok; frames recorded: 300; started 03:11:40 UTC"));
 }
 
 /// A step that failed, was skipped, or printed no figures renders one "Not measured" line saying
