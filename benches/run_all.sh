@@ -33,7 +33,8 @@
 #    layouts, 1 and 2 threads) and the viewer's frame-time test
 #    (`crates/viewer/tests/frame_time.rs`, the 3D view's textured mesh on the wgpu adapter);
 # 6. writes benches/results/last-run.json (machine, date UTC, commit + dirty flag, load at start
-#    and end, every criterion median with its 95 % interval, the peers' figures) and rewrites
+#    and end, every criterion median with its 95 % interval, the peers' and the steps' figures)
+#    and rewrites
 #    the generated sections of BENCHMARKS.md (`<!-- run_all:begin KEY -->` … `end KEY`, see
 #    benches/render_tables.py; nothing outside the markers changes).
 #
@@ -57,7 +58,7 @@ QUICK=0
 PEERS=1
 ONLY=
 
-usage() { sed -n '2,45p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { awk 'NR == 1 { next } /^#/ { sub(/^# ?/, ""); print; next } { exit }' "$0"; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --quick) QUICK=1 ;;
