@@ -203,12 +203,12 @@ pub fn detect_timed(
     lap(&mut t.response);
     let peaks = candidates::peaks(&resp, params);
     lap(&mut t.peaks);
-    let pts = candidates::refine_peaks(img, &peaks, params);
+    let mut pts = candidates::refine_peaks(img, &peaks, params);
     lap(&mut t.subpix);
     if pts.len() < 4 {
         return (None, t);
     }
-    let grid = grid_for_board(img, board, &pts);
+    let grid = grid_for_board(img, board, &mut pts);
     lap(&mut t.grid);
     let Some(grid) = grid else { return (None, t) };
     let labelled = label::label(img, board, &pts, &grid);
@@ -221,11 +221,11 @@ pub fn detect_timed(
 }
 
 /// Stage 3: the board-sized grid of the candidates, or `None` when there is none or the image
-/// shows a larger board.
+/// shows a larger board. Corners found in the grid's holes are appended to `pts`.
 fn grid_for_board(
     img: &Image<f32>,
     board: &Board,
-    pts: &[(nalgebra::Vector2<f64>, f32)],
+    pts: &mut Vec<(nalgebra::Vector2<f64>, f32)>,
 ) -> Option<grid::Grid> {
     let found = grid::largest(pts, board.len())?;
     if shows_larger_board(img, board, pts, &found) {
@@ -238,6 +238,8 @@ fn grid_for_board(
     if grid::full_line_beside(&found, &grid) {
         return None;
     }
+    let mut grid = grid;
+    grid::fill_holes(img, pts, &mut grid);
     // A corner grown into the wrong row or column (a strong lens bends the grid past the
     // growth's prediction) would be labelled wrongly: such a grid is dropped, never guessed.
     if !grid::is_smooth(pts, &grid) {
