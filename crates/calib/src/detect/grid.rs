@@ -5,6 +5,7 @@ use geometry::Image;
 use nalgebra::Vector2;
 
 use super::subpix::{bilinear, refine_corner};
+use crate::zhang::homography;
 
 use crate::Board;
 
@@ -221,15 +222,53 @@ const FILL_WINDOW_FRACTION: f64 = 0.4;
 /// Smallest half window of that `cornerSubPix`, px (below 2 it sees too few gradients).
 const FILL_MIN_HALF_WINDOW: usize = 2;
 
+/// Largest distance of a filled corner from its prediction, as a fraction of the local grid
+/// step: a little over a third of the growth's [`GRID_TOLERANCE`], as the prediction (a
+/// homography of the grid corners around the hole) is exact under perspective and only the
+/// lens's bend over two squares and the corners' noise move a real corner off it, while a
+/// `cornerSubPix` that converged on another feature (a neighbouring edge) is off by more.
+const FILL_MAX_OFFSET: f64 = 0.1;
+/// Grid corners within this many steps (Chebyshev) of a hole predict it.
+const FILL_LOCAL_RADIUS: i32 = 2;
+/// Fewest such corners for the local homography (4 determine it; 6 leave redundancy).
+const FILL_MIN_LOCAL: usize = 6;
+
+/// The image position of grid position `at` predicted by the homography of the grid corners
+/// within [`FILL_LOCAL_RADIUS`] of it (exact under perspective, and over two squares the lens
+/// bends the board little); `None` with fewer than [`FILL_MIN_LOCAL`] of them.
+fn local_prediction(
+    pts: &[(Vector2<f64>, f32)],
+    grid: &Grid,
+    at: (i32, i32),
+) -> Option<Vector2<f64>> {
+    let near: Vec<(Vector2<f64>, Vector2<f64>)> = grid
+        .iter()
+        .filter(|(k, _)| (k.0 - at.0).abs().max((k.1 - at.1).abs()) <= FILL_LOCAL_RADIUS)
+        .map(|(k, &n)| (Vector2::new((k.0 - at.0) as f64, (k.1 - at.1) as f64), pts[n].0))
+        .collect();
+    if near.len() < FILL_MIN_LOCAL {
+        return None;
+    }
+    let (plane, pix): (Vec<_>, Vec<_>) = near.into_iter().unzip();
+    let h = homography(&plane, &pix)?;
+    let q = h * nalgebra::Vector3::new(0.0, 0.0, 1.0);
+    (q.z.abs() > f64::EPSILON).then(|| Vector2::new(q.x / q.z, q.y / q.z))
+}
+
 /// Fills the holes of a board-sized grid: a grid position inside the grid's extent with no
 /// candidate (the candidate stage misses corners of squares only ~10 px wide, GoPro GOPR0067)
-/// is predicted from its line (the midpoint of its two neighbours, else the extrapolation of
-/// the two previous corners), refined with `cornerSubPix` there, and added to `pts` when the
-/// refinement stays within [`GRID_TOLERANCE`] of a step of the prediction and the four
-/// quadrants around it alternate in colour (an X-junction, not an edge or a blank). Repeats
-/// while a pass fills any hole. Every position inside the extent of a grid on a board is a
+/// where the local grid step is below the ChESS ring's diameter (`2 · ring_radius`) is
+/// predicted by the homography of the grid corners around it, refined with `cornerSubPix`
+/// there, and added to `pts` when the refinement stays within [`FILL_MAX_OFFSET`] of a step
+/// of the prediction and the four quadrants around it alternate in colour (an X-junction, not
+/// an edge or a blank). Repeats while a pass fills any hole. Every position inside the extent of a grid on a board is a
 /// board corner, so no new corner can be grown off the board.
-pub(super) fn fill_holes(img: &Image<f32>, pts: &mut Vec<(Vector2<f64>, f32)>, grid: &mut Grid) {
+pub(super) fn fill_holes(
+    img: &Image<f32>,
+    pts: &mut Vec<(Vector2<f64>, f32)>,
+    grid: &mut Grid,
+    ring_radius: usize,
+) {
     let (Some(i0), Some(i1), Some(j0), Some(j1)) = (
         grid.keys().map(|k| k.0).min(),
         grid.keys().map(|k| k.0).max(),
@@ -266,7 +305,8 @@ pub(super) fn fill_holes(img: &Image<f32>, pts: &mut Vec<(Vector2<f64>, f32)>, g
                     };
                     axes.push(d);
                 }
-                let Some(&(pred, step)) = guesses.first() else { continue };
+                let Some(&(_, step)) = guesses.first() else { continue };
+                let Some(pred) = local_prediction(pts, grid, (i, j)) else { continue };
                 let len = step.norm();
                 // The other axis' step: from the grid around, else the perpendicular.
                 let other = guesses
@@ -278,6 +318,14 @@ pub(super) fn fill_holes(img: &Image<f32>, pts: &mut Vec<(Vector2<f64>, f32)>, g
                 // The window sized by the shorter step, as it must stay clear of both axes'
                 // neighbours.
                 let short = len.min(other.norm());
+                // Only where the candidate stage is blind: squares narrower than the ChESS
+                // ring's diameter put the neighbouring corners' edges on the ring. Elsewhere a
+                // corner without a candidate is not a clean junction (the Kinect's IR glare
+                // separates the black squares: kinect-lab ir_11, where a filled corner ended
+                // 2.9 px from the lab's), and it stays a hole.
+                if short >= 2.0 * ring_radius as f64 {
+                    continue;
+                }
                 let hw = ((FILL_WINDOW_FRACTION * short) as usize).max(FILL_MIN_HALF_WINDOW);
                 let margin = hw as f64 + 2.0;
                 if pred.x < margin
@@ -288,7 +336,7 @@ pub(super) fn fill_holes(img: &Image<f32>, pts: &mut Vec<(Vector2<f64>, f32)>, g
                     continue;
                 }
                 let Some(q) = refine_corner(img, pred, hw) else { continue };
-                if (q - pred).norm() >= GRID_TOLERANCE * short {
+                if (q - pred).norm() >= FILL_MAX_OFFSET * short {
                     continue;
                 }
                 if !alternates(img, q, step, other) {
@@ -462,7 +510,8 @@ mod tests {
                 }
             }
         }
-        fill_holes(&img, &mut pts, &mut grid);
+        // Ring radius 7 (colour images): 14 px, above the 12 px squares.
+        fill_holes(&img, &mut pts, &mut grid, 7);
         for &(i, j) in &holes[..4] {
             let &n = grid.get(&(i, j)).unwrap_or_else(|| panic!("hole ({i}, {j}) not filled"));
             let err = (pts[n].0 - at(i, j)).norm();
@@ -470,5 +519,18 @@ mod tests {
         }
         assert!(!grid.contains_key(&blank), "a corner filled on the flat patch");
         assert_eq!(grid.len(), 8 * 6 - 1);
+        // Ring radius 5 (IR images): 10 px, below the 12 px squares, where the candidate stage
+        // sees corners; a hole there is not a clean junction and is left alone.
+        let (mut pts5, mut grid5) = (pts[..0].to_vec(), Grid::new());
+        for i in 0..8 {
+            for j in 0..6 {
+                if !holes.contains(&(i, j)) {
+                    pts5.push((at(i, j), 1.0));
+                    grid5.insert((i, j), pts5.len() - 1);
+                }
+            }
+        }
+        fill_holes(&img, &mut pts5, &mut grid5, 5);
+        assert_eq!(grid5.len(), 8 * 6 - holes.len(), "holes filled where the squares are wide");
     }
 }
