@@ -1,7 +1,11 @@
 //! Stage 3, grid: grows a seed cell of candidates into a grid of rows and columns, and trims a
 //! grid larger than the board to a board-sized window.
 
+use geometry::Image;
 use nalgebra::Vector2;
+
+use super::subpix::{bilinear, refine_corner};
+use crate::zhang::homography;
 
 use crate::Board;
 
@@ -40,6 +44,27 @@ fn reduced(u: Vector2<f64>, v: Vector2<f64>) -> bool {
     (u + v).norm_squared() >= longer && (u - v).norm_squared() >= longer
 }
 
+/// The step after `s0`, `s` along a grid line: `s` turned and scaled as `s0` → `s` was (the
+/// complex ratio `s / s0` applied again), the way perspective and a lens shrink and bend a
+/// board's lines gradually. A constant step (`s` again) underestimates the shrinking: on
+/// GoPro GOPR0053 (fisheye close-up, steps 177 → 133 → 94 px) it predicted the corner after
+/// next closer than the next one. Where the two steps differ by more than a smooth line allows
+/// ([`MAX_STEP_RATIO`], [`MAX_LINE_TURN_DEG`]) they say nothing about the next one: `s`.
+fn next_step(s0: Vector2<f64>, s: Vector2<f64>) -> Vector2<f64> {
+    let n0 = s0.norm_squared();
+    if n0 <= 0.0 {
+        return s;
+    }
+    // r = s / s0 as complex numbers.
+    let (re, im) = ((s.x * s0.x + s.y * s0.y) / n0, (s.y * s0.x - s.x * s0.y) / n0);
+    let ratio = re.hypot(im);
+    let turn = im.atan2(re).abs().to_degrees();
+    if !(1.0 / MAX_STEP_RATIO..=MAX_STEP_RATIO).contains(&ratio) || turn > MAX_LINE_TURN_DEG {
+        return s;
+    }
+    Vector2::new(s.x * re - s.y * im, s.x * im + s.y * re)
+}
+
 /// Grows a grid from seed `s`; `None` if no seed cell exists there.
 fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
     let p = pts[s].0;
@@ -71,8 +96,20 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
                 grid.insert(k, i);
                 used[i] = true;
             }
+            // Breadth-first, then again from every corner while a pass adds any: a neighbour
+            // that could not be predicted when its corner was first visited (no previous
+            // corner on its line yet, e.g. next to a missed candidate) can be once the grid
+            // has grown around it (GoPro GOPR0067: three corners were left out so).
             let mut queue: std::collections::VecDeque<(i32, i32)> = grid.keys().copied().collect();
-            while let Some((i, j)) = queue.pop_front() {
+            let mut added = false;
+            loop {
+                let Some((i, j)) = queue.pop_front() else {
+                    if !std::mem::take(&mut added) {
+                        break;
+                    }
+                    queue.extend(grid.keys().copied());
+                    continue;
+                };
                 for (di, dj) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
                     let key = (i + di, j + dj);
                     if grid.contains_key(&key) {
@@ -82,7 +119,10 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
                     // Predict from the previous corner on the same line, else from a parallel
                     // step of a neighbouring line.
                     let step = if let Some(&back) = grid.get(&(i - di, j - dj)) {
-                        Some(here - pts[back].0)
+                        let s = here - pts[back].0;
+                        let s0 =
+                            grid.get(&(i - 2 * di, j - 2 * dj)).map(|&b| pts[back].0 - pts[b].0);
+                        Some(s0.map_or(s, |s0| next_step(s0, s)))
                     } else {
                         [(dj, di), (-dj, -di)].iter().find_map(|&(oi, oj)| {
                             let q0 = grid.get(&(i + oi, j + oj))?;
@@ -96,6 +136,7 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
                         grid.insert(key, n);
                         used[n] = true;
                         queue.push_back(key);
+                        added = true;
                     }
                 }
             }
@@ -172,6 +213,152 @@ pub(super) fn full_line_beside(full: &Grid, part: &Grid) -> bool {
     let column = |i: i32| (j0..=j1).all(|j| full.contains_key(&(i, j)));
     let row = |j: i32| (i0..=i1).all(|i| full.contains_key(&(i, j)));
     column(i0 - 1) || column(i1 + 1) || row(j0 - 1) || row(j1 + 1)
+}
+
+/// Half window of the `cornerSubPix` that fills a hole, as a fraction of the local grid step
+/// (clear of the neighbouring corners, whose edges would pull it; the same fraction as the
+/// final colour window in `refine.rs`).
+const FILL_WINDOW_FRACTION: f64 = 0.4;
+/// Smallest half window of that `cornerSubPix`, px (below 2 it sees too few gradients).
+const FILL_MIN_HALF_WINDOW: usize = 2;
+
+/// Largest distance of a filled corner from its prediction, as a fraction of the local grid
+/// step: a little over a third of the growth's [`GRID_TOLERANCE`], as the prediction (a
+/// homography of the grid corners around the hole) is exact under perspective and only the
+/// lens's bend over two squares and the corners' noise move a real corner off it, while a
+/// `cornerSubPix` that converged on another feature (a neighbouring edge) is off by more.
+const FILL_MAX_OFFSET: f64 = 0.1;
+/// Grid corners within this many steps (Chebyshev) of a hole predict it.
+const FILL_LOCAL_RADIUS: i32 = 2;
+/// Fewest such corners for the local homography (4 determine it; 6 leave redundancy).
+const FILL_MIN_LOCAL: usize = 6;
+
+/// The image position of grid position `at` predicted by the homography of the grid corners
+/// within [`FILL_LOCAL_RADIUS`] of it (exact under perspective, and over two squares the lens
+/// bends the board little); `None` with fewer than [`FILL_MIN_LOCAL`] of them.
+fn local_prediction(
+    pts: &[(Vector2<f64>, f32)],
+    grid: &Grid,
+    at: (i32, i32),
+) -> Option<Vector2<f64>> {
+    let near: Vec<(Vector2<f64>, Vector2<f64>)> = grid
+        .iter()
+        .filter(|(k, _)| (k.0 - at.0).abs().max((k.1 - at.1).abs()) <= FILL_LOCAL_RADIUS)
+        .map(|(k, &n)| (Vector2::new((k.0 - at.0) as f64, (k.1 - at.1) as f64), pts[n].0))
+        .collect();
+    if near.len() < FILL_MIN_LOCAL {
+        return None;
+    }
+    let (plane, pix): (Vec<_>, Vec<_>) = near.into_iter().unzip();
+    let h = homography(&plane, &pix)?;
+    let q = h * nalgebra::Vector3::new(0.0, 0.0, 1.0);
+    (q.z.abs() > f64::EPSILON).then(|| Vector2::new(q.x / q.z, q.y / q.z))
+}
+
+/// Fills the holes of a board-sized grid: a grid position inside the grid's extent with no
+/// candidate (the candidate stage misses corners of squares only ~10 px wide, GoPro GOPR0067)
+/// where the local grid step is below the ChESS ring's diameter (`2 · ring_radius`) is
+/// predicted by the homography of the grid corners around it, refined with `cornerSubPix`
+/// there, and added to `pts` when the refinement stays within [`FILL_MAX_OFFSET`] of a step
+/// of the prediction and the four quadrants around it alternate in colour (an X-junction, not
+/// an edge or a blank). Repeats while a pass fills any hole. Every position inside the extent of a grid on a board is a
+/// board corner, so no new corner can be grown off the board.
+pub(super) fn fill_holes(
+    img: &Image<f32>,
+    pts: &mut Vec<(Vector2<f64>, f32)>,
+    grid: &mut Grid,
+    ring_radius: usize,
+) {
+    let (Some(i0), Some(i1), Some(j0), Some(j1)) = (
+        grid.keys().map(|k| k.0).min(),
+        grid.keys().map(|k| k.0).max(),
+        grid.keys().map(|k| k.1).min(),
+        grid.keys().map(|k| k.1).max(),
+    ) else {
+        return;
+    };
+    loop {
+        let mut filled = false;
+        for i in i0..=i1 {
+            for j in j0..=j1 {
+                if grid.contains_key(&(i, j)) {
+                    continue;
+                }
+                let at = |di: i32, dj: i32| grid.get(&(i + di, j + dj)).map(|&n| pts[n].0);
+                // (prediction, step along the line) from each axis, interpolation first.
+                let mut guesses = Vec::new();
+                let mut axes = Vec::new();
+                for (di, dj) in [(1, 0), (0, 1)] {
+                    if let (Some(a), Some(b)) = (at(-di, -dj), at(di, dj)) {
+                        guesses.push((0.5 * (a + b), 0.5 * (b - a)));
+                    }
+                }
+                for (di, dj) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                    if let (Some(a), Some(b)) = (at(-di, -dj), at(-2 * di, -2 * dj)) {
+                        guesses.push((2.0 * a - b, a - b));
+                    }
+                }
+                for (di, dj) in [(1, 0), (0, 1)] {
+                    let d = match (at(di, dj), at(-di, -dj)) {
+                        (Some(a), Some(b)) => Some(0.5 * (a - b)),
+                        _ => None,
+                    };
+                    axes.push(d);
+                }
+                let Some(&(_, step)) = guesses.first() else { continue };
+                let Some(pred) = local_prediction(pts, grid, (i, j)) else { continue };
+                let len = step.norm();
+                // The other axis' step: from the grid around, else the perpendicular.
+                let other = guesses
+                    .iter()
+                    .map(|g| g.1)
+                    .chain(axes.into_iter().flatten())
+                    .find(|v| (v.dot(&step) / (v.norm() * len)).abs() < 0.5)
+                    .unwrap_or_else(|| Vector2::new(-step.y, step.x));
+                // The window sized by the shorter step, as it must stay clear of both axes'
+                // neighbours.
+                let short = len.min(other.norm());
+                // Only where the candidate stage is blind: squares narrower than the ChESS
+                // ring's diameter put the neighbouring corners' edges on the ring. Elsewhere a
+                // corner without a candidate is not a clean junction (the Kinect's IR glare
+                // separates the black squares: kinect-lab ir_11, where a filled corner ended
+                // 2.9 px from the lab's), and it stays a hole.
+                if short >= 2.0 * ring_radius as f64 {
+                    continue;
+                }
+                let hw = ((FILL_WINDOW_FRACTION * short) as usize).max(FILL_MIN_HALF_WINDOW);
+                let margin = hw as f64 + 2.0;
+                if pred.x < margin
+                    || pred.y < margin
+                    || pred.x > img.width() as f64 - 1.0 - margin
+                    || pred.y > img.height() as f64 - 1.0 - margin
+                {
+                    continue;
+                }
+                let Some(q) = refine_corner(img, pred, hw) else { continue };
+                if (q - pred).norm() >= FILL_MAX_OFFSET * short {
+                    continue;
+                }
+                if !alternates(img, q, step, other) {
+                    continue;
+                }
+                pts.push((q, 0.0));
+                grid.insert((i, j), pts.len() - 1);
+                filled = true;
+            }
+        }
+        if !filled {
+            break;
+        }
+    }
+}
+
+/// True when the four cells around the junction `q` (grid steps `u`, `v`) alternate: both
+/// diagonal cells of one pair darker than both of the other pair.
+fn alternates(img: &Image<f32>, q: Vector2<f64>, u: Vector2<f64>, v: Vector2<f64>) -> bool {
+    let s = |d: Vector2<f64>| bilinear(img, q.x + 0.25 * d.x, q.y + 0.25 * d.y);
+    let (a, b) = ((s(u + v), s(-u - v)), (s(u - v), s(v - u)));
+    a.0.min(a.1) > b.0.max(b.1) || b.0.min(b.1) > a.0.max(a.1)
 }
 
 /// Corners along the grid's two axes (`(ni, nj)`).
@@ -260,5 +447,90 @@ mod tests {
         }
         // The 7x4 interior corners all seed.
         assert!(grown >= 28, "{grown} seeds grew");
+    }
+
+    /// Source of the expectation: a line shrinking and turning at a constant rate (a
+    /// geometric sequence of steps, as perspective makes) is predicted exactly; steps that no
+    /// smooth line shows (ratio beyond [`MAX_STEP_RATIO`]) fall back to the last step.
+    #[test]
+    fn next_step_continues_a_shrinking_turning_line() {
+        let turn = 4f64.to_radians();
+        let rot = |v: Vector2<f64>, k: f64| {
+            let (c, s) = ((k * turn).cos(), (k * turn).sin());
+            Vector2::new(c * v.x - s * v.y, s * v.x + c * v.y)
+        };
+        let s0 = Vector2::new(177.0, 0.0);
+        let (s1, s2) = (rot(s0, 1.0) * 0.75, rot(s0, 2.0) * 0.75 * 0.75);
+        assert!((next_step(s0, s1) - s2).norm() < 1e-9);
+        // A constant-step prediction would be 33 px off here (44 % of the next step).
+        assert!((s1 - s2).norm() > 0.28 * s2.norm());
+        let jump = Vector2::new(2.0 * 177.0, 0.0);
+        assert_eq!(next_step(s0, jump), jump);
+    }
+
+    /// A checkerboard of 12 px squares, rendered with 4×4 supersampling (dark 40, light 200),
+    /// and a flat grey patch (120) covering corner `blank`; corner `(i, j)` of the grid is at
+    /// `(30.5 + 12 i, 30.5 + 12 j)`.
+    fn board_image(blank: (i32, i32)) -> (Image<f32>, impl Fn(i32, i32) -> Vector2<f64>) {
+        let at = |i: i32, j: i32| Vector2::new(30.5 + 12.0 * i as f64, 30.5 + 12.0 * j as f64);
+        let b = at(blank.0, blank.1);
+        let img = Image::from_fn(140, 120, |x, y| {
+            if (x as f64 - b.x).abs() < 4.0 && (y as f64 - b.y).abs() < 4.0 {
+                return 120.0;
+            }
+            let mut sum = 0.0;
+            for sy in 0..4 {
+                for sx in 0..4 {
+                    let u = (x as f64 - 0.375 + 0.25 * sx as f64 - 30.5) / 12.0;
+                    let v = (y as f64 - 0.375 + 0.25 * sy as f64 - 30.5) / 12.0;
+                    let dark = (u.floor() as i64 + v.floor() as i64).rem_euclid(2) == 0;
+                    sum += if dark { 40.0 } else { 200.0 };
+                }
+            }
+            sum / 16.0
+        });
+        (img, at)
+    }
+
+    /// Source of the expectations: the rendered board's corner positions. Holes at real
+    /// corners are filled within 0.1 px of the truth; the corner covered by a flat patch
+    /// (no junction there) stays a hole; nothing is added outside the grid's extent.
+    #[test]
+    fn fill_holes_finds_missed_corners_and_nothing_else() {
+        let blank = (5, 3);
+        let (img, at) = board_image(blank);
+        let holes = [(0, 0), (3, 2), (4, 2), (7, 4), blank];
+        let mut pts = Vec::new();
+        let mut grid = Grid::new();
+        for i in 0..8 {
+            for j in 0..6 {
+                if !holes.contains(&(i, j)) {
+                    pts.push((at(i, j), 1.0));
+                    grid.insert((i, j), pts.len() - 1);
+                }
+            }
+        }
+        // Ring radius 7 (colour images): 14 px, above the 12 px squares.
+        fill_holes(&img, &mut pts, &mut grid, 7);
+        for &(i, j) in &holes[..4] {
+            let &n = grid.get(&(i, j)).unwrap_or_else(|| panic!("hole ({i}, {j}) not filled"));
+            let err = (pts[n].0 - at(i, j)).norm();
+            assert!(err < 0.1, "({i}, {j}) filled {err:.3} px off");
+        }
+        assert!(!grid.contains_key(&blank), "a corner filled on the flat patch");
+        assert_eq!(grid.len(), 8 * 6 - 1);
+        // Ring radius 5 (IR images): 10 px, below the 12 px squares, where the candidate stage
+        // sees corners; a hole there is not a clean junction and is left alone.
+        let (mut pts5, mut grid5) = (pts[..0].to_vec(), Grid::new());
+        for i in 0..8 {
+            for j in 0..6 {
+                if !holes.contains(&(i, j)) {
+                    pts5.push((at(i, j), 1.0));
+                    grid5.insert((i, j), pts5.len() - 1);
+                }
+            }
+        }
+        fill_holes(&img, &mut pts5, &mut grid5, 5);
+        assert_eq!(grid5.len(), 8 * 6 - holes.len(), "holes filled where the squares are wide");
     }
 }

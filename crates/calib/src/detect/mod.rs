@@ -22,8 +22,11 @@
 //!    Gaussian-weighted window), iterated to 1e-4 px; the same estimator that Bouguet's
 //!    toolbox uses.
 //! 3. **Grid**: a seed cell (a corner, its nearest neighbour, the opposite one and a
-//!    non-collinear pair) grows breadth-first by predicting each neighbour from the two
-//!    previous corners of its row or column; holes (a glare-washed corner) are allowed.
+//!    non-collinear pair) grows breadth-first by predicting each neighbour from the previous
+//!    corners of its row or column (the last step, turned and scaled as the one before it),
+//!    repeated while a pass adds a corner; holes (a glare-washed corner) are allowed. Holes
+//!    where the squares are narrower than the ChESS ring are filled by `cornerSubPix` at the
+//!    predicted point.
 //! 4. **Labelling**: the grid's extents are matched to the board's `cols × rows`, never
 //!    mirrored; the colour of the squares fixes the offsets of a partial board and, where it
 //!    can, the orientation; the rest follows the ordering rule below. A board whose labelling
@@ -203,12 +206,12 @@ pub fn detect_timed(
     lap(&mut t.response);
     let peaks = candidates::peaks(&resp, params);
     lap(&mut t.peaks);
-    let pts = candidates::refine_peaks(img, &peaks, params);
+    let mut pts = candidates::refine_peaks(img, &peaks, params);
     lap(&mut t.subpix);
     if pts.len() < 4 {
         return (None, t);
     }
-    let grid = grid_for_board(img, board, &pts);
+    let grid = grid_for_board(img, board, &mut pts, params);
     lap(&mut t.grid);
     let Some(grid) = grid else { return (None, t) };
     let labelled = label::label(img, board, &pts, &grid);
@@ -221,11 +224,12 @@ pub fn detect_timed(
 }
 
 /// Stage 3: the board-sized grid of the candidates, or `None` when there is none or the image
-/// shows a larger board.
+/// shows a larger board. Corners found in the grid's holes are appended to `pts`.
 fn grid_for_board(
     img: &Image<f32>,
     board: &Board,
-    pts: &[(nalgebra::Vector2<f64>, f32)],
+    pts: &mut Vec<(nalgebra::Vector2<f64>, f32)>,
+    params: &DetectorParams,
 ) -> Option<grid::Grid> {
     let found = grid::largest(pts, board.len())?;
     if shows_larger_board(img, board, pts, &found) {
@@ -238,6 +242,8 @@ fn grid_for_board(
     if grid::full_line_beside(&found, &grid) {
         return None;
     }
+    let mut grid = grid;
+    grid::fill_holes(img, pts, &mut grid, params.ring_radius);
     // A corner grown into the wrong row or column (a strong lens bends the grid past the
     // growth's prediction) would be labelled wrongly: such a grid is dropped, never guessed.
     if !grid::is_smooth(pts, &grid) {
