@@ -84,9 +84,14 @@ pub(crate) fn print_stereo(s: &StereoCalibration, ir_views: &[ViewCorners]) {
         t.x, t.y, t.z, ts.x, ts.y, ts.z
     );
     println!(
-        "  rotation {:.4}° (axis-angle {:?}) ± ({:.4}, {:.4}, {:.4})°",
+        "  rotation {:.4}° (axis-angle [{}] rad) ± ({:.4}, {:.4}, {:.4})°",
         s.color_from_depth.angle_deg(),
-        s.color_from_depth.axis_angle().as_slice(),
+        s.color_from_depth
+            .axis_angle()
+            .iter()
+            .map(|v| format!("{v:.6}"))
+            .collect::<Vec<_>>()
+            .join(", "),
         rs.x,
         rs.y,
         rs.z
