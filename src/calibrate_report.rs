@@ -47,8 +47,11 @@ pub(crate) fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
             None => "ok".into(),
         };
         println!(
-            "  {:<28} {:>8} {:>8.4} {:>8.1}  {status}",
-            v.name, v.n_corners, v.rms_px, v.tilt_deg
+            "  {:<28} {:>8} {:>8} {:>8}  {status}",
+            v.name,
+            v.n_corners,
+            cell(v.rms_px, 4),
+            cell(v.tilt_deg, 1)
         );
     }
     for c in &m.rejected_corners {
@@ -81,9 +84,14 @@ pub(crate) fn print_stereo(s: &StereoCalibration, ir_views: &[ViewCorners]) {
         t.x, t.y, t.z, ts.x, ts.y, ts.z
     );
     println!(
-        "  rotation {:.4}° (axis-angle {:?}) ± ({:.4}, {:.4}, {:.4})°",
+        "  rotation {:.4}° (axis-angle [{}] rad) ± ({:.4}, {:.4}, {:.4})°",
         s.color_from_depth.angle_deg(),
-        s.color_from_depth.axis_angle().as_slice(),
+        s.color_from_depth
+            .axis_angle()
+            .iter()
+            .map(|v| format!("{v:.6}"))
+            .collect::<Vec<_>>()
+            .join(", "),
         rs.x,
         rs.y,
         rs.z
@@ -377,6 +385,12 @@ fn poses_figure(path: &Path, name: &str, m: &MonoCalibration, board: Option<&Boa
         root.present()?;
     }
     save_rgb(path, buf, w, h)
+}
+
+/// A number of the per-view table with `decimals` places, or `-` for a view that was not used
+/// (the fit gives it no error or tilt: NaN, which a reader would take for a failure).
+fn cell(value: f64, decimals: usize) -> String {
+    if value.is_finite() { format!("{value:.decimals$}") } else { "-".into() }
 }
 
 #[cfg(test)]

@@ -297,9 +297,16 @@ fn load_and_detect(
     }
     if !auto && with_board < calib::mono::MIN_VIEWS {
         let asked = (board.cols.max(board.rows), board.cols.min(board.rows));
-        if let Some(((a, b), n)) = common_grid_size(&names).filter(|s| s.0 != asked) {
+        if let Some(((a, b), _)) = common_grid_size(&names).filter(|s| s.0 != asked) {
+            // The count of the images the board of that size is then found in (what
+            // `--board AxB` would calibrate on), not of those whose whole grid the size search
+            // saw: that search misses boards the detector of a known size finds (OpenCV's 9x6
+            // sample: 2 of 13 against 13 of 13).
+            let suggested = Board { cols: a, rows: b, ..board };
+            let (views, _) = detect_views_with(&names, &suggested, refinement, &|| {});
+            let n = views.iter().filter(|v| !v.corners.is_empty()).count();
             bail!(
-                "{camera}: these images show a {a}x{b} grid ({n} of {} images); you asked for {}x{} (the board is found in {with_board}). Give --board {a}x{b} (inner corners) or --board auto",
+                "{camera}: these images show a {a}x{b} grid (found in {n} of {} images); you asked for {}x{} (found in {with_board}). Give --board {a}x{b} (inner corners) or --board auto",
                 names.len(),
                 board.cols,
                 board.rows

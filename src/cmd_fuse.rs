@@ -242,6 +242,8 @@ pub struct FuseResult {
     pub out: PathBuf,
     /// The fusion's counts.
     pub summary: fusion::FusionSummary,
+    /// Whether the lab's figures were drawn (not with `--no-figures`).
+    pub figures: bool,
 }
 
 fn progress(steps: u64) -> ProgressBar {
@@ -333,7 +335,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let out = staged.commit()?;
     bar.inc(1);
     bar.finish_and_clear();
-    Ok(FuseResult { out, summary: output.summary })
+    Ok(FuseResult { out, summary: output.summary, figures: !args.no_figures })
 }
 
 fn rig_name(args: &FuseArgs) -> String {
@@ -465,5 +467,10 @@ pub fn report(result: &FuseResult) {
     println!("  point cloud   {out}/cloud.ply       (MeshLab, CloudCompare, Blender)");
     println!("  meshes        {out}/mesh.obj, {out}/mesh_clean.obj (+ .ply)");
     println!("  depth         {out}/depth_filled.png (16-bit mm), .exr (m)");
-    println!("  figures       {out}/task1.png ... task8.png   summary: {out}/summary.json");
+    if result.figures {
+        println!("  figures       {out}/task1.png ... task8.png   summary: {out}/summary.json");
+    } else {
+        // `--no-figures`: none drawn, none listed.
+        println!("  summary       {out}/summary.json");
+    }
 }

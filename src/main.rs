@@ -46,7 +46,27 @@ enum Command {
     Capture(cmd_capture::CaptureArgs),
 }
 
+/// Exit status when standard output is closed before kfuse is done writing to it (`kfuse
+/// calibrate … | head`): 128 + SIGPIPE (13), what a shell reports for a program that the
+/// broken pipe stopped, as it stops `cat` or `grep`.
+const BROKEN_PIPE_EXIT: i32 = 141;
+
+/// Rust ignores SIGPIPE, so `println!` to a closed pipe panics with a stack trace; a reader
+/// that stopped reading is no error of kfuse's: stop quietly with [`BROKEN_PIPE_EXIT`] instead.
+/// Every other panic keeps the default report.
+fn stop_quietly_on_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let text = info.to_string();
+        if text.contains("failed printing to stdout") && text.contains("Broken pipe") {
+            std::process::exit(BROKEN_PIPE_EXIT);
+        }
+        default(info);
+    }));
+}
+
 fn main() -> std::process::ExitCode {
+    stop_quietly_on_broken_pipe();
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -445,6 +445,9 @@ fn a_wrong_board_size_says_what_the_images_show() {
         !ok && text.contains("these images show a 9x6 grid") && text.contains("you asked for 7x5"),
         "{text}"
     );
+    // The count is of the images `--board 9x6` then finds the board in: all 13 (as the test
+    // above calibrates on), not the 2 whose whole grid the size search alone sees.
+    assert!(text.contains("(found in 13 of 13 images)"), "{text}");
     assert!(!out.exists());
 }
 
@@ -476,6 +479,8 @@ fn an_image_of_another_size_is_left_out_and_the_rest_calibrate() {
             .find(|l| l.contains(odd))
             .unwrap_or_else(|| panic!("{odd} not listed:\n{text}"));
         assert!(line.contains("1281x721") && line.contains("REJECTED"), "{line}");
+        // A view that was not used has no error or tilt: `-`, not NaN.
+        assert!(!line.contains("NaN") && line.split_whitespace().nth(2) == Some("-"), "{line}");
     }
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();

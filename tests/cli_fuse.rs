@@ -165,6 +165,9 @@ fn fuse_reads_the_course_mat_file() {
     // ~3× the data's ~3 mm noise; kfuse_io::course's own plane fit measured 2.24 mm (issue 5).
     assert!(rms < 0.01, "plane RMS {rms} m");
     assert!(!out.join("task1.png").exists(), "--no-figures drew figures");
+    // ... nor lists them among the results.
+    let listed = String::from_utf8_lossy(&o.stdout);
+    assert!(!listed.contains("task1.png") && listed.contains("summary.json"), "{listed}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

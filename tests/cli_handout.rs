@@ -417,6 +417,20 @@ fn handout_flow_on_the_course_data() {
     // As for the synthetic KinectData.mat of tests/cli_lab.rs: the mm rounding (±0.5 mm) and the
     // nearest sample's offset on the tilted wall; the rest is at edges.
     assert!(median < 0.002 && within > 0.97 && n > 150_000, "{median} {within} {n}");
+    // `kfuse view` reopens exactly what fuse used (the file's rig, the replacing images named
+    // by summary.json): fused again, it gives fuse's z-buffer bit for bit.
+    let (frame, _) = viewer::data::open_folder_with(&out, false).unwrap();
+    let opts = geometry::fusion::FusionOptions::default();
+    let again =
+        geometry::fusion::run(&frame.rig, &frame.depth, frame.kind, &frame.color, &opts).unwrap();
+    let written = read_exr(&out.join("depth_zbuffer.exr"));
+    assert_eq!(written.len(), again.zbuffer.data().len());
+    let differing = written
+        .iter()
+        .zip(again.zbuffer.data())
+        .filter(|(a, b)| a.to_bits() != b.to_bits() && !(a.is_nan() && b.is_nan()))
+        .count();
+    assert_eq!(differing, 0, "the viewer's inputs are not fuse's");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -517,3 +517,22 @@ fn replay_of_a_1_gib_recording_stays_under_300_mb() {
     assert!(kb * 1024 < REPLAY_PEAK_LIMIT, "peak RSS {kb} kB for a {size}-byte recording");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `kfuse … | head`: a reader that closes the pipe early stops kfuse quietly with status 141
+/// (128 + SIGPIPE, what a shell reports for `cat` in the same place), never with a panic and
+/// its stack trace on stderr.
+#[test]
+fn a_closed_stdout_stops_kfuse_quietly_with_141() {
+    let (reader, writer) = std::io::pipe().unwrap();
+    // Closed before kfuse starts: its first line already meets a broken pipe.
+    drop(reader);
+    let o = Command::new(env!("CARGO_BIN_EXE_kfuse"))
+        .arg("conventions")
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(141), "{err}");
+    assert!(err.is_empty(), "{err}");
+}

@@ -3,7 +3,8 @@
 //!
 //! Folder kinds (decided by the files present):
 //! * **fuse output** (`summary.json`): its `inputs` name the rig, colour and depth files (or a
-//!   `synthdata.mat`); relative paths are tried against the current directory, then the
+//!   `synthdata.mat` or `KinectData.mat`, with the colour and depth files of `fuse --mat …
+//!   --color … --depth …` that replaced its images); relative paths are tried against the current directory, then the
 //!   folder's parent, then the folder itself by file name.
 //!
 //! A rig with `"rectified": true` (or a fuse output whose `inputs` say `"rectified": true`,
@@ -20,6 +21,8 @@
 use std::path::{Path, PathBuf};
 
 use geometry::{DepthKind, Distortion, GeometryError, Image, Rig, synth};
+use kfuse_io::kinect_data::{self, KinectDepth};
+use kfuse_io::mat::MatFile;
 use kfuse_io::{course, images, rig as rigio};
 
 use crate::ViewerError;
@@ -358,18 +361,24 @@ fn open_fuse_output(
     })?;
     let field = |k: &str| inputs.get(k).and_then(|v| v.as_str());
     let name = dir.display().to_string();
+    let scale = inputs
+        .get("depth_scale_m_per_unit")
+        .and_then(|v| v.as_f64())
+        .unwrap_or(images::MILLIMETRES);
+    let rectified = inputs.get("rectified").and_then(|v| v.as_bool()) == Some(true);
     if let Some(mat) = field("mat") {
         let mat = resolve(dir, mat, summary)?;
-        let data = course::read_course(&mat).map_err(|e| bad(&mat, e))?;
-        let frame = Frame {
-            name,
-            rig: data.rig,
-            depth: data.depth,
-            kind: data.depth_kind,
-            color: data.color,
-            ir: None,
-        };
-        return Ok((frame, Vec::new()));
+        // `--color` / `--depth` of `kfuse fuse --mat` replaced the file's images.
+        let color = field("color").map(|p| resolve(dir, p, summary)).transpose()?;
+        let depth = field("depth").map(|p| resolve(dir, p, summary)).transpose()?;
+        let overrides = MatOverrides { color: color.as_deref(), depth: depth.as_deref(), scale };
+        let (mut frame, warnings) = open_mat(name, &mat, overrides, force)?;
+        if rectified {
+            frame.rig.rectified = true;
+            frame.rig.depth.distortion = Distortion::NONE;
+            frame.rig.color.distortion = Distortion::NONE;
+        }
+        return Ok((frame, warnings));
     }
     let (Some(rig), Some(color), Some(depth)) = (field("rig"), field("color"), field("depth"))
     else {
@@ -382,14 +391,70 @@ fn open_fuse_output(
         Some("range") => DepthKind::Range,
         _ => DepthKind::Z,
     };
-    let scale = inputs
-        .get("depth_scale_m_per_unit")
-        .and_then(|v| v.as_f64())
-        .unwrap_or(images::MILLIMETRES);
     let (rig, color, depth) =
         (resolve(dir, rig, summary)?, resolve(dir, color, summary)?, resolve(dir, depth, summary)?);
     let (mut rig, warnings) = read_rig_checked(&rig, force)?;
     // `kfuse fuse --rectified` records it among the inputs.
-    rig.rectified |= inputs.get("rectified").and_then(|v| v.as_bool()) == Some(true);
+    rig.rectified |= rectified;
     load(name, (rig, warnings), &color, &depth, scale, kind, None)
+}
+
+/// The images of `kfuse fuse --mat FILE --color C --depth D` that replaced the file's own,
+/// as its summary.json records them, and the depth file's metres per unit.
+struct MatOverrides<'a> {
+    color: Option<&'a Path>,
+    depth: Option<&'a Path>,
+    scale: f64,
+}
+
+/// The frame `kfuse fuse --mat` fused: the course's `synthdata.mat` or the lab's
+/// `KinectData.mat` (told apart as `fuse` does, `kinect_data::is_kinect_data`), with the
+/// colour and depth files that replaced the file's images. A `KinectData.mat` rig gets the
+/// plausibility check of a rig file (as in `fuse`); its 8-bit `Depth` (not measurements) is
+/// refused unless a depth file replaced it.
+fn open_mat(
+    name: String,
+    mat: &Path,
+    overrides: MatOverrides<'_>,
+    force: bool,
+) -> Result<(Frame, Vec<String>), ViewerError> {
+    let file = MatFile::read(mat).map_err(|e| bad(mat, e))?;
+    let (rig, color, file_depth, kind, warnings) = if kinect_data::is_kinect_data(&file) {
+        let kd = kinect_data::kinect_data_from_mat(&file).map_err(|e| bad(mat, e))?;
+        let (rig, warnings) = check_rig(kd.rig, mat, force)?;
+        let depth = match kd.depth {
+            KinectDepth::Millimetres(d) => Ok(d),
+            KinectDepth::Unusable(why) => Err(why),
+        };
+        (rig, kd.color, depth, DepthKind::Z, warnings)
+    } else {
+        let data = course::course_from_mat(&file, course::CourseConvention::SYNTHDATA)
+            .map_err(|e| bad(mat, e))?;
+        (data.rig, data.color, Ok(data.depth), data.depth_kind, Vec::new())
+    };
+    let color = match overrides.color {
+        Some(p) => {
+            let c = images::read_color(p).map_err(|e| bad(p, e))?;
+            check_size(p, "colour", c.size(), (rig.color.width, rig.color.height))?;
+            c
+        }
+        None => color,
+    };
+    let depth = match (overrides.depth, file_depth) {
+        (Some(p), _) => {
+            let d = images::read_depth(p, overrides.scale).map_err(|e| bad(p, e))?;
+            check_size(p, "depth", d.size(), (rig.depth.width, rig.depth.height))?;
+            d
+        }
+        (None, Ok(d)) => d,
+        (None, Err(why)) => {
+            return Err(ViewerError::BadFile {
+                path: mat.to_path_buf(),
+                message: format!(
+                    "{why}; `kfuse fuse` needs --depth for it, and this output's summary.json names no depth file: re-run `kfuse fuse --mat … --depth FILE`"
+                ),
+            });
+        }
+    };
+    Ok((Frame { name, rig, depth, kind, color, ir: None }, warnings))
 }
