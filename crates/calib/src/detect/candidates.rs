@@ -10,10 +10,13 @@ use super::subpix::refine_corner;
 
 /// Most candidates kept per image (strongest first); a 7x5 board needs 35.
 const MAX_CANDIDATES: usize = 600;
-/// Images of at least this many pixels get their ChESS response rows in parallel. Below it
-/// (IR 512x424 is 217 k pixels, ~0.1 ms for the vectorised response on one core) rayon's
-/// hand-offs between the two cores of the bench machine cost about what they save.
-const PARALLEL_RESPONSE_PIXELS: usize = 400_000;
+/// Images of at least this many pixels get their ChESS response rows in parallel. An IR
+/// image (512x424, 217 k pixels) is above it: on the idle bench machine its response takes
+/// 0.69 ms on one core (`detect_stages`), and the criterion IR detection took 2.43 ms with the
+/// response on one thread against 2.08 ms with its rows in parallel (`run_all.sh`, 2026-12-02
+/// 02:56 and 03:15 UTC). Below ~100 k pixels (a 320x240 image) the response is a few tenths of
+/// a millisecond, where rayon's hand-offs would cost about what they save.
+const PARALLEL_RESPONSE_PIXELS: usize = 100_000;
 
 /// The arithmetic [`pixel_response`] needs of `f32` and `f32x8`.
 trait Lane:
@@ -94,8 +97,8 @@ pub fn chess_response(img: &Image<f32>, radius: usize) -> Image<f32> {
             out[i] = pixel_response(&s, [centre[i], left[i], right[i], up[i], down[i]]);
         }
     };
-    // Rows in parallel only where the image is large enough to repay rayon's hand-offs: an
-    // IR-sized response takes ~0.1 ms on one core.
+    // Rows in parallel only where the image is large enough to repay rayon's hand-offs (see
+    // PARALLEL_RESPONSE_PIXELS).
     if w * h >= PARALLEL_RESPONSE_PIXELS {
         use rayon::prelude::*;
         out.par_chunks_mut(w).enumerate().for_each(|(y, row)| row_response(y, row));
