@@ -11,7 +11,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use geometry::DepthKind;
 use geometry::fusion::{FusionOptions, Registration};
@@ -23,15 +23,8 @@ use kinect_usb::params::{DepthParams, P0Tables, XzTables};
 use kinect_usb::recording::{ReadOptions, RecordingReader};
 use kinect_usb::stream::{ColorAssembler, DepthAssembler};
 
-fn kfuse() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_kfuse"))
-}
-
-fn ok(out: &Output) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "{err}");
-    err
-}
+mod common;
+use common::{kfuse_command as kfuse, stderr_of_success as ok};
 
 /// Records `frames` depth frames of the simulated sensor through the binary, losing
 /// `iso_drop` of the depth packets.

@@ -10,7 +10,6 @@
 //! same code. Four frames: the dev-profile decoder is slow and the tests share two cores.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 /// The injected error, `OFFSET_MM,SCALE,RADIAL_MM`: `--sim-depth-error kinect`'s 24 mm
 /// offset, 0.5 % scale and 10 mm at the corners (libfreenect2 issue 144).
@@ -41,15 +40,8 @@ const SINGLE_FRAME_MAX_MM: f64 = 1.0;
 /// Fraction of commonly valid pixels that must agree within the tolerances above.
 const AGREEING_FRACTION: f64 = 0.99;
 
-fn kfuse() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_kfuse"))
-}
-
-fn ok(out: &Output) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "{err}");
-    err
-}
+mod common;
+use common::{kfuse_command as kfuse, stderr_of_success as ok};
 
 fn error_arg() -> String {
     format!("{},{},{}", ERROR.0, ERROR.1, ERROR.2)

@@ -14,6 +14,18 @@ pub fn kfuse(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("run kfuse")
 }
 
+/// The built binary as a `Command`, for tests that set more than its arguments.
+pub fn kfuse_command() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_kfuse"))
+}
+
+/// Asserts that a run succeeded and returns its stderr (where kfuse reports).
+pub fn stderr_of_success(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{err}");
+    err
+}
+
 /// A fresh, empty folder under the temp dir, unique per test name and process.
 pub fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("kfuse-e2e-{name}-{}", std::process::id()));
