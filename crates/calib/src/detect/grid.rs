@@ -500,16 +500,20 @@ mod tests {
         let blank = (5, 3);
         let (img, at) = board_image(blank);
         let holes = [(0, 0), (3, 2), (4, 2), (7, 4), blank];
-        let mut pts = Vec::new();
-        let mut grid = Grid::new();
-        for i in 0..8 {
-            for j in 0..6 {
-                if !holes.contains(&(i, j)) {
-                    pts.push((at(i, j), 1.0));
-                    grid.insert((i, j), pts.len() - 1);
+        // The 8x6 grid's true corners, less the holes.
+        let holed = || {
+            let (mut pts, mut grid) = (Vec::new(), Grid::new());
+            for i in 0..8 {
+                for j in 0..6 {
+                    if !holes.contains(&(i, j)) {
+                        pts.push((at(i, j), 1.0));
+                        grid.insert((i, j), pts.len() - 1);
+                    }
                 }
             }
-        }
+            (pts, grid)
+        };
+        let (mut pts, mut grid) = holed();
         // Ring radius 7 (colour images): 14 px, above the 12 px squares.
         fill_holes(&img, &mut pts, &mut grid, 7);
         for &(i, j) in &holes[..4] {
@@ -521,15 +525,7 @@ mod tests {
         assert_eq!(grid.len(), 8 * 6 - 1);
         // Ring radius 5 (IR images): 10 px, below the 12 px squares, where the candidate stage
         // sees corners; a hole there is not a clean junction and is left alone.
-        let (mut pts5, mut grid5) = (pts[..0].to_vec(), Grid::new());
-        for i in 0..8 {
-            for j in 0..6 {
-                if !holes.contains(&(i, j)) {
-                    pts5.push((at(i, j), 1.0));
-                    grid5.insert((i, j), pts5.len() - 1);
-                }
-            }
-        }
+        let (mut pts5, mut grid5) = holed();
         fill_holes(&img, &mut pts5, &mut grid5, 5);
         assert_eq!(grid5.len(), 8 * 6 - holes.len(), "holes filled where the squares are wide");
     }
