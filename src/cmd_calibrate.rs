@@ -300,8 +300,9 @@ fn load_and_detect(
         if let Some(((a, b), _)) = common_grid_size(&names).filter(|s| s.0 != asked) {
             // The count of the images the board of that size is then found in (what
             // `--board AxB` would calibrate on), not of those whose whole grid the size search
-            // saw: that search misses boards the detector of a known size finds (OpenCV's 9x6
-            // sample: 2 of 13 against 13 of 13).
+            // saw: that search can miss boards the detector of a known size finds (partial
+            // boards; before it peeled the border's spurious junctions off, OpenCV's 9x6 sample
+            // gave 2 of 13 against 13 of 13).
             let suggested = Board { cols: a, rows: b, ..board };
             let (views, _) = detect_views_with(&names, &suggested, refinement, &|| {});
             let n = views.iter().filter(|v| !v.corners.is_empty()).count();

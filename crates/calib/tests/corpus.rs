@@ -308,6 +308,49 @@ fn check(rows: &[Row], e: &Expect) {
     }
 }
 
+/// `--board auto`'s size search (`common_grid_size`) on every set and camera: the board's size
+/// is the vote's winner, and it sees the whole board in at least as many images as the better
+/// of OpenCV's two detectors finds it with the size given (before the partial border lines
+/// were peeled off, it saw OpenCV's left 9x6 board in 2 of 13 images). The peeling rule came
+/// from the OpenCV set's left images only (its one value, half a line, is not tuned); the right
+/// camera and the other three sets were not looked at for it and are its held-out check.
+#[test]
+fn board_size_search_sees_every_board() {
+    for set in SETS {
+        let Some(root) = shared_data(set).map(|d| d.join("calib-corpus").join(set)) else {
+            return;
+        };
+        let r = json(root.join("reference.json"));
+        let (cols, rows) = (
+            r["board"]["cols"].as_u64().unwrap() as usize,
+            r["board"]["rows"].as_u64().unwrap() as usize,
+        );
+        for (camera, files) in r["cameras"].as_object().unwrap() {
+            let files: Vec<&str> =
+                files.as_array().unwrap().iter().filter_map(|v| v.as_str()).collect();
+            let images: Vec<Image<u8>> =
+                files.iter().map(|p| calib::io::read_gray(&root.join(p)).unwrap()).collect();
+            let named: Vec<(String, &Image<u8>)> =
+                files.iter().zip(&images).map(|(p, i)| (p.to_string(), i)).collect();
+            let found = |key: &str| {
+                r["images"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .filter(|i| files.contains(&i["file"].as_str().unwrap_or("")))
+                    .filter(|i| i[key]["found"].as_bool() == Some(true))
+                    .count()
+            };
+            let best = found("classic").max(found("sb"));
+            let got = calib::detect::common_grid_size(&named);
+            println!("  {set} {camera}: size search {got:?}, OpenCV finds the board in {best}");
+            let ((a, b), n) = got.unwrap_or_else(|| panic!("{set} {camera}: no size found"));
+            assert_eq!((a, b), (cols.max(rows), cols.min(rows)), "{set} {camera}");
+            assert!(n >= best, "{set} {camera}: whole board seen in {n}, OpenCV {best}");
+        }
+    }
+}
+
 /// The bar met on every set: complete boards found ≥ the better of OpenCV's two detectors
 /// (and, in `run_set`, no board on the negatives).
 #[test]

@@ -371,6 +371,53 @@ pub(super) fn extents(grid: &Grid) -> (i32, i32) {
     (span(|k| k.0), span(|k| k.1))
 }
 
+/// Most corners an outermost grid line may hold, as a fraction of the grid's extent along it,
+/// and still be peeled off by [`peel_partial_lines`]: the spurious junctions along a board's
+/// border are a few (1 to 4 of 9 on OpenCV's samples), while the last line of a board cut off
+/// by the image edge usually keeps most of its corners and is left alone.
+const MAX_PEELED_LINE_FRACTION: f64 = 0.5;
+
+/// `grid` without its partial outermost lines: while an outermost row or column holds some but
+/// at most [`MAX_PEELED_LINE_FRACTION`] of the grid's positions along it, the sparsest such
+/// line is removed. A complete board's outer lines are complete, so this only removes
+/// junctions where the board's border meets the background and that line up with the grid.
+pub(super) fn peel_partial_lines(grid: &Grid) -> Grid {
+    let mut grid = grid.clone();
+    loop {
+        let (imin, imax) = (
+            grid.keys().map(|k| k.0).min().unwrap_or(0),
+            grid.keys().map(|k| k.0).max().unwrap_or(0),
+        );
+        let (jmin, jmax) = (
+            grid.keys().map(|k| k.1).min().unwrap_or(0),
+            grid.keys().map(|k| k.1).max().unwrap_or(0),
+        );
+        if imax - imin < 2 || jmax - jmin < 2 {
+            return grid;
+        }
+        // (axis 0 = a column of fixed i, 1 = a row of fixed j; the line's index; its corners;
+        // the grid's extent along it).
+        let lines = [
+            (0, imin, jmax - jmin + 1),
+            (0, imax, jmax - jmin + 1),
+            (1, jmin, imax - imin + 1),
+            (1, jmax, imax - imin + 1),
+        ];
+        let on = |axis: i32, at: i32, k: &(i32, i32)| if axis == 0 { k.0 == at } else { k.1 == at };
+        let sparsest = lines
+            .iter()
+            .map(|&(axis, at, len)| {
+                (axis, at, len, grid.keys().filter(|k| on(axis, at, k)).count())
+            })
+            .filter(|&(_, _, len, n)| {
+                n < len as usize && n as f64 <= MAX_PEELED_LINE_FRACTION * len as f64
+            })
+            .min_by_key(|&(_, _, _, n)| n);
+        let Some((axis, at, _, _)) = sparsest else { return grid };
+        grid.retain(|k, _| !on(axis, at, k));
+    }
+}
+
 /// A grid larger than the board (spurious junctions where the board's border meets the
 /// background line up with the grid): keep the board-sized window, in either orientation,
 /// with the most corners and then the strongest total response.
@@ -414,6 +461,33 @@ mod tests {
     /// The cell of OpenCV-set left12's seed: sides `a` (43 px) and `b` (53 px) at 82°; the
     /// diagonal `b − a` meets `a` at 124° (|cos| 0.56, inside the seed's angle test). Sides are a reduced basis, a side and a diagonal are not; the
     /// grid grown from the candidates' lattice must run along the sides.
+    /// A grid with the keys `cells`, values arbitrary.
+    fn keys(cells: impl IntoIterator<Item = (i32, i32)>) -> Grid {
+        cells.into_iter().enumerate().map(|(n, k)| (k, n)).collect()
+    }
+
+    fn sorted(g: &Grid) -> Vec<(i32, i32)> {
+        let mut k: Vec<(i32, i32)> = g.keys().copied().collect();
+        k.sort();
+        k
+    }
+
+    #[test]
+    fn partial_outer_lines_are_peeled_and_a_cut_board_is_left_alone() {
+        let board = || (0..9).flat_map(|i| (0..6).map(move |j| (i, j)));
+        let whole = keys(board());
+        // Unchanged: a complete grid.
+        assert_eq!(sorted(&peel_partial_lines(&whole)), sorted(&whole));
+        // 3 junctions above the board (row −1) and 2 beside it (column 9), as OpenCV's left
+        // samples show: both lines go, the 9x6 board stays.
+        let extra = keys(board().chain([(2, -1), (3, -1), (4, -1), (9, 1), (9, 4)]));
+        assert_eq!(sorted(&peel_partial_lines(&extra)), sorted(&whole));
+        // A board cut by the image edge: its last row keeps 6 of 9 corners, more than half, and
+        // is not peeled into a smaller "complete" board.
+        let cut = keys(board().filter(|&(i, j)| j < 5 || i < 6));
+        assert_eq!(sorted(&peel_partial_lines(&cut)), sorted(&cut));
+    }
+
     #[test]
     fn a_seed_needs_the_cells_sides_not_a_diagonal() {
         let a = Vector2::new(3.70, -42.76);

@@ -287,11 +287,22 @@ fn complete_board(
 /// image, whatever its size (for `--board auto` and for saying what the images show when the
 /// board given does not match); `None` when there is none.
 pub fn grid_size(img: &Image<f32>, params: &DetectorParams) -> Option<(usize, usize)> {
-    let pts = candidates(img, params);
+    let mut pts = candidates(img, params);
     if pts.len() < 4 {
         return None;
     }
-    complete_board(img, &pts, &grid::largest(&pts, usize::MAX)?)
+    let grid = grid::largest(&pts, usize::MAX)?;
+    // Junctions where the board's border meets the background line up with the grid as a
+    // partial extra line (11 of OpenCV's 13 left samples): without them the board is complete.
+    // Holes are filled as detection with a known size fills them (one GoPro view).
+    let peeled = grid::peel_partial_lines(&grid);
+    for mut g in [grid, peeled] {
+        grid::fill_holes(img, &mut pts, &mut g, params.ring_radius);
+        if let Some(size) = complete_board(img, &pts, &g) {
+            return Some(size);
+        }
+    }
+    None
 }
 
 /// Converts an 8-bit grey image to the detector's input.
