@@ -50,11 +50,74 @@ const BLOCK: usize = 16;
 const ROWS: usize = 10;
 const PRODUCTS: usize = ROWS * (ROWS + 1) / 2;
 
+/// Eight f32 lanes with element-wise arithmetic written as plain loops over the array (each
+/// operation a fixed-length loop that LLVM's vectoriser turns into SIMD instructions of the
+/// target it compiles for: the baseline or the AVX2+FMA clone).
+#[derive(Clone, Copy)]
+struct V<const W: usize>([f32; W]);
+
+impl<const W: usize> V<W> {
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        Self([x; W])
+    }
+    #[inline(always)]
+    fn map(self, f: impl Fn(f32) -> f32) -> Self {
+        Self(std::array::from_fn(|l| f(self.0[l])))
+    }
+    #[inline(always)]
+    fn zip(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
+        Self(std::array::from_fn(|l| f(self.0[l], o.0[l])))
+    }
+}
+
+impl<const W: usize> std::ops::Add for V<W> {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        self.zip(o, |a, b| a + b)
+    }
+}
+
+impl<const W: usize> std::ops::Sub for V<W> {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        self.zip(o, |a, b| a - b)
+    }
+}
+
+impl<const W: usize> std::ops::Mul for V<W> {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, o: Self) -> Self {
+        self.zip(o, |a, b| a * b)
+    }
+}
+
+impl<const W: usize> std::ops::Div for V<W> {
+    type Output = Self;
+    #[inline(always)]
+    fn div(self, o: Self) -> Self {
+        self.zip(o, |a, b| a / b)
+    }
+}
+
+impl<const W: usize> std::ops::Neg for V<W> {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        self.map(|a| -a)
+    }
+}
+
 /// `a·b + c`: fused (one rounding) in the FMA clone, a multiply and an add elsewhere (a fused
 /// `mul_add` without the FMA instruction is a slow library call).
 #[inline(always)]
-fn mul_add<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
-    if FMA { a.mul_add(b, c) } else { a * b + c }
+fn mul_add<const FMA: bool, const W: usize>(a: V<W>, b: V<W>, c: V<W>) -> V<W> {
+    V(std::array::from_fn(|l| {
+        if FMA { a.0[l].mul_add(b.0[l], c.0[l]) } else { a.0[l] * b.0[l] + c.0[l] }
+    }))
 }
 
 /// `erf(x)` given `q = exp(−x²)` (which the fit needs anyway for the derivative):
@@ -62,17 +125,18 @@ fn mul_add<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
 /// 255, far below the images' noise — at a third of the cost of a full-precision `erf`.
 /// (Evaluated in f32: the rounding adds ≤ 3e-7.)
 #[inline(always)]
-fn erf_with_gauss<const FMA: bool>(x: f32, q: f32) -> f32 {
+fn erf_with_gauss<const FMA: bool, const W: usize>(x: V<W>, q: V<W>) -> V<W> {
     const P: f32 = 0.327_591_1;
     const A: [f32; 5] = [0.254_829_6, -0.284_496_74, 1.421_413_7, -1.453_152_1, 1.061_405_4];
-    let t = 1.0 / mul_add::<FMA>(P, x.abs(), 1.0);
-    let mut poly = A[4];
+    let one = V::splat(1.0);
+    let t = one / mul_add::<FMA, W>(V::splat(P), x.map(f32::abs), one);
+    let mut poly = V::splat(A[4]);
     for c in A[..4].iter().rev() {
-        poly = mul_add::<FMA>(poly, t, *c);
+        poly = mul_add::<FMA, W>(poly, t, V::splat(*c));
     }
-    let y = 1.0 - t * poly * q;
+    let y = one - t * poly * q;
     // erf is odd: give y the sign of x.
-    f32::from_bits(y.to_bits() ^ (x.to_bits() & 0x8000_0000))
+    y.zip(x, |y, x| f32::from_bits(y.to_bits() ^ (x.to_bits() & 0x8000_0000)))
 }
 
 /// `exp(x)` for `x ≤ 0`, inlined (a library `exp` was a function call, 45 % of the fit's
@@ -80,7 +144,7 @@ fn erf_with_gauss<const FMA: bool>(x: f32, q: f32) -> f32 {
 /// for `expf` (≤ 2 ulp); arguments below −87 give `exp(−87)` ≈ 1.6e-38 instead of a smaller
 /// number, which the fit cannot tell from 0.
 #[inline(always)]
-fn exp_nonpositive<const FMA: bool>(x: f32) -> f32 {
+fn exp_nonpositive<const FMA: bool, const W: usize>(x: V<W>) -> V<W> {
     const LOG2_E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
@@ -95,20 +159,19 @@ fn exp_nonpositive<const FMA: bool>(x: f32) -> f32 {
     // 1.5·2²³: adding it to a value of magnitude below 2²² rounds that value to the nearest
     // integer n, which then sits in the sum's low mantissa bits (no float→int conversion).
     const ROUND: f32 = 12_582_912.0;
-    let x = if x < -87.0 { -87.0 } else { x };
-    let t = mul_add::<FMA>(x, LOG2_E, ROUND);
-    let n = t - ROUND;
+    let x = x.map(|x| if x < -87.0 { -87.0 } else { x });
+    let t = mul_add::<FMA, W>(x, V::splat(LOG2_E), V::splat(ROUND));
+    let n = t - V::splat(ROUND);
     // n·LN2_HI is exact (LN2_HI has 11 significant bits, |n| ≤ 126).
-    let r = mul_add::<FMA>(n, -LN2_LO, mul_add::<FMA>(n, -LN2_HI, x));
-    let mut p = P[0];
+    let r = mul_add::<FMA, W>(n, V::splat(-LN2_LO), mul_add::<FMA, W>(n, V::splat(-LN2_HI), x));
+    let mut p = V::splat(P[0]);
     for c in &P[1..] {
-        p = mul_add::<FMA>(p, r, *c);
+        p = mul_add::<FMA, W>(p, r, V::splat(*c));
     }
-    let e = mul_add::<FMA>(r * r, p, r) + 1.0;
+    let e = mul_add::<FMA, W>(r * r, p, r) + V::splat(1.0);
     // 2ⁿ: the sum's bits are 0x4B40_0000 + n; shifted left by 23 only n + 127 (in 1..=127
     // after the clamp) stays, in the exponent field.
-    let scale = f32::from_bits(t.to_bits().wrapping_add(127) << 23);
-    e * scale
+    e * t.map(|t| f32::from_bits(t.to_bits().wrapping_add(127) << 23))
 }
 
 /// A fit window's pixels in lanes of eight (structure of arrays, the last lane padded with
@@ -183,23 +246,47 @@ impl Model {
         }
     }
 
-    /// One pixel's Jacobian row (∂f/∂p for the 9 parameters) and residual `f − obs`, both
+    /// Eight pixels' Jacobian rows (∂f/∂p for the 9 parameters) and residuals `f − obs`,
     /// zero for padding and for a censored pixel.
     #[inline(always)]
-    fn pixel<const FMA: bool>(&self, u0: f32, v0: f32, obs: f32, valid: f32) -> [f32; ROWS] {
-        let Self { s1, c1, s2, c2, m, a, gx, gy, du, dv, k, g, inv_sg } = *self;
+    fn pixels<const FMA: bool, const W: usize>(
+        &self,
+        u0: V<W>,
+        v0: V<W>,
+        obs: V<W>,
+        valid: V<W>,
+    ) -> [V<W>; ROWS] {
+        let [s1, c1, s2, c2, m, a, gx, gy, du, dv, k, g, inv_sg] = [
+            self.s1,
+            self.c1,
+            self.s2,
+            self.c2,
+            self.m,
+            self.a,
+            self.gx,
+            self.gy,
+            self.du,
+            self.dv,
+            self.k,
+            self.g,
+            self.inv_sg,
+        ]
+        .map(V::splat);
         let (u, v) = (u0 - du, v0 - dv);
         let (d1, d2) = (c1 * v - s1 * u, c2 * v - s2 * u);
         let (x1, x2) = (d1 * k, d2 * k);
-        let (q1, q2) = (exp_nonpositive::<FMA>(-(x1 * x1)), exp_nonpositive::<FMA>(-(x2 * x2)));
-        let (e1, e2) = (erf_with_gauss::<FMA>(x1, q1), erf_with_gauss::<FMA>(x2, q2));
+        let (q1, q2) =
+            (exp_nonpositive::<FMA, W>(-(x1 * x1)), exp_nonpositive::<FMA, W>(-(x2 * x2)));
+        let (e1, e2) = (erf_with_gauss::<FMA, W>(x1, q1), erf_with_gauss::<FMA, W>(x2, q2));
         let ee = e1 * e2;
-        let pp = mul_add::<FMA>(a, ee, m);
-        let l = mul_add::<FMA>(gy, v0, mul_add::<FMA>(gx, u0, 1.0));
+        let pp = mul_add::<FMA, W>(a, ee, m);
+        let l = mul_add::<FMA, W>(gy, v0, mul_add::<FMA, W>(gx, u0, V::splat(1.0)));
         let f = pp * l;
         // A saturated pixel only says "at least 255": no residual where the model is above it.
-        let censored = obs >= SATURATED as f32 && f >= obs;
-        let keep = if censored { 0.0 } else { valid };
+        let keep = V(std::array::from_fn(|i| {
+            let censored = obs.0[i] >= SATURATED as f32 && f.0[i] >= obs.0[i];
+            if censored { 0.0 } else { valid.0[i] }
+        }));
         let res = (f - obs) * keep;
         // ∂E(dᵢ)/∂dᵢ times the other edge's E.
         let (h1, h2) = (g * q1 * e2, e1 * g * q2);
@@ -207,13 +294,13 @@ impl Model {
         let nal = -(a * lk);
         let ppk = pp * keep;
         [
-            -nal * mul_add::<FMA>(h1, s1, h2 * s2),
-            nal * mul_add::<FMA>(h1, c1, h2 * c2),
-            nal * h1 * mul_add::<FMA>(c1, u, s1 * v),
-            nal * h2 * mul_add::<FMA>(c2, u, s2 * v),
+            -nal * mul_add::<FMA, W>(h1, s1, h2 * s2),
+            nal * mul_add::<FMA, W>(h1, c1, h2 * c2),
+            nal * h1 * mul_add::<FMA, W>(c1, u, s1 * v),
+            nal * h2 * mul_add::<FMA, W>(c2, u, s2 * v),
             lk,
             ee * lk,
-            nal * inv_sg * mul_add::<FMA>(d1, h1, d2 * h2),
+            nal * inv_sg * mul_add::<FMA, W>(d1, h1, d2 * h2),
             ppk * u0,
             ppk * v0,
             res,
@@ -234,29 +321,54 @@ fn kernel<const FMA: bool>(px: &Lanes, md: &Model) -> [Lane; PRODUCTS] {
         let nb = BLOCK.min(groups - first);
         for b in 0..nb {
             let i = first + b;
-            let (u, v, obs, valid) = (&px.u[i], &px.v[i], &px.obs[i], &px.valid[i]);
-            for l in 0..LANES {
-                let row = md.pixel::<FMA>(u[l], v[l], obs[l], valid[l]);
-                for r in 0..ROWS {
-                    rows[r][b][l] = row[r];
-                }
+            let j = md.pixels::<FMA, LANES>(V(px.u[i]), V(px.v[i]), V(px.obs[i]), V(px.valid[i]));
+            for r in 0..ROWS {
+                rows[r][b] = j[r].0;
             }
         }
+        // Row r against up to four columns at once: four independent accumulators (eight
+        // SSE registers) keep the adders busy where one accumulator waited on its own add.
         let mut n = 0;
         for r in 0..ROWS {
-            for c in r..ROWS {
-                let mut sum = acc[n];
-                for b in 0..nb {
-                    for l in 0..LANES {
-                        sum[l] = mul_add::<FMA>(rows[r][b][l], rows[c][b][l], sum[l]);
-                    }
+            let mut c = r;
+            while c < ROWS {
+                let k = (ROWS - c).min(4);
+                let acc = &mut acc[n..n + k];
+                match k {
+                    4 => products::<4, FMA>(&rows, r, c, nb, acc),
+                    3 => products::<3, FMA>(&rows, r, c, nb, acc),
+                    2 => products::<2, FMA>(&rows, r, c, nb, acc),
+                    _ => products::<1, FMA>(&rows, r, c, nb, acc),
                 }
-                acc[n] = sum;
-                n += 1;
+                c += k;
+                n += k;
             }
         }
     }
     acc
+}
+
+/// Adds `Σ rows[r]·rows[c + i]` over a block's first `nb` lane groups to `acc[i]`,
+/// `i < K`, per lane and in group order.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)] // lane loops by index: fixed-length loops LLVM vectorises
+fn products<const K: usize, const FMA: bool>(
+    rows: &[[Lane; BLOCK]; ROWS],
+    r: usize,
+    c: usize,
+    nb: usize,
+    acc: &mut [Lane],
+) {
+    let mut sums: [V<LANES>; K] = std::array::from_fn(|i| V(acc[i]));
+    for b in 0..nb {
+        let row = V(rows[r][b]);
+        for i in 0..K {
+            sums[i] = mul_add::<FMA, LANES>(row, V(rows[c + i][b]), sums[i]);
+        }
+    }
+    for (a, s) in acc.iter_mut().zip(sums) {
+        *a = s.0;
+    }
 }
 
 /// [`kernel`], compiled for the baseline target (SSE2 on x86-64) and for AVX2+FMA, the clone
@@ -480,10 +592,11 @@ mod tests {
             (3.5, 0.999_999_256_901_627_7),
         ] {
             for (x, erf) in [(x, erf), (-x, -erf)] {
-                let xs = x as f32;
-                let q = (-(xs * xs)).exp();
+                let xs = V::splat(x as f32);
+                let q = V::splat((-(x as f32).powi(2)).exp());
                 // The bound plus f32 rounding (x itself rounds by up to 6e-8 · x).
-                for g in [erf_with_gauss::<false>(xs, q), erf_with_gauss::<true>(xs, q)] {
+                for g in [erf_with_gauss::<false, 8>(xs, q).0, erf_with_gauss::<true, 8>(xs, q).0] {
+                    let g = g[3];
                     assert!((g as f64 - erf).abs() < 5e-7, "erf({x}) = {g}, expected {erf}");
                 }
             }
@@ -494,15 +607,15 @@ mod tests {
     fn fast_exp_matches_std() {
         // Relative error against f64 `exp`: Cephes' expf bound is 2 ulp (≈ 2.4e-7); below
         // −87 the documented clamp.
-        for exp in [exp_nonpositive::<false>, exp_nonpositive::<true>] {
+        for exp in [exp_nonpositive::<false, 8>, exp_nonpositive::<true, 8>] {
             let mut x = 0.0f32;
             while x > -87.0 {
-                let got = exp(x) as f64;
+                let got = exp(V::splat(x)).0[5] as f64;
                 let want = (x as f64).exp();
                 assert!(((got - want) / want).abs() < 3e-7, "exp({x}) = {got}, expected {want}");
                 x -= 0.013_7;
             }
-            let clamped = exp(-200.0) as f64;
+            let clamped = exp(V::splat(-200.0)).0[0] as f64;
             assert!((clamped - (-87.0f64).exp()).abs() < 1e-43);
         }
     }
