@@ -14,7 +14,9 @@ const MAX_CANDIDATES: usize = 600;
 /// 0.69 ms on one core (`detect_stages`), and the criterion IR detection took 2.43 ms with the
 /// response on one thread against 2.08 ms with its rows in parallel (`run_all.sh`, 2026-12-02
 /// 02:56 and 03:15 UTC). Below ~100 k pixels (a 320x240 image) the response is a few tenths of
-/// a millisecond, where rayon's hand-offs would cost about what they save.
+/// a millisecond, where rayon's hand-offs would cost about what they save. Those figures are of
+/// the SSE2-only kernel; the AVX2 copy ([`row_response`]) takes about 0.37 ms for the IR image
+/// on one core (loaded machine): whether parallel rows still pay for it was not re-timed.
 const PARALLEL_RESPONSE_PIXELS: usize = 100_000;
 
 /// Pixels per step of the response kernel (and of the peak search's threshold skip): two
