@@ -3,7 +3,6 @@
 
 use geometry::Image;
 use nalgebra::Vector2;
-use wide::f32x8;
 
 use super::DetectorParams;
 use super::subpix::refine_corner;
@@ -15,10 +14,19 @@ const MAX_CANDIDATES: usize = 600;
 /// 0.69 ms on one core (`detect_stages`), and the criterion IR detection took 2.43 ms with the
 /// response on one thread against 2.08 ms with its rows in parallel (`run_all.sh`, 2026-12-02
 /// 02:56 and 03:15 UTC). Below ~100 k pixels (a 320x240 image) the response is a few tenths of
-/// a millisecond, where rayon's hand-offs would cost about what they save.
+/// a millisecond, where rayon's hand-offs would cost about what they save. Those figures are of
+/// the SSE2-only kernel; the AVX2 copy ([`row_response`]) takes about 0.37 ms for the IR image
+/// on one core (loaded machine): whether parallel rows still pay for it was not re-timed.
 const PARALLEL_RESPONSE_PIXELS: usize = 100_000;
 
-/// The arithmetic [`pixel_response`] needs of `f32` and `f32x8`.
+/// Pixels per step of the response kernel (and of the peak search's threshold skip): two
+/// AVX2 registers of `f32`, four SSE2 ones. Sixteen rather than eight gives each step
+/// independent chains of the 16-term ring sum to overlap (detect_stages, one thread, loaded
+/// machine, alternated: IR response 0.55–0.65 ms with 8, 0.36–0.38 ms with 16; peaks 0.16–0.22
+/// against 0.10 ms).
+const LANES: usize = 16;
+
+/// The arithmetic [`pixel_response`] needs: `f32`, and [`Lanes`] ([`LANES`] pixels at once).
 trait Lane:
     Copy
     + std::ops::Add<Output = Self>
@@ -39,21 +47,55 @@ impl Lane for f32 {
     }
 }
 
-impl Lane for f32x8 {
+/// [`LANES`] pixels' values, each operation applied lane by lane in plain loops that LLVM
+/// turns into SIMD instructions of whatever width the calling function is compiled for (the
+/// SSE2 baseline, or AVX2 in [`row_response`]'s dispatched copy): the same IEEE operations as
+/// on `f32`, so every lane equals the scalar formula bit for bit.
+#[derive(Clone, Copy)]
+struct Lanes([f32; LANES]);
+
+macro_rules! lanewise {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl std::ops::$tr for Lanes {
+            type Output = Self;
+            #[inline(always)]
+            fn $f(self, o: Self) -> Self {
+                Lanes(std::array::from_fn(|k| self.0[k] $op o.0[k]))
+            }
+        }
+    };
+}
+lanewise!(Add, add, +);
+lanewise!(Sub, sub, -);
+lanewise!(Mul, mul, *);
+lanewise!(Div, div, /);
+
+impl Lane for Lanes {
+    #[inline(always)]
     fn splat(v: f32) -> Self {
-        f32x8::splat(v)
+        Lanes([v; LANES])
     }
+    #[inline(always)]
     fn abs_(self) -> Self {
-        self.abs()
+        Lanes(self.0.map(f32::abs))
     }
 }
 
 /// ChESS response at every pixel (0 near the border).
 ///
 /// Row by row: each of the 16 ring samples of the pixels of a row is a contiguous slice of
-/// the image (the row shifted by the ring offset), so the pixels of a row are computed eight
-/// at a time (`f32x8`); the operations and their order per pixel are the textbook formula's.
+/// the image (the row shifted by the ring offset), so [`row_response`] computes the pixels of
+/// a row [`LANES`] at a time; the operations and their order per pixel are the textbook
+/// formula's.
 pub fn chess_response(img: &Image<f32>, radius: usize) -> Image<f32> {
+    chess_response_with(img, radius, row_response)
+}
+
+/// The kernel computing one row's responses (see [`row_response`]).
+type RowFn = fn(&[&[f32]; 16], &[&[f32]; 5], &mut [f32]);
+
+/// [`chess_response`] with the row kernel given (the tests pass the baseline copy).
+fn chess_response_with(img: &Image<f32>, radius: usize, row_fn: RowFn) -> Image<f32> {
     let (w, h) = img.size();
     let r = radius as f64;
     let offsets: [(isize, isize); 16] = std::array::from_fn(|n| {
@@ -66,7 +108,7 @@ pub fn chess_response(img: &Image<f32>, radius: usize) -> Image<f32> {
     }
     let data = img.data();
     let len = w - 2 * radius;
-    let row_response = |y: usize, row: &mut [f32]| {
+    let row = |y: usize, row: &mut [f32]| {
         if y < radius || y + radius >= h {
             return;
         }
@@ -76,39 +118,63 @@ pub fn chess_response(img: &Image<f32>, radius: usize) -> Image<f32> {
             &data[start..start + len]
         };
         let ring: [&[f32]; 16] = offsets.map(|(dx, dy)| at(dx, dy));
-        let (centre, left, right, up, down) = (at(0, 0), at(-1, 0), at(1, 0), at(0, -1), at(0, 1));
-        let out = &mut row[radius..radius + len];
-        // Eight pixels at a time (`f32x8`), then the rest one by one: the same operations in
-        // the same order in both, so every pixel's value is the scalar formula's bit for bit.
-        let lanes = len / 8 * 8;
-        let load = |s: &[f32], i: usize| f32x8::new(s[i..i + 8].try_into().expect("8 values"));
-        for i in (0..lanes).step_by(8) {
-            let s: [f32x8; 16] = std::array::from_fn(|n| load(ring[n], i));
-            out[i..i + 8].copy_from_slice(
-                &pixel_response(
-                    &s,
-                    [load(centre, i), load(left, i), load(right, i), load(up, i), load(down, i)],
-                )
-                .to_array(),
-            );
-        }
-        for i in lanes..len {
-            let s: [f32; 16] = std::array::from_fn(|n| ring[n][i]);
-            out[i] = pixel_response(&s, [centre[i], left[i], right[i], up[i], down[i]]);
-        }
+        let local = [at(0, 0), at(-1, 0), at(1, 0), at(0, -1), at(0, 1)];
+        row_fn(&ring, &local, &mut row[radius..radius + len]);
     };
     // Rows in parallel only where the image is large enough to repay rayon's hand-offs (see
     // PARALLEL_RESPONSE_PIXELS).
     if w * h >= PARALLEL_RESPONSE_PIXELS {
         use rayon::prelude::*;
-        out.par_chunks_mut(w).enumerate().for_each(|(y, row)| row_response(y, row));
+        out.par_chunks_mut(w).enumerate().for_each(|(y, r)| row(y, r));
     } else {
-        out.chunks_mut(w).enumerate().for_each(|(y, row)| row_response(y, row));
+        out.chunks_mut(w).enumerate().for_each(|(y, r)| row(y, r));
     }
     Image::from_vec(w, h, out).expect("w × h values")
 }
 
-/// The ChESS response of one pixel (or eight, as `f32x8` lanes) from its 16 ring samples and
+/// The response of one row's pixels into `out` from their 16 ring-sample slices and their
+/// centre, left, right, up and down slices (all `out.len()` long). Compiled twice, for the
+/// SSE2 baseline and for AVX2, picked at run time by the CPU (`multiversion`); both evaluate
+/// [`pixel_response`]'s operations in its order, without fused multiply-adds, so they give
+/// the same bits.
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn row_response(ring: &[&[f32]; 16], local: &[&[f32]; 5], out: &mut [f32]) {
+    row_kernel(ring, local, out);
+}
+
+/// [`row_response`]'s body, inlined into each of its compiled copies (and called directly by
+/// the tests to get the baseline copy whatever the CPU).
+#[inline(always)]
+fn row_kernel(ring: &[&[f32]; 16], local: &[&[f32]; 5], out: &mut [f32]) {
+    let len = out.len();
+    if len < LANES {
+        // Too short a row for one step: pixel by pixel.
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = pixel_response(&ring.map(|s| s[k]), local.map(|s| s[k]));
+        }
+        return;
+    }
+    let mut s = [Lanes([0.0; LANES]); 16];
+    let mut l = [Lanes([0.0; LANES]); 5];
+    let mut i = 0;
+    while i < len {
+        // The last step ends at the row's end, overlapping its predecessor (those pixels get
+        // the same values again).
+        let at = i.min(len - LANES);
+        // Plain copies (no closures through `array::from_fn`, which stayed calls).
+        for (v, src) in s.iter_mut().zip(ring) {
+            v.0.copy_from_slice(&src[at..at + LANES]);
+        }
+        for (v, src) in l.iter_mut().zip(local) {
+            v.0.copy_from_slice(&src[at..at + LANES]);
+        }
+        let v = pixel_response(&s, l);
+        out[at..at + LANES].copy_from_slice(&v.0);
+        i = at + LANES;
+    }
+}
+
+/// The ChESS response of one pixel (or [`LANES`], as [`Lanes`]) from its 16 ring samples and
 /// its centre, left, right, up and down neighbours: sum response − diff response − mean
 /// response, in the textbook formula's order of operations.
 #[inline(always)]
@@ -161,15 +227,23 @@ pub(super) fn halve(img: &Image<f32>) -> Image<f32> {
     let data = img.data();
     let mut out = vec![0.0f32; hw * hh];
     for (y, row) in out.chunks_mut(hw.max(1)).enumerate().take(hh) {
-        let (a, b) = (
+        halve_row(
             &data[2 * y * w..2 * y * w + 2 * hw],
             &data[(2 * y + 1) * w..(2 * y + 1) * w + 2 * hw],
+            row,
         );
-        for (x, o) in row.iter_mut().enumerate() {
-            *o = ((a[2 * x] + a[2 * x + 1]) + (b[2 * x] + b[2 * x + 1])) * 0.25;
-        }
     }
     Image::from_vec(hw, hh, out).expect("hw × hh values")
+}
+
+/// One row of [`halve`]: `out[x]` is the mean of `a[2x], a[2x + 1], b[2x], b[2x + 1]`
+/// (rows `2y` and `2y + 1`). Compiled for SSE2 and AVX2, picked at run time; the same
+/// operations in the same order in both.
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn halve_row(a: &[f32], b: &[f32], out: &mut [f32]) {
+    for ((o, a), b) in out.iter_mut().zip(a.chunks_exact(2)).zip(b.chunks_exact(2)) {
+        *o = ((a[0] + a[1]) + (b[0] + b[1])) * 0.25;
+    }
 }
 
 /// Local maxima of the response above [`DetectorParams::min_response_fraction`] of its
@@ -177,7 +251,7 @@ pub(super) fn halve(img: &Image<f32>) -> Image<f32> {
 pub(super) fn peaks(resp: &Image<f32>, params: &DetectorParams) -> Vec<(usize, usize, f32)> {
     let (w, h) = resp.size();
     let data = resp.data();
-    let max = data.iter().copied().fold(0.0f32, f32::max);
+    let max = max_of(data);
     if max <= 0.0 {
         return Vec::new();
     }
@@ -198,18 +272,39 @@ pub(super) fn peaks(resp: &Image<f32>, params: &DetectorParams) -> Vec<(usize, u
     };
     let mut peaks = Vec::new();
     for (y, row) in data.chunks_exact(w).enumerate() {
-        for (x, &v) in row.iter().enumerate() {
-            // The 3x3 neighbourhood first (a subset of the window, same rule): most pixels
-            // above the threshold lie on edges and fail it at once.
-            if v <= thr || beaten_within(x, y, v, 1) || beaten_within(x, y, v, nms) {
+        // Most pixels are at most the threshold: runs of LANES of them are skipped with one
+        // branch-free test each.
+        for (c, chunk) in row.chunks(LANES).enumerate() {
+            if !chunk.iter().fold(false, |any, &v| any | (v > thr)) {
                 continue;
             }
-            peaks.push((x, y, v));
+            for (k, &v) in chunk.iter().enumerate() {
+                let x = c * LANES + k;
+                // The 3x3 neighbourhood first (a subset of the window, same rule): most
+                // pixels above the threshold lie on edges and fail it at once.
+                if v <= thr || beaten_within(x, y, v, 1) || beaten_within(x, y, v, nms) {
+                    continue;
+                }
+                peaks.push((x, y, v));
+            }
         }
     }
     peaks.sort_by(|a, b| b.2.total_cmp(&a.2));
     peaks.truncate(MAX_CANDIDATES);
     peaks
+}
+
+/// The largest of 0 and `data`'s values (`f32::max` over them, ignoring NaN), [`LANES`]
+/// running maxima at once: the maximum does not depend on the order of comparison.
+fn max_of(data: &[f32]) -> f32 {
+    let mut lanes = [0.0f32; LANES];
+    let mut chunks = data.chunks_exact(LANES);
+    for chunk in &mut chunks {
+        for (m, &v) in lanes.iter_mut().zip(chunk) {
+            *m = m.max(v);
+        }
+    }
+    chunks.remainder().iter().chain(&lanes).copied().fold(0.0f32, f32::max)
 }
 
 /// Each peak (at the response's scale) refined on the full image by [`refine_corner`]; of two
@@ -284,17 +379,27 @@ mod tests {
     }
 
     /// Tolerance: none. The row-slice ChESS response equals the per-pixel textbook formula
-    /// (16 ring samples gathered per pixel) bit for bit, on a non-square image with structure
-    /// everywhere, for both ring radii, borders included.
+    /// (16 ring samples gathered per pixel) bit for bit, on non-square images with structure
+    /// everywhere, for both ring radii, borders included: with the kernel copy the CPU picks
+    /// (AVX2 where present, as on the test machine) and with the SSE2 baseline copy, on rows
+    /// whose length is a multiple of [`LANES`], is not (the last step overlaps), and is
+    /// shorter than one step.
     #[test]
     fn chess_response_equals_the_per_pixel_formula() {
-        let (w, h) = (97, 61);
-        let img = Image::from_fn(w, h, |x, y| {
-            let checker = if ((x / 9) + (y / 7)) % 2 == 0 { 200.0 } else { 30.0 };
-            checker + ((x * 37 + y * 91) % 23) as f32 * 0.7
-        });
-        for radius in [5usize, 7] {
-            let got = chess_response(&img, radius);
+        let kernels: [(&str, RowFn); 2] = [("dispatched", row_response), ("baseline", row_kernel)];
+        for ((w, h), radius, (name, kernel)) in [(97, 61), (30, 23), (15, 17)]
+            .into_iter()
+            .flat_map(|s| [5usize, 7].into_iter().map(move |r| (s, r)))
+            .flat_map(|(s, r)| kernels.into_iter().map(move |k| (s, r, k)))
+        {
+            if w <= 2 * radius {
+                continue;
+            }
+            let img = Image::from_fn(w, h, |x, y| {
+                let checker = if ((x / 9) + (y / 7)) % 2 == 0 { 200.0 } else { 30.0 };
+                checker + ((x * 37 + y * 91) % 23) as f32 * 0.7
+            });
+            let got = chess_response_with(&img, radius, kernel);
             let ring: Vec<(isize, isize)> = (0..16)
                 .map(|n| {
                     let a = n as f64 * std::f64::consts::TAU / 16.0;
@@ -333,9 +438,45 @@ mod tests {
                     assert_eq!(
                         got.get(x, y).to_bits(),
                         want.to_bits(),
-                        "radius {radius}, ({x}, {y})"
+                        "{name} kernel, {w}x{h}, radius {radius}, ({x}, {y})"
                     );
                 }
+            }
+        }
+    }
+
+    /// Tolerance: none. The 2×2 box mean equals its definition pixel by pixel (the same sum
+    /// order), on odd sizes (the last row and column dropped) with fractional values.
+    #[test]
+    fn halve_equals_the_box_mean() {
+        let (w, h) = (71, 33);
+        let img = Image::from_fn(w, h, |x, y| ((x * 29 + y * 53) % 97) as f32 * 1.3 + 0.1);
+        let got = halve(&img);
+        assert_eq!(got.size(), (35, 16));
+        for y in 0..16 {
+            for x in 0..35 {
+                let p = |dx: usize, dy: usize| *img.get(2 * x + dx, 2 * y + dy);
+                let want = ((p(0, 0) + p(1, 0)) + (p(0, 1) + p(1, 1))) * 0.25;
+                assert_eq!(got.get(x, y).to_bits(), want.to_bits(), "({x}, {y})");
+            }
+        }
+    }
+
+    /// Tolerance: none. The lane-wise maximum equals the sequential `f32::max` fold from 0,
+    /// for lengths with and without a remainder, all-negative data, and the maximum in the
+    /// remainder.
+    #[test]
+    fn max_of_equals_the_fold() {
+        for n in [0usize, 5, 8, 37, 64] {
+            let data: Vec<f32> = (0..n).map(|i| ((i * 37) % 11) as f32 - 7.5).collect();
+            let want = data.iter().copied().fold(0.0f32, f32::max);
+            assert_eq!(max_of(&data).to_bits(), want.to_bits(), "n = {n}");
+            let neg: Vec<f32> = data.iter().map(|v| -v.abs() - 1.0).collect();
+            assert_eq!(max_of(&neg), 0.0, "n = {n}, all negative");
+            let mut last = data.clone();
+            if let Some(v) = last.last_mut() {
+                *v = 1e6;
+                assert_eq!(max_of(&last), 1e6, "n = {n}, maximum last");
             }
         }
     }
