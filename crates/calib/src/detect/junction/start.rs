@@ -24,23 +24,43 @@ pub(super) fn start_estimate(
 ) -> Option<[f64; 3]> {
     use nalgebra::{Matrix4, Vector4};
     let (s1, c1, s2, c2) = (theta[0].sin(), theta[0].cos(), theta[1].sin(), theta[1].cos());
-    let (mut ata, mut atb, mut btb) = (Matrix4::<f64>::zeros(), Vector4::<f64>::zeros(), 0.0);
-    // Pixel count and edge length (pixels within half a pixel of either line).
-    let (mut n, mut edge) = (0.0, 0.0);
-    for &(x, y, value) in pix {
+    // Sums of the normal equations of rows [1, s, u, v] (s² = 1) and values b, as scalars:
+    // a nalgebra 4×4 outer product per pixel cost a third of a kernel evaluation per fit.
+    let [mut n, mut ss, mut su, mut sv, mut ssu, mut ssv, mut suu, mut suv, mut svv] = [0.0; 9];
+    let [mut sb, mut ssb, mut sub, mut svb, mut sbb] = [0.0; 5];
+    // Edge length: pixels within half a pixel of either line.
+    let mut edge = 0.0;
+    for &(x, y, b) in pix {
         let (u, v) = (x - start.x, y - start.y);
-        if u * u + v * v > r * r || value >= SATURATED {
+        if u * u + v * v > r * r || b >= SATURATED {
             continue;
         }
         let (d1, d2) = (c1 * v - s1 * u, c2 * v - s2 * u);
         let s = if (d1 >= 0.0) == (d2 >= 0.0) { 1.0 } else { -1.0 };
         edge += f64::from(u8::from(d1.abs() < 0.5) + u8::from(d2.abs() < 0.5));
-        let row = Vector4::new(1.0, s, u, v);
-        ata += row * row.transpose();
-        atb += row * value;
-        btb += value * value;
         n += 1.0;
+        ss += s;
+        su += u;
+        sv += v;
+        ssu += s * u;
+        ssv += s * v;
+        suu += u * u;
+        suv += u * v;
+        svv += v * v;
+        sb += b;
+        ssb += s * b;
+        sub += u * b;
+        svb += v * b;
+        sbb += b * b;
     }
+    #[rustfmt::skip]
+    let ata = Matrix4::new(
+        n, ss, su, sv,
+        ss, n, ssu, ssv,
+        su, ssu, suu, suv,
+        sv, ssv, suv, svv,
+    );
+    let (atb, btb) = (Vector4::new(sb, ssb, sub, svb), sbb);
     if n < FIT_MIN_PIXELS as f64 || edge < 1.0 {
         return None;
     }
