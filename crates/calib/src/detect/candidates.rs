@@ -10,14 +10,53 @@ use super::subpix::refine_corner;
 /// Most candidates kept per image (strongest first); a 7x5 board needs 35.
 const MAX_CANDIDATES: usize = 600;
 /// Images of at least this many pixels get their ChESS response rows in parallel. An IR
-/// image (512x424, 217 k pixels) is above it: on the idle bench machine its response takes
-/// 0.69 ms on one core (`detect_stages`), and the criterion IR detection took 2.43 ms with the
-/// response on one thread against 2.08 ms with its rows in parallel (`run_all.sh`, 2026-12-02
-/// 02:56 and 03:15 UTC). Below ~100 k pixels (a 320x240 image) the response is a few tenths of
-/// a millisecond, where rayon's hand-offs would cost about what they save. Those figures are of
-/// the SSE2-only kernel; the AVX2 copy ([`row_response`]) takes about 0.37 ms for the IR image
-/// on one core (loaded machine): whether parallel rows still pay for it was not re-timed.
-const PARALLEL_RESPONSE_PIXELS: usize = 100_000;
+/// image (512x424, 217 k pixels) is above it: on the idle bench machine its response took
+/// 0.69 ms on one core (`detect_stages`, SSE2 kernel), and the criterion IR detection took
+/// 2.43 ms with the response on one thread against 2.08 ms with its rows in parallel
+/// (`run_all.sh`, 2026-12-02 02:56 and 03:15 UTC). The IR image's coarse-first pass computes
+/// the response of its 2×2 box mean (256x212, 54 k pixels): in parallel it took 30 µs less of
+/// the detection's stages outside the junction fit (two threads, minimum of 300 runs: 262–267
+/// → 231–235 µs, 2026-12-02). Below ~50 k pixels (a 256x192 image) the response is a few
+/// hundredths of a millisecond, where rayon's hand-offs would cost about what they save.
+const PARALLEL_RESPONSE_PIXELS: usize = 50_000;
+
+/// Most response-sized buffers kept per thread for the next detection ([`zeroed_buffer`]):
+/// one detection pass needs two at once (the 2×2 box mean and its response).
+const SPARE_BUFFERS: usize = 2;
+/// Largest buffer kept (values): a 1920x1080 frame's. A buffer taken fresh from the allocator
+/// is mapped page by page as the kernels first write it, and glibc hands freed buffers of
+/// this size back to the kernel: on the IR bench image the box mean and its response cost
+/// ~100 page faults per detection, 10 % of a one-thread detection's profile (perf,
+/// 2026-12-02). Larger images allocate anew; two buffers per thread of at most 8.3 MB stay
+/// held.
+const SPARE_BUFFER_MAX_LEN: usize = 1920 * 1080;
+
+thread_local! {
+    /// Buffers of earlier detections on this thread, reused by [`zeroed_buffer`].
+    static SPARE: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// `len` zeros, in a buffer of an earlier detection on this thread where one was kept.
+fn zeroed_buffer(len: usize) -> Vec<f32> {
+    let mut buf = SPARE.with(|s| s.borrow_mut().pop()).unwrap_or_default();
+    buf.clear();
+    buf.resize(len, 0.0);
+    buf
+}
+
+/// Keeps `img`'s buffer for a later [`zeroed_buffer`] on this thread (response images and
+/// box means, once their peaks are found).
+pub(super) fn recycle(img: Image<f32>) {
+    let buf = img.into_vec();
+    if buf.capacity() <= SPARE_BUFFER_MAX_LEN {
+        SPARE.with(|s| {
+            let mut spare = s.borrow_mut();
+            if spare.len() < SPARE_BUFFERS {
+                spare.push(buf);
+            }
+        });
+    }
+}
 
 /// Pixels per step of the response kernel (and of the peak search's threshold skip): two
 /// AVX2 registers of `f32`, four SSE2 ones. Sixteen rather than eight gives each step
@@ -102,10 +141,10 @@ fn chess_response_with(img: &Image<f32>, radius: usize, row_fn: RowFn) -> Image<
         let a = n as f64 * std::f64::consts::TAU / 16.0;
         ((r * a.cos()).round() as isize, (r * a.sin()).round() as isize)
     });
-    let mut out = vec![0.0f32; w * h];
     if w <= 2 * radius || h <= 2 * radius {
         return Image::from_fn(w, h, |_, _| 0.0);
     }
+    let mut out = zeroed_buffer(w * h);
     let data = img.data();
     let len = w - 2 * radius;
     let row = |y: usize, row: &mut [f32]| {
@@ -200,7 +239,10 @@ fn pixel_response<T: Lane>(s: &[T; 16], local: [T; 5]) -> T {
 
 /// Candidate X-junctions: local maxima of the ChESS response, refined to sub-pixel.
 pub fn candidates(img: &Image<f32>, params: &DetectorParams) -> Vec<(Vector2<f64>, f32)> {
-    refine_peaks(img, &peaks(&response(img, params), params), params)
+    let resp = response(img, params);
+    let found = peaks(&resp, params);
+    recycle(resp);
+    refine_peaks(img, &found, params)
 }
 
 /// Ring radius of the response at [`DetectorParams::response_decimation`]'s scale.
@@ -213,7 +255,10 @@ fn response_radius(params: &DetectorParams) -> usize {
 /// only 1–2 px wide, and sampling every second pixel missed strong corners).
 pub(super) fn response(img: &Image<f32>, params: &DetectorParams) -> Image<f32> {
     if params.response_decimation == 2 {
-        chess_response(&halve(img), response_radius(params))
+        let half = halve(img);
+        let resp = chess_response(&half, response_radius(params));
+        recycle(half);
+        resp
     } else {
         chess_response(img, params.ring_radius)
     }
@@ -225,7 +270,7 @@ pub(super) fn halve(img: &Image<f32>) -> Image<f32> {
     let (w, h) = img.size();
     let (hw, hh) = (w / 2, h / 2);
     let data = img.data();
-    let mut out = vec![0.0f32; hw * hh];
+    let mut out = zeroed_buffer(hw * hh);
     for (y, row) in out.chunks_mut(hw.max(1)).enumerate().take(hh) {
         halve_row(
             &data[2 * y * w..2 * y * w + 2 * hw],
@@ -479,5 +524,33 @@ mod tests {
                 assert_eq!(max_of(&last), 1e6, "n = {n}, maximum last");
             }
         }
+    }
+
+    /// Tolerance: none. The response and the box mean computed in buffers that earlier,
+    /// larger images left behind full of other values (NaN) equal those computed in fresh
+    /// buffers, the response's zero border included.
+    #[test]
+    fn reused_buffers_give_the_fresh_results() {
+        let img = Image::from_fn(61, 47, |x, y| ((x * 29 + y * 53) % 97) as f32 * 1.3 + 0.1);
+        SPARE.with(|s| s.borrow_mut().clear());
+        let fresh_response = chess_response(&img, 5);
+        SPARE.with(|s| s.borrow_mut().clear());
+        let fresh_half = halve(&img);
+        for _ in 0..SPARE_BUFFERS {
+            recycle(Image::from_fn(90, 70, |_, _| f32::NAN));
+        }
+        let response = chess_response(&img, 5);
+        for _ in 0..SPARE_BUFFERS {
+            recycle(Image::from_fn(90, 70, |_, _| f32::NAN));
+        }
+        let half = halve(&img);
+        for (got, want) in [(&response, &fresh_response), (&half, &fresh_half)] {
+            assert_eq!(got.size(), want.size());
+            for (i, (g, w)) in got.data().iter().zip(want.data()).enumerate() {
+                assert_eq!(g.to_bits(), w.to_bits(), "value {i}");
+            }
+        }
+        // The border the response leaves at 0 was written over with NaN before.
+        assert_eq!(*response.get(0, 0), 0.0);
     }
 }

@@ -72,6 +72,12 @@ type Lane = [f32; LANES];
 /// per block. (Updating all 55 for every group of eight pixels needs 110 SSE registers of
 /// x86-64's 16: they were spilled and reloaded every group, ~82 cycles per pixel.)
 const BLOCK: usize = 16;
+/// Columns of the product pass at once in the AVX2+FMA clone: eight accumulators (of 16 YMM
+/// registers) cover a fused multiply-add's latency (4 cycles) on its two ports, where four
+/// waited on their own adds. Each accumulator still sums its pixels in group order, so the
+/// sums are the same to the bit; fit stage of the IR bench image 0.98–1.00 → 0.95–0.97 ms
+/// (one thread, loaded machine, 2026-12-02).
+const WIDE: usize = 8;
 /// Rows per pixel of the product pass: the 9 Jacobian entries, then the residual. The upper
 /// triangle of their outer product holds JᵀJ (45 entries), Jᵀr (9) and the squared residual.
 const ROWS: usize = 10;
@@ -216,19 +222,17 @@ impl Lanes {
     fn new(pix: &[(f64, f64, f64)], start: Vector2<f64>) -> Self {
         let n = pix.len().div_ceil(LANES);
         let mut lanes = Self {
-            u: Vec::with_capacity(n),
-            v: Vec::with_capacity(n),
-            obs: Vec::with_capacity(n),
-            valid: Vec::with_capacity(n),
+            u: vec![[0.0; LANES]; n],
+            v: vec![[0.0; LANES]; n],
+            obs: vec![[0.0; LANES]; n],
+            valid: vec![[0.0; LANES]; n],
         };
-        for chunk in pix.chunks(LANES) {
-            let lane = |f: &dyn Fn(&(f64, f64, f64)) -> f32| -> Lane {
-                std::array::from_fn(|i| chunk.get(i).map_or(0.0, f))
-            };
-            lanes.u.push(lane(&|q| (q.0 - start.x) as f32));
-            lanes.v.push(lane(&|q| (q.1 - start.y) as f32));
-            lanes.obs.push(lane(&|q| q.2 as f32));
-            lanes.valid.push(lane(&|_| 1.0));
+        for (i, q) in pix.iter().enumerate() {
+            let (g, l) = (i / LANES, i % LANES);
+            lanes.u[g][l] = (q.0 - start.x) as f32;
+            lanes.v[g][l] = (q.1 - start.y) as f32;
+            lanes.obs[g][l] = q.2 as f32;
+            lanes.valid[g][l] = 1.0;
         }
         lanes
     }
@@ -347,7 +351,13 @@ fn kernel<const FMA: bool>(px: &Lanes, md: &Model) -> [Lane; PRODUCTS] {
     for first in (0..groups).step_by(BLOCK) {
         let nb = BLOCK.min(groups - first);
         for b in 0..nb {
-            let i = first + b;
+            // `black_box` keeps LLVM's loop vectoriser off this loop. Without it, it vectorised
+            // the loop across lane groups (each vector lane a different group, every `[f32; 8]`
+            // transposed in and out: 3 667 instructions in the AVX2 clone, 280 of them
+            // `vshufps`) instead of the lane loops within a group (678 instructions). The IR
+            // bench image's fit stage: 0.68–0.72 → 0.60 ms (one thread, minimum of 300 runs),
+            // corners identical to the bit (2026-12-02).
+            let i = std::hint::black_box(first + b);
             let j = md.pixels::<FMA, LANES>(V(px.u[i]), V(px.v[i]), V(px.obs[i]), V(px.valid[i]));
             for r in 0..ROWS {
                 rows[r][b] = j[r].0;
@@ -355,13 +365,20 @@ fn kernel<const FMA: bool>(px: &Lanes, md: &Model) -> [Lane; PRODUCTS] {
         }
         // Row r against up to four columns at once: four independent accumulators (eight
         // SSE registers) keep the adders busy where one accumulator waited on its own add.
+        // The FMA clone takes up to [`WIDE`] at once.
         let mut n = 0;
         for r in 0..ROWS {
             let mut c = r;
             while c < ROWS {
-                let k = (ROWS - c).min(4);
+                let k = (ROWS - c).min(if FMA { WIDE } else { 4 });
                 let acc = &mut acc[n..n + k];
                 match k {
+                    10 => products::<10, FMA>(&rows, r, c, nb, acc),
+                    9 => products::<9, FMA>(&rows, r, c, nb, acc),
+                    8 => products::<8, FMA>(&rows, r, c, nb, acc),
+                    7 => products::<7, FMA>(&rows, r, c, nb, acc),
+                    6 => products::<6, FMA>(&rows, r, c, nb, acc),
+                    5 => products::<5, FMA>(&rows, r, c, nb, acc),
                     4 => products::<4, FMA>(&rows, r, c, nb, acc),
                     3 => products::<3, FMA>(&rows, r, c, nb, acc),
                     2 => products::<2, FMA>(&rows, r, c, nb, acc),
@@ -421,13 +438,21 @@ fn eval_lanes(
 fn sums_to_normal_equations(
     acc: &[Lane; PRODUCTS],
 ) -> (f64, nalgebra::SMatrix<f64, 9, 9>, nalgebra::SVector<f64, 9>) {
+    // Each product's lanes summed in f64 in lane order, from −0.0 as `Iterator::sum`; with
+    // the products in the inner loop LLVM adds several products' lanes at once.
+    let mut sums = [-0.0f64; PRODUCTS];
+    for l in 0..LANES {
+        for (s, lanes) in sums.iter_mut().zip(acc) {
+            *s += lanes[l] as f64;
+        }
+    }
     let mut jtj = nalgebra::SMatrix::<f64, 9, 9>::zeros();
     let mut jtr = nalgebra::SVector::<f64, 9>::zeros();
     let mut cost = 0.0;
     let mut n = 0;
     for r in 0..ROWS {
         for c in r..ROWS {
-            let s = acc[n].iter().map(|&x| x as f64).sum::<f64>();
+            let s = sums[n];
             n += 1;
             match (r, c) {
                 (9, 9) => cost = s,
@@ -491,16 +516,28 @@ fn fit(
     let (w, h) = (img.width() as isize, img.height() as isize);
     let r = radius.floor() as isize;
     let (ox, oy) = (start.x.round() as isize, start.y.round() as isize);
+    // The window's pixels in row order, with the counts that choose the stages.
     let mut pix: Vec<(f64, f64, f64)> = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
+    let (mut unsaturated, mut coarse_all, mut coarse_unsaturated) = (0, 0, 0);
+    let (data, row_len) = (img.data(), img.width());
     for y in (oy - r).max(0)..=(oy + r).min(h - 1) {
+        let row = &data[y as usize * row_len..(y as usize + 1) * row_len];
         for x in (ox - r).max(0)..=(ox + r).min(w - 1) {
             let (u, v) = (x as f64 - start.x, y as f64 - start.y);
-            if u * u + v * v <= radius * radius {
-                pix.push((x as f64, y as f64, *img.get(x as usize, y as usize) as f64));
+            let d2 = u * u + v * v;
+            if d2 <= radius * radius {
+                let value = row[x as usize] as f64;
+                pix.push((x as f64, y as f64, value));
+                let clear = value < SATURATED;
+                unsaturated += usize::from(clear);
+                if d2 <= FIT_COARSE_RADIUS * FIT_COARSE_RADIUS {
+                    coarse_all += 1;
+                    coarse_unsaturated += usize::from(clear);
+                }
             }
         }
     }
-    if pix.iter().filter(|p| p.2 < SATURATED).count() < FIT_MIN_PIXELS {
+    if unsaturated < FIT_MIN_PIXELS {
         return None;
     }
     let th = |d: Vector2<f64>| d.y.atan2(d.x);
@@ -508,17 +545,18 @@ fn fit(
     let within = |q: &(f64, f64, f64)| {
         (q.0 - start.x).powi(2) + (q.1 - start.y).powi(2) <= FIT_COARSE_RADIUS * FIT_COARSE_RADIUS
     };
-    let coarse_all = pix.iter().filter(|q| within(q)).count();
-    let coarse_unsaturated = pix.iter().filter(|q| within(q) && q.2 < SATURATED).count();
     let two_stage = radius > FIT_COARSE_RADIUS
         && coarse_unsaturated >= FIT_MIN_PIXELS
         && (coarse_all as f64) < FIT_COARSE_MAX_SHARE * pix.len() as f64;
     let m0 = pix.iter().map(|p| p.2).sum::<f64>() / pix.len() as f64;
-    let sign = |t: f64, x: f64, y: f64| {
-        let d = -t.sin() * (x - start.x) + t.cos() * (y - start.y);
-        if d >= 0.0 { 1.0 } else { -1.0 }
+    let side = |t: f64| {
+        let (s, c) = (t.sin(), t.cos());
+        move |x: f64, y: f64| {
+            if -s * (x - start.x) + c * (y - start.y) >= 0.0 { 1.0 } else { -1.0 }
+        }
     };
-    let a0 = pix.iter().map(|p| (p.2 - m0) * sign(t1, p.0, p.1) * sign(t2, p.0, p.1)).sum::<f64>()
+    let (side1, side2) = (side(t1), side(t2));
+    let a0 = pix.iter().map(|p| (p.2 - m0) * side1(p.0, p.1) * side2(p.0, p.1)).sum::<f64>()
         / pix.len() as f64;
     // p = [cx, cy, θ1, θ2, m, a, σ, gx, gy]
     let p =

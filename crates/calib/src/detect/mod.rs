@@ -257,6 +257,7 @@ fn detect_pass(
     let resp = candidates::response(img, params);
     lap(&mut t.response);
     let peaks = candidates::peaks(&resp, params);
+    candidates::recycle(resp);
     lap(&mut t.peaks);
     let mut pts = candidates::refine_peaks(img, &peaks, params);
     lap(&mut t.subpix);
