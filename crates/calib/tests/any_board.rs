@@ -80,7 +80,9 @@ struct Outcome {
     tie: bool,
 }
 
-fn run_case(cols: usize, rows: usize, seed: u64) -> Outcome {
+/// A `cols × rows` board at a random pose, blur and noise (seeded), in an image sized to it,
+/// with the scene that rendered it.
+fn render_case(cols: usize, rows: usize, seed: u64) -> (Scene, geometry::Image<u8>) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     // The image just large enough for squares of about PX_PER_SQUARE px (a 4:3 frame, at most
     // 640x480): small boards in small images keep the test at a few seconds.
@@ -104,6 +106,12 @@ fn run_case(cols: usize, rows: usize, seed: u64) -> Outcome {
         background: rng.random_range(60.0..160.0),
     };
     let img = scene.render(&mut rng);
+    (scene, img)
+}
+
+fn run_case(cols: usize, rows: usize, seed: u64) -> Outcome {
+    let (scene, img) = render_case(cols, rows, seed);
+    let (w, h) = (img.width(), img.height());
     let board = Board::new(cols, rows, 1.0).unwrap();
     let Some(d) = detect(&to_f32(&img), &board, &DetectorParams::for_image(w, h)) else {
         return Outcome { found: false, mislabelled: 0, tie: false };
@@ -198,4 +206,31 @@ fn colour_decided_boards_start_at_the_black_corner_square() {
         let err = (c0 - s.corner(truth_of_0)).norm();
         assert!(err < SAME_CORNER_PX, "top-left black {black}: corner 0 {err} px from truth");
     }
+}
+
+/// Tolerance: none. A detection gives the same corners to the bit whether it is called from
+/// outside rayon's pool (it then moves onto a pool thread) or inside one, and after detections
+/// of larger and smaller images on the same threads, whose buffers it reuses.
+#[test]
+fn detection_is_the_same_from_any_thread_and_after_other_images() {
+    let cases = [(9, 6, 11), (16, 12, 12), (3, 3, 13)];
+    let images: Vec<_> = cases.iter().map(|&(c, r, seed)| render_case(c, r, seed).1).collect();
+    let detect_case = |k: usize| {
+        let (c, r, _) = cases[k];
+        let img = &images[k];
+        let board = Board::new(c, r, 1.0).unwrap();
+        let d = detect(&to_f32(img), &board, &DetectorParams::for_image(img.width(), img.height()))
+            .unwrap_or_else(|| panic!("{c}x{r}: no board"));
+        d.corners.iter().map(|c| (c.id, c.px.x.to_bits(), c.px.y.to_bits())).collect::<Vec<_>>()
+    };
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    let first = detect_case(0);
+    assert_eq!(first.len(), 54);
+    assert_eq!(pool.install(|| detect_case(0)), first, "inside a pool");
+    for k in [1, 2] {
+        detect_case(k);
+        pool.install(|| detect_case(k));
+    }
+    assert_eq!(detect_case(0), first, "after other images");
+    assert_eq!(pool.install(|| detect_case(0)), first, "inside a pool, after other images");
 }
