@@ -376,8 +376,6 @@ fn kernel<const FMA: bool>(px: &Lanes, md: &Model) -> [Lane; PRODUCTS] {
                 let k = (ROWS - c).min(if FMA { WIDE } else { 4 });
                 let acc = &mut acc[n..n + k];
                 match k {
-                    10 => products::<10, FMA>(&rows, r, c, nb, acc),
-                    9 => products::<9, FMA>(&rows, r, c, nb, acc),
                     8 => products::<8, FMA>(&rows, r, c, nb, acc),
                     7 => products::<7, FMA>(&rows, r, c, nb, acc),
                     6 => products::<6, FMA>(&rows, r, c, nb, acc),
@@ -523,17 +521,20 @@ fn fit(
     let mut pix: Vec<(f64, f64, f64)> = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
     let (mut unsaturated, mut coarse_all, mut coarse_unsaturated) = (0, 0, 0);
     let (data, row_len) = (img.data(), img.width());
+    // Within the coarse stage's circle (for the counts here and the coarse window below).
+    let in_coarse = |x: f64, y: f64| {
+        (x - start.x).powi(2) + (y - start.y).powi(2) <= FIT_COARSE_RADIUS * FIT_COARSE_RADIUS
+    };
     for y in (oy - r).max(0)..=(oy + r).min(h - 1) {
         let row = &data[y as usize * row_len..(y as usize + 1) * row_len];
         for x in (ox - r).max(0)..=(ox + r).min(w - 1) {
             let (u, v) = (x as f64 - start.x, y as f64 - start.y);
-            let d2 = u * u + v * v;
-            if d2 <= radius * radius {
+            if u * u + v * v <= radius * radius {
                 let value = row[x as usize] as f64;
                 pix.push((x as f64, y as f64, value));
                 let clear = value < SATURATED;
                 unsaturated += usize::from(clear);
-                if d2 <= FIT_COARSE_RADIUS * FIT_COARSE_RADIUS {
+                if in_coarse(x as f64, y as f64) {
                     coarse_all += 1;
                     coarse_unsaturated += usize::from(clear);
                 }
@@ -545,9 +546,6 @@ fn fit(
     }
     let th = |d: Vector2<f64>| d.y.atan2(d.x);
     let (t1, t2) = (th(dirs[0]), th(dirs[1]));
-    let within = |q: &(f64, f64, f64)| {
-        (q.0 - start.x).powi(2) + (q.1 - start.y).powi(2) <= FIT_COARSE_RADIUS * FIT_COARSE_RADIUS
-    };
     let two_stage = radius > FIT_COARSE_RADIUS
         && coarse_unsaturated >= FIT_MIN_PIXELS
         && (coarse_all as f64) < FIT_COARSE_MAX_SHARE * pix.len() as f64;
@@ -623,7 +621,8 @@ fn fit(
     };
     let all = Lanes::new(&pix, start);
     let (p, cost, jtj) = if two_stage {
-        let coarse: Vec<(f64, f64, f64)> = pix.iter().copied().filter(within).collect();
+        let coarse: Vec<(f64, f64, f64)> =
+            pix.iter().copied().filter(|q| in_coarse(q.0, q.1)).collect();
         let (p1, _, _) = lm(&Lanes::new(&coarse, start), p, FIT_MAX_ITERATIONS, FIT_COARSE_EPS)?;
         lm(&all, p1, FIT_FINAL_ITERATIONS, FIT_EPS)?
     } else {
