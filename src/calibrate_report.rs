@@ -48,7 +48,7 @@ pub(crate) fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
     );
     if let Some((r, fraction)) = calib::undistort::fold_inside_image(&m.camera) {
         println!(
-            "  note: the distortion model folds inside the image (undistorted radius {r:.3}): {:.2} % of the pixels, near the corners, see no valid ray; undistortion masks them",
+            "  note: the distortion model folds inside the image (undistorted radius {r:.3}): {:.2} % of the pixels, near the corners, lie beyond the largest radius the model reaches: no ray maps onto them, so undistorted images leave them out",
             100.0 * fraction
         );
     }

@@ -46,7 +46,8 @@ pub struct CalibrateArgs {
     /// Colour-camera images: a glob pattern (quote it) or a file; repeatable.
     #[arg(long, value_name = "GLOB")]
     color: Vec<String>,
-    /// IR (depth-camera) images: a glob pattern (quote it) or a file; repeatable.
+    /// IR (depth-camera) images: a glob pattern (quote it) or a file; repeatable. 8-bit, or
+    /// 16-bit raw IR (scaled by each image's range; 65535 counts as clipped).
     #[arg(long, value_name = "GLOB")]
     ir: Vec<String>,
     /// Depth images (16-bit PNG, mm) of the IR shots, matched with --ir in sorted order:
@@ -62,7 +63,7 @@ pub struct CalibrateArgs {
     #[arg(long, default_value = "7x5")]
     board: String,
     /// Square side with unit: 40mm, 4cm, 0.04m.
-    #[arg(long, default_value = "40mm")]
+    #[arg(long, default_value = "40mm", allow_hyphen_values = true)]
     square: String,
     /// Colour of the board's top-left square (next to the first inner corner); auto-detected
     /// from the images when not given.
@@ -156,14 +157,22 @@ fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<(Boa
     } else if let Some(v) = s.strip_suffix('m') {
         (v, 1.0)
     } else {
-        bail!("--square '{square}': give a unit, e.g. 40mm, 4cm or 0.04m")
+        match s.parse::<f64>() {
+            Ok(v) if v > 0.0 => {
+                bail!("--square '{square}': give a unit: {v}mm, {}cm or {}m?", v / 10.0, v / 1000.0)
+            }
+            _ => bail!(
+                "--square '{square}': give the printed square's side with a unit, e.g. 40mm, 4cm or 0.04m"
+            ),
+        }
     };
     let v: f64 =
         num.trim().parse().with_context(|| format!("--square '{square}': not a number"))?;
     let side_m = v * scale;
-    if !(side_m > 0.0 && side_m <= MAX_SQUARE_M) {
+    if !(MIN_SQUARE_M..=MAX_SQUARE_M).contains(&side_m) {
         bail!(
-            "--square '{square}': a square side must be above 0 and at most {MAX_SQUARE_M} m; give the printed square's side, e.g. 24mm"
+            "--square '{square}': a square side must be between {} mm and {MAX_SQUARE_M} m; give the printed square's side, e.g. 24mm",
+            MIN_SQUARE_M * 1e3
         );
     }
     let mut b = Board::new(c, r, side_m)?;
@@ -178,6 +187,9 @@ const MAX_BOARD_SIDE: usize = 100;
 /// Largest square side accepted from `--square`: 1 m is far above any printed board (and a unit
 /// mistake such as `40m` for 40 mm lands above it).
 const MAX_SQUARE_M: f64 = 1.0;
+/// Smallest square side accepted from `--square`: 0.1 mm, the squares of microscope
+/// calibration slides; below it is a unit mistake (`0.024mm` for 24 mm).
+const MIN_SQUARE_M: f64 = 1e-4;
 
 /// Natural order: `ir_2` before `ir_10`.
 fn natural_key(p: &Path) -> Vec<(String, u64)> {
@@ -215,6 +227,13 @@ pub fn expand(patterns: &[String], what: &str) -> Result<Vec<PathBuf>> {
             .filter_map(|e| e.ok())
             .filter(|p| p.is_file())
             .collect();
+        if matches.is_empty() && Path::new(p).is_dir() {
+            let example = Path::new(p).join("*.png");
+            bail!(
+                "--{what} '{p}' is a folder; give a pattern of its images, e.g. --{what} '{}'",
+                example.display()
+            );
+        }
         if matches.is_empty() {
             bail!("--{what} '{p}': no file matches (quote the pattern so that kfuse expands it)");
         }
@@ -258,7 +277,7 @@ fn load_and_detect(
     let images: Vec<Result<Image<u8>, String>> = files
         .par_iter()
         .map(|f| {
-            let r = calib::io::read_gray(f).map_err(|e| e.to_string());
+            let r = kfuse_io::images::read_gray(f).map_err(|e| e.to_string());
             pb.inc(1);
             r
         })
@@ -359,8 +378,27 @@ fn with_images<'a>(
         .collect()
 }
 
-/// Checks the output paths before any work: each names a file in an existing folder, none is
-/// a folder, none is one of the input images, and the report folder is not a file.
+/// The folder of an output path (`.` for a bare file name).
+fn parent_folder(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+/// Where an output path leads, for telling whether two outputs are one file: the path with
+/// its links and `..` resolved, or (missing) its resolved folder and its name.
+fn resolved_output(path: &Path) -> PathBuf {
+    path.canonicalize().unwrap_or_else(|_| {
+        let folder = parent_folder(path);
+        let folder = folder.canonicalize().unwrap_or_else(|_| folder.to_path_buf());
+        folder.join(path.file_name().unwrap_or_default())
+    })
+}
+
+/// Checks the output paths before any work: each names a file in an existing folder (a
+/// missing file, a regular file or a link to one: no folder, device or pipe), none is one of
+/// the input images, no two outputs are the same path, and the report folder is not a file.
 fn check_outputs<'a>(
     args: &CalibrateArgs,
     inputs: impl Iterator<Item = &'a PathBuf> + Clone,
@@ -369,22 +407,23 @@ fn check_outputs<'a>(
         (Ok(a), Ok(b)) => a == b,
         _ => false,
     };
+    let mut taken: Vec<(&str, PathBuf)> = Vec::new();
     for (flag, path) in std::iter::once(("--out", &args.out))
         .chain(args.opencv_yaml.iter().map(|y| ("--opencv-yaml", y)))
     {
         if path.is_dir() {
             bail!("{flag} {} is a folder; give a file name such as rig.json", path.display());
         }
-        let parent = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
+        let parent = parent_folder(path);
         if !parent.is_dir() {
             bail!(
                 "{flag} {}: folder {} does not exist; create it first",
                 path.display(),
                 parent.display()
             );
+        }
+        if let Err(e) = kfuse_io::atomic::writable_target(path) {
+            bail!("{flag} {e}");
         }
         if let Some(input) = inputs.clone().find(|i| same(i, path)) {
             bail!(
@@ -393,9 +432,26 @@ fn check_outputs<'a>(
                 input.display()
             );
         }
+        let here = resolved_output(path);
+        if let Some((other, _)) = taken.iter().find(|(_, p)| *p == here) {
+            bail!(
+                "{flag} {} is the same file as {other}; give each output its own name",
+                path.display()
+            );
+        }
+        taken.push((flag, here));
     }
-    if let Some(dir) = args.report.as_ref().filter(|d| d.exists() && !d.is_dir()) {
-        bail!("--report {} exists and is not a folder", dir.display());
+    if let Some(dir) = &args.report {
+        if dir.exists() && !dir.is_dir() {
+            bail!("--report {} exists and is not a folder", dir.display());
+        }
+        let here = resolved_output(dir);
+        if let Some((other, _)) = taken.iter().find(|(_, p)| *p == here) {
+            bail!(
+                "--report {} is the same path as {other}; give the report its own folder",
+                dir.display()
+            );
+        }
     }
     Ok(())
 }
@@ -576,6 +632,30 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--square` mistakes from a user's trial, each with a message that says the fix.
+    #[test]
+    fn square_sizes_need_a_unit_and_a_printable_size() {
+        let side = |sq: &str| parse_board("9x6", sq, None).map(|(b, _)| b.square_m);
+        let err = |sq: &str| side(sq).unwrap_err().to_string();
+        assert!((side("24mm").unwrap() - 0.024).abs() < 1e-15);
+        assert!((side("2.4cm").unwrap() - 0.024).abs() < 1e-15);
+        assert!(err("24").contains("24mm, 2.4cm or 0.024m?"), "{}", err("24"));
+        for bad in ["0", "-1", "abc"] {
+            assert!(err(bad).contains("with a unit, e.g. 40mm"), "{bad}: {}", err(bad));
+        }
+        for bad in ["-1mm", "0mm", "1e-30m", "0.05mm", "2m"] {
+            assert!(err(bad).contains("between 0.1 mm and 1 m"), "{bad}: {}", err(bad));
+        }
+    }
+
+    #[test]
+    fn a_folder_given_as_a_pattern_gets_an_example() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().display().to_string();
+        let err = expand(std::slice::from_ref(&d), "color").unwrap_err().to_string();
+        assert!(err.contains("is a folder") && err.contains(&format!("{d}/*.png")), "{err}");
+    }
 
     #[test]
     fn file_names_with_glob_characters_are_taken_literally() {

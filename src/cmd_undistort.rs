@@ -89,6 +89,37 @@ fn expand_images(args: &[PathBuf]) -> Result<Vec<PathBuf>> {
     Ok(out)
 }
 
+/// `images` without the ones an earlier `kfuse undistort` wrote into `out` (listed in its
+/// manifest): a pattern such as `shots/*.jpg` with `--out shots` matches last run's
+/// `*_rect.jpg` too, which would be undistorted a second time (`left01_rect_rect.jpg`, from a
+/// user's trial). Says what it skipped; fails when nothing else is left.
+fn skip_earlier_outputs(images: Vec<PathBuf>, out: &Path) -> Result<Vec<PathBuf>> {
+    let ours = kfuse_io::atomic::written_by_kfuse(out);
+    let Ok(out_dir) = out.canonicalize() else { return Ok(images) };
+    let earlier = |p: &PathBuf| {
+        let in_out = p.parent().and_then(|d| d.canonicalize().ok()).is_some_and(|d| d == out_dir);
+        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        in_out && ours.contains(&name)
+    };
+    let (skipped, kept): (Vec<PathBuf>, Vec<PathBuf>) = images.into_iter().partition(earlier);
+    if let Some(first) = skipped.first() {
+        if kept.is_empty() {
+            bail!(
+                "every image given was written by an earlier kfuse undistort into {} (e.g. {}); give the original images",
+                out.display(),
+                first.display()
+            );
+        }
+        println!(
+            "note: skipped {} image(s) that an earlier kfuse undistort wrote into {} (e.g. {})",
+            skipped.len(),
+            out.display(),
+            first.display()
+        );
+    }
+    Ok(kept)
+}
+
 /// Undistorts one image in its own pixel type: 8-bit bilinearly, 16-bit and float (depth) by
 /// nearest neighbour; masked pixels are 0 (black, no depth) or NaN (float depth).
 fn remap(map: &UndistortMap, raster: &Raster) -> Raster {
@@ -157,7 +188,7 @@ pub fn run(args: UndistortArgs) -> Result<()> {
     }
     // Everything that can be checked is checked before the (large) map is built and before
     // anything is written: one output name per input, every image's size from its header.
-    let images = expand_images(&args.images)?;
+    let images = skip_earlier_outputs(expand_images(&args.images)?, &args.out)?;
     let mut names: HashMap<String, &PathBuf> = HashMap::new();
     for path in &images {
         let name = output_name(path);

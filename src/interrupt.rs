@@ -3,7 +3,11 @@
 //! before exiting non-zero.
 //!
 //! The first signal sets the flag; a second one exits at once with status 130 (the shell's
-//! convention for "killed by SIGINT"), for a command that does not react.
+//! convention for "killed by SIGINT"), for a command that does not react. Before it exits, it
+//! deletes the temporary files and staging folders of outputs not yet published
+//! ([`kfuse_io::atomic::remove_unpublished`]), so that even then only whole outputs are left.
+//! (`timeout -s INT` sends its signal to the command and to its process group: two signals
+//! at once.)
 
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -19,6 +23,14 @@ pub fn install() -> anyhow::Result<()> {
     let result = INSTALLED.get_or_init(|| {
         ctrlc::set_handler(|| {
             if REQUESTED.swap(true, Ordering::SeqCst) {
+                let stopped = kfuse_io::atomic::remove_unpublished();
+                let removed = match stopped.removed() {
+                    0 => String::new(),
+                    n => format!("; {n} unfinished output(s) removed, nothing half-written left"),
+                };
+                eprintln!(
+                    "\nerror: interrupted twice (Ctrl-C or SIGTERM): stopped at once{removed}"
+                );
                 std::process::exit(i32::from(INTERRUPTED_EXIT_CODE));
             }
         })

@@ -341,6 +341,29 @@ fn undistort_checks_everything_before_writing_anything() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// Undistorting a folder into itself twice (a user's trial: `left01_rect_rect.jpg`): the
+/// second run skips what the first wrote, with a note, and refuses when nothing else is left.
+#[test]
+fn undistort_into_its_input_folder_skips_its_earlier_outputs() {
+    let case = small_case("undistort-twice");
+    let pattern = case.dir.join("color*.png");
+    let run = |pattern: &Path| {
+        let args = ["undistort", "--rig", s(&case.rig), "--camera", "color", s(pattern)];
+        kfuse(&[&args[..], &["--out", s(&case.dir)]].concat())
+    };
+    let o = run(&pattern);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(case.dir.join("color_rect.png").is_file());
+    let o = run(&pattern);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(text.contains("skipped 1 image(s)") && text.contains("color_rect.png"), "{text}");
+    assert!(!names(&case.dir).iter().any(|n| n.contains("rect_rect")), "{:?}", names(&case.dir));
+    let o = run(&case.dir.join("color_rect.png"));
+    assert_one_line_failure(&o, "color_rect.png", "give the original images");
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
 #[test]
 fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     let case = small_case("calibrate");
@@ -361,6 +384,29 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
         kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--opencv-yaml", s(&yaml)]);
     assert_one_line_failure(&o, "nope", "does not exist");
     assert!(!rig.exists());
+    // A pipe (or a device) as --out: refused before work and left a pipe (a rename over it
+    // made /dev/full a plain file in a user's trial).
+    let fifo = case.dir.join("fifo");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&fifo)]);
+    assert_one_line_failure(&o, "fifo", "not a regular file");
+    {
+        use std::os::unix::fs::FileTypeExt;
+        assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+    }
+    std::fs::remove_file(&fifo).unwrap();
+    // Two outputs on one path: refused before work, the existing file kept (the YAML once
+    // replaced the rig file of the same name and the run failed).
+    std::fs::write(&rig, "mine").unwrap();
+    let o =
+        kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--opencv-yaml", s(&rig)]);
+    assert_one_line_failure(&o, "rig_out.json", "same file as --out");
+    let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--report", s(&rig)]);
+    assert_one_line_failure(&o, "rig_out.json", "exists and is not a folder");
+    assert_eq!(std::fs::read_to_string(&rig).unwrap(), "mine");
+    std::fs::remove_file(&rig).unwrap();
+    let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--report", s(&rig)]);
+    assert_one_line_failure(&o, "rig_out.json", "same path as --out");
     // A calibration that fails (no board in these images): no rig, no report, no temporaries.
     let report = case.dir.join("report");
     let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--report", s(&report)]);
@@ -463,6 +509,52 @@ fn ctrl_c_during_calibrate_detection_exits_130_within_a_second_and_writes_nothin
     // of these images alone takes several seconds.
     assert!(took < Duration::from_millis(1500), "exit {} ms after SIGINT", took.as_millis());
     assert!(names(&dir).is_empty(), "left after the signal: {:?}", names(&dir));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Two Ctrl-C while `calibrate` writes its outputs (the rig file staged, the report's figures
+/// being drawn): the second stops the process at once, and before it exits it deletes the
+/// staged rig file and report folder, so no temporary is left and nothing is half-written.
+/// (`timeout -s INT` sends two signals at once: in a user's trial that left
+/// `.rig.json.partial-PID` and a staging folder behind, with no message.)
+#[test]
+fn a_second_ctrl_c_while_calibrate_writes_leaves_nothing_behind() {
+    use std::io::{BufRead, BufReader};
+    let test = "a_second_ctrl_c_while_calibrate_writes_leaves_nothing_behind";
+    let Some(data) = geometry::testdata::shared_data_or_skip(test) else { return };
+    let dir = scratch("calib-sigint-twice");
+    let (rig, yaml, report) = (dir.join("rig.json"), dir.join("rig.yaml"), dir.join("report"));
+    let pattern = data.join("synthetic-calib/color/color_*.png");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
+        .args(["calibrate", "--color", s(&pattern), "--board", "7x5", "--square", "40mm"])
+        .args(["--out", s(&rig), "--opencv-yaml", s(&yaml), "--report", s(&report)])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The per-image table is printed after the fit; the outputs are written right after it,
+    // and the report's figures of 15 images take well over a second in this build.
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    loop {
+        line.clear();
+        assert!(stdout.read_line(&mut line).unwrap() > 0, "calibrate ended before its table");
+        if line.contains("status") {
+            break;
+        }
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    for _ in 0..2 {
+        let sent = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+        assert!(sent.success());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert!(err.contains("interrupted twice") && err.contains("removed"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(names(&dir).is_empty(), "left after the signals: {:?}", names(&dir));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

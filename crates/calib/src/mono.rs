@@ -495,11 +495,16 @@ pub fn calibrate_mono(
         .collect();
     for (vi, &orig) in usable.iter().enumerate() {
         let r = &mut views_out[orig];
-        r.rms_px = rms[vi].0;
-        r.n_corners = rms[vi].1;
         r.tilt_deg = tilt_deg(&p.ref_from_board[vi]);
         r.camera_from_board = p.view_active[vi].then_some(p.ref_from_board[vi]);
         r.rejected = view_rejections.iter().find(|(v, _)| *v == vi).map(|(_, why)| why.clone());
+        // A view rejected as an outlier keeps its detected corner count and no RMS, as other
+        // rejected views (its RMS when it was rejected is in the reason); the final solution
+        // has no residual of it.
+        if r.rejected.is_none() {
+            r.rms_px = rms[vi].0;
+            r.n_corners = rms[vi].1;
+        }
     }
     let residuals = p
         .obs

@@ -206,6 +206,36 @@ fn a_misdetected_corner_is_caught_and_reported() {
 }
 
 #[test]
+fn an_outlier_view_is_reported_with_its_corners() {
+    let Some(data) = shared_data("an_outlier_view_is_reported_with_its_corners") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let truth = gt_camera(&gt, "ir");
+    let poses: Vec<_> = (0..9).map(|i| gt_pose(&gt, i, "ir")).collect();
+    // Noise of 0.15 px; view 4's corners are also pushed 0.75 px left or right, up or down,
+    // alternating from corner to corner, which no pose absorbs (as a mirrored image's corners
+    // in a user's trial): its RMS is above 3× the median view's while no corner stands out.
+    let mut views = synth_views(&truth, &poses, 0.15, 7);
+    for c in &mut views[4].corners {
+        let sign = |odd: bool| if odd { 0.75 } else { -0.75 };
+        c.px += Vector2::new(sign(c.id % 2 == 1), sign((c.id / 7) % 2 == 1));
+    }
+    let r = calibrate_mono("ir", &board(), &views, &CalibFlags::bouguet(), None).unwrap();
+    let v = &r.views[4];
+    let why = v.rejected.as_deref().unwrap_or("");
+    let rms: Vec<f64> = r.views.iter().map(|v| v.rms_px).collect();
+    assert!(
+        why.starts_with("outlier view"),
+        "view 4: {why:?}; view RMS {rms:.3?}; corners out {}",
+        r.rejected_corners.len()
+    );
+    // Its row: the corners it has (all 35) and no RMS (the final solution has no residual of
+    // it; the reason gives its RMS when it was rejected), not "0 corners, RMS 0".
+    assert_eq!(v.n_corners, board().len());
+    assert!(v.rms_px.is_nan(), "{}", v.rms_px);
+    assert!(r.views.iter().enumerate().all(|(i, v)| i == 4 || v.rejected.is_none()));
+}
+
+#[test]
 fn stereo_recovers_the_rendered_rig_from_noisy_corners() {
     let Some(data) = shared_data("stereo_recovers_the_rendered_rig_from_noisy_corners") else {
         return;

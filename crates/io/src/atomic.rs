@@ -11,11 +11,65 @@
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
 
 use geometry::GeometryError;
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GeometryError + '_ {
     move |source| GeometryError::Io { path: path.to_path_buf(), source }
+}
+
+/// Temporary files and staging folders of this process that are neither published nor
+/// removed yet: what [`remove_unpublished`] deletes when the process must stop at once.
+static UNPUBLISHED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+/// Held while staged outputs are published, so that [`remove_unpublished`] never runs in the
+/// middle of a publication of several files.
+static PUBLISHING: Mutex<()> = Mutex::new(());
+
+/// A lock that a panicking holder did not spoil (the lists stay valid whatever panicked).
+fn lock<T>(m: &'static Mutex<T>) -> MutexGuard<'static, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn track(path: &Path) {
+    lock(&UNPUBLISHED).push(path.to_path_buf());
+}
+
+fn untrack(path: &Path) {
+    let mut unpublished = lock(&UNPUBLISHED);
+    if let Some(i) = unpublished.iter().position(|p| p == path) {
+        unpublished.swap_remove(i);
+    }
+}
+
+/// What [`remove_unpublished`] did. While it lives, nothing is published and no temporary
+/// is created (both locks are held): keep it until the process exits.
+#[must_use = "publishing resumes when this is dropped"]
+pub struct PublishingStopped {
+    removed: usize,
+    _publishing: MutexGuard<'static, ()>,
+    _unpublished: MutexGuard<'static, Vec<PathBuf>>,
+}
+
+impl PublishingStopped {
+    /// How many temporary files and staging folders were deleted.
+    pub fn removed(&self) -> usize {
+        self.removed
+    }
+}
+
+/// For a process that must stop at once (a second Ctrl-C): waits for a publication in
+/// progress to finish, then deletes every temporary file and staging folder of this process
+/// that is not published, so that exiting leaves only whole outputs. Call it right before
+/// exiting and keep the result until then.
+pub fn remove_unpublished() -> PublishingStopped {
+    let publishing = lock(&PUBLISHING);
+    let mut unpublished = lock(&UNPUBLISHED);
+    let removed = unpublished.len();
+    for path in unpublished.drain(..) {
+        let _ = if path.is_dir() { fs::remove_dir_all(&path) } else { fs::remove_file(&path) };
+    }
+    PublishingStopped { removed, _publishing: publishing, _unpublished: unpublished }
 }
 
 /// The hidden temporary sibling of `path` used while it is being written.
@@ -24,13 +78,42 @@ pub fn temporary_name(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.partial-{}", std::process::id()))
 }
 
+/// The file that writing `path` replaces: `path` itself (missing or a regular file), or the
+/// regular file that a symbolic link at `path` points to (written through, the link stays).
+/// Refused with one line naming the path: a folder, a device, a pipe or a socket there (an
+/// atomic write renames a new file over the path, which would replace `/dev/null` or a FIFO
+/// with a plain file), or a link to nothing.
+pub fn writable_target(path: &Path) -> Result<PathBuf, GeometryError> {
+    let refuse = |message: &str| GeometryError::Format {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    };
+    let not_a_file = "exists and is not a regular file (a folder, device, pipe or socket); kfuse writes its outputs to files: give a file name such as out.json";
+    match fs::symlink_metadata(path) {
+        Err(_) => Ok(path.to_path_buf()),
+        Ok(m) if m.is_file() => Ok(path.to_path_buf()),
+        Ok(m) if m.file_type().is_symlink() => match fs::canonicalize(path) {
+            Ok(target) if target.is_file() => Ok(target),
+            Ok(_) => Err(refuse(&format!("is a link to something that {not_a_file}"))),
+            Err(_) => Err(refuse(
+                "is a symbolic link to a missing file; remove the link or give another file name",
+            )),
+        },
+        Ok(_) => Err(refuse(not_a_file)),
+    }
+}
+
 /// Writes `path` atomically: `write` fills a temporary file which is synced and renamed to
-/// `path` only if `write` succeeds. On error the temporary file is removed.
+/// `path` only if `write` succeeds. On error the temporary file is removed. A symbolic link
+/// at `path` is written through; anything but a regular file there is refused
+/// ([`writable_target`]).
 pub fn write_atomic<F>(path: &Path, write: F) -> Result<(), GeometryError>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
+    let path = &writable_target(path)?;
     let tmp = temporary_name(path);
+    track(&tmp);
     let result = (|| {
         let file = fs::File::create(&tmp)?;
         let mut buffered = std::io::BufWriter::new(file);
@@ -42,6 +125,7 @@ where
     if result.is_err() {
         let _ = fs::remove_file(&tmp);
     }
+    untrack(&tmp);
     result.map_err(io_err(path))
 }
 
@@ -111,6 +195,13 @@ fn read_manifest(dir: &Path) -> Vec<String> {
         .unwrap_or_default()
 }
 
+/// The entries of `dir` that earlier kfuse runs published there (its [`MANIFEST`]; empty when
+/// there is none): a command reading its inputs from its own output folder can tell its
+/// earlier outputs from the user's files.
+pub fn written_by_kfuse(dir: &Path) -> Vec<String> {
+    read_manifest(dir)
+}
+
 fn manifest_json(files: &[String]) -> String {
     let value = serde_json::json!({
         "format": MANIFEST_FORMAT,
@@ -171,6 +262,7 @@ impl StagedDir {
                 if staging.exists() {
                     fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
                 }
+                track(&staging);
                 fs::create_dir(&staging).map_err(io_err(&staging))?;
                 return Ok(Self {
                     staging,
@@ -196,6 +288,7 @@ impl StagedDir {
         if staging.exists() {
             fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
         }
+        track(&staging);
         fs::create_dir_all(&staging).map_err(io_err(&staging))?;
         Ok(Self {
             staging,
@@ -263,6 +356,7 @@ impl StagedDir {
     }
 
     fn publish(mut self, keep_previous: bool) -> Result<PathBuf, GeometryError> {
+        let _publishing = lock(&PUBLISHING);
         let names = self.staged_names()?;
         if !self.inside {
             write_bytes_atomic(&self.staging.join(MANIFEST), manifest_json(&names).as_bytes())?;
@@ -333,6 +427,7 @@ impl Drop for StagedDir {
         if !self.committed {
             let _ = fs::remove_dir_all(&self.staging);
         }
+        untrack(&self.staging);
     }
 }
 
@@ -352,14 +447,17 @@ impl StagedFiles {
     }
 
     /// Writes `bytes` for `path` (to its temporary sibling; `path` itself is untouched). The
-    /// temporaries of killed runs for the same name are removed first.
+    /// temporaries of killed runs for the same name are removed first. As [`write_atomic`], a
+    /// symbolic link is written through and anything but a regular file is refused.
     pub fn add(&mut self, path: &Path, bytes: &[u8]) -> Result<(), GeometryError> {
+        let path = &writable_target(path)?;
         let tmp = temporary_name(path);
         if let (Some(dir), Some(name)) = (tmp.parent(), path.file_name()) {
             let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
             let prefix = format!(".{}.partial-", name.to_string_lossy());
             remove_stale_files(dir, &prefix);
         }
+        track(&tmp);
         let result = (|| {
             let mut file = fs::File::create(&tmp)?;
             file.write_all(bytes)?;
@@ -372,6 +470,7 @@ impl StagedFiles {
 
     /// Renames every file into place.
     pub fn commit(mut self) -> Result<(), GeometryError> {
+        let _publishing = lock(&PUBLISHING);
         for (tmp, path) in &self.files {
             fs::rename(tmp, path).map_err(io_err(path))?;
         }
@@ -382,10 +481,11 @@ impl StagedFiles {
 
 impl Drop for StagedFiles {
     fn drop(&mut self) {
-        if !self.committed {
-            for (tmp, _) in &self.files {
+        for (tmp, _) in &self.files {
+            if !self.committed {
                 let _ = fs::remove_file(tmp);
             }
+            untrack(tmp);
         }
     }
 }
@@ -414,6 +514,54 @@ mod tests {
         let _ = fs::remove_dir_all(&dir);
         fs::create_dir_all(&dir).unwrap();
         dir
+    }
+
+    /// `/dev/null` given as an output: refused with a line naming it, before anything is
+    /// written, by both writers; it stays a character device (a rename over it would have
+    /// replaced it with a plain file, as it did to `/dev/full` in a user's trial).
+    #[cfg(unix)]
+    #[test]
+    fn a_device_is_refused_and_left_alone() {
+        use std::os::unix::fs::FileTypeExt;
+        let null = Path::new("/dev/null");
+        if !fs::metadata(null).is_ok_and(|m| m.file_type().is_char_device()) {
+            println!("SKIP a_device_is_refused_and_left_alone: no /dev/null character device");
+            return;
+        }
+        let err = write_bytes_atomic(null, b"x").unwrap_err().to_string();
+        assert!(err.contains("/dev/null") && err.contains("not a regular file"), "{err}");
+        let err = StagedFiles::new().add(null, b"x").unwrap_err().to_string();
+        assert!(err.contains("not a regular file"), "{err}");
+        assert!(fs::metadata(null).unwrap().file_type().is_char_device());
+    }
+
+    /// A symbolic link as an output is written through: the link stays a link, the file it
+    /// points to gets the new content; a link to nothing is refused.
+    #[cfg(unix)]
+    #[test]
+    fn a_link_is_written_through() {
+        let dir = scratch("link");
+        let (target, link) = (dir.join("real.json"), dir.join("link.json"));
+        fs::write(&target, b"old").unwrap();
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        write_bytes_atomic(&link, b"new").unwrap();
+        assert!(fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+        assert_eq!(fs::read(&target).unwrap(), b"new");
+        let mut files = StagedFiles::new();
+        files.add(&link, b"newer").unwrap();
+        files.commit().unwrap();
+        assert!(fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+        assert_eq!(fs::read(&target).unwrap(), b"newer");
+        let dangling = dir.join("dangling.json");
+        std::os::unix::fs::symlink(dir.join("missing.json"), &dangling).unwrap();
+        let err = write_bytes_atomic(&dangling, b"x").unwrap_err().to_string();
+        assert!(err.contains("link to a missing file"), "{err}");
+        let mut names: Vec<String> = fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["dangling.json", "link.json", "real.json"], "temporary file left");
     }
 
     #[test]

@@ -2,6 +2,8 @@
 //!
 //! * **Colour**: PNG, JPEG, TIFF or BMP, 8- or 16-bit, grey / RGB / RGBA → `Image<[u8; 3]>`
 //!   (16-bit channels are scaled to 8 bits, alpha dropped, grey replicated).
+//! * **Grey for detection** ([`read_gray`]): the same files → `Image<u8>`, luma of colour;
+//!   16-bit grey scaled by its largest value.
 //! * **Depth**, read into metres with `NaN` for "no sample":
 //!   - 16-bit grey PNG or TIFF, integer units (Kinect: millimetres, `metres_per_unit = 0.001`);
 //!     `0` means no sample;
@@ -43,8 +45,9 @@ fn format_err(path: &Path, message: impl Into<String>) -> GeometryError {
     GeometryError::Format { path: path.to_path_buf(), message }
 }
 
-/// Reads a colour image (see the module docs for the formats).
-pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
+/// Decodes a colour or grey image (the formats of [`COLOR_FORMATS`]) with the checks every
+/// reader makes first: the header's size within the limits, a JPEG not cut short.
+fn decode_picture(path: &Path) -> Result<image::DynamicImage, GeometryError> {
     let bytes = read_image_bytes(path)?;
     let format = match sniff(&bytes) {
         Container::Png => image::ImageFormat::Png,
@@ -82,9 +85,47 @@ pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
             format!("is a floating-point image; colour images must be {COLOR_FORMATS}"),
         ));
     }
-    let rgb = img.into_rgb8();
+    Ok(img)
+}
+
+/// Reads a colour image (see the module docs for the formats).
+pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
+    let rgb = decode_picture(path)?.into_rgb8();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     let pixels = rgb.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Image::from_vec(w, h, pixels)
+}
+
+/// Reads an image as 8-bit grey for checkerboard detection (`kfuse calibrate`), with the
+/// checks of [`read_color`] (size limits, a JPEG cut short is refused, not decoded as grey).
+/// Colour becomes luma. 16-bit values (Kinect IR, raw) are scaled by their image's range:
+///
+/// * all within 0..=255 (8-bit data in a 16-bit file): kept as they are;
+/// * up to 65 535, the sensor's clipping value: × 255 / 65 535, so clipped pixels become 255,
+///   which the detector treats as saturated (censored);
+/// * otherwise × 254 / the largest value: the whole 8-bit range, no pixel marked clipped.
+///
+/// A fixed division by 257 leaves a low-range image a few grey levels: a 16-bit copy of an
+/// OpenCV sample view with values 0..=255 became 0/1 and its corners were 2× noisier.
+pub fn read_gray(path: &Path) -> Result<Image<u8>, GeometryError> {
+    let img = decode_picture(path)?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let pixels = match img {
+        image::DynamicImage::ImageLuma16(_)
+        | image::DynamicImage::ImageLumaA16(_)
+        | image::DynamicImage::ImageRgb16(_)
+        | image::DynamicImage::ImageRgba16(_) => {
+            let grey = img.into_luma16().into_raw();
+            let max = grey.iter().copied().max().unwrap_or(0);
+            let scale = match max {
+                0..=255 => 1.0,
+                u16::MAX => 255.0 / 65535.0,
+                _ => 254.0 / f32::from(max),
+            };
+            grey.iter().map(|&v| (f32::from(v) * scale).round() as u8).collect()
+        }
+        other => other.into_luma8().into_raw(),
+    };
     Image::from_vec(w, h, pixels)
 }
 
@@ -491,6 +532,37 @@ mod tests {
         write_depth_tiff(&nan, &Image::filled(3, 3, f32::NAN)).unwrap();
         let err = read_depth(&nan, MILLIMETRES).unwrap_err().to_string();
         assert!(err.contains("nan.tif") && err.contains("no valid depth"), "{err}");
+    }
+
+    /// Grey for detection: a 16-bit image whose values stay within 0..=255 keeps them
+    /// exactly; one with a larger range is scaled by 254 / its maximum (1000 → 254, 500 →
+    /// 127, 3 → 0.762 → 1), one reaching 65 535 by 255 / 65 535 (65 535 → 255, 1 285 → 5);
+    /// 8-bit grey is read as it is; a JPEG cut short is refused.
+    #[test]
+    fn grey_for_detection_scales_16_bit_by_its_range() {
+        let dir = scratch("grey");
+        let low: Vec<u16> = (0..12).map(|i| i * 23).collect(); // 0..=253
+        let path = dir.join("low16.png");
+        write_u16_png(&path, &Image::from_vec(4, 3, low.clone()).unwrap()).unwrap();
+        let g = read_gray(&path).unwrap();
+        assert_eq!(g.data(), low.iter().map(|&v| v as u8).collect::<Vec<_>>().as_slice());
+        let path = dir.join("wide16.png");
+        write_u16_png(&path, &Image::from_vec(3, 1, vec![1000u16, 500, 3]).unwrap()).unwrap();
+        assert_eq!(read_gray(&path).unwrap().data(), [254, 127, 1]);
+        write_u16_png(&path, &Image::from_vec(2, 1, vec![65535u16, 1285]).unwrap()).unwrap();
+        assert_eq!(read_gray(&path).unwrap().data(), [255, 5]);
+        let path = dir.join("grey8.png");
+        let grey8 = Image::from_vec(3, 1, vec![7u8, 130, 255]).unwrap();
+        write_gray_png(&path, &grey8).unwrap();
+        assert_eq!(read_gray(&path).unwrap().data(), grey8.data());
+        let jpg = dir.join("cut.jpg");
+        image::GrayImage::from_fn(64, 64, |x, y| image::Luma([((x * 4) ^ (y * 4)) as u8]))
+            .save(&jpg)
+            .unwrap();
+        let bytes = std::fs::read(&jpg).unwrap();
+        std::fs::write(&jpg, &bytes[..bytes.len() * 2 / 3]).unwrap();
+        let err = read_gray(&jpg).unwrap_err().to_string();
+        assert!(err.contains("cut.jpg") && err.contains("truncated JPEG"), "{err}");
     }
 
     #[test]
