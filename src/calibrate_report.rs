@@ -27,6 +27,25 @@ fn handout_bar_applies(m: &MonoCalibration) -> bool {
     size == KINECT_COLOR_SIZE || size == KINECT_DEPTH_SIZE
 }
 
+/// A focal length or principal-point coordinate whose 1σ exceeds this fraction (of the focal
+/// length; of the image width or height) is warned about as weakly constrained. Views that
+/// constrain the camera give 0.07–0.3 % (the corpus's OpenCV, Udacity and GoPro sets,
+/// kinect-lab, the bundled 4-pair sample); the robot-arm set's 5 views, tilted 15–25°, give
+/// fx ± 3.5 % and cy ± 3.3 % (2026-12-02).
+const WEAK_PARAMETER_FRACTION: f64 = 0.01;
+
+/// The intrinsics of `m` that its views leave weakly constrained (see
+/// [`WEAK_PARAMETER_FRACTION`]), as "fx ± 68.7 px (3.5 %)"; fixed ones (σ 0) never are.
+fn weakly_constrained(m: &MonoCalibration) -> Vec<String> {
+    let (k, s) = (m.camera.intrinsics, m.std);
+    let (w, h) = (m.camera.width as f64, m.camera.height as f64);
+    [("fx", s.fx, k.fx), ("fy", s.fy, k.fy), ("cx", s.cx, w), ("cy", s.cy, h)]
+        .into_iter()
+        .filter(|&(_, sd, scale)| sd > WEAK_PARAMETER_FRACTION * scale)
+        .map(|(name, sd, scale)| format!("{name} ± {sd:.1} px ({:.1} %)", 100.0 * sd / scale))
+        .collect()
+}
+
 /// Prints one camera's result: parameters with 1σ, the per-image table, rejected corners.
 /// Views and cameras above the handout's `limit` get a warning, on Kinect-sized images only.
 pub(crate) fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
@@ -71,6 +90,22 @@ pub(crate) fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
         println!(
             "  rejected corner {} of {}: error {:.2} px > {:.2} px",
             c.id, c.view, c.error_px, c.threshold_px
+        );
+    }
+    let weak = weakly_constrained(m);
+    if !weak.is_empty() {
+        let tilts: Vec<f64> = m
+            .views
+            .iter()
+            .filter(|v| v.rejected.is_none() && v.tilt_deg.is_finite())
+            .map(|v| v.tilt_deg)
+            .collect();
+        let (lo, hi) =
+            tilts.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &t| (a.min(t), b.max(t)));
+        println!(
+            "  WARNING: {camera}: these {} views constrain it weakly: {} (1σ); add views with the board tilted 30-45° in different directions and reaching the image's corners (these are tilted {lo:.0}-{hi:.0}°)",
+            tilts.len(),
+            weak.join(", ")
         );
     }
     if m.rms_px > limit {
