@@ -14,6 +14,15 @@ fn kfuse(args: &[&str]) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// `kfuse calibrate --color PATTERN --board BOARD [EXTRA…] --out OUT`, which must succeed;
+/// its output.
+fn calibrate_color(pattern: &str, board: &str, extra: &[&str], out: &Path) -> String {
+    let args = [&["calibrate", "--color", pattern, "--board", board][..], extra];
+    let (ok, text) = kfuse(&[&args.concat()[..], &["--out", out.to_str().unwrap()]].concat());
+    assert!(ok, "{text}");
+    text
+}
+
 #[test]
 fn calibrates_the_real_ir_session_and_writes_the_report() {
     let Some(data) = shared("calibrates_the_real_ir_session_and_writes_the_report") else { return };
@@ -466,16 +475,7 @@ fn an_image_of_another_size_is_left_out_and_the_rest_calibrate() {
         "{}/calib-corpus/udacity-camera-cal-1280x720-9x6/images/calibration*.jpg",
         data.display()
     );
-    let (ok, text) = kfuse(&[
-        "calibrate",
-        "--color",
-        &pattern,
-        "--board",
-        "9x6",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
+    let text = calibrate_color(&pattern, "9x6", &[], &out);
     for odd in ["calibration7.jpg", "calibration15.jpg"] {
         let line = text
             .lines()
@@ -694,19 +694,7 @@ fn a_cut_jpeg_is_named_and_a_16_bit_copy_gives_the_same_corners() {
     )
     .unwrap();
     let run = |d: &Path| {
-        let out = d.join("cam.json");
-        let pattern = format!("{}/left*", d.display());
-        let (ok, text) = kfuse(&[
-            "calibrate",
-            "--color",
-            &pattern,
-            "--board",
-            "9x6",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        assert!(ok, "{text}");
-        text
+        calibrate_color(&format!("{}/left*", d.display()), "9x6", &[], &d.join("cam.json"))
     };
     let (plain, cut, wide) = (run(&plain), run(&cut), run(&wide));
     let row = table_row(&cut, "left09.jpg");
@@ -727,18 +715,7 @@ fn few_similar_views_are_warned_about() {
     let out = tmp.path().join("arm.json");
     let pattern =
         format!("{}/calib-corpus/color-1920x1080-9x6-robotarm/images/*.png", data.display());
-    let (ok, text) = kfuse(&[
-        "calibrate",
-        "--color",
-        &pattern,
-        "--board",
-        "9x6",
-        "--square",
-        "24mm",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
+    let text = calibrate_color(&pattern, "9x6", &["--square", "24mm"], &out);
     let line = text
         .lines()
         .find(|l| l.contains("constrain it weakly"))

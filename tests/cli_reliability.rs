@@ -416,6 +416,30 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// Starts `kfuse ARGS` with its output piped and reads its standard output up to the first
+/// line containing `marker` (failing if it ends first); the child then runs on.
+fn spawn_until(args: &[&str], marker: &str) -> std::process::Child {
+    use std::io::{BufRead, BufReader};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    loop {
+        line.clear();
+        assert!(stdout.read_line(&mut line).unwrap() > 0, "kfuse ended before '{marker}'");
+        if line.contains(marker) {
+            break;
+        }
+    }
+    // Keep reading (and dropping) the rest, so that a full pipe never blocks the child.
+    std::thread::spawn(move || std::io::copy(&mut stdout, &mut std::io::sink()));
+    child
+}
+
 #[test]
 fn ctrl_c_and_sigterm_during_fuse_remove_the_staging_and_exit_130() {
     let dir = scratch("signal");
@@ -468,29 +492,19 @@ fn ctrl_c_and_sigterm_during_fuse_remove_the_staging_and_exit_130() {
 /// rig file, report folder or temporary left.
 #[test]
 fn ctrl_c_during_calibrate_detection_exits_130_within_a_second_and_writes_nothing() {
-    use std::io::{BufRead, BufReader};
     let test = "ctrl_c_during_calibrate_detection_exits_130_within_a_second_and_writes_nothing";
     let Some(data) = geometry::testdata::shared_data_or_skip(test) else { return };
     let dir = scratch("calib-sigint");
     let (rig, report) = (dir.join("rig.json"), dir.join("report"));
     let pattern = data.join("synthetic-calib/color/color_*.png");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
-        .args(["calibrate", "--color", s(&pattern), "--board", "auto"])
-        .args(["--out", s(&rig), "--report", s(&report)])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
     // Wait for the line printed as detection starts, then interrupt.
-    let mut stdout = BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    loop {
-        line.clear();
-        assert!(stdout.read_line(&mut line).unwrap() > 0, "calibrate ended before detecting");
-        if line.contains("detecting the board") {
-            break;
-        }
-    }
+    let child = spawn_until(
+        &["calibrate", "--color", s(&pattern), "--board", "auto"]
+            .into_iter()
+            .chain(["--out", s(&rig), "--report", s(&report)])
+            .collect::<Vec<_>>(),
+        "detecting the board",
+    );
     let sent_at = std::time::Instant::now();
     let sent = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
     assert!(sent.success());
@@ -519,30 +533,20 @@ fn ctrl_c_during_calibrate_detection_exits_130_within_a_second_and_writes_nothin
 /// `.rig.json.partial-PID` and a staging folder behind, with no message.)
 #[test]
 fn a_second_ctrl_c_while_calibrate_writes_leaves_nothing_behind() {
-    use std::io::{BufRead, BufReader};
     let test = "a_second_ctrl_c_while_calibrate_writes_leaves_nothing_behind";
     let Some(data) = geometry::testdata::shared_data_or_skip(test) else { return };
     let dir = scratch("calib-sigint-twice");
     let (rig, yaml, report) = (dir.join("rig.json"), dir.join("rig.yaml"), dir.join("report"));
     let pattern = data.join("synthetic-calib/color/color_*.png");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
-        .args(["calibrate", "--color", s(&pattern), "--board", "7x5", "--square", "40mm"])
-        .args(["--out", s(&rig), "--opencv-yaml", s(&yaml), "--report", s(&report)])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
     // The per-image table is printed after the fit; the outputs are written right after it,
     // and the report's figures of 15 images take well over a second in this build.
-    let mut stdout = BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    loop {
-        line.clear();
-        assert!(stdout.read_line(&mut line).unwrap() > 0, "calibrate ended before its table");
-        if line.contains("status") {
-            break;
-        }
-    }
+    let child = spawn_until(
+        &["calibrate", "--color", s(&pattern), "--board", "7x5", "--square", "40mm"]
+            .into_iter()
+            .chain(["--out", s(&rig), "--opencv-yaml", s(&yaml), "--report", s(&report)])
+            .collect::<Vec<_>>(),
+        "status",
+    );
     std::thread::sleep(Duration::from_millis(300));
     for _ in 0..2 {
         let sent = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
