@@ -74,8 +74,10 @@ pub struct DevicesArgs {
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
     /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–2.5 m (one pose per frame:
-    /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
-    /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
+    /// `--count 17 --interval 0` takes each once; `kfuse calibrate --allow-unpaired` then
+    /// recovers the factory parameters: in the farthest poses the board is too small for the
+    /// IR image, so those pairs serve the colour camera only), `capture scene` the synthetic
+    /// Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
 }
@@ -103,8 +105,10 @@ pub struct CommonArgs {
     /// The sensor: `usb`, a Kinect v2, or `sim`, the simulated Kinect v2 (no hardware needed;
     /// it reports its own factory parameters). With `sim`, `capture calib` shows a 7x5-corner
     /// checkerboard of 40 mm squares in 17 tilted poses at 0.6–2.5 m (one pose per frame:
-    /// `--count 17 --interval 0` takes each once; `kfuse calibrate` then recovers the factory
-    /// parameters), `capture scene` the synthetic Kinect preset (objects before a wall).
+    /// `--count 17 --interval 0` takes each once; `kfuse calibrate --allow-unpaired` then
+    /// recovers the factory parameters: in the farthest poses the board is too small for the
+    /// IR image, so those pairs serve the colour camera only), `capture scene` the synthetic
+    /// Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
     /// Set by `capture calib`: the simulated sensor shows its calibration scene.

@@ -96,7 +96,18 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         force: false,
         sequence: Default::default(),
     };
-    let result = cmd_fuse::run(&fuse)?;
+    let result =
+        cmd_fuse::run(&fuse).map_err(|e| match e.downcast::<crate::interrupt::Interrupted>() {
+            // Said from the demo's point of view: fuse's "--out left as it was" is about
+            // `OUT/fused`, while the inputs in `OUT/input` were already written.
+            Ok(_) => crate::interrupt::Interrupted(format!(
+                ": stopped; the inputs are in {} and {} was not written",
+                input_dir.display(),
+                fuse.out.display()
+            ))
+            .into(),
+            Err(e) => e,
+        })?;
     cmd_fuse::report(&result);
     Ok(())
 }

@@ -52,6 +52,9 @@ pub struct ImportArgs {
     /// Output: kfuse rig JSON (single-camera JSON when the source holds one camera).
     #[arg(long)]
     out: PathBuf,
+    /// Replace --out when it exists (without it an existing file is refused, never replaced).
+    #[arg(long)]
+    overwrite: bool,
     /// Write the rig even when it fails the plausibility checks (focal lengths 50-20000 px,
     /// image sides up to 16384 px, baseline up to 0.5 m), with a warning.
     #[arg(long)]
@@ -89,6 +92,26 @@ pub struct ExportArgs {
     /// Output file (opencv) or folder (ros).
     #[arg(long)]
     out: PathBuf,
+    /// Replace the output file(s) when they exist (without it an existing file is refused,
+    /// never replaced).
+    #[arg(long)]
+    overwrite: bool,
+}
+
+/// Refuses, before anything is written, an output file that exists when `--overwrite` was not
+/// given: `rig import`/`export` once replaced a user's file of the same name without a word.
+fn check_new(path: &Path, overwrite: bool) -> Result<()> {
+    if path.is_dir() {
+        bail!("{}: is a folder; give a file name such as rig.json", path.display());
+    }
+    if path.exists() && !overwrite {
+        bail!(
+            "{}: exists; pass --overwrite to replace it, or give another file name",
+            path.display()
+        );
+    }
+    kfuse_io::atomic::writable_target(path)?;
+    Ok(())
 }
 
 /// `kfuse rig show`.
@@ -125,6 +148,7 @@ fn import(a: ImportArgs) -> Result<()> {
         color_size: a.color_size,
         role: a.camera.as_deref().and_then(Role::parse),
     };
+    check_new(&a.out, a.overwrite)?;
     let imported = rig_io::import(&a.sources, &opts)?;
     let problems = imported.calibration.plausibility_problems();
     if !problems.is_empty() {
@@ -159,10 +183,12 @@ fn export(a: ExportArgs) -> Result<()> {
     let cal = rig_io::load(&a.rig)?;
     match (a.format.as_str(), &cal) {
         ("opencv", Calibration::Rig(rig)) => {
+            check_new(&a.out, a.overwrite)?;
             write_bytes_atomic(&a.out, calib::files::opencv_yaml_rig(rig).as_bytes())?;
             println!("wrote {} (OpenCV FileStorage YAML, T in metres)", a.out.display());
         }
         ("opencv", Calibration::Camera { camera, .. }) => {
+            check_new(&a.out, a.overwrite)?;
             write_bytes_atomic(&a.out, calib::files::opencv_yaml_camera(camera).as_bytes())?;
             println!("wrote {} (OpenCV FileStorage YAML, one camera)", a.out.display());
         }
@@ -191,6 +217,9 @@ fn export(a: ExportArgs) -> Result<()> {
                     vec![(a.out.join(format!("{name}.yaml")), text)]
                 }
             };
+            for (p, _) in &files {
+                check_new(p, a.overwrite)?;
+            }
             for (p, t) in &files {
                 write_bytes_atomic(p, t.as_bytes())?;
                 println!("wrote {} (ROS camera_info)", p.display());

@@ -341,6 +341,22 @@ fn undistort_checks_everything_before_writing_anything() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// `fuse --frames` of a folder whose shots have no depth (the bundled calibration pairs): an
+/// error naming the folder and the first reason, no output folder (it was exit 0 with an
+/// empty index, in a user's trial).
+#[test]
+fn a_sequence_with_no_fusable_frame_is_an_error() {
+    let dir = scratch("no-frames");
+    let out = dir.join("out");
+    let shots = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib");
+    let o = kfuse(&["fuse", "--frames", s(&shots), "--out", s(&out)]);
+    assert_one_line_failure(&o, "calib", "no frame could be fused");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("4 shot(s) left out") && err.contains("no depth"), "{err}");
+    assert!(!out.exists() && names(&dir).is_empty(), "{:?}", names(&dir));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Undistorting a folder into itself twice (a user's trial: `left01_rect_rect.jpg`): the
 /// second run skips what the first wrote, with a note, and refuses when nothing else is left.
 #[test]

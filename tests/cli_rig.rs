@@ -91,6 +91,71 @@ fn bouguet_stereo_import_equals_the_library_import() {
 
 /// rig → OpenCV YAML → rig and rig → ROS camera_info pair → rig keep every parameter
 /// within 1e-9 (pixels, metres, rotation entries).
+/// Mistakes from a user's trial, each refused with one line before anything is written: a
+/// Bouguet stereo file's mono results in the wrong order or repeated (the rig's two image
+/// sizes were exchanged, exit 0), a ROS pair in the wrong order (the cameras exchanged), and
+/// an existing file as `--out` of import or export (replaced without a word); `--overwrite`
+/// replaces it.
+#[test]
+fn swapped_inputs_and_existing_outputs_are_refused() {
+    let Some(data) = shared("swapped_inputs_and_existing_outputs_are_refused") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |f: &str| tmp.path().join(f);
+    let (stereo, left, right) = (
+        lab(&data, "Calib_Results_stereo.mat"),
+        lab(&data, "Calib_Results_left.mat"),
+        lab(&data, "Calib_Results_right.mat"),
+    );
+    for (l, r, says) in [
+        (&right, &left, "the other camera's result"),
+        (&right, &right, "the other camera's result"),
+        (&left, &left, "the other camera's result"),
+    ] {
+        let (good, _, err) =
+            kfuse(&["rig", "import", s(&stereo), s(l), s(r), "--out", s(&p("r.json"))]);
+        assert!(
+            !good && err.contains(says) && err.contains("stereo.mat left.mat right.mat"),
+            "{err}"
+        );
+        assert!(!p("r.json").exists());
+    }
+    ok(&["rig", "import", s(&stereo), s(&left), s(&right), "--out", s(&p("rig.json"))]);
+    ok(&["rig", "export", s(&p("rig.json")), "--format", "ros", "--out", s(&p("ros"))]);
+    let (good, _, err) = kfuse(&[
+        "rig",
+        "import",
+        s(&p("ros/color.yaml")),
+        s(&p("ros/depth.yaml")),
+        "--out",
+        s(&p("back.json")),
+    ]);
+    assert!(
+        !good && err.contains("names the color camera") && err.contains("depth camera's"),
+        "{err}"
+    );
+    assert!(!p("back.json").exists());
+    // Existing outputs: kept unless --overwrite.
+    std::fs::write(p("notes.yml"), "mine").unwrap();
+    let (good, _, err) = kfuse(&[
+        "rig",
+        "export",
+        s(&p("rig.json")),
+        "--format",
+        "opencv",
+        "--out",
+        s(&p("notes.yml")),
+    ]);
+    assert!(!good && err.contains("notes.yml") && err.contains("--overwrite"), "{err}");
+    assert_eq!(std::fs::read_to_string(p("notes.yml")).unwrap(), "mine");
+    let (good, _, err) = kfuse(&["rig", "import", s(&stereo), "--out", s(&p("notes.yml"))]);
+    assert!(!good && err.contains("--overwrite"), "{err}");
+    let (good, _, err) =
+        kfuse(&["rig", "export", s(&p("rig.json")), "--format", "ros", "--out", s(&p("ros"))]);
+    assert!(!good && err.contains("depth.yaml") && err.contains("--overwrite"), "{err}");
+    ok(&["rig", "import", s(&stereo), "--out", s(&p("notes.yml")), "--overwrite"]);
+    assert!(read_rig(&p("notes.yml")).depth.width == 512);
+}
+
 #[test]
 fn opencv_and_ros_exports_import_back() {
     let Some(data) = shared("opencv_and_ros_exports_import_back") else { return };
@@ -212,7 +277,7 @@ fn opencv_stereo_calibrate_files_are_read_with_their_units() {
         "--color-size",
         "1920x1080",
         "--out",
-        s(&out),
+        s(&p("rational.json")),
     ]);
     assert!(!good && err.contains("rational.yml") && err.contains("beyond k3"), "{err}");
 }

@@ -362,6 +362,22 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         eprintln!("... and {} more such lines (all are in index.json)", listed - MAX_LISTED);
     }
 
+    if frames.is_empty() && !outcome.interrupted {
+        // Nothing fused: an error, not a folder with an empty index and exit 0 (a user's
+        // `--frames` of calibration shots without depth, and a recording cut before its first
+        // frame).
+        let why = skipped
+            .first()
+            .map(|s| format!("shot {}: {}", s.name, s.reason))
+            .or_else(|| missing.first().map(|m| format!("frame {}: {}", m.number, m.reason.text())))
+            .unwrap_or_else(|| "it holds no frame".into());
+        bail!(
+            "{}: no frame could be fused ({} shot(s) left out, {} depth frame(s) missing; first: {why}); nothing was written",
+            source_name.display(),
+            skipped.len(),
+            missing.len()
+        );
+    }
     let source = source_name.display().to_string();
     let index = Index {
         format: "kfuse-sequence-index",

@@ -153,6 +153,13 @@ pub fn import_mono(path: &Path) -> Result<BouguetCamera, CalibError> {
     Ok(BouguetCamera { camera, std, views, board_points, poses, err_std_px })
 }
 
+/// Largest relative difference between a mono result's focal length and the stereo file's
+/// for the same camera. Bouguet's stereo refinement moves each focal length by hundredths of a
+/// percent (kinect-lab: IR fc 364.13 px alone, 364.21 px in the stereo file; colour 1062.33 →
+/// 1062.45 px); the Kinect's two cameras differ by a factor of three, so 10 % tells them apart
+/// with margin either way.
+const MONO_STEREO_FOCAL_TOLERANCE: f64 = 0.1;
+
 /// Reads a stereo result into a rig: left = depth/IR camera, right = colour camera,
 /// `color_from_depth` = Bouguet's `R, T` (`X_right = R·X_left + T`, mm → m), with the stereo
 /// file's re-optimised intrinsics. Image sizes come from the mono files (the stereo file
@@ -163,6 +170,29 @@ pub fn import_stereo(stereo: &Path, left: &Path, right: &Path) -> Result<Rig, Ca
     let m = MatFile::read(stereo)?;
     let (depth, _) = camera_from(&m, "_left", l.camera.width, l.camera.height)?;
     let (color, _) = camera_from(&m, "_right", r.camera.width, r.camera.height)?;
+    // The mono files give only the image sizes: check that each is the camera it is given as
+    // (a swapped or repeated file gave a rig with the Kinect's two sizes exchanged, exit 0).
+    let off = |mono: &CameraModel, stereo: &CameraModel| {
+        (mono.intrinsics.fx - stereo.intrinsics.fx).abs() / stereo.intrinsics.fx.abs().max(1e-9)
+    };
+    for (file, mono, side, stereo, other) in
+        [(left, &l.camera, "left", &depth, &color), (right, &r.camera, "right", &color, &depth)]
+    {
+        if off(mono, stereo) > MONO_STEREO_FOCAL_TOLERANCE {
+            let hint = if off(mono, other) <= MONO_STEREO_FOCAL_TOLERANCE {
+                "it is the other camera's result: give them in the order stereo.mat left.mat right.mat"
+            } else {
+                "it is not a result of this stereo calibration's cameras"
+            };
+            return Err(fmt(
+                file,
+                format!(
+                    "given as the {side} camera, but its fc {:.1} px is not the stereo file's fc_{side} {:.1} px: {hint}",
+                    mono.intrinsics.fx, stereo.intrinsics.fx
+                ),
+            ));
+        }
+    }
     let rm = m.matrix_of_size("R", 3, 3)?;
     let t = vec_of(&m, "T", 3)?;
     let rot = Matrix3::from_row_slice(&rm.data);

@@ -46,6 +46,17 @@ pub const MAX_IMAGE_SIDE: usize = 16_384;
 /// Longest depth → colour baseline, metres: 0.5. The Kinect v2's is 52 mm and a rig of two
 /// separate sensors on one bar stays under half a metre; a `T` in millimetres reads as 52 m.
 pub const MAX_BASELINE_M: f64 = 0.5;
+/// Shortest depth → colour baseline, metres: 5 mm. Two camera modules cannot sit closer (the
+/// Kinect v2's lenses are 52 mm apart); a `T` in metres read as millimetres gives 0.052 mm.
+pub const MIN_BASELINE_M: f64 = 0.005;
+/// Largest magnification of the image corners by a camera's radial distortion: 2. The real
+/// lenses calibrated here stay within 0.7–1.02 (kinect-lab IR, the corpus's GoPro, Udacity
+/// and robot-arm cameras, 2026-12-02).
+pub const MAX_CORNER_MAGNIFICATION: f64 = 2.0;
+/// Smallest fold radius of a radial distortion (where it stops being one-to-one), as a
+/// fraction of the image corners' radius: 0.5. Real lenses fold at 1.0–1.25 of it or not at
+/// all (the lab's Kinect IR folds just inside its corners).
+pub const MIN_FOLD_FRACTION: f64 = 0.5;
 
 /// A calibrated depth + colour camera pair.
 #[derive(Debug, Clone, PartialEq)]
@@ -87,7 +98,8 @@ struct RigFile {
 }
 
 /// What makes one camera implausible (focal lengths outside [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`],
-/// image sides over [`MAX_IMAGE_SIDE`]), each naming the likely unit mistake; `name` says which
+/// image sides over [`MAX_IMAGE_SIDE`], a radial distortion no lens has), each naming the
+/// likely unit mistake; `name` says which
 /// camera ("depth", "colour"). The per-camera half of [`Rig::plausibility_problems`], for files
 /// that hold one camera.
 pub fn camera_plausibility_problems(name: &str, cam: &CameraModel) -> Vec<String> {
@@ -99,6 +111,7 @@ pub fn camera_plausibility_problems(name: &str, cam: &CameraModel) -> Vec<String
         ));
     }
     let k = &cam.intrinsics;
+    let before = problems.len();
     for (axis, f) in [("fx", k.fx), ("fy", k.fy)] {
         if f < MIN_FOCAL_PX {
             problems.push(format!(
@@ -110,7 +123,40 @@ pub fn camera_plausibility_problems(name: &str, cam: &CameraModel) -> Vec<String
             ));
         }
     }
+    // The distortion, judged at the image's corners (meaningless with a focal length in the
+    // wrong unit, which is said above).
+    if problems.len() == before {
+        problems.extend(distortion_problem(name, cam));
+    }
     problems
+}
+
+/// What makes `cam`'s radial distortion implausible: the image corners magnified more than
+/// [`MAX_CORNER_MAGNIFICATION`] times, or the model folding (no ray beyond) within
+/// [`MIN_FOLD_FRACTION`] of the corners' radius. A user's `k1 = 50` passed every check and
+/// shrank the fused cloud 3.5× sideways.
+fn distortion_problem(name: &str, cam: &CameraModel) -> Option<String> {
+    let (k, d) = (&cam.intrinsics, &cam.distortion);
+    let (w, h) = ((cam.width.max(1) - 1) as f64, (cam.height.max(1) - 1) as f64);
+    let corner = [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
+        .iter()
+        .map(|&(u, v)| k.from_pixel(u, v).norm())
+        .fold(0.0, f64::max);
+    let r2 = corner * corner;
+    let factor = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3));
+    let coefficients = format!("k1 {}, k2 {}, k3 {}", d.k1, d.k2, d.k3);
+    if factor > MAX_CORNER_MAGNIFICATION {
+        return Some(format!(
+            "the {name} camera's radial distortion ({coefficients}) magnifies the image corners {factor:.1}×, which no lens does: coefficients of another camera or model?"
+        ));
+    }
+    match d.fold_radius() {
+        Some(fold) if fold < MIN_FOLD_FRACTION * corner => Some(format!(
+            "the {name} camera's radial distortion ({coefficients}) folds at {:.0} % of the image corners' radius, leaving most of the image without a valid ray: coefficients of another camera or model?",
+            100.0 * fold / corner
+        )),
+        _ => None,
+    }
 }
 
 impl Rig {
@@ -133,12 +179,30 @@ impl Rig {
     }
 
     /// What makes this rig implausible for real cameras (focal lengths outside
-    /// [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`], image sides over [`MAX_IMAGE_SIDE`], a baseline over
-    /// [`MAX_BASELINE_M`]), each naming the likely unit mistake; empty when plausible.
+    /// [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`], image sides over [`MAX_IMAGE_SIDE`], a radial
+    /// distortion no lens has, a baseline outside [`MIN_BASELINE_M`]..[`MAX_BASELINE_M`]), each
+    /// naming the likely unit mistake; empty when plausible.
     pub fn plausibility_problems(&self) -> Vec<String> {
         let mut problems = camera_plausibility_problems("depth", &self.depth);
         problems.extend(camera_plausibility_problems("colour", &self.color));
         let baseline = self.color_from_depth.translation.norm();
+        if baseline < MIN_BASELINE_M {
+            // Read as metres, 5-500 "mm" is a 5-500 mm baseline: the other slip.
+            let hint = if (MIN_BASELINE_M / 1000.0..MIN_BASELINE_M).contains(&baseline) {
+                let short = |x: f64| (x * 1e4).round() / 1e4;
+                format!(
+                    "; T looks like metres read as millimetres: {} mm → {} mm?",
+                    short(baseline * 1000.0),
+                    short(baseline * 1e6)
+                )
+            } else {
+                String::new()
+            };
+            problems.push(format!(
+                "the baseline |T| = {baseline} m is under {} mm, closer than two cameras' lenses can sit{hint}",
+                MIN_BASELINE_M * 1000.0
+            ));
+        }
         if !(baseline <= MAX_BASELINE_M) {
             // Read as millimetres, 10-500 "m" is a 1-50 cm baseline: the usual slip.
             let hint = if (10.0..=1000.0 * MAX_BASELINE_M).contains(&baseline) {
@@ -337,6 +401,35 @@ mod tests {
         let mut r = kinect();
         r.color.intrinsics.fy = 20_001.0;
         assert!(r.check_plausible().unwrap_err().to_string().contains("colour camera's fy"));
+        // T in metres read as millimetres (a user's trial: 0.052 mm, fused with exit 0).
+        let mut m = kinect();
+        m.color_from_depth.translation /= 1000.0;
+        let err = m.check_plausible().unwrap_err().to_string();
+        assert!(err.contains("metres read as millimetres: 0.052 mm → 52 mm?"), "{err}");
+        // Radial distortion no lens has (a user's k1 = 50 shrank the cloud 3.5×), both ways;
+        // real lenses pass: the lab's Kinect IR (Bouguet's kc in Calib_Results_left.m) and
+        // the corpus's GoPro (kfuse calibrate, 2026-12-02; it folds at 1.18× its corners'
+        // radius).
+        for (k1, what) in [(50.0, "magnifies the image corners"), (-50.0, "folds at")] {
+            let mut r = kinect();
+            r.depth.distortion.k1 = k1;
+            let err = r.check_plausible().unwrap_err().to_string();
+            assert!(
+                err.contains("depth camera's radial distortion") && err.contains(what),
+                "{err}"
+            );
+        }
+        let mut lab = kinect();
+        (lab.depth.distortion.k1, lab.depth.distortion.k2) = (0.0990, -0.2206);
+        assert!(lab.check_plausible().is_ok(), "{:?}", lab.plausibility_problems());
+        let gopro = CameraModel::new(
+            1280,
+            960,
+            Intrinsics::new(563.7, 564.5, 651.4, 500.2),
+            Distortion { k1: -0.246, k2: 0.076, k3: -0.012, ..Distortion::NONE },
+        );
+        assert!(gopro.distortion.fold_radius().is_some());
+        assert!(camera_plausibility_problems("colour", &gopro).is_empty());
         let mut r = kinect();
         r.color.width = 30_000;
         r.color.height = 30_000;

@@ -25,7 +25,7 @@ use serde_json::json;
 
 use super::opencv::camera_from;
 use super::yaml::{Doc, fmt_err};
-use super::{Calibration, ImportOptions, Imported};
+use super::{Calibration, ImportOptions, Imported, Role};
 use crate::CalibError;
 
 /// Below this baseline (metres) the export uses the identity rectification (no direction).
@@ -45,6 +45,19 @@ struct Info {
     rect: Matrix3<f64>,
     /// `t_i = K'⁻¹ P[:, 3]`.
     t: Vector3<f64>,
+}
+
+/// The camera a ROS `camera_name` names: kfuse's own (`depth`, `color`) and the usual driver
+/// names (`ir`, `rgb`, `colour`, as a whole word of the name); `None` for anything else.
+fn named_role(name: &str) -> Option<Role> {
+    let words: Vec<String> =
+        name.split(|c: char| !c.is_ascii_alphanumeric()).map(str::to_ascii_lowercase).collect();
+    let has = |w: &[&str]| words.iter().any(|x| w.contains(&x.as_str()));
+    match (has(&["depth", "ir"]), has(&["color", "colour", "rgb"])) {
+        (true, false) => Some(Role::Depth),
+        (false, true) => Some(Role::Color),
+        _ => None,
+    }
 }
 
 fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
@@ -122,6 +135,21 @@ pub fn import(docs: &[Doc], opts: &ImportOptions) -> Result<Imported, CalibError
             })
         }
         [d, c] => {
+            // Files that name their camera (as `kfuse rig export --format ros` and most
+            // drivers do) must come depth first: in the other order the rig's cameras were
+            // exchanged, exit 0.
+            let role_of = |doc: &Doc| doc.string("camera_name").as_deref().and_then(named_role);
+            if role_of(d) == Some(Role::Color) || role_of(c) == Some(Role::Depth) {
+                return Err(fmt_err(
+                    d.path(),
+                    format!(
+                        "names the {} camera (camera_name), but the first file must be the depth camera's: give {} {}",
+                        role_of(d).map_or("other", Role::name),
+                        c.path().display(),
+                        d.path().display()
+                    ),
+                ));
+            }
             let a = read_info(d, "depth camera")?;
             let b = read_info(c, "colour camera")?;
             let rot = b.rect.transpose() * a.rect;
