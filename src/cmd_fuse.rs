@@ -100,12 +100,12 @@ pub struct FuseArgs {
     pub h5: H5Arg,
     /// H5 tilt limit: a face tilted more than atan(RATIO) from facing the camera is removed
     /// (1.0 = 45°; larger keeps more slanted faces).
-    #[arg(long, value_name = "RATIO", default_value_t = FusionOptions::default().stretch_ratio)]
+    #[arg(long, value_name = "RATIO", default_value_t = FusionOptions::default().stretch_ratio, allow_negative_numbers = true)]
     pub stretch_ratio: f32,
     /// Coverage radius of H3 nearest fill and H8 holes, in depth-sample spacings. Times the
     /// rig's spacing it may be at most 16 colour pixels (a factor of 5.5 on a Kinect v2):
     /// the nearest fill's work grows with the square of the radius.
-    #[arg(long, value_name = "FACTOR", default_value_t = FusionOptions::default().hole_radius_factor)]
+    #[arg(long, value_name = "FACTOR", default_value_t = FusionOptions::default().hole_radius_factor, allow_negative_numbers = true)]
     pub hole_radius: f32,
     /// Do not draw the Task 1-8 figures.
     #[arg(long)]

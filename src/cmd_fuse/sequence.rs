@@ -65,7 +65,7 @@ pub struct SequenceArgs {
     pub threads: usize,
     /// Largest time between a depth frame and its colour partner, milliseconds (default:
     /// half the 30 Hz frame period).
-    #[arg(long, value_name = "MS", default_value_t = DEFAULT_MAX_SKEW_TICKS as f64 * 1e3 / TICKS_PER_SECOND as f64)]
+    #[arg(long, value_name = "MS", default_value_t = DEFAULT_MAX_SKEW_TICKS as f64 * 1e3 / TICKS_PER_SECOND as f64, allow_negative_numbers = true)]
     pub max_skew_ms: f64,
     /// Accept a truncated recording and use its intact beginning.
     #[arg(long)]

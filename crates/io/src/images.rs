@@ -88,6 +88,24 @@ fn decode_picture(path: &Path) -> Result<image::DynamicImage, GeometryError> {
     Ok(img)
 }
 
+/// An image's pixel type in words, for messages ("an 8-bit grey", not the decoder's `L8`).
+fn pixel_type_in_words(color: image::ColorType) -> String {
+    use image::ColorType as C;
+    match color {
+        C::L8 => "an 8-bit grey".into(),
+        C::La8 => "an 8-bit grey + alpha".into(),
+        C::Rgb8 => "an 8-bit RGB".into(),
+        C::Rgba8 => "an 8-bit RGBA".into(),
+        C::L16 => "a 16-bit grey".into(),
+        C::La16 => "a 16-bit grey + alpha".into(),
+        C::Rgb16 => "a 16-bit RGB".into(),
+        C::Rgba16 => "a 16-bit RGBA".into(),
+        C::Rgb32F => "a float RGB".into(),
+        C::Rgba32F => "a float RGBA".into(),
+        other => format!("a {other:?}"),
+    }
+}
+
 /// Reads a colour image (see the module docs for the formats).
 pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
     let rgb = decode_picture(path)?.into_rgb8();
@@ -223,7 +241,7 @@ fn read_depth_png(
         }
         other => Err(format_err(
             path,
-            format!("is a {:?} PNG; depth must be {DEPTH_FORMATS}", other.color()),
+            format!("is {} PNG; depth must be {DEPTH_FORMATS}", pixel_type_in_words(other.color())),
         )),
     }
 }
@@ -555,6 +573,9 @@ mod tests {
         let grey8 = Image::from_vec(3, 1, vec![7u8, 130, 255]).unwrap();
         write_gray_png(&path, &grey8).unwrap();
         assert_eq!(read_gray(&path).unwrap().data(), grey8.data());
+        // As depth it is refused in words (it said "is a L8 PNG", the decoder's name).
+        let err = read_depth(&path, MILLIMETRES).unwrap_err().to_string();
+        assert!(err.contains("is an 8-bit grey PNG; depth must be"), "{err}");
         let jpg = dir.join("cut.jpg");
         image::GrayImage::from_fn(64, 64, |x, y| image::Luma([((x * 4) ^ (y * 4)) as u8]))
             .save(&jpg)
