@@ -340,13 +340,15 @@ fn load_and_detect(
         .map(|(f, i)| match i {
             Ok(_) => found.next().expect("one view per readable image"),
             Err(e) => {
-                println!("  {}: cannot be read ({e}); left out", f.display());
+                // The reader's message starts with the path, which the line already names.
+                let why = e.strip_prefix(&format!("{}: ", f.display())).unwrap_or(e);
+                println!("  {}: cannot be read: {why}; left out", f.display());
                 ViewCorners {
                     name: file_name(f),
                     width: 0,
                     height: 0,
                     corners: vec![],
-                    unusable: Some(format!("unreadable: {e}")),
+                    unusable: Some(format!("unreadable: {why}")),
                 }
             }
         })

@@ -455,11 +455,13 @@ fn shots(
     let mut saved = 0usize;
     let mut outcome: Result<(), CaptureError> = Ok(());
     let mut interrupted = false;
+    let mut stdin_closed = false;
     for n in names {
         match wait(&trigger, &mut session) {
             Ok(Waited::Shoot) => {}
             Ok(Waited::StdinClosed) => {
                 eprintln!("stdin closed: stopping after {saved} shots");
+                stdin_closed = true;
                 break;
             }
             Ok(Waited::Interrupted) => {
@@ -491,6 +493,13 @@ fn shots(
         bail!(
             "{e}\nreplay stopped: {saved} shot(s) taken before it are intact in {}",
             out.display()
+        );
+    }
+    if stdin_closed && saved == 0 {
+        // Run from a script or with its input redirected: no shot was triggered, which is not
+        // a capture (it exited 0 with an empty folder in a user's trial).
+        bail!(
+            "stdin was closed before the first shot, so nothing was captured: press Enter for each shot, or give --interval SECONDS for automatic shots"
         );
     }
     if interrupted {

@@ -123,6 +123,23 @@ fn calib_capture_on_sim_reproduces_scene_depth() {
     assert!(String::from_utf8_lossy(&st.stderr).contains("--overwrite"));
 }
 
+/// Key-press mode with stdin closed before the first shot (a script, `< /dev/null`): an error
+/// saying how to trigger shots, not exit 0 with no shot (a user's trial).
+#[test]
+fn scene_capture_with_stdin_closed_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = kfuse()
+        .args(["capture", "scene", "--backend", "sim", "--name", "desk", "--out"])
+        .arg(dir.path())
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("nothing was captured") && err.contains("--interval"), "{err}");
+    assert!(!dir.path().join("desk_depth.png").exists());
+}
+
 /// Scene capture triggered by a line on stdin (key-press mode without a TTY), with filters on:
 /// where the filtered depth is non-zero and away from depth edges it equals the scene within
 /// the same bound.

@@ -699,6 +699,8 @@ fn a_cut_jpeg_is_named_and_a_16_bit_copy_gives_the_same_corners() {
     let (plain, cut, wide) = (run(&plain), run(&cut), run(&wide));
     let row = table_row(&cut, "left09.jpg");
     assert!(row.contains("REJECTED") && row.contains("truncated JPEG"), "{row}");
+    // The file is named once per line (the reader's message named it again).
+    assert_eq!(row.matches("left09.jpg").count(), 1, "{row}");
     // The same grey values, so the same corners: the same row to the printed digits.
     let cells = |row: &str| row.split_whitespace().skip(1).collect::<Vec<_>>().join(" ");
     assert_eq!(cells(table_row(&wide, "left09.png")), cells(table_row(&plain, "left09.jpg")));
