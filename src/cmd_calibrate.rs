@@ -277,7 +277,7 @@ fn load_and_detect(
     let images: Vec<Result<Image<u8>, String>> = files
         .par_iter()
         .map(|f| {
-            let r = kfuse_io::images::read_gray(f).map_err(|e| e.to_string());
+            let r = calib::io::read_gray(f).map_err(|e| e.to_string());
             pb.inc(1);
             r
         })

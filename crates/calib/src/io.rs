@@ -6,17 +6,11 @@ use geometry::Image;
 
 use crate::CalibError;
 
-/// Reads any 8/16-bit image file as 8-bit grey (16-bit is scaled down by 256).
+/// Reads an image file as 8-bit grey for detection: `kfuse_io::images::read_gray`, the one
+/// reader the command line uses too (size limits, a JPEG cut short refused, colour as luma,
+/// 16-bit scaled by the image's range).
 pub fn read_gray(path: &Path) -> Result<Image<u8>, CalibError> {
-    let img = image::open(path).map_err(|e| match e {
-        image::ImageError::IoError(source) => CalibError::Io { path: path.to_path_buf(), source },
-        other => CalibError::Format {
-            path: path.to_path_buf(),
-            message: format!("cannot decode image: {other}"),
-        },
-    })?;
-    let g = img.to_luma8();
-    Ok(Image::from_vec(g.width() as usize, g.height() as usize, g.into_raw())?)
+    Ok(kfuse_io::images::read_gray(path)?)
 }
 
 /// True when the file holds 8-bit samples (grey or colour); false for 16-bit or float
