@@ -22,17 +22,34 @@ fn std_json(s: &IntrinsicsStd) -> Value {
            "k1": s.k1, "k2": s.k2, "p1": s.p1, "p2": s.p2, "k3": s.k3})
 }
 
+/// One corner's row of a report, `[id, values…]`, the corner index written as an integer
+/// (`12`, not `12.0`: it is an index into the board's corners, and readers that parse rows
+/// by type, as Python's `json` does, get an `int` they can index with).
+fn corner_row(id: usize, values: &[f64]) -> Value {
+    let mut row = Vec::with_capacity(values.len() + 1);
+    row.push(json!(id));
+    row.extend(values.iter().map(|v| json!(v)));
+    Value::Array(row)
+}
+
+/// Stereo residual rows (`[id, x, y, ex, ey]`, the id stored as f64 in memory) with integer ids.
+fn residual_rows(rows: &[[f64; 5]]) -> Value {
+    Value::Array(rows.iter().map(|r| corner_row(r[0] as usize, &r[1..])).collect())
+}
+
 /// The report of one camera's calibration (JSON). Per image: name, RMS, corners used, tilt,
 /// rejection reason, and (for the viewer's calibration page) `camera_from_board` (metres,
 /// `null` for a rejected view) and `residuals_px`: `[id, x, y, ex, ey]` per used corner, the
 /// observed position and the error vector observed − projected, px.
 pub fn mono_report(m: &MonoCalibration) -> Value {
-    let residuals = |view: usize| -> Vec<[f64; 5]> {
-        m.residuals
-            .iter()
-            .filter(|r| r.0 == view)
-            .map(|(_, id, p, e)| [*id as f64, p.x, p.y, e.x, e.y])
-            .collect()
+    let residuals = |view: usize| -> Value {
+        Value::Array(
+            m.residuals
+                .iter()
+                .filter(|r| r.0 == view)
+                .map(|(_, id, p, e)| corner_row(*id, &[p.x, p.y, e.x, e.y]))
+                .collect(),
+        )
     };
     json!({
         "rms_px": m.rms_px,
@@ -81,7 +98,7 @@ pub fn stereo_rig(s: &StereoCalibration, board: &Board) -> Rig {
             "depth": if d.is_finite() { json!(d) } else { Value::Null },
             "color": if c.is_finite() { json!(c) } else { Value::Null },
         })).collect::<Vec<_>>(),
-        "per_pair_joint_residuals_px": s.joint_residuals_px.iter().map(|(d, c)| json!({"depth": d, "color": c})).collect::<Vec<_>>(),
+        "per_pair_joint_residuals_px": s.joint_residuals_px.iter().map(|(d, c)| json!({"depth": residual_rows(d), "color": residual_rows(c)})).collect::<Vec<_>>(),
         "rejected_views": s.rejected_views.iter().map(|(i, why)| json!({"pair": i, "reason": why})).collect::<Vec<_>>(),
         "rejected_corners": s.rejected_corners,
         "depth_camera": s.depth,
@@ -103,7 +120,7 @@ pub fn add_detections(report: &mut Value, views: &[ViewCorners], files: &[std::p
     let Some(images) = report.get_mut("images").and_then(Value::as_array_mut) else { return };
     for (i, (entry, v)) in images.iter_mut().zip(views).enumerate() {
         entry["detected_corners"] =
-            json!(v.corners.iter().map(|c| [c.id as f64, c.px.x, c.px.y]).collect::<Vec<_>>());
+            Value::Array(v.corners.iter().map(|c| corner_row(c.id, &[c.px.x, c.px.y])).collect());
         entry["image_size"] = json!([v.width, v.height]);
         if let Some(f) = files.get(i) {
             let f = std::fs::canonicalize(f).unwrap_or_else(|_| f.clone());

@@ -235,6 +235,11 @@ fn report_holds_residuals_detections_and_board_poses() {
     let files: Vec<std::path::PathBuf> =
         (1..=15).map(|i| data.join(format!("synthetic-calib/ir/ir_{i:02}.png"))).collect();
     let report = rig.calibration.as_mut().unwrap();
+    for pair in report["per_pair_joint_residuals_px"].as_array().unwrap() {
+        for rows in [&pair["depth"], &pair["color"]] {
+            assert!(rows.as_array().unwrap().iter().all(|e| e[0].is_u64()), "{rows}");
+        }
+    }
     calib::files::add_detections(&mut report["depth_single_camera"], ir, &files);
     for (key, views) in [("depth_single_camera", ir), ("color_single_camera", color)] {
         let images = report[key]["images"].as_array().unwrap();
@@ -242,6 +247,7 @@ fn report_holds_residuals_detections_and_board_poses() {
         for (im, v) in images.iter().zip(views.iter()) {
             let res = im["residuals_px"].as_array().unwrap();
             assert_eq!(res.len() as u64, im["corners"].as_u64().unwrap());
+            assert!(res.iter().all(|e| e[0].is_u64()), "{key} {}: ids are integers", v.name);
             // RMS from the listed error vectors: the same sums in another order, 1e-12 px.
             let rms = (res.iter().map(|e| f(&e[3]).powi(2) + f(&e[4]).powi(2)).sum::<f64>()
                 / res.len() as f64)
@@ -253,7 +259,12 @@ fn report_holds_residuals_detections_and_board_poses() {
                 im["rms_px"]
             );
             if key == "depth_single_camera" {
-                assert_eq!(im["detected_corners"].as_array().unwrap().len(), v.corners.len());
+                let detected = im["detected_corners"].as_array().unwrap();
+                assert_eq!(detected.len(), v.corners.len());
+                // Corner indices are JSON integers (`12`, not `12.0`), equal to the detector's.
+                for (row, c) in detected.iter().zip(&v.corners) {
+                    assert_eq!(row[0].as_u64(), Some(c.id as u64), "{}: {row}", v.name);
+                }
                 assert!(std::path::Path::new(im["image"].as_str().unwrap()).is_file());
             }
             assert!(im["camera_from_board"].is_object());
