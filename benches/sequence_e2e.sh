@@ -17,7 +17,7 @@ bin=${1:-${CARGO_TARGET_DIR:-target}/release/kfuse}
 frames=${2:-300}
 work=$(mktemp -d -p "${KFUSE_SEQ_WORK:-${TMPDIR:-/tmp}}")
 trap 'rm -rf "$work"' EXIT
-"$bin" capture record --backend sim --frames "$frames" --output "$work/s.kfrec" 2>/dev/null
+"$bin" capture record --backend sim --frames "$frames" --out "$work/s.kfrec" 2>/dev/null
 echo "recording: $frames frames, $(du -m "$work/s.kfrec" | cut -f1) MB"
 for layout in kfuse tum; do
   for threads in 1 2; do

@@ -243,12 +243,18 @@ enum CaptureMode {
         common: CommonArgs,
     },
     /// Record raw USB stream packets and the device metadata for later replay.
-    #[command(after_help = concat!("Examples:\n  kfuse capture record --output session.kfrec --frames 300\n  \
+    #[command(after_help = concat!("Examples:\n  kfuse capture record --out session.kfrec --frames 300\n  \
         kfuse capture calib --replay session.kfrec --interval 0 --count 5 --out shots\n\n\
         The recording holds every isochronous and bulk packet, so replay runs the same parsers and decoder.", settings_help!()))]
     Record {
-        /// Recording file.
-        #[arg(long, default_value = "capture.kfrec")]
+        /// Recording file (`--out`, as every other command names its output; `--output`, the
+        /// first spelling, still works).
+        #[arg(
+            long = "out",
+            visible_alias = "output",
+            value_name = "FILE.kfrec",
+            default_value = "capture.kfrec"
+        )]
         output: PathBuf,
         /// Depth frames to record.
         #[arg(long, default_value_t = 150)]

@@ -21,7 +21,7 @@ use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster};
 
 Writes NAME_rect.EXT per input NAME.EXT (Colour.tif -> Colour_rect.tif), in the input's format
 and pixel type: TIFF stays TIFF, grey stays grey, 16-bit stays 16-bit, float TIFF stays float,
-OpenEXR (float depth in metres, NaN = none) stays OpenEXR. Colour and 8-bit grey (IR) images are
+OpenEXR (float depth in metres, NaN = none) stays OpenEXR; a grey + alpha PNG becomes RGBA. Colour and 8-bit grey (IR) images are
 resampled bilinearly; 16-bit (depth in millimetres, 16-bit IR) and float (depth in metres) by
 nearest neighbour, so no depth is ever blended across an edge. Runs into the same --out add up
 (undistort the colour, then the depth images into one folder); an output of the same name is

@@ -30,7 +30,7 @@ fn scene_mm() -> Vec<f32> {
 fn record_three_sim_frames(dir: &Path) -> std::path::PathBuf {
     let rec = dir.join("s.kfrec");
     let st = kfuse()
-        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--output"])
+        .args(["capture", "record", "--backend", "sim", "--frames", "3", "--out"])
         .arg(&rec)
         .output()
         .unwrap();

@@ -25,7 +25,7 @@ use geometry::{GeometryError, Image};
 pub const JPEG_QUALITY: u8 = 95;
 
 /// What [`read_raster`] accepts, for messages.
-pub const RASTER_TYPES: &str = "8-bit grey/RGB/RGBA (PNG, TIFF, BMP, JPEG), 16-bit grey (PNG, TIFF) or 32-bit float grey (TIFF)";
+pub const RASTER_TYPES: &str = "8-bit grey/RGB/RGBA (PNG, TIFF, BMP, JPEG; grey + alpha PNG as RGBA), 16-bit grey (PNG, TIFF) or 32-bit float grey (TIFF)";
 
 /// An image in its file's pixel type.
 #[derive(Debug, Clone, PartialEq)]
@@ -181,6 +181,13 @@ fn read_other(path: &Path, bytes: &[u8], format: RasterFormat) -> Result<Raster,
         image::DynamicImage::ImageRgba8(b) => {
             Raster::Rgba8(image_of(path, w, h, chunks::<4, u8>(b.into_raw()))?)
         }
+        // Grey + alpha (a PNG that `calibrate` reads as grey) becomes RGBA with the grey in
+        // all three colours: the alpha is kept, and RGBA is a type every writer here holds.
+        image::DynamicImage::ImageLumaA8(b) => {
+            let rgba =
+                chunks::<2, u8>(b.into_raw()).into_iter().map(|[g, a]| [g, g, g, a]).collect();
+            Raster::Rgba8(image_of(path, w, h, rgba)?)
+        }
         image::DynamicImage::ImageLuma16(b) => Raster::Gray16(image_of(path, w, h, b.into_raw())?),
         other => {
             return Err(err(
@@ -313,5 +320,25 @@ mod tests {
         }
         let e = write_raster(&dir.path().join("x.jpg"), &Raster::GrayF32(f32i), RasterFormat::Jpeg);
         assert!(e.unwrap_err().to_string().contains("use PNG or TIFF"));
+    }
+
+    #[test]
+    fn grey_with_alpha_is_read_as_rgba_with_the_grey_in_each_colour() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("la.png");
+        let la = image::GrayAlphaImage::from_fn(4, 2, |x, y| {
+            image::LumaA([x as u8 * 60, 255 - y as u8])
+        });
+        la.save(&p).unwrap();
+        let (Raster::Rgba8(back), RasterFormat::Png) = read_raster(&p).unwrap() else {
+            panic!("grey + alpha PNG not read as RGBA")
+        };
+        assert_eq!(back.size(), (4, 2));
+        for y in 0..2 {
+            for x in 0..4 {
+                let g = x as u8 * 60;
+                assert_eq!(*back.get(x, y), [g, g, g, 255 - y as u8], "({x}, {y})");
+            }
+        }
     }
 }
