@@ -69,12 +69,16 @@ pub struct CalibrateArgs {
     /// from the images when not given.
     #[arg(long, value_parser = ["black", "white"])]
     top_left: Option<String>,
-    /// Output file: the rig JSON (both cameras) or a single-camera JSON.
+    /// Output file: the rig JSON (both cameras) or a single-camera JSON. An existing file is
+    /// replaced when kfuse wrote it (a rerun); any other file only with --overwrite.
     #[arg(long, default_value = "rig.json")]
     out: PathBuf,
     /// Also export OpenCV FileStorage YAML here (M1/D1 = IR, M2/D2 = colour, R, T in metres).
     #[arg(long)]
     opencv_yaml: Option<PathBuf>,
+    /// Replace an existing --out or --opencv-yaml file that kfuse did not write.
+    #[arg(long)]
+    overwrite: bool,
     /// Folder for the report figures (corners on every image, per-image errors, residual
     /// vectors, board poses) and report.json.
     #[arg(long)]
@@ -441,6 +445,14 @@ fn check_outputs<'a>(
                 path.display()
             );
         }
+        if !args.overwrite
+            && let Some(what) = foreign_output(path, flag == "--opencv-yaml")
+        {
+            bail!(
+                "{flag} {}: exists and is {what}, not a file kfuse calibrate wrote; give another file name, or pass --overwrite to replace it",
+                path.display()
+            );
+        }
         taken.push((flag, here));
     }
     if let Some(dir) = &args.report {
@@ -456,6 +468,62 @@ fn check_outputs<'a>(
         }
     }
     Ok(())
+}
+
+/// Bytes of an existing output file read to recognise it as kfuse's: a rig JSON with its
+/// report is 100-400 KB (per-corner residuals of 25 pairs); an OpenCV YAML under 2 KB.
+const RECOGNISE_BYTES: u64 = 16 << 20;
+/// The top-level keys of the OpenCV YAML files kfuse writes (`calib::files::opencv_yaml_rig`,
+/// `opencv_yaml_camera`); OpenCV's own samples add others (`calibration_time`, `nr_of_frames`).
+const KFUSE_YAML_KEYS: [&[&str]; 2] = [
+    &[
+        "D1",
+        "D2",
+        "M1",
+        "M2",
+        "R",
+        "T",
+        "T_units",
+        "image_height_1",
+        "image_height_2",
+        "image_width_1",
+        "image_width_2",
+    ],
+    &["camera_matrix", "distortion_coefficients", "image_height", "image_width"],
+];
+
+/// What an existing output file is when kfuse did not write it (`None`: missing, or one of
+/// kfuse's own: a `kfuse-rig` / `kfuse-camera` JSON, or an OpenCV YAML with exactly the keys
+/// kfuse writes). A rerun into the same `rig.json` replaces it; anything else, a user's notes
+/// or OpenCV's own calibration, is kept unless `--overwrite` says otherwise.
+fn foreign_output(path: &Path, yaml: bool) -> Option<&'static str> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).ok()?;
+    if !file.metadata().is_ok_and(|m| m.is_file()) {
+        return None;
+    }
+    let mut text = String::new();
+    if file.take(RECOGNISE_BYTES).read_to_string(&mut text).is_err() {
+        return Some("not a text file");
+    }
+    if yaml {
+        let mut keys: Vec<&str> = text
+            .lines()
+            .filter(|l| l.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_'))
+            .filter_map(|l| l.split_once(':').map(|(k, _)| k.trim()))
+            .collect();
+        keys.sort_unstable();
+        let ours = text.starts_with("%YAML:1.0") && KFUSE_YAML_KEYS.contains(&keys.as_slice());
+        return (!ours).then_some("another YAML or text file");
+    }
+    let format = serde_json::from_str::<serde_json::Value>(&text)
+        .ok()
+        .and_then(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
+    match format.as_deref() {
+        Some(geometry::rig::RIG_FORMAT | calib::rig_io::CAMERA_FORMAT) => None,
+        Some(_) => Some("another program's JSON"),
+        None => Some("not a kfuse calibration file"),
+    }
 }
 
 /// What an interrupted `calibrate` says it did.
@@ -499,8 +567,30 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let (mut color_views, color_images, board) = if color_files.is_empty() {
         (vec![], vec![], board)
     } else {
-        // With --board auto and IR images, the IR images already fixed the size.
-        detect(&color_files, board, auto && ir_files.is_empty(), "colour")?
+        // With --board auto and IR images, the IR images already fixed the size. The colouring
+        // (where the board's own colours decide it) is found from the colour images too and
+        // compared: one board shows the same colouring to both cameras.
+        let ir_colouring = board.top_left_black;
+        let color_board = Board {
+            top_left_black: board.top_left_black.filter(|_| args.top_left.is_some()),
+            ..board
+        };
+        let (views, images, color_board) =
+            detect(&color_files, color_board, auto && ir_files.is_empty(), "colour")?;
+        if let (Some(ir), Some(color)) = (ir_colouring, color_board.top_left_black)
+            && ir != color
+            && !ir_views.is_empty()
+        {
+            let name = |black: bool| if black { "black" } else { "white" };
+            bail!(
+                "the IR images show a {}x{} board whose top-left square is {}, the colour images one whose top-left square is {}: the two sets are not of the same board (images of two sessions?); give the IR and colour images of one session, or --top-left black|white if the board really is the same",
+                board.cols,
+                board.rows,
+                name(ir),
+                name(color)
+            );
+        }
+        (views, images, if ir_colouring.is_some() { board } else { color_board })
     };
 
     // Output staging: nothing is written unless everything succeeds.

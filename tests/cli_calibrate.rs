@@ -116,6 +116,25 @@ fn bad_inputs_fail_clearly_and_write_nothing() {
         o,
     ]);
     assert!(!ok && text.contains("pair 4") && text.contains("--allow-unpaired"), "{text}");
+    // IR images of one session paired with colour images of another whose 7x5 board is
+    // coloured the other way round (the lab's top-left square is white, the rendered set's
+    // black): named as two sets, not as three colour images without a board (a user's trial).
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--ir",
+        &format!("{}/ir_1*.bmp", lab.display()),
+        "--color",
+        &format!("{}/color/color_1[0-2].png", syn.display()),
+        "--out",
+        o,
+    ]);
+    assert!(
+        !ok && text.contains("top-left square is white")
+            && text.contains("top-left square is black")
+            && text.contains("not of the same board")
+            && !text.contains("not in the colour image"),
+        "{text}"
+    );
     // A pattern matching nothing.
     let (ok, text) = kfuse(&["calibrate", "--ir", "/nonexistent/ir_*.png", "--out", o]);
     assert!(!ok && text.contains("no file matches"), "{text}");

@@ -412,14 +412,16 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     }
     std::fs::remove_file(&fifo).unwrap();
     // Two outputs on one path: refused before work, the existing file kept (the YAML once
-    // replaced the rig file of the same name and the run failed).
-    std::fs::write(&rig, "mine").unwrap();
+    // replaced the rig file of the same name and the run failed). The file is kfuse's own
+    // rig, which a rerun may replace, so that the same-path checks are what refuses.
+    rigio::write_rig(&rig, &small_rig()).unwrap();
+    let mine = std::fs::read_to_string(&rig).unwrap();
     let o =
         kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--opencv-yaml", s(&rig)]);
     assert_one_line_failure(&o, "rig_out.json", "same file as --out");
     let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--report", s(&rig)]);
     assert_one_line_failure(&o, "rig_out.json", "exists and is not a folder");
-    assert_eq!(std::fs::read_to_string(&rig).unwrap(), "mine");
+    assert_eq!(std::fs::read_to_string(&rig).unwrap(), mine);
     std::fs::remove_file(&rig).unwrap();
     let o = kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--report", s(&rig)]);
     assert_one_line_failure(&o, "rig_out.json", "same path as --out");
@@ -430,6 +432,41 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     assert!(!rig.exists() && !report.exists());
     assert_eq!(names(&case.dir), ["color.png", "depth.png", "rig.json"]);
     let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+/// `calibrate --out` / `--opencv-yaml` replace a file that kfuse wrote (a rerun into the same
+/// `rig.json`), but a user's other file only with `--overwrite` (it was replaced without a
+/// word, while `rig import`/`export` refused).
+#[test]
+fn calibrate_replaces_only_its_own_files_without_overwrite() {
+    let dir = scratch("calibrate-own");
+    let shots = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib");
+    let pattern = shots.join("ir_*.png");
+    let (notes, yaml) = (dir.join("notes.json"), dir.join("cam.yaml"));
+    std::fs::write(&notes, "{\"my\": \"notes\"}").unwrap();
+    // OpenCV's own sample output has keys kfuse does not write.
+    let opencv = "%YAML:1.0\n---\ncalibration_time: \"x\"\nimage_width: 512\nimage_height: 424\n";
+    std::fs::write(&yaml, opencv).unwrap();
+    let run = |out: &Path, extra: &[&str]| {
+        kfuse(&[&["calibrate", "--ir", s(&pattern), "--out", s(out)][..], extra].concat())
+    };
+    let o = run(&notes, &[]);
+    assert_one_line_failure(&o, "notes.json", "not a file kfuse calibrate wrote");
+    let fresh = dir.join("ir.json");
+    let o = run(&fresh, &["--opencv-yaml", s(&yaml)]);
+    assert_one_line_failure(&o, "cam.yaml", "pass --overwrite");
+    assert!(!fresh.exists());
+    assert_eq!(std::fs::read_to_string(&notes).unwrap(), "{\"my\": \"notes\"}");
+    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), opencv);
+    // --overwrite replaces both; a rerun then replaces kfuse's files without it.
+    let o = run(&notes, &["--opencv-yaml", s(&yaml), "--overwrite"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let written = std::fs::read_to_string(&notes).unwrap();
+    assert!(written.contains("\"format\": \"kfuse-camera\""), "{written}");
+    assert!(std::fs::read_to_string(&yaml).unwrap().contains("camera_matrix"));
+    let o = run(&notes, &["--opencv-yaml", s(&yaml)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Starts `kfuse ARGS` with its output piped and reads its standard output up to the first

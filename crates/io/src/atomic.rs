@@ -112,6 +112,7 @@ where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
     let path = &writable_target(path)?;
+    remove_stale_temporaries(path);
     let tmp = temporary_name(path);
     track(&tmp);
     let result = (|| {
@@ -171,6 +172,21 @@ fn remove_stale_staging(dir: &Path, legacy: Option<&str>) {
             let _ = fs::remove_dir_all(entry.path());
         }
     }
+}
+
+/// Removes the temporary files of `path` ([`temporary_name`]) that killed kfuse runs left
+/// (`kill -9`, power loss: `.rig.json.partial-4242`), so that the folder holds no hidden
+/// leftovers once `path` is written again. Files of a running process and files named
+/// otherwise are left alone. Skipped inside a staging folder, which this process created empty
+/// (a sequence writes thousands of files there: one folder listing each would cost seconds).
+fn remove_stale_temporaries(path: &Path) {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else { return };
+    let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+    let in_staging = dir.file_name().is_some_and(|d| d.to_string_lossy().contains(STAGING_PREFIX));
+    if in_staging {
+        return;
+    }
+    remove_stale_files(dir, &format!(".{}.partial-", name.to_string_lossy()));
 }
 
 /// The entries a folder's manifest lists (empty when there is none or it is unreadable).
@@ -697,6 +713,28 @@ mod tests {
         fs::create_dir_all(dest.join(format!("{STAGING_PREFIX}{dead}"))).unwrap();
         publish(&dest, &["a.png"]).unwrap();
         assert_eq!(names(&dest), [MANIFEST, "a.png"]);
+    }
+
+    #[test]
+    fn a_killed_writes_temporary_is_removed_when_the_file_is_written_again() {
+        let dir = scratch("stale-tmp");
+        let dead = 4_194_305 + std::process::id() % 1000;
+        fs::write(dir.join(format!(".rig.json.partial-{dead}")), "half").unwrap();
+        // Kept: a living process's temporary (pid 1), another file's, a user's look-alike.
+        for keep in
+            [".rig.json.partial-1", &format!(".g.json.partial-{dead}"), ".rig.json.partial-x"]
+        {
+            fs::write(dir.join(keep), "keep").unwrap();
+        }
+        write_bytes_atomic(&dir.join("rig.json"), b"{}").unwrap();
+        let mut want = vec![
+            format!(".g.json.partial-{dead}"),
+            ".rig.json.partial-1".to_string(),
+            ".rig.json.partial-x".to_string(),
+            "rig.json".to_string(),
+        ];
+        want.sort();
+        assert_eq!(names(&dir), want);
     }
 
     #[test]
