@@ -73,7 +73,8 @@ pub struct FuseArgs {
     /// the optical centre).
     #[arg(long, value_enum, default_value_t = DepthKindArg::Z)]
     pub depth_kind: DepthKindArg,
-    /// Metres per unit of 16-bit depth images (0.001 = millimetres). Float images are metres.
+    /// Metres per unit of 16-bit depth images (0.001 = millimetres; at most 0.01, centimetres,
+    /// without --force). Float images are metres.
     #[arg(long, default_value_t = images::MILLIMETRES, value_name = "M_PER_UNIT", allow_hyphen_values = true)]
     pub depth_scale: f64,
     /// The lab course's MATLAB file instead of --rig: synthdata.mat, or the lab's
@@ -120,7 +121,7 @@ pub struct FuseArgs {
     pub gpu: Option<Engine>,
     /// Fuse despite a failed plausibility check, with a warning: the rig's (focal lengths
     /// 50-20000 px, image sides up to 16384 px, baseline up to 0.5 m), the depth's (median
-    /// 0.2-15 m after --depth-scale) or the overlap's (at least 1 % of the depth samples land
+    /// 0.2-15 m after --depth-scale, steps of at most 1 cm) or the overlap's (at least 1 % of the depth samples land
     /// in the colour image); see README "Limits".
     #[arg(long)]
     pub force: bool,

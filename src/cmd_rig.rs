@@ -43,6 +43,7 @@ enum RigCommand {
 
 EXAMPLES:
   kfuse rig import ../shared/data/kinect-lab/Calib_Results_stereo.mat --out rig.json
+  kfuse rig import ../shared/data/kinect-lab/Calib_Results_stereo.mat --mirror --out for-kfuse-captures.json
   kfuse rig import caps/kinect_params.json --out rig.json
   kfuse rig import intrinsics.yml extrinsics.yml --t-units mm --depth-size 512x424 --color-size 1920x1080 --out rig.json")]
 pub struct ImportArgs {
@@ -71,6 +72,12 @@ pub struct ImportArgs {
     /// Which camera a single-camera source is.
     #[arg(long, value_parser = ["depth", "color"])]
     camera: Option<String>,
+    /// The calibration was made on images mirrored left-right (the lab's Bouguet results: their
+    /// colour camera sits at x = +52 mm of the IR camera, in `kfuse capture`'s images at
+    /// −52 mm): write the rig of the unmirrored images (cx → width − 1 − cx, skew and p2
+    /// negated, R → M·R·M and T → M·T with M = diag(−1, 1, 1)). Accepts a kfuse rig too.
+    #[arg(long)]
+    mirror: bool,
 }
 
 /// `kfuse rig export`.
@@ -149,7 +156,16 @@ fn import(a: ImportArgs) -> Result<()> {
         role: a.camera.as_deref().and_then(Role::parse),
     };
     check_new(&a.out, a.overwrite)?;
-    let imported = rig_io::import(&a.sources, &opts)?;
+    let mut imported = rig_io::import(&a.sources, &opts)?;
+    if a.mirror {
+        imported.calibration = mirrored(imported.calibration, &a.sources[0]);
+        imported.notes.push("mirrored left-right (--mirror)".into());
+    }
+    if let Calibration::Rig(rig) = &imported.calibration
+        && let Some(note) = kinect_side_note(rig, a.mirror)
+    {
+        imported.notes.push(note);
+    }
     let problems = imported.calibration.plausibility_problems();
     if !problems.is_empty() {
         if !a.force {
@@ -177,6 +193,44 @@ fn import(a: ImportArgs) -> Result<()> {
     }
     println!("check it with: kfuse rig show {}", a.out.display());
     Ok(())
+}
+
+/// Colour image size of the Kinect v2 (with a 512×424 depth camera, a rig is a Kinect's).
+const KINECT_COLOR_SIZE: (usize, usize) = (1920, 1080);
+/// Depth image size of the Kinect v2.
+const KINECT_DEPTH_SIZE: (usize, usize) = (512, 424);
+
+/// The calibration for images mirrored left-right; the source's report (image coordinates of
+/// the other orientation) is replaced by a note of where it came from.
+fn mirrored(calibration: Calibration, source: &Path) -> Calibration {
+    let note = serde_json::json!({
+        "mirrored_from": source.display().to_string(),
+        "note": "kfuse rig import --mirror: the source's calibration of images mirrored left-right, converted (its report refers to the mirrored images and is not kept)",
+    });
+    match calibration {
+        Calibration::Rig(rig) => {
+            let mut m = rig.mirrored();
+            m.calibration = Some(note);
+            Calibration::Rig(m)
+        }
+        Calibration::Camera { camera, role, .. } => {
+            Calibration::Camera { camera: camera.mirrored(), role, report: Some(note) }
+        }
+    }
+}
+
+/// For a Kinect v2 rig whose colour camera sits at +x of the depth camera: the note that its
+/// images are mirrored relative to `kfuse capture`'s (`None` for other rigs).
+fn kinect_side_note(rig: &geometry::Rig, mirrored: bool) -> Option<String> {
+    let kinect = (rig.depth.width, rig.depth.height) == KINECT_DEPTH_SIZE
+        && (rig.color.width, rig.color.height) == KINECT_COLOR_SIZE;
+    let x = rig.color_centre_in_depth().x;
+    (kinect && x > 0.0 && !mirrored).then(|| {
+        format!(
+            "the colour camera sits at x = {:+.1} mm of the depth camera: a calibration of images mirrored left-right relative to `kfuse capture`'s (where it is at about -52 mm); to fuse kfuse captures, import it with --mirror (fuse refuses it beside a capture's kinect_params.json)",
+            x * 1000.0
+        )
+    })
 }
 
 fn export(a: ExportArgs) -> Result<()> {

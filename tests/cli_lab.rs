@@ -152,6 +152,41 @@ fn unit_and_emptiness_mistakes_fail_naming_the_mistake_and_force_overrides() {
     assert!(line.contains("depth_mm.tif") && line.contains("looks like millimetres"), "{line}");
     assert!(!out.exists());
 
+    // Depth saved in whole metres (1 or 2) and read with --depth-scale 1: a plausible median,
+    // two depth levels.
+    let metres = case.dir.join("depth_m.png");
+    images::write_u16_png(&metres, &Image::from_fn(64, 48, |x, _| 1 + (x / 32) as u16)).unwrap();
+    let o = fuse_small(&case, &case.rig, &metres, &out, &["--depth-scale", "1"]);
+    let line = one_error_line(&o);
+    assert!(
+        line.contains("depth_m.png")
+            && line.contains("depth steps of 1.000 m")
+            && line.contains("only 2 distinct depth value(s)")
+            && line.contains("whole metres"),
+        "{line}"
+    );
+    assert!(!out.exists());
+    // Centimetres (the same ramp, 1.50-2.13 m) fuse as millimetres do.
+    let cm = case.dir.join("depth_cm.png");
+    images::write_u16_png(&cm, &Image::from_fn(64, 48, |x, _| 150 + x as u16)).unwrap();
+    let o = fuse_small(&case, &case.rig, &cm, &out, &["--depth-scale", "0.01"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::remove_dir_all(&out).unwrap();
+
+    // A 16-bit grey image (millimetre depth at the colour camera's size) as --color.
+    let grey16 = case.dir.join("color16.png");
+    images::write_u16_png(&grey16, &Image::from_fn(96, 72, |x, _| 1500 + x as u16)).unwrap();
+    let mut args = vec!["fuse", "--rig", s(&case.rig), "--color", s(&grey16)];
+    args.extend(["--depth", s(&case.depth), "--out", s(&out), "--no-figures"]);
+    let line = one_error_line(&kfuse(&args));
+    assert!(
+        line.contains("color16.png")
+            && line.contains("is a 16-bit grey image, not a colour picture")
+            && line.contains("--force"),
+        "{line}"
+    );
+    assert!(!out.exists());
+
     // A rig whose colour camera looks 90° away: nothing lands in the colour image.
     let mut away = small_rig();
     away.color_from_depth = RigidTransform::from_axis_angle(

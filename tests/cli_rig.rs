@@ -560,3 +560,83 @@ fn bad_files_fail_with_one_line_naming_the_file() {
     let (good, _, err) = kfuse(&["rig", "show", s(&p("missing.json"))]);
     assert!(!good && err.contains("missing.json"), "{err}");
 }
+
+/// The one file in `dir` whose name ends with `suffix`.
+fn only_file(dir: &Path, suffix: &str) -> PathBuf {
+    let found: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().ends_with(suffix))
+        .collect();
+    assert_eq!(found.len(), 1, "{suffix} in {}: {found:?}", dir.display());
+    found[0].clone()
+}
+
+/// A rig calibrated on images mirrored left-right (the colour camera on the other side of the
+/// depth camera than the sensor's factory parameters say) is refused by `fuse` beside a
+/// capture's kinect_params.json, for one frame and for a folder of frames, with the fix;
+/// `rig import --mirror` converts it, and mirroring twice gives the rig back. (The lab's
+/// Bouguet rig has its colour camera at x = +52.2 mm, the protocol's and the simulated
+/// sensor's at −52 mm.)
+#[test]
+fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cap = tmp.path().join("cap");
+    ok(&["capture", "scene", "--backend", "sim", "--interval", "0", "--out", s(&cap)]);
+    let factory = tmp.path().join("factory.json");
+    ok(&["rig", "import", s(&cap.join("kinect_params.json")), "--out", s(&factory)]);
+    let mirrored = tmp.path().join("mirrored.json");
+    let text = ok(&["rig", "import", s(&factory), "--mirror", "--out", s(&mirrored)]);
+    assert!(text.contains("mirrored left-right"), "{text}");
+    // The factory rig: colour camera 52 mm along −x (SimProfile::synthetic's shift_m, 1e-6 m
+    // of f32 rounding); mirrored, along +x.
+    let x = |p: &Path| read_rig(p).color_centre_in_depth().x;
+    assert!((x(&factory) + 0.052).abs() < 1e-6 && (x(&mirrored) - 0.052).abs() < 1e-6);
+    let (color, depth) = (only_file(&cap, "_color.jpg"), only_file(&cap, "_depth.png"));
+    let fuse = |rig: &Path, out: &Path, extra: &[&str]| {
+        let args = ["fuse", "--rig", s(rig), "--color", s(&color), "--depth", s(&depth)];
+        kfuse(&[&args[..], &["--out", s(out), "--no-figures"], extra].concat())
+    };
+    let out = tmp.path().join("fused");
+    let (good, _, err) = fuse(&mirrored, &out, &[]);
+    assert!(!good && !out.exists(), "{err}");
+    assert!(
+        err.contains("mirrored.json puts the colour camera at x = +52.0 mm")
+            && err.contains("kinect_params.json at -52.0 mm")
+            && err.contains("--mirror --out RIG.json"),
+        "{err}"
+    );
+    let (good, _, err) = fuse(&mirrored, &out, &["--force"]);
+    assert!(good && err.contains("warning") && err.contains("mirrored left-right"), "{err}");
+    let (good, _, err) = fuse(&factory, &tmp.path().join("fused2"), &[]);
+    assert!(good && !err.contains("mirrored"), "{err}");
+    // A folder of frames with the mirrored rig: refused the same way.
+    let seq = tmp.path().join("seq");
+    let (good, _, err) =
+        kfuse(&["fuse", "--rig", s(&mirrored), "--frames", s(&cap), "--out", s(&seq)]);
+    assert!(!good && err.contains("mirrored left-right") && !seq.exists(), "{err}");
+    // Twice mirrored: the factory rig (a rig file's rotation is re-orthonormalised on reading:
+    // 1e-15).
+    let back = tmp.path().join("back.json");
+    ok(&["rig", "import", s(&mirrored), "--mirror", "--out", s(&back)]);
+    assert!(rig_diff(&read_rig(&back), &read_rig(&factory)) < 1e-12);
+
+    // The lab's Bouguet rig: named on import, and --mirror puts its colour camera at −52.2 mm.
+    let Some(data) = shared("a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted")
+    else {
+        return;
+    };
+    let stereo = lab(&data, "Calib_Results_stereo.mat");
+    let lab_rig = tmp.path().join("lab.json");
+    let text = ok(&["rig", "import", s(&stereo), "--out", s(&lab_rig)]);
+    assert!(text.contains("x = +52.2 mm") && text.contains("import it with --mirror"), "{text}");
+    let lab_mirrored = tmp.path().join("lab_mirrored.json");
+    let text = ok(&["rig", "import", s(&stereo), "--mirror", "--out", s(&lab_mirrored)]);
+    assert!(!text.contains("import it with --mirror"), "{text}");
+    let (lab, m) = (read_rig(&lab_rig), read_rig(&lab_mirrored));
+    // Bouguet's T = (−52.195, −0.262, 0.625) mm, R within 1.5° of identity: the centre is
+    // −Rᵀ·T ≈ +52.2 mm along x; mirrored −52.2 mm, cx → 511 − cx.
+    assert!((lab.color_centre_in_depth().x * 1000.0 - 52.2).abs() < 0.1);
+    assert!((m.color_centre_in_depth().x * 1000.0 + 52.2).abs() < 0.1);
+    assert_eq!(m.depth.intrinsics.cx, 511.0 - lab.depth.intrinsics.cx);
+}

@@ -30,6 +30,13 @@ pub const MIN_DEPTH_SCALE: f64 = 1e-6;
 /// images of a room, and 65 535 · 1e40 is not even a finite `f32`).
 pub const MAX_DEPTH_SCALE: f64 = 1.0;
 
+/// Coarsest depth step of a fusable 16-bit depth image, metres: 1 cm. Depth cameras resolve
+/// millimetres (the Kinect v2 stores 1 mm units, noise ~1-3 mm at 1-2 m); at 1 cm a wall at
+/// 2 m already shows visible terraces, and in whole metres (`--depth-scale 1` on depth saved
+/// as metres and rounded) a room is three or four flat layers: the cloud, the meshes and the
+/// plane fill come out as stairs with exit 0.
+pub const MAX_DEPTH_STEP_M: f64 = 0.01;
+
 /// Checks `--depth-scale` (one line naming the option and the fix).
 pub fn check_depth_scale(scale: f64) -> Result<()> {
     if !(scale.is_finite() && (MIN_DEPTH_SCALE..=MAX_DEPTH_SCALE).contains(&scale)) {
@@ -84,6 +91,15 @@ pub fn median_depth(depth: &Image<f32>) -> Option<f64> {
     Some(*m as f64)
 }
 
+/// The number of distinct finite depth values (at most the 65 536 a 16-bit image holds).
+fn distinct_depths(depth: &Image<f32>) -> usize {
+    let mut v: Vec<u32> =
+        depth.data().iter().filter(|d| d.is_finite()).map(|d| d.to_bits()).collect();
+    v.sort_unstable();
+    v.dedup();
+    v.len()
+}
+
 /// A length for messages: "1 204" for large values (grouped thousands), 3 significant digits
 /// below 100.
 fn metres_text(m: f64) -> String {
@@ -106,6 +122,18 @@ fn metres_text(m: f64) -> String {
 /// naming the likely mistake.
 pub fn check_depth_units(depth: &Image<f32>, source: &DepthSource) -> Result<(), String> {
     let Some(median) = median_depth(depth) else { return Ok(()) };
+    if let DepthSource::File { name, encoding: DepthEncoding::Integer, scale } = source
+        && *scale > MAX_DEPTH_STEP_M
+        && (MIN_MEDIAN_DEPTH_M..=MAX_MEDIAN_DEPTH_M).contains(&median)
+    {
+        let levels = distinct_depths(depth);
+        return Err(format!(
+            "{name}: --depth-scale {scale} makes depth steps of {} m, coarser than {} m: this frame holds only {levels} distinct depth value(s); save depth as 16-bit millimetres (--depth-scale 0.001) or as float metres (TIFF/EXR), not rounded to {}",
+            metres_text(*scale),
+            MAX_DEPTH_STEP_M,
+            if *scale >= 1.0 { "whole metres".to_string() } else { format!("{scale} m") },
+        ));
+    }
     if (MIN_MEDIAN_DEPTH_M..=MAX_MEDIAN_DEPTH_M).contains(&median) {
         return Ok(());
     }
@@ -142,6 +170,34 @@ pub fn check_depth_units(depth: &Image<f32>, source: &DepthSource) -> Result<(),
         }
     };
     Err(format!("{head}{hint}"))
+}
+
+/// Smallest offset along x (m) of the colour camera from the depth camera for which its side
+/// is compared: 10 mm. The Kinect v2's cameras sit 52 mm apart along x (0.3 mm along y, 0.6 mm
+/// along z in the lab's calibration); a rig whose offset is mostly along y or z has no side.
+pub const MIN_SIDE_OFFSET_M: f64 = 0.01;
+
+/// Fails when `rig` puts the colour camera on the other side of the depth camera (along x)
+/// than `factory`, the sensor's own factory parameters saved beside the images: the rig was
+/// calibrated on images mirrored left–right (the lab's Bouguet results are: their colour
+/// camera sits at x = +52 mm, kfuse's captures have it at −52 mm). Fusing with it puts the
+/// colour twice the parallax off (~100 px at 1 m) while most samples still land in the image,
+/// so the overlap check does not see it.
+pub fn check_mirror(
+    rig: &Rig,
+    rig_name: &str,
+    factory: &Rig,
+    factory_name: &str,
+) -> Result<(), String> {
+    let (x, f) = (rig.color_centre_in_depth().x, factory.color_centre_in_depth().x);
+    if x.abs() < MIN_SIDE_OFFSET_M || f.abs() < MIN_SIDE_OFFSET_M || x.signum() == f.signum() {
+        return Ok(());
+    }
+    Err(format!(
+        "{rig_name} puts the colour camera at x = {:+.1} mm from the depth camera, but {factory_name} at {:+.1} mm: the rig was calibrated on images mirrored left-right (as the lab's Bouguet results are); convert it with `kfuse rig import {rig_name} --mirror --out RIG.json`",
+        x * 1000.0,
+        f * 1000.0
+    ))
 }
 
 /// Fraction of the valid depth samples whose point lands inside the colour image.
@@ -243,5 +299,32 @@ mod tests {
         };
         let e = check_depth_units(&d, &src).unwrap_err();
         assert!(e.contains("median depth 1 210 m") && e.contains("use 0.001"), "{e}");
+    }
+
+    #[test]
+    fn depth_in_whole_metres_is_refused_and_centimetres_pass() {
+        // A room 1-4 m away saved as whole metres: a plausible median, four depth levels.
+        let whole = Image::from_fn(8, 8, |x, _| 1.0 + (x / 2) as f32);
+        let src = |scale| DepthSource::File {
+            name: "d.png".into(),
+            encoding: DepthEncoding::Integer,
+            scale,
+        };
+        let e = check_depth_units(&whole, &src(1.0)).unwrap_err();
+        assert!(
+            e.contains("d.png") && e.contains("4 distinct") && e.contains("whole metres"),
+            "{e}"
+        );
+        // Centimetres (the coarsest accepted unit) and millimetres pass; float metres are not
+        // steps of a unit at all.
+        let cm = Image::from_fn(8, 8, |x, y| 1.0 + 0.01 * (x + 8 * y) as f32);
+        assert_eq!(check_depth_units(&cm, &src(0.01)), Ok(()));
+        assert_eq!(check_depth_units(&cm, &src(0.001)), Ok(()));
+        let float = DepthSource::File {
+            name: "d.exr".into(),
+            encoding: DepthEncoding::FloatMetres,
+            scale: 1.0,
+        };
+        assert_eq!(check_depth_units(&whole, &float), Ok(()));
     }
 }

@@ -82,13 +82,33 @@ fn read_rig(path: &Path, force: bool) -> Result<Rig> {
     Ok(rig)
 }
 
+/// The file `kfuse capture` saves beside its images: the sensor's factory parameters.
+pub const FACTORY_PARAMS: &str = "kinect_params.json";
+
+/// The rig fitted to a sensor's factory parameters (`kinect_params.json`), as `rig import` makes.
+pub fn factory_rig(params: &Path) -> Result<Rig> {
+    match rig_io::import(&[params.to_path_buf()], &rig_io::ImportOptions::default())?.calibration {
+        Calibration::Rig(rig) => Ok(rig),
+        Calibration::Camera { .. } => {
+            bail!("{}: holds one camera, not the sensor's factory parameters", params.display())
+        }
+    }
+}
+
 /// Reads a colour image and checks its size against the rig (from the header first: a huge
-/// or wrong image is refused before it is decoded).
-fn read_color(path: &Path, rig: &Rig, rig_path: &Path) -> Result<Image<[u8; 3]>> {
+/// or wrong image is refused before it is decoded). A file that is not a colour picture (16-bit
+/// grey) adds a problem, an error unless `--force`.
+fn read_color(
+    path: &Path,
+    rig: &Rig,
+    rig_path: &Path,
+    problems: &mut Vec<String>,
+) -> Result<Image<[u8; 3]>> {
     let want = (rig.color.width, rig.color.height);
     check_size("colour image", path, image_header::image_size(path)?, want, rig_path)?;
-    let color = images::read_color(path)?;
+    let (color, note) = images::read_color_noting(path)?;
     check_size("colour image", path, color.size(), want, rig_path)?;
+    problems.extend(note);
     Ok(color)
 }
 
@@ -108,9 +128,11 @@ fn read_depth(
 
 /// Loads and checks the inputs named by `args` (nothing is written).
 pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
+    // Problems found while reading (an error unless --force, below).
+    let mut problems = Vec::new();
     let (mut inputs, depth_source, rig_name) = match &args.mat {
-        Some(mat) => load_mat(args, mat)?,
-        None => load_files(args)?,
+        Some(mat) => load_mat(args, mat, &mut problems)?,
+        None => load_files(args, &mut problems)?,
     };
     let rectified = args.rectified || inputs.rig.rectified;
     if rectified {
@@ -122,13 +144,13 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
     inputs.description["rectified"] = serde_json::json!(rectified);
     apply_depth_correction(&mut inputs)?;
     // Units and emptiness (see `checks`), before any work.
-    let mut problems = Vec::new();
     if let Some(source) = &depth_source
         && let Err(e) = checks::check_depth_units(&inputs.depth, source)
     {
         problems.push(e);
     }
-    // The overlap test is meaningless on a depth of the wrong unit: one mistake at a time.
+    // The overlap test is meaningless on a depth of the wrong unit or a colour image that is
+    // not one: one mistake at a time.
     if problems.is_empty()
         && let Err(e) = checks::check_overlap(&inputs.rig, &rig_name, &inputs.depth, inputs.kind)
     {
@@ -160,14 +182,24 @@ fn apply_depth_correction(inputs: &mut Inputs) -> Result<()> {
 
 type Loaded = (Inputs, Option<DepthSource>, String);
 
-fn load_files(args: &FuseArgs) -> Result<Loaded> {
+fn load_files(args: &FuseArgs, problems: &mut Vec<String>) -> Result<Loaded> {
     let (Some(rig_path), Some(color_path), Some(depth_path)) =
         (&args.rig, &args.color, &args.depth)
     else {
         bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
     };
     let rig = read_rig(rig_path, args.force)?;
-    let color = read_color(color_path, &rig, rig_path)?;
+    // Images from `kfuse capture` have the sensor's factory parameters beside them.
+    let params = depth_path.parent().unwrap_or(Path::new(".")).join(FACTORY_PARAMS);
+    if params.is_file() {
+        let factory = factory_rig(&params)?;
+        let rig_name = rig_path.display().to_string();
+        let params_name = format!("the sensor's factory parameters in {}", params.display());
+        if let Err(e) = checks::check_mirror(&rig, &rig_name, &factory, &params_name) {
+            problems.push(e);
+        }
+    }
+    let color = read_color(color_path, &rig, rig_path, problems)?;
     let (depth, source) = read_depth(depth_path, args.depth_scale, &rig, rig_path)?;
     let kind = match args.depth_kind {
         DepthKindArg::Z => DepthKind::Z,
@@ -188,7 +220,7 @@ fn load_files(args: &FuseArgs) -> Result<Loaded> {
 
 /// `--mat`: the course's `synthdata.mat` or the lab's `KinectData.mat`; `--color` / `--depth`
 /// replace the file's images (the handout's `Colour_rect.tif` / `Depth_rect.tif`).
-fn load_mat(args: &FuseArgs, mat: &Path) -> Result<Loaded> {
+fn load_mat(args: &FuseArgs, mat: &Path, problems: &mut Vec<String>) -> Result<Loaded> {
     let file = MatFile::read(mat)?;
     let name = mat.display().to_string();
     // The file's depth, or why it cannot be used (then --depth must replace it).
@@ -222,7 +254,7 @@ fn load_mat(args: &FuseArgs, mat: &Path) -> Result<Loaded> {
     let color = match &args.color {
         Some(path) => {
             description["color"] = serde_json::json!(path);
-            read_color(path, &rig, mat)?
+            read_color(path, &rig, mat, problems)?
         }
         None => color,
     };

@@ -21,7 +21,7 @@ use kfuse_sequence::tum;
 use kfuse_sequence::write::{self, FileSet, FrameWriter, Index, Layout};
 use kinect_usb::recording::ReadOptions;
 
-use super::FuseArgs;
+use super::{FuseArgs, checks, inputs};
 
 /// Worker threads of the pipeline: its stages form two groups (read…register, encode+write),
 /// so a third thread would have nothing of its own to do.
@@ -133,6 +133,31 @@ fn output_names() -> Vec<String> {
     .into()
 }
 
+/// [`checks::check_mirror`] of `rig` (read from `rig_path`) against the factory parameters
+/// in `params` (`source` names where they came from): an error, or a warning with `--force`.
+fn check_mirror(
+    rig: &Rig,
+    rig_path: &Path,
+    params: &Path,
+    source: &str,
+    force: bool,
+) -> Result<()> {
+    let factory = inputs::factory_rig(params)?;
+    let name = rig_path.display().to_string();
+    if let Err(problem) = checks::check_mirror(
+        rig,
+        &name,
+        &factory,
+        &format!("the sensor's factory parameters in {source}"),
+    ) {
+        if !force {
+            bail!("{problem}; pass --force if this really is meant");
+        }
+        eprintln!("warning: {problem} (--force)");
+    }
+    Ok(())
+}
+
 /// Reads a rig file: a kfuse rig, or the sensor's kinect_params.json (the rig fitted to its
 /// factory parameters, as `kfuse rig import` does).
 fn load_rig(path: &Path, force: bool) -> Result<Rig> {
@@ -219,9 +244,14 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         // without --rig).
         kfuse_capture::write_params_json(staged.path(), src.info())?;
         let rig = match &args.rig {
-            Some(r) => load_rig(r, args.force)?,
+            Some(r) => {
+                let rig = load_rig(r, args.force)?;
+                let params = staged.join(inputs::FACTORY_PARAMS);
+                check_mirror(&rig, r, &params, &path.display().to_string(), args.force)?;
+                rig
+            }
             None => {
-                let params = staged.join("kinect_params.json");
+                let params = staged.join(inputs::FACTORY_PARAMS);
                 let rig = load_rig(&params, args.force).with_context(|| {
                     format!("fitting a rig to the factory parameters stored in {}", path.display())
                 })?;
@@ -238,11 +268,17 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         (Input::Recording(Box::new(src), max_skew), rig, Some(decoder), path.clone(), progress)
     } else if let Some(frames) = &seq.frames {
         let folder = FolderSource::open(frames)?;
+        let dir = if frames.is_dir() { frames.clone() } else { glob_dir(frames) };
+        let params = dir.join(inputs::FACTORY_PARAMS);
         let rig = match &args.rig {
-            Some(r) => load_rig(r, args.force)?,
+            Some(r) => {
+                let rig = load_rig(r, args.force)?;
+                if params.is_file() {
+                    check_mirror(&rig, r, &params, &params.display().to_string(), args.force)?;
+                }
+                rig
+            }
             None => {
-                let dir = if frames.is_dir() { frames.clone() } else { glob_dir(frames) };
-                let params = dir.join("kinect_params.json");
                 if !params.exists() {
                     bail!(
                         "{}: no kinect_params.json beside the frames; pass --rig RIG.json",

@@ -377,6 +377,17 @@ impl CameraModel {
     pub fn without_distortion(&self) -> CameraModel {
         CameraModel { distortion: Distortion::NONE, ..*self }
     }
+
+    /// The camera that sees this camera's images mirrored left–right (pixel column `u` becomes
+    /// `width − 1 − u`), in the camera frame mirrored the same way (`x → −x`): `cx → width − 1
+    /// − cx`, the skew and the tangential `p2` change sign, everything else stays. A point's
+    /// projection through the result is the mirror of its mirror image's projection here.
+    pub fn mirrored(&self) -> CameraModel {
+        let k = self.intrinsics;
+        let intrinsics = Intrinsics { cx: self.width as f64 - 1.0 - k.cx, skew: -k.skew, ..k };
+        let distortion = Distortion { p2: -self.distortion.p2, ..self.distortion };
+        CameraModel { intrinsics, distortion, ..*self }
+    }
 }
 
 #[cfg(test)]

@@ -222,6 +222,43 @@ impl Rig {
         problems
     }
 
+    /// The colour camera's optical centre in the depth camera's frame, metres (`−Rᵀ·T`). On a
+    /// Kinect v2 in the images `kfuse capture` saves (the protocol's orientation) it lies at
+    /// x ≈ −52 mm; a calibration of images mirrored left–right puts it at x ≈ +52 mm.
+    pub fn color_centre_in_depth(&self) -> nalgebra::Vector3<f64> {
+        self.color_from_depth.inverse().translation
+    }
+
+    /// The rig of the same cameras for images mirrored left–right in both cameras (column `u`
+    /// → `width − 1 − u`): each camera [`CameraModel::mirrored`], and `R → M·R·M`, `T → M·T`
+    /// with `M = diag(−1, 1, 1)`, so the colour camera moves to the other side. A depth
+    /// correction's left–right term changes sign with it. The calibration report (image
+    /// coordinates of the old orientation) is dropped.
+    pub fn mirrored(&self) -> Rig {
+        let m = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(-1.0, 1.0, 1.0));
+        let r = m * self.color_from_depth.rotation.matrix() * m;
+        let t = m * self.color_from_depth.translation;
+        let color_from_depth =
+            RigidTransform::new(nalgebra::Rotation3::from_matrix_unchecked(r), t);
+        let depth_correction = self.depth_correction.as_ref().map(|c| {
+            let mut c = c.clone();
+            for term in &mut c.terms {
+                if term.kind == crate::depth_correction::DepthTermKind::X {
+                    term.value = -term.value;
+                }
+            }
+            c
+        });
+        Rig {
+            depth: self.depth.mirrored(),
+            color: self.color.mirrored(),
+            color_from_depth,
+            calibration: None,
+            rectified: self.rectified,
+            depth_correction,
+        }
+    }
+
     /// Fails with every [`Rig::plausibility_problems`] in one line.
     pub fn check_plausible(&self) -> Result<(), GeometryError> {
         let problems = self.plausibility_problems();
@@ -363,6 +400,47 @@ mod tests {
         assert_ne!(bad, text);
         let err = Rig::from_json(&bad, Path::new("new.json")).unwrap_err().to_string();
         assert!(err.contains("640x424") && err.contains("512x424"), "{err}");
+    }
+
+    /// A scene point seen through the mirrored rig lands on the mirrored pixels: its depth
+    /// pixel `u → w − 1 − u` and its colour pixel likewise, with distortion (skew, p1, p2, k1-k3)
+    /// in both cameras; the colour camera changes side and mirroring twice gives the rig back.
+    #[test]
+    fn a_mirrored_rig_sees_the_mirrored_images() {
+        let cam = |w, h, f, cx, cy, skew, d: [f64; 5]| {
+            let mut k = Intrinsics::new(f, f * 1.003, cx, cy);
+            k.skew = skew;
+            CameraModel::new(w, h, k, Distortion::from_array(d))
+        };
+        let rig = Rig::new(
+            cam(512, 424, 365.0, 261.7, 202.5, 0.3, [0.09, -0.27, 0.004, 0.0016, 0.1]),
+            cam(1920, 1080, 1060.0, 951.2, 545.3, -0.2, [0.02, -0.05, -0.001, 0.0022, 0.0]),
+            RigidTransform::from_axis_angle(
+                Vector3::new(-0.004, 0.025, 0.007),
+                Vector3::new(0.052, -0.0003, 0.0006),
+            ),
+        );
+        let mirror = rig.mirrored();
+        assert!(rig.color_centre_in_depth().x < -0.05 && mirror.color_centre_in_depth().x > 0.05);
+        let flip = |p: Vector3<f64>| Vector3::new(-p.x, p.y, p.z);
+        for p in [
+            Vector3::new(0.3, -0.2, 1.1),
+            Vector3::new(-0.6, 0.4, 2.5),
+            Vector3::new(0.0, 0.1, 0.8),
+        ] {
+            let d = rig.depth.project(&p).unwrap();
+            let c = rig.color.project(&rig.color_from_depth.apply(&p)).unwrap();
+            let dm = mirror.depth.project(&flip(p)).unwrap();
+            let cm = mirror.color.project(&mirror.color_from_depth.apply(&flip(p))).unwrap();
+            // Exact up to rounding: 1e-9 px.
+            assert!((dm.x - (511.0 - d.x)).abs() < 1e-9 && (dm.y - d.y).abs() < 1e-9, "{d} {dm}");
+            assert!((cm.x - (1919.0 - c.x)).abs() < 1e-9 && (cm.y - c.y).abs() < 1e-9, "{c} {cm}");
+        }
+        let back = mirror.mirrored();
+        assert_eq!((back.depth, back.color), (rig.depth, rig.color));
+        assert!(
+            (back.color_from_depth.matrix() - rig.color_from_depth.matrix()).abs().max() < 1e-15
+        );
     }
 
     fn kinect() -> Rig {

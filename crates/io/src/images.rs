@@ -108,10 +108,25 @@ fn pixel_type_in_words(color: image::ColorType) -> String {
 
 /// Reads a colour image (see the module docs for the formats).
 pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
-    let rgb = decode_picture(path)?.into_rgb8();
+    Ok(read_color_noting(path)?.0)
+}
+
+/// [`read_color`], with a note when the file is not a colour picture but was converted to one:
+/// a 16-bit grey image (depth or IR saved at the colour camera's size) becomes RGB divided by
+/// 257, near black for millimetre depth. The caller decides whether that is an error.
+pub fn read_color_noting(path: &Path) -> Result<(Image<[u8; 3]>, Option<String>), GeometryError> {
+    let img = decode_picture(path)?;
+    let note = matches!(img.color(), image::ColorType::L16 | image::ColorType::La16).then(|| {
+        format!(
+            "{}: is {} image, not a colour picture (depth or IR at the colour camera's size?); give the colour camera's 8-bit image",
+            path.display(),
+            pixel_type_in_words(img.color())
+        )
+    });
+    let rgb = img.into_rgb8();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     let pixels = rgb.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    Image::from_vec(w, h, pixels)
+    Ok((Image::from_vec(w, h, pixels)?, note))
 }
 
 /// Reads an image as 8-bit grey for checkerboard detection (`kfuse calibrate`), with the
