@@ -633,10 +633,20 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let lab_mirrored = tmp.path().join("lab_mirrored.json");
     let text = ok(&["rig", "import", s(&stereo), "--mirror", "--out", s(&lab_mirrored)]);
     assert!(!text.contains("import it with --mirror"), "{text}");
-    let (lab, m) = (read_rig(&lab_rig), read_rig(&lab_mirrored));
+    let (lab_r, m) = (read_rig(&lab_rig), read_rig(&lab_mirrored));
     // Bouguet's T = (−52.195, −0.262, 0.625) mm, R within 1.5° of identity: the centre is
     // −Rᵀ·T ≈ +52.2 mm along x; mirrored −52.2 mm, cx → 511 − cx.
-    assert!((lab.color_centre_in_depth().x * 1000.0 - 52.2).abs() < 0.1);
+    assert!((lab_r.color_centre_in_depth().x * 1000.0 - 52.2).abs() < 0.1);
     assert!((m.color_centre_in_depth().x * 1000.0 + 52.2).abs() < 0.1);
-    assert_eq!(m.depth.intrinsics.cx, 511.0 - lab.depth.intrinsics.cx);
+    assert_eq!(m.depth.intrinsics.cx, 511.0 - lab_r.depth.intrinsics.cx);
+    // The lab's KinectData.mat (the same rig) with a capture's images in place of its own.
+    let kd = lab(&data, "KinectData.mat");
+    let args = ["fuse", "--mat", s(&kd), "--color", s(&color), "--depth", s(&depth)];
+    let out = tmp.path().join("fused_kd");
+    let (good, _, err) = kfuse(&[&args[..], &["--out", s(&out), "--no-figures"]].concat());
+    assert!(
+        !good && err.contains("KinectData.mat puts the colour camera at x = +52.2 mm"),
+        "{err}"
+    );
+    assert!(!out.exists());
 }

@@ -95,6 +95,26 @@ pub fn factory_rig(params: &Path) -> Result<Rig> {
     }
 }
 
+/// Images from `kfuse capture` have the sensor's factory parameters beside them: a rig whose
+/// colour camera sits on the other side ([`checks::check_mirror`]) adds a problem.
+fn check_beside_capture(
+    rig: &Rig,
+    rig_path: &Path,
+    depth_path: &Path,
+    problems: &mut Vec<String>,
+) -> Result<()> {
+    let params = depth_path.parent().unwrap_or(Path::new(".")).join(FACTORY_PARAMS);
+    if params.is_file() {
+        let factory = factory_rig(&params)?;
+        let rig_name = rig_path.display().to_string();
+        let params_name = format!("the sensor's factory parameters in {}", params.display());
+        if let Err(e) = checks::check_mirror(rig, &rig_name, &factory, &params_name) {
+            problems.push(e);
+        }
+    }
+    Ok(())
+}
+
 /// Reads a colour image and checks its size against the rig (from the header first: a huge
 /// or wrong image is refused before it is decoded). A file that is not a colour picture (16-bit
 /// grey) adds a problem, an error unless `--force`.
@@ -189,16 +209,7 @@ fn load_files(args: &FuseArgs, problems: &mut Vec<String>) -> Result<Loaded> {
         bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
     };
     let rig = read_rig(rig_path, args.force)?;
-    // Images from `kfuse capture` have the sensor's factory parameters beside them.
-    let params = depth_path.parent().unwrap_or(Path::new(".")).join(FACTORY_PARAMS);
-    if params.is_file() {
-        let factory = factory_rig(&params)?;
-        let rig_name = rig_path.display().to_string();
-        let params_name = format!("the sensor's factory parameters in {}", params.display());
-        if let Err(e) = checks::check_mirror(&rig, &rig_name, &factory, &params_name) {
-            problems.push(e);
-        }
-    }
+    check_beside_capture(&rig, rig_path, depth_path, problems)?;
     let color = read_color(color_path, &rig, rig_path, problems)?;
     let (depth, source) = read_depth(depth_path, args.depth_scale, &rig, rig_path)?;
     let kind = match args.depth_kind {
@@ -262,6 +273,7 @@ fn load_mat(args: &FuseArgs, mat: &Path, problems: &mut Vec<String>) -> Result<L
         (Some(path), _) => {
             description["depth"] = serde_json::json!(path);
             description["depth_scale_m_per_unit"] = serde_json::json!(args.depth_scale);
+            check_beside_capture(&rig, mat, path, problems)?;
             let (d, s) = read_depth(path, args.depth_scale, &rig, mat)?;
             (d, Some(s))
         }
