@@ -105,7 +105,15 @@ fn check_beside_capture(
 ) -> Result<()> {
     let params = depth_path.parent().unwrap_or(Path::new(".")).join(FACTORY_PARAMS);
     if params.is_file() {
-        let factory = factory_rig(&params)?;
+        // The check is a service: an unreadable parameter file beside the images is no reason
+        // to refuse a rig that the user gave.
+        let factory = match factory_rig(&params) {
+            Ok(f) => f,
+            Err(e) => {
+                eprintln!("warning: the rig's orientation is not checked: {e:#}");
+                return Ok(());
+            }
+        };
         let rig_name = rig_path.display().to_string();
         let params_name = format!("the sensor's factory parameters in {}", params.display());
         if let Err(e) = checks::check_mirror(rig, &rig_name, &factory, &params_name) {
