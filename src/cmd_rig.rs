@@ -162,7 +162,7 @@ fn import(a: ImportArgs) -> Result<()> {
         imported.notes.push("mirrored left-right (--mirror)".into());
     }
     if let Calibration::Rig(rig) = &imported.calibration
-        && let Some(note) = kinect_side_note(rig, a.mirror)
+        && let Some((true, note)) = rig_io::show::kinect_orientation(rig)
     {
         imported.notes.push(note);
     }
@@ -195,11 +195,6 @@ fn import(a: ImportArgs) -> Result<()> {
     Ok(())
 }
 
-/// Colour image size of the Kinect v2 (with a 512×424 depth camera, a rig is a Kinect's).
-const KINECT_COLOR_SIZE: (usize, usize) = (1920, 1080);
-/// Depth image size of the Kinect v2.
-const KINECT_DEPTH_SIZE: (usize, usize) = (512, 424);
-
 /// The calibration for images mirrored left-right; the source's report (image coordinates of
 /// the other orientation) is replaced by a note of where it came from.
 fn mirrored(calibration: Calibration, source: &Path) -> Calibration {
@@ -217,20 +212,6 @@ fn mirrored(calibration: Calibration, source: &Path) -> Calibration {
             Calibration::Camera { camera: camera.mirrored(), role, report: Some(note) }
         }
     }
-}
-
-/// For a Kinect v2 rig whose colour camera sits at +x of the depth camera: the note that its
-/// images are mirrored relative to `kfuse capture`'s (`None` for other rigs).
-fn kinect_side_note(rig: &geometry::Rig, mirrored: bool) -> Option<String> {
-    let kinect = (rig.depth.width, rig.depth.height) == KINECT_DEPTH_SIZE
-        && (rig.color.width, rig.color.height) == KINECT_COLOR_SIZE;
-    let x = rig.color_centre_in_depth().x;
-    (kinect && x > 0.0 && !mirrored).then(|| {
-        format!(
-            "the colour camera sits at x = {:+.1} mm of the depth camera: a calibration of images mirrored left-right relative to `kfuse capture`'s (where it is at about -52 mm); to fuse kfuse captures, import it with --mirror (fuse refuses it beside a capture's kinect_params.json)",
-            x * 1000.0
-        )
-    })
 }
 
 fn export(a: ExportArgs) -> Result<()> {

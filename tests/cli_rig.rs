@@ -629,10 +629,17 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let stereo = lab(&data, "Calib_Results_stereo.mat");
     let lab_rig = tmp.path().join("lab.json");
     let text = ok(&["rig", "import", s(&stereo), "--out", s(&lab_rig)]);
-    assert!(text.contains("x = +52.2 mm") && text.contains("import it with --mirror"), "{text}");
+    assert!(
+        text.contains("x = +52.2 mm") && text.contains("mirrored left-right relative to"),
+        "{text}"
+    );
+    let shown = ok(&["rig", "show", s(&lab_rig)]);
+    assert!(shown.contains("ok    orientation: the colour camera sits at x = +52.2 mm"), "{shown}");
     let lab_mirrored = tmp.path().join("lab_mirrored.json");
     let text = ok(&["rig", "import", s(&stereo), "--mirror", "--out", s(&lab_mirrored)]);
-    assert!(!text.contains("import it with --mirror"), "{text}");
+    assert!(!text.contains("relative to"), "{text}");
+    let shown = ok(&["rig", "show", s(&lab_mirrored)]);
+    assert!(shown.contains("x = -52.2 mm of the depth camera, as in `kfuse capture`'s"), "{shown}");
     let (lab_r, m) = (read_rig(&lab_rig), read_rig(&lab_mirrored));
     // Bouguet's T = (−52.195, −0.262, 0.625) mm, R within 1.5° of identity: the centre is
     // −Rᵀ·T ≈ +52.2 mm along x; mirrored −52.2 mm, cx → 511 − cx.

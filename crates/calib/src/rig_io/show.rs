@@ -27,6 +27,37 @@ pub const KINECT_DEPTH_SIZE: (usize, usize) = (512, 424);
 /// See [`KINECT_DEPTH_SIZE`].
 pub const KINECT_COLOR_SIZE: (usize, usize) = (1920, 1080);
 
+/// Where the Kinect v2's colour camera sits along x in the depth frame in the images that
+/// `kfuse capture` saves (the protocol's orientation: `shift_m` = 52 mm of parallax, colour
+/// camera at −52 mm), metres.
+pub const KINECT_COLOR_CENTRE_X_M: f64 = -0.052;
+
+/// For a Kinect v2 rig: which image orientation it was calibrated in, from the side of the
+/// colour camera (`None` for other rigs, or a colour camera within 10 mm of the depth
+/// camera's x). `(true, text)` when it is the mirror image of `kfuse capture`'s.
+pub fn kinect_orientation(rig: &Rig) -> Option<(bool, String)> {
+    let kinect = (rig.depth.width, rig.depth.height) == KINECT_DEPTH_SIZE
+        && (rig.color.width, rig.color.height) == KINECT_COLOR_SIZE;
+    let x = rig.color_centre_in_depth().x;
+    if !kinect || x.abs() < 0.01 {
+        return None;
+    }
+    let mirrored = x.signum() != KINECT_COLOR_CENTRE_X_M.signum();
+    let text = if mirrored {
+        format!(
+            "orientation: the colour camera sits at x = {:+.1} mm of the depth camera, a calibration of images mirrored left-right relative to `kfuse capture`'s (about {:+.0} mm); to fuse kfuse captures, use `kfuse rig import FILE --mirror` (fuse refuses it beside a capture's kinect_params.json)",
+            x * 1000.0,
+            KINECT_COLOR_CENTRE_X_M * 1000.0
+        )
+    } else {
+        format!(
+            "orientation: the colour camera sits at x = {:+.1} mm of the depth camera, as in `kfuse capture`'s images",
+            x * 1000.0
+        )
+    };
+    Some((mirrored, text))
+}
+
 /// One result of a check.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Finding {
@@ -120,6 +151,9 @@ pub fn rig_checks(rig: &Rig) -> Vec<Finding> {
             "rotation between the cameras {angle:.3}° (RGB-D rigs: below {MAX_RIG_ANGLE_DEG}°)"
         ),
     ));
+    if let Some((_, text)) = kinect_orientation(rig) {
+        out.push(finding(false, text));
+    }
     let sizes = ((rig.depth.width, rig.depth.height), (rig.color.width, rig.color.height));
     if sizes != (KINECT_DEPTH_SIZE, KINECT_COLOR_SIZE) {
         out.push(finding(
