@@ -121,6 +121,36 @@ fn check_new(path: &Path, overwrite: bool) -> Result<()> {
     Ok(())
 }
 
+/// Refuses, even with `--overwrite`, an output that is one of the inputs or another tool's
+/// calibration that an import reads (a MATLAB file: a Bouguet stereo import reads the mono
+/// results beside it): `rig import … --out Calib_Results_left.mat --overwrite` replaced the
+/// toolbox's file with JSON of the same name, and every later import failed.
+fn check_not_input(out: &Path, inputs: &[PathBuf]) -> Result<()> {
+    let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    if let Some(input) = inputs.iter().find(|i| same(i, out)) {
+        bail!(
+            "--out {} is one of the input files ({}); give a new file name such as rig.json",
+            out.display(),
+            input.display()
+        );
+    }
+    let mut head = [0u8; 6];
+    let is_mat = std::fs::File::open(out)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok()
+        && &head == b"MATLAB";
+    if is_mat {
+        bail!(
+            "--out {}: is a MATLAB file (a calibration kfuse reads, not one it writes); give a new file name such as rig.json",
+            out.display()
+        );
+    }
+    Ok(())
+}
+
 /// `kfuse rig show`.
 #[derive(clap::Args, Debug)]
 pub struct ShowArgs {
@@ -155,6 +185,7 @@ fn import(a: ImportArgs) -> Result<()> {
         color_size: a.color_size,
         role: a.camera.as_deref().and_then(Role::parse),
     };
+    check_not_input(&a.out, &a.sources)?;
     check_new(&a.out, a.overwrite)?;
     let mut imported = rig_io::import(&a.sources, &opts)?;
     if a.mirror {
@@ -215,6 +246,7 @@ fn mirrored(calibration: Calibration, source: &Path) -> Calibration {
 }
 
 fn export(a: ExportArgs) -> Result<()> {
+    check_not_input(&a.out, std::slice::from_ref(&a.rig))?;
     let cal = rig_io::load(&a.rig)?;
     match (a.format.as_str(), &cal) {
         ("opencv", Calibration::Rig(rig)) => {

@@ -135,6 +135,38 @@ fn bad_inputs_fail_clearly_and_write_nothing() {
             && !text.contains("not in the colour image"),
         "{text}"
     );
+    // Colour images of the bundled session paired with IR images of the rendered set (the
+    // same 7x5 board, other poses): each camera alone fits, the stereo fit cannot (a user's
+    // trial: RMS 39 px, T = 5.9 m, written with exit 0).
+    let bundled = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib");
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--color",
+        &format!("{}/color_*.jpg", bundled.display()),
+        "--ir",
+        &format!("{}/ir/ir_0[1-4].png", syn.display()),
+        "--out",
+        o,
+    ]);
+    assert!(
+        !ok && text.contains("do not show the same board poses")
+            && text.contains("x the single-camera fits'"),
+        "{text}"
+    );
+    // --ir and --color swapped (Kinect sizes): refused before detection.
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--color",
+        &format!("{}/ir_*.png", bundled.display()),
+        "--ir",
+        &format!("{}/color_*.jpg", bundled.display()),
+        "--out",
+        o,
+    ]);
+    assert!(
+        !ok && text.contains("are --ir and --color swapped?") && !text.contains("detecting"),
+        "{text}"
+    );
     // A pattern matching nothing.
     let (ok, text) = kfuse(&["calibrate", "--ir", "/nonexistent/ir_*.png", "--out", o]);
     assert!(!ok && text.contains("no file matches"), "{text}");

@@ -154,6 +154,36 @@ fn swapped_inputs_and_existing_outputs_are_refused() {
     assert!(!good && err.contains("depth.yaml") && err.contains("--overwrite"), "{err}");
     ok(&["rig", "import", s(&stereo), "--out", s(&p("notes.yml")), "--overwrite"]);
     assert!(read_rig(&p("notes.yml")).depth.width == 512);
+    // An input as --out, even with --overwrite: refused, the input kept (the toolbox's
+    // files were replaced by JSON of their name, and every later import failed). The left
+    // result beside a copied stereo file is read implicitly; it is a MATLAB file.
+    let bq = p("bq");
+    std::fs::create_dir_all(&bq).unwrap();
+    for f in [&stereo, &left, &right] {
+        std::fs::copy(f, bq.join(f.file_name().unwrap())).unwrap();
+    }
+    let (bq_stereo, bq_left) =
+        (bq.join("Calib_Results_stereo.mat"), bq.join("Calib_Results_left.mat"));
+    let before = std::fs::read(&bq_left).unwrap();
+    for (out, says) in [(&bq_stereo, "is one of the input files"), (&bq_left, "is a MATLAB file")] {
+        let (good, _, err) =
+            kfuse(&["rig", "import", s(&bq_stereo), "--out", s(out), "--overwrite"]);
+        assert!(!good && err.contains(says), "{err}");
+    }
+    assert_eq!(std::fs::read(&bq_left).unwrap(), before);
+    ok(&["rig", "import", s(&bq_stereo), "--out", s(&p("again.json"))]);
+    let (good, _, err) = kfuse(&[
+        "rig",
+        "export",
+        s(&p("rig.json")),
+        "--format",
+        "opencv",
+        "--out",
+        s(&p("rig.json")),
+        "--overwrite",
+    ]);
+    assert!(!good && err.contains("is one of the input files"), "{err}");
+    assert!(read_rig(&p("rig.json")).depth.width == 512);
 }
 
 #[test]
