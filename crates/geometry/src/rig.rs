@@ -97,6 +97,60 @@ struct RigFile {
     depth_correction: Option<DepthCorrectionFile>,
 }
 
+/// The keys of a camera in rig and camera files.
+pub const CAMERA_KEYS: [&str; 12] =
+    ["width", "height", "fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3"];
+const RIG_KEYS: [&str; 9] = [
+    "format",
+    "version",
+    "units",
+    "depth_camera",
+    "color_camera",
+    "color_from_depth",
+    "calibration",
+    "rectified",
+    "depth_correction",
+];
+const TRANSFORM_KEYS: [&str; 2] = ["rotation", "translation_m"];
+const DEPTH_CORRECTION_KEYS: [&str; 6] = ["version", "width", "height", "model", "terms", "fit"];
+const DEPTH_TERM_KEYS: [&str; 3] = ["term", "value", "std"];
+
+/// The keys of `object` (a JSON object at `place`) that are not in `known`, one message each:
+/// "unknown key \"K3\" in depth_camera (…)".
+pub fn unknown_keys(object: &serde_json::Value, place: &str, known: &[&str]) -> Vec<String> {
+    let Some(map) = object.as_object() else { return Vec::new() };
+    map.keys()
+        .filter(|k| !known.contains(&k.as_str()))
+        .map(|k| {
+            let close = known
+                .iter()
+                .find(|n| n.eq_ignore_ascii_case(k) || n.replace('_', "") == k.replace('_', ""))
+                .map(|n| format!(" (\"{n}\"?)"))
+                .unwrap_or_default();
+            format!(
+                "unknown key \"{k}\" in {place}{close}; the keys there are {}: a misspelt key would be ignored",
+                known.join(", ")
+            )
+        })
+        .collect()
+}
+
+/// [`unknown_keys`] of a whole rig file: the top level, both cameras, `color_from_depth` and
+/// `depth_correction` (the `calibration` report is free-form).
+pub fn unknown_rig_keys(v: &serde_json::Value) -> Vec<String> {
+    let mut out = unknown_keys(v, "the rig", &RIG_KEYS);
+    out.extend(unknown_keys(&v["depth_camera"], "depth_camera", &CAMERA_KEYS));
+    out.extend(unknown_keys(&v["color_camera"], "color_camera", &CAMERA_KEYS));
+    out.extend(unknown_keys(&v["color_from_depth"], "color_from_depth", &TRANSFORM_KEYS));
+    out.extend(unknown_keys(&v["depth_correction"], "depth_correction", &DEPTH_CORRECTION_KEYS));
+    if let Some(terms) = v["depth_correction"]["terms"].as_array() {
+        for t in terms {
+            out.extend(unknown_keys(t, "a depth_correction term", &DEPTH_TERM_KEYS));
+        }
+    }
+    out
+}
+
 /// What makes one camera implausible (focal lengths outside [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`],
 /// image sides over [`MAX_IMAGE_SIDE`], a radial distortion no lens has), each naming the
 /// likely unit mistake; `name` says which
@@ -285,12 +339,43 @@ impl Rig {
         serde_json::to_string_pretty(&file).unwrap_or_default()
     }
 
-    /// Parses a rig file's text. `source` names the file in error messages.
+    /// Parses a rig file's text. `source` names the file in error messages. A key the format
+    /// does not have is refused, naming it ([`unknown_rig_keys`]): an optional key misspelt
+    /// (`"K3"`) would otherwise be read as its default, 0, without a word.
     pub fn from_json(text: &str, source: &std::path::Path) -> Result<Self, GeometryError> {
         let format_err =
             |message: String| GeometryError::Format { path: source.to_path_buf(), message };
-        let file: RigFile = serde_json::from_str(text).map_err(|e| {
+        let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
             format_err(format!("not a kfuse rig file ({e}); create one with `kfuse calibrate`"))
+        })?;
+        let is_rig = value.get("format").and_then(|f| f.as_str()) == Some(RIG_FORMAT);
+        if is_rig && let Some(unknown) = unknown_rig_keys(&value).first() {
+            return Err(format_err(unknown.clone()));
+        }
+        let section_error = |v: &serde_json::Value| -> Option<String> {
+            let probe = |key: &str| -> Option<String> {
+                let part = v.get(key).filter(|p| !p.is_null())?.clone();
+                let e = match key {
+                    "depth_camera" | "color_camera" => {
+                        serde_json::from_value::<CameraModel>(part).err()
+                    }
+                    "color_from_depth" => serde_json::from_value::<RigidTransform>(part).err(),
+                    _ => serde_json::from_value::<DepthCorrectionFile>(part).err(),
+                }?;
+                Some(format!("in {key}: {e}"))
+            };
+            ["depth_camera", "color_camera", "color_from_depth", "depth_correction"]
+                .into_iter()
+                .find_map(probe)
+        };
+        let file: RigFile = serde_json::from_value(value.clone()).map_err(|e| {
+            format_err(if is_rig {
+                // It says it is a rig: the fix is in the file, not a new calibration.
+                let what = section_error(&value).unwrap_or_else(|| e.to_string());
+                format!("a kfuse rig file with an error: {what}; correct it, or write it again with `kfuse calibrate` or `kfuse rig import`")
+            } else {
+                format!("not a kfuse rig file ({e}); create one with `kfuse calibrate`")
+            })
         })?;
         if file.format != RIG_FORMAT {
             return Err(format_err(format!(
@@ -441,6 +526,31 @@ mod tests {
         assert!(
             (back.color_from_depth.matrix() - rig.color_from_depth.matrix()).abs().max() < 1e-15
         );
+    }
+
+    /// A misspelt optional key is refused, naming it and the key it resembles (it was read as
+    /// its default, k3 = 0, without a word); a missing key names its section.
+    #[test]
+    fn misspelt_and_missing_keys_are_named_with_their_section() {
+        let good = kinect().to_json();
+        let err = |text: &str| Rig::from_json(text, Path::new("r.json")).unwrap_err().to_string();
+        let e = err(&good.replacen("\"k3\"", "\"K3\"", 1));
+        assert!(e.contains("unknown key \"K3\" in depth_camera (\"k3\"?)"), "{e}");
+        let e = err(&good.replace("\"translation_m\"", "\"translation_mm\""));
+        assert!(e.contains("unknown key \"translation_mm\" in color_from_depth"), "{e}");
+        let e = err(&good.replace("\"rectified_\"", "").replacen("\"units\"", "\"unit\"", 1));
+        assert!(e.contains("unknown key \"unit\" in the rig"), "{e}");
+        let e = err(&good.replacen("\"fy\"", "\"fy_\"", 1).replacen("\"fy_\"", "\"fy\"", 0));
+        assert!(e.contains("\"fy_\" in depth_camera (\"fy\"?)"), "{e}");
+        // Missing: the section is named.
+        let mut v: serde_json::Value = serde_json::from_str(&good).unwrap();
+        v["color_camera"].as_object_mut().unwrap().remove("cx");
+        let e = err(&v.to_string());
+        assert!(
+            e.contains("in color_camera: missing field `cx`") && e.contains("correct it"),
+            "{e}"
+        );
+        assert_eq!(Rig::from_json(&good, Path::new("r.json")).unwrap(), kinect());
     }
 
     fn kinect() -> Rig {

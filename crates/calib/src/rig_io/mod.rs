@@ -168,6 +168,12 @@ fn from_kfuse_json(text: &str, path: &Path) -> Result<Calibration, CalibError> {
                     "camera file version is newer than this kfuse; upgrade kfuse",
                 ));
             }
+            if let Some(unknown) =
+                geometry::rig::unknown_keys(&v["camera"], "camera", &geometry::rig::CAMERA_KEYS)
+                    .first()
+            {
+                return Err(fmt_err(path, unknown.clone()));
+            }
             let camera: CameraModel = serde_json::from_value(v["camera"].clone())
                 .map_err(|e| fmt_err(path, format!("'camera': {e}")))?;
             camera.validate().map_err(|e| fmt_err(path, e.to_string()))?;
