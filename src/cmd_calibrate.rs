@@ -43,16 +43,17 @@ Views and corners rejected as outliers are always listed. The stereo joint fit w
 view by its own noise (never above its camera's level): the table's weight column shows which
 views counted less. Outputs are written atomically: a run that fails leaves no file behind.")]
 pub struct CalibrateArgs {
-    /// Colour-camera images: a glob pattern (quote it) or a file; repeatable.
-    #[arg(long, value_name = "GLOB")]
+    /// Colour-camera images: glob patterns (quoted, kfuse expands them) or files (an unquoted
+    /// pattern that the shell expands works too); repeatable.
+    #[arg(long, value_name = "GLOB", num_args = 1..)]
     color: Vec<String>,
-    /// IR (depth-camera) images: a glob pattern (quote it) or a file; repeatable. 8-bit, or
+    /// IR (depth-camera) images: glob patterns or files, as --color. 8-bit, or
     /// 16-bit raw IR (scaled by each image's range; 65535 counts as clipped).
-    #[arg(long, value_name = "GLOB")]
+    #[arg(long, value_name = "GLOB", num_args = 1..)]
     ir: Vec<String>,
     /// Depth images (16-bit PNG, mm) of the IR shots, matched with --ir in sorted order:
     /// fits the depth correction (offset, scale, spatial terms) into the rig.
-    #[arg(long, value_name = "GLOB")]
+    #[arg(long, value_name = "GLOB", num_args = 1..)]
     depth: Vec<String>,
     /// With --depth and --ir only: the rig (IR intrinsics) the correction is added to; the
     /// output is this rig with its depth_correction.
@@ -163,7 +164,23 @@ fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<(Boa
     } else {
         match s.parse::<f64>() {
             Ok(v) if v > 0.0 => {
-                bail!("--square '{square}': give a unit: {v}mm, {}cm or {}m?", v / 10.0, v / 1000.0)
+                // The readings that give a square a printed board has (5-100 mm), first.
+                let readings: Vec<String> = [("mm", 1e-3), ("cm", 1e-2), ("m", 1.0)]
+                    .into_iter()
+                    .filter(|(_, m)| (PRINTED_SQUARE_M.0..=PRINTED_SQUARE_M.1).contains(&(v * m)))
+                    .map(|(unit, m)| match unit {
+                        "mm" => format!("{v}mm"),
+                        _ => format!("{v}{unit} ({} mm)", (v * m * 1e4).round() / 10.0),
+                    })
+                    .collect();
+                if readings.is_empty() {
+                    bail!(
+                        "--square '{square}': give a unit: {v}mm, {}cm or {}m?",
+                        v / 10.0,
+                        v / 1000.0
+                    )
+                }
+                bail!("--square '{square}': give a unit: {}?", readings.join(" or "))
             }
             _ => bail!(
                 "--square '{square}': give the printed square's side with a unit, e.g. 40mm, 4cm or 0.04m"
@@ -183,6 +200,10 @@ fn parse_board(board: &str, square: &str, top_left: Option<&str>) -> Result<(Boa
     b.top_left_black = top_left.map(|t| t == "black");
     Ok((b, auto))
 }
+
+/// Square sides of printed calibration boards, metres: 5-100 mm (A4 boards have 20-40 mm
+/// squares, large boards up to 100 mm). Only for the hint at a number given without a unit.
+const PRINTED_SQUARE_M: (f64, f64) = (0.005, 0.1);
 
 /// Largest inner-corner count per side accepted from `--board` (far above any printed board;
 /// bounds the detector's work).
@@ -239,13 +260,34 @@ pub fn expand(patterns: &[String], what: &str) -> Result<Vec<PathBuf>> {
             );
         }
         if matches.is_empty() {
-            bail!("--{what} '{p}': no file matches (quote the pattern so that kfuse expands it)");
+            bail!("--{what} '{p}': no file matches{}", no_match_hint(p));
         }
         files.extend(matches);
     }
     files.sort_by_key(|p| natural_key(p));
     files.dedup();
     Ok(files)
+}
+
+/// Why a pattern may match nothing: the files it matches when case is ignored (`IR_*.png`
+/// for `ir_0001.png`), or a folder that does not exist.
+fn no_match_hint(pattern: &str) -> String {
+    let options = glob::MatchOptions { case_sensitive: false, ..Default::default() };
+    let ignoring_case: Vec<PathBuf> = glob::glob_with(pattern, options)
+        .map(|m| m.filter_map(|e| e.ok()).filter(|p| p.is_file()).collect())
+        .unwrap_or_default();
+    if let Some(first) = ignoring_case.first() {
+        return format!(
+            "; {} file(s) match when upper and lower case are not told apart (e.g. {}): check the case",
+            ignoring_case.len(),
+            first.display()
+        );
+    }
+    let folder = parent_folder(Path::new(pattern));
+    if !folder.is_dir() && !folder.to_string_lossy().contains(['*', '?', '[']) {
+        return format!("; the folder {} does not exist", folder.display());
+    }
+    String::new()
 }
 
 pub(crate) fn bar(len: usize, msg: &str) -> ProgressBar {
@@ -783,7 +825,13 @@ mod tests {
         let err = |sq: &str| side(sq).unwrap_err().to_string();
         assert!((side("24mm").unwrap() - 0.024).abs() < 1e-15);
         assert!((side("2.4cm").unwrap() - 0.024).abs() < 1e-15);
-        assert!(err("24").contains("24mm, 2.4cm or 0.024m?"), "{}", err("24"));
+        // The reading that gives a printed board's square is offered (5-100 mm); otherwise
+        // all three.
+        assert!(err("24").contains("give a unit: 24mm?"), "{}", err("24"));
+        assert!(err("0.04").contains("give a unit: 0.04m (40 mm)?"), "{}", err("0.04"));
+        assert!(err("4").contains("give a unit: 4cm (40 mm)?"), "{}", err("4"));
+        assert!(err("8").contains("give a unit: 8mm or 8cm (80 mm)?"), "{}", err("8"));
+        assert!(err("500").contains("500mm, 50cm or 0.5m?"), "{}", err("500"));
         for bad in ["0", "-1", "abc"] {
             assert!(err(bad).contains("with a unit, e.g. 40mm"), "{bad}: {}", err(bad));
         }

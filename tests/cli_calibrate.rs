@@ -167,9 +167,25 @@ fn bad_inputs_fail_clearly_and_write_nothing() {
         !ok && text.contains("are --ir and --color swapped?") && !text.contains("detecting"),
         "{text}"
     );
-    // A pattern matching nothing.
+    // A pattern matching nothing: in a folder that does not exist, or with the wrong case.
     let (ok, text) = kfuse(&["calibrate", "--ir", "/nonexistent/ir_*.png", "--out", o]);
-    assert!(!ok && text.contains("no file matches"), "{text}");
+    assert!(
+        !ok && text.contains("no file matches; the folder /nonexistent does not exist"),
+        "{text}"
+    );
+    let upper = format!("{}/IR_*.png", bundled.display());
+    let (ok, text) = kfuse(&["calibrate", "--ir", &upper, "--out", o]);
+    assert!(!ok && text.contains("4 file(s) match when upper and lower case"), "{text}");
+    // An unquoted pattern, expanded by the shell into one option's several values, is used
+    // (it was "unexpected argument 'ir_0002.png'").
+    let files: Vec<String> =
+        (1..=4).map(|i| format!("{}/ir_{i:04}.png", bundled.display())).collect();
+    let args = [&["calibrate", "--ir"][..], &files.iter().map(String::as_str).collect::<Vec<_>>()]
+        .concat();
+    let fresh = tmp.path().join("four.json");
+    let (ok, text) = kfuse(&[&args[..], &["--out", fresh.to_str().unwrap()]].concat());
+    assert!(ok && text.contains("detecting the board in 4 image(s)"), "{text}");
+    std::fs::remove_file(&fresh).unwrap();
     // Nothing was written by any failed run.
     assert!(!out.exists());
     assert_eq!(std::fs::read_dir(tmp.path()).unwrap().count(), 1, "only the pairs folder");

@@ -189,6 +189,12 @@ pub fn check_mirror(
     factory: &Rig,
     factory_name: &str,
 ) -> Result<(), String> {
+    // A rig of other cameras (or with its two cameras exchanged) fails the size checks, which
+    // name that mistake; telling it to mirror the rig would send the user the wrong way.
+    let sizes = |r: &Rig| ((r.depth.width, r.depth.height), (r.color.width, r.color.height));
+    if sizes(rig) != sizes(factory) {
+        return Ok(());
+    }
     let (x, f) = (rig.color_centre_in_depth().x, factory.color_centre_in_depth().x);
     if x.abs() < MIN_SIDE_OFFSET_M || f.abs() < MIN_SIDE_OFFSET_M || x.signum() == f.signum() {
         return Ok(());
