@@ -640,6 +640,38 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     assert!(good && err.contains("warning") && err.contains("mirrored left-right"), "{err}");
     let (good, _, err) = fuse(&factory, &tmp.path().join("fused2"), &[]);
     assert!(good && !err.contains("mirrored"), "{err}");
+    // A rig calibrated with squares 10x too small (T = 5.2 mm), and the capture's IR image
+    // given as its depth: refused beside the capture. Depth in centimetres read as
+    // millimetres (a Kinect frame at 0.1 of its distance): a warning.
+    let mut small = read_rig(&factory);
+    small.color_from_depth.translation *= 0.1;
+    let small_path = tmp.path().join("small.json");
+    kfuse_io::rig::write_rig(&small_path, &small).unwrap();
+    let (good, _, err) = fuse(&small_path, &tmp.path().join("f3"), &[]);
+    assert!(
+        !good
+            && err.contains("baseline of 5.2 mm")
+            && err.contains("52.0 mm")
+            && err.contains("--square too small"),
+        "{err}"
+    );
+    let ir = only_file(&cap, "_ir.png");
+    let args = ["fuse", "--rig", s(&factory), "--color", s(&color), "--depth", s(&ir)];
+    let (good, _, err) = kfuse(&[&args[..], &["--out", s(&tmp.path().join("f4"))]].concat());
+    assert!(!good && err.contains("is the IR (brightness) image of a kfuse capture"), "{err}");
+    assert!(err.contains("scene_depth.png"), "{err}");
+    let mm = kfuse_io::images::read_depth(&depth, 0.001).unwrap();
+    let cm = geometry::Image::from_fn(mm.width(), mm.height(), |x, y| *mm.get(x, y) * 0.1);
+    let cm_path = tmp.path().join("depth_cm.png");
+    kfuse_io::images::write_depth_png16(&cm_path, &cm).unwrap();
+    let args = ["fuse", "--rig", s(&factory), "--color", s(&color), "--depth", s(&cm_path)];
+    let (good, _, err) =
+        kfuse(&[&args[..], &["--out", s(&tmp.path().join("f5")), "--no-figures"]].concat());
+    assert!(
+        good && err.contains("nearer than the Kinect v2 measures")
+            && err.contains("--depth-scale 0.01)"),
+        "{err}"
+    );
     // A folder of frames with the mirrored rig: refused the same way.
     let seq = tmp.path().join("seq");
     let (good, _, err) =

@@ -177,33 +177,78 @@ pub fn check_depth_units(depth: &Image<f32>, source: &DepthSource) -> Result<(),
 /// along z in the lab's calibration); a rig whose offset is mostly along y or z has no side.
 pub const MIN_SIDE_OFFSET_M: f64 = 0.01;
 
-/// Fails when `rig` puts the colour camera on the other side of the depth camera (along x)
-/// than `factory`, the sensor's own factory parameters saved beside the images: the rig was
-/// calibrated on images mirrored left–right (the lab's Bouguet results are: their colour
-/// camera sits at x = +52 mm, kfuse's captures have it at −52 mm). Fusing with it puts the
-/// colour twice the parallax off (~100 px at 1 m) while most samples still land in the image,
-/// so the overlap check does not see it.
-pub fn check_mirror(
+/// Nearest depth the Kinect v2 measures, metres: 0.5 (its specification; its depth images
+/// hold no sample nearer). A Kinect frame whose median is nearer is most likely depth in
+/// centimetres read as millimetres (a 1.5 m wall reads 0.15 m; 2.9 m reads 0.29 m, which the
+/// general [`MIN_MEDIAN_DEPTH_M`] lets through). Only warned about: a hand in front of the
+/// sensor makes such a frame too.
+pub const KINECT_MIN_DEPTH_M: f64 = 0.5;
+
+/// A warning when a Kinect v2 rig's 16-bit depth file has its median nearer than the sensor
+/// measures ([`KINECT_MIN_DEPTH_M`]).
+pub fn kinect_near_warning(rig: &Rig, depth: &Image<f32>, source: &DepthSource) -> Option<String> {
+    let DepthSource::File { name, encoding: DepthEncoding::Integer, scale } = source else {
+        return None;
+    };
+    let kinect = (rig.depth.width, rig.depth.height) == (512, 424);
+    let median = median_depth(depth)?;
+    (kinect && median < KINECT_MIN_DEPTH_M).then(|| {
+        format!(
+            "{name}: median depth {} m is nearer than the Kinect v2 measures ({KINECT_MIN_DEPTH_M} m): is the depth in centimetres (--depth-scale {})?",
+            metres_text(median),
+            scale * 10.0
+        )
+    })
+}
+
+/// Largest ratio between a rig's baseline and the sensor's factory baseline: 1.5. Kinect v2
+/// units differ by a few millimetres (the lab's Bouguet 52.2 mm, the factory's 52 mm); a board
+/// square given 10× too small (`--square 4mm` for 40 mm) gives a 5.2 mm baseline that passes
+/// every other check and shifts the colour by ~17 px at 1 m.
+pub const MAX_BASELINE_RATIO: f64 = 1.5;
+
+/// Fails when `rig` does not fit the sensor whose factory parameters (`factory`) were saved
+/// beside the images, in a way that no other check sees:
+///
+/// * the colour camera on the other side of the depth camera along x: the rig was calibrated
+///   on images mirrored left–right (the lab's Bouguet results are: their colour camera sits at
+///   x = +52 mm, kfuse's captures have it at −52 mm). Fusing with it puts the colour twice the
+///   parallax off (~100 px at 1 m) while most samples still land in the image;
+/// * a baseline more than [`MAX_BASELINE_RATIO`] from the factory's: a calibration with a
+///   wrong `--square`.
+///
+/// A rig of other image sizes is left to the size checks, which name that mistake.
+pub fn check_against_factory(
     rig: &Rig,
     rig_name: &str,
     factory: &Rig,
     factory_name: &str,
 ) -> Result<(), String> {
-    // A rig of other cameras (or with its two cameras exchanged) fails the size checks, which
-    // name that mistake; telling it to mirror the rig would send the user the wrong way.
     let sizes = |r: &Rig| ((r.depth.width, r.depth.height), (r.color.width, r.color.height));
     if sizes(rig) != sizes(factory) {
         return Ok(());
     }
     let (x, f) = (rig.color_centre_in_depth().x, factory.color_centre_in_depth().x);
-    if x.abs() < MIN_SIDE_OFFSET_M || f.abs() < MIN_SIDE_OFFSET_M || x.signum() == f.signum() {
-        return Ok(());
+    if x.abs() >= MIN_SIDE_OFFSET_M && f.abs() >= MIN_SIDE_OFFSET_M && x.signum() != f.signum() {
+        return Err(format!(
+            "{rig_name} puts the colour camera at x = {:+.1} mm from the depth camera, but {factory_name} at {:+.1} mm: the rig was calibrated on images mirrored left-right (as the lab's Bouguet results are); convert it with `kfuse rig import {rig_name} --mirror --out RIG.json`",
+            x * 1000.0,
+            f * 1000.0
+        ));
     }
-    Err(format!(
-        "{rig_name} puts the colour camera at x = {:+.1} mm from the depth camera, but {factory_name} at {:+.1} mm: the rig was calibrated on images mirrored left-right (as the lab's Bouguet results are); convert it with `kfuse rig import {rig_name} --mirror --out RIG.json`",
-        x * 1000.0,
-        f * 1000.0
-    ))
+    let (b, fb) =
+        (rig.color_from_depth.translation.norm(), factory.color_from_depth.translation.norm());
+    let ratio = fb / b;
+    if fb > 0.0 && b > 0.0 && !(1.0 / MAX_BASELINE_RATIO..=MAX_BASELINE_RATIO).contains(&ratio) {
+        return Err(format!(
+            "{rig_name} has a baseline of {:.1} mm between the cameras, {factory_name} {:.1} mm: was the calibration's --square {} (its board squares {:.1}x the real ones)?",
+            b * 1000.0,
+            fb * 1000.0,
+            if ratio > 1.0 { "too small" } else { "too large" },
+            1.0 / ratio
+        ));
+    }
+    Ok(())
 }
 
 /// Fraction of the valid depth samples whose point lands inside the colour image.

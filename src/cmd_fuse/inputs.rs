@@ -95,8 +95,9 @@ pub fn factory_rig(params: &Path) -> Result<Rig> {
     }
 }
 
-/// Images from `kfuse capture` have the sensor's factory parameters beside them: a rig whose
-/// colour camera sits on the other side ([`checks::check_mirror`]) adds a problem.
+/// Images from `kfuse capture` have the sensor's factory parameters beside them: a rig that
+/// does not fit them ([`checks::check_against_factory`]), or the capture's IR image given as
+/// the depth, adds a problem.
 fn check_beside_capture(
     rig: &Rig,
     rig_path: &Path,
@@ -105,22 +106,44 @@ fn check_beside_capture(
 ) -> Result<()> {
     let params = depth_path.parent().unwrap_or(Path::new(".")).join(FACTORY_PARAMS);
     if params.is_file() {
+        if let Some(depth) = capture_depth_of_ir(depth_path) {
+            problems.push(format!(
+                "{}: is the IR (brightness) image of a kfuse capture, not its depth; the depth of this shot is {}",
+                depth_path.display(),
+                depth.display()
+            ));
+        }
         // The check is a service: an unreadable parameter file beside the images is no reason
         // to refuse a rig that the user gave.
         let factory = match factory_rig(&params) {
             Ok(f) => f,
             Err(e) => {
-                eprintln!("warning: the rig's orientation is not checked: {e:#}");
+                eprintln!(
+                    "warning: the rig is not checked against the sensor's factory parameters: {e:#}"
+                );
                 return Ok(());
             }
         };
         let rig_name = rig_path.display().to_string();
         let params_name = format!("the sensor's factory parameters in {}", params.display());
-        if let Err(e) = checks::check_mirror(rig, &rig_name, &factory, &params_name) {
+        if let Err(e) = checks::check_against_factory(rig, &rig_name, &factory, &params_name) {
             problems.push(e);
         }
     }
     Ok(())
+}
+
+/// For a file named as `kfuse capture` names IR images (`NAME_ir.png`, `ir_NNNN.png`), the
+/// depth file of the same shot (`NAME_depth.png`, `depth_NNNN.png`).
+fn capture_depth_of_ir(path: &Path) -> Option<std::path::PathBuf> {
+    let name = path.file_name()?.to_str()?;
+    let depth = if let Some(stem) = name.strip_suffix("_ir.png") {
+        format!("{stem}_depth.png")
+    } else {
+        let number = name.strip_prefix("ir_")?.strip_suffix(".png")?;
+        number.chars().all(|c| c.is_ascii_digit()).then(|| format!("depth_{number}.png"))?
+    };
+    Some(path.with_file_name(depth))
 }
 
 /// Reads a colour image and checks its size against the rig (from the header first: a huge
@@ -172,10 +195,15 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
     inputs.description["rectified"] = serde_json::json!(rectified);
     apply_depth_correction(&mut inputs)?;
     // Units and emptiness (see `checks`), before any work.
-    if let Some(source) = &depth_source
-        && let Err(e) = checks::check_depth_units(&inputs.depth, source)
-    {
-        problems.push(e);
+    if let Some(source) = &depth_source {
+        match checks::check_depth_units(&inputs.depth, source) {
+            Err(e) => problems.push(e),
+            Ok(()) => {
+                if let Some(w) = checks::kinect_near_warning(&inputs.rig, &inputs.depth, source) {
+                    eprintln!("warning: {w}");
+                }
+            }
+        }
     }
     // The overlap test is meaningless on a depth of the wrong unit or a colour image that is
     // not one: one mistake at a time.

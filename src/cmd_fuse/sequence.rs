@@ -133,9 +133,9 @@ fn output_names() -> Vec<String> {
     .into()
 }
 
-/// [`checks::check_mirror`] of `rig` (read from `rig_path`) against the factory parameters
+/// [`checks::check_against_factory`] of `rig` (read from `rig_path`) against the factory parameters
 /// in `params` (`source` names where they came from): an error, or a warning with `--force`.
-fn check_mirror(
+fn check_against_factory(
     rig: &Rig,
     rig_path: &Path,
     params: &Path,
@@ -145,12 +145,14 @@ fn check_mirror(
     let factory = match inputs::factory_rig(params) {
         Ok(f) => f,
         Err(e) => {
-            eprintln!("warning: the rig's orientation is not checked: {e:#}");
+            eprintln!(
+                "warning: the rig is not checked against the sensor's factory parameters: {e:#}"
+            );
             return Ok(());
         }
     };
     let name = rig_path.display().to_string();
-    if let Err(problem) = checks::check_mirror(
+    if let Err(problem) = checks::check_against_factory(
         rig,
         &name,
         &factory,
@@ -253,7 +255,7 @@ pub fn run(args: &FuseArgs) -> Result<()> {
             Some(r) => {
                 let rig = load_rig(r, args.force)?;
                 let params = staged.join(inputs::FACTORY_PARAMS);
-                check_mirror(&rig, r, &params, &path.display().to_string(), args.force)?;
+                check_against_factory(&rig, r, &params, &path.display().to_string(), args.force)?;
                 rig
             }
             None => {
@@ -280,7 +282,13 @@ pub fn run(args: &FuseArgs) -> Result<()> {
             Some(r) => {
                 let rig = load_rig(r, args.force)?;
                 if params.is_file() {
-                    check_mirror(&rig, r, &params, &params.display().to_string(), args.force)?;
+                    check_against_factory(
+                        &rig,
+                        r,
+                        &params,
+                        &params.display().to_string(),
+                        args.force,
+                    )?;
                 }
                 rig
             }
