@@ -587,7 +587,7 @@ const KFUSE_YAML_KEYS: [&[&str]; 2] = [
 /// kfuse's own: a `kfuse-rig` / `kfuse-camera` JSON, or an OpenCV YAML with exactly the keys
 /// kfuse writes). A rerun into the same `rig.json` replaces it; anything else, a user's notes
 /// or OpenCV's own calibration, is kept unless `--overwrite` says otherwise.
-fn foreign_output(path: &Path, yaml: bool) -> Option<&'static str> {
+fn foreign_output(path: &Path, yaml: bool) -> Option<String> {
     use std::io::Read;
     let file = std::fs::File::open(path).ok()?;
     if !file.metadata().is_ok_and(|m| m.is_file()) {
@@ -595,7 +595,7 @@ fn foreign_output(path: &Path, yaml: bool) -> Option<&'static str> {
     }
     let mut text = String::new();
     if file.take(RECOGNISE_BYTES).read_to_string(&mut text).is_err() {
-        return Some("not a text file");
+        return Some("not a text file".into());
     }
     if yaml {
         let mut keys: Vec<&str> = text
@@ -605,15 +605,15 @@ fn foreign_output(path: &Path, yaml: bool) -> Option<&'static str> {
             .collect();
         keys.sort_unstable();
         let ours = text.starts_with("%YAML:1.0") && KFUSE_YAML_KEYS.contains(&keys.as_slice());
-        return (!ours).then_some("another YAML or text file");
+        return (!ours).then(|| "another YAML or text file".into());
     }
     let format = serde_json::from_str::<serde_json::Value>(&text)
         .ok()
         .and_then(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
     match format.as_deref() {
         Some(geometry::rig::RIG_FORMAT | calib::rig_io::CAMERA_FORMAT) => None,
-        Some(_) => Some("another program's JSON"),
-        None => Some("not a kfuse calibration file"),
+        Some(other) => Some(format!("a JSON file of format \"{other}\"")),
+        None => Some("not a kfuse calibration file".into()),
     }
 }
 

@@ -563,6 +563,8 @@ fn bad_files_fail_with_one_line_naming_the_file() {
         ("params.json", br#"{"format": "kfuse-kinect-params", "depth": {"width": 512}}"#.to_vec(), "depth.height"),
         ("image.png", b"\x89PNG\r\n\x1a\n\xff\xfe\x00\x01".to_vec(), "image.png"),
         ("ros.yaml", b"image_width: 512\nimage_height: 424\ncamera_name: depth\ndistortion_model: equidistant\n".to_vec(), "equidistant"),
+        // Bouguet's script of its results (was "not valid YAML").
+        ("Calib_Results_left.m", b"% Intrinsic and Extrinsic Camera Parameters\n%\nfc = [ 364.1 ; 365.1 ];\n".to_vec(), "give the .mat file it saved beside it"),
     ];
     for (name, bytes, needle) in cases {
         std::fs::write(p(name), bytes).unwrap();

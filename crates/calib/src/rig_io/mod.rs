@@ -270,6 +270,18 @@ pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
     }
     let text = read_text(first)?;
     let trimmed = text.trim_start_matches('\u{feff}').trim_start();
+    // Bouguet's toolbox saves its results twice: Calib_Results*.mat (read here) and a MATLAB
+    // script of the same name, .m, whose lines start with '%' comments and `fc = [ … ];`.
+    if first.extension().is_some_and(|e| e == "m") && trimmed.starts_with('%') {
+        let mat = first.with_extension("mat");
+        return Err(fmt_err(
+            first,
+            format!(
+                "is the Bouguet toolbox's MATLAB script, which kfuse does not run; give the .mat file it saved beside it ({})",
+                mat.display()
+            ),
+        ));
+    }
     if trimmed.starts_with('{') {
         expect_count(sources, 1, "a JSON file")?;
         return import_json(&text, first);
