@@ -202,8 +202,8 @@ enum CaptureMode {
         /// Output folder.
         #[arg(long, default_value = "calib_capture")]
         out: PathBuf,
-        /// Number of shots.
-        #[arg(long, default_value_t = 20)]
+        /// Number of shots (at least 1).
+        #[arg(long, default_value_t = 20, value_parser = clap::builder::RangedI64ValueParser::<usize>::new().range(1..))]
         count: usize,
         /// Seconds between automatic shots (0..86400); without it, each line on stdin (Enter)
         /// takes a shot.
@@ -226,8 +226,8 @@ enum CaptureMode {
         /// File name prefix: a plain file name (no folders, no `..`); files go into --out.
         #[arg(long, default_value = "scene", value_parser = parse_plain_name)]
         name: String,
-        /// Number of scenes to save (numbered when more than one).
-        #[arg(long, default_value_t = 1)]
+        /// Number of scenes to save (numbered when more than one; at least 1).
+        #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedI64ValueParser::<usize>::new().range(1..))]
         count: usize,
         /// Seconds before each automatic save (0..86400); without it, press Enter.
         #[arg(long, value_parser = parse_interval)]
@@ -256,8 +256,8 @@ enum CaptureMode {
             default_value = "capture.kfrec"
         )]
         output: PathBuf,
-        /// Depth frames to record.
-        #[arg(long, default_value_t = 150)]
+        /// Depth frames to record (at least 1).
+        #[arg(long, default_value_t = 150, value_parser = clap::value_parser!(u64).range(1..))]
         frames: u64,
         /// Replace an existing file.
         #[arg(long)]
@@ -436,6 +436,13 @@ fn shots(
     common: &CommonArgs,
     correction: Option<&DepthCorrection>,
 ) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        bail!(
+            "--out {}: exists and is not a folder; shots are saved into a folder: give a folder name such as {}",
+            out.display(),
+            if kind == ShotKind::Calib { "calib_shots" } else { "scenes" }
+        );
+    }
     let files = |n: &str| shot_files(out, n, kind);
     if !overwrite && let Some(p) = names.iter().flat_map(|n| files(n)).find(|p| p.exists()) {
         bail!(
@@ -466,7 +473,7 @@ fn shots(
         match wait(&trigger, &mut session) {
             Ok(Waited::Shoot) => {}
             Ok(Waited::StdinClosed) => {
-                eprintln!("stdin closed: stopping after {saved} shots");
+                eprintln!("stdin closed: stopping after {saved} shot(s)");
                 stdin_closed = true;
                 break;
             }
@@ -566,6 +573,12 @@ fn report_counters(session: &Session) {
 }
 
 fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> Result<()> {
+    if output.is_dir() {
+        bail!(
+            "--out {}: is a folder; a recording is one file: give a file name such as session.kfrec",
+            output.display()
+        );
+    }
     if output.exists() && !overwrite {
         bail!("{} already exists; pass --overwrite to replace it", output.display());
     }

@@ -758,3 +758,34 @@ fn sigterm_during_calib_leaves_only_whole_shots() {
     // 3 files per shot plus kinect_params.json: nothing else.
     assert_eq!(names.len(), 3 * shots.len() + 1, "{names:?}");
 }
+
+/// Output mistakes from a user's trial, each refused with one line before the sensor starts:
+/// a folder as the recording, a file as the shots' folder (was a raw "File exists (os error
+/// 17)"), and zero shots or frames (was exit 0 with nothing, or a recording of no frame).
+#[test]
+fn capture_outputs_and_counts_are_checked_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("rig.json");
+    std::fs::write(&file, "{}").unwrap();
+    let run = |args: &[&str]| {
+        let o = kfuse().args(args).stdin(std::process::Stdio::null()).output().unwrap();
+        (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let d = dir.path().to_str().unwrap();
+    let f = file.to_str().unwrap();
+    let (code, err) = run(&["capture", "record", "--backend", "sim", "--out", d]);
+    assert!(code == Some(1) && err.contains("is a folder; a recording is one file"), "{err}");
+    let (code, err) = run(&["capture", "scene", "--backend", "sim", "--interval", "0", "--out", f]);
+    assert!(code == Some(1) && err.contains("exists and is not a folder"), "{err}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "{}");
+    for args in [
+        &["capture", "calib", "--backend", "sim", "--count", "0", "--out", d][..],
+        &["capture", "record", "--backend", "sim", "--frames", "0", "--out", f][..],
+    ] {
+        let (code, err) = run(args);
+        assert!(code == Some(2) && err.contains("0 is not in 1.."), "{args:?}: {err}");
+    }
+    let names: Vec<_> =
+        std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names, ["rig.json"]);
+}
