@@ -192,10 +192,16 @@ fn import(a: ImportArgs) -> Result<()> {
         imported.calibration = mirrored(imported.calibration, &a.sources[0]);
         imported.notes.push("mirrored left-right (--mirror)".into());
     }
-    if let Calibration::Rig(rig) = &imported.calibration
-        && let Some((true, note)) = rig_io::show::kinect_orientation(rig)
-    {
-        imported.notes.push(note);
+    match &imported.calibration {
+        Calibration::Rig(rig) => {
+            if let Some((true, note)) = rig_io::show::kinect_orientation(rig) {
+                imported.notes.push(note);
+            }
+        }
+        Calibration::Camera { camera, role: Some(role), .. } => {
+            imported.notes.extend(rig_io::show::kinect_role_mismatch(camera, *role));
+        }
+        Calibration::Camera { .. } => {}
     }
     let problems = imported.calibration.plausibility_problems();
     if !problems.is_empty() {

@@ -78,11 +78,30 @@ fn fov_deg(c: &CameraModel) -> (f64, f64) {
     (h.to_degrees(), v.to_degrees())
 }
 
+/// For a single camera given a role: a note when its image size is the other Kinect v2
+/// camera's (a 512x424 camera as the colour camera), `None` otherwise.
+pub fn kinect_role_mismatch(c: &CameraModel, role: Role) -> Option<String> {
+    let (other, this) = match role {
+        Role::Color => (KINECT_DEPTH_SIZE, "colour"),
+        Role::Depth => (KINECT_COLOR_SIZE, "depth"),
+    };
+    ((c.width, c.height) == other).then(|| {
+        let that = if this == "colour" { "depth/IR" } else { "colour" };
+        format!(
+            "a {}x{} camera as the {this} camera: that is the Kinect v2's {that} camera's size (--camera the other way?)",
+            c.width, c.height
+        )
+    })
+}
+
 /// The checks of one camera.
 pub fn camera_checks(c: &CameraModel, role: Option<Role>) -> Vec<Finding> {
     let k = &c.intrinsics;
     let name = role.map(|r| r.name()).unwrap_or("camera");
     let mut out = Vec::new();
+    if let Some(note) = role.and_then(|r| kinect_role_mismatch(c, r)) {
+        out.push(finding(true, note));
+    }
     let aspect = k.fy / k.fx;
     out.push(finding(
         (aspect - 1.0).abs() > MAX_ASPECT_DEVIATION,
@@ -155,7 +174,12 @@ pub fn rig_checks(rig: &Rig) -> Vec<Finding> {
         out.push(finding(false, text));
     }
     let sizes = ((rig.depth.width, rig.depth.height), (rig.color.width, rig.color.height));
-    if sizes != (KINECT_DEPTH_SIZE, KINECT_COLOR_SIZE) {
+    if sizes == (KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE) {
+        out.push(finding(
+            true,
+            "the depth camera is 1920x1080 and the colour camera 512x424: the Kinect v2's two cameras exchanged (--ir and --color swapped when it was calibrated?)".into(),
+        ));
+    } else if sizes != (KINECT_DEPTH_SIZE, KINECT_COLOR_SIZE) {
         out.push(finding(
             false,
             format!(
@@ -300,5 +324,25 @@ mod tests {
         );
         let f = camera_checks(&lab, Some(Role::Depth));
         assert!(f.iter().any(|f| f.warning && f.text.contains("inside the image")), "{f:?}");
+    }
+
+    /// The Kinect's cameras exchanged (a rig calibrated with --ir and --color swapped, a mono
+    /// file imported as the other camera) are warnings, not "ok"; the right way round is not.
+    #[test]
+    fn kinect_cameras_exchanged_are_warned_about() {
+        let good = geometry::synth::kinect_rig();
+        let mut swapped = good.clone();
+        std::mem::swap(&mut swapped.depth, &mut swapped.color);
+        let w: Vec<String> =
+            rig_checks(&swapped).into_iter().filter(|f| f.warning).map(|f| f.text).collect();
+        assert!(w.iter().any(|t| t.contains("two cameras exchanged")), "{w:?}");
+        assert!(kinect_role_mismatch(&good.depth, Role::Color).is_some());
+        assert!(kinect_role_mismatch(&good.color, Role::Depth).is_some());
+        assert!(kinect_role_mismatch(&good.depth, Role::Depth).is_none());
+        assert!(kinect_role_mismatch(&good.color, Role::Color).is_none());
+        // `geometry::synth`'s rig, modelled on the lab's Bouguet result, has its colour camera
+        // at +51.9 mm (the lab's orientation); mirrored, at −51.9 mm (kfuse capture's).
+        assert!(matches!(kinect_orientation(&good), Some((true, _))));
+        assert!(matches!(kinect_orientation(&good.mirrored()), Some((false, _))));
     }
 }
