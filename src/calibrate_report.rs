@@ -158,8 +158,20 @@ pub(crate) fn print_stereo(s: &StereoCalibration, ir_views: &[ViewCorners]) {
         "  {:<28} {:>10} {:>10} {:>10} {:>10}",
         "pair", "IR RMS", "colour RMS", "IR weight", "col weight"
     );
+    // A pair without the board in one camera (`--allow-unpaired`) or left out of the joint fit
+    // has no value there: "-", not NaN.
+    let cell = |v: f64, digits: usize| {
+        if v.is_finite() { format!("{v:.digits$}") } else { "-".to_string() }
+    };
     for (i, ((d, c), (wd, wc))) in s.view_rms_px.iter().zip(&s.view_weights).enumerate() {
-        println!("  {:<28} {:>10.4} {:>10.4} {:>10.2} {:>10.2}", ir_views[i].name, d, c, wd, wc);
+        println!(
+            "  {:<28} {:>10} {:>10} {:>10} {:>10}",
+            ir_views[i].name,
+            cell(*d, 4),
+            cell(*c, 4),
+            cell(*wd, 2),
+            cell(*wc, 2)
+        );
     }
     println!(
         "  (weights: 1 = the camera's own noise level; a noisier view counts less in the joint fit)"

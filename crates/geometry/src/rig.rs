@@ -115,6 +115,10 @@ const TRANSFORM_KEYS: [&str; 2] = ["rotation", "translation_m"];
 const DEPTH_CORRECTION_KEYS: [&str; 6] = ["version", "width", "height", "model", "terms", "fit"];
 const DEPTH_TERM_KEYS: [&str; 3] = ["term", "value", "std"];
 
+/// Longest part of an unknown key shown in a message, characters: 40, twice the longest key of
+/// the format; a file's garbage key must not fill the terminal.
+const MAX_SHOWN_KEY_CHARS: usize = 40;
+
 /// The keys of `object` (a JSON object at `place`) that are not in `known`, one message each:
 /// "unknown key \"K3\" in depth_camera (…)".
 pub fn unknown_keys(object: &serde_json::Value, place: &str, known: &[&str]) -> Vec<String> {
@@ -127,8 +131,13 @@ pub fn unknown_keys(object: &serde_json::Value, place: &str, known: &[&str]) -> 
                 .find(|n| n.eq_ignore_ascii_case(k) || n.replace('_', "") == k.replace('_', ""))
                 .map(|n| format!(" (\"{n}\"?)"))
                 .unwrap_or_default();
+            // The key as text that cannot carry control characters or run on for a page.
+            let mut shown: String = k.escape_debug().take(MAX_SHOWN_KEY_CHARS).collect();
+            if k.escape_debug().nth(MAX_SHOWN_KEY_CHARS).is_some() {
+                shown.push('…');
+            }
             format!(
-                "unknown key \"{k}\" in {place}{close}; the keys there are {}: a misspelt key would be ignored",
+                "unknown key \"{shown}\" in {place}{close}; the keys there are {}: a misspelt key would be ignored",
                 known.join(", ")
             )
         })
