@@ -471,3 +471,29 @@ fn gpu_decodes_and_registers_a_recording_like_the_cpu() {
         }
     }
 }
+
+/// A frame folder whose shot lacks its colour image: the shot is named with that reason (not
+/// "no colour frame within 16.6 ms", a recording's timing), and the rig the run used is named.
+#[test]
+fn a_folder_shot_without_colour_is_named_as_such() {
+    let dir = tempfile::tempdir().unwrap();
+    let shots = dir.path().join("shots");
+    ok(&kfuse()
+        .args(["capture", "scene", "--backend", "sim", "--interval", "0", "--count", "2"])
+        .arg("--out")
+        .arg(&shots)
+        .output()
+        .unwrap());
+    std::fs::remove_file(shots.join("scene_0002_color.jpg")).unwrap();
+    let err = ok(&kfuse()
+        .arg("fuse")
+        .arg("--frames")
+        .arg(&shots)
+        .arg("--out")
+        .arg(dir.path().join("f"))
+        .output()
+        .unwrap());
+    assert!(err.contains("frame scene_0002: no colour image of this shot"), "{err}");
+    assert!(err.contains("rig: fitted to the sensor's factory parameters"), "{err}");
+    assert!(!err.contains("ms;"), "{err}");
+}

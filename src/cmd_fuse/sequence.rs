@@ -299,7 +299,12 @@ pub fn run(args: &FuseArgs) -> Result<()> {
                         frames.display()
                     );
                 }
-                load_rig(&params, args.force)?
+                let rig = load_rig(&params, args.force)?;
+                eprintln!(
+                    "rig: fitted to the sensor's factory parameters in {} (pass --rig for a calibrated one)",
+                    params.display()
+                );
+                rig
             }
         };
         let progress = Progress::Shots(folder.shots.len() as u64);
@@ -355,12 +360,17 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         match r {
             Report::Frame(entry, kept) => {
                 if entry.color.is_none() {
+                    // A folder's shots have no timestamps: a missing colour file, not a skew.
+                    let why = if seq.recording.is_some() {
+                        format!("no colour frame within {} ms", seq.max_skew_ms)
+                    } else {
+                        "no colour image of this shot".to_string()
+                    };
                     warn(
                         &bar,
                         format!(
-                            "frame {}: no colour frame within {} ms; its depth is written without colour",
+                            "frame {}: {why}; its depth is written without colour",
                             entry.name.clone().unwrap_or_else(|| entry.number.to_string()),
-                            seq.max_skew_ms
                         ),
                     );
                 }
