@@ -95,6 +95,25 @@ pub fn factory_rig(params: &Path) -> Result<Rig> {
     }
 }
 
+/// [`checks::check_against_factory`] of `rig` (read from `rig_path`) against the factory
+/// parameters in `params` (`source` says where they came from), as a problem. The check is a
+/// service: an unreadable parameter file is no reason to refuse a rig that the user gave, so it
+/// only gets a warning.
+pub fn factory_problem(rig: &Rig, rig_path: &Path, params: &Path, source: &str) -> Option<String> {
+    let factory = match factory_rig(params) {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!(
+                "warning: the rig is not checked against the sensor's factory parameters: {e:#}"
+            );
+            return None;
+        }
+    };
+    let name = rig_path.display().to_string();
+    let factory_name = format!("the sensor's factory parameters in {source}");
+    checks::check_against_factory(rig, &name, &factory, &factory_name).err()
+}
+
 /// Images from `kfuse capture` have the sensor's factory parameters beside them: a rig that
 /// does not fit them ([`checks::check_against_factory`]), or the capture's IR image given as
 /// the depth, adds a problem.
@@ -113,22 +132,7 @@ fn check_beside_capture(
                 depth.display()
             ));
         }
-        // The check is a service: an unreadable parameter file beside the images is no reason
-        // to refuse a rig that the user gave.
-        let factory = match factory_rig(&params) {
-            Ok(f) => f,
-            Err(e) => {
-                eprintln!(
-                    "warning: the rig is not checked against the sensor's factory parameters: {e:#}"
-                );
-                return Ok(());
-            }
-        };
-        let rig_name = rig_path.display().to_string();
-        let params_name = format!("the sensor's factory parameters in {}", params.display());
-        if let Err(e) = checks::check_against_factory(rig, &rig_name, &factory, &params_name) {
-            problems.push(e);
-        }
+        problems.extend(factory_problem(rig, rig_path, &params, &params.display().to_string()));
     }
     Ok(())
 }

@@ -21,7 +21,7 @@ use kfuse_sequence::tum;
 use kfuse_sequence::write::{self, FileSet, FrameWriter, Index, Layout};
 use kinect_usb::recording::ReadOptions;
 
-use super::{FuseArgs, checks, inputs};
+use super::{FuseArgs, inputs};
 
 /// Worker threads of the pipeline: its stages form two groups (read…register, encode+write),
 /// so a third thread would have nothing of its own to do.
@@ -133,7 +133,7 @@ fn output_names() -> Vec<String> {
     .into()
 }
 
-/// [`checks::check_against_factory`] of `rig` (read from `rig_path`) against the factory parameters
+/// [`inputs::factory_problem`] of `rig` (read from `rig_path`) against the factory parameters
 /// in `params` (`source` names where they came from): an error, or a warning with `--force`.
 fn check_against_factory(
     rig: &Rig,
@@ -142,22 +142,7 @@ fn check_against_factory(
     source: &str,
     force: bool,
 ) -> Result<()> {
-    let factory = match inputs::factory_rig(params) {
-        Ok(f) => f,
-        Err(e) => {
-            eprintln!(
-                "warning: the rig is not checked against the sensor's factory parameters: {e:#}"
-            );
-            return Ok(());
-        }
-    };
-    let name = rig_path.display().to_string();
-    if let Err(problem) = checks::check_against_factory(
-        rig,
-        &name,
-        &factory,
-        &format!("the sensor's factory parameters in {source}"),
-    ) {
+    if let Some(problem) = inputs::factory_problem(rig, rig_path, params, source) {
         if !force {
             bail!("{problem}; pass --force if this really is meant");
         }
