@@ -432,14 +432,42 @@ fn with_images<'a>(
 fn check_not_swapped(ir: &[PathBuf], color: &[PathBuf]) -> Result<()> {
     let size =
         |files: &[PathBuf]| files.first().and_then(|f| kfuse_io::image_header::image_size(f).ok());
-    if let (Some(i), Some(c)) = (size(ir), size(color))
-        && (i, c) == ((1920, 1080), (512, 424))
-    {
-        bail!(
+    match (size(ir), size(color)) {
+        (Some((1920, 1080)), Some((512, 424))) => bail!(
             "the --ir images are 1920x1080 and the --color images 512x424: the Kinect v2's colour camera is the 1920x1080 one; are --ir and --color swapped?"
-        );
+        ),
+        // One camera: other cameras may have these sizes, so a warning only.
+        (Some((1920, 1080)), None) => println!(
+            "WARNING: the --ir images are 1920x1080, the Kinect v2's colour size: meant as --color?"
+        ),
+        (None, Some((512, 424))) => println!(
+            "WARNING: the --color images are 512x424, the Kinect v2's IR size: meant as --ir?"
+        ),
+        _ => {}
     }
     Ok(())
+}
+
+/// The rig's JSON, once it reads back as every other command reads rigs: a depth correction
+/// outside what a sensor's error can be (`geometry::depth_correction`'s limits) was written with
+/// exit 0 and then refused by `rig show` and `fuse`. The usual cause is a wrong `--square`,
+/// which scales the boards' distances and with them the fitted depth scale (30mm for 40 mm
+/// gave +33.9 %).
+fn readable_rig_json(rig: &geometry::Rig, out: &Path) -> Result<String> {
+    let text = rig.to_json();
+    if let Err(e) = geometry::Rig::from_json(&text, out) {
+        let e = e.to_string();
+        let why = e.strip_prefix(&format!("{}: ", out.display())).unwrap_or(&e);
+        let hint = if rig.depth_correction.is_some() {
+            "; a wrong --square scales the boards' distances and so the depth scale: check the printed square's side"
+        } else {
+            ""
+        };
+        bail!(
+            "the calibration gives a rig that kfuse cannot use ({why}){hint}; nothing was written"
+        );
+    }
+    Ok(text)
 }
 
 /// Largest ratio of the stereo fit's RMS to the worse single-camera RMS for pairs of one
@@ -537,10 +565,10 @@ fn check_outputs<'a>(
             );
         }
         if !args.overwrite
-            && let Some(what) = foreign_output(path, flag == "--opencv-yaml")
+            && let Some(what) = foreign_output(path, flag == "--opencv-yaml", writes_rig(args))
         {
             bail!(
-                "{flag} {}: exists and is {what}, not a file kfuse calibrate wrote; give another file name, or pass --overwrite to replace it",
+                "{flag} {}: exists and is {what}; give another file name, or pass --overwrite to replace it",
                 path.display()
             );
         }
@@ -587,7 +615,7 @@ const KFUSE_YAML_KEYS: [&[&str]; 2] = [
 /// kfuse's own: a `kfuse-rig` / `kfuse-camera` JSON, or an OpenCV YAML with exactly the keys
 /// kfuse writes). A rerun into the same `rig.json` replaces it; anything else, a user's notes
 /// or OpenCV's own calibration, is kept unless `--overwrite` says otherwise.
-fn foreign_output(path: &Path, yaml: bool) -> Option<String> {
+fn foreign_output(path: &Path, yaml: bool, rig: bool) -> Option<String> {
     use std::io::Read;
     let file = std::fs::File::open(path).ok()?;
     if !file.metadata().is_ok_and(|m| m.is_file()) {
@@ -610,11 +638,27 @@ fn foreign_output(path: &Path, yaml: bool) -> Option<String> {
     let format = serde_json::from_str::<serde_json::Value>(&text)
         .ok()
         .and_then(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
-    match format.as_deref() {
-        Some(geometry::rig::RIG_FORMAT | calib::rig_io::CAMERA_FORMAT) => None,
-        Some(other) => Some(format!("a JSON file of format \"{other}\"")),
-        None => Some("not a kfuse calibration file".into()),
+    // Replaced by the same kind only: a single-camera run into a two-camera rig would lose
+    // the other camera and the extrinsics (and the other way round a camera file).
+    match (format.as_deref(), rig) {
+        (Some(geometry::rig::RIG_FORMAT), true) | (Some(calib::rig_io::CAMERA_FORMAT), false) => {
+            None
+        }
+        (Some(geometry::rig::RIG_FORMAT), false) => {
+            Some("a two-camera rig, and this run writes a single-camera file".into())
+        }
+        (Some(calib::rig_io::CAMERA_FORMAT), true) => {
+            Some("a single-camera file, and this run writes a two-camera rig".into())
+        }
+        (Some(other), _) => Some(format!("a JSON file of format \"{other}\"")),
+        (None, _) => Some("not a kfuse calibration file".into()),
     }
+}
+
+/// Whether this run writes a two-camera rig (IR and colour images, or `--rig` with
+/// `--depth`) rather than a single-camera file.
+fn writes_rig(args: &CalibrateArgs) -> bool {
+    (!args.color.is_empty() && !args.ir.is_empty()) || args.rig.is_some()
 }
 
 /// What an interrupted `calibrate` says it did.
@@ -742,7 +786,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             report["depth_correction"] = fit.report_json();
             depth_fit = Some(fit);
         }
-        outputs.push((args.out.clone(), rig.to_json()));
+        outputs.push((args.out.clone(), readable_rig_json(&rig, &args.out)?));
         if let Some(y) = &args.opencv_yaml {
             outputs.push((y.clone(), opencv_yaml_rig(&rig)));
         }
@@ -754,7 +798,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         depth::print_fit(&fit);
         rig.depth_correction = Some(Box::new(depth::correction_of(&fit)));
         report = serde_json::json!({ "depth_correction": fit.report_json() });
-        outputs.push((args.out.clone(), rig.to_json()));
+        outputs.push((args.out.clone(), readable_rig_json(&rig, &args.out)?));
         depth_fit = Some(fit);
     } else {
         let (name, views, files, limit) = if ir_files.is_empty() {

@@ -193,11 +193,16 @@ fn import(a: ImportArgs) -> Result<()> {
         imported.notes.push("mirrored left-right (--mirror)".into());
     }
     match &imported.calibration {
-        Calibration::Rig(rig) => {
-            if let Some((true, note)) = rig_io::show::kinect_orientation(rig) {
-                imported.notes.push(note);
-            }
-        }
+        Calibration::Rig(rig) => match rig_io::show::kinect_orientation(rig) {
+            // --mirror of a rig that already had kfuse capture's orientation.
+            Some((true, _)) if a.mirror => imported.notes.push(format!(
+                "--mirror turned a rig of kfuse capture's orientation into one of mirrored images (colour camera now at x = {:+.1} mm): to fuse kfuse captures, import {} without --mirror",
+                rig.color_centre_in_depth().x * 1000.0,
+                a.sources[0].display()
+            )),
+            Some((true, note)) => imported.notes.push(note),
+            _ => {}
+        },
         Calibration::Camera { camera, role: Some(role), .. } => {
             imported.notes.extend(rig_io::show::kinect_role_mismatch(camera, *role));
         }

@@ -480,7 +480,17 @@ fn rectified_images_fuse_like_the_raw_ones_only_with_rectified() {
         plane_rms(&out)
     };
     let rectified = fuse(&rig, "rectified", &["--rectified"]);
-    let twice = fuse(&rig, "twice", &[]);
+    // Without --rectified, undistort's outputs are refused (they would be undistorted twice);
+    // --force fuses them anyway, for the comparison below.
+    let args = ["--rig", s(&rig), "--color", s(&color), "--depth", s(&depth)];
+    let o = fuse_args(&dir.join("refused"), &args);
+    let line = one_error_line(&o);
+    assert!(
+        line.contains("color_rect.png: was written by kfuse undistort")
+            && line.contains("--rectified"),
+        "{line}"
+    );
+    let twice = fuse(&rig, "twice", &["--force"]);
     // The rig file's field says the same as the flag.
     let mut v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&rig).unwrap()).unwrap();

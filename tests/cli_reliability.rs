@@ -451,7 +451,17 @@ fn calibrate_replaces_only_its_own_files_without_overwrite() {
         kfuse(&[&["calibrate", "--ir", s(&pattern), "--out", s(out)][..], extra].concat())
     };
     let o = run(&notes, &[]);
-    assert_one_line_failure(&o, "notes.json", "not a file kfuse calibrate wrote");
+    assert_one_line_failure(&o, "notes.json", "not a kfuse calibration file");
+    // A two-camera rig (here one that `rig import` could have written) is not replaced by
+    // this single-camera run: the other camera and the extrinsics would be lost.
+    let two = dir.join("two.json");
+    rigio::write_rig(&two, &small_rig()).unwrap();
+    let o = run(&two, &[]);
+    assert_one_line_failure(
+        &o,
+        "two.json",
+        "a two-camera rig, and this run writes a single-camera file",
+    );
     let fresh = dir.join("ir.json");
     let o = run(&fresh, &["--opencv-yaml", s(&yaml)]);
     assert_one_line_failure(&o, "cam.yaml", "pass --overwrite");

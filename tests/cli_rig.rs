@@ -620,6 +620,8 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let mirrored = tmp.path().join("mirrored.json");
     let text = ok(&["rig", "import", s(&factory), "--mirror", "--out", s(&mirrored)]);
     assert!(text.contains("mirrored left-right"), "{text}");
+    // The factory rig already has kfuse capture's orientation: the note says --mirror undid it.
+    assert!(text.contains("--mirror turned a rig of kfuse capture's orientation"), "{text}");
     // The factory rig: colour camera 52 mm along −x (SimProfile::synthetic's shift_m, 1e-6 m
     // of f32 rounding); mirrored, along +x.
     let x = |p: &Path| read_rig(p).color_centre_in_depth().x;
@@ -660,7 +662,10 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let ir = only_file(&cap, "_ir.png");
     let args = ["fuse", "--rig", s(&factory), "--color", s(&color), "--depth", s(&ir)];
     let (good, _, err) = kfuse(&[&args[..], &["--out", s(&tmp.path().join("f4"))]].concat());
-    assert!(!good && err.contains("is the IR (brightness) image of a kfuse capture"), "{err}");
+    assert!(
+        !good && err.contains("is named as kfuse capture names the IR (brightness) image"),
+        "{err}"
+    );
     assert!(err.contains("scene_depth.png"), "{err}");
     let mm = kfuse_io::images::read_depth(&depth, 0.001).unwrap();
     let cm = geometry::Image::from_fn(mm.width(), mm.height(), |x, y| *mm.get(x, y) * 0.1);

@@ -115,26 +115,47 @@ pub fn factory_problem(rig: &Rig, rig_path: &Path, params: &Path, source: &str) 
 }
 
 /// Images from `kfuse capture` have the sensor's factory parameters beside them: a rig that
-/// does not fit them ([`checks::check_against_factory`]), or the capture's IR image given as
-/// the depth, adds a problem.
+/// does not fit them ([`checks::check_against_factory`]) adds a problem, and so does a depth
+/// file named as kfuse names IR images.
 fn check_beside_capture(
     rig: &Rig,
     rig_path: &Path,
     depth_path: &Path,
     problems: &mut Vec<String>,
 ) -> Result<()> {
+    if let Some(depth) = capture_depth_of_ir(depth_path) {
+        // Named as kfuse capture names IR images, with or without the capture's folder around.
+        let depth_hint = if depth.is_file() {
+            format!("the depth of this shot is {}", depth.display())
+        } else {
+            format!("its depth would be named {}", depth.display())
+        };
+        problems.push(format!(
+            "{}: is named as kfuse capture names the IR (brightness) image of a shot, not its depth; {depth_hint}",
+            depth_path.display()
+        ));
+    }
     let params = depth_path.parent().unwrap_or(Path::new(".")).join(FACTORY_PARAMS);
     if params.is_file() {
-        if let Some(depth) = capture_depth_of_ir(depth_path) {
-            problems.push(format!(
-                "{}: is the IR (brightness) image of a kfuse capture, not its depth; the depth of this shot is {}",
-                depth_path.display(),
-                depth.display()
-            ));
-        }
         problems.extend(factory_problem(rig, rig_path, &params, &params.display().to_string()));
     }
     Ok(())
+}
+
+/// For an image that `kfuse undistort` wrote (named `NAME_rect.EXT` and listed in its folder's
+/// kfuse manifest): the problem of fusing it without `--rectified`, which would undistort it a
+/// second time (with the Kinect's IR lens, ~2 px at the image corners).
+fn undistorted_note(path: &Path) -> Option<String> {
+    let name = path.file_name()?.to_str()?;
+    let stem = Path::new(name).file_stem()?.to_str()?;
+    let folder = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    (stem.ends_with("_rect") && kfuse_io::atomic::written_by_kfuse(folder).iter().any(|n| n == name))
+        .then(|| {
+            format!(
+                "{}: was written by kfuse undistort (already undistorted); pass --rectified, or it is undistorted a second time",
+                path.display()
+            )
+        })
 }
 
 /// For a file named as `kfuse capture` names IR images (`NAME_ir.png`, `ir_NNNN.png`), the
@@ -250,6 +271,9 @@ fn load_files(args: &FuseArgs, problems: &mut Vec<String>) -> Result<Loaded> {
     };
     let rig = read_rig(rig_path, args.force)?;
     check_beside_capture(&rig, rig_path, depth_path, problems)?;
+    if !args.rectified && !rig.rectified {
+        problems.extend([color_path, depth_path].into_iter().filter_map(|p| undistorted_note(p)));
+    }
     let color = read_color(color_path, &rig, rig_path, problems)?;
     let (depth, source) = read_depth(depth_path, args.depth_scale, &rig, rig_path)?;
     let kind = match args.depth_kind {
