@@ -31,9 +31,44 @@ fn lock<T>(m: &'static Mutex<T>) -> MutexGuard<'static, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-fn track(path: &Path) {
-    lock(&UNPUBLISHED).push(path.to_path_buf());
+/// Creates `path` with `create` and records it as unpublished, both under the lock that
+/// [`remove_unpublished`] takes and keeps until the process exits: either the removal sees the
+/// new path, or it ran first and this waits (until exit), so nothing is created behind its
+/// back. (Recording first and creating after left a staging folder behind when the second
+/// Ctrl-C came in between.)
+fn track_created<T>(
+    path: &Path,
+    create: impl FnOnce() -> std::io::Result<T>,
+) -> std::io::Result<T> {
+    let mut unpublished = lock(&UNPUBLISHED);
+    let created = create();
+    if created.is_ok() {
+        unpublished.push(path.to_path_buf());
+    }
+    created
 }
+
+/// Tries to remove an unpublished staging folder while this process's workers may still be
+/// writing into it: renamed away first (a worker's later paths then lead nowhere), then
+/// removed, again while a file created in the meantime makes the folder non-empty.
+fn remove_staging(path: &Path) {
+    // Still named `…{STAGING_PREFIX}{pid}`, so that a later run removes it if this one cannot.
+    let doomed = path.with_file_name(format!(
+        ".removing{}",
+        path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+    ));
+    let target = if fs::rename(path, &doomed).is_ok() { doomed } else { path.to_path_buf() };
+    for _ in 0..REMOVE_ATTEMPTS {
+        if fs::remove_dir_all(&target).is_ok() || !target.exists() {
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+}
+
+/// Attempts at removing a staging folder that a worker is still writing into: 50 (2 ms apart,
+/// 0.1 s at most). After the rename a worker can only finish a file it had already opened.
+const REMOVE_ATTEMPTS: usize = 50;
 
 fn untrack(path: &Path) {
     let mut unpublished = lock(&UNPUBLISHED);
@@ -67,7 +102,11 @@ pub fn remove_unpublished() -> PublishingStopped {
     let mut unpublished = lock(&UNPUBLISHED);
     let removed = unpublished.len();
     for path in unpublished.drain(..) {
-        let _ = if path.is_dir() { fs::remove_dir_all(&path) } else { fs::remove_file(&path) };
+        if path.is_dir() {
+            remove_staging(&path);
+        } else {
+            let _ = fs::remove_file(&path);
+        }
     }
     PublishingStopped { removed, _publishing: publishing, _unpublished: unpublished }
 }
@@ -114,9 +153,8 @@ where
     let path = &writable_target(path)?;
     remove_stale_temporaries(path);
     let tmp = temporary_name(path);
-    track(&tmp);
     let result = (|| {
-        let file = fs::File::create(&tmp)?;
+        let file = track_created(&tmp, || fs::File::create(&tmp))?;
         let mut buffered = std::io::BufWriter::new(file);
         write(&mut buffered)?;
         let file = buffered.into_inner().map_err(|e| e.into_error())?;
@@ -278,8 +316,7 @@ impl StagedDir {
                 if staging.exists() {
                     fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
                 }
-                track(&staging);
-                fs::create_dir(&staging).map_err(io_err(&staging))?;
+                track_created(&staging, || fs::create_dir(&staging)).map_err(io_err(&staging))?;
                 return Ok(Self {
                     staging,
                     destination: destination.to_path_buf(),
@@ -304,8 +341,7 @@ impl StagedDir {
         if staging.exists() {
             fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
         }
-        track(&staging);
-        fs::create_dir_all(&staging).map_err(io_err(&staging))?;
+        track_created(&staging, || fs::create_dir_all(&staging)).map_err(io_err(&staging))?;
         Ok(Self {
             staging,
             destination: destination.to_path_buf(),
@@ -473,9 +509,8 @@ impl StagedFiles {
             let prefix = format!(".{}.partial-", name.to_string_lossy());
             remove_stale_files(dir, &prefix);
         }
-        track(&tmp);
         let result = (|| {
-            let mut file = fs::File::create(&tmp)?;
+            let mut file = track_created(&tmp, || fs::File::create(&tmp))?;
             file.write_all(bytes)?;
             file.sync_all()
         })();
