@@ -412,10 +412,11 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     }
     std::fs::remove_file(&fifo).unwrap();
     // Two outputs on one path: refused before work, the existing file kept (the YAML once
-    // replaced the rig file of the same name and the run failed). The file is kfuse's own
-    // rig, which a rerun may replace, so that the same-path checks are what refuses.
-    rigio::write_rig(&rig, &small_rig()).unwrap();
-    let mine = std::fs::read_to_string(&rig).unwrap();
+    // replaced the rig file of the same name and the run failed). The file is of the kind this
+    // colour-only run writes (a kfuse single-camera file), which a rerun may replace, so that
+    // the same-path checks are what refuses.
+    let mine = r#"{"format": "kfuse-camera", "version": 1}"#;
+    std::fs::write(&rig, mine).unwrap();
     let o =
         kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--opencv-yaml", s(&rig)]);
     assert_one_line_failure(&o, "rig_out.json", "same file as --out");

@@ -214,6 +214,30 @@ fn calibrate_depth_recovers_the_injected_error_and_corrects_a_held_out_view() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("at least 4 views"), "{err}");
     assert!(!dir.join("few.json").exists());
+    // A wrong --square (30 mm for the board's 40 mm) scales the boards' distances: the fitted
+    // depth scale (~+34 %) is beyond a sensor's error, which every command that reads rigs
+    // refuses; calibrate refuses to write it (it wrote it with exit 0 in a user's trial).
+    let o = kfuse(&[
+        "calibrate",
+        "--rig",
+        factory.to_str().unwrap(),
+        "--ir",
+        &ir,
+        "--depth",
+        &depth,
+        "--square",
+        "30mm",
+        "--out",
+        dir.join("square30.json").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains("term 'scale'")
+            && err.contains("check the printed square's side"),
+        "{err}"
+    );
+    assert!(!dir.join("square30.json").exists());
 
     // capture scene --rig: the raw depth kept, the corrected one beside it, within 2 mm RMS
     // of the scene's true z (the simulator's Kinect preset: objects before a wall).
