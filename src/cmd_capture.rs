@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use geometry::depth_correction::DepthCorrection;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -579,8 +579,24 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             output.display()
         );
     }
+    if output.as_os_str().to_string_lossy().ends_with('/') {
+        bail!(
+            "--out {}: names a folder; a recording is one file: give a file name such as {}session.kfrec",
+            output.display(),
+            output.display()
+        );
+    }
     if output.exists() && !overwrite {
         bail!("{} already exists; pass --overwrite to replace it", output.display());
+    }
+    // The folder of the recording is created, as the other commands create theirs.
+    if let Some(parent) = output.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if parent.exists() && !parent.is_dir() {
+            bail!("--out {}: {} is not a folder", output.display(), parent.display());
+        }
+        std::fs::create_dir_all(parent).with_context(|| {
+            format!("--out {}: creating {}", output.display(), parent.display())
+        })?;
     }
     let mut session = start(common)?;
     let bar = ProgressBar::new(frames);

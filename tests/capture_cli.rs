@@ -785,7 +785,16 @@ fn capture_outputs_and_counts_are_checked_first() {
         let (code, err) = run(args);
         assert!(code == Some(2) && err.contains("0 is not in 1.."), "{args:?}: {err}");
     }
+    let slash = format!("{d}/new/");
+    let (code, err) = run(&["capture", "record", "--backend", "sim", "--out", &slash]);
+    assert!(code == Some(1) && err.contains("names a folder; a recording is one file"), "{err}");
     let names: Vec<_> =
         std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(names, ["rig.json"]);
+    // A recording into a folder that does not exist yet: created, as other commands do (it
+    // was "No such file or directory (os error 2)").
+    let nested = dir.path().join("a/b/s.kfrec");
+    let n = nested.to_str().unwrap();
+    let (code, err) = run(&["capture", "record", "--backend", "sim", "--frames", "1", "--out", n]);
+    assert!(code == Some(0) && nested.is_file(), "{err}");
 }
