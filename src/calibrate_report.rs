@@ -315,7 +315,7 @@ fn errors_figure(
     path: &Path,
     cams: &[(&'static str, CameraModel, MonoCalibration, f64)],
 ) -> Result<()> {
-    let (w, h) = (1000usize, 300 * cams.len().max(1) + 40);
+    let (w, h) = (1000usize, 370 * cams.len().max(1) + 40);
     let mut buf = vec![255u8; w * h * 3];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
@@ -327,42 +327,66 @@ fn errors_figure(
         ))?;
         let areas = body.split_evenly((cams.len().max(1), 1));
         for ((name, _, m, limit), area) in cams.iter().zip(areas) {
-            let vals: Vec<(usize, f64, bool)> = m
-                .views
-                .iter()
-                .enumerate()
-                .filter(|(_, v)| v.rms_px.is_finite())
-                .map(|(i, v)| (i, v.rms_px, v.rejected.is_some()))
-                .collect();
-            let ymax = vals.iter().map(|v| v.1).fold(*limit, f64::max) * 1.15;
+            // One bar per image, named on the axis (rotated: up to ~40 names share 1000 px).
+            // A view without an RMS (no board, unreadable) gets a light full-height bar, so
+            // that every image of the table has its place here.
+            let n = m.views.len().max(1);
+            let names: Vec<String> = m.views.iter().map(|v| v.name.clone()).collect();
+            let ymax =
+                m.views.iter().map(|v| v.rms_px).filter(|e| e.is_finite()).fold(*limit, f64::max)
+                    * 1.15;
             let mut chart = ChartBuilder::on(&area)
                 .caption(
-                    format!("{name} camera (line: handout limit {limit} px; grey: rejected)"),
+                    format!(
+                        "{name} camera (line: handout limit {limit} px; grey: rejected, light grey: no RMS)"
+                    ),
                     (FONT_NAME, 16),
                 )
                 .margin(8)
-                .x_label_area_size(30)
+                .x_label_area_size(100)
                 .y_label_area_size(50)
-                .build_cartesian_2d(0f64..m.views.len() as f64, 0f64..ymax)?;
+                // `a..b` segmented has a segment for every value of a..=b: one per view.
+                .build_cartesian_2d((0..n - 1).into_segmented(), 0f64..ymax)?;
             chart
                 .configure_mesh()
                 .disable_x_mesh()
-                .x_desc("image index")
+                .x_labels(n)
+                // plotters centres a rotated label on its tick, so half of it would sit above
+                // the axis and be cut off: leading spaces (narrower than letters) move the
+                // name below.
+                .x_label_formatter(&|v| match v {
+                    SegmentValue::CenterOf(i) => names
+                        .get(*i)
+                        .map(|n| format!("{}{n}", " ".repeat(n.chars().count() * 2)))
+                        .unwrap_or_default(),
+                    _ => String::new(),
+                })
                 .y_desc("RMS px")
+                // Both axes first; then the x labels rotated (this order: label_style sets both).
                 .label_style((FONT_NAME, 12))
+                .x_label_style(
+                    (FONT_NAME, 11).into_font().transform(FontTransform::Rotate90).color(&BLACK),
+                )
                 .draw()?;
-            chart.draw_series(vals.iter().map(|&(i, e, rej)| {
-                let colour = if rej {
-                    RGBColor(160, 160, 160)
-                } else if e > *limit {
-                    RED
+            chart.draw_series(m.views.iter().enumerate().map(|(i, v)| {
+                let (top, colour) = if !v.rms_px.is_finite() {
+                    (ymax, RGBColor(225, 225, 225))
+                } else if v.rejected.is_some() {
+                    (v.rms_px, RGBColor(160, 160, 160))
+                } else if v.rms_px > *limit {
+                    (v.rms_px, RED)
                 } else {
-                    BLUE
+                    (v.rms_px, BLUE)
                 };
-                Rectangle::new([(i as f64 + 0.15, 0.0), (i as f64 + 0.85, e)], colour.filled())
+                let mut bar = Rectangle::new(
+                    [(SegmentValue::Exact(i), 0.0), (SegmentValue::Exact(i + 1), top)],
+                    colour.filled(),
+                );
+                bar.set_margin(0, 0, 3, 3);
+                bar
             }))?;
             chart.draw_series(LineSeries::new(
-                [(0.0, *limit), (m.views.len() as f64, *limit)],
+                [(SegmentValue::Exact(0), *limit), (SegmentValue::Exact(n), *limit)],
                 RED.stroke_width(2),
             ))?;
         }
