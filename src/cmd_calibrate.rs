@@ -432,15 +432,16 @@ fn with_images<'a>(
 fn check_not_swapped(ir: &[PathBuf], color: &[PathBuf]) -> Result<()> {
     let size =
         |files: &[PathBuf]| files.first().and_then(|f| kfuse_io::image_header::image_size(f).ok());
+    use calib::rig_io::show::{KINECT_COLOR_SIZE as COLOR, KINECT_DEPTH_SIZE as IR};
     match (size(ir), size(color)) {
-        (Some((1920, 1080)), Some((512, 424))) => bail!(
+        (Some(i), Some(c)) if (i, c) == (COLOR, IR) => bail!(
             "the --ir images are 1920x1080 and the --color images 512x424: the Kinect v2's colour camera is the 1920x1080 one; are --ir and --color swapped?"
         ),
         // One camera: other cameras may have these sizes, so a warning only.
-        (Some((1920, 1080)), None) => println!(
+        (Some(i), None) if i == COLOR => println!(
             "WARNING: the --ir images are 1920x1080, the Kinect v2's colour size: meant as --color?"
         ),
-        (None, Some((512, 424))) => println!(
+        (None, Some(c)) if c == IR => println!(
             "WARNING: the --color images are 512x424, the Kinect v2's IR size: meant as --ir?"
         ),
         _ => {}

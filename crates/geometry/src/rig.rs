@@ -377,10 +377,13 @@ impl Rig {
                 .into_iter()
                 .find_map(probe)
         };
-        let file: RigFile = serde_json::from_value(value.clone()).map_err(|e| {
+        // The value is moved (a rig's report is up to ~600 KB); only an error reads the text
+        // again to find the section.
+        let file: RigFile = serde_json::from_value(value).map_err(|e| {
             format_err(if is_rig {
                 // It says it is a rig: the fix is in the file, not a new calibration.
-                let what = section_error(&value).unwrap_or_else(|| e.to_string());
+                let again = serde_json::from_str(text).unwrap_or_default();
+                let what = section_error(&again).unwrap_or_else(|| e.to_string());
                 format!("a kfuse rig file with an error: {what}; correct it, or write it again with `kfuse calibrate` or `kfuse rig import`")
             } else {
                 format!("not a kfuse rig file ({e}); create one with `kfuse calibrate`")
