@@ -136,15 +136,13 @@ fn swapped_inputs_and_existing_outputs_are_refused() {
     assert!(!p("back.json").exists());
     // Existing outputs: kept unless --overwrite.
     std::fs::write(p("notes.yml"), "mine").unwrap();
-    let (good, _, err) = kfuse(&[
-        "rig",
-        "export",
-        s(&p("rig.json")),
-        "--format",
-        "opencv",
-        "--out",
-        s(&p("notes.yml")),
-    ]);
+    // `rig export rig.json --format opencv --out OUT [EXTRA…]`.
+    let rig_json = p("rig.json");
+    let export_opencv = |out: &Path, extra: &[&str]| {
+        let args = ["rig", "export", s(&rig_json), "--format", "opencv", "--out", s(out)];
+        kfuse(&[&args[..], extra].concat())
+    };
+    let (good, _, err) = export_opencv(&p("notes.yml"), &[]);
     assert!(!good && err.contains("notes.yml") && err.contains("--overwrite"), "{err}");
     assert_eq!(std::fs::read_to_string(p("notes.yml")).unwrap(), "mine");
     let (good, _, err) = kfuse(&["rig", "import", s(&stereo), "--out", s(&p("notes.yml"))]);
@@ -172,16 +170,7 @@ fn swapped_inputs_and_existing_outputs_are_refused() {
     }
     assert_eq!(std::fs::read(&bq_left).unwrap(), before);
     ok(&["rig", "import", s(&bq_stereo), "--out", s(&p("again.json"))]);
-    let (good, _, err) = kfuse(&[
-        "rig",
-        "export",
-        s(&p("rig.json")),
-        "--format",
-        "opencv",
-        "--out",
-        s(&p("rig.json")),
-        "--overwrite",
-    ]);
+    let (good, _, err) = export_opencv(&p("rig.json"), &["--overwrite"]);
     assert!(!good && err.contains("is one of the input files"), "{err}");
     assert!(read_rig(&p("rig.json")).depth.width == 512);
 }

@@ -118,19 +118,13 @@ fn calibrate_depth_recovers_the_injected_error_and_corrects_a_held_out_view() {
     let report = dir.join("report");
     let ir = format!("{}/ir_*.png", caps.display());
     let depth = format!("{}/depth_*.png", caps.display());
-    let o = kfuse(&[
-        "calibrate",
-        "--rig",
-        factory.to_str().unwrap(),
-        "--ir",
-        &ir,
-        "--depth",
-        &depth,
-        "--out",
-        rig_path.to_str().unwrap(),
-        "--report",
-        report.to_str().unwrap(),
-    ]);
+    // `calibrate --rig FACTORY --ir … --depth … --out OUT [EXTRA…]` on the captured shots.
+    let calibrate_depth = |out: &Path, extra: &[&str]| {
+        let args =
+            ["calibrate", "--rig", factory.to_str().unwrap(), "--ir", &ir, "--depth", &depth];
+        kfuse(&[&args[..], &["--out", out.to_str().unwrap()], extra].concat())
+    };
+    let o = calibrate_depth(&rig_path, &["--report", report.to_str().unwrap()]);
     let text =
         format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
     assert!(o.status.success(), "{text}");
@@ -217,19 +211,7 @@ fn calibrate_depth_recovers_the_injected_error_and_corrects_a_held_out_view() {
     // A wrong --square (30 mm for the board's 40 mm) scales the boards' distances: the fitted
     // depth scale (~+34 %) is beyond a sensor's error, which every command that reads rigs
     // refuses; calibrate refuses to write it (it wrote it with exit 0 in a user's trial).
-    let o = kfuse(&[
-        "calibrate",
-        "--rig",
-        factory.to_str().unwrap(),
-        "--ir",
-        &ir,
-        "--depth",
-        &depth,
-        "--square",
-        "30mm",
-        "--out",
-        dir.join("square30.json").to_str().unwrap(),
-    ]);
+    let o = calibrate_depth(&dir.join("square30.json"), &["--square", "30mm"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success()
