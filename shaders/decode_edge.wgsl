@@ -7,7 +7,7 @@
 // Shared by the three decode shaders (decode_stage1/_filter/_edge.wgsl), field for field the
 // Rust struct fusion_gpu::stages::decode::Params.
 struct Params {
-    // (pixels, row stride of the dispatch, opaque 0, unused)
+    // (pixels, row stride of the dispatch, opaque 0, mirror: 1 = scene orientation, 0 = sensor)
     size: vec4<u32>,
     // (bilateral filter on, edge-aware filter on, A* is the minimum amplitude, unused)
     flags: vec4<u32>,
@@ -40,6 +40,12 @@ const W: u32 = 512u;
 const H: u32 = 424u;
 
 @group(0) @binding(0) var<uniform> params: Params;
+
+// The output column of processing column x: mirrored (W - 1 - x) in the scene orientation,
+// kfuse's rule (size.w = 1; kinect_usb::orientation), as is in the sensor's (size.w = 0).
+fn out_column(x: u32) -> u32 {
+    return select(x, W - 1u - x, params.size.w != 0u);
+}
 // Stage 2: per processing pixel (depth mm, amplitude sum, valid for the neighbour min/max, 0).
 @group(0) @binding(1) var<storage, read> pre: array<vec4<f32>>;
 // Upright depth, millimetres (the decoder's output).
@@ -108,7 +114,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             result = select(0.0f, dc, keep_it);
         }
     }
-    let o = (H - 1u - y) * W + x;
+    let o = (H - 1u - y) * W + out_column(x);
     depth_mm[o] = result;
     depth_m[o] = result * params.edge2.y;
 }

@@ -17,7 +17,7 @@
 // Shared by the three decode shaders (decode_stage1/_filter/_edge.wgsl), field for field the
 // Rust struct fusion_gpu::stages::decode::Params.
 struct Params {
-    // (pixels, row stride of the dispatch, opaque 0, unused)
+    // (pixels, row stride of the dispatch, opaque 0, mirror: 1 = scene orientation, 0 = sensor)
     size: vec4<u32>,
     // (bilateral filter on, edge-aware filter on, A* is the minimum amplitude, unused)
     flags: vec4<u32>,

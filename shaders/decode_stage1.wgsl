@@ -13,7 +13,7 @@
 // Shared by the three decode shaders (decode_stage1/_filter/_edge.wgsl), field for field the
 // Rust struct fusion_gpu::stages::decode::Params.
 struct Params {
-    // (pixels, row stride of the dispatch, opaque 0, unused)
+    // (pixels, row stride of the dispatch, opaque 0, mirror: 1 = scene orientation, 0 = sensor)
     size: vec4<u32>,
     // (bilateral filter on, edge-aware filter on, A* is the minimum amplitude, unused)
     flags: vec4<u32>,
@@ -50,6 +50,12 @@ const SUB_IMAGE_BYTES: u32 = 298496u; // 704 * 424
 const SAT: f32 = 32767.0f;
 
 @group(0) @binding(0) var<uniform> params: Params;
+
+// The output column of processing column x: mirrored (W - 1 - x) in the scene orientation,
+// kfuse's rule (size.w = 1; kinect_usb::orientation), as is in the sensor's (size.w = 0).
+fn out_column(x: u32) -> u32 {
+    return select(x, W - 1u - x, params.size.w != 0u);
+}
 // The raw frame as little-endian 32-bit words (2 984 960 bytes).
 @group(0) @binding(1) var<storage, read> raw: array<u32>;
 // The 2048-entry companding LUT (protocol §8) as f32.
@@ -148,5 +154,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     n2[i] = nn;
     let v = (amp[0] + amp[1] + amp[2]) * 0.3333333f * params.bil.x;
-    ir[(H - 1u - y) * W + x] = select(v, 65535.0f, v > 65535.0f);
+    ir[(H - 1u - y) * W + out_column(x)] = select(v, 65535.0f, v > 65535.0f);
 }

@@ -43,8 +43,8 @@ enum RigCommand {
 
 EXAMPLES:
   kfuse rig import ../shared/data/kinect-lab/Calib_Results_stereo.mat --out rig.json
-  kfuse rig import ../shared/data/kinect-lab/Calib_Results_stereo.mat --mirror --out for-kfuse-captures.json
   kfuse rig import caps/kinect_params.json --out rig.json
+  kfuse rig import old-caps/kinect_params.json --mirror --out rig.json   # version 1: mirrored images
   kfuse rig import intrinsics.yml extrinsics.yml --t-units mm --depth-size 512x424 --color-size 1920x1080 --out rig.json")]
 pub struct ImportArgs {
     /// The calibration file(s).
@@ -72,9 +72,10 @@ pub struct ImportArgs {
     /// Which camera a single-camera source is.
     #[arg(long, value_parser = ["depth", "color"])]
     camera: Option<String>,
-    /// The calibration was made on images mirrored left-right (the lab's Bouguet results: their
-    /// colour camera sits at x = +52 mm of the IR camera, in `kfuse capture`'s images at
-    /// −52 mm): write the rig of the unmirrored images (cx → width − 1 − cx, skew and p2
+    /// The calibration was made on images mirrored left-right (raw libfreenect2 output, or
+    /// `kfuse capture` folders older than kinect_params.json version 2: their colour camera
+    /// sits at x = −52 mm of the IR camera, in images as the scene is, kfuse's rule, at
+    /// +52 mm): write the rig of the unmirrored images (cx → width − 1 − cx, skew and p2
     /// negated, R → M·R·M and T → M·T with M = diag(−1, 1, 1)). Accepts a kfuse rig too.
     #[arg(long)]
     mirror: bool,
@@ -194,9 +195,9 @@ fn import(a: ImportArgs) -> Result<()> {
     }
     match &imported.calibration {
         Calibration::Rig(rig) => match rig_io::show::kinect_orientation(rig) {
-            // --mirror of a rig that already had kfuse capture's orientation.
+            // --mirror of a rig that already was of images as the scene is.
             Some((true, _)) if a.mirror => imported.notes.push(format!(
-                "--mirror turned a rig of kfuse capture's orientation into one of mirrored images (colour camera now at x = {:+.1} mm): to fuse kfuse captures, import {} without --mirror",
+                "--mirror turned a rig of images as the scene is (kfuse's orientation) into one of mirrored images (colour camera now at x = {:+.1} mm): to fuse kfuse captures, import {} without --mirror",
                 rig.color_centre_in_depth().x * 1000.0,
                 a.sources[0].display()
             )),

@@ -39,11 +39,11 @@ fn record_three_sim_frames(dir: &Path) -> std::path::PathBuf {
 }
 
 /// The calibration scene's depth (mm) at pose `k` (`kinect_usb::sim::calib_scene`), rendered
-/// with the simulated sensor's profile.
+/// with the simulated sensor's profile, as the scene is (what a capture writes).
 fn calib_scene_mm(k: usize) -> Vec<f32> {
     use kinect_usb::sim::calib_scene::{FactoryRig, render_pose};
     let (_, profile) = kfuse_capture::source::sim_scene();
-    render_pose(&FactoryRig::of_profile(&profile).unwrap(), k).0
+    render_pose(&FactoryRig::of_scene(&profile).unwrap(), k).0
 }
 
 /// Calibration capture through the real CLI path (sim → USB protocol → iso parser → decoder →

@@ -404,8 +404,10 @@ fn kinect_params_of_the_simulated_sensor_become_an_exact_rig() {
     assert!(rig.color.distortion.k1.abs() < 1e-6 && rig.color.distortion.k2.abs() < 1e-6);
     assert!(rig.color_from_depth.angle_deg() < 1e-4);
     let t = rig.color_from_depth.translation;
-    // SimProfile::synthetic's 52 mm parallax (shift_m); 1e-6 m: f32 rounding of shift_m/shift_d.
-    assert!((t.x - 0.052).abs() < 1e-6 && t.y.abs() < 1e-6 && t.z.abs() < 1e-6, "{t}");
+    // SimProfile::synthetic's 52 mm parallax (shift_m) of the sensor's mirrored stream, in
+    // kinect_params.json's scene orientation: t = −52 mm, the colour camera's centre at +52 mm;
+    // 1e-6 m: f32 rounding of shift_m/shift_d.
+    assert!((t.x + 0.052).abs() < 1e-6 && t.y.abs() < 1e-6 && t.z.abs() < 1e-6, "{t}");
 }
 
 /// The factory parameters of the registration vectors: real depth intrinsics and a colour
@@ -593,12 +595,13 @@ fn only_file(dir: &Path, suffix: &str) -> PathBuf {
     found[0].clone()
 }
 
-/// A rig calibrated on images mirrored left-right (the colour camera on the other side of the
-/// depth camera than the sensor's factory parameters say) is refused by `fuse` beside a
-/// capture's kinect_params.json, for one frame and for a folder of frames, with the fix;
-/// `rig import --mirror` converts it, and mirroring twice gives the rig back. (The lab's
-/// Bouguet rig has its colour camera at x = +52.2 mm, the protocol's and the simulated
-/// sensor's at −52 mm.)
+/// kfuse's orientation rule (images as the scene is): a capture's factory rig has the colour
+/// camera at +52 mm, as the lab's Bouguet rig (+52.2 mm), which fuses a capture as it is. A
+/// rig calibrated on images mirrored left-right (the colour camera on the other side of the
+/// depth camera than the sensor's factory parameters say: raw libfreenect2, old captures) is
+/// refused by `fuse` beside a capture's kinect_params.json, for one frame and for a folder of
+/// frames, with the fix; `rig import --mirror` converts it, and mirroring twice gives the rig
+/// back.
 #[test]
 fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let tmp = tempfile::tempdir().unwrap();
@@ -609,12 +612,12 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let mirrored = tmp.path().join("mirrored.json");
     let text = ok(&["rig", "import", s(&factory), "--mirror", "--out", s(&mirrored)]);
     assert!(text.contains("mirrored left-right"), "{text}");
-    // The factory rig already has kfuse capture's orientation: the note says --mirror undid it.
-    assert!(text.contains("--mirror turned a rig of kfuse capture's orientation"), "{text}");
-    // The factory rig: colour camera 52 mm along −x (SimProfile::synthetic's shift_m, 1e-6 m
-    // of f32 rounding); mirrored, along +x.
+    // The factory rig already is of images as the scene is: the note says --mirror undid it.
+    assert!(text.contains("--mirror turned a rig of images as the scene is"), "{text}");
+    // The factory rig: colour camera 52 mm along +x (SimProfile::synthetic's shift_m of the
+    // sensor's mirrored stream, mirrored back; 1e-6 m of f32 rounding); mirrored, along −x.
     let x = |p: &Path| read_rig(p).color_centre_in_depth().x;
-    assert!((x(&factory) + 0.052).abs() < 1e-6 && (x(&mirrored) - 0.052).abs() < 1e-6);
+    assert!((x(&factory) - 0.052).abs() < 1e-6 && (x(&mirrored) + 0.052).abs() < 1e-6);
     let (color, depth) = (only_file(&cap, "_color.jpg"), only_file(&cap, "_depth.png"));
     let fuse = |rig: &Path, out: &Path, extra: &[&str]| {
         let args = ["fuse", "--rig", s(rig), "--color", s(&color), "--depth", s(&depth)];
@@ -624,8 +627,9 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let (good, _, err) = fuse(&mirrored, &out, &[]);
     assert!(!good && !out.exists(), "{err}");
     assert!(
-        err.contains("mirrored.json puts the colour camera at x = +52.0 mm")
-            && err.contains("kinect_params.json at -52.0 mm")
+        err.contains("mirrored.json puts the colour camera at x = -52.0 mm")
+            && err.contains("kinect_params.json at +52.0 mm")
+            && err.contains("the rig was calibrated on images mirrored left-right")
             && err.contains("--mirror --out RIG.json"),
         "{err}"
     );
@@ -679,7 +683,8 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     ok(&["rig", "import", s(&mirrored), "--mirror", "--out", s(&back)]);
     assert!(rig_diff(&read_rig(&back), &read_rig(&factory)) < 1e-12);
 
-    // The lab's Bouguet rig: named on import, and --mirror puts its colour camera at −52.2 mm.
+    // The lab's Bouguet rig: of images as the scene is, as kfuse's, so no note on import, and
+    // it fuses a capture without --mirror; --mirror puts its colour camera at −52.2 mm, named.
     let Some(data) = shared("a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted")
     else {
         return;
@@ -687,30 +692,75 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     let stereo = lab(&data, "Calib_Results_stereo.mat");
     let lab_rig = tmp.path().join("lab.json");
     let text = ok(&["rig", "import", s(&stereo), "--out", s(&lab_rig)]);
-    assert!(
-        text.contains("x = +52.2 mm") && text.contains("mirrored left-right relative to"),
-        "{text}"
-    );
+    assert!(!text.contains("mirrored"), "{text}");
     let shown = ok(&["rig", "show", s(&lab_rig)]);
-    assert!(shown.contains("ok    orientation: the colour camera sits at x = +52.2 mm"), "{shown}");
+    assert!(
+        shown.contains("ok    orientation: the colour camera sits at x = +52.2 mm")
+            && shown.contains("images as the scene is"),
+        "{shown}"
+    );
+    let (good, _, err) = fuse(&lab_rig, &tmp.path().join("fused_lab"), &[]);
+    assert!(good && !err.contains("mirrored"), "{err}");
     let lab_mirrored = tmp.path().join("lab_mirrored.json");
     let text = ok(&["rig", "import", s(&stereo), "--mirror", "--out", s(&lab_mirrored)]);
-    assert!(!text.contains("relative to"), "{text}");
+    assert!(text.contains("--mirror turned a rig of images as the scene is"), "{text}");
     let shown = ok(&["rig", "show", s(&lab_mirrored)]);
-    assert!(shown.contains("x = -52.2 mm of the depth camera, as in `kfuse capture`'s"), "{shown}");
+    assert!(
+        shown.contains("x = -52.2 mm of the depth camera, a calibration of images mirrored"),
+        "{shown}"
+    );
     let (lab_r, m) = (read_rig(&lab_rig), read_rig(&lab_mirrored));
     // Bouguet's T = (−52.195, −0.262, 0.625) mm, R within 1.5° of identity: the centre is
     // −Rᵀ·T ≈ +52.2 mm along x; mirrored −52.2 mm, cx → 511 − cx.
     assert!((lab_r.color_centre_in_depth().x * 1000.0 - 52.2).abs() < 0.1);
     assert!((m.color_centre_in_depth().x * 1000.0 + 52.2).abs() < 0.1);
     assert_eq!(m.depth.intrinsics.cx, 511.0 - lab_r.depth.intrinsics.cx);
-    // The lab's KinectData.mat (the same rig) with a capture's images in place of its own.
+    // The lab's KinectData.mat (the same rig) with a capture's images in place of its own:
+    // the same orientation, accepted.
     let kd = lab(&data, "KinectData.mat");
     let args = ["fuse", "--mat", s(&kd), "--color", s(&color), "--depth", s(&depth)];
     let out = tmp.path().join("fused_kd");
     let (good, _, err) = kfuse(&[&args[..], &["--out", s(&out), "--no-figures"]].concat());
+    assert!(good && !err.contains("mirrored"), "{err}");
+    // A capture folder of the old rule (kinect_params.json version 1: the sensor's own
+    // parameters of mirrored images) beside the lab's rig: refused, the other way round.
+    let old = tmp.path().join("old");
+    std::fs::create_dir(&old).unwrap();
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(cap.join("kinect_params.json")).unwrap())
+            .unwrap();
+    v["version"] = 1.into();
+    v.as_object_mut().unwrap().remove("image_orientation");
+    let mirror_x = |v: &mut serde_json::Value, cam: &str, w: f64| {
+        v[cam]["cx"] = (w - 1.0 - v[cam]["cx"].as_f64().unwrap()).into();
+    };
+    mirror_x(&mut v, "depth", 512.0);
+    mirror_x(&mut v, "color", 1920.0);
+    v["depth"]["p2"] = (-v["depth"]["p2"].as_f64().unwrap()).into();
+    v["color"]["shift_m"] = (-v["color"]["shift_m"].as_f64().unwrap()).into();
+    for (key, signs) in [
+        ("mx", [1.0, -1.0, -1.0, 1.0, -1.0, -1.0, 1.0, 1.0, -1.0, -1.0]),
+        ("my", [-1.0, 1.0, 1.0, -1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0]),
+    ] {
+        for (c, sign) in v["color"][key].as_array_mut().unwrap().iter_mut().zip(signs) {
+            *c = (c.as_f64().unwrap() * sign).into();
+        }
+    }
+    std::fs::write(old.join("kinect_params.json"), v.to_string()).unwrap();
+    let old_depth = old.join("scene_depth.png");
+    std::fs::copy(&depth, &old_depth).unwrap();
+    let old_factory = tmp.path().join("old_factory.json");
+    let text = ok(&["rig", "import", s(&old.join("kinect_params.json")), "--out", s(&old_factory)]);
+    assert!(text.contains("parameters of mirrored images (kinect_params.json version 1"), "{text}");
+    assert!((x(&old_factory) + 0.052).abs() < 1e-6, "{}", x(&old_factory));
+    let args = ["fuse", "--rig", s(&lab_rig), "--color", s(&color), "--depth", s(&old_depth)];
+    let out = tmp.path().join("fused_old");
+    let (good, _, err) = kfuse(&[&args[..], &["--out", s(&out), "--no-figures"]].concat());
     assert!(
-        !good && err.contains("KinectData.mat puts the colour camera at x = +52.2 mm"),
+        !good
+            && err.contains("x = +52.2 mm")
+            && err.contains("these images are mirrored left-right")
+            && err.contains("--mirror"),
         "{err}"
     );
     assert!(!out.exists());

@@ -230,8 +230,13 @@ pub fn check_against_factory(
     }
     let (x, f) = (rig.color_centre_in_depth().x, factory.color_centre_in_depth().x);
     if x.abs() >= MIN_SIDE_OFFSET_M && f.abs() >= MIN_SIDE_OFFSET_M && x.signum() != f.signum() {
+        let why = if f > 0.0 {
+            "the rig was calibrated on images mirrored left-right (raw libfreenect2 output, or a kfuse capture older than kinect_params.json version 2), these images are as the scene is"
+        } else {
+            "these images are mirrored left-right (a kfuse capture older than kinect_params.json version 2), the rig is of images as the scene is (kfuse's, the Kinect SDK's, iai_kinect2's, the lab's Bouguet results)"
+        };
         return Err(format!(
-            "{rig_name} puts the colour camera at x = {:+.1} mm from the depth camera, but {factory_name} at {:+.1} mm: the rig was calibrated on images mirrored left-right (as the lab's Bouguet results are); convert it with `kfuse rig import {rig_name} --mirror --out RIG.json`",
+            "{rig_name} puts the colour camera at x = {:+.1} mm from the depth camera, but {factory_name} at {:+.1} mm: {why}; convert the rig with `kfuse rig import {rig_name} --mirror --out RIG.json`",
             x * 1000.0,
             f * 1000.0
         ));

@@ -512,10 +512,7 @@ fn draw_figures(
     options: &geometry::fusion::FusionOptions,
 ) -> Result<()> {
     let Some(jpeg) = &k.jpeg else { bail!("the frame has no colour") };
-    let color = image::load_from_memory(jpeg).context("decoding its colour JPEG")?.into_rgb8();
-    let (w, h) = (color.width() as usize, color.height() as usize);
-    let px = color.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let color = geometry::Image::from_vec(w, h, px)?;
+    let color = jpeg.decode().map_err(|e| anyhow::anyhow!("frame {}: {e}", k.number))?;
     let output = geometry::fusion::run(rig, &k.depth, DepthKind::Z, &color, options)?;
     let dir = staged.join(format!("figures/{:06}", k.number));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;

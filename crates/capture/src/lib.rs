@@ -15,15 +15,26 @@
 //!
 //! # Files of one shot
 //!
-//! A calibration shot `NNNN` is `color_NNNN.jpg` (the sensor's JPEG, unchanged), `ir_NNNN.png`
-//! (16-bit amplitude) and `depth_NNNN.png` (16-bit, millimetres, 0 = invalid); a scene `NAME`
-//! is `NAME_color.jpg`, `NAME_ir.png`, `NAME_depth.png`. `kinect_params.json` holds the factory
-//! intrinsics of both cameras.
+//! A calibration shot `NNNN` is `color_NNNN.jpg` (the sensor's colour frame mirrored into the
+//! scene orientation and encoded at `kfuse_io::sensor_color::MIRRORED_JPEG_QUALITY`),
+//! `ir_NNNN.png` (16-bit amplitude) and `depth_NNNN.png` (16-bit, millimetres, 0 = invalid); a
+//! scene `NAME` is `NAME_color.jpg`, `NAME_ir.png`, `NAME_depth.png`. `kinect_params.json`
+//! holds the factory intrinsics of both cameras, adjusted to the scene orientation
+//! ([`write_params_json`]).
+//!
+//! # Image orientation
+//!
+//! Every image kfuse writes is **as the scene is** (`kinect_usb::orientation`): the sensor
+//! streams mirrored images, the decoder writes depth and IR unmirrored, the shot writer mirrors
+//! the colour JPEG, and `kinect_params.json` (version 2, `"image_orientation": "scene"`) holds
+//! the factory parameters of the mirrored images, so its rig has the colour camera at
+//! x ≈ +52 mm, as the Kinect SDK's, iai_kinect2's and the lab's Bouguet calibrations do. A
+//! `.kfrec` recording keeps the raw packets, so one made before this rule replays in it too.
 //!
 //! # Conventions
 //!
 //! Those of `kinect-usb`: depth in millimetres as the sensor sends it (0 = invalid), images
-//! 512 × 424 row-major, upright; sensor timestamps in 0.125 ms units. Nothing here prints:
+//! 512 × 424 row-major, upright, as the scene is; sensor timestamps in 0.125 ms units. Nothing here prints:
 //! what a caller may want to show is returned (setting read-backs, replay reports).
 #![deny(missing_docs)]
 

@@ -201,7 +201,12 @@ impl Session {
     pub fn decoder(&self, options: &DecoderOptions) -> Result<DepthDecoder, CaptureError> {
         let xz = XzTables::from_params(&self.info.depth_params);
         let filters = !options.no_filters;
-        let cfg = DecoderConfig { bilateral: filters, edge_aware: filters, parallel: true };
+        let cfg = DecoderConfig {
+            bilateral: filters,
+            edge_aware: filters,
+            parallel: true,
+            ..DecoderConfig::default()
+        };
         let dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &self.info.p0)?;
         Ok(dec.with_precision(options.precision))
     }

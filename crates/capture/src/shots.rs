@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use kfuse_io::atomic::write_atomic;
 use kfuse_io::images::png16_value;
 use kinect_usb::device::DeviceInfo;
+use kinect_usb::orientation::Orientation;
 use kinect_usb::raw::{HEIGHT, WIDTH};
 
 use crate::CaptureError;
@@ -41,13 +42,22 @@ pub fn shot_files(out: &Path, name: &str, kind: ShotKind) -> [PathBuf; 3] {
     ]
 }
 
-/// Writes `out/kinect_params.json`: the factory intrinsics of both cameras.
+/// The version of `kinect_params.json` written: 2 holds the parameters of images in the
+/// scene orientation (`image_orientation`); version 1 files (kfuse before the orientation
+/// rule) hold the sensor's own, of mirrored images.
+pub const PARAMS_VERSION: u64 = 2;
+
+/// Writes `out/kinect_params.json`: the factory intrinsics of both cameras, of the images
+/// kfuse writes (`kinect_usb::orientation::Orientation::Scene`: the device's parameters
+/// mirrored, [`kinect_usb::params::DepthParams::mirrored`] and
+/// [`kinect_usb::params::ColorParams::mirrored`]).
 pub fn write_params_json(out: &Path, info: &DeviceInfo) -> Result<(), CaptureError> {
-    let d = &info.depth_params;
-    let c = &info.color_params;
+    let d = &info.depth_params.mirrored();
+    let c = &info.color_params.mirrored();
     let v = serde_json::json!({
         "format": "kfuse-kinect-params",
-        "version": 1,
+        "version": PARAMS_VERSION,
+        "image_orientation": Orientation::Scene.name(),
         "serial": info.serial,
         "firmware": info.firmware,
         "units": "pixels; shift_d and shift_m in millimetres",
@@ -115,8 +125,11 @@ impl ShotWriter {
     }
 
     /// Writes one shot: `files` (from [`shot_files`], inside the output folder) receive the
-    /// sensor's colour JPEG unchanged and the IR and depth (mm) as 16-bit PNGs. All three
-    /// appear together or none does. Error: a write failed (the staging folder is removed).
+    /// sensor's colour JPEG mirrored into the scene orientation
+    /// (`kfuse_io::sensor_color::mirrored_jpeg`: the IR and depth, from the decoder, are in it
+    /// already) and the IR and depth (mm) as 16-bit PNGs. All three appear together or none
+    /// does. Error: the colour frame does not decode, or a write failed (the staging folder is
+    /// removed).
     pub fn write(
         &self,
         files: &[PathBuf; 3],
@@ -126,10 +139,13 @@ impl ShotWriter {
     ) -> Result<(), CaptureError> {
         let stage = &self.stage;
         let staged = files.clone().map(|f| stage.join(f.file_name().unwrap_or_default()));
+        let color = kfuse_io::sensor_color::mirrored_jpeg(color_jpeg).map_err(|m| {
+            CaptureError::write(&files[0], format!("{m} (a damaged frame from the sensor)"))
+        })?;
         let r = std::fs::create_dir_all(stage)
             .map_err(|e| CaptureError::write(stage, e))
             .and_then(|()| {
-                write_atomic(&staged[0], |w| w.write_all(color_jpeg))
+                write_atomic(&staged[0], |w| w.write_all(&color))
                     .map_err(|e| CaptureError::write(&files[0], e))
             })
             .and_then(|()| write_png16(&staged[1], ir, WIDTH, HEIGHT))

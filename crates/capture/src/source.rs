@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use crate::CaptureError;
+use kinect_usb::orientation::mirror_rows;
 use kinect_usb::params::DepthParams;
 use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
 
@@ -79,37 +80,53 @@ impl SensorSource {
 
 /// The simulated scene (depth in mm, IR) and device profile of [`SensorSource::Sim`]:
 /// `geometry::synth`'s Kinect preset without noise, colour as a JPEG.
+///
+/// Like a real Kinect v2 the simulator streams **mirrored** images with the factory
+/// parameters of those (`kinect_usb::orientation`): the scene is rendered as it is, with the
+/// rig that is the mirror of the profile's factory rig (colour camera at x ≈ +52 mm), and each
+/// image is then mirrored left–right. A capture (which mirrors back) shows the rendered scene
+/// exactly, and its `kinect_params.json` describes the rendering rig.
 pub fn sim_scene() -> (SimScene, SimProfile) {
     let mut setup = geometry::synth::kinect_preset(false);
-    let profile = sim_profile(&setup.rig);
-    // Rendered with the rig the profile's factory parameters describe
-    // (`FactoryRig::of_profile`: pinhole colour camera, `color_from_depth` = +52 mm along x as
-    // on real devices, protocol §4.7, §11.2), so that `kinect_params.json` maps every point
-    // where the images show it.
+    let sensor_depth = setup.rig.depth.mirrored();
+    let profile = sim_profile(&sensor_depth, setup.rig.color.intrinsics.fx);
+    // Rendered with the mirror of the rig the profile's factory parameters describe
+    // (`FactoryRig::of_profile`: pinhole colour camera, `color_from_depth` = +52 mm along x in
+    // the sensor's mirrored images, protocol §4.7, §11.2), so that `kinect_params.json` maps
+    // every point where the images show it.
     if let Some(f) = kinect_usb::sim::calib_scene::FactoryRig::of_profile(&profile) {
         let [fx, fy, cx, cy] = f.color;
         let (w, h) = (setup.rig.color.width, setup.rig.color.height);
-        setup.rig.color = geometry::CameraModel::new(
+        let mut sensor_rig = setup.rig.clone();
+        sensor_rig.depth = sensor_depth;
+        sensor_rig.color = geometry::CameraModel::new(
             w,
             h,
             geometry::Intrinsics::new(fx, fy, cx, cy),
             geometry::Distortion::NONE,
         );
-        setup.rig.color_from_depth = geometry::RigidTransform::from_axis_angle(
+        sensor_rig.color_from_depth = geometry::RigidTransform::from_axis_angle(
             nalgebra::Vector3::zeros(),
             nalgebra::Vector3::from(f.t_m),
         );
+        setup.rig = sensor_rig.mirrored();
     }
     let frame = geometry::synth::render(&setup);
-    let depth_mm: Vec<f32> = frame
+    let (dw, _) = frame.depth.size();
+    let mut depth_mm: Vec<f32> = frame
         .depth
         .data()
         .iter()
         .map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 })
         .collect();
-    let ir: Vec<f32> = frame.amplitude.data().iter().map(|&a| a * SIM_IR_SCALE).collect();
+    let mut ir: Vec<f32> = frame.amplitude.data().iter().map(|&a| a * SIM_IR_SCALE).collect();
     let (cw, ch) = frame.color.size();
-    let rgb: Vec<u8> = frame.color.data().iter().flat_map(|p| p.iter().copied()).collect();
+    let mut color = frame.color.data().to_vec();
+    // What the sensor streams: the scene mirrored.
+    mirror_rows(&mut depth_mm, dw);
+    mirror_rows(&mut ir, dw);
+    mirror_rows(&mut color, cw);
+    let rgb: Vec<u8> = color.iter().flat_map(|p| p.iter().copied()).collect();
     let mut jpeg = Vec::new();
     let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, SIM_JPEG_QUALITY);
     let ok = image::ImageEncoder::write_image(
@@ -127,9 +144,9 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
     (scene, profile)
 }
 
-/// The simulated sensor's profile for `rig`'s depth camera and colour focal length.
-fn sim_profile(rig: &geometry::Rig) -> SimProfile {
-    let d = &rig.depth;
+/// The simulated sensor's profile for depth camera `d` (of the sensor's mirrored images) and
+/// colour focal length `color_fx`.
+fn sim_profile(d: &geometry::CameraModel, color_fx: f64) -> SimProfile {
     let params = DepthParams {
         fx: d.intrinsics.fx as f32,
         fy: d.intrinsics.fy as f32,
@@ -141,7 +158,7 @@ fn sim_profile(rig: &geometry::Rig) -> SimProfile {
         p1: d.distortion.p1 as f32,
         p2: d.distortion.p2 as f32,
     };
-    SimProfile::synthetic(params, rig.color.intrinsics.fx as f32)
+    SimProfile::synthetic(params, color_fx as f32)
 }
 
 /// The simulated device of [`SensorSource::Sim`] (fixed seed 1: runs are reproducible).

@@ -57,7 +57,12 @@ fn bench(c: &mut Criterion) {
         b.iter(|| gpu.decode(black_box(&raw), &mut depth, &mut ir).unwrap())
     });
     // The same without the bilateral and edge-aware filters: what the filters cost.
-    let bare = DecoderConfig { bilateral: false, edge_aware: false, parallel: true };
+    let bare = DecoderConfig {
+        bilateral: false,
+        edge_aware: false,
+        parallel: true,
+        ..DecoderConfig::default()
+    };
     let mut gpu_bare = GpuDecoder::new(&ctx, DecoderParams::default(), bare, &xz, &p0).unwrap();
     g.bench_function("gpu_frame_without_filters", |b| {
         b.iter(|| gpu_bare.decode(black_box(&raw), &mut depth, &mut ir).unwrap())

@@ -11,6 +11,7 @@ use common::context_or_skip;
 use fusion_gpu::{FramePlan, FusionContext, GpuDecoder, GpuError, METRES_PER_MM};
 use geometry::{DepthKind, Image};
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
+use kinect_usb::orientation::Orientation;
 use kinect_usb::params::{P0Tables, XzTables};
 use kinect_usb::raw::{HEIGHT, PIXELS, WIDTH};
 use kinect_usb::testdata::{ORACLE_RUNS as RUNS, read_bytes, read_f32, vectors_or_skip};
@@ -90,7 +91,12 @@ fn gpu_decoder_matches_cpu_fast_decoder_on_every_oracle_run() {
     );
     for &(frame, bil, edge, xt, zt, dref, iref) in RUNS {
         let xz = xz_tables(&dir, xt, zt);
-        let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel: true };
+        let cfg = DecoderConfig {
+            bilateral: bil,
+            edge_aware: edge,
+            parallel: true,
+            orientation: Orientation::Sensor,
+        };
         let raw = read_bytes(&dir.join(frame)).unwrap();
         let mut cpu = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0)
             .unwrap()

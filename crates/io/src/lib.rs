@@ -15,6 +15,7 @@
 //! | [`ply`] | binary PLY point clouds and meshes (colours, `s, t` texture coordinates) |
 //! | [`obj`] | OBJ + MTL + PNG texture |
 //! | [`rig`] | rig JSON files |
+//! | [`sensor_color`] | the Kinect v2's colour JPEG (streamed mirrored) decoded or re-encoded as the scene is |
 
 #![deny(missing_docs)]
 
@@ -28,3 +29,4 @@ pub mod obj;
 pub mod ply;
 pub mod raster;
 pub mod rig;
+pub mod sensor_color;

@@ -81,7 +81,12 @@ fn bench(c: &mut Criterion) {
         pool.install(|| {
             cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_on_2_threads"))
         });
-        dec.config = DecoderConfig { bilateral: false, edge_aware: false, parallel: false };
+        dec.config = DecoderConfig {
+            bilateral: false,
+            edge_aware: false,
+            parallel: false,
+            ..DecoderConfig::default()
+        };
         cpu_probe(&mut dec, &raw, &mut depth, &mut ir, &format!("{name}/filters_off_1_thread"));
         dec.config = single;
         g.bench_function(format!("{name}/filters_on_1_thread"), |b| {
@@ -91,7 +96,12 @@ fn bench(c: &mut Criterion) {
         g.bench_function(format!("{name}/filters_on_2_threads"), |b| {
             pool.install(|| b.iter(|| dec.decode(&raw, &mut depth, &mut ir).unwrap()))
         });
-        dec.config = DecoderConfig { bilateral: false, edge_aware: false, parallel: false };
+        dec.config = DecoderConfig {
+            bilateral: false,
+            edge_aware: false,
+            parallel: false,
+            ..DecoderConfig::default()
+        };
         g.bench_function(format!("{name}/filters_off_1_thread"), |b| {
             b.iter(|| dec.decode(&raw, &mut depth, &mut ir).unwrap())
         });

@@ -7,11 +7,13 @@
 //!
 //! # Conventions
 //!
-//! * Depth/IR images are 512 × 424 `f32`, row-major, **upright** (row 0 = top, the orientation
-//!   libfreenect2 delivers); pixel `(c, r)` = (column, row), integer coordinates are pixel centres.
+//! * Depth/IR images are 512 × 424 `f32`, row-major, **upright** (row 0 = top) and, by default,
+//!   **as the scene is** (not mirrored as the sensor streams them: [`orientation`]); pixel
+//!   `(c, r)` = (column, row), integer coordinates are pixel centres.
 //! * Depth is in **millimetres** along the optical axis (z); `0` (or −0.0) means invalid.
 //!   IR is decoder amplitude in `[0, 65535]`.
-//! * Colour frames are 1920 × 1080 baseline JPEG as sent by the sensor.
+//! * Colour frames are 1920 × 1080 baseline JPEG as sent by the sensor (mirrored: the consumer
+//!   that decodes them mirrors the pixels, [`orientation::mirror_rows`]).
 //! * All protocol fields are little-endian. Timestamps are in units of 0.125 ms.
 //! * Internally the decoder works in *processing* rows `y = 423 − r` (protocol §9.8).
 //! * Colour-camera settings (0x3E) and the LED API (0x4B) go out with sequence 0 and leave the
@@ -37,6 +39,7 @@ pub mod decoder;
 pub mod device;
 pub mod error;
 pub mod forward;
+pub mod orientation;
 pub mod params;
 pub mod protocol;
 pub mod raw;

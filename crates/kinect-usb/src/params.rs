@@ -2,7 +2,9 @@
 //! them (protocol §9.2).
 
 use crate::error::{KinectError, Result};
+use crate::orientation::mirror_coordinate;
 use crate::raw::{HEIGHT, PIXELS, WIDTH};
+use crate::registration::COLOR_WIDTH;
 
 /// Minimum size of the depth-camera parameter response (23 f32).
 pub const DEPTH_PARAMS_MIN_LEN: usize = 92;
@@ -63,6 +65,14 @@ impl DepthParams {
             p2: f32_at(b, 32),
             k3: f32_at(b, 36),
         })
+    }
+
+    /// The parameters of the same camera in left–right mirrored images
+    /// ([`crate::orientation`]): `cx → 511 − cx`, and `p2` negated (the tangential term that is
+    /// even in x); everything else is unchanged. Mirroring twice gives the parameters back
+    /// exactly.
+    pub fn mirrored(&self) -> Self {
+        DepthParams { cx: mirror_coordinate(self.cx, WIDTH), p2: -self.p2, ..*self }
     }
 
     /// Serialises to the 92-byte response layout (used by the simulated device).
@@ -141,7 +151,37 @@ pub struct ColorParams {
     pub my: [f32; 10],
 }
 
+/// Sign of each `mx` coefficient under mirroring: `wx'(a, b) = −wx(−a, b)`, so the monomial
+/// `a^i·b^j` (order x³, y³, x²y, xy², x², y², xy, x, y, 1; `i` = its power of x) keeps its
+/// coefficient times `(−1)^(i+1)`.
+const MIRROR_SIGN_MX: [f32; 10] = [1.0, -1.0, -1.0, 1.0, -1.0, -1.0, 1.0, 1.0, -1.0, -1.0];
+/// Sign of each `my` coefficient under mirroring: `wy'(a, b) = wy(−a, b)`, `(−1)^i`.
+const MIRROR_SIGN_MY: [f32; 10] = [-1.0, 1.0, 1.0, -1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0];
+
 impl ColorParams {
+    /// The factory registration of left–right mirrored depth and colour images
+    /// ([`crate::orientation`]), given the depth camera's [`DepthParams::mirrored`]: a depth
+    /// pixel `(511 − x, y)` at depth `z` then maps to colour pixel `(1919 − u, v)` where `(x, y)`
+    /// mapped to `(u, v)` (protocol §11.2: `u = (rx + shift_m/z)·f + cx`, so `cx → 1919 − cx`,
+    /// `shift_m → −shift_m` and `rx → −rx`, whose polynomial in the mirrored `(x − cx)` changes
+    /// the signs of [`MIRROR_SIGN_MX`]; `ry` is unchanged, [`MIRROR_SIGN_MY`]). Exact up to f32
+    /// rounding of `1919 − cx`; mirroring twice gives the parameters back exactly.
+    pub fn mirrored(&self) -> Self {
+        let mut mx = self.mx;
+        let mut my = self.my;
+        for i in 0..10 {
+            mx[i] *= MIRROR_SIGN_MX[i];
+            my[i] *= MIRROR_SIGN_MY[i];
+        }
+        ColorParams {
+            cx: mirror_coordinate(self.cx, COLOR_WIDTH),
+            shift_m: -self.shift_m,
+            mx,
+            my,
+            ..*self
+        }
+    }
+
     /// Parses the response to command 0x22 page 4.
     pub fn from_response(b: &[u8]) -> Result<Self> {
         if b.len() < COLOR_PARAMS_LEN {

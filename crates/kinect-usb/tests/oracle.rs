@@ -1,6 +1,7 @@
 //! Golden tests: the CPU decoder against every oracle run of the vectors' manifest.
 
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder, Kernels};
+use kinect_usb::orientation::Orientation;
 use kinect_usb::params::{P0Tables, XzTables};
 use kinect_usb::raw::PIXELS;
 use kinect_usb::testdata::{ORACLE_RUNS as RUNS, read_bytes, read_f32, vectors_or_skip};
@@ -32,7 +33,12 @@ fn decoder_matches_every_oracle_run_bit_for_bit() {
                 read_f32(&dir.join(zt)).unwrap(),
             )
             .unwrap();
-            let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel };
+            let cfg = DecoderConfig {
+                bilateral: bil,
+                edge_aware: edge,
+                parallel,
+                orientation: Orientation::Sensor,
+            };
             let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0)
                 .unwrap()
                 .with_precision(DecoderPrecision::Exact);
@@ -123,7 +129,12 @@ fn fast_decoder_within_spec_tolerance_of_every_oracle_run() {
         let xz =
             XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap())
                 .unwrap();
-        let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel: true };
+        let cfg = DecoderConfig {
+            bilateral: bil,
+            edge_aware: edge,
+            parallel: true,
+            orientation: Orientation::Sensor,
+        };
         let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0)
             .unwrap()
             .with_precision(DecoderPrecision::Fast);
@@ -188,7 +199,12 @@ fn avx2_kernels_equal_the_portable_kernels_bit_for_bit() {
             )
             .unwrap();
             let raw = read_bytes(&dir.join(frame)).unwrap();
-            let cfg = DecoderConfig { bilateral: bil, edge_aware: edge, parallel };
+            let cfg = DecoderConfig {
+                bilateral: bil,
+                edge_aware: edge,
+                parallel,
+                orientation: Orientation::Sensor,
+            };
             for (kernels, [depth, ir]) in
                 [Kernels::Portable, Kernels::Avx2].into_iter().zip(out.iter_mut())
             {
@@ -213,4 +229,51 @@ fn avx2_kernels_equal_the_portable_kernels_bit_for_bit() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
     // Count guard: 8 RUNS × (depth, IR) × 2 schedules = 32 AVX2-vs-portable comparisons.
     assert_eq!(compared, 32);
+}
+
+/// kfuse's orientation rule: `Orientation::Scene` (the default) writes every oracle run's depth
+/// and IR as the exact left–right mirror of `Orientation::Sensor`'s (the vectors'), bit for bit,
+/// with both filters on and off (the filters' neighbourhoods run in processing coordinates, so
+/// only the write position may change).
+#[test]
+fn scene_orientation_is_the_exact_mirror_of_the_sensor_stream() {
+    let Some(dir) = vectors_or_skip("scene_orientation_is_the_exact_mirror_of_the_sensor_stream")
+    else {
+        return;
+    };
+    assert_eq!(DecoderConfig::default().orientation, Orientation::Scene);
+    let p0 =
+        P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap())
+            .unwrap();
+    let w = kinect_usb::raw::WIDTH;
+    let mut checked = 0;
+    for &(frame, bil, edge, xt, zt, dref, _) in RUNS {
+        let xz =
+            XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap())
+                .unwrap();
+        let raw = read_bytes(&dir.join(frame)).unwrap();
+        let decode = |orientation| {
+            let cfg =
+                DecoderConfig { bilateral: bil, edge_aware: edge, parallel: true, orientation };
+            let mut dec = DepthDecoder::new(DecoderParams::default(), cfg, &xz, &p0).unwrap();
+            let (mut d, mut i) = (vec![0f32; PIXELS], vec![0f32; PIXELS]);
+            dec.decode(&raw, &mut d, &mut i).unwrap();
+            (d, i)
+        };
+        let (sd, si) = decode(Orientation::Sensor);
+        let (md, mi) = decode(Orientation::Scene);
+        for (name, sensor, scene) in [("depth", &sd, &md), ("ir", &si, &mi)] {
+            let mirrored_back: Vec<u32> = scene
+                .chunks_exact(w)
+                .flat_map(|row| row.iter().rev().map(|v| v.to_bits()))
+                .collect();
+            let sensor_bits: Vec<u32> = sensor.iter().map(|v| v.to_bits()).collect();
+            assert!(mirrored_back == sensor_bits, "{dref} {name}: scene ≠ mirrored sensor");
+            // Not a symmetric image (which any mirroring would pass): most rows differ.
+            let asymmetric = sensor.chunks_exact(w).filter(|r| r.iter().ne(r.iter().rev())).count();
+            assert!(asymmetric > 200, "{dref} {name}: only {asymmetric} asymmetric rows");
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 2 * RUNS.len());
 }

@@ -113,3 +113,43 @@ fn xz_tables_match_reference_tables() {
     }
     assert_eq!(exact, xr.len(), "x/z tables: {exact} of {} pixels bit-identical", xr.len());
 }
+
+/// The mirrored factory parameters of a real device (the vectors' cubic polynomials) describe
+/// the left–right mirrored images: depth pixel `(511 − x, y)` at depth `z` maps to colour pixel
+/// `(1919 − u, v)` where `(x, y)` maps to `(u, v)`. Tolerance 2e-3 px: the two mappings differ
+/// only by f32 rounding (of `511 − cx`, `1919 − cx` and the sums, ~1e-4 px at |u| ≤ 2000
+/// measured); a wrong sign of any one polynomial term moves points by ≥ 0.1 px at the image
+/// corners. Mirroring twice gives the parameters back bit for bit.
+#[test]
+fn mirrored_factory_parameters_map_mirrored_pixels() {
+    let Some(dir) = vectors_or_skip("mirrored_factory_parameters_map_mirrored_pixels") else {
+        return;
+    };
+    let d = DepthParams::from_response(
+        &read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap(),
+    )
+    .unwrap();
+    let c = ColorParams::from_response(
+        &read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(d.mirrored().mirrored(), d);
+    assert_eq!(c.mirrored().mirrored(), c);
+    let reg = Registration::new(&d, &c);
+    let mirrored = Registration::new(&d.mirrored(), &c.mirrored());
+    let (w, cw) = (kinect_usb::raw::WIDTH, COLOR_WIDTH as f32);
+    let mut worst: f32 = 0.0;
+    let mut compared = 0;
+    for y in (0..kinect_usb::raw::HEIGHT).step_by(7) {
+        for x in (0..w).step_by(5) {
+            for z in [500.0f32, 1200.0, 4500.0] {
+                let (u, v) = reg.map_point(x, y, z);
+                let (um, vm) = mirrored.map_point(w - 1 - x, y, z);
+                worst = worst.max(((cw - 1.0 - u) - um).abs()).max((v - vm).abs());
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 10_000);
+    assert!(worst < 2e-3, "mirrored parameters map {worst} px away from the mirrored pixel");
+}

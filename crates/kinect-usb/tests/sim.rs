@@ -6,6 +6,7 @@ use std::time::Duration;
 use kinect_usb::KinectError;
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DepthDecoder};
 use kinect_usb::device::{Frame, KinectDevice, State, StreamKind};
+use kinect_usb::orientation::Orientation;
 use kinect_usb::params::XzTables;
 use kinect_usb::raw::PIXELS;
 use kinect_usb::recording::{RecordingMeta, RecordingWriter, read_recording};
@@ -128,7 +129,12 @@ fn simulated_stream_decodes_to_the_scene() {
     let xz = XzTables::from_params(&profile.depth_params);
     let mut decoder = DepthDecoder::new(
         DecoderParams::default(),
-        DecoderConfig { bilateral: false, edge_aware: false, parallel: true },
+        DecoderConfig {
+            bilateral: false,
+            edge_aware: false,
+            parallel: true,
+            orientation: Orientation::Sensor,
+        },
         &xz,
         &profile.p0,
     )

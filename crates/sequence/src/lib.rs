@@ -10,19 +10,22 @@
 //! | 1 read | [`source`] | [`source::RecordingSource`]: the recording's packets assembled into depth frames and colour JPEGs (`kinect_usb::stream`), one record in memory at a time; [`source::FolderSource`]: the shots of a capture folder or glob |
 //! | 2 match | [`matching`] | depth and colour paired by the sensor's timestamps, frame numbers from the depth sequence numbers, every lost depth frame listed |
 //! | 3–4 decode, register | [`process`] | the `Fast` depth decoder, `geometry::fusion::Registration` (or `fusion_gpu::FusionContext::stream`), the hole mask, colour on the depth grid, the cloud |
-//! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the sensor's JPEG copied unchanged, `index.json` |
+//! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the colour JPEG as the scene is ([`color`]: a capture's copied unchanged, a recording's mirrored and encoded anew), `index.json` |
 //! | export | [`tum`] | `rgb.txt`, `depth.txt`, `associations.txt`, README of the TUM layout |
 //! | pipeline | [`pipeline`] | the stages on one or two worker threads joined by bounded queues; Ctrl-C finishes the frames in flight |
 //!
 //! # Conventions
 //!
-//! Sensor timestamps in ticks of 0.125 ms ([`source::TICKS_PER_SECOND`]), written as seconds
+//! Images as the scene is (`kinect_usb::orientation`): the decoder writes depth unmirrored, and a
+//! recording's colour JPEG, mirrored as the sensor streams it, is mirrored where it is used
+//! ([`color::ColorJpeg`]). Sensor timestamps in ticks of 0.125 ms ([`source::TICKS_PER_SECOND`]), written as seconds
 //! with six decimals (exact). Registered depth is the colour camera's `z` on the colour pixel
 //! grid (H7's z-buffer: the nearest sample per colour pixel), 0 = no sample, in millimetres
 //! (kfuse layout) or 1/5000 m (TUM layout). Frame numbers count depth frame periods from the
 //! first frame of the recording, so a lost frame leaves a gap in the numbers.
 #![deny(missing_docs)]
 
+pub mod color;
 pub mod error;
 pub mod matching;
 pub mod pipeline;

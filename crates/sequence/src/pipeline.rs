@@ -15,6 +15,7 @@ use std::time::Instant;
 use geometry::Image;
 use kinect_usb::recording::ReadReport;
 
+use crate::color::ColorJpeg;
 use crate::matching::{Matched, Matcher, Missing};
 use crate::process::{Decoded, GPU_BATCH, Processor};
 use crate::source::{FolderSource, RecordingSource};
@@ -45,7 +46,7 @@ pub struct Kept {
     /// Depth, metres, 0 = no sample.
     pub depth: Image<f32>,
     /// The colour JPEG.
-    pub jpeg: Option<Vec<u8>>,
+    pub jpeg: Option<ColorJpeg>,
 }
 
 /// What the pipeline reports, in frame order.
@@ -86,7 +87,7 @@ pub struct Outcome {
 struct Item {
     meta: FrameMeta,
     registered: crate::process::Registered,
-    jpeg: Option<Vec<u8>>,
+    jpeg: Option<ColorJpeg>,
     kept: Option<Box<Kept>>,
 }
 
@@ -101,7 +102,7 @@ struct Job {
     meta: FrameMeta,
     raw: Option<Vec<u8>>,
     depth_png: Option<std::path::PathBuf>,
-    jpeg: Option<Vec<u8>>,
+    jpeg: Option<ColorJpeg>,
 }
 
 /// The reading end: recording + matcher, or the folder's shots.
@@ -142,7 +143,7 @@ impl Reader {
                             },
                             raw: Some(p.depth.data),
                             depth_png: None,
-                            jpeg: p.color.map(|c| c.jpeg),
+                            jpeg: p.color.map(|c| ColorJpeg { bytes: c.jpeg, mirrored: true }),
                         }),
                     }));
                 }
@@ -187,7 +188,7 @@ impl Reader {
                     },
                     raw: None,
                     depth_png: Some(depth),
-                    jpeg,
+                    jpeg: jpeg.map(|bytes| ColorJpeg { bytes, mirrored: false }),
                 })))
             }
             (Input::Recording(..), None) => Ok(None),
@@ -301,7 +302,7 @@ fn consume(writer: &FrameWriter, s: Stage2, times: &mut StageSeconds) -> Result<
         Stage2::Frame(item) => {
             let Item { meta, registered, jpeg, kept } = *item;
             let t = Instant::now();
-            let encoded = writer.encode(meta, &registered, jpeg.as_deref())?;
+            let encoded = writer.encode(meta, &registered, jpeg.as_ref())?;
             drop(registered);
             times.encode += secs(t);
             let t = Instant::now();

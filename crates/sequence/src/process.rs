@@ -9,6 +9,7 @@
 
 use std::path::Path;
 
+use crate::color::ColorJpeg;
 use fusion_gpu::{FramePlan, FusionContext, GpuDecoder, GpuFrame, StageOptions};
 use geometry::fusion::pixel::ColorProjection;
 use geometry::fusion::{
@@ -95,7 +96,12 @@ pub struct Processor {
 /// 0.01 mm of libfreenect2's CPU decoder, protocol §9.9).
 pub fn recording_decoder(info: &DeviceInfo) -> Result<DepthDecoder> {
     let xz = XzTables::from_params(&info.depth_params);
-    let cfg = DecoderConfig { bilateral: true, edge_aware: true, parallel: false };
+    let cfg = DecoderConfig {
+        bilateral: true,
+        edge_aware: true,
+        parallel: false,
+        ..DecoderConfig::default()
+    };
     Ok(DepthDecoder::new(DecoderParams::default(), cfg, &xz, &info.p0)?
         .with_precision(DecoderPrecision::Fast))
 }
@@ -181,7 +187,12 @@ impl Processor {
             return Ok(false);
         }
         let xz = XzTables::from_params(&info.depth_params);
-        let cfg = DecoderConfig { bilateral: true, edge_aware: true, parallel: false };
+        let cfg = DecoderConfig {
+            bilateral: true,
+            edge_aware: true,
+            parallel: false,
+            ..DecoderConfig::default()
+        };
         self.gpu_decoder =
             Some(GpuDecoder::new(ctx, DecoderParams::default(), cfg, &xz, &info.p0)?);
         Ok(true)
@@ -241,15 +252,14 @@ impl Processor {
         Ok(depth)
     }
 
-    /// Decodes a colour JPEG when the extras need it, checked against the rig's colour size.
-    pub fn decode_color(&self, jpeg: &[u8], name: &Path) -> Result<Option<Image<[u8; 3]>>> {
+    /// Decodes a colour JPEG as the scene is when the extras need it, checked against the
+    /// rig's colour size.
+    pub fn decode_color(&self, jpeg: &ColorJpeg, name: &Path) -> Result<Option<Image<[u8; 3]>>> {
         if !self.needs_color() {
             return Ok(None);
         }
-        let img = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
-            .map_err(|e| SequenceError::input(name, format!("colour JPEG does not decode: {e}")))?
-            .into_rgb8();
-        let (w, h) = (img.width() as usize, img.height() as usize);
+        let img = jpeg.decode().map_err(|e| SequenceError::input(name, e))?;
+        let (w, h) = img.size();
         if (w, h) != (self.rig.color.width, self.rig.color.height) {
             return Err(SequenceError::input(
                 name,
@@ -259,8 +269,7 @@ impl Processor {
                 ),
             ));
         }
-        let px = img.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        Ok(Some(Image::from_vec(w, h, px)?))
+        Ok(Some(img))
     }
 
     /// Registers `frames` (one on the CPU path; up to [`GPU_BATCH`] on the GPU path, streamed

@@ -12,6 +12,7 @@ use geometry::{Image, PointCloud};
 use kfuse_io::atomic::write_bytes_atomic;
 use serde::Serialize;
 
+use crate::color::ColorJpeg;
 use crate::matching::Missing;
 use crate::source::TICKS_PER_SECOND;
 use crate::{Result, SequenceError};
@@ -266,12 +267,13 @@ impl FrameWriter {
         }
     }
 
-    /// Encodes a frame's files (nothing is written yet). `jpeg` is the sensor's colour frame.
+    /// Encodes a frame's files (nothing is written yet). `jpeg` is the frame's colour JPEG,
+    /// written as the scene is ([`ColorJpeg::scene_jpeg`]).
     pub fn encode(
         &self,
         meta: FrameMeta,
         r: &crate::process::Registered,
-        jpeg: Option<&[u8]>,
+        jpeg: Option<&ColorJpeg>,
     ) -> Result<Encoded> {
         let stem = self.stem(&meta);
         let err = |name: &str, message: String| SequenceError::Encode {
@@ -291,7 +293,9 @@ impl FrameWriter {
                     (Layout::Tum, None) => ("rgb", stem.clone()),
                     (Layout::Kfuse, _) => ("color", stem.clone()),
                 };
-            files.push((format!("{dir}/{color_stem}.jpg"), j.to_vec()));
+            let name = format!("{dir}/{color_stem}.jpg");
+            let bytes = j.scene_jpeg().map_err(|m| err(&name, m))?.into_owned();
+            files.push((name, bytes));
         }
         if let (true, Some(m)) = (self.set.holes, &r.holes) {
             let name = format!("holes/{stem}.png");

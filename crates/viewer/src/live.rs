@@ -142,12 +142,12 @@ impl Drop for LiveSession {
     }
 }
 
-fn half_size(rgb: &image::RgbImage) -> Image<[u8; 3]> {
-    let (w, h) = (rgb.width() as usize / 2, rgb.height() as usize / 2);
+fn half_size(rgb: &Image<[u8; 3]>) -> Image<[u8; 3]> {
+    let (w, h) = (rgb.size().0 / 2, rgb.size().1 / 2);
     Image::from_fn(w, h, |x, y| {
         let mut acc = [0u32; 3];
         for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            let p = rgb.get_pixel((2 * x + dx) as u32, (2 * y + dy) as u32).0;
+            let p = *rgb.get(2 * x + dx, 2 * y + dy);
             for k in 0..3 {
                 acc[k] += p[k] as u32;
             }
@@ -234,11 +234,10 @@ fn capture_loop(
             }
             Ok(Some(Pumped::Color)) => {
                 let jpeg = pump.color_jpeg().to_vec();
-                // A colour frame that does not decode is still saved as sent; only the display skips it.
-                if let Ok(img) =
-                    image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg)
-                {
-                    color_rgb = Some(Arc::new(half_size(&img.to_rgb8())));
+                // Shown as the scene is (the sensor streams it mirrored, kinect_usb::orientation);
+                // a frame that does not decode is not shown (and a shot of it is refused).
+                if let Ok(img) = kfuse_io::sensor_color::decode_mirrored(&jpeg) {
+                    color_rgb = Some(Arc::new(half_size(&img)));
                 }
                 color_jpeg = Some(Arc::new(jpeg));
             }

@@ -90,7 +90,14 @@ pub struct FactoryParams {
     pub my: [f64; 10],
     /// The sensor's serial number, where the file has one.
     pub serial: Option<String>,
+    /// Whether the parameters (and the images beside the file) are as the scene is, kfuse's
+    /// orientation rule (`"image_orientation": "scene"`, version 2), or mirrored as the sensor
+    /// streams them (version 1: `kfuse capture` before the rule; `kinect_usb::orientation`).
+    pub scene_orientation: bool,
 }
+
+/// The newest `kinect_params.json` version this kfuse reads (`kfuse_capture::shots::PARAMS_VERSION`).
+const NEWEST_PARAMS_VERSION: u64 = 2;
 
 fn num(v: &Value, path: &Path, key: &str) -> Result<f64, CalibError> {
     v.as_f64()
@@ -109,12 +116,24 @@ fn side(v: &Value, path: &Path, key: &str) -> Result<usize, CalibError> {
 impl FactoryParams {
     /// Reads the parsed `kinect_params.json`.
     pub fn from_json(v: &Value, path: &Path) -> Result<Self, CalibError> {
-        if v.get("version").and_then(Value::as_u64).unwrap_or(0) > 1 {
+        let version = v.get("version").and_then(Value::as_u64).unwrap_or(0);
+        if version > NEWEST_PARAMS_VERSION {
             return Err(fmt_err(
                 path,
                 "kinect_params.json version is newer than this kfuse; upgrade kfuse",
             ));
         }
+        let scene_orientation = match v.get("image_orientation") {
+            None if version < 2 => false,
+            Some(Value::String(o)) if o == "scene" => true,
+            Some(Value::String(o)) if o == "sensor" => false,
+            _ => {
+                return Err(fmt_err(
+                    path,
+                    "'image_orientation' must be \"scene\" or \"sensor\" (version 2 files have it)",
+                ));
+            }
+        };
         let get = |obj: &str, key: &str| -> Result<f64, CalibError> {
             num(&v[obj][key], path, &format!("{obj}.{key}"))
         };
@@ -160,6 +179,7 @@ impl FactoryParams {
             mx: poly("mx")?,
             my: poly("my")?,
             serial: v.get("serial").and_then(Value::as_str).map(str::to_owned),
+            scene_orientation,
         };
         if !(p.f > 0.0) || !(p.shift_d != 0.0) {
             return Err(fmt_err(path, "'color.fx' must be positive and 'color.shift_d' non-zero"));

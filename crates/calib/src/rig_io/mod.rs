@@ -319,7 +319,15 @@ fn import_json(text: &str, path: &Path) -> Result<Imported, CalibError> {
     if v.get("format").and_then(Value::as_str) == Some(KINECT_PARAMS_FORMAT) {
         let params = kinect::FactoryParams::from_json(&v, path)?;
         let fit = params.to_rig()?;
-        let notes = vec![fit.summary()];
+        let mut notes = vec![fit.summary()];
+        if !params.scene_orientation {
+            notes.push(
+                "these are the parameters of mirrored images (kinect_params.json version 1: \
+                 `kfuse capture` before it wrote images as the scene is), and so is the rig: \
+                 it fits that capture's images; `--mirror` gives the rig of images as the scene is"
+                    .into(),
+            );
+        }
         let mut rig = fit.rig;
         rig.calibration = Some(fit.report);
         return Ok(imported(Calibration::Rig(rig), "Kinect v2 factory parameters", notes));

@@ -27,14 +27,16 @@ pub const KINECT_DEPTH_SIZE: (usize, usize) = (512, 424);
 /// See [`KINECT_DEPTH_SIZE`].
 pub const KINECT_COLOR_SIZE: (usize, usize) = (1920, 1080);
 
-/// Where the Kinect v2's colour camera sits along x in the depth frame in the images that
-/// `kfuse capture` saves (the protocol's orientation: `shift_m` = 52 mm of parallax, colour
-/// camera at −52 mm), metres.
-pub const KINECT_COLOR_CENTRE_X_M: f64 = -0.052;
+/// Where the Kinect v2's colour camera sits along x in the depth frame in images as the scene
+/// is (kfuse's orientation rule, `kinect_usb::orientation`; the Kinect SDK's, iai_kinect2's and
+/// the lab's Bouguet results agree: +52.2 mm), metres. The sensor's raw stream (libfreenect2's
+/// output, `kfuse capture` before the rule) is mirrored: there the colour camera is at −52 mm.
+pub const KINECT_COLOR_CENTRE_X_M: f64 = 0.052;
 
 /// For a Kinect v2 rig: which image orientation it was calibrated in, from the side of the
 /// colour camera (`None` for other rigs, or a colour camera within 10 mm of the depth
-/// camera's x). `(true, text)` when it is the mirror image of `kfuse capture`'s.
+/// camera's x). `(true, text)` when it is a calibration of mirrored images (raw
+/// libfreenect2 output, or `kfuse capture` before it wrote images as the scene is).
 pub fn kinect_orientation(rig: &Rig) -> Option<(bool, String)> {
     let kinect = (rig.depth.width, rig.depth.height) == KINECT_DEPTH_SIZE
         && (rig.color.width, rig.color.height) == KINECT_COLOR_SIZE;
@@ -45,13 +47,13 @@ pub fn kinect_orientation(rig: &Rig) -> Option<(bool, String)> {
     let mirrored = x.signum() != KINECT_COLOR_CENTRE_X_M.signum();
     let text = if mirrored {
         format!(
-            "orientation: the colour camera sits at x = {:+.1} mm of the depth camera, a calibration of images mirrored left-right relative to `kfuse capture`'s (about {:+.0} mm); to fuse kfuse captures, use `kfuse rig import FILE --mirror` (fuse refuses it beside a capture's kinect_params.json)",
+            "orientation: the colour camera sits at x = {:+.1} mm of the depth camera, a calibration of images mirrored left-right (raw libfreenect2 output, or kfuse captures older than kinect_params.json version 2); kfuse's images are as the scene is (about {:+.0} mm): convert it with `kfuse rig import FILE --mirror` (fuse refuses it beside a new capture's kinect_params.json)",
             x * 1000.0,
             KINECT_COLOR_CENTRE_X_M * 1000.0
         )
     } else {
         format!(
-            "orientation: the colour camera sits at x = {:+.1} mm of the depth camera, as in `kfuse capture`'s images",
+            "orientation: the colour camera sits at x = {:+.1} mm of the depth camera: images as the scene is, as kfuse, the Kinect SDK and iai_kinect2 write them",
             x * 1000.0
         )
     };
@@ -341,8 +343,8 @@ mod tests {
         assert!(kinect_role_mismatch(&good.depth, Role::Depth).is_none());
         assert!(kinect_role_mismatch(&good.color, Role::Color).is_none());
         // `geometry::synth`'s rig, modelled on the lab's Bouguet result, has its colour camera
-        // at +51.9 mm (the lab's orientation); mirrored, at −51.9 mm (kfuse capture's).
-        assert!(matches!(kinect_orientation(&good), Some((true, _))));
-        assert!(matches!(kinect_orientation(&good.mirrored()), Some((false, _))));
+        // at +51.9 mm (images as the scene is, kfuse's rule); mirrored, at −51.9 mm.
+        assert!(matches!(kinect_orientation(&good), Some((false, _))));
+        assert!(matches!(kinect_orientation(&good.mirrored()), Some((true, _))));
     }
 }

@@ -96,7 +96,8 @@ pub(crate) const EDGE: Shader = Shader {
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug, PartialEq)]
 pub(crate) struct Params {
-    /// `[pixels, row stride, opaque 0, 0]`.
+    /// `[pixels, row stride, opaque 0, mirror]`: mirror = 1 writes the scene orientation
+    /// (`kinect_usb::orientation`), 0 the sensor's.
     pub size: [u32; 4],
     /// `[bilateral, edge-aware, A* is the minimum, 0]` as 1 / 0.
     pub flags: [u32; 4],
@@ -143,7 +144,12 @@ impl Params {
             / (p.ab_multiplier * p.ab_multiplier);
         let two_pi = 2.0 * std::f64::consts::PI;
         Params {
-            size: [pixels, row_stride, 0, 0],
+            size: [
+                pixels,
+                row_stride,
+                0,
+                (config.orientation == kinect_usb::orientation::Orientation::Scene) as u32,
+            ],
             flags: [
                 config.bilateral as u32,
                 config.edge_aware as u32,

@@ -73,6 +73,7 @@ mod unwrap;
 use rayon::prelude::*;
 
 use crate::error::{KinectError, Result};
+use crate::orientation::{Orientation, mirror_rows};
 use crate::params::{P0Tables, XzTables};
 use crate::raw::{HEIGHT, PIXELS, RAW_FRAME_BYTES, SATURATED, WIDTH, lut};
 use bilateral::{bilateral_k, copy_unfiltered, edge_weights};
@@ -178,11 +179,20 @@ pub struct DecoderConfig {
     pub edge_aware: bool,
     /// Process rows in parallel on the current rayon pool.
     pub parallel: bool,
+    /// Which way left and right run in the depth and IR written: [`Orientation::Scene`]
+    /// (kfuse's rule, the default) or [`Orientation::Sensor`] (the protocol's and its test
+    /// vectors', mirrored). The two differ only in where a value is written.
+    pub orientation: Orientation,
 }
 
 impl Default for DecoderConfig {
     fn default() -> Self {
-        DecoderConfig { bilateral: true, edge_aware: true, parallel: true }
+        DecoderConfig {
+            bilateral: true,
+            edge_aware: true,
+            parallel: true,
+            orientation: Orientation::Scene,
+        }
     }
 }
 
@@ -425,7 +435,8 @@ impl DepthDecoder {
         &self.params
     }
 
-    /// Decodes one raw frame into upright `depth` (mm) and `ir` images of 512 × 424.
+    /// Decodes one raw frame into upright `depth` (mm) and `ir` images of 512 × 424, in
+    /// [`DecoderConfig::orientation`].
     pub fn decode(&mut self, raw: &[u8], depth: &mut [f32], ir: &mut [f32]) -> Result<()> {
         if raw.len() != RAW_FRAME_BYTES {
             return Err(KinectError::Size {
@@ -478,13 +489,20 @@ impl DepthDecoder {
         // Pass 2: edge-aware filter (optional) and flip to upright output.
         let planes =
             (&self.depth_pre[..], &self.depth_lo[..], &self.depth_hi[..], &self.ir_sum[..]);
+        let mirror = self.config.orientation == Orientation::Scene;
         let f = |(r, drow): (usize, &mut [f32])| {
-            output_row(planes, H - 1 - r, drow, &self.params, self.config.edge_aware)
+            output_row(planes, H - 1 - r, drow, &self.params, self.config.edge_aware);
+            if mirror {
+                drow.reverse();
+            }
         };
         if self.config.parallel {
             depth.par_chunks_mut(W).enumerate().for_each(f);
         } else {
             depth.chunks_mut(W).enumerate().for_each(f);
+        }
+        if mirror {
+            mirror_rows(ir, W);
         }
         Ok(())
     }

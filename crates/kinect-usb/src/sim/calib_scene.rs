@@ -1,10 +1,11 @@
 //! The simulated sensor's calibration scene (labs L1–L3): a checkerboard of
 //! [`BOARD_INNER_CORNERS`] inner corners and [`BOARD_SQUARE_M`] squares (with a white margin)
 //! in front of a grey wall, moving through [`BOARD_POSES`] tilted poses, rendered in IR
-//! (amplitude ∝ albedo·cos/r², with noise), depth (z, mm) and colour with the profile's own
-//! factory parameters ([`FactoryRig::of_profile`]). Frame `k` of the scene (depth and colour
-//! alike) shows pose `k mod N`, so `kfuse capture calib --backend sim --count N --interval 0`
-//! takes one shot per pose and `kfuse calibrate` should recover the [`FactoryRig`].
+//! (amplitude ∝ albedo·cos/r², with noise), depth (z, mm) and colour with the rig of the
+//! profile's own factory parameters in the scene orientation ([`FactoryRig::of_scene`]), then
+//! mirrored as the sensor streams it. Frame `k` of the scene (depth and colour alike) shows
+//! pose `k mod N`, so `kfuse capture calib --backend sim --count N --interval 0` takes one shot
+//! per pose and `kfuse calibrate` should recover [`FactoryRig::of_scene`].
 //!
 //! Pixel convention: integer coordinates are pixel centres (as the factory registration maps,
 //! protocol §11.1, no `+0.5`); frames: x right, y down, z forward; `X_color = X_depth + t`.
@@ -14,8 +15,12 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use super::{SimProfile, SimScene};
+use crate::orientation::mirror_rows;
 use crate::params::DepthParams;
 use crate::raw::{HEIGHT, WIDTH};
+
+/// The colour image's size, pixels.
+const COLOR_SIZE: (usize, usize) = (1920, 1080);
 
 /// Inner corners per row × per column (`kfuse calibrate --board 7x5`, its default).
 pub const BOARD_INNER_CORNERS: (usize, usize) = (7, 5);
@@ -113,6 +118,25 @@ impl FactoryRig {
         let cx = c.mx[9] as f64 / QC - f * sm / sd + c.cx as f64;
         let cy = c.my[9] as f64 / QC + c.cy as f64;
         Some(FactoryRig { depth: *d, color: [fx, fy, cx, cy], t_m: [f * sm / fx * 1e-3, 0.0, 0.0] })
+    }
+
+    /// The rig of the same cameras in left–right mirrored images (`crate::orientation`): the
+    /// depth camera [`DepthParams::mirrored`], the colour principal point `cx → 1919 − cx` and
+    /// the translation's x negated.
+    pub fn mirrored(&self) -> Self {
+        let [fx, fy, cx, cy] = self.color;
+        FactoryRig {
+            depth: self.depth.mirrored(),
+            color: [fx, fy, (COLOR_SIZE.0 - 1) as f64 - cx, cy],
+            t_m: [-self.t_m[0], self.t_m[1], self.t_m[2]],
+        }
+    }
+
+    /// The rig of the images a capture of `p` writes (as the scene is, kfuse's rule): the
+    /// mirror of [`FactoryRig::of_profile`], whose parameters are of the sensor's mirrored
+    /// stream. The calibration scene is rendered with it ([`calibration_scene`]).
+    pub fn of_scene(p: &SimProfile) -> Option<Self> {
+        Self::of_profile(p).map(|r| r.mirrored())
     }
 
     /// Undistorted normalised coordinates of distorted depth pixel `(u, v)`.
@@ -292,7 +316,7 @@ fn render_pose_with(
         let g: f64 = gaussian(&mut rng);
         *a = (*a as f64 * (1.0 + IR_NOISE * g)).max(1.0) as f32;
     }
-    let (cw, ch) = (1920usize, 1080usize);
+    let (cw, ch) = COLOR_SIZE;
     let [fx, fy, cx, cy] = rig.color;
     let o = [-rig.t_m[0], -rig.t_m[1], -rig.t_m[2]];
     // The board's bounding box in the colour image (+2 px): only there are pixels
@@ -345,13 +369,22 @@ fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
 /// The calibration scene for `profile`: one depth and one colour frame (quality-92 JPEG) per
 /// pose of [`BOARD_POSES`]. `None` where the profile's colour mapping is not a pinhole camera
 /// ([`FactoryRig::of_profile`]).
+///
+/// The boards are rendered as the scene is, with [`FactoryRig::of_scene`], and every image is
+/// then mirrored left–right: what a real sensor streams (`crate::orientation`), so a capture,
+/// which mirrors back, shows [`render_pose`] of that rig exactly.
 pub fn calibration_scene(profile: &SimProfile) -> Option<SimScene> {
-    let rig = FactoryRig::of_profile(profile)?;
+    let rig = FactoryRig::of_scene(profile)?;
     let rays = depth_rays(&rig);
     let frames: Vec<Option<_>> = (0..BOARD_POSES.len())
         .into_par_iter()
         .map(|k| {
-            let (depth, ir, rgb) = render_pose_with(&rig, &rays, k);
+            let (mut depth, mut ir, rgb) = render_pose_with(&rig, &rays, k);
+            mirror_rows(&mut depth, WIDTH);
+            mirror_rows(&mut ir, WIDTH);
+            let mut px: Vec<[u8; 3]> = rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+            mirror_rows(&mut px, COLOR_SIZE.0);
+            let rgb: Vec<u8> = px.concat();
             let mut jpeg = Vec::new();
             let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, JPEG_QUALITY);
             image::ImageEncoder::write_image(enc, &rgb, 1920, 1080, image::ExtendedColorType::Rgb8)
