@@ -534,3 +534,54 @@ fn fixing_a_wrong_principal_point_is_warned_about_and_a_right_one_is_not() {
     let cx = c.freed.iter().find(|m| m.parameter == "cx").unwrap();
     assert!((cx.free_fit - off.intrinsics.cx).abs() < 3.0 * cx.free_std, "{cx:?}");
 }
+
+/// Fewer than three views with a board: the error names every image left out and why (no
+/// board, another image size, too few corners); for a stereo pair, which camera's image of
+/// each pair has no board.
+#[test]
+fn too_few_views_name_each_image_left_out_and_why() {
+    let Some(data) = shared_data("too_few_views_name_each_image_left_out_and_why") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let ir = gt_camera(&gt, "ir");
+    let poses: Vec<_> = (0..5).map(|i| gt_pose(&gt, i, "ir")).collect();
+    let mut views = synth_views(&ir, &poses, 0.05, 41);
+    views[2].corners.clear();
+    (views[3].width, views[3].height) = (640, 480);
+    views[4].corners.truncate(4);
+    let err = calibrate_mono("IR camera", &board(), &views, &CalibFlags::default(), None)
+        .unwrap_err()
+        .to_string();
+    for want in [
+        "only 2 usable view(s)",
+        "view_02 (no board found)",
+        "view_03 (image is 640x480, the camera's other images are 512x424)",
+        "view_04 (only 4 corners (need 6))",
+    ] {
+        assert!(err.contains(want), "{want}: {err}");
+    }
+    // Stereo: IR boards in views 0-2, colour boards in views 2-4: one pair.
+    let color = gt_camera(&gt, "color");
+    let cfd = gt_color_from_depth(&gt);
+    let mut dv = synth_views(&ir, &poses, 0.05, 42);
+    let cposes: Vec<_> = poses.iter().map(|p| cfd.compose(p)).collect();
+    let mut cv = synth_views(&color, &cposes, 0.05, 43);
+    for v in dv.iter_mut().skip(3) {
+        v.corners.clear();
+    }
+    for v in cv.iter_mut().take(2) {
+        v.corners.clear();
+    }
+    let flags = StereoOptions::default();
+    let err = calibrate_stereo(&board(), &dv, &cv, &flags, None, None).unwrap_err().to_string();
+    // The single-camera fits need three views each: they have them; the pairs do not.
+    assert!(err.contains("stereo pairs") && err.contains("only 1 usable"), "{err}");
+    for want in [
+        "pair 1 (view_00: no board found)",
+        "pair 2 (view_01: no board found)",
+        "pair 4 (view_03: no board found)",
+        "pair 5 (view_04: no board found)",
+    ] {
+        assert!(err.contains(want), "{want}: {err}");
+    }
+    assert!(!err.contains("pair 3 ("), "{err}");
+}
