@@ -16,7 +16,7 @@ use geometry::Image;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::{StagedDir, StagedFiles};
 
-use crate::calibrate_report::{Figures, print_mono, print_stereo};
+use crate::calibrate_report::{Figures, print_held_out, print_mono, print_stereo};
 
 mod depth;
 mod depth_figures;
@@ -790,6 +790,14 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         let s = interruptible(STOPPED, move || {
             calibrate_stereo(&board, &ir, &color, &options, None, None)
         })??;
+        let held_out = if args.report.is_some() {
+            let (ir, color) = (ir_views.clone(), color_views.clone());
+            Some(interruptible(STOPPED, move || {
+                calib::holdout::held_out_stereo(&board, &ir, &color, &options)
+            })?)
+        } else {
+            None
+        };
         print_stereo(&s, &ir_views);
         check_stereo_consistent(&s)?;
         let mut rig = stereo_rig(&s, &board);
@@ -799,6 +807,9 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             add_detections(&mut cal["color_single_camera"], &color_views, &color_files);
         }
         report = rig.calibration.clone().unwrap_or_default();
+        if let Some(h) = &held_out {
+            report["held_out"] = print_held_out(h);
+        }
         if !depth_files.is_empty() {
             let fit = fit_depth(rig.depth)??;
             depth::print_fit(&fit);
@@ -831,6 +842,15 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             calibrate_mono(&format!("{name} camera"), &board, &views_owned, &flags, None)
         })??;
         print_mono(&format!("{name} camera"), &m, limit);
+        let held_out = if args.report.is_some() {
+            let views_owned = views.clone();
+            let h = interruptible(STOPPED, move || {
+                calib::holdout::held_out_mono(name, &board, &views_owned, &flags, None)
+            })?;
+            Some(print_held_out(&h))
+        } else {
+            None
+        };
         let mut text = camera_json(&m, &board, if name == "IR" { "depth" } else { "color" });
         report = match serde_json::from_str::<serde_json::Value>(&text) {
             Ok(mut v) => {
@@ -841,6 +861,9 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             }
             Err(_) => serde_json::Value::default(),
         };
+        if let Some(h) = held_out {
+            report["held_out"] = h;
+        }
         outputs.push((args.out.clone(), text));
         if let Some(y) = &args.opencv_yaml {
             outputs.push((y.clone(), opencv_yaml_camera(&m.camera)));
