@@ -1,9 +1,10 @@
 //! Single-camera calibration: Zhang initialisation, LM refinement, uncertainty, and
 //! automatic (always reported) corner and view outlier rejection.
 //!
-//! Size (~600 lines): Zhang's initialisation, the LM refinement, the uncertainty and the
-//! rejection loop all work on one `Problem`/`Solution` pair and run in that order, so they
-//! read top to bottom in one file.
+//! Size (~750 lines): Zhang's initialisation, the LM refinement, the uncertainty, the
+//! rejection loop and the constraint flags' check against the free fit ([`FixCheck`]) all work
+//! on one `Problem`/`Solution` pair and run in that order, so they read top to bottom in one
+//! file.
 
 use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
 use nalgebra::Vector2;
