@@ -46,6 +46,61 @@ fn weakly_constrained(m: &MonoCalibration) -> Vec<String> {
         .collect()
 }
 
+/// One warning line per constraint flag that moved other parameters beyond
+/// `calib::mono::FIX_SHIFT_SIGMAS` σ of the free fit (`MonoCalibration::fix_checks`): the
+/// parameters, their moves and σ, and where the free fit puts what the flag fixed.
+fn fix_warnings(camera: &str, m: &MonoCalibration) -> Vec<String> {
+    let value = |name: &str, v: f64| {
+        if matches!(name, "fx" | "fy" | "cx" | "cy" | "skew") {
+            format!("{v:+.2} px")
+        } else {
+            format!("{v:+.5}")
+        }
+    };
+    m.fix_checks
+        .iter()
+        .filter(|c| !c.moved.is_empty())
+        .map(|c| {
+            let moves: Vec<String> = c
+                .moved
+                .iter()
+                .map(|p| {
+                    let d = p.fixed_fit - p.free_fit;
+                    let rel = if p.free_fit.abs() > 1.0 {
+                        format!(" ({:+.1} %)", 100.0 * d / p.free_fit)
+                    } else {
+                        String::new()
+                    };
+                    format!(
+                        "{} by {}{rel} = {:.0}σ (σ {})",
+                        p.parameter,
+                        value(&p.parameter, d),
+                        p.sigmas(),
+                        value(&p.parameter, p.free_std).trim_start_matches('+')
+                    )
+                })
+                .collect();
+            let freed: Vec<String> = c
+                .freed
+                .iter()
+                .map(|p| format!("{} {:.3} ± {:.3}", p.parameter, p.free_fit, p.free_std))
+                .collect();
+            // --lab-settings sets two of the flags.
+            let lab = if matches!(c.flag.as_str(), "fix_principal_point" | "fix_k3") {
+                " (or --lab-settings)"
+            } else {
+                ""
+            };
+            format!(
+                "WARNING: {camera}: --{}{lab} moves {} against the free fit, which gives {}: the constraint does not fit these images",
+                c.flag.replace('_', "-"),
+                moves.join(", "),
+                freed.join(", ")
+            )
+        })
+        .collect()
+}
+
 /// Prints one camera's result: parameters with 1σ, the per-image table, rejected corners.
 /// Views and cameras above the handout's `limit` get a warning, on Kinect-sized images only.
 pub(crate) fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
@@ -91,6 +146,9 @@ pub(crate) fn print_mono(camera: &str, m: &MonoCalibration, limit: f64) {
             "  rejected corner {} of {}: error {:.2} px > {:.2} px",
             c.id, c.view, c.error_px, c.threshold_px
         );
+    }
+    for line in fix_warnings(camera, m) {
+        println!("  {line}");
     }
     let weak = weakly_constrained(m);
     if !weak.is_empty() {
@@ -196,6 +254,38 @@ pub(crate) fn print_stereo(s: &StereoCalibration, ir_views: &[ViewCorners]) {
             "  WARNING: colour RMS after stereo {:.3} px is above the handout's {COLOR_RMS_LIMIT_PX} px",
             s.color_rms_px
         );
+    }
+}
+
+/// Prints the held-out check (`calib::holdout`) and returns its `report.json` entry; a check
+/// that could not be made (too few views) is said so, in both.
+pub(crate) fn print_held_out(
+    h: &std::result::Result<calib::holdout::HoldOut, calib::CalibError>,
+) -> serde_json::Value {
+    match h {
+        Ok(h) => {
+            println!(
+                "\nheld-out check: calibrated on {} views (the 1st, 3rd, ...), predicted the other {}:",
+                h.train.len(),
+                h.held_out.len()
+            );
+            for e in &h.errors {
+                println!(
+                    "  {:<24} median {:.3} px, 95 % {:.3} px over {} corners (in-sample RMS {:.3} px)",
+                    e.what, e.median_px, e.p95_px, e.corners, e.in_sample_rms_px
+                );
+            }
+            if h.errors.iter().any(|e| e.what.contains("rig")) {
+                println!(
+                    "  (colour through the rig: the board pose from the held-out IR corners only, carried by the rig)"
+                );
+            }
+            h.report_json()
+        }
+        Err(e) => {
+            println!("\nheld-out check: not done: {e}");
+            serde_json::json!({ "not_done": e.to_string() })
+        }
     }
 }
 

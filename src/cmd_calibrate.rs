@@ -16,7 +16,7 @@ use geometry::Image;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::{StagedDir, StagedFiles};
 
-use crate::calibrate_report::{Figures, print_mono, print_stereo};
+use crate::calibrate_report::{Figures, print_held_out, print_mono, print_stereo};
 
 mod depth;
 mod depth_figures;
@@ -38,6 +38,10 @@ the depth images of the IR shots; the correction goes into the rig (\"depth_corr
     kfuse calibrate --rig rig.json --ir 'caps/ir_*.png' --depth 'caps/depth_*.png' --out rig2.json
 It needs at least 4 boards whose distances span at least 0.5 m (e.g. 0.8, 1.2, 1.8, 2.5 m),
 tilted 10-40 degrees and spread over the image, without glare on the board.
+A depth correction belongs with the IR intrinsics it was fitted with: the board distances come
+from them and from --square, so another calibration's focal length gives another offset and
+scale (printed per +1 % of f and of the square beside each term's σ). Keep the two together,
+as the rig file does; a scale beyond ±5 % is refused unless --force.
 
 Views and corners rejected as outliers are always listed. The stereo joint fit weights each
 view by its own noise (never above its camera's level): the table's weight column shows which
@@ -52,7 +56,10 @@ pub struct CalibrateArgs {
     #[arg(long, value_name = "GLOB", num_args = 1..)]
     ir: Vec<String>,
     /// Depth images (16-bit PNG, mm) of the IR shots, matched with --ir in sorted order:
-    /// fits the depth correction (offset, scale, spatial terms) into the rig.
+    /// fits the depth correction (offset, scale, spatial terms) into the rig. The correction
+    /// belongs with the IR intrinsics it was fitted with (the board distances come from them
+    /// and from --square; the rig keeps the two together): its offset and scale move with the
+    /// focal length and the square, which the printed table and report.json quantify.
     #[arg(long, value_name = "GLOB", num_args = 1..)]
     depth: Vec<String>,
     /// With --depth and --ir only: the rig (IR intrinsics) the correction is added to; the
@@ -80,6 +87,11 @@ pub struct CalibrateArgs {
     /// Replace an existing --out or --opencv-yaml file that kfuse did not write.
     #[arg(long)]
     overwrite: bool,
+    /// With --depth: write a depth correction whose scale is beyond what a Kinect v2
+    /// plausibly has (±5 %; usually a wrong --square or intrinsics of another calibration),
+    /// with a warning instead of refusing it.
+    #[arg(long)]
+    force: bool,
     /// Folder for the report figures (corners on every image, per-image errors, residual
     /// vectors, board poses) and report.json.
     #[arg(long)]
@@ -675,6 +687,11 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let ir_files = if args.ir.is_empty() { vec![] } else { expand(&args.ir, "ir")? };
     let depth_files = if args.depth.is_empty() { vec![] } else { expand(&args.depth, "depth")? };
     depth::check_args(&ir_files, &color_files, &depth_files, args.rig.as_deref())?;
+    if args.force && depth_files.is_empty() {
+        bail!(
+            "--force only lets --depth write an implausible depth scale; without --depth there is nothing it applies to: leave it out"
+        );
+    }
     let base_rig = args.rig.as_deref().map(depth::read_rig).transpose()?;
     let both = !color_files.is_empty() && !ir_files.is_empty();
     check_not_swapped(&ir_files, &color_files)?;
@@ -737,8 +754,10 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let mut depth_fit = None;
     let fit_depth = |camera: geometry::CameraModel| {
         let (views, ir, depth) = (ir_views.clone(), ir_files.clone(), depth_files.clone());
-        let reject = flags.reject_outliers;
-        interruptible(STOPPED, move || depth::fit(&camera, &board, &views, &ir, &depth, reject))
+        let (reject, force) = (flags.reject_outliers, args.force);
+        interruptible(STOPPED, move || {
+            depth::fit(&camera, &board, &views, &ir, &depth, reject, force)
+        })
     };
     if both {
         for i in 0..ir_views.len() {
@@ -771,6 +790,14 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         let s = interruptible(STOPPED, move || {
             calibrate_stereo(&board, &ir, &color, &options, None, None)
         })??;
+        let held_out = if args.report.is_some() {
+            let (ir, color) = (ir_views.clone(), color_views.clone());
+            Some(interruptible(STOPPED, move || {
+                calib::holdout::held_out_stereo(&board, &ir, &color, &options)
+            })?)
+        } else {
+            None
+        };
         print_stereo(&s, &ir_views);
         check_stereo_consistent(&s)?;
         let mut rig = stereo_rig(&s, &board);
@@ -780,6 +807,9 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             add_detections(&mut cal["color_single_camera"], &color_views, &color_files);
         }
         report = rig.calibration.clone().unwrap_or_default();
+        if let Some(h) = &held_out {
+            report["held_out"] = print_held_out(h);
+        }
         if !depth_files.is_empty() {
             let fit = fit_depth(rig.depth)??;
             depth::print_fit(&fit);
@@ -812,6 +842,15 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             calibrate_mono(&format!("{name} camera"), &board, &views_owned, &flags, None)
         })??;
         print_mono(&format!("{name} camera"), &m, limit);
+        let held_out = if args.report.is_some() {
+            let views_owned = views.clone();
+            let h = interruptible(STOPPED, move || {
+                calib::holdout::held_out_mono(name, &board, &views_owned, &flags, None)
+            })?;
+            Some(print_held_out(&h))
+        } else {
+            None
+        };
         let mut text = camera_json(&m, &board, if name == "IR" { "depth" } else { "color" });
         report = match serde_json::from_str::<serde_json::Value>(&text) {
             Ok(mut v) => {
@@ -822,6 +861,9 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             }
             Err(_) => serde_json::Value::default(),
         };
+        if let Some(h) = held_out {
+            report["held_out"] = h;
+        }
         outputs.push((args.out.clone(), text));
         if let Some(y) = &args.opencv_yaml {
             outputs.push((y.clone(), opencv_yaml_camera(&m.camera)));

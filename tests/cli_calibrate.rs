@@ -48,6 +48,27 @@ fn calibrates_the_real_ir_session_and_writes_the_report() {
     let fx = v["camera"]["fx"].as_f64().unwrap();
     // The lab's fc(1) = 364.126 ± 2.62 (3σ).
     assert!((fx - 364.126).abs() < 2.62, "fx {fx}");
+    // The held-out check: 11 views with a board, the 1st, 3rd, … (6) calibrate, 5 predicted;
+    // printed and in report.json. Real IR corners are heavy-tailed (up to ~1.2 px), so the
+    // held-out median is asserted within 3× the in-sample RMS and the 95th percentile above
+    // the median.
+    assert!(text.contains("held-out check: calibrated on 6 views"), "{text}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
+            .unwrap();
+    let h = &r["held_out"];
+    assert_eq!(h["train"].as_array().map(Vec::len), Some(6), "{h}");
+    assert_eq!(h["held_out"].as_array().map(Vec::len), Some(5), "{h}");
+    let e = &h["errors"][0];
+    let (median, p95, rms) = (
+        e["median_px"].as_f64().unwrap(),
+        e["p95_px"].as_f64().unwrap(),
+        e["in_sample_rms_px"].as_f64().unwrap(),
+    );
+    eprintln!(
+        "kinect-lab IR held out: median {median:.4} px, 95 % {p95:.4} px, in-sample RMS {rms:.4} px"
+    );
+    assert!(median > 0.0 && median <= 3.0 * rms && p95 >= median, "{e}");
     for f in [
         "report.json",
         "per_image_error.png",
@@ -791,4 +812,143 @@ fn few_similar_views_are_warned_about() {
         .unwrap_or_else(|| panic!("no weak-constraint warning:\n{text}"));
     assert!(line.contains("WARNING") && line.contains("these 5 views"), "{line}");
     assert!(line.contains("fx ± ") && line.contains("cy ± ") && line.contains("tilted"), "{line}");
+}
+
+/// The rendered IR images (principal point at the image centre) `n` of them, each padded with
+/// `pad` columns on the left (the edge column repeated), into `dir`: padding moves the image
+/// centre by pad/2 but the principal point by pad, so fixing it at the centre becomes wrong.
+fn padded_rendered_ir(data: &Path, dir: &Path, pad: u32) {
+    std::fs::create_dir_all(dir).unwrap();
+    for i in 1..=15 {
+        let src = image::open(data.join(format!("synthetic-calib/ir/ir_{i:02}.png"))).unwrap();
+        let g = src.to_luma8();
+        let out = image::GrayImage::from_fn(g.width() + pad, g.height(), |x, y| {
+            *g.get_pixel(x.saturating_sub(pad), y)
+        });
+        out.save(dir.join(format!("ir_{i:02}.png"))).unwrap();
+    }
+}
+
+/// `--fix-principal-point` on the rendered IR set (principal point at the centre): no warning.
+/// The same images with 48 columns added on the left (principal point 24 px off the new
+/// centre): one warning line naming the focal lengths' moves and σ, and the check in the
+/// camera file's report.
+#[test]
+fn fixing_the_principal_point_is_warned_about_only_where_it_is_wrong() {
+    let Some(data) = shared("fixing_the_principal_point_is_warned_about_only_where_it_is_wrong")
+    else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |pattern: &str, out: &Path| {
+        let args = ["calibrate", "--ir", pattern, "--fix-principal-point", "--out"];
+        let (ok, text) = kfuse(&[&args[..], &[out.to_str().unwrap()]].concat());
+        assert!(ok, "{text}");
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out).unwrap()).unwrap();
+        (text, v["calibration"]["fixed_parameter_checks"]["checks"][0].clone())
+    };
+    let (text, check) = run(
+        &format!("{}/synthetic-calib/ir/ir_*.png", data.display()),
+        &tmp.path().join("centred.json"),
+    );
+    assert!(!text.contains("--fix-principal-point (or --lab-settings) moves"), "{text}");
+    assert_eq!(check["moved"].as_array().map(Vec::len), Some(0), "{check}");
+    let padded = tmp.path().join("padded");
+    padded_rendered_ir(&data, &padded, 48);
+    let (text, check) =
+        run(&format!("{}/ir_*.png", padded.display()), &tmp.path().join("padded.json"));
+    let warnings: Vec<&str> = text
+        .lines()
+        .filter(|l| l.contains("--fix-principal-point (or --lab-settings) moves"))
+        .collect();
+    assert_eq!(warnings.len(), 1, "{text}");
+    let line = warnings[0];
+    eprintln!("{line}");
+    assert!(
+        line.contains("WARNING: IR camera") && line.contains("fx by +") && line.contains("σ (σ "),
+        "{line}"
+    );
+    let moved = check["moved"].as_array().unwrap();
+    let fx = moved.iter().find(|m| m["parameter"] == "fx").expect("fx moved");
+    let sigmas = (fx["fixed_fit"].as_f64().unwrap() - fx["free_fit"].as_f64().unwrap()).abs()
+        / fx["free_std"].as_f64().unwrap();
+    assert!(sigmas > calib::mono::FIX_SHIFT_SIGMAS, "{fx}");
+    // The free fit finds the principal point where the padding put it: 255.5 + 48.
+    let cx = check["freed"].as_array().unwrap().iter().find(|m| m["parameter"] == "cx").unwrap();
+    assert!((cx["free_fit"].as_f64().unwrap() - 303.5).abs() < 0.5, "{cx}");
+}
+
+/// Fewer than three images with a board: the error names each image left out and why (no
+/// board found, another image size); nothing is written.
+#[test]
+fn too_few_boards_name_the_images_without_one_and_why() {
+    let Some(data) = shared("too_few_boards_name_the_images_without_one_and_why") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let blank = tmp.path().join("blank.png");
+    image::GrayImage::from_pixel(512, 424, image::Luma([128u8])).save(&blank).unwrap();
+    let small = tmp.path().join("small.png");
+    image::GrayImage::from_pixel(640, 480, image::Luma([128u8])).save(&small).unwrap();
+    let syn = data.join("synthetic-calib/ir");
+    let out = tmp.path().join("ir.json");
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--ir",
+        syn.join("ir_01.png").to_str().unwrap(),
+        syn.join("ir_02.png").to_str().unwrap(),
+        blank.to_str().unwrap(),
+        small.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok, "{text}");
+    for want in [
+        "only 2 usable view(s)",
+        "blank.png (no board found)",
+        "small.png (image is 640x480, the camera's other images are 512x424)",
+    ] {
+        assert!(text.contains(want), "{want}: {text}");
+    }
+    assert!(!out.exists());
+}
+
+/// `calibrate --report` on the rendered stereo set prints the held-out check and writes it to
+/// report.json: IR, colour and the colour camera through the rig, 7 held-out pairs of 35
+/// corners; each camera's median within 2× its in-sample RMS, through the rig within 5× the
+/// colour RMS (the bars of `calib`'s rendered-set test, `crates/calib/tests/synthetic.rs`).
+#[test]
+fn the_stereo_report_holds_the_held_out_check_through_the_rig() {
+    let Some(data) = shared("the_stereo_report_holds_the_held_out_check_through_the_rig") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let syn = data.join("synthetic-calib");
+    let report = tmp.path().join("report");
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--ir",
+        &format!("{}/ir/ir_*.png", syn.display()),
+        "--color",
+        &format!("{}/color/color_*.png", syn.display()),
+        "--out",
+        tmp.path().join("rig.json").to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(text.contains("held-out check: calibrated on 8 views"), "{text}");
+    assert!(text.lines().any(|l| l.trim_start().starts_with("colour through the rig")), "{text}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
+            .unwrap();
+    let errors = r["held_out"]["errors"].as_array().unwrap();
+    let whats: Vec<&str> = errors.iter().map(|e| e["what"].as_str().unwrap()).collect();
+    assert_eq!(whats, ["IR", "colour", "colour through the rig"]);
+    for e in errors {
+        let (median, rms) =
+            (e["median_px"].as_f64().unwrap(), e["in_sample_rms_px"].as_f64().unwrap());
+        let factor = if e["what"] == "colour through the rig" { 5.0 } else { 2.0 };
+        assert_eq!(e["corners"].as_u64(), Some(7 * 35), "{e}");
+        assert!(median > 0.0 && median <= factor * rms, "{e}");
+    }
 }

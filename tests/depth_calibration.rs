@@ -208,10 +208,36 @@ fn calibrate_depth_recovers_the_injected_error_and_corrects_a_held_out_view() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("at least 4 views"), "{err}");
     assert!(!dir.join("few.json").exists());
+    // The sensitivity in the rig's fit report against the analytic truth: every board pose,
+    // and so every plane z, scales with the square, so the scale becomes (1+s)/(1+ε) − 1: per
+    // +1 % (central difference of ±1 %) −(1+s)·1.0001 %.
+    let fit = c.fit.as_ref().expect("the fit's report");
+    let sens = &fit["sensitivity"]["terms"];
+    let scale_row = sens.as_array().unwrap().iter().find(|t| t["term"] == "scale").unwrap();
+    let s = c.value(DepthTermKind::Scale);
+    let analytic = ((1.0 + s) / 1.01 - (1.0 + s) / 0.99) / 2.0;
+    let got = scale_row["per_percent_square_size"].as_f64().unwrap();
+    assert!((got - analytic).abs() < 1e-4, "{got} vs {analytic}");
+    assert!(scale_row["per_percent_focal_length"].as_f64().is_some_and(f64::is_finite));
+    assert!(
+        text.contains("per +1 % of f") && text.contains("the rig keeps them together"),
+        "{text}"
+    );
     // A wrong --square (30 mm for the board's 40 mm) scales the boards' distances: the fitted
-    // depth scale (~+34 %) is beyond a sensor's error, which every command that reads rigs
-    // refuses; calibrate refuses to write it (it wrote it with exit 0 in a user's trial).
+    // depth scale (~+34 %) is beyond what a Kinect has, and refused with what moves it
+    // (it was written with exit 0 in a user's trial); even --force does not write a scale
+    // beyond the rig file's own limit, which every command that reads rigs refuses.
     let o = calibrate_depth(&dir.join("square30.json"), &["--square", "30mm"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains("beyond the ±5 % a Kinect v2 plausibly has")
+            && err.contains("each +1 % of the square moves it by")
+            && err.contains("--force"),
+        "{err}"
+    );
+    assert!(!dir.join("square30.json").exists());
+    let o = calibrate_depth(&dir.join("square30.json"), &["--square", "30mm", "--force"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success()
@@ -220,6 +246,25 @@ fn calibrate_depth_recovers_the_injected_error_and_corrects_a_held_out_view() {
         "{err}"
     );
     assert!(!dir.join("square30.json").exists());
+    // 37 mm for 40 mm: the scale (1 + 0.5 %)/(37/40) − 1 = +8.65 %, beyond 5 % but inside the
+    // rig file's limit: refused, and written with --force (and a warning), at that scale.
+    let out37 = dir.join("square37.json");
+    let o = calibrate_depth(&out37, &["--square", "37mm"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("+8.6") && err.contains("--force"), "{err}");
+    assert!(!out37.exists());
+    let o = calibrate_depth(&out37, &["--square", "37mm", "--force"]);
+    let text37 = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(text37.contains("WARNING (--force)"), "{text37}");
+    let c37 = read_rig(&out37).depth_correction.expect("the forced correction");
+    let want = (1.0 + SCALE) / (37.0 / 40.0) - 1.0;
+    let t37 = c37.terms.iter().find(|t| t.kind == DepthTermKind::Scale).unwrap();
+    eprintln!(
+        "--square 37mm --force: scale {:+.5} ± {:.5} (expected {want:+.5})",
+        t37.value, t37.std
+    );
+    assert!((t37.value - want).abs() < 3.0 * t37.std + 1e-3, "{t37:?} vs {want}");
 
     // capture scene --rig: the raw depth kept, the corrected one beside it, within 2 mm RMS
     // of the scene's true z (the simulator's Kinect preset: objects before a wall).

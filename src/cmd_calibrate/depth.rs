@@ -5,10 +5,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use calib::depth::{
-    DepthFit, DepthView, MIN_DEPTH_VIEWS, MIN_DISTANCE_SPAN_M, fit_depth_correction,
+    DepthFit, DepthShot, MIN_DEPTH_VIEWS, MIN_DISTANCE_SPAN_M, check_plausible,
+    fit_depth_from_corners,
 };
 use calib::rig_io::{self, Calibration};
-use calib::{Board, CalibFlags, ViewCorners, calibrate_mono};
+use calib::{Board, ViewCorners};
+use geometry::depth_correction::DepthTermKind;
 use geometry::{CameraModel, Image, Rig};
 
 /// Checks the depth flags against the others before any work.
@@ -62,8 +64,9 @@ pub fn read_rig(path: &Path) -> Result<Rig> {
     }
 }
 
-/// Fits the correction: board poses from the IR corners with `camera`'s intrinsics held
-/// fixed (the depth pixels are that camera's), the depth files read as millimetres.
+/// Fits the correction (`calib::depth::fit_depth_from_corners`): board poses from the IR
+/// corners with `camera`'s intrinsics held fixed (the depth pixels are that camera's), the
+/// depth files read as millimetres; then, unless `force`, refuses an implausible scale.
 pub fn fit(
     camera: &CameraModel,
     board: &Board,
@@ -71,26 +74,10 @@ pub fn fit(
     ir_files: &[PathBuf],
     depth_files: &[PathBuf],
     reject_outliers: bool,
+    force: bool,
 ) -> Result<DepthFit> {
-    let flags = CalibFlags {
-        use_intrinsic_guess: true,
-        fix_intrinsics: true,
-        reject_outliers,
-        ..CalibFlags::default()
-    };
-    let m = calibrate_mono("IR camera (poses for --depth)", board, ir_views, &flags, Some(camera))
-        .context("depth calibration: board poses from the IR images")?;
-    let mut views = Vec::new();
+    let mut shots = Vec::new();
     for ((corners, ir_path), depth_path) in ir_views.iter().zip(ir_files).zip(depth_files) {
-        let Some(pose) = m
-            .views
-            .iter()
-            .find(|v| v.name == corners.name && v.rejected.is_none())
-            .and_then(|v| v.camera_from_board)
-        else {
-            println!("  {}: no board pose from {}; left out", depth_path.display(), corners.name);
-            continue;
-        };
         let depth = kfuse_io::images::read_depth(depth_path, 1e-3)
             .with_context(|| format!("--depth {}", depth_path.display()))?;
         let ir = image::open(ir_path).ok().map(|i| {
@@ -102,9 +89,22 @@ pub fn fit(
         let name = depth_path
             .file_name()
             .map_or_else(|| depth_path.display().to_string(), |n| n.to_string_lossy().into_owned());
-        views.push(DepthView { name, camera_from_board: pose, depth, ir });
+        shots.push(DepthShot { name, corners: corners.clone(), depth, ir });
     }
-    Ok(fit_depth_correction(camera, board, &views)?)
+    let fit = fit_depth_from_corners(camera, board, &shots, reject_outliers)
+        .context("depth calibration: board poses from the IR images")?;
+    for (name, why) in &fit.no_pose {
+        println!("  {name}: {why}; left out");
+    }
+    match check_plausible(&fit) {
+        Ok(()) => {}
+        Err(e) if force => println!("  WARNING (--force): {e}"),
+        Err(e) => {
+            print_fit(&fit);
+            return Err(e.into());
+        }
+    }
+    Ok(fit)
 }
 
 /// The rig's correction with the fit's report.
@@ -151,6 +151,34 @@ pub fn print_fit(fit: &DepthFit) {
     );
     for line in fit.correction.describe() {
         println!("  {line}");
+    }
+    if let Some(sens) = &fit.sensitivity {
+        // Beside each term's σ: how far it moves with what the board poses were computed
+        // with (a correction belongs with the intrinsics and square it was fitted with).
+        println!(
+            "  what it depends on (re-fitted with the IR focal length and the square ±{:.0} %):",
+            100.0 * sens.step
+        );
+        println!(
+            "    {:<8} {:>12} {:>10} {:>16} {:>18}",
+            "term", "value", "1σ", "per +1 % of f", "per +1 % of square"
+        );
+        for (t, d) in fit.correction.terms.iter().zip(&sens.terms) {
+            // The scale in per cent, the other terms in millimetres.
+            let (k, unit) =
+                if t.kind == DepthTermKind::Scale { (100.0, " %") } else { (1e3, " mm") };
+            println!(
+                "    {:<8} {:>12} {:>10} {:>16} {:>18}",
+                t.kind.name(),
+                format!("{:+.3}{unit}", k * t.value),
+                format!("{:.3}{unit}", k * t.std),
+                format!("{:+.3}{unit}", k * d.per_percent_focal),
+                format!("{:+.3}{unit}", k * d.per_percent_square)
+            );
+        }
+        println!(
+            "    (the correction holds with the IR intrinsics and square it was fitted with; the rig keeps them together)"
+        );
     }
     if hi - lo < 2.0 * MIN_DISTANCE_SPAN_M {
         println!(

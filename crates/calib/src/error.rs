@@ -114,6 +114,21 @@ pub enum CalibError {
         /// What went wrong and what to do.
         message: String,
     },
+    /// Depth calibration (`depth`): a fitted scale beyond what a Kinect v2 plausibly has.
+    #[error(
+        "depth calibration: the fitted depth scale {:+.2} % is beyond the ±{:.0} % a Kinect v2 plausibly has (its time-of-flight scale errors are about ±1 %): the boards' distances are off, not the sensor's{moves}; check --square (the printed square's side) and that the IR intrinsics (--rig, or the images' own calibration) are those of these shots, or pass --force to write it anyway; nothing was written",
+        100.0 * scale,
+        100.0 * limit
+    )]
+    ImplausibleDepthScale {
+        /// The fitted scale (fraction).
+        scale: f64,
+        /// The bound (`depth::MAX_PLAUSIBLE_SCALE`).
+        limit: f64,
+        /// What moves the scale, e.g. " (here each +1 % of the square moves it by −1.00 %, …)",
+        /// or empty.
+        moves: String,
+    },
     /// An error of the geometry core (rig file, atomic write).
     #[error(transparent)]
     Geometry(#[from] geometry::GeometryError),

@@ -65,6 +65,11 @@ pub fn mono_report(m: &MonoCalibration) -> Value {
             "residuals_px": residuals(i),
         })).collect::<Vec<_>>(),
         "rejected_corners": m.rejected_corners,
+        "fixed_parameter_checks": {
+            "what": "per constraint flag: the same views fitted without it; 'moved' lists the other parameters that moved by more than max_sigmas_allowed σ of that free fit (fixed_fit − free_fit)",
+            "max_sigmas_allowed": crate::mono::FIX_SHIFT_SIGMAS,
+            "checks": m.fix_checks,
+        },
     })
 }
 

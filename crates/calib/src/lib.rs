@@ -25,6 +25,7 @@ pub mod depth;
 pub mod detect;
 mod error;
 pub mod files;
+pub mod holdout;
 pub mod io;
 pub mod mono;
 pub mod rig_io;

@@ -1,9 +1,10 @@
 //! Single-camera calibration: Zhang initialisation, LM refinement, uncertainty, and
 //! automatic (always reported) corner and view outlier rejection.
 //!
-//! Size (~600 lines): Zhang's initialisation, the LM refinement, the uncertainty and the
-//! rejection loop all work on one `Problem`/`Solution` pair and run in that order, so they
-//! read top to bottom in one file.
+//! Size (~750 lines): Zhang's initialisation, the LM refinement, the uncertainty, the
+//! rejection loop and the constraint flags' check against the free fit ([`FixCheck`]) all work
+//! on one `Problem`/`Solution` pair and run in that order, so they read top to bottom in one
+//! file.
 
 use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
 use nalgebra::Vector2;
@@ -33,6 +34,13 @@ pub const CORNER_OUTLIER_MIN_PX: f64 = 1.5;
 pub const VIEW_OUTLIER_FACTOR: f64 = 3.0;
 /// Views below this RMS are never rejected (the handout's colour bar is 0.2 px).
 pub const VIEW_OUTLIER_MIN_PX: f64 = 0.5;
+/// A parameter moved by fixing another (a [`CalibFlags`] constraint) by more than this many
+/// σ of the free fit is warned about ([`FixCheck`]): 5. Where the constraint is true the fixed
+/// and the free fit differ by the free fit's own noise, whose spread is at most its σ (the
+/// difference's variance is the free variance minus the fixed one), so 5σ is a false alarm
+/// below 1e-6 per parameter; a principal point tens of pixels off the centre moves the focal
+/// lengths by tens of σ (7 % on a real Kinect v2 set with σ ≈ 0.2 %).
+pub const FIX_SHIFT_SIGMAS: f64 = 5.0;
 /// Median of the Rayleigh distribution in units of σ: turns the median corner error into a
 /// per-axis noise estimate.
 const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_6;
@@ -180,6 +188,44 @@ pub struct RejectedCorner {
     pub threshold_px: f64,
 }
 
+/// One parameter's move between the free fit and the fit with a parameter fixed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParameterShift {
+    /// The parameter (`fx`, `k1`, …).
+    pub parameter: String,
+    /// Its value in the fit with the constraint.
+    pub fixed_fit: f64,
+    /// Its value in the free fit.
+    pub free_fit: f64,
+    /// Its 1σ in the free fit.
+    pub free_std: f64,
+}
+
+impl ParameterShift {
+    /// The move `fixed_fit − free_fit` in σ of the free fit.
+    pub fn sigmas(&self) -> f64 {
+        (self.fixed_fit - self.free_fit).abs() / self.free_std.max(1e-300)
+    }
+}
+
+/// What fixing one group of parameters does to the others: the fit with the flag against the
+/// same views' fit without it ([`calibrate_mono`] runs one per constraint flag set).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FixCheck {
+    /// The [`CalibFlags`] field (`fix_principal_point`, `fix_aspect_ratio`, `fix_k3`,
+    /// `zero_tangential`).
+    pub flag: String,
+    /// The parameters it fixes, with the values the free fit gives them.
+    pub freed: Vec<ParameterShift>,
+    /// The other parameters that moved by more than [`FIX_SHIFT_SIGMAS`] σ of the free fit,
+    /// largest move first (empty: the constraint agrees with the views).
+    pub moved: Vec<ParameterShift>,
+    /// The largest move of any other parameter, in σ of the free fit.
+    pub max_sigmas: f64,
+    /// Why the free fit could not be made (then no comparison).
+    pub free_fit_error: Option<String>,
+}
+
 /// The result of [`calibrate_mono`].
 #[derive(Debug, Clone)]
 pub struct MonoCalibration {
@@ -201,6 +247,19 @@ pub struct MonoCalibration {
     pub iterations: usize,
     /// Residuals of every used corner: (view index, corner id, observed px, error px vector).
     pub residuals: Vec<(usize, usize, Vector2<f64>, Vector2<f64>)>,
+    /// Per constraint flag set (principal point, aspect ratio, k3, tangential): how far it moved
+    /// the other parameters against the free fit ([`FIX_SHIFT_SIGMAS`]); empty without such
+    /// flags or with the intrinsics fixed.
+    pub fix_checks: Vec<FixCheck>,
+}
+
+impl MonoCalibration {
+    /// The intrinsics and distortion in solver order (`fx, fy, cx, cy, skew, k1, k2, p1, p2,
+    /// k3`, as [`IntrinsicsStd::to_array`]).
+    pub fn parameters(&self) -> [f64; N_INTR] {
+        let (k, d) = (self.camera.intrinsics, self.camera.distortion);
+        [k.fx, k.fy, k.cx, k.cy, k.skew, d.k1, d.k2, d.p1, d.p2, d.k3]
+    }
 }
 
 pub(crate) fn initial_camera(
@@ -438,7 +497,78 @@ pub(crate) fn residual_variance(sol: &Solution) -> f64 {
 /// outliers (> [`CORNER_OUTLIER_SIGMAS`] robust σ) and then view outliers (RMS >
 /// [`VIEW_OUTLIER_FACTOR`] × median) are removed one round at a time and the fit repeated;
 /// every removal is listed in the result.
+///
+/// With a constraint flag (`fix_principal_point`, `fix_aspect_ratio`, `fix_k3`,
+/// `zero_tangential`; not with `fix_intrinsics`) the same views are also fitted without each
+/// one, and [`MonoCalibration::fix_checks`] says which other parameters the constraint moved
+/// beyond [`FIX_SHIFT_SIGMAS`] σ of that free fit.
 pub fn calibrate_mono(
+    camera: &str,
+    board: &Board,
+    views: &[ViewCorners],
+    flags: &CalibFlags,
+    guess: Option<&CameraModel>,
+) -> Result<MonoCalibration, CalibError> {
+    let mut m = calibrate_mono_unchecked(camera, board, views, flags, guess)?;
+    if flags.fix_intrinsics {
+        return Ok(m);
+    }
+    type Unfix = fn(&mut CalibFlags);
+    let constraints: [(&str, bool, Unfix, &[usize]); 4] = [
+        (
+            "fix_principal_point",
+            flags.fix_principal_point,
+            |f| f.fix_principal_point = false,
+            &[2, 3],
+        ),
+        ("fix_aspect_ratio", flags.fix_aspect_ratio, |f| f.fix_aspect_ratio = false, &[1]),
+        ("fix_k3", flags.fix_k3, |f| f.fix_k3 = false, &[9]),
+        ("zero_tangential", flags.zero_tangential, |f| f.zero_tangential = false, &[7, 8]),
+    ];
+    let fixed_free = flags.free_mask();
+    let fixed_values = m.parameters();
+    for (flag, on, unfix, fixes) in constraints {
+        if !on {
+            continue;
+        }
+        let mut free_flags = *flags;
+        unfix(&mut free_flags);
+        let mut check = FixCheck {
+            flag: flag.into(),
+            freed: vec![],
+            moved: vec![],
+            max_sigmas: 0.0,
+            free_fit_error: None,
+        };
+        // The free fit starts where the fixed one did (the guess, or Zhang's closed form).
+        match calibrate_mono_unchecked(camera, board, views, &free_flags, guess) {
+            Err(e) => check.free_fit_error = Some(e.to_string()),
+            Ok(free) => {
+                let (values, std) = (free.parameters(), free.std.to_array());
+                let shift = |j: usize| ParameterShift {
+                    parameter: INTR_NAMES[j].into(),
+                    fixed_fit: fixed_values[j],
+                    free_fit: values[j],
+                    free_std: std[j],
+                };
+                check.freed = fixes.iter().map(|&j| shift(j)).collect();
+                let mut moved: Vec<ParameterShift> = (0..N_INTR)
+                    .filter(|&j| fixed_free[j] && !fixes.contains(&j) && std[j] > 0.0)
+                    .map(shift)
+                    .collect();
+                moved.sort_by(|a, b| b.sigmas().total_cmp(&a.sigmas()));
+                check.max_sigmas = moved.first().map_or(0.0, ParameterShift::sigmas);
+                moved.retain(|p| p.sigmas() > FIX_SHIFT_SIGMAS);
+                check.moved = moved;
+            }
+        }
+        m.fix_checks.push(check);
+    }
+    Ok(m)
+}
+
+/// [`calibrate_mono`] without the constraint checks.
+pub(crate) fn calibrate_mono_unchecked(
     camera: &str,
     board: &Board,
     views: &[ViewCorners],
@@ -523,6 +653,7 @@ pub fn calibrate_mono(
         flags: *flags,
         iterations: sol.iterations,
         residuals,
+        fix_checks: Vec::new(),
     })
 }
 

@@ -123,6 +123,28 @@ fn average(ts: &[RigidTransform]) -> RigidTransform {
     RigidTransform::new(q.to_rotation_matrix(), t / ts.len() as f64)
 }
 
+/// The pairs a stereo fit cannot use and why, in [`CalibError::TooFewViews`]'s `left_out`
+/// form: per pair the image of each camera that has no usable board pose, with the reason its
+/// single-camera fit gave (no board found, another image size, rejected as an outlier view).
+fn pairs_left_out(depth: &MonoCalibration, color: &MonoCalibration) -> String {
+    let why = |m: &MonoCalibration, i: usize| -> Option<String> {
+        let v = &m.views[i];
+        match (&v.rejected, v.camera_from_board) {
+            (Some(r), _) => Some(format!("{}: {r}", v.name)),
+            (None, None) => Some(format!("{}: no board pose", v.name)),
+            (None, Some(_)) => None,
+        }
+    };
+    let list: Vec<String> = (0..depth.views.len().min(color.views.len()))
+        .filter_map(|i| {
+            let reasons: Vec<String> =
+                [why(depth, i), why(color, i)].into_iter().flatten().collect();
+            (!reasons.is_empty()).then(|| format!("pair {} ({})", i + 1, reasons.join("; ")))
+        })
+        .collect();
+    if list.is_empty() { String::new() } else { format!(" (left out: {})", list.join(", ")) }
+}
+
 /// Calibrates the pair. `depth_views[i]` and `color_views[i]` are the two images of pair `i`
 /// (an image without a board has no corners). Each camera is first calibrated alone (with its
 /// own outlier rejection); pairs in which both cameras' views survived initialise
@@ -168,7 +190,7 @@ pub fn calibrate_stereo(
             camera: "stereo pairs (board seen by both cameras)".into(),
             usable: pairs.len(),
             needed: MIN_VIEWS,
-            left_out: String::new(),
+            left_out: pairs_left_out(&depth_mono, &color_mono),
         });
     }
     let estimates: Vec<RigidTransform> = pairs

@@ -482,3 +482,106 @@ fn flags_hold_what_they_fix() {
     // intrinsics' own error moves T): only the acceptance bar is asserted.
     assert!(dt < 0.5, "dT {dt} mm");
 }
+
+/// `--fix-principal-point` on a camera whose principal point is 30 px right of and 20 px above
+/// the centre moves the focal lengths by many σ of the free fit: `fix_checks` names them with
+/// the move (equal to the difference of the two fits made here) and σ, and the free fit's
+/// principal point within 3σ of the truth. On the rendered camera (principal point at the
+/// centre) the same flag moves nothing beyond FIX_SHIFT_SIGMAS.
+#[test]
+fn fixing_a_wrong_principal_point_is_warned_about_and_a_right_one_is_not() {
+    let Some(data) = shared_data("fixing_a_wrong_principal_point_is_warned_about") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let ir = gt_camera(&gt, "ir");
+    let poses: Vec<_> = (0..15).map(|i| gt_pose(&gt, i, "ir")).collect();
+    let fix = CalibFlags { fix_principal_point: true, ..CalibFlags::default() };
+
+    let right = synth_views(&ir, &poses, 0.05, 31);
+    let r = calibrate_mono("ir", &board(), &right, &fix, None).unwrap();
+    assert_eq!(r.fix_checks.len(), 1);
+    let c = &r.fix_checks[0];
+    eprintln!("principal point at the centre: largest move {:.2} σ", c.max_sigmas);
+    assert!(c.free_fit_error.is_none() && c.moved.is_empty(), "{c:?}");
+    assert!(c.max_sigmas < calib::mono::FIX_SHIFT_SIGMAS, "{c:?}");
+    // Without a constraint flag nothing is checked.
+    let free = calibrate_mono("ir", &board(), &right, &CalibFlags::default(), None).unwrap();
+    assert!(free.fix_checks.is_empty());
+
+    let mut off = ir;
+    off.intrinsics.cx += 30.0;
+    off.intrinsics.cy -= 20.0;
+    let wrong = synth_views(&off, &poses, 0.05, 32);
+    let r = calibrate_mono("ir", &board(), &wrong, &fix, None).unwrap();
+    let free = calibrate_mono("ir", &board(), &wrong, &CalibFlags::default(), None).unwrap();
+    let c = &r.fix_checks[0];
+    for m in &c.moved {
+        eprintln!(
+            "principal point 36 px off: {} moved {:+.4} ({:.0} σ, σ {:.4})",
+            m.parameter,
+            m.fixed_fit - m.free_fit,
+            m.sigmas(),
+            m.free_std
+        );
+    }
+    let fx = c.moved.iter().find(|m| m.parameter == "fx").expect("fx moved");
+    assert!(fx.sigmas() > calib::mono::FIX_SHIFT_SIGMAS, "{fx:?}");
+    assert!((fx.fixed_fit - r.camera.intrinsics.fx).abs() < 1e-9);
+    assert!((fx.free_fit - free.camera.intrinsics.fx).abs() < 1e-9);
+    assert!((fx.free_std - free.std.fx).abs() < 1e-12);
+    assert!(c.moved.iter().any(|m| m.parameter == "fy"), "{c:?}");
+    // The moves are sorted, largest first, and every one is beyond the bar.
+    assert!(c.moved.windows(2).all(|w| w[0].sigmas() >= w[1].sigmas()));
+    let cx = c.freed.iter().find(|m| m.parameter == "cx").unwrap();
+    assert!((cx.free_fit - off.intrinsics.cx).abs() < 3.0 * cx.free_std, "{cx:?}");
+}
+
+/// Fewer than three views with a board: the error names every image left out and why (no
+/// board, another image size, too few corners); for a stereo pair, which camera's image of
+/// each pair has no board.
+#[test]
+fn too_few_views_name_each_image_left_out_and_why() {
+    let Some(data) = shared_data("too_few_views_name_each_image_left_out_and_why") else { return };
+    let gt = json(data.join("synthetic-calib/ground_truth.json"));
+    let ir = gt_camera(&gt, "ir");
+    let poses: Vec<_> = (0..5).map(|i| gt_pose(&gt, i, "ir")).collect();
+    let mut views = synth_views(&ir, &poses, 0.05, 41);
+    views[2].corners.clear();
+    (views[3].width, views[3].height) = (640, 480);
+    views[4].corners.truncate(4);
+    let err = calibrate_mono("IR camera", &board(), &views, &CalibFlags::default(), None)
+        .unwrap_err()
+        .to_string();
+    for want in [
+        "only 2 usable view(s)",
+        "view_02 (no board found)",
+        "view_03 (image is 640x480, the camera's other images are 512x424)",
+        "view_04 (only 4 corners (need 6))",
+    ] {
+        assert!(err.contains(want), "{want}: {err}");
+    }
+    // Stereo: IR boards in views 0-2, colour boards in views 2-4: one pair.
+    let color = gt_camera(&gt, "color");
+    let cfd = gt_color_from_depth(&gt);
+    let mut dv = synth_views(&ir, &poses, 0.05, 42);
+    let cposes: Vec<_> = poses.iter().map(|p| cfd.compose(p)).collect();
+    let mut cv = synth_views(&color, &cposes, 0.05, 43);
+    for v in dv.iter_mut().skip(3) {
+        v.corners.clear();
+    }
+    for v in cv.iter_mut().take(2) {
+        v.corners.clear();
+    }
+    let flags = StereoOptions::default();
+    let err = calibrate_stereo(&board(), &dv, &cv, &flags, None, None).unwrap_err().to_string();
+    // The single-camera fits need three views each: they have them; the pairs do not.
+    assert!(err.contains("stereo pairs") && err.contains("only 1 usable"), "{err}");
+    for want in [
+        "pair 1 (view_00: no board found)",
+        "pair 2 (view_01: no board found)",
+        "pair 4 (view_03: no board found)",
+        "pair 5 (view_04: no board found)",
+    ] {
+        assert!(err.contains(want), "{want}: {err}");
+    }
+    assert!(!err.contains("pair 3 ("), "{err}");
+}

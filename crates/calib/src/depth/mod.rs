@@ -21,7 +21,20 @@
 //! 4. **views that disagree** (per-view median residual after the fit beyond [`VIEW_MAD_K`]
 //!    robust σ of all views' medians) are rejected and the fit repeated.
 //!
-//! Size (~620 lines): the four stages share the sample and design-matrix types and the
+//! 5. **what it depends on** ([`fit_depth_from_corners`]): the board poses, and so the plane
+//!    z, come from the IR corners through the IR intrinsics and the printed square's side; the
+//!    fit is repeated with the focal length and with the square [`SENSITIVITY_STEP`] larger and
+//!    smaller (poses re-solved from the same corners, same terms, same views) and the central
+//!    difference reported per +1 % of each ([`DepthSensitivity`]). A scale beyond
+//!    [`MAX_PLAUSIBLE_SCALE`] is refused by [`check_plausible`] (the caller's `--force` skips
+//!    it): such a scale says the distances were wrong, not the sensor.
+//!
+//! A correction therefore belongs with the intrinsics it was fitted with: the same depth
+//! images fitted with another calibration's focal length give another offset and scale (on a
+//! real Kinect v2 set, +40.5 mm with kfuse's intrinsics against iai_kinect2's +25.5 mm with
+//! its own); the rig file keeps the two together.
+//!
+//! Size (~900 lines): the four stages share the sample and design-matrix types and the
 //! view-rejection loop wraps all three, so splitting them would only move private helpers
 //! into `pub(crate)`; the unit tests live in `tests.rs`.
 
@@ -29,7 +42,8 @@ use geometry::depth_correction::{DepthCorrection, DepthTerm, DepthTermKind, Imag
 use geometry::{CameraModel, Image, RigidTransform};
 use nalgebra::{DMatrix, DVector, Vector3};
 
-use crate::{Board, CalibError};
+use crate::mono::{CalibFlags, MonoCalibration, calibrate_mono};
+use crate::{Board, CalibError, ViewCorners};
 
 /// Fewest views with board samples a fit needs: 4. Offset and scale need two distances, the
 /// spatial terms boards in several parts of the image, and the rejection of a disagreeing view
@@ -67,6 +81,19 @@ pub const VIEW_MAD_K: f64 = 4.0;
 /// a far view's median legitimately sits further off than the near views' spread says; and
 /// views of a noise-free simulation agree to a few µm, where 20 µm is no disagreement.
 pub const VIEW_SIGMA_FLOOR_M: f64 = 5e-4;
+/// Relative step of the focal length and the square size for [`DepthSensitivity`]: 1 %.
+/// Large enough that the poses re-solved from the same corners move far beyond the LM's
+/// convergence (1e-4 px), small enough that the fit's response is linear to well under 1 %
+/// of itself (the square's effect on the scale, `(1+s)/(1+ε) − 1`, deviates from its tangent
+/// by ε² = 0.01 % of z); the central difference cancels the quadratic term.
+pub const SENSITIVITY_STEP: f64 = 0.01;
+/// Largest |scale| a Kinect v2's depth plausibly has: 5 %. Its time-of-flight depth's scale
+/// errors are about ±1 % (the sensor's own 0.5 % plus unit-to-unit spread); 5 % is 10 cm at
+/// 2 m, beyond any unit described. Every 1 % error of the square or of the IR focal length
+/// moves the fitted scale by about 1 % ([`DepthSensitivity`]), so 5 % passes a real sensor with
+/// its fit's σ (≤ 0.5 %) and a square measured to 1 mm in 40, and catches a square off by 2 mm
+/// (37–38 mm for 40 mm) or intrinsics from another calibration that far off.
+pub const MAX_PLAUSIBLE_SCALE: f64 = 0.05;
 /// Rejection rounds at most (each round refits; a stable set ends earlier).
 const MAX_REJECTION_ROUNDS: usize = 3;
 
@@ -155,6 +182,56 @@ pub struct DepthFit {
     /// Offset + scale alone on the used views: its residual map shows the spatial structure
     /// the order was chosen from.
     pub base: Vec<DepthTerm>,
+    /// How the terms move with the IR focal length and the square size
+    /// ([`fit_depth_from_corners`]; `None` from [`fit_depth_correction`], which has no corners).
+    pub sensitivity: Option<DepthSensitivity>,
+    /// Shots without a board pose from their IR image (name, why), left out before the fit
+    /// ([`fit_depth_from_corners`]).
+    pub no_pose: Vec<(String, String)>,
+}
+
+/// One term's response to the IR focal length and the square size: the change of its value
+/// (its own unit: metres, unitless for the scale) per +1 % of each.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TermSensitivity {
+    /// Which term.
+    pub kind: DepthTermKind,
+    /// Change of the value per +1 % of the IR focal length (fx and fy together).
+    pub per_percent_focal: f64,
+    /// Change of the value per +1 % of the board's square side.
+    pub per_percent_square: f64,
+}
+
+/// The correction's dependence on what the board poses were computed with (module docs,
+/// stage 5): per term the central difference of re-fits with the IR focal length and the
+/// square [`SENSITIVITY_STEP`] larger and smaller.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthSensitivity {
+    /// The relative step of the re-fits (fraction).
+    pub step: f64,
+    /// The terms in the correction's order.
+    pub terms: Vec<TermSensitivity>,
+}
+
+impl DepthSensitivity {
+    /// The entry of `kind`, if the correction has that term.
+    pub fn of(&self, kind: DepthTermKind) -> Option<&TermSensitivity> {
+        self.terms.iter().find(|t| t.kind == kind)
+    }
+}
+
+/// One shot for [`fit_depth_from_corners`]: the board's corners in its IR image, the raw depth
+/// image (metres, 0 or NaN = none) and optionally the 16-bit IR image (glare mask).
+#[derive(Debug, Clone)]
+pub struct DepthShot {
+    /// The shot's name (the depth file).
+    pub name: String,
+    /// The board's corners detected in the IR image.
+    pub corners: ViewCorners,
+    /// Depth (z), metres.
+    pub depth: Image<f32>,
+    /// IR, 16-bit decoder units.
+    pub ir: Option<Image<u16>>,
 }
 
 /// The board samples of one view (stage 1).
@@ -166,12 +243,25 @@ pub fn board_samples(
     board: &Board,
     view: &DepthView,
 ) -> Vec<Sample> {
-    let (w, h) = view.depth.size();
+    samples_of(camera, rays, board, &view.camera_from_board, &view.depth, view.ir.as_ref())
+}
+
+/// [`board_samples`] of a pose, a depth and an IR image (the sensitivity's re-fits move the
+/// pose only).
+fn samples_of(
+    camera: &CameraModel,
+    rays: &[[f32; 2]],
+    board: &Board,
+    camera_from_board: &RigidTransform,
+    depth: &Image<f32>,
+    ir: Option<&Image<u16>>,
+) -> Vec<Sample> {
+    let (w, h) = depth.size();
     if (w, h) != (camera.width, camera.height) || rays.len() != w * h {
         return Vec::new();
     }
-    let r = view.camera_from_board.rotation.matrix();
-    let t = view.camera_from_board.translation;
+    let r = camera_from_board.rotation.matrix();
+    let t = camera_from_board.translation;
     let n: Vector3<f64> = r.column(2).into();
     let d0 = n.dot(&t);
     let (bx_max, by_max) =
@@ -179,11 +269,11 @@ pub fn board_samples(
     let mut out = Vec::new();
     for v in 0..h {
         for u in 0..w {
-            let zm = f64::from(*view.depth.get(u, v));
+            let zm = f64::from(*depth.get(u, v));
             if !(zm > 0.0 && zm.is_finite()) {
                 continue;
             }
-            if view.ir.as_ref().is_some_and(|ir| *ir.get(u, v) == IR_SATURATED) {
+            if ir.is_some_and(|ir| *ir.get(u, v) == IR_SATURATED) {
                 continue;
             }
             let [rx, ry] = rays[v * w + u];
@@ -583,7 +673,171 @@ pub fn fit_depth_correction(
         order_steps,
         distance_range_m,
         base,
+        sensitivity: None,
+        no_pose: Vec::new(),
     })
+}
+
+/// The board poses of `corners` seen by `camera` with its intrinsics held (the depth pixels are
+/// that camera's): a single-camera fit of the poses alone.
+fn board_poses(
+    camera: &CameraModel,
+    board: &Board,
+    corners: &[ViewCorners],
+    reject_outliers: bool,
+) -> Result<MonoCalibration, CalibError> {
+    let flags = CalibFlags {
+        use_intrinsic_guess: true,
+        fix_intrinsics: true,
+        reject_outliers,
+        ..CalibFlags::default()
+    };
+    calibrate_mono(
+        "IR camera (board poses for the depth fit)",
+        board,
+        corners,
+        &flags,
+        Some(camera),
+    )
+}
+
+/// The depth calibration from the IR corners (module docs, stages 1–5): board poses from
+/// `shots`' corners with `camera`'s intrinsics held, [`fit_depth_correction`] on the shots that
+/// have a pose, and the fit's [`DepthSensitivity`] to the focal length and the square.
+///
+/// Errors: those of [`fit_depth_correction`], and a pose fit that fails (fewer than three
+/// shots with a board).
+pub fn fit_depth_from_corners(
+    camera: &CameraModel,
+    board: &Board,
+    shots: &[DepthShot],
+    reject_outliers: bool,
+) -> Result<DepthFit, CalibError> {
+    let corners: Vec<ViewCorners> = shots.iter().map(|s| s.corners.clone()).collect();
+    let poses = board_poses(camera, board, &corners, reject_outliers)?;
+    let mut views = Vec::new();
+    let mut used_shots = Vec::new();
+    let mut no_pose = Vec::new();
+    for (i, (shot, report)) in shots.iter().zip(&poses.views).enumerate() {
+        match (report.camera_from_board, &report.rejected) {
+            (Some(pose), None) => {
+                views.push(DepthView {
+                    name: shot.name.clone(),
+                    camera_from_board: pose,
+                    depth: shot.depth.clone(),
+                    ir: shot.ir.clone(),
+                });
+                used_shots.push(i);
+            }
+            (_, why) => no_pose.push((
+                shot.name.clone(),
+                format!(
+                    "no board pose from {}: {}",
+                    shot.corners.name,
+                    why.as_deref().unwrap_or("the IR fit gave none")
+                ),
+            )),
+        }
+    }
+    let mut fit = fit_depth_correction(camera, board, &views)?;
+    // The shots the fit used, with the corners the pose fit kept (its outlier corners out).
+    let used: Vec<usize> = (0..views.len()).filter(|&i| fit.views[i].rejected.is_none()).collect();
+    let kept: Vec<ViewCorners> = used
+        .iter()
+        .map(|&i| {
+            let mut c = shots[used_shots[i]].corners.clone();
+            c.corners.retain(|k| {
+                !poses.rejected_corners.iter().any(|r| r.view == c.name && r.id == k.id)
+            });
+            c
+        })
+        .collect();
+    let used_views: Vec<&DepthView> = used.iter().map(|&i| &views[i]).collect();
+    fit.sensitivity = Some(sensitivity(camera, board, &kept, &used_views, &fit)?);
+    fit.no_pose = no_pose;
+    Ok(fit)
+}
+
+/// The fit's terms re-fitted with the focal length and the square [`SENSITIVITY_STEP`] larger
+/// and smaller (module docs, stage 5). `corners[i]` are the IR corners of `views[i]`.
+fn sensitivity(
+    camera: &CameraModel,
+    board: &Board,
+    corners: &[ViewCorners],
+    views: &[&DepthView],
+    fit: &DepthFit,
+) -> Result<DepthSensitivity, CalibError> {
+    let terms: Vec<DepthTermKind> = fit.correction.terms.iter().map(|t| t.kind).collect();
+    let coords = ImageCoords::new(camera.width, camera.height);
+    let refit = |focal: f64, square: f64| -> Result<DVector<f64>, CalibError> {
+        let mut cam = *camera;
+        cam.intrinsics.fx *= focal;
+        cam.intrinsics.fy *= focal;
+        let b = Board { square_m: board.square_m * square, ..*board };
+        // No outlier rejection: the corners are those the nominal fit kept, and a corner
+        // rejected in one re-fit but not the other would be a step, not a derivative.
+        let poses = board_poses(&cam, &b, corners, false)?;
+        let rays = cam.ray_table();
+        let samples: Vec<Vec<Sample>> = {
+            use rayon::prelude::*;
+            views
+                .par_iter()
+                .zip(&poses.views)
+                .map(|(v, p)| match p.camera_from_board {
+                    Some(pose) => samples_of(&cam, &rays, &b, &pose, &v.depth, v.ir.as_ref()),
+                    None => Vec::new(),
+                })
+                .collect()
+        };
+        let idx: Vec<usize> = (0..samples.len()).filter(|&i| !samples[i].is_empty()).collect();
+        let s = sums(&coords, &terms, &samples);
+        solve(&s, &idx).map(|r| r.0).ok_or_else(|| CalibError::DepthFit {
+            message: format!(
+                "the fit with the focal length x{focal} and the square x{square} is singular: the sensitivity cannot be computed; add views at other distances"
+            ),
+        })
+    };
+    let h = SENSITIVITY_STEP;
+    let (fp, fm) = (refit(1.0 + h, 1.0)?, refit(1.0 - h, 1.0)?);
+    let (sp, sm) = (refit(1.0, 1.0 + h)?, refit(1.0, 1.0 - h)?);
+    // Central difference per unit of relative change, times 0.01: per +1 %.
+    let per_percent =
+        |p: &DVector<f64>, m: &DVector<f64>, j: usize| (p[j] - m[j]) / (2.0 * h) * 0.01;
+    Ok(DepthSensitivity {
+        step: h,
+        terms: terms
+            .iter()
+            .enumerate()
+            .map(|(j, &kind)| TermSensitivity {
+                kind,
+                per_percent_focal: per_percent(&fp, &fm, j),
+                per_percent_square: per_percent(&sp, &sm, j),
+            })
+            .collect(),
+    })
+}
+
+/// Refuses a fit whose scale is beyond [`MAX_PLAUSIBLE_SCALE`] (module docs, stage 5): the
+/// error names the scale, the bound, what moves it (the square, the IR intrinsics, with the
+/// fit's sensitivity when known) and `--force`.
+pub fn check_plausible(fit: &DepthFit) -> Result<(), CalibError> {
+    let scale = fit.correction.value(DepthTermKind::Scale);
+    if scale.abs() <= MAX_PLAUSIBLE_SCALE {
+        return Ok(());
+    }
+    let moves = fit
+        .sensitivity
+        .as_ref()
+        .and_then(|s| s.of(DepthTermKind::Scale))
+        .map(|s| {
+            format!(
+                " (here each +1 % of the square moves it by {:+.2} %, each +1 % of the IR focal length by {:+.2} %)",
+                100.0 * s.per_percent_square,
+                100.0 * s.per_percent_focal
+            )
+        })
+        .unwrap_or_default();
+    Err(CalibError::ImplausibleDepthScale { scale, limit: MAX_PLAUSIBLE_SCALE, moves })
 }
 
 /// Residuals `z_measured − z_plane − model` of `samples`.
@@ -609,6 +863,17 @@ impl DepthFit {
             "rms_after_m": self.rms_after_m,
             "residual_sigma_m": self.residual_variance.sqrt(),
             "std": "1σ: the larger of sqrt(diag((AᵀA)⁻¹)·s²) and a jackknife over views",
+            "sensitivity": self.sensitivity.as_ref().map(|s| serde_json::json!({
+                "what": "change of each term's value (its unit: metres, unitless for the scale) per +1 % of the IR focal length (fx and fy) and per +1 % of the board's square side; central difference of re-fits with the board poses re-solved from the same corners",
+                "step_fraction": s.step,
+                "terms": s.terms.iter().map(|t| serde_json::json!({
+                    "term": t.kind.name(),
+                    "per_percent_focal_length": t.per_percent_focal,
+                    "per_percent_square_size": t.per_percent_square,
+                })).collect::<Vec<_>>(),
+            })),
+            "max_plausible_scale": MAX_PLAUSIBLE_SCALE,
+            "shots_without_board_pose": self.no_pose.iter().map(|(n, why)| serde_json::json!({"name": n, "reason": why})).collect::<Vec<_>>(),
             "order_steps": self.order_steps.iter().map(|o| serde_json::json!({"terms": o.terms, "rms_m": o.rms_m, "leave_one_view_out_rms_m": o.cv_rms_m, "kept": o.kept})).collect::<Vec<_>>(),
             "views": self.views.iter().map(|v| serde_json::json!({
                 "name": v.name, "pixels": v.pixels, "median_z_m": v.median_z_m,
