@@ -715,3 +715,80 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     );
     assert!(!out.exists());
 }
+
+/// The red-team's bad rig inputs, each refused with one line naming the file and what is
+/// wrong, nothing written: an empty .json and .mat (were "not a mapping"), a Bouguet .mat
+/// with a NaN focal length (printed a Rust debug struct) and with `n_ima = 1e18` (would loop
+/// for ever), 400 kB of nested brackets (kept `rig import` busy past 60 s), and a rig JSON
+/// with a key twice (the last was taken).
+#[test]
+fn red_team_rig_inputs_fail_with_one_line() {
+    use kfuse_io::mat::{MatValue, write_mat};
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |f: &str| tmp.path().join(f);
+    let out = p("rig.json");
+    std::fs::write(p("empty.json"), b"").unwrap();
+    std::fs::write(p("empty.mat"), b"").unwrap();
+    std::fs::write(p("deep.yaml"), format!("M1: {}", "[".repeat(400_000))).unwrap();
+    let bouguet = |path: &Path, fc0: f64, n_ima: f64| {
+        write_mat(
+            path,
+            &[
+                ("fc", MatValue::double_matrix(2, 1, &[fc0, 365.0])),
+                ("cc", MatValue::double_matrix(2, 1, &[255.5, 211.5])),
+                ("kc", MatValue::double_matrix(5, 1, &[0.09, -0.27, 0.0, 0.0, 0.0])),
+                ("alpha_c", MatValue::scalar(0.0)),
+                ("nx", MatValue::scalar(512.0)),
+                ("ny", MatValue::scalar(424.0)),
+                ("n_ima", MatValue::scalar(n_ima)),
+            ],
+        )
+        .unwrap()
+    };
+    bouguet(&p("Calib_Results_left.mat"), f64::NAN, 1.0);
+    bouguet(&p("Calib_Results.mat"), 365.0, 1e18);
+    let rig_text = geometry::synth::kinect_rig().to_json();
+    std::fs::write(p("twice.json"), rig_text.replacen("\"fx\":", "\"fx\": 36.5, \"fx\":", 1))
+        .unwrap();
+    let cases = [
+        ("empty.json", "is empty (0 bytes)"),
+        ("empty.mat", "is empty (0 bytes)"),
+        ("Calib_Results_left.mat", "got fx = NaN"),
+        ("Calib_Results.mat", "'n_ima' (the number of images) is 1e18"),
+        ("deep.yaml", "nested more than 16 levels"),
+        ("twice.json", "key \"fx\" appears twice in depth_camera"),
+    ];
+    for (name, needle) in cases {
+        let (good, stdout, err) =
+            kfuse(&["rig", "import", s(&p(name)), "--camera", "depth", "--out", s(&out)]);
+        assert!(!good, "{name}: {stdout}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
+        assert!(!err.contains("mapping") && !err.contains("CameraModel {"), "{name}: {err}");
+        assert!(!out.exists(), "{name}: output written");
+    }
+    // Every command reads rigs through the same check.
+    let (good, _, err) = kfuse(&["rig", "show", s(&p("twice.json"))]);
+    assert!(!good && err.contains("twice.json") && err.contains("appears twice"), "{err}");
+}
+
+/// Huge and tiny values are printed in scientific notation by `rig show` and in messages (a
+/// focal length of 1e300 px was printed with 301 digits, k1 = 1e-300 with 300).
+#[test]
+fn huge_and_tiny_numbers_are_printed_in_scientific_notation() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("odd.json");
+    let mut rig = geometry::synth::kinect_rig();
+    rig.depth.intrinsics.fx = 1e300;
+    rig.color.distortion.k1 = 1e-300;
+    kfuse_io::rig::write_rig(&path, &rig).unwrap();
+    let shown = ok(&["rig", "show", s(&path)]);
+    assert!(shown.contains("fx 1.000e300 px"), "{shown}");
+    // No run of digits longer than f64's 17 significant ones (fx alone was 301 digits).
+    let longest_digits = |t: &str| t.split(|c: char| !c.is_ascii_digit()).map(str::len).max();
+    assert!(longest_digits(&shown).unwrap() <= 17, "{shown}");
+    let (good, _, err) =
+        kfuse(&["rig", "import", s(&path), "--out", s(&tmp.path().join("r.json"))]);
+    assert!(!good && err.contains("fx = 1e300 px is over"), "{err}");
+    assert!(longest_digits(&err).unwrap() <= 17, "{err}");
+}

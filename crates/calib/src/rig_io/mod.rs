@@ -160,6 +160,9 @@ fn from_kfuse_json(text: &str, path: &Path) -> Result<Calibration, CalibError> {
             ),
         )
     })?;
+    if let Some(repeated) = geometry::rig::duplicate_key(text) {
+        return Err(fmt_err(path, repeated));
+    }
     match v.get("format").and_then(Value::as_str) {
         Some(CAMERA_FORMAT) => {
             if v.get("version").and_then(Value::as_u64).unwrap_or(0) > 1 {
@@ -316,6 +319,9 @@ fn expect_count(sources: &[PathBuf], max: usize, what: &str) -> Result<(), Calib
 fn import_json(text: &str, path: &Path) -> Result<Imported, CalibError> {
     let v: Value =
         serde_json::from_str(text).map_err(|e| fmt_err(path, format!("not valid JSON ({e})")))?;
+    if let Some(repeated) = geometry::rig::duplicate_key(text) {
+        return Err(fmt_err(path, repeated));
+    }
     if v.get("format").and_then(Value::as_str) == Some(KINECT_PARAMS_FORMAT) {
         let params = kinect::FactoryParams::from_json(&v, path)?;
         let fit = params.to_rig()?;
