@@ -34,8 +34,9 @@ const MAX_MATRIX_VALUES: usize = 64;
 /// Largest image side accepted from a file (a 16k sensor is 16 384 px wide).
 pub const MAX_IMAGE_SIDE: u64 = 65_536;
 /// Largest YAML document parsed, bytes: 1 MiB. A rig or camera_info YAML is 1–3 KB; OpenCV's
-/// calibration sample with every view's image points (100 views × 100 corners) stays under
-/// 600 KB, and a flat 1 MiB document parses in milliseconds.
+/// calibration sample with every view's image points (100 views × 100 corners: 20 000
+/// numbers of ~25 characters) would be about 500 KB. Measured (debug build, 2026-12-03): 1 MB of flat values parses in 0.05–0.08 s of CPU,
+/// 1 MB of 16-level brackets repeated (the worst within both limits) in 0.2 s.
 pub const MAX_YAML_BYTES: usize = 1 << 20;
 /// Deepest nesting of a YAML document (block indentation levels, `- ` entries and flow
 /// brackets together): 16. OpenCV FileStorage and ROS files nest 3 levels (a matrix mapping
