@@ -585,7 +585,8 @@ mod tests {
         assert!(rig.color_centre_in_depth().x > 0.05, "{}", rig.color_centre_in_depth());
     }
 
-    /// The files given one by one, in any order, are the folder; the folder without
+    /// The files given one by one, in any order, are the folder; one camera file alone is a
+    /// single camera (a pose beside it asks for the other camera's file); the folder without
     /// calib_depth.yaml has no depth correction and says so.
     #[test]
     fn files_in_any_order_and_the_optional_depth_file() {
@@ -597,6 +598,21 @@ mod tests {
         assert_eq!(from_dir.depth, from_files.depth);
         assert_eq!(from_dir.color, from_files.color);
         assert_eq!(from_dir.depth_correction, from_files.depth_correction);
+        // One camera file alone is that camera (by iai's name, or --camera), at its Kinect size.
+        let one = import_docs(vec![Doc::read(&p(IR_FILE)).unwrap()], &ImportOptions::default());
+        match one.unwrap().calibration {
+            Calibration::Camera { camera, role, .. } => {
+                assert_eq!(role, Some(Role::Depth));
+                assert_eq!(
+                    (camera.width, camera.height, camera.intrinsics.fx),
+                    (512, 424, 365.1234)
+                );
+            }
+            c => panic!("not one camera: {c:?}"),
+        }
+        let with_pose = vec![Doc::read(&p(COLOR_FILE)).unwrap(), Doc::read(&p(POSE_FILE)).unwrap()];
+        let e = import_docs(with_pose, &ImportOptions::default()).unwrap_err().to_string();
+        assert!(e.contains(POSE_FILE) && e.contains(IR_FILE), "{e}");
         std::fs::remove_file(p(DEPTH_FILE)).unwrap();
         let i = import_dir(dir.path(), &ImportOptions::default()).unwrap();
         assert!(i.notes.iter().any(|n| n.contains("no calib_depth.yaml")), "{:?}", i.notes);
