@@ -38,6 +38,11 @@ enum RigCommand {
                        its T_units or --t-units; image sizes from image_width_1 ... or --depth-size
   depth.yaml color.yaml
                        a ROS camera_info pair, depth camera first
+  DIR | calib_color.yaml calib_ir.yaml calib_pose.yaml [calib_depth.yaml]
+                       iai_kinect2's calibration (kinect2_bridge/data/SERIAL/): X_color = R·X_ir + T
+                       in metres; no image sizes stored: the Kinect v2's 1920x1080 and 512x424
+                       (or --color-size, --depth-size); depthShift (mm added to the depth) becomes
+                       the depth correction's offset (offset = -depthShift/1000 m)
   kinect_params.json   the sensor's factory parameters (kfuse capture): the colour camera is
                        fitted to the factory registration; the fit's error is printed
 
@@ -45,10 +50,11 @@ EXAMPLES:
   kfuse rig import ../shared/data/kinect-lab/Calib_Results_stereo.mat --out rig.json
   kfuse rig import caps/kinect_params.json --out rig.json
   kfuse rig import old-caps/kinect_params.json --mirror --out rig.json   # version 1: mirrored images
+  kfuse rig import ~/catkin_ws/src/iai_kinect2/kinect2_bridge/data/012526541941 --out rig.json
   kfuse rig import intrinsics.yml extrinsics.yml --t-units mm --depth-size 512x424 --color-size 1920x1080 --out rig.json")]
 pub struct ImportArgs {
-    /// The calibration file(s).
-    #[arg(required = true, num_args = 1..=3)]
+    /// The calibration file(s), or iai_kinect2's calibration folder.
+    #[arg(required = true, num_args = 1..=4)]
     sources: Vec<PathBuf>,
     /// Output: kfuse rig JSON (single-camera JSON when the source holds one camera).
     #[arg(long)]
@@ -87,19 +93,29 @@ pub struct ImportArgs {
   kfuse rig export rig.json --format opencv --out rig.yml
   kfuse rig export rig.json --format ros --out ros/   (writes ros/depth.yaml and ros/color.yaml)
   kfuse rig export ir.json --format ros --out ros/    (a single-camera file: ros/depth.yaml)
+  kfuse rig export rig.json --format iai-kinect2 --out kinect2_bridge/data/012526541941/
 
 OpenCV: stereoCalibrate's names (M1, D1 = depth, M2, D2 = colour, R, T with X_2 = R·X_1 + T),
 T in metres (T_units: m). ROS: one camera_info per camera; the pair's R and P encode the
-extrinsics (ROS convention, metres), so importing the pair gives the rig back.")]
+extrinsics (ROS convention, metres), so importing the pair gives the rig back.
+iai-kinect2: the four files kinect2_bridge reads (calib_color.yaml, calib_ir.yaml, calib_pose.yaml,
+calib_depth.yaml); the rig must be of the Kinect v2's image sizes and of unmirrored images as
+kinect2_bridge publishes them (colour camera at about +52 mm of the IR camera); the rig is written
+as it is. depthShift = -1000 x the depth correction's offset; a correction with other terms is
+refused unless --depth-offset-only.")]
 pub struct ExportArgs {
     /// Rig file, or single-camera file (`kfuse calibrate --ir … --out ir.json`).
     rig: PathBuf,
     /// Output format.
-    #[arg(long, value_parser = ["opencv", "ros"])]
+    #[arg(long, value_parser = ["opencv", "ros", "iai-kinect2"])]
     format: String,
-    /// Output file (opencv) or folder (ros).
+    /// Output file (opencv) or folder (ros, iai-kinect2).
     #[arg(long)]
     out: PathBuf,
+    /// iai-kinect2: write only the offset of a depth correction that has other terms too
+    /// (calib_depth.yaml's depthShift holds one offset; kinect2_bridge then corrects only it).
+    #[arg(long)]
+    depth_offset_only: bool,
     /// Replace the output file(s) when they exist (without it an existing file is refused,
     /// never replaced).
     #[arg(long)]
@@ -270,6 +286,30 @@ fn export(a: ExportArgs) -> Result<()> {
             check_new(&a.out, a.overwrite)?;
             write_bytes_atomic(&a.out, calib::files::opencv_yaml_camera(camera).as_bytes())?;
             println!("wrote {} (OpenCV FileStorage YAML, one camera)", a.out.display());
+        }
+        ("iai-kinect2", Calibration::Camera { .. }) => bail!(
+            "{}: is a single-camera file; --format iai-kinect2 writes both cameras and their pose (give a rig file)",
+            a.rig.display()
+        ),
+        ("iai-kinect2", Calibration::Rig(rig)) => {
+            if a.out.is_file() {
+                bail!(
+                    "{}: is a file; --format iai-kinect2 writes its four files into a folder",
+                    a.out.display()
+                );
+            }
+            let opts = rig_io::iai::ExportOptions { depth_offset_only: a.depth_offset_only };
+            let files = rig_io::iai::export(rig, opts, &a.rig)?;
+            let paths: Vec<PathBuf> = files.iter().map(|(name, _)| a.out.join(name)).collect();
+            for p in &paths {
+                check_new(p, a.overwrite)?;
+            }
+            std::fs::create_dir_all(&a.out)
+                .with_context(|| format!("creating {}", a.out.display()))?;
+            for (p, (_, text)) in paths.iter().zip(&files) {
+                write_bytes_atomic(p, text.as_bytes())?;
+                println!("wrote {} (iai_kinect2)", p.display());
+            }
         }
         ("ros", cal) => {
             if a.out.is_file() {

@@ -765,3 +765,208 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     );
     assert!(!out.exists());
 }
+
+// ---------------------------------------------------------------------------------------
+// iai_kinect2
+
+/// One OpenCV FileStorage matrix as kinect2_calibration's OpenCV writes it (`%.16e`, `dt: d`);
+/// the test's own writer, independent of kfuse's exporter.
+fn cv_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
+    let values: Vec<String> = data.iter().map(|v| format!("{v:.16e}")).collect();
+    format!(
+        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+        values.join(", ")
+    )
+}
+
+/// The four files of iai_kinect2's calibration folder for `rig` and a depth shift (mm added
+/// to the measured depth), in `dir`.
+fn write_iai_folder(dir: &Path, rig: &Rig, depth_shift_mm: f64) {
+    std::fs::create_dir_all(dir).unwrap();
+    let rows = |m: &nalgebra::Matrix3<f64>| -> Vec<f64> {
+        (0..3).flat_map(|i| (0..3).map(move |j| m[(i, j)])).collect()
+    };
+    let eye = nalgebra::Matrix3::<f64>::identity();
+    let camera = |c: &geometry::CameraModel| {
+        let k = c.intrinsics.matrix();
+        let mut p = vec![0.0; 16];
+        for i in 0..3 {
+            for j in 0..3 {
+                p[4 * i + j] = k[(i, j)];
+            }
+        }
+        p[15] = 1.0;
+        format!(
+            "%YAML:1.0\n{}{}{}{}",
+            cv_matrix("cameraMatrix", 3, 3, &rows(&k)),
+            cv_matrix("distortionCoefficients", 1, 5, &c.distortion.to_array()),
+            cv_matrix("rotation", 3, 3, &rows(&eye)),
+            cv_matrix("projection", 4, 4, &p)
+        )
+    };
+    let r = *rig.color_from_depth.rotation.matrix();
+    let t = rig.color_from_depth.translation;
+    let tx = nalgebra::Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
+    let pose = format!(
+        "%YAML:1.0\n{}{}{}",
+        cv_matrix("rotation", 3, 3, &rows(&r)),
+        cv_matrix("translation", 3, 1, t.as_slice()),
+        cv_matrix("essential", 3, 3, &rows(&(tx * r)))
+    );
+    std::fs::write(dir.join("calib_color.yaml"), camera(&rig.color)).unwrap();
+    std::fs::write(dir.join("calib_ir.yaml"), camera(&rig.depth)).unwrap();
+    std::fs::write(dir.join("calib_pose.yaml"), pose).unwrap();
+    std::fs::write(
+        dir.join("calib_depth.yaml"),
+        format!("%YAML:1.0\ndepthShift: {depth_shift_mm:.16e}\n"),
+    )
+    .unwrap();
+}
+
+/// Measured depth offset of the scene below (the Kinect v2's static offset, ~20 mm in
+/// iai_kinect2's README), metres; iai writes its correction as depthShift = −20 mm.
+const SENSOR_DEPTH_OFFSET_M: f32 = 0.020;
+
+/// A scene rendered with `geometry::synth::kinect_rig` (unmirrored: colour camera at
+/// +51.9 mm, iai's orientation) whose depth reads 20 mm too far, and its calibration written
+/// in iai_kinect2's files with iai's conventions (X_color = R·X_ir + T in metres, depthShift
+/// in mm added to the depth): `rig import DIR` → `fuse` puts the fused z-buffer on the truth
+/// (median error < 2 mm, > 97 % within 10 mm: the nearest-sample error on the tilted wall
+/// plus the mm rounding, as for KinectData.mat in cli_lab.rs). Without the depth shift the
+/// median would be ~20 mm; with its sign reversed ~40 mm; a mirrored rig misplaces the edges.
+/// Then `rig export --format iai-kinect2` of the imported rig and `rig import` of those files
+/// give it back (1e-12), and a folder without calib_pose.yaml is one line naming it.
+#[test]
+fn iai_kinect2_folder_imports_and_fuses_onto_the_truth() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |f: &str| tmp.path().join(f);
+    let setup = geometry::synth::kinect_preset(false);
+    let frame = geometry::synth::render(&setup);
+    let (w, h) = frame.depth.size();
+    let measured =
+        geometry::Image::from_fn(w, h, |x, y| frame.depth.get(x, y) + SENSOR_DEPTH_OFFSET_M);
+    kfuse_io::images::write_depth_png16(&p("depth.png"), &measured).unwrap();
+    kfuse_io::images::write_color_png(&p("color.png"), &frame.color).unwrap();
+    let iai = p("012526541941");
+    write_iai_folder(&iai, &setup.rig, -1000.0 * f64::from(SENSOR_DEPTH_OFFSET_M));
+
+    let said = ok(&["rig", "import", s(&iai), "--out", s(&p("rig.json"))]);
+    assert!(said.contains("iai_kinect2") && said.contains("store no image size"), "{said}");
+    let rig = read_rig(&p("rig.json"));
+    assert!(rig_diff(&rig, &setup.rig) < 1e-12, "{}", rig_diff(&rig, &setup.rig));
+    let out = p("fused");
+    ok(&[
+        "fuse",
+        "--rig",
+        s(&p("rig.json")),
+        "--color",
+        s(&p("color.png")),
+        "--depth",
+        s(&p("depth.png")),
+        "--out",
+        s(&out),
+        "--no-figures",
+    ]);
+    let (median, within, n) = common::zbuffer_vs_truth(&out, &frame);
+    eprintln!(
+        "iai_kinect2 folder: z-buffer vs truth median {:.2} mm, {:.2} % within 10 mm of {n} px",
+        median * 1e3,
+        within * 1e2
+    );
+    assert!(median < 0.002 && within > 0.97 && n > 150_000, "{median} {within} {n}");
+
+    ok(&["rig", "export", s(&p("rig.json")), "--format", "iai-kinect2", "--out", s(&p("back"))]);
+    ok(&["rig", "import", s(&p("back")), "--out", s(&p("back.json"))]);
+    let back = read_rig(&p("back.json"));
+    assert!(rig_diff(&back, &rig) < 1e-12, "{}", rig_diff(&back, &rig));
+    let offset = |r: &Rig| {
+        r.depth_correction
+            .as_deref()
+            .unwrap()
+            .value(geometry::depth_correction::DepthTermKind::Offset)
+    };
+    assert!((offset(&back) - f64::from(SENSOR_DEPTH_OFFSET_M)).abs() < 1e-9, "{}", offset(&back));
+
+    std::fs::remove_file(iai.join("calib_pose.yaml")).unwrap();
+    let (good, _, err) = kfuse(&["rig", "import", s(&iai), "--out", s(&p("none.json"))]);
+    assert!(!good && err.trim_end().lines().count() == 1, "{err}");
+    assert!(err.contains("calib_pose.yaml: not found"), "{err}");
+    assert!(!p("none.json").exists());
+}
+
+/// The red-team's bad rig inputs, each refused with one line naming the file and what is
+/// wrong, nothing written: an empty .json and .mat (were "not a mapping"), a Bouguet .mat
+/// with a NaN focal length (printed a Rust debug struct) and with `n_ima = 1e18` (would loop
+/// for ever), 400 kB of nested brackets (kept `rig import` busy past 60 s), and a rig JSON
+/// with a key twice (the last was taken).
+#[test]
+fn red_team_rig_inputs_fail_with_one_line() {
+    use kfuse_io::mat::{MatValue, write_mat};
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |f: &str| tmp.path().join(f);
+    let out = p("rig.json");
+    std::fs::write(p("empty.json"), b"").unwrap();
+    std::fs::write(p("empty.mat"), b"").unwrap();
+    std::fs::write(p("deep.yaml"), format!("M1: {}", "[".repeat(400_000))).unwrap();
+    let bouguet = |path: &Path, fc0: f64, n_ima: f64| {
+        write_mat(
+            path,
+            &[
+                ("fc", MatValue::double_matrix(2, 1, &[fc0, 365.0])),
+                ("cc", MatValue::double_matrix(2, 1, &[255.5, 211.5])),
+                ("kc", MatValue::double_matrix(5, 1, &[0.09, -0.27, 0.0, 0.0, 0.0])),
+                ("alpha_c", MatValue::scalar(0.0)),
+                ("nx", MatValue::scalar(512.0)),
+                ("ny", MatValue::scalar(424.0)),
+                ("n_ima", MatValue::scalar(n_ima)),
+            ],
+        )
+        .unwrap()
+    };
+    bouguet(&p("Calib_Results_left.mat"), f64::NAN, 1.0);
+    bouguet(&p("Calib_Results.mat"), 365.0, 1e18);
+    let rig_text = geometry::synth::kinect_rig().to_json();
+    std::fs::write(p("twice.json"), rig_text.replacen("\"fx\":", "\"fx\": 36.5, \"fx\":", 1))
+        .unwrap();
+    let cases = [
+        ("empty.json", "is empty (0 bytes)"),
+        ("empty.mat", "is empty (0 bytes)"),
+        ("Calib_Results_left.mat", "got fx = NaN"),
+        ("Calib_Results.mat", "'n_ima' (the number of images) is 1e18"),
+        ("deep.yaml", "nested more than 16 levels"),
+        ("twice.json", "key \"fx\" appears twice in depth_camera"),
+    ];
+    for (name, needle) in cases {
+        let (good, stdout, err) =
+            kfuse(&["rig", "import", s(&p(name)), "--camera", "depth", "--out", s(&out)]);
+        assert!(!good, "{name}: {stdout}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
+        assert!(!err.contains("mapping") && !err.contains("CameraModel {"), "{name}: {err}");
+        assert!(!out.exists(), "{name}: output written");
+    }
+    // Every command reads rigs through the same check.
+    let (good, _, err) = kfuse(&["rig", "show", s(&p("twice.json"))]);
+    assert!(!good && err.contains("twice.json") && err.contains("appears twice"), "{err}");
+}
+
+/// Huge and tiny values are printed in scientific notation by `rig show` and in messages (a
+/// focal length of 1e300 px was printed with 301 digits, k1 = 1e-300 with 300).
+#[test]
+fn huge_and_tiny_numbers_are_printed_in_scientific_notation() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("odd.json");
+    let mut rig = geometry::synth::kinect_rig();
+    rig.depth.intrinsics.fx = 1e300;
+    rig.color.distortion.k1 = 1e-300;
+    kfuse_io::rig::write_rig(&path, &rig).unwrap();
+    let shown = ok(&["rig", "show", s(&path)]);
+    assert!(shown.contains("fx 1.000e300 px"), "{shown}");
+    // No run of digits longer than f64's 17 significant ones (fx alone was 301 digits).
+    let longest_digits = |t: &str| t.split(|c: char| !c.is_ascii_digit()).map(str::len).max();
+    assert!(longest_digits(&shown).unwrap() <= 17, "{shown}");
+    let (good, _, err) =
+        kfuse(&["rig", "import", s(&path), "--out", s(&tmp.path().join("r.json"))]);
+    assert!(!good && err.contains("fx = 1e300 px is over"), "{err}");
+    assert!(longest_digits(&err).unwrap() <= 17, "{err}");
+}

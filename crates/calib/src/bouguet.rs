@@ -17,6 +17,26 @@ use crate::{CalibError, Corner, IntrinsicsStd, ViewCorners};
 
 /// Bouguet's board unit: the lab's files use millimetres (`dX = 40`).
 const MM: f64 = 1e-3;
+/// Most images of one Bouguet calibration read (`n_ima`): 10 000. The toolbox's users
+/// calibrate with tens of images (the lab's: 12); each image is looked up by name, so a
+/// corrupt `n_ima = 1e18` would loop for ever.
+pub const MAX_BOUGUET_IMAGES: usize = 10_000;
+
+/// A whole-number count variable of `m`, in `1..=max` (image sides, the image count): NaN,
+/// fractions, zero and huge values are refused naming the variable.
+fn count(m: &MatFile, name: &str, max: usize, what: &str) -> Result<usize, CalibError> {
+    let v = m.scalar(name)?;
+    if !((1.0..=max as f64).contains(&v) && v.fract() == 0.0) {
+        return Err(fmt(
+            m.path(),
+            format!(
+                "'{name}' ({what}) is {}, expected a whole number in 1..={max}",
+                geometry::num_fmt::num(v)
+            ),
+        ));
+    }
+    Ok(v as usize)
+}
 
 /// One camera's Bouguet result.
 #[derive(Debug, Clone)]
@@ -90,15 +110,17 @@ fn camera_from(
 /// `Calib_Results.mat`).
 pub fn import_mono(path: &Path) -> Result<BouguetCamera, CalibError> {
     let m = MatFile::read(path)?;
-    let nx = m.scalar("nx").map_err(|_| {
-        fmt(
+    if m.get("nx").is_none() {
+        return Err(fmt(
             path,
             "no 'nx': not a Bouguet Calib_Results file (save it with the toolbox's 'Save')".into(),
-        )
-    })? as usize;
-    let ny = m.scalar("ny")? as usize;
+        ));
+    }
+    let side = geometry::rig::MAX_IMAGE_SIDE;
+    let nx = count(&m, "nx", side, "the image width in pixels")?;
+    let ny = count(&m, "ny", side, "the image height in pixels")?;
     let (camera, std) = camera_from(&m, "", nx, ny)?;
-    let n_ima = m.scalar("n_ima")? as usize;
+    let n_ima = count(&m, "n_ima", MAX_BOUGUET_IMAGES, "the number of images")?;
     let active = m.matrix("active_images").map(|a| a.data).unwrap_or_else(|_| vec![1.0; n_ima]);
     let mut views = Vec::with_capacity(n_ima);
     let mut board_points = Vec::with_capacity(n_ima);

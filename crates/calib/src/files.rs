@@ -147,7 +147,7 @@ pub fn camera_json(m: &MonoCalibration, board: &Board, role: &str) -> String {
     serde_json::to_string_pretty(&v).unwrap_or_default()
 }
 
-fn yaml_matrix(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
+pub(crate) fn yaml_matrix(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
     let values: Vec<String> = data.iter().map(|v| format!("{v:.17e}")).collect();
     let _ = writeln!(
         out,

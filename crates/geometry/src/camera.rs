@@ -297,10 +297,28 @@ impl CameraModel {
     /// Checks that every parameter is finite and meaningful (positive size and focal lengths).
     pub fn validate(&self) -> Result<(), GeometryError> {
         let k = &self.intrinsics;
-        let all = [k.fx, k.fy, k.cx, k.cy, k.skew].into_iter().chain(self.distortion.to_array());
-        if all.into_iter().any(|v| !v.is_finite()) {
+        let d = &self.distortion;
+        let named = [
+            ("fx", k.fx),
+            ("fy", k.fy),
+            ("cx", k.cx),
+            ("cy", k.cy),
+            ("skew", k.skew),
+            ("k1", d.k1),
+            ("k2", d.k2),
+            ("p1", d.p1),
+            ("p2", d.p2),
+            ("k3", d.k3),
+        ];
+        let bad: Vec<String> = named
+            .iter()
+            .filter(|(_, v)| !v.is_finite())
+            .map(|(n, v)| format!("{n} = {v}"))
+            .collect();
+        if !bad.is_empty() {
             return Err(GeometryError::InvalidParameter(format!(
-                "camera parameters must be finite numbers, got {self:?}"
+                "camera parameters must be finite numbers, got {}",
+                bad.join(", ")
             )));
         }
         if self.width == 0 || self.height == 0 {
@@ -312,7 +330,8 @@ impl CameraModel {
         if k.fx <= 0.0 || k.fy <= 0.0 {
             return Err(GeometryError::InvalidParameter(format!(
                 "focal lengths must be positive, got fx={} fy={}",
-                k.fx, k.fy
+                crate::num_fmt::num(k.fx),
+                crate::num_fmt::num(k.fy)
             )));
         }
         Ok(())

@@ -231,7 +231,7 @@ impl DepthCorrection {
                 return bad(format!(
                     "term '{}' = {} is not finite or above {limit}{} (values are metres, the scale a fraction)",
                     t.kind.name(),
-                    t.value,
+                    crate::num_fmt::num(t.value),
                     t.kind.unit()
                 ));
             }

@@ -29,6 +29,7 @@ pub mod depth_correction;
 pub mod error;
 pub mod fusion;
 pub mod image;
+pub mod num_fmt;
 pub mod pose;
 pub mod rig;
 pub mod synth;

@@ -18,6 +18,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::depth_correction::{DepthCorrection, DepthCorrectionFile};
+use crate::num_fmt::{fixed, num};
 use crate::{CameraModel, GeometryError, RigidTransform};
 
 /// The value of the `format` field.
@@ -144,6 +145,90 @@ pub fn unknown_keys(object: &serde_json::Value, place: &str, known: &[&str]) -> 
         .collect()
 }
 
+/// The first key that appears twice in one object of JSON `text`, as a message naming it and
+/// where ("key \"fx\" appears twice in depth_camera …"); `None` when every object's keys are
+/// distinct, or when `text` is not JSON (the caller's parse reports that). serde_json keeps
+/// the last of repeated keys without a word, so `{"fx": 365, …, "fx": 36.5}` read as 36.5;
+/// a file with a key twice is refused like one with an unknown key.
+pub fn duplicate_key(text: &str) -> Option<String> {
+    use serde::de::DeserializeSeed;
+    let mut de = serde_json::Deserializer::from_str(text);
+    match (NoRepeat { place: String::new() }).deserialize(&mut de) {
+        Err(e) if e.is_data() => Some(e.to_string()),
+        _ => None,
+    }
+}
+
+/// Walks a JSON value, failing on an object's repeated key ([`duplicate_key`]); `place` is
+/// the path of the object being read (`depth_camera`, `calibration.per_image`).
+struct NoRepeat {
+    place: String,
+}
+
+impl<'de> serde::de::DeserializeSeed<'de> for NoRepeat {
+    type Value = ();
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+        d.deserialize_any(self)
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for NoRepeat {
+    type Value = ();
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("any JSON value")
+    }
+    fn visit_bool<E>(self, _: bool) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_i64<E>(self, _: i64) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_u64<E>(self, _: u64) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_f64<E>(self, _: f64) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_str<E>(self, _: &str) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_unit<E>(self) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+        while seq.next_element_seed(NoRepeat { place: self.place.clone() })?.is_some() {}
+        Ok(())
+    }
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<(), A::Error> {
+        let mut seen = std::collections::HashSet::new();
+        while let Some(key) = map.next_key::<String>()? {
+            let place =
+                if self.place.is_empty() { key.clone() } else { format!("{}.{key}", self.place) };
+            if !seen.insert(key.clone()) {
+                // Shown as text that cannot carry control characters or run on for a page.
+                let short = |t: &str| -> String {
+                    let mut s: String = t.escape_debug().take(MAX_SHOWN_KEY_CHARS).collect();
+                    if t.escape_debug().nth(MAX_SHOWN_KEY_CHARS).is_some() {
+                        s.push('…');
+                    }
+                    s
+                };
+                let within = if self.place.is_empty() {
+                    "the file's top level".to_string()
+                } else {
+                    short(&self.place)
+                };
+                return Err(serde::de::Error::custom(format!(
+                    "key \"{}\" appears twice in {within}: only one value can be meant, keep one",
+                    short(&key)
+                )));
+            }
+            map.next_value_seed(NoRepeat { place })?;
+        }
+        Ok(())
+    }
+}
+
 /// [`unknown_keys`] of a whole rig file: the top level, both cameras, `color_from_depth` and
 /// `depth_correction` (the `calibration` report is free-form).
 pub fn unknown_rig_keys(v: &serde_json::Value) -> Vec<String> {
@@ -178,11 +263,13 @@ pub fn camera_plausibility_problems(name: &str, cam: &CameraModel) -> Vec<String
     for (axis, f) in [("fx", k.fx), ("fy", k.fy)] {
         if f < MIN_FOCAL_PX {
             problems.push(format!(
-                "the {name} camera's {axis} = {f} px is under {MIN_FOCAL_PX} px: focal lengths must be in pixels, not metres or millimetres"
+                "the {name} camera's {axis} = {} px is under {MIN_FOCAL_PX} px: focal lengths must be in pixels, not metres or millimetres",
+                num(f)
             ));
         } else if f > MAX_FOCAL_PX {
             problems.push(format!(
-                "the {name} camera's {axis} = {f} px is over {MAX_FOCAL_PX} px: focal lengths must be in pixels"
+                "the {name} camera's {axis} = {} px is over {MAX_FOCAL_PX} px: focal lengths must be in pixels",
+                num(f)
             ));
         }
     }
@@ -207,10 +294,11 @@ fn distortion_problem(name: &str, cam: &CameraModel) -> Option<String> {
         .fold(0.0, f64::max);
     let r2 = corner * corner;
     let factor = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3));
-    let coefficients = format!("k1 {}, k2 {}, k3 {}", d.k1, d.k2, d.k3);
+    let coefficients = format!("k1 {}, k2 {}, k3 {}", num(d.k1), num(d.k2), num(d.k3));
     if factor > MAX_CORNER_MAGNIFICATION {
         return Some(format!(
-            "the {name} camera's radial distortion ({coefficients}) magnifies the image corners {factor:.1}×, which no lens does: coefficients of another camera or model?"
+            "the {name} camera's radial distortion ({coefficients}) magnifies the image corners {}×, which no lens does: coefficients of another camera or model?",
+            fixed(factor, 1)
         ));
     }
     match d.fold_radius() {
@@ -262,7 +350,8 @@ impl Rig {
                 String::new()
             };
             problems.push(format!(
-                "the baseline |T| = {baseline} m is under {} mm, closer than two cameras' lenses can sit{hint}",
+                "the baseline |T| = {} m is under {} mm, closer than two cameras' lenses can sit{hint}",
+                num(baseline),
                 MIN_BASELINE_M * 1000.0
             ));
         }
@@ -279,8 +368,10 @@ impl Rig {
             } else {
                 String::new()
             };
-            problems
-                .push(format!("the baseline |T| = {baseline} m is over {MAX_BASELINE_M} m{hint}"));
+            problems.push(format!(
+                "the baseline |T| = {} m is over {MAX_BASELINE_M} m{hint}",
+                num(baseline)
+            ));
         }
         problems
     }
@@ -358,6 +449,9 @@ impl Rig {
             format_err(format!("not a kfuse rig file ({e}); create one with `kfuse calibrate`"))
         })?;
         let is_rig = value.get("format").and_then(|f| f.as_str()) == Some(RIG_FORMAT);
+        if let Some(repeated) = duplicate_key(text) {
+            return Err(format_err(repeated));
+        }
         if is_rig && let Some(unknown) = unknown_rig_keys(&value).first() {
             return Err(format_err(unknown.clone()));
         }
@@ -433,6 +527,29 @@ mod tests {
     use crate::{Distortion, Intrinsics};
     use nalgebra::Vector3;
     use std::path::Path;
+
+    /// A key given twice in one object is refused naming it and where (serde_json alone kept
+    /// the last, so a second `"fx"` replaced the first without a word), at the top level, in a
+    /// camera and in the free-form report; the same keys in different objects are fine.
+    #[test]
+    fn repeated_keys_are_refused() {
+        let text = crate::synth::kinect_rig().to_json();
+        assert!(duplicate_key(&text).is_none(), "a written rig has distinct keys");
+        let twice = text.replacen("\"fx\":", "\"fx\": 36.5, \"fx\":", 1);
+        let e = Rig::from_json(&twice, Path::new("r.json")).unwrap_err().to_string();
+        assert!(
+            e.starts_with("r.json: ") && e.contains("key \"fx\" appears twice in depth_camera"),
+            "{e}"
+        );
+        let top = text.replacen("\"version\":", "\"version\": 1, \"version\":", 1);
+        let e = Rig::from_json(&top, Path::new("r.json")).unwrap_err().to_string();
+        assert!(e.contains("key \"version\" appears twice in the file's top level"), "{e}");
+        let mut rig = crate::synth::kinect_rig();
+        rig.calibration = Some(serde_json::json!({"views": [{"rms": 0.1}]}));
+        let report = rig.to_json().replacen("\"rms\":", "\"rms\": 9, \"rms\":", 1);
+        let e = Rig::from_json(&report, Path::new("r.json")).unwrap_err().to_string();
+        assert!(e.contains("key \"rms\" appears twice in calibration.views"), "{e}");
+    }
 
     #[test]
     fn json_round_trip_keeps_every_parameter() {

@@ -8,12 +8,16 @@
 //! | the lab's `KinectData.mat`, the course's `synthdata.mat` | `kfuse_io::course` | rig |
 //! | OpenCV FileStorage YAML (`stereoCalibrate` names, `kfuse calibrate --opencv-yaml`) | [`opencv`] | rig or one camera |
 //! | ROS `camera_info` YAML (one file per camera) | [`ros`] | rig (pair) or one camera |
+//! | iai_kinect2's folder (`calib_color.yaml`, `calib_ir.yaml`, `calib_pose.yaml`, `calib_depth.yaml`), or its files | [`iai`] | rig (with its depth shift), or one camera |
 //! | `kinect_params.json` (`kfuse capture`: the sensor's factory parameters) | [`kinect`] | rig (fitted, see there) |
 //! | kfuse rig JSON, kfuse single-camera JSON | [`load`] | rig or one camera |
 //!
 //! The format is recognised from the content (MATLAB header, JSON `format` field, YAML keys),
-//! not from the file name.
+//! not from the file name (a folder is read as iai_kinect2's, whose file names are fixed by
+//! `kinect2_bridge`). JSON with a key repeated in one object is refused
+//! ([`geometry::rig::duplicate_key`]), as one with an unknown key.
 
+pub mod iai;
 pub mod kinect;
 pub mod opencv;
 pub mod ros;
@@ -160,6 +164,9 @@ fn from_kfuse_json(text: &str, path: &Path) -> Result<Calibration, CalibError> {
             ),
         )
     })?;
+    if let Some(repeated) = geometry::rig::duplicate_key(text) {
+        return Err(fmt_err(path, repeated));
+    }
     match v.get("format").and_then(Value::as_str) {
         Some(CAMERA_FORMAT) => {
             if v.get("version").and_then(Value::as_u64).unwrap_or(0) > 1 {
@@ -251,12 +258,26 @@ fn imported(calibration: Calibration, source: &str, notes: Vec<String>) -> Impor
 
 /// Imports a rig or camera from `sources` (see the module table). Several files are needed
 /// for a Bouguet stereo result (`stereo.mat [left.mat right.mat]`; left and right default to
-/// the files beside it), a ROS pair (`depth.yaml color.yaml`, in that order) and an OpenCV
-/// calibration split over files (`intrinsics.yml extrinsics.yml`).
+/// the files beside it), a ROS pair (`depth.yaml color.yaml`, in that order), an OpenCV
+/// calibration split over files (`intrinsics.yml extrinsics.yml`) and iai_kinect2's files
+/// given one by one (any order); a folder is iai_kinect2's calibration folder.
 pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, CalibError> {
     let first = sources
         .first()
         .ok_or_else(|| CalibError::InvalidArgument("no calibration file given to import".into()))?;
+    if first.is_dir() {
+        expect_count(sources, 1, "a calibration folder")?;
+        if !iai::is_iai_dir(first) {
+            return Err(fmt_err(
+                first,
+                format!(
+                    "is a folder without a calibration kfuse reads: a folder is read as iai_kinect2's ({}), and none of those files is in it; give the calibration file itself",
+                    iai::FILES.join(", ")
+                ),
+            ));
+        }
+        return iai::import_dir(first, opts);
+    }
     let head = {
         use std::io::Read;
         let mut buf = [0u8; 128];
@@ -293,6 +314,9 @@ pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
         ));
     }
     let docs = sources.iter().map(|p| yaml::Doc::read(p)).collect::<Result<Vec<_>, _>>()?;
+    if docs.iter().any(iai::is_iai) {
+        return iai::import_docs(docs, opts);
+    }
     if ros::is_camera_info(&docs[0]) {
         return ros::import(&docs, opts);
     }
@@ -316,6 +340,9 @@ fn expect_count(sources: &[PathBuf], max: usize, what: &str) -> Result<(), Calib
 fn import_json(text: &str, path: &Path) -> Result<Imported, CalibError> {
     let v: Value =
         serde_json::from_str(text).map_err(|e| fmt_err(path, format!("not valid JSON ({e})")))?;
+    if let Some(repeated) = geometry::rig::duplicate_key(text) {
+        return Err(fmt_err(path, repeated));
+    }
     if v.get("format").and_then(Value::as_str) == Some(KINECT_PARAMS_FORMAT) {
         let params = kinect::FactoryParams::from_json(&v, path)?;
         let fit = params.to_rig()?;

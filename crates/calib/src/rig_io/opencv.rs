@@ -17,6 +17,7 @@
 //! coefficients beyond `k3` (rational, thin-prism, tilt) must be zero, since kfuse's model has
 //! five.
 
+use geometry::num_fmt::{fixed, num};
 use geometry::{CameraModel, Distortion, Intrinsics, Rig, RigidTransform};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
@@ -34,6 +35,11 @@ const D_NAMES: &[&str] = &["distortion_coefficients", "distCoeffs", "D"];
 /// Largest |K[2][0..2]| and |K[2][2] − 1| accepted in a camera matrix (files store ~17
 /// digits; anything larger means the matrix is not a camera matrix).
 const K_ROW_TOLERANCE: f64 = 1e-9;
+
+/// Values of a file for a message, each as [`geometry::num_fmt::num`] writes it.
+fn nums(v: &[f64]) -> String {
+    v.iter().map(|&x| num(x)).collect::<Vec<_>>().join(", ")
+}
 
 /// A camera from a row-major 3×3 `K`, a distortion vector and a size.
 pub fn camera_from(
@@ -53,7 +59,8 @@ pub fn camera_from(
         || (k[8] - 1.0).abs() > K_ROW_TOLERANCE
     {
         return Err(err(format!(
-            "not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1], got {k:?})"
+            "not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1], got [{}])",
+            nums(k)
         )));
     }
     let mut c = [0.0; 5];
@@ -63,8 +70,8 @@ pub fn camera_from(
         8 | 12 | 14 if d[5..].iter().all(|&v| v == 0.0) => c.copy_from_slice(&d[..5]),
         8 | 12 | 14 => {
             return Err(err(format!(
-                "distortion coefficients beyond k3 are not zero ({:?}): the rational / thin-prism / tilted models are not supported, recalibrate with OpenCV's 5-coefficient model",
-                &d[5..]
+                "distortion coefficients beyond k3 are not zero ({}): the rational / thin-prism / tilted models are not supported, recalibrate with OpenCV's 5-coefficient model",
+                nums(&d[5..])
             )));
         }
         n => return Err(err(format!("{n} distortion coefficients, expected 4, 5, 8, 12 or 14"))),
@@ -209,8 +216,11 @@ fn t_unit(doc: &Doc, t: &[f64], opts: &ImportOptions) -> Result<(LengthUnit, Str
         None => Err(fmt_err(
             doc.path(),
             format!(
-                "T = ({:.6}, {:.6}, {:.6}) has no unit (OpenCV's T is in the unit of the board's square size; |T| = {norm:.4}); pass --t-units mm or --t-units m",
-                t[0], t[1], t[2]
+                "T = ({}, {}, {}) has no unit (OpenCV's T is in the unit of the board's square size; |T| = {}); pass --t-units mm or --t-units m",
+                fixed(t[0], 6),
+                fixed(t[1], 6),
+                fixed(t[2], 6),
+                fixed(norm, 4)
             ),
         )),
     }

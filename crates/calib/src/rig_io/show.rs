@@ -6,6 +6,7 @@
 
 use std::fmt::Write as _;
 
+use geometry::num_fmt::fixed;
 use geometry::{CameraModel, Rig};
 
 use super::{Calibration, Role};
@@ -73,6 +74,12 @@ fn finding(warning: bool, text: String) -> Finding {
     Finding { warning, text }
 }
 
+/// `x` with an explicit sign and `decimals` decimals ([`fixed`] otherwise).
+fn signed(x: f64, decimals: usize) -> String {
+    let text = fixed(x, decimals);
+    if text.starts_with('-') { text } else { format!("+{text}") }
+}
+
 fn fov_deg(c: &CameraModel) -> (f64, f64) {
     let k = &c.intrinsics;
     let h = ((c.width as f64 - 0.5 - k.cx) / k.fx).atan() + ((k.cx + 0.5) / k.fx).atan();
@@ -107,22 +114,27 @@ pub fn camera_checks(c: &CameraModel, role: Option<Role>) -> Vec<Finding> {
     let aspect = k.fy / k.fx;
     out.push(finding(
         (aspect - 1.0).abs() > MAX_ASPECT_DEVIATION,
-        format!("{name}: fy/fx = {aspect:.4} (square pixels: within {MAX_ASPECT_DEVIATION} of 1)"),
+        format!(
+            "{name}: fy/fx = {} (square pixels: within {MAX_ASPECT_DEVIATION} of 1)",
+            fixed(aspect, 4)
+        ),
     ));
     let (ox, oy) = (k.cx - (c.width as f64 - 1.0) / 2.0, k.cy - (c.height as f64 - 1.0) / 2.0);
     let off = (ox / c.width as f64).abs().max((oy / c.height as f64).abs());
     out.push(finding(
         off > MAX_PRINCIPAL_OFFSET,
         format!(
-            "{name}: principal point {ox:+.1}, {oy:+.1} px from the image centre ({:.1} % of the image, limit {:.0} %)",
-            100.0 * off,
+            "{name}: principal point {}, {} px from the image centre ({} % of the image, limit {:.0} %)",
+            signed(ox, 1),
+            signed(oy, 1),
+            fixed(100.0 * off, 1),
             100.0 * MAX_PRINCIPAL_OFFSET
         ),
     ));
     if k.skew.abs() > MAX_SKEW_RATIO * k.fx {
         out.push(finding(
             true,
-            format!("{name}: skew {:.3} px is more than {MAX_SKEW_RATIO} of fx", k.skew),
+            format!("{name}: skew {} px is more than {MAX_SKEW_RATIO} of fx", fixed(k.skew, 3)),
         ));
     }
     if let Some(r) = c.distortion.fold_radius() {
@@ -198,14 +210,15 @@ fn camera_text(s: &mut String, title: &str, c: &CameraModel) {
     let d = &c.distortion;
     let (h, v) = fov_deg(c);
     let _ = writeln!(s, "{title}: {} x {} px", c.width, c.height);
-    let _ = writeln!(s, "  focal length     fx {:.3} px, fy {:.3} px", k.fx, k.fy);
+    let _ = writeln!(s, "  focal length     fx {} px, fy {} px", fixed(k.fx, 3), fixed(k.fy, 3));
     let _ = writeln!(
         s,
-        "  principal point  cx {:.3} px, cy {:.3} px (0-based, pixel centres at integers)",
-        k.cx, k.cy
+        "  principal point  cx {} px, cy {} px (0-based, pixel centres at integers)",
+        fixed(k.cx, 3),
+        fixed(k.cy, 3)
     );
     if k.skew != 0.0 {
-        let _ = writeln!(s, "  skew             {:.4} px", k.skew);
+        let _ = writeln!(s, "  skew             {} px", fixed(k.skew, 4));
     }
     let _ = writeln!(s, "  field of view    {h:.1}° x {v:.1}° (horizontal x vertical)");
     if d.is_zero() {
@@ -213,8 +226,12 @@ fn camera_text(s: &mut String, title: &str, c: &CameraModel) {
     } else {
         let _ = writeln!(
             s,
-            "  distortion       k1 {:.6}, k2 {:.6}, p1 {:.6}, p2 {:.6}, k3 {:.6} (OpenCV order, unitless)",
-            d.k1, d.k2, d.p1, d.p2, d.k3
+            "  distortion       k1 {}, k2 {}, p1 {}, p2 {}, k3 {} (OpenCV order, unitless)",
+            fixed(d.k1, 6),
+            fixed(d.k2, 6),
+            fixed(d.p1, 6),
+            fixed(d.p2, 6),
+            fixed(d.k3, 6)
         );
     }
 }
@@ -248,14 +265,15 @@ pub fn describe(name: &str, c: &Calibration) -> (String, usize) {
                     let _ = writeln!(s, "  rotation         none");
                 }
             }
-            let _ = writeln!(s, "  translation T    ({:.3}, {:.3}, {:.3}) mm", t.x, t.y, t.z);
+            let mm = |x: f64| fixed(x, 3);
+            let _ = writeln!(s, "  translation T    ({}, {}, {}) mm", mm(t.x), mm(t.y), mm(t.z));
             let _ = writeln!(
                 s,
-                "  baseline         {:.3} mm (colour camera centre at ({:.3}, {:.3}, {:.3}) mm in the depth frame)",
-                t.norm(),
-                centre.x,
-                centre.y,
-                centre.z
+                "  baseline         {} mm (colour camera centre at ({}, {}, {}) mm in the depth frame)",
+                mm(t.norm()),
+                mm(centre.x),
+                mm(centre.y),
+                mm(centre.z)
             );
             match &rig.depth_correction {
                 None => {

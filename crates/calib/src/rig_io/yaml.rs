@@ -13,6 +13,12 @@
 //!   local tag such as `!opencv-matrix`), it unwraps `opencv-matrix` and refuses any other
 //!   tag by name. ROS writes the same `rows`/`cols`/`data` mapping without a tag, and a plain
 //!   sequence of numbers is accepted as a `1 × n` matrix.
+//!
+//! Before any parsing the text is bounded: at most [`MAX_YAML_BYTES`] and at most
+//! [`MAX_YAML_DEPTH`] levels of nesting ([`check_nesting`]). libyaml's parser plus
+//! serde_yaml_ng's event handling grow faster than linearly with the nesting: 100 kB of nested
+//! brackets took 9.6 s and 400 kB more than 60 s (red-team finding), where a calibration file
+//! nests 3 levels.
 
 use std::path::{Path, PathBuf};
 
@@ -27,6 +33,15 @@ pub const MAX_TEXT_BYTES: u64 = 4 << 20;
 const MAX_MATRIX_VALUES: usize = 64;
 /// Largest image side accepted from a file (a 16k sensor is 16 384 px wide).
 pub const MAX_IMAGE_SIDE: u64 = 65_536;
+/// Largest YAML document parsed, bytes: 1 MiB. A rig or camera_info YAML is 1–3 KB; OpenCV's
+/// calibration sample with every view's image points (100 views × 100 corners: 20 000
+/// numbers of ~25 characters) would be about 500 KB. Measured (debug build, 2026-12-03): 1 MB of flat values parses in 0.05–0.08 s of CPU,
+/// 1 MB of 16-level brackets repeated (the worst within both limits) in 0.2 s.
+pub const MAX_YAML_BYTES: usize = 1 << 20;
+/// Deepest nesting of a YAML document (block indentation levels, `- ` entries and flow
+/// brackets together): 16. OpenCV FileStorage and ROS files nest 3 levels (a matrix mapping
+/// holding a `data` list); nested brackets are what made the parser take minutes.
+pub const MAX_YAML_DEPTH: usize = 16;
 
 /// A format error naming the file.
 pub fn fmt_err(path: &Path, message: impl Into<String>) -> CalibError {
@@ -46,8 +61,18 @@ pub fn read_text(path: &Path) -> Result<String, CalibError> {
         ));
     }
     let bytes = std::fs::read(path).map_err(io)?;
-    String::from_utf8(bytes)
-        .map_err(|_| fmt_err(path, "binary data, not a text calibration file (YAML or JSON)"))
+    let text = String::from_utf8(bytes)
+        .map_err(|_| fmt_err(path, "binary data, not a text calibration file (YAML or JSON)"))?;
+    if text.trim_start_matches('\u{feff}').trim().is_empty() {
+        return Err(fmt_err(
+            path,
+            format!(
+                "is empty ({len} bytes{}): no calibration in it; was it saved completely? Save or export the calibration again",
+                if len > 0 { ", all blank" } else { "" }
+            ),
+        ));
+    }
+    Ok(text)
 }
 
 /// A parsed YAML document: a top-level mapping and the file it came from.
@@ -62,9 +87,122 @@ pub fn has_opencv_header(text: &str) -> bool {
     text.trim_start_matches('\u{feff}').starts_with("%YAML:")
 }
 
+/// The deepest nesting of YAML `text`, counted without parsing: block indentation levels of
+/// the lines, `- ` sequence entries opened on one line, and `[`/`{` flow brackets outside
+/// quoted scalars and comments. Stops counting (returns early) as soon as `limit` is passed,
+/// so the cost is one pass over the text at most.
+pub fn nesting_depth(text: &str, limit: usize) -> usize {
+    let mut indents: Vec<usize> = Vec::new();
+    let mut flow = 0usize;
+    let mut deepest = 0usize;
+    // The block depth of the line a flow collection started on (indentation levels and the
+    // line's `- ` entries); flow brackets nest below it.
+    let mut base = 0usize;
+    // Inside a quoted scalar: its quote character (quoted scalars may span lines).
+    let mut quote: Option<char> = None;
+    for line in text.lines() {
+        let mut chars = line.chars().peekable();
+        let mut indent = 0;
+        if quote.is_none() && flow == 0 {
+            while chars.peek() == Some(&' ') {
+                chars.next();
+                indent += 1;
+            }
+            let rest: String = chars.clone().collect();
+            let rest = rest.trim_end();
+            if rest.is_empty() || rest.starts_with('#') {
+                continue;
+            }
+            while indents.last().is_some_and(|&i| i > indent) {
+                indents.pop();
+            }
+            if indents.last() != Some(&indent) {
+                indents.push(indent);
+            }
+            // `- - - x` opens a sequence per dash on one line.
+            let mut dashes = 0usize;
+            let mut r = rest;
+            while let Some(after) = r.strip_prefix("- ").or_else(|| (r == "-").then_some("")) {
+                dashes += 1;
+                r = after.trim_start();
+            }
+            // The first `- ` is the sequence at this indentation (counted above); each
+            // further one on the line opens a nested sequence.
+            base = indents.len() + dashes.saturating_sub(1);
+            deepest = deepest.max(base);
+        }
+        // The character before the current one that was not a space: a quote opens a
+        // quoted scalar only where a scalar can start (line start, after `:`, `,`, `[`, `{`,
+        // `-`, `?`); elsewhere (`kinect's`) it is part of a plain scalar.
+        let mut prev: Option<char> = None;
+        let mut escaped = false;
+        for c in chars {
+            match quote {
+                Some('"') => {
+                    if escaped {
+                        escaped = false;
+                    } else if c == '\\' {
+                        escaped = true;
+                    } else if c == '"' {
+                        quote = None;
+                    }
+                }
+                Some(_) => {
+                    if c == '\'' {
+                        quote = None;
+                    }
+                }
+                None => match c {
+                    '#' if prev.is_none_or(char::is_whitespace) => break,
+                    '"' | '\'' if prev.is_none_or(|p| " \t:,[{-?".contains(p)) => quote = Some(c),
+                    '[' | '{' => {
+                        flow += 1;
+                        deepest = deepest.max(base + flow);
+                    }
+                    ']' | '}' => flow = flow.saturating_sub(1),
+                    _ => {}
+                },
+            }
+            prev = Some(c);
+            if deepest > limit {
+                return deepest;
+            }
+        }
+        if deepest > limit {
+            return deepest;
+        }
+    }
+    deepest
+}
+
+/// Refuses, before parsing, YAML text over [`MAX_YAML_BYTES`] or nested deeper than
+/// [`MAX_YAML_DEPTH`] (module docs), with one line naming the file.
+pub fn check_nesting(text: &str, path: &Path) -> Result<(), CalibError> {
+    if text.len() > MAX_YAML_BYTES {
+        return Err(fmt_err(
+            path,
+            format!(
+                "{} bytes is too large for a calibration YAML file (limit {MAX_YAML_BYTES}); is this the right file?",
+                text.len()
+            ),
+        ));
+    }
+    let depth = nesting_depth(text, MAX_YAML_DEPTH);
+    if depth > MAX_YAML_DEPTH {
+        return Err(fmt_err(
+            path,
+            format!(
+                "nested more than {MAX_YAML_DEPTH} levels deep, which no calibration file is (OpenCV and ROS files nest 3); is this the right file?"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 impl Doc {
-    /// Parses `text` (see the module docs for the OpenCV header).
+    /// Parses `text` (see the module docs for the OpenCV header and the bounds checked first).
     pub fn parse(text: &str, path: &Path) -> Result<Self, CalibError> {
+        check_nesting(text, path)?;
         let text = text.trim_start_matches('\u{feff}');
         let body = if has_opencv_header(text) {
             text.split_once('\n').map(|(_, rest)| rest).unwrap_or("")
@@ -125,6 +263,16 @@ impl Doc {
     /// A string entry.
     pub fn string(&self, key: &str) -> Option<String> {
         self.map.get(key).and_then(untagged).and_then(|v| v.as_str().map(str::to_owned))
+    }
+
+    /// A plain number entry (`depthShift: -13.35`); `None` when absent, an error naming the
+    /// key when it is not a finite number.
+    pub fn number(&self, key: &str) -> Result<Option<f64>, CalibError> {
+        let Some(v) = self.map.get(key) else { return Ok(None) };
+        match untagged(v).and_then(Value::as_f64).filter(|x| x.is_finite()) {
+            Some(x) => Ok(Some(x)),
+            None => Err(fmt_err(&self.path, format!("'{key}' must be a finite number"))),
+        }
     }
 
     /// An image side (`image_width`, ...), bounded by [`MAX_IMAGE_SIDE`].
@@ -214,6 +362,29 @@ fn untagged(v: &Value) -> Option<&Value> {
     }
 }
 
+/// Longest part of a file's text value shown in a message, characters.
+const MAX_SHOWN_CHARS: usize = 40;
+
+/// A YAML value in a message: numbers and short text as they are, containers by kind (never
+/// Rust's debug form of the parser's types).
+fn shown(v: &Value) -> String {
+    match v {
+        Value::Null => "null".into(),
+        Value::Bool(b) => b.to_string(),
+        Value::Number(n) => n.as_f64().map(geometry::num_fmt::num).unwrap_or_else(|| n.to_string()),
+        Value::String(s) => {
+            let mut t: String = s.escape_debug().take(MAX_SHOWN_CHARS).collect();
+            if s.escape_debug().nth(MAX_SHOWN_CHARS).is_some() {
+                t.push('…');
+            }
+            format!("'{t}'")
+        }
+        Value::Sequence(_) => "a list".into(),
+        Value::Mapping(_) => "a mapping".into(),
+        Value::Tagged(t) => format!("a value tagged {}", t.tag),
+    }
+}
+
 fn numbers(seq: &[Value]) -> Result<Vec<f64>, String> {
     seq.iter()
         .map(|v| {
@@ -223,7 +394,8 @@ fn numbers(seq: &[Value]) -> Result<Vec<f64>, String> {
                 // string here is never a number.
                 _ => None,
             };
-            n.filter(|x| x.is_finite()).ok_or_else(|| format!("'{v:?}' is not a finite number"))
+            n.filter(|x| x.is_finite())
+                .ok_or_else(|| format!("{} is not a finite number", shown(v)))
         })
         .collect()
 }
@@ -243,6 +415,38 @@ mod tests {
         assert_eq!(doc.values("T", 3).unwrap(), vec![-52.0, 0.15, 0.5]);
         // Without dropping the header libyaml refuses the file: the quirk is real.
         assert!(serde_yaml_ng::from_str::<Value>(text).is_err());
+    }
+
+    /// The red-team's 400 kB of nested brackets (which kept `rig import` busy for more than
+    /// 60 s) and a 2 MiB file are refused before parsing, with one line naming the file; real
+    /// files pass: OpenCV's and ROS's layouts (3 levels), brackets and quotes inside quoted
+    /// strings and comments.
+    #[test]
+    fn oversized_and_deeply_nested_yaml_is_refused_before_parsing() {
+        let path = Path::new("deep.yaml");
+        let deep = format!("a: {}", "[".repeat(400_000));
+        let e = Doc::parse(&deep, path).unwrap_err().to_string();
+        assert!(e.starts_with("deep.yaml: nested more than 16 levels") && !e.contains('\n'), "{e}");
+        let blocks: String = (0..40).map(|i| format!("{}k{i}:\n", " ".repeat(i))).collect();
+        assert!(Doc::parse(&blocks, path).unwrap_err().to_string().contains("nested more than"));
+        let dashes = format!("a:\n  {}x\n", "- ".repeat(40));
+        assert!(Doc::parse(&dashes, path).unwrap_err().to_string().contains("nested more than"));
+        let big = format!("a: [{}]\n", "1, ".repeat(MAX_YAML_BYTES / 3));
+        let e = Doc::parse(&big, Path::new("big.yaml")).unwrap_err().to_string();
+        assert!(
+            e.starts_with("big.yaml: ") && e.contains("too large for a calibration YAML"),
+            "{e}"
+        );
+        // Exactly at the limit of 16 flow levels: accepted.
+        let at_limit = format!("a: {}1{}\n", "[".repeat(15), "]".repeat(15));
+        assert!(Doc::parse(&at_limit, path).is_ok());
+        let real = "%YAML:1.0\n---\nM1: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 1., 2., 3. ]\nnote: \"[[[[[[[[[[[[[[[[[[[[\"\nother: '{{{{{{{{{{{{{{{{{{{{{{{{{{'\n# [[[[[[[[[[[[[[[[[[[[[[[[[[[\ncamera_name: kinect's ir\nlist:\n  - [1, 2]\n  - {a: [3]}\n";
+        // The top mapping, `list`, its entry `{a: …}`, `[3]`.
+        assert_eq!(nesting_depth(real, MAX_YAML_DEPTH), 4);
+        // kinect2_calibration's layout: the top mapping, a matrix, its `data` list.
+        assert_eq!(nesting_depth(&real[..real.find("note:").unwrap()], MAX_YAML_DEPTH), 3);
+        let doc = Doc::parse(real, path).unwrap();
+        assert_eq!(doc.values("M1", 3).unwrap(), vec![1.0, 2.0, 3.0]);
     }
 
     #[test]
