@@ -153,6 +153,51 @@ fn image_sizes_are_checked_from_headers_and_truncated_images_refused() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// `fuse --frames` with a colour JPEG cut short (issue 29: cut to 10 %, a grey colour image
+/// was fused with exit 0, while single-frame `fuse` refused the same file): refused by the
+/// same reader with the same line, whether the colour is decoded (`--write color-on-depth`)
+/// or only copied (`--write color`); no output folder.
+#[test]
+fn fuse_frames_refuses_a_cut_colour_jpeg_as_single_frame_fuse_does() {
+    let case = small_case("frames-cut-jpeg");
+    let shots = case.dir.join("shots");
+    std::fs::create_dir_all(&shots).unwrap();
+    std::fs::copy(&case.depth, shots.join("a_depth.png")).unwrap();
+    // Noise, so that the entropy-coded data is most of the file and 10 % keeps the header.
+    let mut state = 12345u32;
+    let rgb = image::RgbImage::from_fn(96, 72, |_, _| {
+        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let b = state.to_le_bytes();
+        image::Rgb([b[1], b[2], b[3]])
+    });
+    let jpeg = shots.join("a_color.jpg");
+    rgb.save(&jpeg).unwrap();
+    let bytes = std::fs::read(&jpeg).unwrap();
+    let out = case.dir.join("seq");
+    let frames = |write: &str| {
+        let args = ["fuse", "--rig", s(&case.rig), "--frames", s(&shots), "--write", write];
+        kfuse(&[&args[..], &["--out", s(&out)]].concat())
+    };
+    for write in ["color-on-depth", "color"] {
+        let o = frames(write);
+        assert!(o.status.success(), "intact: {}", String::from_utf8_lossy(&o.stderr));
+        std::fs::remove_dir_all(&out).unwrap();
+        for keep in [bytes.len() / 10, bytes.len() / 2] {
+            std::fs::write(&jpeg, &bytes[..keep]).unwrap();
+            let o = frames(write);
+            assert_one_line_failure(&o, "a_color.jpg", "truncated JPEG");
+            assert!(!out.exists(), "--write {write}: output written from a cut JPEG");
+            // Single-frame fuse refuses the same file.
+            let single = case.dir.join("single");
+            let o = fuse(&case, &case.rig, &jpeg, &single, &[]);
+            assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+            assert!(!single.exists());
+        }
+        std::fs::write(&jpeg, &bytes).unwrap();
+    }
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
 #[test]
 fn fuse_outputs_are_all_or_nothing_and_never_touch_the_users_files() {
     let case = small_case("outputs");

@@ -102,6 +102,8 @@ struct Job {
     raw: Option<Vec<u8>>,
     depth_png: Option<std::path::PathBuf>,
     jpeg: Option<Vec<u8>>,
+    /// The file the colour JPEG was read from (a frame folder's), for messages.
+    color_file: Option<std::path::PathBuf>,
 }
 
 /// The reading end: recording + matcher, or the folder's shots.
@@ -143,6 +145,7 @@ impl Reader {
                             raw: Some(p.depth.data),
                             depth_png: None,
                             jpeg: p.color.map(|c| c.jpeg),
+                            color_file: None,
                         }),
                     }));
                 }
@@ -188,6 +191,7 @@ impl Reader {
                     raw: None,
                     depth_png: Some(depth),
                     jpeg,
+                    color_file: shot.color.clone(),
                 })))
             }
             (Input::Recording(..), None) => Ok(None),
@@ -249,7 +253,9 @@ fn produce(
                             return Err(SequenceError::Pipeline("a frame without depth".into()));
                         }
                     };
-                    let name = std::path::PathBuf::from(format!("frame {}", job.meta.number));
+                    let name = job.color_file.clone().unwrap_or_else(|| {
+                        std::path::PathBuf::from(format!("frame {}", job.meta.number))
+                    });
                     let color = match &job.jpeg {
                         Some(j) => processor.decode_color(j, &name)?,
                         None => None,

@@ -241,15 +241,22 @@ impl Processor {
         Ok(depth)
     }
 
-    /// Decodes a colour JPEG when the extras need it, checked against the rig's colour size.
+    /// Decodes a colour JPEG when the extras need it, checked against the rig's colour size;
+    /// otherwise only checked (it is copied as it is). The reader and its checks are
+    /// `kfuse_io::images`', the same as single-frame `kfuse fuse`'s: a JPEG cut short, or an
+    /// image too large by its header, is refused rather than decoded with grey filling.
     pub fn decode_color(&self, jpeg: &[u8], name: &Path) -> Result<Option<Image<[u8; 3]>>> {
         if !self.needs_color() {
+            kfuse_io::images::check_picture(name, jpeg)?;
             return Ok(None);
         }
-        let img = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
-            .map_err(|e| SequenceError::input(name, format!("colour JPEG does not decode: {e}")))?
-            .into_rgb8();
-        let (w, h) = (img.width() as usize, img.height() as usize);
+        let (img, note) = kfuse_io::images::decode_color_noting(name, jpeg)?;
+        if let Some(note) = note {
+            // The note names the file itself.
+            let prefix = format!("{}: ", name.display());
+            return Err(SequenceError::input(name, note.trim_start_matches(&prefix)));
+        }
+        let (w, h) = img.size();
         if (w, h) != (self.rig.color.width, self.rig.color.height) {
             return Err(SequenceError::input(
                 name,
@@ -259,8 +266,7 @@ impl Processor {
                 ),
             ));
         }
-        let px = img.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        Ok(Some(Image::from_vec(w, h, px)?))
+        Ok(Some(img))
     }
 
     /// Registers `frames` (one on the CPU path; up to [`GPU_BATCH`] on the GPU path, streamed
