@@ -491,6 +491,102 @@ fn undistort_into_its_input_folder_skips_its_earlier_outputs() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// `kfuse undistort` recognises its own outputs by the mark it stores in each (issue 29: an
+/// output copied to another folder was undistorted again, `*_rect_rect`): PNG, JPEG, TIFF and
+/// OpenEXR outputs, copied and renamed into a folder without a manifest, are refused with one
+/// line naming the file and --force, nothing written; --force undistorts one again.
+#[test]
+fn undistort_refuses_its_own_outputs_wherever_they_were_copied() {
+    let case = small_case("undistort-marked");
+    let rgb = image::open(&case.color).unwrap().into_rgb8();
+    let (jpg, tif) = (case.dir.join("color.jpg"), case.dir.join("color.tif"));
+    rgb.save(&jpg).unwrap();
+    rgb.save(&tif).unwrap();
+    let exr = case.dir.join("depth.exr");
+    images::write_depth_exr(&exr, &images::read_depth(&case.depth, 1e-3).unwrap()).unwrap();
+    let rect = case.dir.join("rect");
+    let undistort = |camera: &str, image: &Path, out: &Path, extra: &[&str]| {
+        let args = ["undistort", "--rig", s(&case.rig), "--camera", camera, s(image)];
+        kfuse(&[&args[..], &["--out", s(out)], extra].concat())
+    };
+    let elsewhere = case.dir.join("elsewhere");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    let other = case.dir.join("other");
+    for (camera, input, output) in [
+        ("color", &case.color, "color_rect.png"),
+        ("color", &jpg, "color_rect.jpg"),
+        ("color", &tif, "color_rect.tif"),
+        ("depth", &case.depth, "depth_rect.png"),
+        ("depth", &exr, "depth_rect.exr"),
+    ] {
+        let o = undistort(camera, input, &rect, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        // Copied under another name into a folder kfuse never wrote.
+        let ext = output.rsplit('.').next().unwrap();
+        let copy = elsewhere.join(format!("{camera}_copy.{ext}"));
+        std::fs::copy(rect.join(output), &copy).unwrap();
+        let o = undistort(camera, &copy, &other, &[]);
+        assert_one_line_failure(&o, &format!("{camera}_copy.{ext}"), "written by kfuse undistort");
+        assert_one_line_failure(&o, &format!("{camera}_copy.{ext}"), "--force");
+        assert!(!other.exists(), "{output}: written although refused");
+    }
+    let copy = elsewhere.join("color_copy.png");
+    let o = undistort("color", &copy, &other, &["--force"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("warning") && err.contains("again"), "{err}");
+    assert!(other.join("color_copy_rect.png").is_file());
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+/// Undistorting into the demo's input folder (`kfuse demo --out d`, then `kfuse undistort
+/// d/input/depth.png --out d/input`; issue 29): the demo's `depth.png` is listed in the
+/// folder's kfuse manifest but is no undistort output, so it is undistorted, with no claim
+/// that "an earlier kfuse undistort" wrote it (which refused it before).
+#[test]
+fn undistort_into_a_folder_another_kfuse_command_wrote_says_nothing_of_undistort() {
+    let case = small_case("undistort-demo-input");
+    let input = case.dir.join("d/input");
+    let staged = kfuse_io::atomic::StagedDir::new(&input).unwrap();
+    std::fs::copy(&case.depth, staged.join("depth.png")).unwrap();
+    std::fs::copy(&case.color, staged.join("color.png")).unwrap();
+    std::fs::copy(&case.rig, staged.join("rig.json")).unwrap();
+    staged.commit().unwrap();
+    let pattern = input.join("depth*.png");
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&input.join("rig.json")),
+        "--camera",
+        "depth",
+        s(&input.join("depth.png")),
+        "--out",
+        s(&input),
+    ]);
+    let text =
+        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{text}");
+    assert!(
+        !text.contains("undistort wrote") && !text.contains("earlier kfuse undistort"),
+        "{text}"
+    );
+    assert!(input.join("depth_rect.png").is_file(), "{:?}", names(&input));
+    // The pattern now matches the new output too: that one (and only that one) is skipped.
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&input.join("rig.json")),
+        "--camera",
+        "depth",
+        s(&pattern),
+        "--out",
+        s(&input),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("skipped 1 image(s)") && out.contains("depth_rect.png"), "{out}");
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
 #[test]
 fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     let case = small_case("calibrate");

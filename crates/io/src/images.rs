@@ -415,6 +415,24 @@ pub fn write_png16(
 
 /// Writes depth (metres, `NaN` kept) as a single-channel (`Y`) 32-bit float OpenEXR file.
 pub fn write_depth_exr(path: &Path, depth: &Image<f32>) -> Result<(), GeometryError> {
+    write_depth_exr_with(path, depth, None)
+}
+
+/// [`write_depth_exr`] with `mark` as the layer's `software` attribute
+/// ([`crate::provenance`]).
+pub fn write_depth_exr_marked(
+    path: &Path,
+    depth: &Image<f32>,
+    mark: &str,
+) -> Result<(), GeometryError> {
+    write_depth_exr_with(path, depth, Some(mark))
+}
+
+fn write_depth_exr_with(
+    path: &Path,
+    depth: &Image<f32>,
+    mark: Option<&str>,
+) -> Result<(), GeometryError> {
     use exr::prelude::*;
     size_u32(path, depth.width(), depth.height())?;
     let channel = AnyChannel::new("Y", FlatSamples::F32(depth.data().to_vec()));
@@ -422,7 +440,10 @@ pub fn write_depth_exr(path: &Path, depth: &Image<f32>) -> Result<(), GeometryEr
     list.push(channel);
     let layer = Layer::new(
         (depth.width(), depth.height()),
-        LayerAttributes::named("depth_m"),
+        LayerAttributes {
+            software_name: mark.map(Text::from),
+            ..LayerAttributes::named("depth_m")
+        },
         Encoding::FAST_LOSSLESS,
         AnyChannels::sort(list),
     );
