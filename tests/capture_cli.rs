@@ -720,6 +720,76 @@ fn sigint_during_record_keeps_a_complete_replayable_recording() {
     assert!(err.contains(&format!("source recording ended: {n} depth frames")), "{n}: {err}");
 }
 
+/// Spawns `kfuse ARGS` with stderr piped and reads it up to the first line containing
+/// `marker` (failing if it ends first); the rest is read on a thread, returned with the lines
+/// read so far by the handle.
+fn spawn_until_stderr(
+    args: &[&str],
+    marker: &str,
+) -> (std::process::Child, std::thread::JoinHandle<String>) {
+    use std::io::{BufRead, BufReader, Read};
+    let mut child = kfuse().args(args).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        assert!(err.read_line(&mut line).unwrap() > 0, "kfuse ended before '{marker}': {seen}");
+        seen.push_str(&line);
+        if line.contains(marker) {
+            break;
+        }
+    }
+    let rest = std::thread::spawn(move || {
+        let _ = err.read_to_string(&mut seen);
+        seen
+    });
+    (child, rest)
+}
+
+/// Waits for a child whose stderr [`spawn_until_stderr`] reads (at most 30 s, as
+/// [`exit_after_signal`]); its exit code and stderr.
+fn exit_with_stderr(
+    mut child: std::process::Child,
+    rest: std::thread::JoinHandle<String>,
+) -> (Option<i32>, String) {
+    let t0 = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if t0.elapsed() > std::time::Duration::from_secs(30) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("still running 30 s after the signal: {}", rest.join().unwrap());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    (status.code(), rest.join().unwrap())
+}
+
+/// Ctrl-C while the simulator starts (issue 29: `capture calib --backend sim` renders its
+/// calibration scene for seconds and ignored Ctrl-C until it had): answered during the
+/// start-up itself, which runs on a worker thread polled every 50 ms. The signal is sent as
+/// soon as the start-up is announced, so the answer can only be the start-up's; exit 130 with
+/// one line, and the shots' folder (created for the run) is gone again.
+#[test]
+fn ctrl_c_during_the_simulators_start_up_is_answered_there_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("shots");
+    let o = out.to_str().unwrap();
+    let args = ["capture", "calib", "--backend", "sim", "--count", "3", "--interval", "0"];
+    let (child, rest) =
+        spawn_until_stderr(&[&args[..], &["--out", o]].concat(), "starting the simulated");
+    send_signal(&child, "-INT");
+    let (code, err) = exit_with_stderr(child, rest);
+    assert_eq!(code, Some(130), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("interrupted") && lines[0].contains("sensor was starting"), "{err}");
+    assert!(!out.exists(), "the shots' folder was left");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
 /// SIGTERM during `capture calib`: exits 130 and every shot in --out has its three files; no
 /// staging folder remains.
 #[test]
