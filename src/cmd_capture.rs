@@ -639,6 +639,13 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             output.display()
         );
     }
+    if !recorded.written {
+        let kept = if output.exists() { "was left as it was" } else { "was not written" };
+        crate::interrupt::check(&format!(
+            ": stopped before the first depth frame; nothing was recorded and {} {kept}",
+            output.display()
+        ))?;
+    }
     if recorded.interrupted {
         crate::interrupt::check(&format!(
             ": the {got} depth frames captured before it were saved in {} (a complete recording \
