@@ -374,6 +374,32 @@ fn a_reused_out_killed_during_its_commit_is_old_or_new_never_mixed() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// A reused `--out` that holds the working folder (`cd out/sub; kfuse fuse … --out ..`) is
+/// updated in place, not replaced: replaced, it would leave the shell in a deleted folder.
+#[cfg(unix)]
+#[test]
+fn a_reused_out_holding_the_working_folder_is_updated_in_place() {
+    use std::os::unix::fs::MetadataExt;
+    let case = small_case("cwd-inside-out");
+    let out = case.dir.join("out");
+    let o = fuse(&case, &case.rig, &case.color, &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sub = out.join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    let inode = |p: &Path| std::fs::metadata(p).unwrap().ino();
+    let (before, sub_before) = (inode(&out), inode(&sub));
+    let o = common::kfuse_command()
+        .current_dir(&sub)
+        .args(["fuse", "--rig", s(&case.rig), "--color", s(&case.color)])
+        .args(["--depth", s(&case.depth), "--out", "..", "--no-figures"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!((inode(&out), inode(&sub)), (before, sub_before), "the working folder was replaced");
+    assert!(!names(&out).iter().any(|n| n.starts_with("task1")), "{:?}", names(&out));
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
 #[test]
 fn undistort_checks_everything_before_writing_anything() {
     let case = small_case("undistort");

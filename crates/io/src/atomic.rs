@@ -297,7 +297,8 @@ pub fn is_plain_name(name: &str) -> bool {
 ///   refuses (before changing anything) when a staged name is taken by an entry kfuse did not
 ///   write. Nothing of the user's is ever lost or changed;
 /// * **existing destination that cannot be replaced** (a mount point, the working folder of
-///   the process, a parent folder kfuse may not write, a file system without hard links): the
+///   the process or a folder holding it, a parent folder kfuse may not write, a file system
+///   without hard links, a file kfuse may not link): the
 ///   staging folder is inside it and commit moves each staged entry in, one by one (a kill in
 ///   the middle leaves a mixture, which the manifest lets the next run replace); the same
 ///   refusal and removal of earlier entries.
@@ -380,12 +381,13 @@ fn recover_replaced(destination: &Path) {
 }
 
 /// The real folder behind an existing `destination` when it can be replaced as a whole: not
-/// the working folder of this process, not a mount point (its parent is on the same file
+/// the working folder of this process nor a folder holding it (the shell that started kfuse
+/// would be left in a deleted folder), not a mount point (its parent is on the same file
 /// system), and a parent that exists. `None`: publish in place.
 fn replaceable(destination: &Path) -> Option<PathBuf> {
     let real = fs::canonicalize(destination).ok()?;
     let cwd = std::env::current_dir().ok().and_then(|c| fs::canonicalize(c).ok());
-    if cwd.as_deref() == Some(real.as_path()) {
+    if cwd.is_some_and(|c| c.starts_with(&real)) {
         return None;
     }
     let parent = real.parent()?;
