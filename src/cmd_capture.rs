@@ -344,7 +344,15 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
 /// Opens the sensor and applies `--exposure` / `--led`, printing what the sensor reads back. A
 /// refused setting is an error (the user asked for it); the simulator's report is still written.
 fn start(common: &CommonArgs) -> Result<Session> {
-    let mut session = Session::open(&common.source())?;
+    let source = common.source();
+    eprintln!("starting the {}…", source.name());
+    // Opening renders the simulator's scene (seconds for the calibration scene's 17 poses) or
+    // starts a real sensor: on a worker thread, so that Ctrl-C is answered within
+    // `interrupt::run_until_interrupted`'s poll (nothing is written before the sensor runs).
+    let mut session = crate::interrupt::run_until_interrupted(
+        ": stopped while the sensor was starting; nothing was written",
+        move || Session::open(&source),
+    )??;
     let settings = ColorSettings {
         exposure: common.exposure,
         led: common.led.map(|l| l.setting(common.led_id)),
@@ -450,8 +458,19 @@ fn shots(
             p.display()
         );
     }
+    let created = !out.exists();
     let writer = ShotWriter::new(out)?;
-    let mut session = start(common)?;
+    let mut session = match start(common) {
+        Ok(session) => session,
+        Err(e) => {
+            // The folder made for the shots is removed again when it is still empty.
+            drop(writer);
+            if created {
+                let _ = std::fs::remove_dir(out);
+            }
+            return Err(e);
+        }
+    };
     write_params_json(out, session.info())?;
     let opts = common.decoder();
     let mut pump = FramePump::new(session.decoder(&opts)?);
@@ -619,6 +638,13 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             "{e}\nreplay stopped: the {got} depth frames before it were written to {}",
             output.display()
         );
+    }
+    if !recorded.written {
+        let kept = if output.exists() { "was left as it was" } else { "was not written" };
+        crate::interrupt::check(&format!(
+            ": stopped before the first depth frame; nothing was recorded and {} {kept}",
+            output.display()
+        ))?;
     }
     if recorded.interrupted {
         crate::interrupt::check(&format!(

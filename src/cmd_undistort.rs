@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
 use kfuse_io::image_header::image_size;
 use kfuse_io::images;
-use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster};
+use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster_marked};
 
 /// Arguments of `kfuse undistort`.
 #[derive(clap::Args, Debug)]
@@ -26,7 +26,10 @@ resampled bilinearly; 16-bit (depth in millimetres, 16-bit IR) and float (depth 
 nearest neighbour, so no depth is ever blended across an edge. Runs into the same --out add up
 (undistort the colour, then the depth images into one folder); an output of the same name is
 replaced.
-Fuse the results with --rectified (they would be undistorted a second time otherwise).
+Fuse the results with --rectified (they would be undistorted a second time otherwise). Each
+output is marked as kfuse undistort's (PNG text, JPEG comment, TIFF/EXR software field): given
+again as an input, wherever it was copied, it is refused (--force undistorts it again); in the
+--out folder itself it is skipped.
 Pixels whose ray falls where the distortion model folds (the lab's IR k1/k2 fold near the image
 corners), or outside the input image, are masked: black, or depth 0 (no sample).")]
 pub struct UndistortArgs {
@@ -44,7 +47,8 @@ pub struct UndistortArgs {
     /// is done, or not at all.
     #[arg(long)]
     out: PathBuf,
-    /// Use a rig that fails the plausibility check (see README "Limits"), with a warning.
+    /// Use a rig that fails the plausibility check (see README "Limits"), or undistort an
+    /// image that kfuse undistort wrote (already undistorted) again, with a warning.
     #[arg(long)]
     force: bool,
 }
@@ -89,19 +93,57 @@ fn expand_images(args: &[PathBuf]) -> Result<Vec<PathBuf>> {
     Ok(out)
 }
 
-/// `images` without the ones an earlier `kfuse undistort` wrote into `out` (listed in its
-/// manifest): a pattern such as `shots/*.jpg` with `--out shots` matches last run's
-/// `*_rect.jpg` too, which would be undistorted a second time (`left01_rect_rect.jpg`, from a
-/// user's trial). Says what it skipped; fails when nothing else is left.
-fn skip_earlier_outputs(images: Vec<PathBuf>, out: &Path) -> Result<Vec<PathBuf>> {
-    let ours = kfuse_io::atomic::written_by_kfuse(out);
-    let Ok(out_dir) = out.canonicalize() else { return Ok(images) };
-    let earlier = |p: &PathBuf| {
-        let in_out = p.parent().and_then(|d| d.canonicalize().ok()).is_some_and(|d| d == out_dir);
-        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        in_out && ours.contains(&name)
+/// Whether `path` is an output of `kfuse undistort`: the mark it stores in each image
+/// (`kfuse_io::provenance`: PNG text, JPEG comment, TIFF/EXR software field), which travels with
+/// the file wherever it is copied; or, for outputs of kfuse versions before the mark (and BMP,
+/// which has no place for it), a `NAME_rect.EXT` that its folder's kfuse manifest lists. Other
+/// files kfuse wrote (the demo's `depth.png`) are not undistort's.
+fn is_undistort_output(path: &Path) -> Result<bool> {
+    if kfuse_io::provenance::written_by_undistort(path)? {
+        return Ok(true);
+    }
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let rect_named = path.file_stem().is_some_and(|s| s.to_string_lossy().ends_with("_rect"));
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
     };
-    let (skipped, kept): (Vec<PathBuf>, Vec<PathBuf>) = images.into_iter().partition(earlier);
+    Ok(rect_named && kfuse_io::atomic::written_by_kfuse(folder).contains(&name))
+}
+
+/// `images` without the outputs of an earlier `kfuse undistort` ([`is_undistort_output`]),
+/// which would be undistorted a second time (`left01_rect_rect.jpg`, from a user's trial).
+/// Those in `out` itself (a pattern such as `shots/*.jpg` with `--out shots` matches last
+/// run's `*_rect.jpg`) are skipped with a note, and it fails when nothing else is left; one
+/// elsewhere is refused with one line, unless `force` (then it is undistorted again, with a
+/// warning).
+fn skip_earlier_outputs(images: Vec<PathBuf>, out: &Path, force: bool) -> Result<Vec<PathBuf>> {
+    let out_dir = out.canonicalize().ok();
+    let mut kept = Vec::new();
+    let mut skipped = Vec::new();
+    for path in images {
+        if !is_undistort_output(&path)? {
+            kept.push(path);
+            continue;
+        }
+        let folder =
+            path.parent().map(|d| if d.as_os_str().is_empty() { Path::new(".") } else { d });
+        let in_out = out_dir.is_some() && folder.and_then(|d| d.canonicalize().ok()) == out_dir;
+        if in_out {
+            skipped.push(path);
+        } else if force {
+            eprintln!(
+                "warning: {}: was written by kfuse undistort; undistorting it again (--force)",
+                path.display()
+            );
+            kept.push(path);
+        } else {
+            bail!(
+                "{}: was written by kfuse undistort (it is already undistorted); give the original image, or pass --force to undistort it again",
+                path.display()
+            );
+        }
+    }
     if let Some(first) = skipped.first() {
         if kept.is_empty() {
             bail!(
@@ -188,7 +230,7 @@ pub fn run(args: UndistortArgs) -> Result<()> {
     }
     // Everything that can be checked is checked before the (large) map is built and before
     // anything is written: one output name per input, every image's size from its header.
-    let images = skip_earlier_outputs(expand_images(&args.images)?, &args.out)?;
+    let images = skip_earlier_outputs(expand_images(&args.images)?, &args.out, args.force)?;
     let mut names: HashMap<String, &PathBuf> = HashMap::new();
     for path in &images {
         let name = output_name(path);
@@ -229,6 +271,8 @@ pub fn run(args: UndistortArgs) -> Result<()> {
         ProgressStyle::with_template("undistorting [{bar:30}] {pos}/{len} {elapsed}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
+    // Stored in every output, so that it is recognised wherever it is copied.
+    let mark = format!("{} ({} camera)", kfuse_io::provenance::UNDISTORT_MARK, args.camera);
     for path in &images {
         let out = staged.join(output_name(path));
         if is_exr(path)? {
@@ -236,11 +280,11 @@ pub fn run(args: UndistortArgs) -> Result<()> {
             // scale applies to integer files only).
             let depth = images::read_depth(path, 1.0)?;
             check_read_size(path, depth.size(), &args.camera, &cam)?;
-            images::write_depth_exr(&out, &map.remap_nearest(&depth, f32::NAN))?;
+            images::write_depth_exr_marked(&out, &map.remap_nearest(&depth, f32::NAN), &mark)?;
         } else {
             let (raster, format) = read_raster(path)?;
             check_read_size(path, raster.size(), &args.camera, &cam)?;
-            write_raster(&out, &remap(&map, &raster), format)?;
+            write_raster_marked(&out, &remap(&map, &raster), format, &mark)?;
         }
         pb.inc(1);
         crate::interrupt::check(": stopped; nothing was written to --out")?;

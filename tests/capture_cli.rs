@@ -720,6 +720,137 @@ fn sigint_during_record_keeps_a_complete_replayable_recording() {
     assert!(err.contains(&format!("source recording ended: {n} depth frames")), "{n}: {err}");
 }
 
+/// Spawns `kfuse ARGS` with stderr piped and reads it up to the first line containing
+/// `marker` (failing if it ends first); the rest is read on a thread, returned with the lines
+/// read so far by the handle.
+fn spawn_until_stderr(
+    args: &[&str],
+    marker: &str,
+) -> (std::process::Child, std::thread::JoinHandle<String>) {
+    use std::io::{BufRead, BufReader, Read};
+    let mut child = kfuse().args(args).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        assert!(err.read_line(&mut line).unwrap() > 0, "kfuse ended before '{marker}': {seen}");
+        seen.push_str(&line);
+        if line.contains(marker) {
+            break;
+        }
+    }
+    let rest = std::thread::spawn(move || {
+        let _ = err.read_to_string(&mut seen);
+        seen
+    });
+    (child, rest)
+}
+
+/// Waits for a child whose stderr [`spawn_until_stderr`] reads (at most 30 s, as
+/// [`exit_after_signal`]); its exit code and stderr.
+fn exit_with_stderr(
+    mut child: std::process::Child,
+    rest: std::thread::JoinHandle<String>,
+) -> (Option<i32>, String) {
+    let t0 = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if t0.elapsed() > std::time::Duration::from_secs(30) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("still running 30 s after the signal: {}", rest.join().unwrap());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    (status.code(), rest.join().unwrap())
+}
+
+/// Ctrl-C while the simulator starts (issue 29: `capture calib --backend sim` renders its
+/// calibration scene for seconds and ignored Ctrl-C until it had): answered during the
+/// start-up itself, which runs on a worker thread polled every 50 ms. The signal is sent as
+/// soon as the start-up is announced, so the answer can only be the start-up's; exit 130 with
+/// one line, and the shots' folder (created for the run) is gone again.
+#[test]
+fn ctrl_c_during_the_simulators_start_up_is_answered_there_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("shots");
+    let o = out.to_str().unwrap();
+    let args = ["capture", "calib", "--backend", "sim", "--count", "3", "--interval", "0"];
+    let (child, rest) =
+        spawn_until_stderr(&[&args[..], &["--out", o]].concat(), "starting the simulated");
+    send_signal(&child, "-INT");
+    let (code, err) = exit_with_stderr(child, rest);
+    assert_eq!(code, Some(130), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("interrupted") && lines[0].contains("sensor was starting"), "{err}");
+    assert!(!out.exists(), "the shots' folder was left");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+/// `capture record --overwrite` keeps the old recording until a new one is complete (issue
+/// 29: Ctrl-C during the start-up replaced it with a recording of no frame). Ctrl-C is the
+/// normal way to end a recording, so one stopped by Ctrl-C after its first frame is complete
+/// and replaces the old one (`sigint_during_record_keeps_a_complete_replayable_recording`);
+/// Ctrl-C during the start-up, or a kill in the middle of the recording, leaves the old file
+/// byte for byte, and the next run removes the killed one's temporary.
+#[test]
+fn record_overwrite_keeps_the_old_recording_unless_a_new_one_is_complete() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = record_three_sim_frames(dir.path());
+    let old = std::fs::read(&rec).unwrap();
+    let r = rec.to_str().unwrap();
+    let record = |frames: &'static str| {
+        let args = ["capture", "record", "--backend", "sim", "--overwrite", "--frames", frames];
+        [&args[..], &["--out", r]].concat()
+    };
+    let names = || -> Vec<String> {
+        let mut n: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        n.sort();
+        n
+    };
+
+    // Few frames: a kfuse that ignored the signal would end soon (and fail the test).
+    let (child, rest) = spawn_until_stderr(&record("30"), "starting the simulated");
+    send_signal(&child, "-INT");
+    let (code, err) = exit_with_stderr(child, rest);
+    assert_eq!(code, Some(130), "{err}");
+    assert!(err.contains("sensor was starting") && err.contains("nothing was written"), "{err}");
+    assert_eq!(std::fs::read(&rec).unwrap(), old, "Ctrl-C at start-up replaced the recording");
+    assert_eq!(names(), ["s.kfrec"]);
+
+    // Killed (SIGKILL) with frames in the new recording's temporary file.
+    let mut child =
+        kfuse().args(record("1000000")).stderr(std::process::Stdio::null()).spawn().unwrap();
+    let partial = |d: &Path| -> u64 {
+        std::fs::read_dir(d)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().contains(".partial-"))
+            .filter_map(|e| e.metadata().ok())
+            .map(|m| m.len())
+            .sum()
+    };
+    wait_for("recorded data", || partial(dir.path()) > 12 << 20);
+    child.kill().unwrap();
+    let _ = child.wait();
+    assert_eq!(std::fs::read(&rec).unwrap(), old, "a killed recording replaced the old one");
+    // The next recording of the same file replaces it and removes the killed one's temporary.
+    let st = kfuse()
+        .args(["capture", "record", "--backend", "sim", "--frames", "2", "--overwrite", "--out"])
+        .arg(&rec)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    assert_ne!(std::fs::read(&rec).unwrap(), old);
+    assert_eq!(names(), ["s.kfrec"]);
+}
+
 /// SIGTERM during `capture calib`: exits 130 and every shot in --out has its three files; no
 /// staging folder remains.
 #[test]

@@ -153,6 +153,51 @@ fn image_sizes_are_checked_from_headers_and_truncated_images_refused() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// `fuse --frames` with a colour JPEG cut short (issue 29: cut to 10 %, a grey colour image
+/// was fused with exit 0, while single-frame `fuse` refused the same file): refused by the
+/// same reader with the same line, whether the colour is decoded (`--write color-on-depth`)
+/// or only copied (`--write color`); no output folder.
+#[test]
+fn fuse_frames_refuses_a_cut_colour_jpeg_as_single_frame_fuse_does() {
+    let case = small_case("frames-cut-jpeg");
+    let shots = case.dir.join("shots");
+    std::fs::create_dir_all(&shots).unwrap();
+    std::fs::copy(&case.depth, shots.join("a_depth.png")).unwrap();
+    // Noise, so that the entropy-coded data is most of the file and 10 % keeps the header.
+    let mut state = 12345u32;
+    let rgb = image::RgbImage::from_fn(96, 72, |_, _| {
+        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let b = state.to_le_bytes();
+        image::Rgb([b[1], b[2], b[3]])
+    });
+    let jpeg = shots.join("a_color.jpg");
+    rgb.save(&jpeg).unwrap();
+    let bytes = std::fs::read(&jpeg).unwrap();
+    let out = case.dir.join("seq");
+    let frames = |write: &str| {
+        let args = ["fuse", "--rig", s(&case.rig), "--frames", s(&shots), "--write", write];
+        kfuse(&[&args[..], &["--out", s(&out)]].concat())
+    };
+    for write in ["color-on-depth", "color"] {
+        let o = frames(write);
+        assert!(o.status.success(), "intact: {}", String::from_utf8_lossy(&o.stderr));
+        std::fs::remove_dir_all(&out).unwrap();
+        for keep in [bytes.len() / 10, bytes.len() / 2] {
+            std::fs::write(&jpeg, &bytes[..keep]).unwrap();
+            let o = frames(write);
+            assert_one_line_failure(&o, "a_color.jpg", "truncated JPEG");
+            assert!(!out.exists(), "--write {write}: output written from a cut JPEG");
+            // Single-frame fuse refuses the same file.
+            let single = case.dir.join("single");
+            let o = fuse(&case, &case.rig, &jpeg, &single, &[]);
+            assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+            assert!(!single.exists());
+        }
+        std::fs::write(&jpeg, &bytes).unwrap();
+    }
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
 #[test]
 fn fuse_outputs_are_all_or_nothing_and_never_touch_the_users_files() {
     let case = small_case("outputs");
@@ -260,6 +305,98 @@ fn fuse_killed_at_any_moment_leaves_all_or_nothing() {
         .collect();
     assert!(left.is_empty(), "staging of killed runs left: {left:?}");
     eprintln!("killed runs: {} left nothing, {} had finished", outcomes.0, outcomes.1);
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+/// `fuse --out` into an existing folder killed during its commit (issue 29: a red team's run
+/// left 3 new files beside 17 old ones and the old summary.json): at each of the commit's
+/// kill points (`kfuse_io::atomic::KILL_AT_ENV`, the process exits there as if killed) the
+/// folder is the old run's or the new run's, complete, never a mixture; the next run puts
+/// back or finishes what the killed one left and leaves nothing beside the folder.
+#[test]
+fn a_reused_out_killed_during_its_commit_is_old_or_new_never_mixed() {
+    let case = small_case("kill-commit");
+    let out = case.dir.join("out");
+    let first_run = || {
+        let _ = std::fs::remove_dir_all(&out);
+        let o = fuse(&case, &case.rig, &case.color, &out, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        (names(&out), std::fs::read(out.join("summary.json")).unwrap())
+    };
+    let killed_at = |point: &str| {
+        let o = common::kfuse_command()
+            .args(["fuse", "--rig", s(&case.rig), "--color", s(&case.color)])
+            .args(["--depth", s(&case.depth), "--out", s(&out), "--no-figures"])
+            .env(kfuse_io::atomic::KILL_AT_ENV, point)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(137), "{point}: {}", String::from_utf8_lossy(&o.stderr));
+    };
+    let hidden = || -> Vec<String> {
+        names(&case.dir).into_iter().filter(|n| n.starts_with(".out")).collect()
+    };
+    // The new run's folder, from an uninterrupted run of the same command.
+    let (old, _) = first_run();
+    let o = fuse(&case, &case.rig, &case.color, &out, &["--no-figures"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let new = names(&out);
+    assert!(old.len() > new.len() + 2 && new.contains(&"notes.txt".to_string()), "{new:?}");
+
+    // Killed with the new folder staged: the old folder, untouched.
+    let (old, old_summary) = first_run();
+    killed_at("carried");
+    assert_eq!(names(&out), old, "killed before the swap: not the old folder");
+    assert_eq!(std::fs::read(out.join("summary.json")).unwrap(), old_summary);
+
+    // Killed between the renames: no folder at --out, until the next run puts the old back
+    // (this one fails on its missing colour image, after --out was checked).
+    let (old, old_summary) = first_run();
+    killed_at("aside");
+    assert!(!out.exists(), "{:?}", names(&out));
+    let missing = case.dir.join("no-such-colour.png");
+    let o = fuse(&case, &case.rig, &missing, &out, &[]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(names(&out), old, "the next run did not put the old folder back");
+    assert_eq!(std::fs::read(out.join("summary.json")).unwrap(), old_summary);
+    assert!(hidden().is_empty(), "left beside --out: {:?}", hidden());
+
+    // Killed with the new folder in place: the new folder, complete; the next run removes
+    // the old one left aside.
+    first_run();
+    killed_at("swapped");
+    assert_eq!(names(&out), new, "killed after the swap: not the new folder");
+    assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
+    let o = fuse(&case, &case.rig, &case.color, &out, &["--no-figures"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(names(&out), new);
+    assert!(hidden().is_empty(), "left beside --out: {:?}", hidden());
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+/// A reused `--out` that holds the working folder (`cd out/sub; kfuse fuse … --out ..`) is
+/// updated in place, not replaced: replaced, it would leave the shell in a deleted folder.
+#[cfg(unix)]
+#[test]
+fn a_reused_out_holding_the_working_folder_is_updated_in_place() {
+    use std::os::unix::fs::MetadataExt;
+    let case = small_case("cwd-inside-out");
+    let out = case.dir.join("out");
+    let o = fuse(&case, &case.rig, &case.color, &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sub = out.join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    let inode = |p: &Path| std::fs::metadata(p).unwrap().ino();
+    let (before, sub_before) = (inode(&out), inode(&sub));
+    let o = common::kfuse_command()
+        .current_dir(&sub)
+        .args(["fuse", "--rig", s(&case.rig), "--color", s(&case.color)])
+        .args(["--depth", s(&case.depth), "--out", "..", "--no-figures"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!((inode(&out), inode(&sub)), (before, sub_before), "the working folder was replaced");
+    assert!(!names(&out).iter().any(|n| n.starts_with("task1")), "{:?}", names(&out));
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
@@ -377,6 +514,102 @@ fn undistort_into_its_input_folder_skips_its_earlier_outputs() {
     assert!(!names(&case.dir).iter().any(|n| n.contains("rect_rect")), "{:?}", names(&case.dir));
     let o = run(&case.dir.join("color_rect.png"));
     assert_one_line_failure(&o, "color_rect.png", "give the original images");
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+/// `kfuse undistort` recognises its own outputs by the mark it stores in each (issue 29: an
+/// output copied to another folder was undistorted again, `*_rect_rect`): PNG, JPEG, TIFF and
+/// OpenEXR outputs, copied and renamed into a folder without a manifest, are refused with one
+/// line naming the file and --force, nothing written; --force undistorts one again.
+#[test]
+fn undistort_refuses_its_own_outputs_wherever_they_were_copied() {
+    let case = small_case("undistort-marked");
+    let rgb = image::open(&case.color).unwrap().into_rgb8();
+    let (jpg, tif) = (case.dir.join("color.jpg"), case.dir.join("color.tif"));
+    rgb.save(&jpg).unwrap();
+    rgb.save(&tif).unwrap();
+    let exr = case.dir.join("depth.exr");
+    images::write_depth_exr(&exr, &images::read_depth(&case.depth, 1e-3).unwrap()).unwrap();
+    let rect = case.dir.join("rect");
+    let undistort = |camera: &str, image: &Path, out: &Path, extra: &[&str]| {
+        let args = ["undistort", "--rig", s(&case.rig), "--camera", camera, s(image)];
+        kfuse(&[&args[..], &["--out", s(out)], extra].concat())
+    };
+    let elsewhere = case.dir.join("elsewhere");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    let other = case.dir.join("other");
+    for (camera, input, output) in [
+        ("color", &case.color, "color_rect.png"),
+        ("color", &jpg, "color_rect.jpg"),
+        ("color", &tif, "color_rect.tif"),
+        ("depth", &case.depth, "depth_rect.png"),
+        ("depth", &exr, "depth_rect.exr"),
+    ] {
+        let o = undistort(camera, input, &rect, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        // Copied under another name into a folder kfuse never wrote.
+        let ext = output.rsplit('.').next().unwrap();
+        let copy = elsewhere.join(format!("{camera}_copy.{ext}"));
+        std::fs::copy(rect.join(output), &copy).unwrap();
+        let o = undistort(camera, &copy, &other, &[]);
+        assert_one_line_failure(&o, &format!("{camera}_copy.{ext}"), "written by kfuse undistort");
+        assert_one_line_failure(&o, &format!("{camera}_copy.{ext}"), "--force");
+        assert!(!other.exists(), "{output}: written although refused");
+    }
+    let copy = elsewhere.join("color_copy.png");
+    let o = undistort("color", &copy, &other, &["--force"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("warning") && err.contains("again"), "{err}");
+    assert!(other.join("color_copy_rect.png").is_file());
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
+/// Undistorting into the demo's input folder (`kfuse demo --out d`, then `kfuse undistort
+/// d/input/depth.png --out d/input`; issue 29): the demo's `depth.png` is listed in the
+/// folder's kfuse manifest but is no undistort output, so it is undistorted, with no claim
+/// that "an earlier kfuse undistort" wrote it (which refused it before).
+#[test]
+fn undistort_into_a_folder_another_kfuse_command_wrote_says_nothing_of_undistort() {
+    let case = small_case("undistort-demo-input");
+    let input = case.dir.join("d/input");
+    let staged = kfuse_io::atomic::StagedDir::new(&input).unwrap();
+    std::fs::copy(&case.depth, staged.join("depth.png")).unwrap();
+    std::fs::copy(&case.color, staged.join("color.png")).unwrap();
+    std::fs::copy(&case.rig, staged.join("rig.json")).unwrap();
+    staged.commit().unwrap();
+    let pattern = input.join("depth*.png");
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&input.join("rig.json")),
+        "--camera",
+        "depth",
+        s(&input.join("depth.png")),
+        "--out",
+        s(&input),
+    ]);
+    let text =
+        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{text}");
+    assert!(
+        !text.contains("undistort wrote") && !text.contains("earlier kfuse undistort"),
+        "{text}"
+    );
+    assert!(input.join("depth_rect.png").is_file(), "{:?}", names(&input));
+    // The pattern now matches the new output too: that one (and only that one) is skipped.
+    let o = kfuse(&[
+        "undistort",
+        "--rig",
+        s(&input.join("rig.json")),
+        "--camera",
+        "depth",
+        s(&pattern),
+        "--out",
+        s(&input),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("skipped 1 image(s)") && out.contains("depth_rect.png"), "{out}");
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 

@@ -512,7 +512,7 @@ fn draw_figures(
     options: &geometry::fusion::FusionOptions,
 ) -> Result<()> {
     let Some(jpeg) = &k.jpeg else { bail!("the frame has no colour") };
-    let color = jpeg.decode().map_err(|e| anyhow::anyhow!("frame {}: {e}", k.number))?;
+    let color = jpeg.decode(Path::new(&format!("frame {}", k.number)))?;
     let output = geometry::fusion::run(rig, &k.depth, DepthKind::Z, &color, options)?;
     let dir = staged.join(format!("figures/{:06}", k.number));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;

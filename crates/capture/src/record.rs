@@ -21,13 +21,18 @@ pub struct Recorded {
     pub interrupted: bool,
     /// The stream error that ended it early (unplug, end of a replayed recording), if any.
     pub stopped_by: Option<KinectError>,
+    /// Whether the file was written: `false` when the stop request came before the first
+    /// depth frame (nothing was published; a file already at `output` is left as it was).
+    pub written: bool,
 }
 
 /// Records `frames` depth frames (and the colour frames between them) of `session` into
 /// `output`. `stop` is polled between frames (a signal handler's flag); `progress` is called
 /// with the count after each depth frame. A stream error or a stop request ends the
 /// recording early but still writes a complete file (returned in [`Recorded`]); an I/O error
-/// leaves nothing at `output`.
+/// leaves nothing at `output`. A stop request before the first depth frame writes nothing: a
+/// recording without a frame is none, and it would replace a file already at `output`
+/// (`kfuse capture record --overwrite` interrupted while the sensor started).
 pub fn record(
     session: &mut Session,
     output: &Path,
@@ -36,13 +41,17 @@ pub fn record(
     progress: &mut dyn FnMut(u64),
 ) -> Result<Recorded, CaptureError> {
     let meta = RecordingMeta::from_info(session.info());
-    let mut done = Recorded { frames: 0, interrupted: false, stopped_by: None };
-    write_atomic(output, |w| {
+    let mut done = Recorded { frames: 0, interrupted: false, stopped_by: None, written: false };
+    let written = write_atomic(output, |w| {
         let mut rw = RecordingWriter::new(w, &meta)?;
         let mut io_err = None;
         while done.frames < frames {
             if stop() {
                 done.interrupted = true;
+                if done.frames == 0 {
+                    // Abandons the temporary file; `output` stays as it is.
+                    return Err(std::io::ErrorKind::Interrupted.into());
+                }
                 break;
             }
             let mut tap = |k: StreamKind, e: &_| {
@@ -66,6 +75,11 @@ pub fn record(
             }
         }
         rw.finish().map(|_| ())
-    })?;
+    });
+    match written {
+        Ok(()) => done.written = true,
+        Err(_) if done.interrupted && done.frames == 0 => {}
+        Err(e) => return Err(e.into()),
+    }
     Ok(done)
 }

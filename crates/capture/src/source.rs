@@ -163,7 +163,13 @@ fn sim_profile(d: &geometry::CameraModel, color_fx: f64) -> SimProfile {
 
 /// The simulated device of [`SensorSource::Sim`] (fixed seed 1: runs are reproducible).
 pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
-    let (mut scene, profile) = sim_scene();
+    // The calibration scene needs only the profile: the default scene is not rendered for it
+    // (a 1920x1080 render and JPEG that start-up threw away).
+    let (mut scene, profile) = if options.calib_scene {
+        (SimScene::default(), sim_profile(&geometry::synth::kinect_preset(false).rig))
+    } else {
+        sim_scene()
+    };
     if options.calib_scene {
         scene = kinect_usb::sim::calib_scene::calibration_scene(&profile).ok_or_else(|| {
             CaptureError::Config(

@@ -101,7 +101,16 @@ fn sim_session_pumps_the_scene_and_a_recording_replays() {
     let mut seen = Vec::new();
     let r = record(&mut s, &file, 3, &|| false, &mut |k| seen.push(k)).unwrap();
     assert_eq!((r.frames, r.interrupted, r.stopped_by.is_none()), (3, false, true));
+    assert!(r.written);
     assert_eq!(seen, [1, 2, 3]);
+    // A stop request before the first depth frame (Ctrl-C while the sensor started, issue 29):
+    // nothing is written, the recording already at the path is kept byte for byte (it was
+    // replaced by a recording of no frame), and no temporary is left.
+    let old = std::fs::read(&file).unwrap();
+    let r = record(&mut s, &file, 3, &|| true, &mut |_| {}).unwrap();
+    assert_eq!((r.frames, r.interrupted, r.written), (0, true, false));
+    assert_eq!(std::fs::read(&file).unwrap(), old, "the old recording was replaced");
+    assert_eq!(names(dir.path()).into_iter().collect::<Vec<_>>(), ["s.kfrec"]);
     s.close();
 
     let replay = SensorSource::Replay(ReplayOptions {

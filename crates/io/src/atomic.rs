@@ -3,10 +3,12 @@
 //! Every file kfuse writes goes first to a hidden temporary name in the same directory and is
 //! renamed into place when complete (a rename within one directory is atomic on POSIX), so a
 //! crash, a full disk or a bad input never leaves a truncated file behind. Multi-file outputs
-//! use [`StagedDir`]: all files are written into a hidden staging directory on the
-//! destination's file system and published only by [`StagedDir::commit`] (one directory rename
-//! for a new folder); dropping it uncommitted deletes everything. A [`MANIFEST`] in each
-//! published folder lists what kfuse wrote, so nothing of the user's is ever replaced.
+//! use [`StagedDir`]: all files are written into a hidden staging directory beside the
+//! destination and published only by [`StagedDir::commit`] (one directory rename for a new
+//! folder; an existing folder is replaced as a whole: old aside, new in, old removed, so a
+//! killed run leaves the old folder or the new one, never a mixture); dropping it uncommitted
+//! deletes everything. A [`MANIFEST`] in each published folder lists what kfuse wrote, so
+//! nothing of the user's is ever replaced.
 
 use std::fs;
 use std::io::Write;
@@ -282,11 +284,24 @@ pub fn is_plain_name(name: &str) -> bool {
 ///
 /// * **new destination**: the staging folder is a hidden sibling and is renamed to the
 ///   destination in one step;
-/// * **existing destination** (a reused `--out`, or a mount point): the staging folder is
-///   inside it; commit moves each staged entry in (a rename within one file system), removes
-///   the entries the previous run listed in the folder's [`MANIFEST`] that this run did not
-///   write, and refuses (before moving anything) when a staged name is taken by an entry kfuse
-///   did not write. Nothing else in the folder is ever touched.
+/// * **existing destination** (a reused `--out`): the staging folder is a hidden sibling too,
+///   and the folder is replaced as a whole. Commit carries into the staging folder, as hard
+///   links, every entry that stays (the user's files, and with [`StagedDir::commit_adding`]
+///   the earlier runs' outputs), then renames the old folder aside
+///   (`.NAME.kfuse-replaced-PID`), renames the new one in, and removes the old one. A run
+///   killed at any moment leaves the old folder or the new one complete: killed before the
+///   first rename, the old folder is untouched (the staging folder is removed by the next
+///   run); between the renames, the next run into the same destination puts the old folder
+///   back; after them, it removes the old one. Entries the previous run listed in the folder's
+///   [`MANIFEST`] that this run did not write are not carried (they disappear), and commit
+///   refuses (before changing anything) when a staged name is taken by an entry kfuse did not
+///   write. Nothing of the user's is ever lost or changed;
+/// * **existing destination that cannot be replaced** (a mount point, the working folder of
+///   the process or a folder holding it, a parent folder kfuse may not write, a file system
+///   without hard links, a file kfuse may not link): the
+///   staging folder is inside it and commit moves each staged entry in, one by one (a kill in
+///   the middle leaves a mixture, which the manifest lets the next run replace); the same
+///   refusal and removal of earlier entries.
 ///
 /// The destination is checked when staging starts (before any work): a file in its place is
 /// refused. Staging folders of killed runs are removed then too. Dropped without commit (an
@@ -295,8 +310,120 @@ pub fn is_plain_name(name: &str) -> bool {
 pub struct StagedDir {
     staging: PathBuf,
     destination: PathBuf,
-    inside: bool,
+    mode: Mode,
     committed: bool,
+}
+
+/// How a [`StagedDir`] publishes.
+#[derive(Debug, Clone, PartialEq)]
+enum Mode {
+    /// The destination did not exist: one rename of the sibling staging folder.
+    New,
+    /// The destination exists (the real folder, links resolved): replaced as a whole by the
+    /// sibling staging folder.
+    Replace(PathBuf),
+    /// The destination exists and cannot be replaced: staging inside, entries moved one by one.
+    InPlace,
+}
+
+/// Middle of the name of an old output folder renamed aside while its replacement is renamed
+/// in (`.NAME.kfuse-replaced-PID`, beside it).
+const REPLACED_PREFIX: &str = ".kfuse-replaced-";
+
+/// Environment variable naming a point of [`StagedDir::commit`] at which the process exits
+/// at once, as if killed (no destructor runs, nothing is cleaned up): `carried` (the staging
+/// folder is complete, the old folder untouched), `aside` (the old folder renamed aside, the
+/// new one not yet in), `swapped` (the new folder in, the old one not yet removed). For the
+/// tests of what a killed run leaves; never set it otherwise.
+pub const KILL_AT_ENV: &str = "KFUSE_TEST_KILL_AT";
+
+/// Exit status of the [`KILL_AT_ENV`] hook: a process killed by SIGKILL (128 + 9).
+const KILLED_EXIT: i32 = 137;
+
+/// Exits the process at once when [`KILL_AT_ENV`] names `point`.
+fn kill_point(point: &str) {
+    if std::env::var_os(KILL_AT_ENV).is_some_and(|v| v == point) {
+        std::process::exit(KILLED_EXIT);
+    }
+}
+
+/// `.{name}{middle}{pid}` beside `path`: the hidden siblings of an output folder.
+fn sibling(path: &Path, middle: &str, pid: u32) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}{middle}{pid}"))
+}
+
+/// Finishes what a killed replacement of `destination` left (see [`StagedDir`]): an old folder
+/// renamed aside by a process that is gone is put back when `destination` is missing (the new
+/// one never came in), and removed otherwise (the new one is in place).
+fn recover_replaced(destination: &Path) {
+    let (Some(parent), Some(name)) = (destination.parent(), destination.file_name()) else {
+        return;
+    };
+    let parent = if parent.as_os_str().is_empty() { Path::new(".") } else { parent };
+    let prefix = format!(".{}{REPLACED_PREFIX}", name.to_string_lossy());
+    let Ok(entries) = fs::read_dir(parent) else { return };
+    for entry in entries.flatten() {
+        let entry_name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = entry_name.strip_prefix(&prefix).and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        let is_dir = entry.file_type().map(|t| t.is_dir()).unwrap_or(false);
+        if !is_dir || pid == std::process::id() || process_alive(pid) {
+            continue;
+        }
+        if fs::symlink_metadata(destination).is_err() {
+            let _ = fs::rename(entry.path(), destination);
+        } else {
+            let _ = fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
+/// The real folder behind an existing `destination` when it can be replaced as a whole: not
+/// the working folder of this process nor a folder holding it (the shell that started kfuse
+/// would be left in a deleted folder), not a mount point (its parent is on the same file
+/// system), and a parent that exists. `None`: publish in place.
+fn replaceable(destination: &Path) -> Option<PathBuf> {
+    let real = fs::canonicalize(destination).ok()?;
+    let cwd = std::env::current_dir().ok().and_then(|c| fs::canonicalize(c).ok());
+    if cwd.is_some_and(|c| c.starts_with(&real)) {
+        return None;
+    }
+    let parent = real.parent()?;
+    same_file_system(parent, &real).then_some(real)
+}
+
+/// Whether `a` and `b` are on one file system (a rename between them can work).
+#[cfg(unix)]
+fn same_file_system(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (fs::metadata(a), fs::metadata(b)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev(),
+        _ => false,
+    }
+}
+
+/// Without device numbers to compare, no folder is taken for replaceable.
+#[cfg(not(unix))]
+fn same_file_system(_: &Path, _: &Path) -> bool {
+    false
+}
+
+/// Makes `to` a copy of the entry `from` that shares its data: a hard link of a file (or link,
+/// pipe, socket: linked as it is, not followed), a new folder with its permissions holding such
+/// copies of its entries. Nothing at `from` changes.
+fn link_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+    let meta = fs::symlink_metadata(from)?;
+    if !meta.is_dir() {
+        return fs::hard_link(from, to);
+    }
+    fs::create_dir(to)?;
+    for entry in fs::read_dir(from)? {
+        let entry = entry?;
+        link_tree(&entry.path(), &to.join(entry.file_name()))?;
+    }
+    fs::set_permissions(to, meta.permissions())
 }
 
 impl StagedDir {
@@ -304,6 +431,7 @@ impl StagedDir {
     pub fn new(destination: &Path) -> Result<Self, GeometryError> {
         let refuse =
             |message: String| GeometryError::Format { path: destination.to_path_buf(), message };
+        recover_replaced(destination);
         match fs::metadata(destination) {
             Ok(m) if !m.is_dir() => {
                 return Err(refuse(
@@ -312,6 +440,14 @@ impl StagedDir {
             }
             Ok(_) => {
                 remove_stale_staging(destination, None);
+                if let Some(real) = replaceable(destination) {
+                    recover_replaced(&real);
+                    if let Ok(staged) =
+                        Self::beside(&real, destination, Mode::Replace(real.clone()))
+                    {
+                        return Ok(staged);
+                    }
+                }
                 let staging = destination.join(format!("{STAGING_PREFIX}{}", std::process::id()));
                 if staging.exists() {
                     fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
@@ -320,7 +456,7 @@ impl StagedDir {
                 return Ok(Self {
                     staging,
                     destination: destination.to_path_buf(),
-                    inside: true,
+                    mode: Mode::InPlace,
                     committed: false,
                 });
             }
@@ -331,30 +467,34 @@ impl StagedDir {
             _ => PathBuf::from("."),
         };
         fs::create_dir_all(&parent).map_err(io_err(&parent))?;
-        let name = destination
+        Self::beside(destination, destination, Mode::New)
+    }
+
+    /// Staging in the hidden sibling of `folder` (`.NAME.kfuse-staging-PID`), after removing
+    /// the staging folders of killed runs there.
+    fn beside(folder: &Path, destination: &Path, mode: Mode) -> Result<Self, GeometryError> {
+        let parent = match folder.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let name = folder
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "out".into());
-        let prefix = format!(".{name}{STAGING_PREFIX}");
         remove_stale_staging(&parent, Some(&format!(".{name}.partial-")));
-        let staging = parent.join(format!("{prefix}{}", std::process::id()));
+        let staging = parent.join(format!(".{name}{STAGING_PREFIX}{}", std::process::id()));
         if staging.exists() {
             fs::remove_dir_all(&staging).map_err(io_err(&staging))?;
         }
         track_created(&staging, || fs::create_dir_all(&staging)).map_err(io_err(&staging))?;
-        Ok(Self {
-            staging,
-            destination: destination.to_path_buf(),
-            inside: false,
-            committed: false,
-        })
+        Ok(Self { staging, destination: destination.to_path_buf(), mode, committed: false })
     }
 
     /// Refuses, before any work, when one of `names` (the entries this run may write) is
     /// taken in an existing destination by an entry kfuse did not write (not listed in its
     /// [`MANIFEST`]): [`StagedDir::commit`] would refuse the same after the work.
     pub fn refuse_foreign(&self, names: &[String]) -> Result<(), GeometryError> {
-        if !self.inside {
+        if self.mode == Mode::New {
             return Ok(());
         }
         let old = read_manifest(&self.destination);
@@ -410,34 +550,153 @@ impl StagedDir {
     fn publish(mut self, keep_previous: bool) -> Result<PathBuf, GeometryError> {
         let _publishing = lock(&PUBLISHING);
         let names = self.staged_names()?;
-        if !self.inside {
+        if self.mode == Mode::New {
             write_bytes_atomic(&self.staging.join(MANIFEST), manifest_json(&names).as_bytes())?;
             match fs::rename(&self.staging, &self.destination) {
                 Ok(()) => {
                     self.committed = true;
                     return Ok(self.destination.clone());
                 }
-                // The destination appeared meanwhile: publish into it like a reused folder.
-                Err(_) if self.destination.is_dir() => {}
+                // The destination appeared meanwhile: replace it like a reused folder.
+                Err(_) if self.destination.is_dir() => {
+                    let _ = fs::remove_file(self.staging.join(MANIFEST));
+                    self.mode = match replaceable(&self.destination) {
+                        Some(real) => Mode::Replace(real),
+                        None => Mode::InPlace,
+                    };
+                }
                 Err(e) => return Err(io_err(&self.destination)(e)),
             }
         }
         let dest = self.destination.clone();
         let old = read_manifest(&dest);
-        // Refuse before moving anything when a name is taken by something kfuse did not write.
+        // Refuse before changing anything when a name is taken by something kfuse did not write.
         for name in &names {
             let target = dest.join(name);
             if fs::symlink_metadata(&target).is_ok() && !old.contains(name) {
                 return Err(foreign_entry(&dest, target));
             }
         }
+        if let Mode::Replace(real) = self.mode.clone() {
+            match self.carry(&real, &names, &old, keep_previous) {
+                Ok(carried) => return self.replace(&real, &names, &old, carried, keep_previous),
+                // No hard links here (or a folder kfuse may not read): publish in place.
+                Err(_) => self.uncarry(&names)?,
+            }
+        }
+        self.move_in(&dest, &names, &old, keep_previous)
+    }
+
+    /// Links into the staging folder every entry of the old folder `real` that the new one
+    /// keeps: the user's entries, and with `keep_previous` the earlier runs' outputs this run
+    /// does not write again. Returns their names.
+    fn carry(
+        &self,
+        real: &Path,
+        names: &[String],
+        old: &[String],
+        keep_previous: bool,
+    ) -> std::io::Result<Vec<String>> {
+        let mut carried = Vec::new();
+        for entry in fs::read_dir(real)? {
+            let name = entry?.file_name().to_string_lossy().into_owned();
+            let dropped = name == MANIFEST
+                || name.contains(STAGING_PREFIX)
+                || names.contains(&name)
+                || (old.contains(&name) && !keep_previous);
+            if !dropped {
+                link_tree(&real.join(&name), &self.staging.join(&name))?;
+                carried.push(name);
+            }
+        }
+        carried.sort();
+        Ok(carried)
+    }
+
+    /// Removes from the staging folder whatever [`StagedDir::carry`] linked in before it
+    /// failed: everything but this run's `names`.
+    fn uncarry(&self, names: &[String]) -> Result<(), GeometryError> {
+        for entry in fs::read_dir(&self.staging).map_err(io_err(&self.staging))? {
+            let entry = entry.map_err(io_err(&self.staging))?;
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if names.contains(&name) {
+                continue;
+            }
+            let path = entry.path();
+            match fs::symlink_metadata(&path) {
+                Ok(m) if m.is_dir() => fs::remove_dir_all(&path).map_err(io_err(&path))?,
+                Ok(_) => fs::remove_file(&path).map_err(io_err(&path))?,
+                Err(_) => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Replaces the old folder `real` with the complete staging folder (see the type's docs).
+    fn replace(
+        &mut self,
+        real: &Path,
+        names: &[String],
+        old: &[String],
+        carried: Vec<String>,
+        keep_previous: bool,
+    ) -> Result<PathBuf, GeometryError> {
+        let listed: Vec<String> = if keep_previous {
+            let mut l: Vec<String> =
+                names.iter().chain(carried.iter().filter(|c| old.contains(c))).cloned().collect();
+            l.sort();
+            l.dedup();
+            l
+        } else {
+            names.to_vec()
+        };
+        write_bytes_atomic(&self.staging.join(MANIFEST), manifest_json(&listed).as_bytes())?;
+        if let Ok(m) = fs::metadata(real) {
+            let _ = fs::set_permissions(&self.staging, m.permissions());
+        }
+        kill_point("carried");
+        let aside = sibling(real, REPLACED_PREFIX, std::process::id());
+        fs::rename(real, &aside).map_err(io_err(real))?;
+        kill_point("aside");
+        if let Err(e) = fs::rename(&self.staging, real) {
+            let _ = fs::rename(&aside, real);
+            return Err(io_err(real)(e));
+        }
+        self.committed = true;
+        kill_point("swapped");
+        // An entry created in the old folder while this ran (by another program) is moved over.
+        if let Ok(entries) = fs::read_dir(&aside) {
+            for entry in entries.flatten() {
+                let name = entry.file_name().to_string_lossy().into_owned();
+                let known = name == MANIFEST
+                    || name.contains(STAGING_PREFIX)
+                    || carried.contains(&name)
+                    || old.contains(&name)
+                    || names.contains(&name);
+                if !known && fs::symlink_metadata(real.join(&name)).is_err() {
+                    let _ = fs::rename(entry.path(), real.join(&name));
+                }
+            }
+        }
+        fs::remove_dir_all(&aside).map_err(io_err(&aside))?;
+        Ok(self.destination.clone())
+    }
+
+    /// Moves the staged entries into `dest` one by one (see the type's docs).
+    fn move_in(
+        &mut self,
+        dest: &Path,
+        names: &[String],
+        old: &[String],
+        keep_previous: bool,
+    ) -> Result<PathBuf, GeometryError> {
         // The manifest first lists old and new entries, so a run killed during the moves
         // leaves every kfuse entry known to the next run.
-        let mut union: Vec<String> = old.iter().chain(&names).cloned().collect();
+        let mut union: Vec<String> = old.iter().chain(names).cloned().collect();
         union.sort();
         union.dedup();
         write_bytes_atomic(&dest.join(MANIFEST), manifest_json(&union).as_bytes())?;
-        for name in &old {
+        for name in old {
             if keep_previous || names.contains(name) {
                 continue;
             }
@@ -448,18 +707,18 @@ impl StagedDir {
                 Err(_) => {}
             }
         }
-        for name in &names {
+        for name in names {
             let target = dest.join(name);
             if fs::symlink_metadata(&target).map(|m| m.is_dir()).unwrap_or(false) {
                 fs::remove_dir_all(&target).map_err(io_err(&target))?;
             }
             fs::rename(self.staging.join(name), &target).map_err(io_err(&target))?;
         }
-        let listed = if keep_previous { &union } else { &names };
+        let listed = if keep_previous { &union } else { names };
         write_bytes_atomic(&dest.join(MANIFEST), manifest_json(listed).as_bytes())?;
         fs::remove_dir_all(&self.staging).map_err(io_err(&self.staging))?;
         self.committed = true;
-        Ok(dest)
+        Ok(dest.to_path_buf())
     }
 }
 
@@ -684,6 +943,63 @@ mod tests {
         assert_eq!(read_manifest(&dest), ["a.png", "summary.json"]);
         assert_eq!(fs::read_to_string(dest.join("notes.txt")).unwrap(), "mine");
         assert_eq!(names(&dir), ["out"], "staging folder left behind");
+    }
+
+    fn inode(p: &Path) -> u64 {
+        use std::os::unix::fs::MetadataExt;
+        fs::metadata(p).unwrap().ino()
+    }
+
+    /// A reused folder is replaced as a whole (a new folder, not files moved one by one into
+    /// the old one, which a kill in the middle left half old, half new): the earlier run's
+    /// outputs that this run does not write are gone, the user's file and folder are in the new
+    /// folder unchanged (the same data, linked), nothing is left beside it.
+    #[cfg(unix)]
+    #[test]
+    fn a_reused_folder_is_replaced_as_a_whole_with_the_users_entries() {
+        let dir = scratch("replace");
+        let dest = dir.join("out");
+        publish(&dest, &["a.png", "b.png", "summary.json"]).unwrap();
+        fs::write(dest.join("notes.txt"), "mine").unwrap();
+        fs::create_dir(dest.join("mine")).unwrap();
+        fs::write(dest.join("mine/x.txt"), "x").unwrap();
+        let (before, notes) = (inode(&dest), inode(&dest.join("notes.txt")));
+        publish(&dest, &["a.png", "summary.json"]).unwrap();
+        assert_ne!(inode(&dest), before, "the old folder was changed in place, not replaced");
+        assert_eq!(names(&dest), [MANIFEST, "a.png", "mine", "notes.txt", "summary.json"]);
+        assert_eq!(fs::read_to_string(dest.join("a.png")).unwrap(), "a.png");
+        assert_eq!(inode(&dest.join("notes.txt")), notes, "the user's file must be the same file");
+        assert_eq!(fs::read_to_string(dest.join("mine/x.txt")).unwrap(), "x");
+        assert_eq!(read_manifest(&dest), ["a.png", "summary.json"]);
+        assert_eq!(names(&dir), ["out"], "old folder or staging left beside it");
+    }
+
+    /// What a replacement killed between its two renames leaves (the old folder aside, the
+    /// new one complete in its staging folder, no destination): the next run into the
+    /// destination puts the old folder back before it starts; killed after them (the new
+    /// folder in, the old one aside), the next run removes the old one.
+    #[test]
+    fn a_killed_replacement_is_finished_by_the_next_run() {
+        let dir = scratch("replace-killed");
+        let dest = dir.join("out");
+        let dead = 4_194_305 + std::process::id() % 1000;
+        publish(&dest, &["a.png", "b.png", "summary.json"]).unwrap();
+        let aside = dir.join(format!(".out{REPLACED_PREFIX}{dead}"));
+        let staging = dir.join(format!(".out{STAGING_PREFIX}{dead}"));
+        fs::rename(&dest, &aside).unwrap();
+        fs::create_dir(&staging).unwrap();
+        fs::write(staging.join("a.png"), "new").unwrap();
+        let staged = StagedDir::new(&dest).unwrap();
+        assert_eq!(names(&dest), [MANIFEST, "a.png", "b.png", "summary.json"], "old not back");
+        assert_eq!(fs::read_to_string(dest.join("a.png")).unwrap(), "a.png");
+        drop(staged);
+        assert_eq!(names(&dir), ["out"]);
+        // Killed after the renames: the new folder is in place, the old one aside.
+        fs::create_dir(&aside).unwrap();
+        fs::write(aside.join("b.png"), "old").unwrap();
+        publish(&dest, &["c.png"]).unwrap();
+        assert_eq!(names(&dest), [MANIFEST, "c.png"]);
+        assert_eq!(names(&dir), ["out"], "the old folder of the killed run was left");
     }
 
     #[test]

@@ -46,10 +46,23 @@ fn format_err(path: &Path, message: impl Into<String>) -> GeometryError {
 }
 
 /// Decodes a colour or grey image (the formats of [`COLOR_FORMATS`]) with the checks every
-/// reader makes first: the header's size within the limits, a JPEG not cut short.
+/// reader makes first ([`check_picture`]).
 fn decode_picture(path: &Path) -> Result<image::DynamicImage, GeometryError> {
-    let bytes = read_image_bytes(path)?;
-    let format = match sniff(&bytes) {
+    decode_picture_bytes(path, &read_image_bytes(path)?)
+}
+
+/// The checks every colour reader makes before decoding, on an image's bytes: a format of
+/// [`COLOR_FORMATS`] (by content, not name), the header's size within the limits, a JPEG not
+/// cut short (the decoder would fill the missing part with grey). `path` names the image in
+/// the error. For bytes passed on without decoding (a frame folder's JPEG copied into a
+/// sequence's output); every decode runs it too.
+pub fn check_picture(path: &Path, bytes: &[u8]) -> Result<(), GeometryError> {
+    picture_format(path, bytes).map(|_| ())
+}
+
+/// [`check_picture`], returning the format to decode with.
+fn picture_format(path: &Path, bytes: &[u8]) -> Result<image::ImageFormat, GeometryError> {
+    let format = match sniff(bytes) {
         Container::Png => image::ImageFormat::Png,
         Container::Tiff => image::ImageFormat::Tiff,
         Container::Jpeg => image::ImageFormat::Jpeg,
@@ -68,10 +81,16 @@ fn decode_picture(path: &Path) -> Result<image::DynamicImage, GeometryError> {
         }
     };
     if format == image::ImageFormat::Jpeg {
-        check_jpeg_complete(path, &bytes)?;
+        check_jpeg_complete(path, bytes)?;
     }
-    check_header(path, &bytes)?;
-    let mut reader = image::ImageReader::with_format(Cursor::new(&bytes), format);
+    check_header(path, bytes)?;
+    Ok(format)
+}
+
+/// Decodes image bytes after [`check_picture`].
+fn decode_picture_bytes(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage, GeometryError> {
+    let format = picture_format(path, bytes)?;
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
     reader.limits(decoder_limits());
     let img = reader.decode().map_err(|e| {
         format_err(
@@ -115,7 +134,17 @@ pub fn read_color(path: &Path) -> Result<Image<[u8; 3]>, GeometryError> {
 /// a 16-bit grey image (depth or IR saved at the colour camera's size) becomes RGB divided by
 /// 257, near black for millimetre depth. The caller decides whether that is an error.
 pub fn read_color_noting(path: &Path) -> Result<(Image<[u8; 3]>, Option<String>), GeometryError> {
-    let img = decode_picture(path)?;
+    decode_color_noting(path, &read_image_bytes(path)?)
+}
+
+/// [`read_color_noting`] of an image already in memory (a frame of a recording or of a frame
+/// folder), with the same checks ([`check_picture`]) and conversion; `path` names it in errors.
+/// One reader for single images and sequences: a JPEG cut short is refused by both.
+pub fn decode_color_noting(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(Image<[u8; 3]>, Option<String>), GeometryError> {
+    let img = decode_picture_bytes(path, bytes)?;
     let note = matches!(img.color(), image::ColorType::L16 | image::ColorType::La16).then(|| {
         format!(
             "{}: is {} image, not a colour picture (depth or IR at the colour camera's size?); give the colour camera's 8-bit image",
@@ -386,6 +415,24 @@ pub fn write_png16(
 
 /// Writes depth (metres, `NaN` kept) as a single-channel (`Y`) 32-bit float OpenEXR file.
 pub fn write_depth_exr(path: &Path, depth: &Image<f32>) -> Result<(), GeometryError> {
+    write_depth_exr_with(path, depth, None)
+}
+
+/// [`write_depth_exr`] with `mark` as the layer's `software` attribute
+/// ([`crate::provenance`]).
+pub fn write_depth_exr_marked(
+    path: &Path,
+    depth: &Image<f32>,
+    mark: &str,
+) -> Result<(), GeometryError> {
+    write_depth_exr_with(path, depth, Some(mark))
+}
+
+fn write_depth_exr_with(
+    path: &Path,
+    depth: &Image<f32>,
+    mark: Option<&str>,
+) -> Result<(), GeometryError> {
     use exr::prelude::*;
     size_u32(path, depth.width(), depth.height())?;
     let channel = AnyChannel::new("Y", FlatSamples::F32(depth.data().to_vec()));
@@ -393,7 +440,10 @@ pub fn write_depth_exr(path: &Path, depth: &Image<f32>) -> Result<(), GeometryEr
     list.push(channel);
     let layer = Layer::new(
         (depth.width(), depth.height()),
-        LayerAttributes::named("depth_m"),
+        LayerAttributes {
+            software_name: mark.map(Text::from),
+            ..LayerAttributes::named("depth_m")
+        },
         Encoding::FAST_LOSSLESS,
         AnyChannels::sort(list),
     );

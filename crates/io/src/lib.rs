@@ -12,6 +12,7 @@
 //! | [`image_header`] | image sizes from headers, checked against limits before decoding; JPEG completeness |
 //! | [`images`] | colour (PNG/JPEG/TIFF/BMP), depth (16-bit PNG/TIFF mm, float TIFF/EXR m), masks |
 //! | [`raster`] | images in their own pixel type and format (undistort keeps both) |
+//! | [`provenance`] | the kfuse command that wrote an image, stored in the image (PNG text, JPEG comment, TIFF/EXR software) |
 //! | [`ply`] | binary PLY point clouds and meshes (colours, `s, t` texture coordinates) |
 //! | [`obj`] | OBJ + MTL + PNG texture |
 //! | [`rig`] | rig JSON files |
@@ -27,6 +28,7 @@ pub mod kinect_data;
 pub mod mat;
 pub mod obj;
 pub mod ply;
+pub mod provenance;
 pub mod raster;
 pub mod rig;
 pub mod sensor_color;

@@ -205,33 +205,83 @@ pub fn write_raster(
     raster: &Raster,
     format: RasterFormat,
 ) -> Result<(), GeometryError> {
+    write_raster_with(path, raster, format, None)
+}
+
+/// [`write_raster`] with `mark` stored in the file as the program that wrote it
+/// ([`crate::provenance`]: PNG `Software` text, JPEG comment, TIFF `Software` tag; BMP has no
+/// place for it).
+pub fn write_raster_marked(
+    path: &Path,
+    raster: &Raster,
+    format: RasterFormat,
+    mark: &str,
+) -> Result<(), GeometryError> {
+    write_raster_with(path, raster, format, Some(mark))
+}
+
+fn write_raster_with(
+    path: &Path,
+    raster: &Raster,
+    format: RasterFormat,
+    mark: Option<&str>,
+) -> Result<(), GeometryError> {
     let (w, h) = raster.size();
     let (w, h) = match (u32::try_from(w), u32::try_from(h)) {
         (Ok(w), Ok(h)) if w > 0 && h > 0 => (w, h),
         _ => return Err(err(path, format!("cannot write a {w}x{h} image"))),
     };
     let bytes = match format {
-        RasterFormat::Tiff => encode_tiff(path, raster, w, h)?,
+        RasterFormat::Tiff => encode_tiff(path, raster, w, h, mark)?,
         _ => encode_other(path, raster, format, w, h)?,
+    };
+    let bytes = match (mark, format) {
+        (Some(m), RasterFormat::Png) => crate::provenance::mark_png(bytes, m),
+        (Some(m), RasterFormat::Jpeg) => crate::provenance::mark_jpeg(bytes, m),
+        _ => bytes,
     };
     write_bytes_atomic(path, &bytes)
 }
 
-fn encode_tiff(path: &Path, raster: &Raster, w: u32, h: u32) -> Result<Vec<u8>, GeometryError> {
+/// One TIFF image of pixel type `C`, with `mark` as its `Software` tag.
+fn tiff_image<C: tiff::encoder::colortype::ColorType>(
+    enc: &mut tiff::encoder::TiffEncoder<&mut Cursor<Vec<u8>>>,
+    w: u32,
+    h: u32,
+    data: &[C::Inner],
+    mark: Option<&str>,
+) -> tiff::TiffResult<()>
+where
+    [C::Inner]: tiff::encoder::TiffValue,
+{
+    let mut image = enc.new_image::<C>(w, h)?;
+    if let Some(m) = mark {
+        image.encoder().write_tag(tiff::tags::Tag::Software, m)?;
+    }
+    image.write_data(data)
+}
+
+fn encode_tiff(
+    path: &Path,
+    raster: &Raster,
+    w: u32,
+    h: u32,
+    mark: Option<&str>,
+) -> Result<Vec<u8>, GeometryError> {
     use tiff::encoder::{TiffEncoder, colortype};
     let enc_err = |e: tiff::TiffError| err(path, format!("cannot encode TIFF: {e}"));
     let mut out = Cursor::new(Vec::new());
     let mut enc = TiffEncoder::new(&mut out).map_err(enc_err)?;
     let flat = |d: &[[u8; 3]]| d.iter().flatten().copied().collect::<Vec<u8>>();
     match raster {
-        Raster::Gray8(i) => enc.write_image::<colortype::Gray8>(w, h, i.data()),
-        Raster::Rgb8(i) => enc.write_image::<colortype::RGB8>(w, h, &flat(i.data())),
+        Raster::Gray8(i) => tiff_image::<colortype::Gray8>(&mut enc, w, h, i.data(), mark),
+        Raster::Rgb8(i) => tiff_image::<colortype::RGB8>(&mut enc, w, h, &flat(i.data()), mark),
         Raster::Rgba8(i) => {
             let raw: Vec<u8> = i.data().iter().flatten().copied().collect();
-            enc.write_image::<colortype::RGBA8>(w, h, &raw)
+            tiff_image::<colortype::RGBA8>(&mut enc, w, h, &raw, mark)
         }
-        Raster::Gray16(i) => enc.write_image::<colortype::Gray16>(w, h, i.data()),
-        Raster::GrayF32(i) => enc.write_image::<colortype::Gray32Float>(w, h, i.data()),
+        Raster::Gray16(i) => tiff_image::<colortype::Gray16>(&mut enc, w, h, i.data(), mark),
+        Raster::GrayF32(i) => tiff_image::<colortype::Gray32Float>(&mut enc, w, h, i.data(), mark),
     }
     .map_err(enc_err)?;
     Ok(out.into_inner())

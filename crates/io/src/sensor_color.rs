@@ -16,18 +16,17 @@ use geometry::Image;
 /// sensor's noise, at ~1.6× the sensor frame's size.
 pub const MIRRORED_JPEG_QUALITY: u8 = 95;
 
-/// The sensor's colour JPEG decoded into RGB, mirrored into the scene orientation. The error
-/// is the decoder's message.
+/// The sensor's colour JPEG decoded into RGB, mirrored into the scene orientation, through
+/// [`crate::images::decode_color_noting`] (the one reader, which refuses a JPEG cut short
+/// rather than filling it with grey). The error is one line naming "the sensor's colour frame".
 pub fn decode_mirrored(jpeg: &[u8]) -> Result<Image<[u8; 3]>, String> {
-    let img = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
-        .map_err(|e| format!("the colour JPEG does not decode: {e}"))?
-        .into_rgb8();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let mut px: Vec<[u8; 3]> = img.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    for row in px.chunks_exact_mut(w.max(1)) {
+    let name = std::path::Path::new("the sensor's colour frame");
+    let (mut img, _) = crate::images::decode_color_noting(name, jpeg).map_err(|e| e.to_string())?;
+    let (w, _) = img.size();
+    for row in img.data_mut().chunks_exact_mut(w.max(1)) {
         row.reverse();
     }
-    Image::from_vec(w, h, px).map_err(|e| e.to_string())
+    Ok(img)
 }
 
 /// An RGB image encoded as a baseline JPEG at [`MIRRORED_JPEG_QUALITY`].
@@ -108,6 +107,10 @@ mod tests {
         let reread = Image::from_vec(320, 192, px).unwrap();
         let re = rms(&reread, &scene);
         assert!(re < direct + 1.5, "re-encoded: RMS {re} against {direct} before");
-        assert!(decode_mirrored(b"not a jpeg").unwrap_err().contains("does not decode"));
+        let e = decode_mirrored(b"not a jpeg").unwrap_err();
+        assert!(e.contains("the sensor's colour frame"), "{e}");
+        // Cut short: refused, not filled with grey.
+        let e = decode_mirrored(&jpeg[..jpeg.len() / 2]).unwrap_err();
+        assert!(e.contains("the sensor's colour frame"), "{e}");
     }
 }

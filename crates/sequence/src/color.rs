@@ -2,11 +2,15 @@
 //! mirrored left–right (`kinect_usb::orientation`); a capture folder's JPEG is as the scene is.
 //! Every consumer (colour on the depth grid, the frame's colour file, the figures) gets the
 //! scene orientation through [`ColorJpeg::decode`] or [`ColorJpeg::scene_jpeg`], and a
-//! recording's JPEG is decoded or re-encoded only where an output needs it.
+//! recording's JPEG is decoded or re-encoded only where an output needs it. Decoding goes
+//! through `kfuse_io::images`' one reader and its checks (a JPEG cut short is refused).
 
 use std::borrow::Cow;
+use std::path::Path;
 
 use geometry::Image;
+
+use crate::{Result, SequenceError};
 
 /// A colour JPEG as read, and whether it is mirrored (the sensor's stream).
 #[derive(Debug, Clone, PartialEq)]
@@ -19,26 +23,31 @@ pub struct ColorJpeg {
 }
 
 impl ColorJpeg {
-    /// The colour image as the scene is. Error: the decoder's message.
-    pub fn decode(&self) -> Result<Image<[u8; 3]>, String> {
-        if self.mirrored {
-            return kfuse_io::sensor_color::decode_mirrored(&self.bytes);
+    /// The colour image as the scene is; `name` (the file, or the frame) is named in errors.
+    pub fn decode(&self, name: &Path) -> Result<Image<[u8; 3]>> {
+        let (mut img, note) = kfuse_io::images::decode_color_noting(name, &self.bytes)?;
+        if let Some(note) = note {
+            // The note names the file itself.
+            let prefix = format!("{}: ", name.display());
+            return Err(SequenceError::input(name, note.trim_start_matches(&prefix)));
         }
-        let img = image::load_from_memory_with_format(&self.bytes, image::ImageFormat::Jpeg)
-            .map_err(|e| format!("the colour JPEG does not decode: {e}"))?
-            .into_rgb8();
-        let (w, h) = (img.width() as usize, img.height() as usize);
-        let px = img.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        Image::from_vec(w, h, px).map_err(|e| e.to_string())
+        if self.mirrored {
+            let (w, _) = img.size();
+            kinect_usb::orientation::mirror_rows(img.data_mut(), w);
+        }
+        Ok(img)
     }
 
-    /// A JPEG as the scene is: the bytes as read, or the sensor's frame mirrored and encoded
-    /// anew (`kfuse_io::sensor_color::MIRRORED_JPEG_QUALITY`).
-    pub fn scene_jpeg(&self) -> Result<Cow<'_, [u8]>, String> {
-        if self.mirrored {
-            kfuse_io::sensor_color::mirrored_jpeg(&self.bytes).map(Cow::Owned)
-        } else {
-            Ok(Cow::Borrowed(&self.bytes))
+    /// A JPEG as the scene is: the bytes as read (checked), or the sensor's frame mirrored and
+    /// encoded anew (`kfuse_io::sensor_color::MIRRORED_JPEG_QUALITY`).
+    pub fn scene_jpeg(&self, name: &Path) -> Result<Cow<'_, [u8]>> {
+        if !self.mirrored {
+            kfuse_io::images::check_picture(name, &self.bytes)?;
+            return Ok(Cow::Borrowed(&self.bytes));
         }
+        let img = self.decode(name)?;
+        kfuse_io::sensor_color::encode_jpeg(&img)
+            .map(Cow::Owned)
+            .map_err(|m| SequenceError::input(name, m))
     }
 }

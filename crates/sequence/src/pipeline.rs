@@ -103,6 +103,8 @@ struct Job {
     raw: Option<Vec<u8>>,
     depth_png: Option<std::path::PathBuf>,
     jpeg: Option<ColorJpeg>,
+    /// The file the colour JPEG was read from (a frame folder's), for messages.
+    color_file: Option<std::path::PathBuf>,
 }
 
 /// The reading end: recording + matcher, or the folder's shots.
@@ -144,6 +146,7 @@ impl Reader {
                             raw: Some(p.depth.data),
                             depth_png: None,
                             jpeg: p.color.map(|c| ColorJpeg { bytes: c.jpeg, mirrored: true }),
+                            color_file: None,
                         }),
                     }));
                 }
@@ -189,6 +192,7 @@ impl Reader {
                     raw: None,
                     depth_png: Some(depth),
                     jpeg: jpeg.map(|bytes| ColorJpeg { bytes, mirrored: false }),
+                    color_file: shot.color.clone(),
                 })))
             }
             (Input::Recording(..), None) => Ok(None),
@@ -250,7 +254,9 @@ fn produce(
                             return Err(SequenceError::Pipeline("a frame without depth".into()));
                         }
                     };
-                    let name = std::path::PathBuf::from(format!("frame {}", job.meta.number));
+                    let name = job.color_file.clone().unwrap_or_else(|| {
+                        std::path::PathBuf::from(format!("frame {}", job.meta.number))
+                    });
                     let color = match &job.jpeg {
                         Some(j) => processor.decode_color(j, &name)?,
                         None => None,

@@ -252,13 +252,17 @@ impl Processor {
         Ok(depth)
     }
 
-    /// Decodes a colour JPEG as the scene is when the extras need it, checked against the
-    /// rig's colour size.
+    /// Decodes a colour JPEG as the scene is ([`ColorJpeg::decode`]) when the extras need it,
+    /// checked against the rig's colour size; otherwise only checked (it is copied). The reader
+    /// and its checks are `kfuse_io::images`', the same as single-frame `kfuse fuse`'s: a JPEG
+    /// cut short, or an image too large by its header, is refused rather than decoded with
+    /// grey filling.
     pub fn decode_color(&self, jpeg: &ColorJpeg, name: &Path) -> Result<Option<Image<[u8; 3]>>> {
         if !self.needs_color() {
+            kfuse_io::images::check_picture(name, &jpeg.bytes)?;
             return Ok(None);
         }
-        let img = jpeg.decode().map_err(|e| SequenceError::input(name, e))?;
+        let img = jpeg.decode(name)?;
         let (w, h) = img.size();
         if (w, h) != (self.rig.color.width, self.rig.color.height) {
             return Err(SequenceError::input(

@@ -294,7 +294,8 @@ impl FrameWriter {
                     (Layout::Kfuse, _) => ("color", stem.clone()),
                 };
             let name = format!("{dir}/{color_stem}.jpg");
-            let bytes = j.scene_jpeg().map_err(|m| err(&name, m))?.into_owned();
+            let source = PathBuf::from(format!("frame {}", meta.number));
+            let bytes = j.scene_jpeg(&source)?.into_owned();
             files.push((name, bytes));
         }
         if let (true, Some(m)) = (self.set.holes, &r.holes) {
