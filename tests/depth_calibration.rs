@@ -285,10 +285,13 @@ fn calibrate_depth_recovers_the_injected_error_and_corrects_a_held_out_view() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (sim, _) = kfuse_capture::source::sim_scene();
+    // The simulator streams the scene mirrored, as a sensor does; the capture mirrors it back.
+    let mut streamed = sim.depth_frames[0].0.clone();
+    kinect_usb::orientation::mirror_rows(&mut streamed, 512);
     let true_scene = Image::from_vec(
         512,
         424,
-        sim.depth_frames[0].0.iter().map(|&z| if z > 0.0 { z * 1e-3 } else { 0.0 }).collect(),
+        streamed.iter().map(|&z| if z > 0.0 { z * 1e-3 } else { 0.0 }).collect(),
     )
     .unwrap();
     let raw = kfuse_io::images::read_depth(&scene.join("scene_depth.png"), 1e-3).unwrap();

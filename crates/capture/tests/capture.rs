@@ -59,13 +59,36 @@ fn shots_are_staged_and_appear_together() {
     let n = 512 * 424;
     let depth: Vec<f32> = (0..n).map(|i| (i % 5000) as f32).collect();
     let ir = vec![100.0f32; n];
-    let jpeg = [0xFF, 0xD8, 0xFF, 0xD9];
+    // A sensor colour frame: left half red, right half blue, as the sensor streams it
+    // (mirrored); the shot holds it as the scene is: blue on the left.
+    let (cw, ch) = (32u32, 16u32);
+    let rgb: Vec<u8> = (0..cw * ch)
+        .flat_map(|i| if i % cw < cw / 2 { [230u8, 20, 20] } else { [20, 20, 230] })
+        .collect();
+    let mut jpeg = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90),
+        &rgb,
+        cw,
+        ch,
+        image::ExtendedColorType::Rgb8,
+    )
+    .unwrap();
     let files = shot_files(&out, "0001", ShotKind::Calib);
     w.write(&files, &jpeg, &ir, &depth).unwrap();
     let shot_names = ["color_0001.jpg", "depth_0001.png", "ir_0001.png"].map(String::from);
     assert_eq!(names(&out), shot_names.clone().into());
     assert_eq!(read_png16(&files[2]).2[4999], 4999);
-    assert_eq!(std::fs::read(&files[0]).unwrap(), jpeg);
+    let saved = image::open(&files[0]).unwrap().into_rgb8();
+    assert_eq!(saved.dimensions(), (cw, ch));
+    // JPEG chroma subsampling blurs the middle columns only: 4 px in from each side is pure.
+    let (left, right) = (saved.get_pixel(4, 8).0, saved.get_pixel(cw - 5, 8).0);
+    assert!(left[2] > 180 && left[0] < 60 && right[0] > 180 && right[2] < 60, "{left:?} {right:?}");
+    // A frame that does not decode is refused and leaves nothing.
+    let broken = shot_files(&out, "0002", ShotKind::Calib);
+    let e = w.write(&broken, &[0xFF, 0xD8, 0xFF, 0xD9], &ir, &depth).unwrap_err();
+    assert!(e.to_string().contains("the sensor's colour frame"), "{e}");
+    assert_eq!(names(&out), shot_names.clone().into());
     let scene = shot_files(&out, "desk", ShotKind::Scene);
     let e = w.write(&scene, &jpeg, &ir[..10], &depth).unwrap_err();
     assert!(matches!(e, CaptureError::Write { .. }), "{e}");
@@ -85,7 +108,10 @@ fn sim_session_pumps_the_scene_and_a_recording_replays() {
     pump.fresh_pair(&mut s, Instant::now()).unwrap();
     assert_eq!(&pump.color_jpeg()[..2], &[0xFF, 0xD8]);
     let (scene, _) = sim_scene();
-    let truth = &scene.depth_frames[0].0;
+    // The sim streams the scene mirrored (kinect_usb::orientation); the pump writes it back.
+    let mut truth = scene.depth_frames[0].0.clone();
+    kinect_usb::orientation::mirror_rows(&mut truth, 512);
+    let truth = &truth;
     let (mut n, mut max) = (0usize, 0f32);
     for (i, (&t, &d)) in truth.iter().zip(pump.depth_mm()).enumerate() {
         let c = i % 512;

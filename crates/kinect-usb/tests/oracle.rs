@@ -246,7 +246,7 @@ fn scene_orientation_is_the_exact_mirror_of_the_sensor_stream() {
         P0Tables::from_response(&read_bytes(&dir.join("inputs/p0_tables_response.bin")).unwrap())
             .unwrap();
     let w = kinect_usb::raw::WIDTH;
-    let mut checked = 0;
+    let (mut checked, mut asymmetric_rows) = (0, 0);
     for &(frame, bil, edge, xt, zt, dref, _) in RUNS {
         let xz =
             XzTables::from_vecs(read_f32(&dir.join(xt)).unwrap(), read_f32(&dir.join(zt)).unwrap())
@@ -269,11 +269,14 @@ fn scene_orientation_is_the_exact_mirror_of_the_sensor_stream() {
                 .collect();
             let sensor_bits: Vec<u32> = sensor.iter().map(|v| v.to_bits()).collect();
             assert!(mirrored_back == sensor_bits, "{dref} {name}: scene ≠ mirrored sensor");
-            // Not a symmetric image (which any mirroring would pass): most rows differ.
+            // Not a symmetric image (which any mirroring would pass): rows differ from their
+            // mirror (the sparse edge-case vectors have ~100 such rows, the scenes ~400).
             let asymmetric = sensor.chunks_exact(w).filter(|r| r.iter().ne(r.iter().rev())).count();
-            assert!(asymmetric > 200, "{dref} {name}: only {asymmetric} asymmetric rows");
+            assert!(asymmetric > 50, "{dref} {name}: only {asymmetric} asymmetric rows");
+            asymmetric_rows += asymmetric;
             checked += 1;
         }
     }
     assert_eq!(checked, 2 * RUNS.len());
+    assert!(asymmetric_rows > 2000, "{asymmetric_rows} asymmetric rows in all");
 }

@@ -82,13 +82,34 @@ fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
         .map(|&d| if d.is_finite() && d > 0.0 { d.round().clamp(1.0, 65535.0) as u16 } else { 0 })
         .collect();
     assert_eq!(ir, want_ir);
-    assert_eq!(std::fs::read(&shot.files[0]).unwrap(), **latest.color_jpeg.as_ref().unwrap());
+    // The colour file is the sensor's frame mirrored into the scene orientation (re-encoded:
+    // mean |Δ| under 2 grey levels against the sensor frame mirrored here; unmirrored, far more).
+    let sensor = image::load_from_memory(latest.color_jpeg.as_ref().unwrap()).unwrap().into_rgb8();
+    let saved = image::open(&shot.files[0]).unwrap().into_rgb8();
+    let (w, h) = sensor.dimensions();
+    assert_eq!(saved.dimensions(), (w, h));
+    let mean_diff = |mirror: bool| {
+        let mut sum = 0u64;
+        for y in (0..h).step_by(3) {
+            for x in (0..w).step_by(3) {
+                let sx = if mirror { w - 1 - x } else { x };
+                let (a, b) = (sensor.get_pixel(sx, y).0, saved.get_pixel(x, y).0);
+                sum += (0..3).map(|c| u64::from(a[c].abs_diff(b[c]))).sum::<u64>();
+            }
+        }
+        sum as f64 / (3.0 * f64::from(w.div_ceil(3) * h.div_ceil(3)))
+    };
+    let (mirrored, plain) = (mean_diff(true), mean_diff(false));
+    assert!(mirrored < 2.0 && plain > 5.0 * mirrored, "{mirrored} {plain}");
     assert!(out.join("kinect_params.json").is_file());
 
     // The frame is the sim's scene: where the scene is flat the depth is within kfuse
     // capture's bound (forward-model quantisation ≤ 8 mm + 0.5 mm rounding).
     let (scene, _) = kfuse_capture::source::sim_scene();
-    let truth = &scene.depth_frames[0].0;
+    // Streamed mirrored, as a real sensor (kinect_usb::orientation); the page shows it as is.
+    let mut truth = scene.depth_frames[0].0.clone();
+    kinect_usb::orientation::mirror_rows(&mut truth, 512);
+    let truth = &truth;
     let mut checked = 0;
     for r in 2..422usize {
         for c in 2..510usize {

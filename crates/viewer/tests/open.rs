@@ -197,11 +197,17 @@ fn write_kfuse_capture(dir: &Path, name: &str) {
     let (scene, profile) = kfuse_capture::source::sim_scene();
     let writer = kfuse_capture::ShotWriter::new(dir).unwrap();
     let files = kfuse_capture::shot_files(dir, name, kfuse_capture::ShotKind::Scene);
-    let (depth_mm, ir) = &scene.depth_frames[0];
-    writer.write(&files, &scene.color_jpegs[0], ir, depth_mm).unwrap();
-    let (d, c) = (&profile.depth_params, &profile.color_params);
+    // The simulator streams mirrored frames, as a sensor does; the capture mirrors them back
+    // (the decoder for depth and IR, the writer for colour) and writes the mirrored factory
+    // parameters (kinect_usb::orientation).
+    let (mut depth_mm, mut ir) = scene.depth_frames[0].clone();
+    kinect_usb::orientation::mirror_rows(&mut depth_mm, 512);
+    kinect_usb::orientation::mirror_rows(&mut ir, 512);
+    writer.write(&files, &scene.color_jpegs[0], &ir, &depth_mm).unwrap();
+    let (d, c) = (&profile.depth_params.mirrored(), &profile.color_params.mirrored());
     let v = serde_json::json!({
-        "format": "kfuse-kinect-params", "version": 1, "serial": profile.serial,
+        "format": "kfuse-kinect-params", "version": 2, "image_orientation": "scene",
+        "serial": profile.serial,
         "units": "pixels; shift_d and shift_m in millimetres",
         "depth": { "width": 512, "height": 424, "fx": d.fx, "fy": d.fy, "cx": d.cx, "cy": d.cy,
                    "k1": d.k1, "k2": d.k2, "k3": d.k3, "p1": d.p1, "p2": d.p2 },
