@@ -89,7 +89,7 @@ impl SensorSource {
 pub fn sim_scene() -> (SimScene, SimProfile) {
     let mut setup = geometry::synth::kinect_preset(false);
     let sensor_depth = setup.rig.depth.mirrored();
-    let profile = sim_profile(&sensor_depth, setup.rig.color.intrinsics.fx);
+    let profile = sim_scene_profile();
     // Rendered with the mirror of the rig the profile's factory parameters describe
     // (`FactoryRig::of_profile`: pinhole colour camera, `color_from_depth` = +52 mm along x in
     // the sensor's mirrored images, protocol §4.7, §11.2), so that `kinect_params.json` maps
@@ -144,6 +144,13 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
     (scene, profile)
 }
 
+/// The simulated sensor's profile ([`sim_scene`]'s): the factory parameters of the mirrored
+/// stream of `geometry::synth`'s Kinect preset.
+fn sim_scene_profile() -> SimProfile {
+    let rig = geometry::synth::kinect_preset(false).rig;
+    sim_profile(&rig.depth.mirrored(), rig.color.intrinsics.fx)
+}
+
 /// The simulated sensor's profile for depth camera `d` (of the sensor's mirrored images) and
 /// colour focal length `color_fx`.
 fn sim_profile(d: &geometry::CameraModel, color_fx: f64) -> SimProfile {
@@ -166,7 +173,7 @@ pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
     // The calibration scene needs only the profile: the default scene is not rendered for it
     // (a 1920x1080 render and JPEG that start-up threw away).
     let (mut scene, profile) = if options.calib_scene {
-        (SimScene::default(), sim_profile(&geometry::synth::kinect_preset(false).rig))
+        (SimScene::default(), sim_scene_profile())
     } else {
         sim_scene()
     };
