@@ -635,6 +635,34 @@ mod tests {
         }
     }
 
+    /// Source of the expectations: the rendered lattice's sides `a`, `b` (the perspective-sheared
+    /// cell of `a_seed_needs_the_cells_sides_not_a_diagonal`). At an interior corner the sides
+    /// pass [`are_sides`] in either order and sign; a side with a diagonal (`a + b`, `b − a`),
+    /// with two sides in a row (`2b`, seen as a seed on every second row of a board 70° from its
+    /// normal), with a knight's move (`2a + b`), and two diagonals do not.
+    #[test]
+    fn are_sides_tells_sides_from_other_lattice_steps() {
+        let (a, b) = (Vector2::new(60.0, 0.0), Vector2::new(-20.0, 30.0));
+        let (img, pts) = lattice((960, 340), Vector2::new(300.0, 100.0), a, b, (9, 6));
+        // Corner (4, 2), with two corners on every side.
+        let p = pts[2 * 9 + 4].0;
+        for (u, v) in [(a, b), (b, a), (-a, b), (a, -b), (-b, -a)] {
+            assert!(are_sides(&img, p, u, v), "sides {u:?} {v:?}");
+        }
+        let others = [
+            (a, a + b),
+            (b, a + b),
+            (a, b - a),
+            (a, 2.0 * b),
+            (b, 2.0 * a),
+            (b, 2.0 * a + b),
+            (a + b, b - a),
+        ];
+        for (u, v) in others {
+            assert!(!are_sides(&img, p, u, v) && !are_sides(&img, p, v, u), "steps {u:?} {v:?}");
+        }
+    }
+
     /// Source of the expectation: a line shrinking and turning at a constant rate (a
     /// geometric sequence of steps, as perspective makes) is predicted exactly; steps that no
     /// smooth line shows (ratio beyond [`MAX_STEP_RATIO`]) fall back to the last step.
