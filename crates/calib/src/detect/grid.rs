@@ -14,6 +14,18 @@ const GRID_TOLERANCE: f64 = 0.28;
 /// Seeds tried, strongest candidates first: a board's corners are among the strongest
 /// responses, so a seed cell is found long before this.
 const MAX_SEEDS: usize = 60;
+/// Nearest candidates a seed cell's sides are looked for among (its first side among the
+/// nearest three). A square seen at a grazing angle is up to 7 times longer than wide (a
+/// 10x7 board 80° from its normal): its long side's far corner comes after the 12 corners
+/// within 6 short steps along the short one, and the 8 nearest held none of it.
+const SEED_NEIGHBOURS: usize = 24;
+/// Largest ratio of a seed cell's sides: the squares' aspect at 80° from the board's normal
+/// (7.5 on a 10x7 board filling a 1080p frame) with some room.
+const SEED_MAX_SIDE_RATIO: f64 = 8.0;
+/// Largest |cos| of the angle between a seed cell's sides: 0.6 (53°) held boards up to ~65°
+/// from their normal; at 75–80° the squares near the far corners meet at 35–40° (0.8), and
+/// [`are_sides`], not the angle, tells a side from a diagonal.
+const SEED_MAX_COS: f64 = 0.85;
 
 /// Grid coordinates → index into the candidate list.
 pub(super) type Grid = std::collections::HashMap<(i32, i32), usize>;
@@ -32,16 +44,47 @@ fn nearest(pts: &[(Vector2<f64>, f32)], used: &[bool], p: Vector2<f64>, tol: f64
     best.map(|b| b.0)
 }
 
-/// True when `(u, v)` is a reduced (Lagrange–Gauss) basis of the lattice it spans: neither
-/// `u + v` nor `u − v` is shorter than the longer of the two. A cell's two sides are; a side
-/// and a diagonal of the cell are not (the other diagonal is shorter), although under
-/// perspective they can meet at 55° or more and pass the angle test. A seed on such a sheared
-/// basis grows the whole board into a grid whose rows run along the cells' diagonals (OpenCV
-/// sample left06 and left12, seeds at the board's border where the side's far neighbour is
-/// missing).
-fn reduced(u: Vector2<f64>, v: Vector2<f64>) -> bool {
-    let longer = u.norm_squared().max(v.norm_squared());
-    (u + v).norm_squared() >= longer && (u - v).norm_squared() >= longer
+/// A step of a seed cell runs along a board side when, at a quarter, half and three quarters
+/// of it, the points a quarter of the cell to either side differ in grey level by at least
+/// this fraction of the corner's contrast, with the same sign at all three: there they lie in
+/// the two squares that the side separates, one dark, one light. Along a cell's diagonal the
+/// middle pair lies in one square; along two sides in a row, the quarter pairs lie in squares
+/// of opposite colourings; along a knight's move (two sides and one across) a quarter pair
+/// lies in one square. Half the contrast lies midway between a side's difference (the full
+/// contrast) and the others' (zero, or the full contrast with the other sign).
+const SIDE_MIN_CONTRAST: f64 = 0.5;
+
+/// True when `u` and `v`, steps from the corner at `p` to two of its neighbours, are the
+/// sides of a board square (see [`SIDE_MIN_CONTRAST`]), not a side and a diagonal nor longer
+/// lattice steps. Under strong perspective a cell's sides meet at 40° or 140°, or one is
+/// several times the other, and a diagonal is then shorter than the longer side, so the
+/// lengths alone do not tell them apart: a length rule ("no diagonal shorter than the longer
+/// side") grew boards seen 60–75° from their normal along the diagonals (issue 29). Nor does
+/// the colour of the four cells around `p`, which a knight's-move basis keeps.
+fn are_sides(img: &Image<f32>, p: Vector2<f64>, u: Vector2<f64>, v: Vector2<f64>) -> bool {
+    let area = (u.x * v.y - u.y * v.x).abs();
+    if area <= 0.0 {
+        return false;
+    }
+    // The corner's contrast: the range of the grey levels on a circle within a quarter of the
+    // lines' spacing (it crosses the four squares at the corner, clear of the next edges).
+    let r = 0.25 * (area / u.norm()).min(area / v.norm());
+    let ring = (0..16).map(|n| {
+        let (sin, cos) = (n as f64 * std::f64::consts::TAU / 16.0).sin_cos();
+        bilinear(img, p.x + r * cos, p.y + r * sin)
+    });
+    let (lo, hi) = ring.fold((f64::MAX, f64::MIN), |a, g| (a.0.min(g), a.1.max(g)));
+    let min_step = SIDE_MIN_CONTRAST * (hi - lo);
+    // Differences across `w` at its quarter, half and three-quarter points, all at least
+    // `min_step` and of one sign.
+    let along = |w: Vector2<f64>, o: Vector2<f64>| {
+        let d = [0.25, 0.5, 0.75].map(|t| {
+            let (a, b) = (p + t * w + 0.25 * o, p + t * w - 0.25 * o);
+            bilinear(img, a.x, a.y) - bilinear(img, b.x, b.y)
+        });
+        d.iter().all(|&x| x >= min_step) || d.iter().all(|&x| x <= -min_step)
+    };
+    hi > lo && along(u, v) && along(v, u)
 }
 
 /// The step after `s0`, `s` along a grid line: `s` turned and scaled as `s0` → `s` was (the
@@ -66,7 +109,7 @@ fn next_step(s0: Vector2<f64>, s: Vector2<f64>) -> Vector2<f64> {
 }
 
 /// Grows a grid from seed `s`; `None` if no seed cell exists there.
-fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
+fn grow(img: &Image<f32>, pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
     let p = pts[s].0;
     let mut by_dist: Vec<(usize, f64)> = pts
         .iter()
@@ -75,7 +118,7 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
         .map(|(i, c)| (i, (c.0 - p).norm()))
         .collect();
     by_dist.sort_by(|a, b| a.1.total_cmp(&b.1));
-    by_dist.truncate(8);
+    by_dist.truncate(SEED_NEIGHBOURS);
     let all_used = vec![false; pts.len()];
     for &(a, da) in by_dist.iter().take(3) {
         let u = pts[a].0 - p;
@@ -83,11 +126,17 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
         for &(b, db) in &by_dist {
             let v = pts[b].0 - p;
             let cos = u.dot(&v) / (da * db);
-            if cos.abs() > 0.6 || db > 2.0 * da || da > 2.0 * db || !reduced(u, v) {
+            if cos.abs() > SEED_MAX_COS
+                || db > SEED_MAX_SIDE_RATIO * da
+                || da > SEED_MAX_SIDE_RATIO * db
+            {
                 continue;
             }
             let Some(b2) = nearest(pts, &all_used, p - v, GRID_TOLERANCE * db) else { continue };
-            if nearest(pts, &all_used, p + u + v, GRID_TOLERANCE * da.min(db)).is_none() {
+            // The image test last: most pairs fail the candidates' geometry first.
+            if nearest(pts, &all_used, p + u + v, GRID_TOLERANCE * da.min(db)).is_none()
+                || !are_sides(img, p, u, v)
+            {
                 continue;
             }
             let mut grid = Grid::new();
@@ -148,14 +197,18 @@ fn grow(pts: &[(Vector2<f64>, f32)], s: usize) -> Option<Grid> {
 
 /// Grows grids from the strongest candidates (seeds not already in a grid) and keeps the
 /// largest; stops early once one has `enough` corners.
-pub(super) fn largest(pts: &[(Vector2<f64>, f32)], enough: usize) -> Option<Grid> {
+pub(super) fn largest(
+    img: &Image<f32>,
+    pts: &[(Vector2<f64>, f32)],
+    enough: usize,
+) -> Option<Grid> {
     let mut best: Option<Grid> = None;
     let mut tried = vec![false; pts.len()];
     for s in 0..pts.len().min(MAX_SEEDS) {
         if tried[s] {
             continue;
         }
-        if let Some(g) = grow(pts, s) {
+        if let Some(g) = grow(img, pts, s) {
             for &i in g.values() {
                 tried[i] = true;
             }
@@ -458,9 +511,6 @@ pub(super) fn trim(board: &Board, pts: &[(Vector2<f64>, f32)], grid: Grid) -> Gr
 mod tests {
     use super::*;
 
-    /// The cell of OpenCV-set left12's seed: sides `a` (43 px) and `b` (53 px) at 82°; the
-    /// diagonal `b − a` meets `a` at 124° (|cos| 0.56, inside the seed's angle test). Sides are a reduced basis, a side and a diagonal are not; the
-    /// grid grown from the candidates' lattice must run along the sides.
     /// A grid with the keys `cells`, values arbitrary.
     fn keys(cells: impl IntoIterator<Item = (i32, i32)>) -> Grid {
         cells.into_iter().enumerate().map(|(n, k)| (k, n)).collect()
@@ -488,39 +538,129 @@ mod tests {
         assert_eq!(sorted(&peel_partial_lines(&cut)), sorted(&cut));
     }
 
-    #[test]
-    fn a_seed_needs_the_cells_sides_not_a_diagonal() {
-        let a = Vector2::new(3.70, -42.76);
-        let b = Vector2::new(-51.73, -12.02);
-        assert!(reduced(a, b) && reduced(b, a));
-        assert!(!reduced(a, b - a) && !reduced(b - a, a) && !reduced(a, a + b));
-        let cos = a.dot(&(b - a)) / (a.norm() * (b - a).norm());
-        assert!(cos.abs() < 0.6, "the angle test alone would accept it: cos {cos}");
-        // A 9x6 lattice of corners with those sides. From every seed, the grid is either
-        // none (a seed on the border has no cell around it along the sides) or the whole
-        // lattice stepping along the sides; seeds on the border used to pick the diagonal.
-        let origin = Vector2::new(400.0, 400.0);
-        let pts: Vec<(Vector2<f64>, f32)> = (0..6)
-            .flat_map(|j| (0..9).map(move |i| (i, j)))
+    /// A board of `cols × rows` inner corners whose corner `(i, j)` is at `origin + i a + j b`
+    /// (an affine view), its squares dark 40 / light 200 with a light margin of one square on
+    /// a background of 120, rendered with 4×4 samples per pixel; and its corners.
+    fn lattice(
+        (w, h): (usize, usize),
+        origin: Vector2<f64>,
+        a: Vector2<f64>,
+        b: Vector2<f64>,
+        (cols, rows): (i32, i32),
+    ) -> (Image<f32>, Vec<(Vector2<f64>, f32)>) {
+        let inv = nalgebra::Matrix2::from_columns(&[a, b]).try_inverse().unwrap();
+        let img = Image::from_fn(w, h, |x, y| {
+            let mut sum = 0.0;
+            for sy in 0..4 {
+                for sx in 0..4 {
+                    let q = Vector2::new(
+                        x as f64 - 0.375 + 0.25 * sx as f64,
+                        y as f64 - 0.375 + 0.25 * sy as f64,
+                    );
+                    let c = inv * (q - origin);
+                    let (u, v) = (c.x.floor() as i32, c.y.floor() as i32);
+                    sum += if u < -2 || v < -2 || u > cols || v > rows {
+                        120.0
+                    } else if u < -1 || v < -1 || u > cols - 1 || v > rows - 1 {
+                        200.0
+                    } else if (u + v).rem_euclid(2) == 0 {
+                        40.0
+                    } else {
+                        200.0
+                    };
+                }
+            }
+            sum / 16.0
+        });
+        let pts = (0..rows)
+            .flat_map(|j| (0..cols).map(move |i| (i, j)))
             .map(|(i, j)| (origin + a * i as f64 + b * j as f64, 1.0))
             .collect();
-        let mut grown = 0;
-        for s in 0..pts.len() {
-            let Some(g) = grow(&pts, s) else { continue };
-            grown += 1;
-            assert_eq!(g.len(), 54, "seed {s}");
-            for (&(i, j), &n) in &g {
-                for d in [(1, 0), (0, 1)] {
-                    if let Some(&m) = g.get(&(i + d.0, j + d.1)) {
-                        let step = pts[m].0 - pts[n].0;
-                        let side = [a, -a, b, -b].iter().any(|s| (step - s).norm() < 1e-9);
-                        assert!(side, "seed {s}: step {step:?} at ({i}, {j}) is no cell side");
+        (img, pts)
+    }
+
+    /// Source of the expectations: the rendered lattices' sides. Two 9x6 boards: the cell of
+    /// OpenCV-set left12's seed (sides `a` 43 px and `b` 53 px at 82°; the diagonal `b − a`
+    /// meets `a` at 124°, |cos| 0.56, inside the seed's angle test), and a cell as strong
+    /// perspective shears it (sides 60 and 36 px at 124°, a diagonal of 50 px shorter than the
+    /// longer side, so that the shortest lattice steps, the lattice's reduced basis, are a side
+    /// and a diagonal). From every seed the grid is either none (a seed on the border has no
+    /// cell around it along the sides) or the whole lattice stepping along the sides; on the
+    /// first, seeds on the border used to pick the diagonal, on the second a length rule picks
+    /// it from every seed.
+    #[test]
+    fn a_seed_needs_the_cells_sides_not_a_diagonal() {
+        type Case = (Vector2<f64>, Vector2<f64>, Vector2<f64>, (usize, usize));
+        let cases: [Case; 2] = [
+            (
+                Vector2::new(3.70, -42.76),
+                Vector2::new(-51.73, -12.02),
+                Vector2::new(420.0, 560.0),
+                (600, 680),
+            ),
+            (
+                Vector2::new(60.0, 0.0),
+                Vector2::new(-20.0, 30.0),
+                Vector2::new(300.0, 100.0),
+                (960, 340),
+            ),
+        ];
+        for (k, (a, b, origin, size)) in cases.into_iter().enumerate() {
+            // The side and the diagonal that a length rule takes for a cell.
+            let (side, diagonal) = if k == 0 { (a, b - a) } else { (b, a + b) };
+            let cos = side.dot(&diagonal) / (side.norm() * diagonal.norm());
+            let ratio = side.norm().max(diagonal.norm()) / side.norm().min(diagonal.norm());
+            assert!(cos.abs() < 0.6 && ratio < 2.0, "the seed's angle and length tests pass it");
+            if k == 1 {
+                assert!((a + b).norm() < a.norm(), "a diagonal shorter than the longer side");
+            }
+            let (img, pts) = lattice(size, origin, a, b, (9, 6));
+            let mut grown = 0;
+            for s in 0..pts.len() {
+                let Some(g) = grow(&img, &pts, s) else { continue };
+                grown += 1;
+                assert_eq!(g.len(), 54, "sides {a:?} {b:?}, seed {s}");
+                for (&(i, j), &n) in &g {
+                    for d in [(1, 0), (0, 1)] {
+                        if let Some(&m) = g.get(&(i + d.0, j + d.1)) {
+                            let step = pts[m].0 - pts[n].0;
+                            let side = [a, -a, b, -b].iter().any(|s| (step - s).norm() < 1e-9);
+                            assert!(side, "seed {s}: step {step:?} at ({i}, {j}) is no cell side");
+                        }
                     }
                 }
             }
+            // The 7x4 interior corners all seed.
+            assert!(grown >= 28, "sides {a:?} {b:?}: {grown} seeds grew");
         }
-        // The 7x4 interior corners all seed.
-        assert!(grown >= 28, "{grown} seeds grew");
+    }
+
+    /// Source of the expectations: the rendered lattice's sides `a`, `b` (the perspective-sheared
+    /// cell of `a_seed_needs_the_cells_sides_not_a_diagonal`). At an interior corner the sides
+    /// pass [`are_sides`] in either order and sign; a side with a diagonal (`a + b`, `b − a`),
+    /// with two sides in a row (`2b`, seen as a seed on every second row of a board 70° from its
+    /// normal), with a knight's move (`2a + b`), and two diagonals do not.
+    #[test]
+    fn are_sides_tells_sides_from_other_lattice_steps() {
+        let (a, b) = (Vector2::new(60.0, 0.0), Vector2::new(-20.0, 30.0));
+        let (img, pts) = lattice((960, 340), Vector2::new(300.0, 100.0), a, b, (9, 6));
+        // Corner (4, 2), with two corners on every side.
+        let p = pts[2 * 9 + 4].0;
+        for (u, v) in [(a, b), (b, a), (-a, b), (a, -b), (-b, -a)] {
+            assert!(are_sides(&img, p, u, v), "sides {u:?} {v:?}");
+        }
+        let others = [
+            (a, a + b),
+            (b, a + b),
+            (a, b - a),
+            (a, 2.0 * b),
+            (b, 2.0 * a),
+            (b, 2.0 * a + b),
+            (a + b, b - a),
+        ];
+        for (u, v) in others {
+            assert!(!are_sides(&img, p, u, v) && !are_sides(&img, p, v, u), "steps {u:?} {v:?}");
+        }
     }
 
     /// Source of the expectation: a line shrinking and turning at a constant rate (a

@@ -7,7 +7,7 @@
 //! |---|-------|------|----------|
 //! | 1 | candidates | [`candidates`](candidates()) (`candidates.rs`) | image → ChESS response → local maxima |
 //! | 2 | sub-pixel | [`refine_corner`] (`subpix.rs`) | each maximum → `cornerSubPix` position |
-//! | 3 | grid | `grid.rs` | candidates → grid of rows and columns, trimmed to the board |
+//! | 3 | grid | `grid.rs` | candidates → seed cell (sides checked on the image) → grid of rows and columns, trimmed to the board |
 //! | 4 | labelling | `label.rs` | grid → board corner ids (or dropped when not certain) |
 //! | 5 | final fit | `refine.rs`, [`fit_junction`] (`junction.rs`) | labelled corners → final positions |
 //! | – | many views | `views.rs` | per-image detections → one colouring, stereo pairs aligned |
@@ -23,8 +23,11 @@
 //! 2. **Sub-pixel**: OpenCV's `cornerSubPix` normal equations (gradient ⟂ (corner − pixel),
 //!    Gaussian-weighted window), iterated to 1e-4 px; the same estimator that Bouguet's
 //!    toolbox uses.
-//! 3. **Grid**: a seed cell (a corner, its nearest neighbour, the opposite one and a
-//!    non-collinear pair) grows breadth-first by predicting each neighbour from the previous
+//! 3. **Grid**: a seed cell (a corner, one of its nearest neighbours, the opposite one and a
+//!    non-collinear pair) whose two steps the image shows to be a square's sides (the grey
+//!    levels on either side of each step differ, with one sign all along it; under strong
+//!    perspective a diagonal can be shorter than a side, so lengths do not tell them apart)
+//!    grows breadth-first by predicting each neighbour from the previous
 //!    corners of its row or column (the last step, turned and scaled as the one before it),
 //!    repeated while a pass adds a corner; holes (a glare-washed corner) are allowed. Holes
 //!    where the squares are narrower than the ChESS ring are filled by `cornerSubPix` at the
@@ -292,7 +295,7 @@ fn grid_for_board(
     pts: &mut Vec<(nalgebra::Vector2<f64>, f32)>,
     params: &DetectorParams,
 ) -> Option<grid::Grid> {
-    let found = grid::largest(pts, board.len())?;
+    let found = grid::largest(img, pts, board.len())?;
     if shows_larger_board(img, board, pts, &found) {
         return None;
     }
@@ -352,7 +355,7 @@ pub fn grid_size(img: &Image<f32>, params: &DetectorParams) -> Option<(usize, us
     if pts.len() < 4 {
         return None;
     }
-    let grid = grid::largest(&pts, usize::MAX)?;
+    let grid = grid::largest(img, &pts, usize::MAX)?;
     // Junctions where the board's border meets the background line up with the grid as a
     // partial extra line (11 of OpenCV's 13 left samples): without them the board is complete.
     // Holes are filled as detection with a known size fills them (one GoPro view).
