@@ -172,11 +172,8 @@ fn sim_profile(d: &geometry::CameraModel, color_fx: f64) -> SimProfile {
 pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
     // The calibration scene needs only the profile: the default scene is not rendered for it
     // (a 1920x1080 render and JPEG that start-up threw away).
-    let (mut scene, profile) = if options.calib_scene {
-        (SimScene::default(), sim_scene_profile())
-    } else {
-        sim_scene()
-    };
+    let (mut scene, profile) =
+        if options.calib_scene { (SimScene::default(), sim_scene_profile()) } else { sim_scene() };
     if options.calib_scene {
         scene = kinect_usb::sim::calib_scene::calibration_scene(&profile).ok_or_else(|| {
             CaptureError::Config(
