@@ -577,8 +577,18 @@ fn check_outputs<'a>(
                 path.display()
             );
         }
+        // `--rig R --depth … --out R` adds the correction to the rig it reads: replacing it is
+        // the point (its cameras and extrinsics are carried over).
+        let adds_to_input_rig =
+            !args.depth.is_empty() && args.rig.as_deref().is_some_and(|r| same(r, path));
         if !args.overwrite
-            && let Some(what) = foreign_output(path, flag == "--opencv-yaml", writes_rig(args))
+            && !adds_to_input_rig
+            && let Some(what) = foreign_output(
+                path,
+                flag == "--opencv-yaml",
+                writes_rig(args),
+                !args.depth.is_empty(),
+            )
         {
             bail!(
                 "{flag} {}: exists and is {what}; give another file name, or pass --overwrite to replace it",
@@ -624,11 +634,16 @@ const KFUSE_YAML_KEYS: [&[&str]; 2] = [
     &["camera_matrix", "distortion_coefficients", "image_height", "image_width"],
 ];
 
-/// What an existing output file is when kfuse did not write it (`None`: missing, or one of
-/// kfuse's own: a `kfuse-rig` / `kfuse-camera` JSON, or an OpenCV YAML with exactly the keys
-/// kfuse writes). A rerun into the same `rig.json` replaces it; anything else, a user's notes
-/// or OpenCV's own calibration, is kept unless `--overwrite` says otherwise.
-fn foreign_output(path: &Path, yaml: bool, rig: bool) -> Option<String> {
+/// What an existing output file is when kfuse calibrate did not write it (`None`: missing, or
+/// one of calibrate's own: a `kfuse-rig` / `kfuse-camera` JSON whose `calibration` is
+/// calibrate's report, or an OpenCV YAML with exactly the keys kfuse writes). A rerun into
+/// the same `rig.json` replaces it; anything else, a rig imported from another tool, a rig
+/// whose depth correction this run would drop, a user's notes or OpenCV's own calibration, is
+/// kept unless `--overwrite` says otherwise. `depth_run`: this run fits a depth correction.
+fn foreign_output(path: &Path, yaml: bool, rig: bool, depth_run: bool) -> Option<String> {
+    /// Characters of a file's `calibration.source` shown in the message (a file name or a
+    /// tool's name fits; a garbage value must not flood the terminal).
+    const SOURCE_SHOWN_CHARS: usize = 80;
     use std::io::Read;
     let file = std::fs::File::open(path).ok()?;
     if !file.metadata().is_ok_and(|m| m.is_file()) {
@@ -648,9 +663,26 @@ fn foreign_output(path: &Path, yaml: bool, rig: bool) -> Option<String> {
         let ours = text.starts_with("%YAML:1.0") && KFUSE_YAML_KEYS.contains(&keys.as_slice());
         return (!ours).then(|| "another YAML or text file".into());
     }
-    let format = serde_json::from_str::<serde_json::Value>(&text)
-        .ok()
-        .and_then(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
+    let value = serde_json::from_str::<serde_json::Value>(&text).ok();
+    let format =
+        value.as_ref().and_then(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
+    if let Some(v) = value.as_ref().filter(|_| format.is_some()) {
+        // calibrate's report holds the board it was fitted on; an import names its source.
+        let report = &v["calibration"];
+        if report.get("board").is_none() {
+            let source = report.get("source").and_then(|s| s.as_str()).unwrap_or("not calibrate");
+            return Some(format!(
+                "a calibration kfuse calibrate did not make (source: {})",
+                source.chars().take(SOURCE_SHOWN_CHARS).collect::<String>().escape_debug()
+            ));
+        }
+        if !depth_run && !v["depth_correction"].is_null() {
+            return Some(
+                "a rig with a depth correction (calibrate --depth), which this run would drop"
+                    .into(),
+            );
+        }
+    }
     // Replaced by the same kind only: a single-camera run into a two-camera rig would lose
     // the other camera and the extrinsics (and the other way round a camera file).
     match (format.as_deref(), rig) {

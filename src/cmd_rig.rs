@@ -18,7 +18,7 @@ pub struct RigArgs {
 enum RigCommand {
     /// Turn another tool's calibration into a kfuse rig (or single-camera) file.
     Import(ImportArgs),
-    /// Write a rig or camera file as OpenCV FileStorage YAML or ROS camera_info.
+    /// Write a rig or camera file as OpenCV FileStorage YAML, ROS camera_info or iai_kinect2's folder.
     Export(ExportArgs),
     /// Print a rig or camera file with units and sanity checks.
     Show(ShowArgs),

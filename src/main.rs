@@ -34,7 +34,7 @@ enum Command {
     Demo(cmd_demo::DemoArgs),
     /// Calibrate the colour and/or IR camera from checkerboard images (rig file + report).
     Calibrate(cmd_calibrate::CalibrateArgs),
-    /// Import, export and show rig files (Bouguet, KinectData.mat, OpenCV, ROS, kinect_params.json).
+    /// Import, export and show rig files (Bouguet, KinectData.mat, OpenCV, ROS, iai_kinect2, kinect_params.json).
     Rig(cmd_rig::RigArgs),
     /// Remove lens distortion from images with a rig file (writes *_rect images).
     Undistort(cmd_undistort::UndistortArgs),

@@ -648,7 +648,7 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
     // replaced the rig file of the same name and the run failed). The file is of the kind this
     // colour-only run writes (a kfuse single-camera file), which a rerun may replace, so that
     // the same-path checks are what refuses.
-    let mine = r#"{"format": "kfuse-camera", "version": 1}"#;
+    let mine = r#"{"format": "kfuse-camera", "version": 1, "calibration": {"board": "7x5"}}"#;
     std::fs::write(&rig, mine).unwrap();
     let o =
         kfuse(&["calibrate", "--color", s(&pattern), "--out", s(&rig), "--opencv-yaml", s(&rig)]);
@@ -709,6 +709,34 @@ fn calibrate_replaces_only_its_own_files_without_overwrite() {
     assert!(written.contains("\"format\": \"kfuse-camera\""), "{written}");
     assert!(std::fs::read_to_string(&yaml).unwrap().contains("camera_matrix"));
     let o = run(&notes, &["--opencv-yaml", s(&yaml)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // A rig of the same kind that calibrate did not make (imported from the lab's Bouguet
+    // files: its calibration names a source, not a board), and calibrate's own rig with a depth
+    // correction that a stereo rerun would drop: both kept without --overwrite (both were
+    // replaced without a word).
+    let stereo = |out: &Path| {
+        let colour = shots.join("color_*.jpg");
+        kfuse(&["calibrate", "--ir", s(&pattern), "--color", s(&colour), "--out", s(out)])
+    };
+    let imported = dir.join("imported.json");
+    let text = r#"{"format": "kfuse-rig", "version": 1, "calibration": {"source": "Calib_Results_stereo.mat"}}"#;
+    std::fs::write(&imported, text).unwrap();
+    assert_one_line_failure(
+        &stereo(&imported),
+        "imported.json",
+        "a calibration kfuse calibrate did not make (source: Calib_Results_stereo.mat)",
+    );
+    assert_eq!(std::fs::read_to_string(&imported).unwrap(), text);
+    let corrected = dir.join("corrected.json");
+    let text = r#"{"format": "kfuse-rig", "version": 1, "calibration": {"board": "7x5"}, "depth_correction": {"version": 1}}"#;
+    std::fs::write(&corrected, text).unwrap();
+    assert_one_line_failure(&stereo(&corrected), "corrected.json", "which this run would drop");
+    assert_eq!(std::fs::read_to_string(&corrected).unwrap(), text);
+    // calibrate's own stereo rig is replaced by a rerun, as before.
+    let own = dir.join("own.json");
+    let o = stereo(&own);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = stereo(&own);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let _ = std::fs::remove_dir_all(&dir);
 }

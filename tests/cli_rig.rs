@@ -637,6 +637,23 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     assert!(good && err.contains("warning") && err.contains("mirrored left-right"), "{err}");
     let (good, _, err) = fuse(&factory, &tmp.path().join("fused2"), &[]);
     assert!(good && !err.contains("mirrored"), "{err}");
+    // The same images away from their kinect_params.json: the mirrored rig cannot be checked
+    // against the sensor's, so it fuses, with a warning naming the conversion.
+    let away = tmp.path().join("away");
+    std::fs::create_dir(&away).unwrap();
+    let (color_away, depth_away) = (away.join("c.jpg"), away.join("d.png"));
+    std::fs::copy(&color, &color_away).unwrap();
+    std::fs::copy(&depth, &depth_away).unwrap();
+    let args =
+        ["fuse", "--rig", s(&mirrored), "--color", s(&color_away), "--depth", s(&depth_away)];
+    let out_away = tmp.path().join("fused_away");
+    let (good, _, err) = kfuse(&[&args[..], &["--out", s(&out_away), "--no-figures"]].concat());
+    assert!(
+        good && err.contains("warning: ")
+            && err.contains("a calibration of images mirrored")
+            && err.contains("--mirror --out RIG.json"),
+        "{err}"
+    );
     // A rig calibrated with squares 10x too small (T = 5.2 mm), and the capture's IR image
     // given as its depth: refused beside the capture. Depth in centimetres read as
     // millimetres (a Kinect frame at 0.1 of its distance): a warning.
@@ -706,7 +723,7 @@ fn a_rig_of_mirrored_images_is_refused_beside_a_capture_and_converted() {
     assert!(text.contains("--mirror turned a rig of images as the scene is"), "{text}");
     let shown = ok(&["rig", "show", s(&lab_mirrored)]);
     assert!(
-        shown.contains("x = -52.2 mm of the depth camera, a calibration of images mirrored"),
+        shown.contains("WARN  orientation: the colour camera sits at x = -52.2 mm of the depth camera, a calibration of images mirrored"),
         "{shown}"
     );
     let (lab_r, m) = (read_rig(&lab_rig), read_rig(&lab_mirrored));

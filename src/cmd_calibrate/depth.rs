@@ -98,7 +98,12 @@ pub fn fit(
     }
     match check_plausible(&fit) {
         Ok(()) => {}
-        Err(e) if force => println!("  WARNING (--force): {e}"),
+        Err(e) if force => {
+            // The refusal's own advice (pass --force, nothing was written) is not what happens.
+            let text = e.to_string();
+            let text = text.split(", or pass --force").next().unwrap_or(&text);
+            println!("  WARNING (--force): {text}; written anyway (--force)");
+        }
         Err(e) => {
             print_fit(&fit);
             return Err(e.into());

@@ -138,6 +138,15 @@ fn check_beside_capture(
     let params = depth_path.parent().unwrap_or(Path::new(".")).join(FACTORY_PARAMS);
     if params.is_file() {
         problems.extend(factory_problem(rig, rig_path, &params, &params.display().to_string()));
+    } else if let Some((true, _)) = rig_io::show::kinect_orientation(rig) {
+        // No factory parameters to compare with: the images may be mirrored too (raw
+        // libfreenect2 output), so this is a warning, not a refusal.
+        eprintln!(
+            "warning: {} is a calibration of images mirrored left-right (colour camera at x = {:+.1} mm); kfuse's images, the Kinect SDK's and iai_kinect2's are as the scene is (+52 mm): if these are, convert the rig with `kfuse rig import {} --mirror --out RIG.json`",
+            rig_path.display(),
+            rig.color_centre_in_depth().x * 1000.0,
+            rig_path.display()
+        );
     }
     Ok(())
 }

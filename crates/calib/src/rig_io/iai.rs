@@ -172,6 +172,19 @@ fn camera_roles(cams: &[&Doc], opts: &ImportOptions) -> Result<Vec<Role>, CalibE
                 (Some(ra), Some(rb)) if ra != rb => [ra, rb],
                 _ => by_focal,
             };
+            for (doc, f) in [(a, fa), (b, fb)] {
+                if !(geometry::rig::MIN_FOCAL_PX..=geometry::rig::MAX_FOCAL_PX).contains(&f) {
+                    return Err(fmt_err(
+                        doc.path(),
+                        format!(
+                            "its fx {} px is no camera's (plausible: {}-{} px; the Kinect v2's colour camera has ~1060 px, its IR camera ~365 px): correct the file",
+                            geometry::num_fmt::fixed(f, 1),
+                            geometry::rig::MIN_FOCAL_PX,
+                            geometry::rig::MAX_FOCAL_PX
+                        ),
+                    ));
+                }
+            }
             for (doc, role, f, other) in [(a, roles[0], fa, fb), (b, roles[1], fb, fa)] {
                 let expected_larger = role == Role::Color;
                 if (f > other) != expected_larger {
@@ -639,6 +652,16 @@ mod tests {
         let e = import_dir(dir.path(), &ImportOptions::default()).unwrap_err().to_string();
         assert!(e.contains(POSE_FILE) && e.contains("'essential' is not [T]×·R"), "{e}");
         // A camera file without its distortion (was read as distortion-free).
+        // An implausible focal length is named as such, in short notation (it was called two
+        // files exchanged, with a 300-digit number).
+        let huge = IR.replacen("3.6512340000000000e+02", "3.6e+302", 1);
+        let dir = folder(&[(COLOR_FILE, COLOR), (IR_FILE, &huge), (POSE_FILE, POSE)]);
+        let e = import_dir(dir.path(), &ImportOptions::default()).unwrap_err().to_string();
+        assert!(
+            e.contains(IR_FILE) && e.contains("no camera's") && !e.contains("exchanged"),
+            "{e}"
+        );
+        assert!(e.len() < 400, "{e}");
         let no_dist = IR.replace("distortionCoefficients:", "distortion:");
         let dir = folder(&[(COLOR_FILE, COLOR), (IR_FILE, &no_dist), (POSE_FILE, POSE)]);
         let e = import_dir(dir.path(), &ImportOptions::default()).unwrap_err().to_string();

@@ -184,8 +184,8 @@ pub fn rig_checks(rig: &Rig) -> Vec<Finding> {
             "rotation between the cameras {angle:.3}° (RGB-D rigs: below {MAX_RIG_ANGLE_DEG}°)"
         ),
     ));
-    if let Some((_, text)) = kinect_orientation(rig) {
-        out.push(finding(false, text));
+    if let Some((mirrored, text)) = kinect_orientation(rig) {
+        out.push(finding(mirrored, text));
     }
     let sizes = ((rig.depth.width, rig.depth.height), (rig.color.width, rig.color.height));
     if sizes == (KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE) {
