@@ -641,9 +641,6 @@ const KFUSE_YAML_KEYS: [&[&str]; 2] = [
 /// whose depth correction this run would drop, a user's notes or OpenCV's own calibration, is
 /// kept unless `--overwrite` says otherwise. `depth_run`: this run fits a depth correction.
 fn foreign_output(path: &Path, yaml: bool, rig: bool, depth_run: bool) -> Option<String> {
-    /// Characters of a file's `calibration.source` shown in the message (a file name or a
-    /// tool's name fits; a garbage value must not flood the terminal).
-    const SOURCE_SHOWN_CHARS: usize = 80;
     use std::io::Read;
     let file = std::fs::File::open(path).ok()?;
     if !file.metadata().is_ok_and(|m| m.is_file()) {
@@ -666,28 +663,11 @@ fn foreign_output(path: &Path, yaml: bool, rig: bool, depth_run: bool) -> Option
     let value = serde_json::from_str::<serde_json::Value>(&text).ok();
     let format =
         value.as_ref().and_then(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
-    if let Some(v) = value.as_ref().filter(|_| format.is_some()) {
-        // calibrate's report holds the board it was fitted on; an import names its source.
-        let report = &v["calibration"];
-        if report.get("board").is_none() {
-            let source = report.get("source").and_then(|s| s.as_str()).unwrap_or("not calibrate");
-            return Some(format!(
-                "a calibration kfuse calibrate did not make (source: {})",
-                source.chars().take(SOURCE_SHOWN_CHARS).collect::<String>().escape_debug()
-            ));
-        }
-        if !depth_run && !v["depth_correction"].is_null() {
-            return Some(
-                "a rig with a depth correction (calibrate --depth), which this run would drop"
-                    .into(),
-            );
-        }
-    }
     // Replaced by the same kind only: a single-camera run into a two-camera rig would lose
     // the other camera and the extrinsics (and the other way round a camera file).
     match (format.as_deref(), rig) {
         (Some(geometry::rig::RIG_FORMAT), true) | (Some(calib::rig_io::CAMERA_FORMAT), false) => {
-            None
+            value.as_ref().and_then(|v| not_calibrates(v, depth_run))
         }
         (Some(geometry::rig::RIG_FORMAT), false) => {
             Some("a two-camera rig, and this run writes a single-camera file".into())
@@ -698,6 +678,32 @@ fn foreign_output(path: &Path, yaml: bool, rig: bool, depth_run: bool) -> Option
         (Some(other), _) => Some(format!("a JSON file of format \"{other}\"")),
         (None, _) => Some("not a kfuse calibration file".into()),
     }
+}
+
+/// For a kfuse rig or camera file of the kind this run writes: why it is not calibrate's own
+/// to replace (an import, or a depth correction this run would drop), `None` when it is.
+fn not_calibrates(v: &serde_json::Value, depth_run: bool) -> Option<String> {
+    /// Characters of a file's `calibration.source` shown in the message (a file name or a
+    /// tool's name fits; a garbage value must not flood the terminal).
+    const SOURCE_SHOWN_CHARS: usize = 80;
+    // calibrate's report holds the board it was fitted on; an import names its source.
+    let report = &v["calibration"];
+    if report.get("board").is_none() {
+        let source = match report.get("source").and_then(|s| s.as_str()) {
+            Some(s) => format!(
+                "imported from {}",
+                s.chars().take(SOURCE_SHOWN_CHARS).collect::<String>().escape_debug()
+            ),
+            None => "its report names no calibration board".into(),
+        };
+        return Some(format!("a calibration kfuse calibrate did not make ({source})"));
+    }
+    if !depth_run && !v["depth_correction"].is_null() {
+        return Some(
+            "a rig with a depth correction (calibrate --depth), which this run would drop".into(),
+        );
+    }
+    None
 }
 
 /// Whether this run writes a two-camera rig (IR and colour images, or `--rig` with

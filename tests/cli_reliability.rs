@@ -724,7 +724,7 @@ fn calibrate_replaces_only_its_own_files_without_overwrite() {
     assert_one_line_failure(
         &stereo(&imported),
         "imported.json",
-        "a calibration kfuse calibrate did not make (source: Calib_Results_stereo.mat)",
+        "a calibration kfuse calibrate did not make (imported from Calib_Results_stereo.mat)",
     );
     assert_eq!(std::fs::read_to_string(&imported).unwrap(), text);
     let corrected = dir.join("corrected.json");
