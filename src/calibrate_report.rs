@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::Result;
-use calib::files::{COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX, write_text};
+use calib::files::{COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX};
 use calib::{Board, MonoCalibration, StereoCalibration, ViewCorners};
 use geometry::{CameraModel, Image};
 use kfuse_io::atomic::StagedDir;
@@ -309,10 +309,10 @@ fn save_rgb(path: &Path, buf: Vec<u8>, w: usize, h: usize) -> Result<()> {
 }
 
 impl Figures<'_> {
-    /// Writes report.json and every figure into the staged report folder.
-    pub(crate) fn write(&self, dir: &StagedDir, report: &serde_json::Value) -> Result<()> {
+    /// Writes every figure into the staged report folder (report.json is the caller's: it
+    /// is written last, with the time these took).
+    pub(crate) fn write(&self, dir: &StagedDir) -> Result<()> {
         register_font();
-        write_text(&dir.join("report.json"), &serde_json::to_string_pretty(report)?)?;
         let pb = bar(self.ir_images.len() + self.color_images.len(), "report figures");
         let all: Vec<_> = self.ir_images.iter().chain(&self.color_images).collect();
         let names = figure_stems(&all.iter().map(|(p, _, _)| *p).collect::<Vec<_>>());
