@@ -250,11 +250,14 @@ fn produce(
                             return Err(SequenceError::Pipeline("a frame without depth".into()));
                         }
                     };
+                    times.decode_depth += secs(t);
+                    let t_color = Instant::now();
                     let name = std::path::PathBuf::from(format!("frame {}", job.meta.number));
                     let color = match &job.jpeg {
                         Some(j) => processor.decode_color(j, &name)?,
                         None => None,
                     };
+                    times.decode_color += secs(t_color);
                     times.decode += secs(t);
                     batch.push((job, Decoded { depth, raw: raw_for_gpu, color }));
                 }
