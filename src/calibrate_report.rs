@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::Result;
-use calib::files::{COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX, write_text};
+use calib::files::{COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX};
 use calib::{Board, MonoCalibration, StereoCalibration, ViewCorners};
 use geometry::{CameraModel, Image};
 use kfuse_io::atomic::StagedDir;
@@ -309,17 +309,22 @@ fn save_rgb(path: &Path, buf: Vec<u8>, w: usize, h: usize) -> Result<()> {
 }
 
 impl Figures<'_> {
-    /// Writes report.json and every figure into the staged report folder.
-    pub(crate) fn write(&self, dir: &StagedDir, report: &serde_json::Value) -> Result<()> {
+    /// Writes every figure into the staged report folder (report.json is the caller's: it
+    /// is written last, with the time these took).
+    pub(crate) fn write(&self, dir: &StagedDir) -> Result<()> {
         register_font();
-        write_text(&dir.join("report.json"), &serde_json::to_string_pretty(report)?)?;
         let pb = bar(self.ir_images.len() + self.color_images.len(), "report figures");
         let all: Vec<_> = self.ir_images.iter().chain(&self.color_images).collect();
         let names = figure_stems(&all.iter().map(|(p, _, _)| *p).collect::<Vec<_>>());
-        for ((_, img, v), name) in all.iter().zip(names) {
+        // One figure per image, independent of the others: on rayon's pool (a serial loop
+        // was 1.47 s of a 2.1 s `--report` run on the 15 rendered pairs, 49 ms per figure,
+        // mostly the 1080p PNG encoding).
+        use rayon::prelude::*;
+        all.par_iter().zip(names).try_for_each(|((_, img, v), name)| -> Result<()> {
             corners_figure(&dir.join(format!("corners_{name}.png")), img, v)?;
             pb.inc(1);
-        }
+            Ok(())
+        })?;
         pb.finish();
         errors_figure(&dir.join("per_image_error.png"), &self.cameras)?;
         for (name, cam, m, _) in &self.cameras {

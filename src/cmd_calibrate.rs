@@ -2,17 +2,22 @@
 //! single-camera file), optional OpenCV YAML, and a report folder of figures.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use calib::detect::{Refinement, align_pair, common_grid_size, detect_views_with};
+use calib::detect::{
+    Refinement, align_pair, common_grid_size, detect_views_timed, detect_views_with,
+};
 use calib::files::{
     COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX, add_detections, camera_json, opencv_yaml_camera,
     opencv_yaml_rig, stereo_rig, write_text,
 };
+use calib::io::ImageTiming;
 use calib::{
     Board, CalibError, CalibFlags, StereoOptions, ViewCorners, calibrate_mono, calibrate_stereo,
 };
 use geometry::Image;
+use geometry::timing::{Timings, ms_since};
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::{StagedDir, StagedFiles};
 
@@ -127,6 +132,12 @@ pub struct CalibrateArgs {
     /// those tools (0.13 px from the lab's Bouguet corners on real IR).
     #[arg(long, value_enum, default_value = "junction")]
     corners: CornerEstimator,
+    /// Print where the time went on stderr: milliseconds of each stage (reading and
+    /// decoding, detection, each fit, σ, the held-out check, the depth fit, writing), per
+    /// image for reading and detection. With --report, report.json holds the same split
+    /// (`timings_ms`) with every image's times.
+    #[arg(long)]
+    timings: bool,
 }
 
 /// `--corners`: the final sub-pixel estimator.
@@ -313,9 +324,10 @@ pub(crate) fn bar(len: usize, msg: &str) -> ProgressBar {
     pb
 }
 
-/// One camera's views, its images (`None` where unreadable) and the board (its size found when
-/// `--board auto`).
-type Detected = (Vec<ViewCorners>, Vec<Option<Image<u8>>>, Board);
+/// One camera's views, its images (`None` where unreadable), the board (its size found when
+/// `--board auto`), the stages' times ([`calib::timing::read_stage`], `detect_stage`) and
+/// every image's.
+type Detected = (Vec<ViewCorners>, Vec<Option<Image<u8>>>, Board, Timings, Vec<ImageTiming>);
 
 /// Reads and detects one camera's images. An image that cannot be read is kept as a view that
 /// cannot be used, with the reason, so that the calibration table lists it and goes on.
@@ -330,16 +342,15 @@ fn load_and_detect(
     camera: &str,
     refinement: Refinement,
 ) -> Result<Detected> {
-    use rayon::prelude::*;
+    let mut timings = Timings::new();
     let pb = bar(files.len(), &format!("reading {camera}"));
-    let images: Vec<Result<Image<u8>, String>> = files
-        .par_iter()
-        .map(|f| {
-            let r = calib::io::read_gray(f).map_err(|e| e.to_string());
-            pb.inc(1);
-            r
-        })
-        .collect();
+    let (images, read_ms): (Vec<Result<Image<u8>, String>>, Vec<f64>) =
+        timings.time(&calib::timing::read_stage(camera), || {
+            calib::io::read_gray_all(files, &|| pb.inc(1))
+                .into_iter()
+                .map(|(r, ms)| (r.map_err(|e| e.to_string()), ms))
+                .unzip()
+        });
     pb.finish();
     let file_name =
         |f: &PathBuf| f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -350,8 +361,12 @@ fn load_and_detect(
         .collect();
     println!("{camera}: detecting the board in {} image(s)", names.len());
     let mut board = *board;
+    let detect_stage = calib::timing::detect_stage(camera);
     if auto {
-        let Some(((a, b), _)) = common_grid_size(&names) else {
+        let t = Instant::now();
+        let size = common_grid_size(&names);
+        timings.add(&detect_stage, ms_since(t));
+        let Some(((a, b), _)) = size else {
             bail!(
                 "--board auto: no complete checkerboard found in the {} {camera} image(s); give --board COLSxROWS (inner corners)",
                 names.len()
@@ -360,7 +375,8 @@ fn load_and_detect(
         (board.cols, board.rows) = (a, b);
     }
     let pb = bar(names.len(), &format!("detecting {camera}"));
-    let (found, board) = detect_views_with(&names, &board, refinement, &|| pb.inc(1));
+    let (found, board, detect_ms) = timings
+        .time(&detect_stage, || detect_views_timed(&names, &board, refinement, &|| pb.inc(1)));
     pb.finish();
     let with_board = found.iter().filter(|v| !v.corners.is_empty()).count();
     if auto {
@@ -391,6 +407,18 @@ fn load_and_detect(
             );
         }
     }
+    let mut detect_ms = detect_ms.into_iter();
+    let image_times = files
+        .iter()
+        .zip(&images)
+        .zip(read_ms)
+        .map(|((f, i), read_ms)| ImageTiming {
+            camera: camera.to_string(),
+            name: file_name(f),
+            read_ms,
+            detect_ms: i.as_ref().ok().and_then(|_| detect_ms.next()),
+        })
+        .collect();
     let mut found = found.into_iter();
     let views = files
         .iter()
@@ -411,7 +439,7 @@ fn load_and_detect(
             }
         })
         .collect();
-    Ok((views, images.into_iter().map(Result::ok).collect(), board))
+    Ok((views, images.into_iter().map(Result::ok).collect(), board, timings, image_times))
 }
 
 fn flags(args: &CalibrateArgs) -> CalibFlags {
@@ -715,8 +743,62 @@ fn writes_rig(args: &CalibrateArgs) -> bool {
 /// What an interrupted `calibrate` says it did.
 const STOPPED: &str = ": stopped; no rig file or report was written";
 
+/// Runs `work` on a worker thread (`interrupt::run_until_interrupted`): its own stages go
+/// into `timings`, the rest of the call's wall time (starting the thread, waiting for its
+/// result) into [`calib::timing::WORKER`].
+fn on_worker<T: Send + 'static>(
+    timings: &mut Timings,
+    work: impl FnOnce() -> (T, Timings) + Send + 'static,
+) -> Result<T> {
+    let t = Instant::now();
+    let (value, inner) = crate::interrupt::run_until_interrupted(STOPPED, work)?;
+    let call_ms = ms_since(t);
+    timings.extend("", &inner);
+    timings.add(calib::timing::WORKER, call_ms - inner.total_ms());
+    Ok(value)
+}
+
+/// `work`'s result with its wall time as the one stage `stage`.
+fn timed<T>(stage: &str, work: impl FnOnce() -> T) -> (T, Timings) {
+    let mut t = Timings::new();
+    let value = t.time(stage, work);
+    (value, t)
+}
+
+/// The `--timings` lines: the stages, with ms per image for reading and detection, then per
+/// camera the median and largest image's read and detection times.
+fn timing_lines(wall_ms: f64, timings: &Timings, images: &[ImageTiming]) -> Vec<String> {
+    let cameras: Vec<&str> =
+        ["IR", "colour"].into_iter().filter(|c| images.iter().any(|i| i.camera == *c)).collect();
+    let per_image: Vec<String> = cameras
+        .iter()
+        .flat_map(|c| [calib::timing::read_stage(c), calib::timing::detect_stage(c)])
+        .collect();
+    let per_image: Vec<&str> = per_image.iter().map(String::as_str).collect();
+    let n = cameras.first().map_or(0, |c| images.iter().filter(|i| i.camera == *c).count());
+    let mut lines = timings.summary(wall_ms, Some((n, "image", &per_image)));
+    let stats = |mut v: Vec<f64>| -> (f64, f64) {
+        v.sort_by(f64::total_cmp);
+        (v.get(v.len() / 2).copied().unwrap_or(0.0), v.last().copied().unwrap_or(0.0))
+    };
+    for c in cameras {
+        let of = |f: &dyn Fn(&ImageTiming) -> Option<f64>| -> Vec<f64> {
+            images.iter().filter(|i| i.camera == c).filter_map(f).collect()
+        };
+        let (rm, rx) = stats(of(&|i| Some(i.read_ms)));
+        let (dm, dx) = stats(of(&|i| i.detect_ms));
+        lines.push(format!(
+            "  per {c} image (own thread): read median {rm:.2} ms (max {rx:.2}), detect median {dm:.2} ms (max {dx:.2})"
+        ));
+    }
+    lines
+}
+
 /// Runs the command.
 pub fn run(args: CalibrateArgs) -> Result<()> {
+    let started = Instant::now();
+    let mut timings = Timings::new();
+    let mut image_times: Vec<ImageTiming> = Vec::new();
     let (board, auto) = parse_board(&args.board, &args.square, args.top_left.as_deref())?;
     if args.color.is_empty() && args.ir.is_empty() {
         bail!("give --color and/or --ir image patterns, e.g. --ir 'captures/ir_*.png'");
@@ -745,11 +827,21 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let flags = flags(&args);
     // Detection and the fits write nothing; they run on a worker thread so that Ctrl-C is
     // answered within a poll interval whatever stage they are in.
-    use crate::interrupt::run_until_interrupted as interruptible;
     let corners: Refinement = args.corners.into();
-    let detect = |files: &[PathBuf], board: Board, auto: bool, camera: &'static str| {
+    let mut detect = |files: &[PathBuf], board: Board, auto: bool, camera: &'static str| {
         let files = files.to_vec();
-        interruptible(STOPPED, move || load_and_detect(&files, &board, auto, camera, corners))?
+        let (views, images, board, stages, per_image) = on_worker(&mut timings, move || {
+            match load_and_detect(&files, &board, auto, camera, corners) {
+                Ok(d) => {
+                    let stages = d.3.clone();
+                    (Ok(d), stages)
+                }
+                Err(e) => (Err(e), Timings::new()),
+            }
+        })??;
+        drop(stages);
+        image_times.extend(per_image);
+        anyhow::Ok((views, images, board))
     };
     let (ir_views, ir_images, board) = if ir_files.is_empty() {
         (vec![], vec![], board)
@@ -790,11 +882,13 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let mut report;
     let mut figs = Figures { board: Some(board), ..Figures::default() };
     let mut depth_fit = None;
-    let fit_depth = |camera: geometry::CameraModel| {
+    let fit_depth = |timings: &mut Timings, camera: geometry::CameraModel| {
         let (views, ir, depth) = (ir_views.clone(), ir_files.clone(), depth_files.clone());
         let (reject, force) = (flags.reject_outliers, args.force);
-        interruptible(STOPPED, move || {
-            depth::fit(&camera, &board, &views, &ir, &depth, reject, force)
+        on_worker(timings, move || {
+            timed(calib::timing::DEPTH, || {
+                depth::fit(&camera, &board, &views, &ir, &depth, reject, force)
+            })
         })
     };
     if both {
@@ -825,13 +919,21 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             fix_intrinsics: args.fix_intrinsics,
         };
         let (ir, color) = (ir_views.clone(), color_views.clone());
-        let s = interruptible(STOPPED, move || {
-            calibrate_stereo(&board, &ir, &color, &options, None, None)
+        let s = on_worker(&mut timings, move || {
+            let t = Instant::now();
+            let s = calibrate_stereo(&board, &ir, &color, &options, None, None);
+            let mut stages = Timings::new();
+            if let Ok(s) = &s {
+                calib::timing::add_stereo(&mut stages, s, ms_since(t));
+            }
+            (s, stages)
         })??;
         let held_out = if args.report.is_some() {
             let (ir, color) = (ir_views.clone(), color_views.clone());
-            Some(interruptible(STOPPED, move || {
-                calib::holdout::held_out_stereo(&board, &ir, &color, &options)
+            Some(on_worker(&mut timings, move || {
+                timed(calib::timing::HELD_OUT, || {
+                    calib::holdout::held_out_stereo(&board, &ir, &color, &options)
+                })
             })?)
         } else {
             None
@@ -849,7 +951,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             report["held_out"] = print_held_out(h);
         }
         if !depth_files.is_empty() {
-            let fit = fit_depth(rig.depth)??;
+            let fit = fit_depth(&mut timings, rig.depth)??;
             depth::print_fit(&fit);
             rig.depth_correction = Some(Box::new(depth::correction_of(&fit)));
             report["depth_correction"] = fit.report_json();
@@ -863,7 +965,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         figs.cameras.push(("colour", s.color, s.color_mono.clone(), COLOR_RMS_LIMIT_PX));
     } else if let Some(mut rig) = base_rig {
         // --depth with --rig: the rig's IR intrinsics, only the correction is new.
-        let fit = fit_depth(rig.depth)??;
+        let fit = fit_depth(&mut timings, rig.depth)??;
         depth::print_fit(&fit);
         rig.depth_correction = Some(Box::new(depth::correction_of(&fit)));
         report = serde_json::json!({ "depth_correction": fit.report_json() });
@@ -876,14 +978,22 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
             ("IR", &ir_views, &ir_files, DEPTH_RMS_LIMIT_PX)
         };
         let views_owned = views.clone();
-        let m = interruptible(STOPPED, move || {
-            calibrate_mono(&format!("{name} camera"), &board, &views_owned, &flags, None)
+        let m = on_worker(&mut timings, move || {
+            let t = Instant::now();
+            let m = calibrate_mono(&format!("{name} camera"), &board, &views_owned, &flags, None);
+            let mut stages = Timings::new();
+            if let Ok(m) = &m {
+                calib::timing::add_mono(&mut stages, name, m, ms_since(t));
+            }
+            (m, stages)
         })??;
         print_mono(&format!("{name} camera"), &m, limit);
         let held_out = if args.report.is_some() {
             let views_owned = views.clone();
-            let h = interruptible(STOPPED, move || {
-                calib::holdout::held_out_mono(name, &board, &views_owned, &flags, None)
+            let h = on_worker(&mut timings, move || {
+                timed(calib::timing::HELD_OUT, || {
+                    calib::holdout::held_out_mono(name, &board, &views_owned, &flags, None)
+                })
             })?;
             Some(print_held_out(&h))
         } else {
@@ -913,31 +1023,54 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     // is published: a failure anywhere leaves neither.
     crate::interrupt::check(STOPPED)?;
     let mut files = StagedFiles::new();
-    for (path, text) in &outputs {
-        files.add(path, text.as_bytes())?;
-    }
+    timings.time(STAGE_WRITE_RIG, || {
+        outputs.iter().try_for_each(|(path, text)| files.add(path, text.as_bytes()))
+    })?;
     if let Some(dir) = &args.report {
         let staged = StagedDir::new(dir)?;
         figs.ir_images = with_images(&ir_files, &ir_images, &ir_views);
         figs.color_images = with_images(&color_files, &color_images, &color_views);
-        if figs.cameras.is_empty() {
-            write_text(&staged.join("report.json"), &serde_json::to_string_pretty(&report)?)?;
-        } else {
-            figs.write(&staged, &report)?;
-        }
-        if let Some(fit) = &depth_fit {
-            depth_figures::write(&staged, fit)?;
-        }
+        timings.time(STAGE_WRITE_FIGURES, || -> Result<()> {
+            if !figs.cameras.is_empty() {
+                figs.write(&staged)?;
+            }
+            if let Some(fit) = &depth_fit {
+                depth_figures::write(&staged, fit)?;
+            }
+            Ok(())
+        })?;
+        // Last, so that its timings hold every stage before it.
+        report["timings_ms"] =
+            calib::timing::report_json(ms_since(started), &timings, &image_times);
+        timings.time(STAGE_WRITE_REPORT, || {
+            write_text(&staged.join("report.json"), &serde_json::to_string_pretty(&report)?)
+                .map_err(anyhow::Error::from)
+        })?;
         crate::interrupt::check(STOPPED)?;
-        staged.commit()?;
+        timings.time(STAGE_PUBLISH, || staged.commit())?;
         println!("\nreport: {}", dir.display());
     }
-    files.commit()?;
+    timings.time(STAGE_PUBLISH, || files.commit())?;
     for (path, _) in &outputs {
         println!("wrote {}", path.display());
     }
+    if args.timings {
+        for line in timing_lines(ms_since(started), &timings, &image_times) {
+            eprintln!("{line}");
+        }
+    }
     Ok(())
 }
+
+/// Stage: the rig (or camera) file and the OpenCV YAML written to their temporary names.
+const STAGE_WRITE_RIG: &str = "write rig files";
+/// Stage: the report's figures (`--report`).
+const STAGE_WRITE_FIGURES: &str = "write report figures";
+/// Stage: report.json (`--report`; after its own `timings_ms` were taken, so only in the
+/// `--timings` lines).
+const STAGE_WRITE_REPORT: &str = "write report.json";
+/// Stage: the outputs renamed into place (only in the `--timings` lines).
+const STAGE_PUBLISH: &str = "publish outputs";
 
 #[cfg(test)]
 mod tests {

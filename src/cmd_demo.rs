@@ -94,6 +94,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         engine: fusion_gpu::Engine::Cpu,
         gpu: None,
         force: false,
+        timings: false,
         sequence: Default::default(),
     };
     let result =

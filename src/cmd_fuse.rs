@@ -125,6 +125,11 @@ pub struct FuseArgs {
     /// in the colour image); see README "Limits".
     #[arg(long)]
     pub force: bool,
+    /// Print where the time went on stderr: milliseconds of each stage (one frame: H1-H8
+    /// as in summary.json's timings_ms; a sequence: setup, read, decode (depth, colour),
+    /// register, encode, write as in index.json), as `kfuse calibrate --timings` does.
+    #[arg(long)]
+    pub timings: bool,
     /// A whole recording or frame folder instead of one frame.
     #[command(flatten)]
     pub sequence: sequence::SequenceArgs,
@@ -259,6 +264,7 @@ fn progress(steps: u64) -> ProgressBar {
 
 /// Runs `kfuse fuse`.
 pub fn run(args: &FuseArgs) -> Result<FuseResult> {
+    let started = std::time::Instant::now();
     let bar = progress(6);
     bar.set_message("reading inputs");
     let options = options(args)?;
@@ -336,6 +342,13 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let out = staged.commit()?;
     bar.inc(1);
     bar.finish_and_clear();
+    if args.timings
+        && let Some(t) = &output.summary.timings_ms
+    {
+        for line in t.to_timings().summary(geometry::timing::ms_since(started), None) {
+            eprintln!("{line}");
+        }
+    }
     Ok(FuseResult { out, summary: output.summary, figures: !args.no_figures })
 }
 

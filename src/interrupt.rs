@@ -70,13 +70,26 @@ pub fn run_until_interrupted<T: Send + 'static>(
     what: &str,
     work: impl FnOnce() -> T + Send + 'static,
 ) -> anyhow::Result<T> {
+    // The worker says it is done through a channel, so this thread wakes the moment the
+    // work ends rather than at the next poll: sleeping in POLL steps cost 25 ms per call on
+    // average (73-95 ms of a 0.33-0.38 s stereo run on 15 pairs went to 3 such waits).
+    let (done, finished) = std::sync::mpsc::sync_channel::<()>(1);
     let worker = std::thread::Builder::new()
         .name("kfuse-work".into())
-        .spawn(work)
+        .spawn(move || {
+            let value = work();
+            // The receiver is gone only when this thread returned Interrupted already.
+            let _ = done.send(());
+            value
+        })
         .map_err(|e| anyhow::anyhow!("cannot start a worker thread: {e}"))?;
-    while !worker.is_finished() {
+    loop {
         check(what)?;
-        std::thread::sleep(POLL);
+        match finished.recv_timeout(POLL) {
+            // Done, or the worker panicked (its sender dropped): join passes the panic on.
+            Ok(()) | Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+        }
     }
     match worker.join() {
         Ok(value) => Ok(value),

@@ -952,3 +952,176 @@ fn the_stereo_report_holds_the_held_out_check_through_the_rig() {
         assert!(median > 0.0 && median <= factor * rms, "{e}");
     }
 }
+
+/// Slack for comparing sums of stage times with the wall time they are part of, ms: the values
+/// are sums of f64 milliseconds, exact to far below this.
+const TIMING_EPSILON_MS: f64 = 1e-6;
+
+/// Checks `report.json`'s `timings_ms` and the `--timings` lines of a run: every stage of
+/// `stages` present (and no other), each finite and ≥ 0, their sum at most the wall time; one
+/// per-image entry per image of each camera (`(camera, file names)`), each within its
+/// camera's read and detect stage; `text` holds the summary lines.
+fn check_timings(
+    r: &serde_json::Value,
+    stages: &[&str],
+    images: &[(&str, Vec<String>)],
+    text: &str,
+) {
+    let t = &r["timings_ms"];
+    let wall = t["wall_ms"].as_f64().unwrap_or_else(|| panic!("no wall_ms: {t}"));
+    assert!(wall.is_finite() && wall > 0.0, "{t}");
+    let listed: Vec<(&str, f64)> = t["stages"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no stages: {t}"))
+        .iter()
+        .map(|s| (s["stage"].as_str().unwrap(), s["ms"].as_f64().unwrap()))
+        .collect();
+    let mut names: Vec<&str> = listed.iter().map(|s| s.0).collect();
+    names.sort_unstable();
+    let mut want = stages.to_vec();
+    want.sort_unstable();
+    assert_eq!(names, want, "{t}");
+    for (name, ms) in &listed {
+        assert!(ms.is_finite() && *ms >= 0.0, "{name}: {ms}");
+    }
+    let sum: f64 = listed.iter().map(|s| s.1).sum();
+    assert!(sum <= wall + TIMING_EPSILON_MS, "stages {sum} ms > wall {wall} ms: {t}");
+    let stage = |name: &str| listed.iter().find(|s| s.0 == name).map(|s| s.1).unwrap();
+    let per_image = t["per_image"].as_array().unwrap_or_else(|| panic!("no per_image: {t}"));
+    assert_eq!(per_image.len(), images.iter().map(|(_, f)| f.len()).sum::<usize>(), "{t}");
+    for (camera, files) in images {
+        let of: Vec<&serde_json::Value> =
+            per_image.iter().filter(|i| i["camera"] == *camera).collect();
+        let got: Vec<&str> = of.iter().map(|i| i["name"].as_str().unwrap()).collect();
+        assert_eq!(got, files.iter().map(String::as_str).collect::<Vec<_>>(), "{camera}");
+        let (read, detect) = (stage(&format!("read {camera}")), stage(&format!("detect {camera}")));
+        for i in of {
+            let (r, d) = (i["read_ms"].as_f64().unwrap(), i["detect_ms"].as_f64().unwrap());
+            assert!(r.is_finite() && r >= 0.0 && r <= read + TIMING_EPSILON_MS, "{i} {read}");
+            assert!(d.is_finite() && d >= 0.0 && d <= detect + TIMING_EPSILON_MS, "{i} {detect}");
+        }
+        assert!(text.contains(&format!("per {camera} image (own thread): read median")), "{text}");
+    }
+    assert!(text.lines().any(|l| l.starts_with("timings: ") && l.ends_with(" ms wall")), "{text}");
+    for name in stages.iter().chain(&["write report.json", "publish outputs", "(not in a stage)"]) {
+        assert!(
+            text.lines().any(|l| l.trim_start().starts_with(name) && l.contains(" ms ")),
+            "no --timings line for {name}: {text}"
+        );
+    }
+}
+
+/// The file names of a pattern's matches, sorted as `calibrate` sorts them (these sets are
+/// numbered with leading zeros, or as ir_1 … ir_12, which the natural sort orders).
+fn names_of(dir: &Path, prefix: &str, ext: &str) -> Vec<String> {
+    let mut v: Vec<(u32, String)> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter_map(|n| {
+            let num = n.strip_prefix(prefix)?.strip_suffix(ext)?.parse().ok()?;
+            Some((num, n))
+        })
+        .collect();
+    v.sort();
+    v.into_iter().map(|(_, n)| n).collect()
+}
+
+/// A stereo run with `--report --timings` (6 rendered pairs, enough for the held-out check)
+/// times every stage of the pipeline and every image of both cameras.
+#[test]
+fn the_stereo_report_times_every_stage_and_image() {
+    let Some(data) = shared("the_stereo_report_times_every_stage_and_image") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let syn = data.join("synthetic-calib");
+    let report = tmp.path().join("report");
+    let (ok, text) = kfuse(&[
+        "calibrate",
+        "--ir",
+        &format!("{}/ir/ir_0[1-6].png", syn.display()),
+        "--color",
+        &format!("{}/color/color_0[1-6].png", syn.display()),
+        "--out",
+        tmp.path().join("rig.json").to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+        "--timings",
+    ]);
+    assert!(ok, "{text}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
+            .unwrap();
+    let first6 = |mut v: Vec<String>| {
+        v.truncate(6);
+        v
+    };
+    let images = [
+        ("IR", first6(names_of(&syn.join("ir"), "ir_", ".png"))),
+        ("colour", first6(names_of(&syn.join("color"), "color_", ".png"))),
+    ];
+    let stages = [
+        "read IR",
+        "detect IR",
+        "read colour",
+        "detect colour",
+        "fit mono IR",
+        "fit mono colour",
+        "fit stereo",
+        "σ (uncertainty)",
+        "held-out check",
+        "worker threads",
+        "write rig files",
+        "write report figures",
+    ];
+    check_timings(&r, &stages, &images, &text);
+    // The rig file stays what it was: no timings in it (a rerun gives the same rig).
+    let rig = std::fs::read_to_string(tmp.path().join("rig.json")).unwrap();
+    assert!(!rig.contains("timings"), "timings leaked into the rig file");
+}
+
+/// `--timings` on the real IR session: with --report, report.json's split holds the
+/// constraint checks of --lab-settings and all 12 images; without --report the summary is
+/// printed all the same; without --timings it is not.
+#[test]
+fn timings_of_a_single_camera_run_are_in_the_report_and_on_stderr() {
+    let Some(data) = shared("timings_of_a_single_camera_run_are_in_the_report_and_on_stderr")
+    else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let lab = data.join("kinect-lab");
+    let pattern = format!("{}/ir_*.bmp", lab.display());
+    let out = tmp.path().join("ir.json");
+    let report = tmp.path().join("report");
+    let base = ["calibrate", "--ir", &pattern, "--lab-settings", "--out", out.to_str().unwrap()];
+    let (ok, text) =
+        kfuse(&[&base[..], &["--report", report.to_str().unwrap(), "--timings"]].concat());
+    assert!(ok, "{text}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
+            .unwrap();
+    let names = names_of(&lab, "ir_", ".bmp");
+    assert_eq!(names.len(), 12);
+    let stages = [
+        "read IR",
+        "detect IR",
+        "fit mono IR",
+        "σ (uncertainty)",
+        "constraint checks",
+        "held-out check",
+        "worker threads",
+        "write rig files",
+        "write report figures",
+    ];
+    check_timings(&r, &stages, &[("IR", names)], &text);
+
+    let (ok, text) = kfuse(&[&base[..], &["--timings"]].concat());
+    assert!(ok, "{text}");
+    for line in ["timings: ", "  read IR ", "  detect IR ", "  fit mono IR ", "  publish outputs "]
+    {
+        assert!(text.lines().any(|l| l.starts_with(line)), "{line}: {text}");
+    }
+    assert!(!text.contains("held-out check "), "no held-out check without --report: {text}");
+    let (ok, text) = kfuse(&base);
+    assert!(ok, "{text}");
+    assert!(!text.lines().any(|l| l.starts_with("timings: ")), "{text}");
+}

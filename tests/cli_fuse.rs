@@ -277,3 +277,58 @@ fn mat_without_the_needed_variables_fails_cleanly() {
     assert_clean_failure(&o, &out, "incomplete.mat", "no variable 'Image'");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `fuse --timings` on one frame prints summary.json's H1-H8 split on stderr (one line per
+/// stage, as `calibrate --timings` does), each stage there finite and ≥ 0 with its sum within
+/// the printed wall time; without the flag nothing of it.
+#[test]
+fn timings_print_the_stage_split_of_one_frame() {
+    let case = small_case("timings");
+    let out = case.dir.join("out-timings");
+    let args = |out: &Path, extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = ["fuse", "--no-figures", "--rig", case.rig.to_str().unwrap()]
+            .into_iter()
+            .chain(["--color", case.color.to_str().unwrap(), "--depth"])
+            .chain([case.depth.to_str().unwrap(), "--out", out.to_str().unwrap()])
+            .map(String::from)
+            .collect();
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let a = args(&out, &["--timings"]);
+    let o = kfuse(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    let wall: f64 = err
+        .lines()
+        .find_map(|l| l.strip_prefix("timings: ")?.strip_suffix(" ms wall")?.parse().ok())
+        .unwrap_or_else(|| panic!("no timings line: {err}"));
+    let t = &summary(&out)["summary"]["timings_ms"];
+    let mut sum = 0.0;
+    for (key, line) in [
+        ("h1_ms", "H1 back-projection"),
+        ("h2_ms", "H2 projection"),
+        ("h7_ms", "H7 z-buffer"),
+        ("h3_nearest_ms", "H3 nearest"),
+        ("h3_linear_ms", "H3 linear"),
+        ("h8_ms", "H8 holes"),
+        ("h6_ms", "H6 colour on depth"),
+        ("h4_ms", "H4 mesh"),
+        ("h5_ms", "H5 stretched faces"),
+    ] {
+        let ms = t[key].as_f64().unwrap_or_else(|| panic!("{key}: {t}"));
+        assert!(ms.is_finite() && ms >= 0.0, "{key} = {ms}");
+        sum += ms;
+        assert!(
+            err.lines().any(|l| l.trim_start().starts_with(line) && l.contains(" ms ")),
+            "no line for {line}: {err}"
+        );
+    }
+    // The printed wall time has one decimal.
+    assert!(sum <= wall + 0.05, "stages {sum} ms > wall {wall} ms");
+    let quiet = case.dir.join("out-quiet");
+    let a = args(&quiet, &[]);
+    let o = kfuse(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).lines().any(|l| l.starts_with("timings: ")), "{}", stderr(&o));
+}

@@ -522,3 +522,67 @@ fn a_folder_shot_without_colour_is_named_as_such() {
     assert!(err.contains("rig: fitted to the sensor's factory parameters"), "{err}");
     assert!(!err.contains("ms;"), "{err}");
 }
+
+/// Slack for comparing sums of stage times with the wall time they are part of, seconds: the
+/// values are sums of f64 seconds, exact to far below this.
+const TIMING_EPSILON_S: f64 = 1e-9;
+
+/// index.json splits a run's time into setup and the pipeline's stages (read, decode with its
+/// depth and colour parts, register, encode, write), each finite and ≥ 0, each thread's stages
+/// within the pipeline's wall time; `--timings` prints that split on stderr with one thread
+/// and with two, and nothing of it without the flag.
+#[test]
+fn index_json_and_timings_split_a_sequence_by_stage() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = record(dir.path(), 8, 0.0);
+    for threads in ["1", "2"] {
+        let out = dir.path().join(format!("seq-{threads}"));
+        let run = kfuse()
+            .args(["fuse", "--recording"])
+            .arg(&rec)
+            .args(["--write", "color-on-depth", "--threads", threads, "--timings", "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = ok(&run);
+        let ix = index(&out);
+        let s = &ix["stage_s"];
+        let get = |k: &str| -> f64 {
+            let v = s[k].as_f64().unwrap_or_else(|| panic!("no stage_s.{k}: {ix}"));
+            assert!(v.is_finite() && v >= 0.0, "{k} = {v}");
+            v
+        };
+        let wall = ix["wall_s"].as_f64().unwrap();
+        let setup = ix["setup_s"].as_f64().unwrap_or_else(|| panic!("no setup_s: {ix}"));
+        assert!(wall.is_finite() && wall > 0.0 && setup.is_finite() && setup >= 0.0, "{ix}");
+        let (read, decode, register) = (get("read"), get("decode"), get("register"));
+        let (depth, color) = (get("decode_depth"), get("decode_color"));
+        let (encode, write) = (get("encode"), get("write"));
+        assert!(depth + color <= decode + TIMING_EPSILON_S, "{s}");
+        assert!(depth > 0.0 && color > 0.0, "8 frames decoded, colour needed: {s}");
+        let (a, b) = (read + decode + register, encode + write);
+        if threads == "1" {
+            assert!(a + b <= wall + TIMING_EPSILON_S, "one thread: {s} over {wall} s");
+        } else {
+            assert!(a <= wall + TIMING_EPSILON_S && b <= wall + TIMING_EPSILON_S, "{s} {wall}");
+        }
+        assert!(
+            err.lines().any(|l| l.starts_with("timings: ") && l.ends_with(" ms wall")),
+            "{err}"
+        );
+        for stage in
+            ["setup", "read", "decode depth", "decode colour", "register", "encode", "write"]
+        {
+            assert!(
+                err.lines().any(|l| l.trim_start().starts_with(stage) && l.contains(" ms ")),
+                "no --timings line for {stage}: {err}"
+            );
+        }
+        assert!(err.contains(" ms/frame"), "{err}");
+    }
+    let out = dir.path().join("seq-quiet");
+    let run =
+        kfuse().args(["fuse", "--recording"]).arg(&rec).arg("--out").arg(&out).output().unwrap();
+    let err = ok(&run);
+    assert!(!err.lines().any(|l| l.starts_with("timings: ")), "{err}");
+}

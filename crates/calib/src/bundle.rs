@@ -105,9 +105,19 @@ pub(crate) struct Solution {
     pub n_active_obs: usize,
     pub n_params: usize,
     pub iterations: usize,
-    /// (JᵀJ)⁻¹ at the solution, `None` when singular.
-    pub covariance_unscaled: Option<DMatrix<f64>>,
+    /// JᵀJ at the solution.
+    jtj: DMatrix<f64>,
+    /// (JᵀJ)⁻¹, computed once on first use ([`Solution::covariance_unscaled`]): the outlier
+    /// and reweighting rounds solve several times and only the last solution's σ is reported.
+    covariance: std::cell::OnceCell<Option<DMatrix<f64>>>,
     pub layout: Layout,
+}
+
+impl Solution {
+    /// (JᵀJ)⁻¹ at the solution, `None` when singular (computed on the first call).
+    pub fn covariance_unscaled(&self) -> Option<&DMatrix<f64>> {
+        self.covariance.get_or_init(|| self.jtj.clone().cholesky().map(|c| c.inverse())).as_ref()
+    }
 }
 
 fn skew3(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -300,7 +310,8 @@ impl Problem {
         }
     }
 
-    /// Levenberg–Marquardt to convergence; returns statistics and the unscaled covariance.
+    /// Levenberg–Marquardt to convergence; returns statistics and JᵀJ for the unscaled
+    /// covariance.
     pub fn solve(&mut self) -> Solution {
         let lay = self.layout();
         let mut iterations = 0;
@@ -341,14 +352,14 @@ impl Problem {
                 break;
             }
         }
-        let covariance_unscaled = jtj.clone().cholesky().map(|c| c.inverse());
         let n_active_obs = self.obs.iter().filter(|o| o.active && self.view_active[o.view]).count();
         Solution {
             cost,
             n_active_obs,
             n_params: lay.n,
             iterations,
-            covariance_unscaled,
+            jtj,
+            covariance: std::cell::OnceCell::new(),
             layout: lay,
         }
     }

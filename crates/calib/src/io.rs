@@ -28,3 +28,37 @@ pub fn is_8bit(path: &Path) -> Result<bool, CalibError> {
             | image::ColorType::Rgba8
     ))
 }
+
+/// One image's share of a calibration run's time, for `report.json`'s `timings_ms`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ImageTiming {
+    /// The camera ("IR", "colour").
+    pub camera: String,
+    /// The image's file name.
+    pub name: String,
+    /// Reading and decoding the file to 8-bit grey ([`read_gray`]), ms.
+    pub read_ms: f64,
+    /// Detecting the board (`crate::detect::detect_views_timed`), ms; `None` for an image
+    /// that could not be read.
+    pub detect_ms: Option<f64>,
+}
+
+/// [`read_gray`] of every file on rayon's pool, calling `progress` after each, with each
+/// file's read-and-decode time in ms (its pool thread's wall time: the files are read in
+/// parallel, so the sum can exceed the call's wall time).
+pub fn read_gray_all(
+    files: &[std::path::PathBuf],
+    progress: &(dyn Fn() + Sync),
+) -> Vec<(Result<Image<u8>, CalibError>, f64)> {
+    use rayon::prelude::*;
+    files
+        .par_iter()
+        .map(|f| {
+            let t = std::time::Instant::now();
+            let r = read_gray(f);
+            let ms = geometry::timing::ms_since(t);
+            progress();
+            (r, ms)
+        })
+        .collect()
+}

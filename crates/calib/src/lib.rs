@@ -30,6 +30,7 @@ pub mod io;
 pub mod mono;
 pub mod rig_io;
 pub mod stereo;
+pub mod timing;
 pub mod undistort;
 pub mod zhang;
 

@@ -6,6 +6,9 @@
 //! on one `Problem`/`Solution` pair and run in that order, so they read top to bottom in one
 //! file.
 
+use std::time::Instant;
+
+use geometry::timing::{Timings, ms_since};
 use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
 use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
@@ -251,7 +254,18 @@ pub struct MonoCalibration {
     /// the other parameters against the free fit ([`FIX_SHIFT_SIGMAS`]); empty without such
     /// flags or with the intrinsics fixed.
     pub fix_checks: Vec<FixCheck>,
+    /// Where the fit's time went: [`STAGE_FIT`] (Zhang, LM, outlier rounds), [`STAGE_SIGMA`]
+    /// (the covariance of the final solution), [`STAGE_FIX_CHECKS`] (the free fits of the
+    /// constraint checks, when any).
+    pub timings: Timings,
 }
+
+/// [`MonoCalibration::timings`] stage: Zhang's initialisation, LM and the outlier rounds.
+pub const STAGE_FIT: &str = "fit";
+/// [`MonoCalibration::timings`] stage: σ of the parameters, (JᵀJ)⁻¹ of the final solution.
+pub const STAGE_SIGMA: &str = "σ";
+/// [`MonoCalibration::timings`] stage: the constraint checks' free fits.
+pub const STAGE_FIX_CHECKS: &str = "constraint checks";
 
 impl MonoCalibration {
     /// The intrinsics and distortion in solver order (`fx, fy, cx, cy, skew, k1, k2, p1, p2,
@@ -473,7 +487,7 @@ pub(crate) fn view_rms(p: &Problem, cam: usize) -> Vec<(f64, usize)> {
 /// σ of camera `c`'s intrinsics from a solution.
 pub(crate) fn intrinsics_std(sol: &Solution, c: usize, sigma2: f64) -> IntrinsicsStd {
     let mut out = [0.0; N_INTR];
-    if let Some(cov) = &sol.covariance_unscaled {
+    if let Some(cov) = sol.covariance_unscaled() {
         for (i, col) in sol.layout.intr_col[c].iter().enumerate() {
             if let Some(col) = col {
                 out[i] = (cov[(*col, *col)] * sigma2).max(0.0).sqrt();
@@ -513,6 +527,7 @@ pub fn calibrate_mono(
     if flags.fix_intrinsics {
         return Ok(m);
     }
+    let checks_started = Instant::now();
     type Unfix = fn(&mut CalibFlags);
     let constraints: [(&str, bool, Unfix, &[usize]); 4] = [
         (
@@ -564,6 +579,9 @@ pub fn calibrate_mono(
         }
         m.fix_checks.push(check);
     }
+    if !m.fix_checks.is_empty() {
+        m.timings.add(STAGE_FIX_CHECKS, ms_since(checks_started));
+    }
     Ok(m)
 }
 
@@ -575,6 +593,8 @@ pub(crate) fn calibrate_mono_unchecked(
     flags: &CalibFlags,
     guess: Option<&CameraModel>,
 ) -> Result<MonoCalibration, CalibError> {
+    let started = Instant::now();
+    let mut timings = Timings::new();
     let (width, height, usable, reasons) = usable_views(camera, board, views)?;
     let used: Vec<&ViewCorners> = usable.iter().map(|&i| &views[i]).collect();
     let (intr, dist, poses) = initial_camera(camera, board, &used, flags, guess, width, height)?;
@@ -609,7 +629,8 @@ pub(crate) fn calibrate_mono_unchecked(
     let (sol, rejected_corners, view_rejections) =
         solve_with_outliers(camera, &mut p, &|_, v| names[v].clone(), 1, flags.reject_outliers)?;
     let sigma2 = residual_variance(&sol);
-    let std = intrinsics_std(&sol, 0, sigma2);
+    timings.add(STAGE_FIT, ms_since(started));
+    let std = timings.time(STAGE_SIGMA, || intrinsics_std(&sol, 0, sigma2));
     let rms = view_rms(&p, 0);
     let mut views_out: Vec<ViewReport> = views
         .iter()
@@ -654,6 +675,7 @@ pub(crate) fn calibrate_mono_unchecked(
         iterations: sol.iterations,
         residuals,
         fix_checks: Vec::new(),
+        timings,
     })
 }
 

@@ -2,6 +2,9 @@
 //! Levenberg–Marquardt refinement of both cameras' intrinsics (optionally fixed),
 //! `color_from_depth` and the shared board poses.
 
+use std::time::Instant;
+
+use geometry::timing::{Timings, ms_since};
 use geometry::{CameraModel, RigidTransform};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -73,7 +76,19 @@ pub struct StereoCalibration {
     pub depth_mono: MonoCalibration,
     /// The single-camera calibrations the joint fit started from.
     pub color_mono: MonoCalibration,
+    /// Where the time went: [`STAGE_MONO_DEPTH`], [`STAGE_MONO_COLOR`] (each camera's own
+    /// calibration, its constraint checks included; their split is in
+    /// [`MonoCalibration::timings`]), [`STAGE_JOINT`] (the joint LM with its outlier and
+    /// reweighting rounds) and [`crate::mono::STAGE_SIGMA`] (σ of the joint solution).
+    pub timings: Timings,
 }
+
+/// [`StereoCalibration::timings`] stage: the depth/IR camera's single-camera calibration.
+pub const STAGE_MONO_DEPTH: &str = "mono IR";
+/// [`StereoCalibration::timings`] stage: the colour camera's single-camera calibration.
+pub const STAGE_MONO_COLOR: &str = "mono colour";
+/// [`StereoCalibration::timings`] stage: the joint fit.
+pub const STAGE_JOINT: &str = "joint fit";
 
 /// Weighted re-fits of the joint problem, each with weights from the previous fit's residuals.
 /// Two: on the rendered set a third round moves no parameter error by more than 0.0001 %.
@@ -175,10 +190,14 @@ pub fn calibrate_stereo(
             color_views.len()
         )));
     }
-    let depth_mono =
-        calibrate_mono("depth/IR camera", board, depth_views, &options.depth_flags, depth_guess)?;
-    let color_mono =
-        calibrate_mono("colour camera", board, color_views, &options.color_flags, color_guess)?;
+    let mut timings = Timings::new();
+    let depth_mono = timings.time(STAGE_MONO_DEPTH, || {
+        calibrate_mono("depth/IR camera", board, depth_views, &options.depth_flags, depth_guess)
+    })?;
+    let color_mono = timings.time(STAGE_MONO_COLOR, || {
+        calibrate_mono("colour camera", board, color_views, &options.color_flags, color_guess)
+    })?;
+    let joint_started = Instant::now();
     let pose = |m: &MonoCalibration, i: usize| {
         m.views[i].camera_from_board.filter(|_| m.views[i].rejected.is_none())
     };
@@ -292,14 +311,18 @@ pub fn calibrate_stereo(
         check_finite("stereo", &p)?;
     }
     let sigma2 = residual_variance(&sol);
+    timings.add(STAGE_JOINT, ms_since(joint_started));
+    let sigma_started = Instant::now();
     let mut rot_std = Vector3::zeros();
     let mut t_std = Vector3::zeros();
-    if let (Some(cov), Some(col)) = (&sol.covariance_unscaled, sol.layout.extr_col[1]) {
+    if let (Some(cov), Some(col)) = (sol.covariance_unscaled(), sol.layout.extr_col[1]) {
         for j in 0..3 {
             rot_std[j] = (cov[(col + j, col + j)] * sigma2).max(0.0).sqrt();
             t_std[j] = (cov[(col + 3 + j, col + 3 + j)] * sigma2).max(0.0).sqrt();
         }
     }
+    let (depth_std, color_std) = (intrinsics_std(&sol, 0, sigma2), intrinsics_std(&sol, 1, sigma2));
+    timings.add(crate::mono::STAGE_SIGMA, ms_since(sigma_started));
     // The solver perturbs on the left (R ← exp(δ)R); σ of the axis-angle components equals
     // σ of δ to first order for the small rotations of a Kinect rig.
     let rms_d = view_rms(&p, 0);
@@ -334,8 +357,8 @@ pub fn calibrate_stereo(
         depth: CameraModel::new(depth_mono.camera.width, depth_mono.camera.height, d.intr, d.dist),
         color: CameraModel::new(color_mono.camera.width, color_mono.camera.height, c.intr, c.dist),
         color_from_depth: p.cam_from_ref[1],
-        depth_std: intrinsics_std(&sol, 0, sigma2),
-        color_std: intrinsics_std(&sol, 1, sigma2),
+        depth_std,
+        color_std,
         rotation_std_rad: rot_std,
         translation_std_m: t_std,
         rms_px: {
@@ -368,5 +391,6 @@ pub fn calibrate_stereo(
             .collect(),
         depth_mono,
         color_mono,
+        timings,
     })
 }

@@ -452,3 +452,32 @@ fn coarse_first_search_gives_the_full_resolution_corners() {
     }
     assert!(fallbacks >= 1, "no view needed the full-resolution fallback");
 }
+
+/// With the colouring unknown, detection takes it from the complete boards and detects again
+/// only the images it can change (partial boards, none found, the other colouring): the views
+/// equal those of a detection told the colouring from the start, image by image, on the lab's
+/// IR images (two partial boards among ir_1..ir_11, none on ir_23); one time per image.
+#[test]
+fn detecting_again_only_the_uncertain_images_changes_no_view() {
+    let Some(data) = shared_data("detecting_again_only_the_uncertain_images_changes_no_view")
+    else {
+        return;
+    };
+    let names: Vec<String> = (1..=11).chain([23]).map(|i| format!("ir_{i}.bmp")).collect();
+    let imgs: Vec<(String, Image<u8>)> =
+        names.iter().map(|n| (n.clone(), load_gray(&data.join("kinect-lab").join(n)))).collect();
+    let refs: Vec<(String, &Image<u8>)> = imgs.iter().map(|(n, i)| (n.clone(), i)).collect();
+    let unknown = board();
+    assert_eq!(unknown.top_left_black, None);
+    let (views, found, ms) =
+        calib::detect::detect_views_timed(&refs, &unknown, Refinement::JunctionFit, &|| {});
+    assert!(found.top_left_black.is_some(), "the colouring is found from the complete boards");
+    let partial = views.iter().filter(|v| v.corners.len() < unknown.len()).count();
+    assert!(partial >= 2, "the set must hold boards the second pass is for: {partial}");
+    let (known, _) = detect_views_with(&refs, &found, Refinement::JunctionFit, &|| {});
+    for (a, b) in views.iter().zip(&known) {
+        assert_eq!(a, b, "{}", a.name);
+    }
+    assert_eq!(ms.len(), refs.len());
+    assert!(ms.iter().all(|t| t.is_finite() && *t >= 0.0), "{ms:?}");
+}

@@ -34,6 +34,7 @@ pub mod pose;
 pub mod rig;
 pub mod synth;
 pub mod testdata;
+pub mod timing;
 
 pub use camera::{CameraModel, DepthKind, Distortion, Intrinsics};
 pub use cloud::{Mesh, PointCloud};

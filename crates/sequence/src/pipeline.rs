@@ -254,6 +254,8 @@ fn produce(
                             return Err(SequenceError::Pipeline("a frame without depth".into()));
                         }
                     };
+                    times.decode_depth += secs(t);
+                    let t_color = Instant::now();
                     let name = job.color_file.clone().unwrap_or_else(|| {
                         std::path::PathBuf::from(format!("frame {}", job.meta.number))
                     });
@@ -261,6 +263,7 @@ fn produce(
                         Some(j) => processor.decode_color(j, &name)?,
                         None => None,
                     };
+                    times.decode_color += secs(t_color);
                     times.decode += secs(t);
                     batch.push((job, Decoded { depth, raw: raw_for_gpu, color }));
                 }

@@ -367,19 +367,48 @@ pub struct SkippedShot {
     pub reason: String,
 }
 
-/// Time spent per stage, summed over frames (seconds of the threads that ran them).
+/// Time spent per stage, summed over frames (seconds of the threads that ran them). Read,
+/// decode and register run one after another on one worker thread, encode and write on the
+/// other (or on the same one with one thread): each thread's stages sum to at most the run's
+/// wall time.
 #[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
 pub struct StageSeconds {
     /// Reading the recording (records, CRCs, frame assembly, matching) or the folder's files.
     pub read: f64,
-    /// Depth decoding (or reading depth PNGs) and colour JPEG decoding when needed.
+    /// Depth decoding (or reading depth PNGs) and colour JPEG decoding when needed: the sum
+    /// of [`StageSeconds::decode_depth`] and [`StageSeconds::decode_color`].
     pub decode: f64,
+    /// The depth part of `decode`: the raw frame decoded (or handed to the GPU), or the depth
+    /// PNG read.
+    pub decode_depth: f64,
+    /// The colour part of `decode`: the JPEG decoded (when the outputs need its pixels).
+    pub decode_color: f64,
     /// Registration and the extras (hole mask, colour on depth, cloud).
     pub register: f64,
     /// PNG encoding.
     pub encode: f64,
     /// Writing the files.
     pub write: f64,
+}
+
+impl StageSeconds {
+    /// The stages as a [`geometry::timing::Timings`] in milliseconds (for the `--timings`
+    /// summary), in pipeline order; `setup_s` first.
+    pub fn to_timings(&self, setup_s: f64) -> geometry::timing::Timings {
+        let mut t = geometry::timing::Timings::new();
+        for (stage, s) in [
+            ("setup", setup_s),
+            ("read", self.read),
+            ("decode depth", self.decode_depth),
+            ("decode colour", self.decode_color),
+            ("register", self.register),
+            ("encode", self.encode),
+            ("write", self.write),
+        ] {
+            t.add(stage, s * 1e3);
+        }
+        t
+    }
 }
 
 /// `index.json`: every frame written, every frame missing, and how the run went.
@@ -419,6 +448,10 @@ pub struct Index {
     pub threads: usize,
     /// Registration engine (`cpu` or the GPU adapter).
     pub engine: String,
+    /// Seconds before the pipeline started: opening the input, the rig, setting up the
+    /// decoder and registration (the GPU's adapter and pipelines on `--engine gpu`), the
+    /// output folders.
+    pub setup_s: f64,
     /// Wall-clock seconds of the run (reading to last write).
     pub wall_s: f64,
     /// Seconds per stage, summed over frames.

@@ -84,8 +84,8 @@ pub use candidates::{candidates, chess_response};
 pub use junction::{fit_junction, fit_junction_with_std};
 pub use subpix::refine_corner;
 pub use views::{
-    align_pair, common_grid_size, detect_views, detect_views_with, detect_views_with_progress,
-    rotate_180,
+    align_pair, common_grid_size, detect_views, detect_views_timed, detect_views_with,
+    detect_views_with_progress, rotate_180,
 };
 
 use crate::{Board, Corner};

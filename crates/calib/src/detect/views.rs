@@ -2,6 +2,7 @@
 //! a stereo pair made to agree.
 
 use geometry::Image;
+use geometry::timing::ms_since;
 use nalgebra::{Vector2, Vector3};
 
 use super::label::{rotate, rotations};
@@ -33,25 +34,44 @@ pub fn detect_views_with(
     refinement: Refinement,
     progress: &(dyn Fn() + Sync),
 ) -> (Vec<ViewCorners>, Board) {
+    let (views, board, _) = detect_views_timed(images, board, refinement, progress);
+    (views, board)
+}
+
+/// [`detect_views_with`] with each image's detection time, ms (its pool thread's wall time,
+/// both passes when the colouring made a second one necessary; images run in parallel, so the
+/// sum can exceed the call's wall time).
+pub fn detect_views_timed(
+    images: &[(String, &Image<u8>)],
+    board: &Board,
+    refinement: Refinement,
+    progress: &(dyn Fn() + Sync),
+) -> (Vec<ViewCorners>, Board, Vec<f64>) {
     let params = |img: &Image<u8>| DetectorParams {
         refinement,
         ..DetectorParams::for_image(img.width(), img.height())
     };
     use rayon::prelude::*;
-    let first = |board: &Board| -> Vec<Option<Detection>> {
+    let timed = |img: &Image<u8>, board: &Board| {
+        let t = std::time::Instant::now();
+        let d = detect(&to_f32(img), board, &params(img));
+        (d, ms_since(t))
+    };
+    let first = |board: &Board| -> Vec<(Option<Detection>, f64)> {
         images
             .par_iter()
             .map(|(_, img)| {
-                let d = detect(&to_f32(img), board, &params(img));
+                let d = timed(img, board);
                 progress();
                 d
             })
             .collect()
     };
-    let run = |board: &Board| -> Vec<Option<Detection>> {
-        images.par_iter().map(|(_, img)| detect(&to_f32(img), board, &params(img))).collect()
+    // The second pass: only the images whose detection the colouring can change.
+    let run = |board: &Board, again: &[usize]| -> Vec<(Option<Detection>, f64)> {
+        again.par_iter().map(|&i| timed(images[i].1, board)).collect()
     };
-    let mut dets = first(board);
+    let (mut dets, mut ms): (Vec<Option<Detection>>, Vec<f64>) = first(board).into_iter().unzip();
     let mut board = *board;
     if board.top_left_black.is_none() {
         let complete: Vec<bool> =
@@ -59,8 +79,20 @@ pub fn detect_views_with(
         if !complete.is_empty() {
             let black = 2 * complete.iter().filter(|&&b| b).count() >= complete.len();
             board.top_left_black = Some(black);
-            if dets.iter().flatten().any(|d| d.top_left_black != black || !d.complete) {
-                dets = run(&board);
+            // A complete detection of this colouring is labelled alike with the colouring
+            // known (the labelling only drops the other colouring's placements, and its
+            // choice was among the rest), so only the others are detected again: on the
+            // lab's 12 IR images (4 partial or without a board) that was all 12 before.
+            let again: Vec<usize> = (0..dets.len())
+                .filter(|&i| {
+                    !dets[i].as_ref().is_some_and(|d| d.complete && d.top_left_black == black)
+                })
+                .collect();
+            if !again.is_empty() {
+                for (&i, (d, t)) in again.iter().zip(run(&board, &again)) {
+                    dets[i] = d;
+                    ms[i] += t;
+                }
             }
         }
     }
@@ -75,7 +107,7 @@ pub fn detect_views_with(
             unusable: None,
         })
         .collect();
-    (views, board)
+    (views, board, ms)
 }
 
 /// The inner-corner counts `(larger, smaller)` of the complete board that most images show

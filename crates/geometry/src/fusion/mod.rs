@@ -228,6 +228,28 @@ pub struct StageTimings {
     pub h5_ms: f64,
 }
 
+impl StageTimings {
+    /// The stages as a [`crate::timing::Timings`] (for the `--timings` summary), in pipeline
+    /// order.
+    pub fn to_timings(&self) -> crate::timing::Timings {
+        let mut t = crate::timing::Timings::new();
+        for (stage, ms) in [
+            ("H1 back-projection", self.h1_ms),
+            ("H2 projection", self.h2_ms),
+            ("H7 z-buffer", self.h7_ms),
+            ("H3 nearest", self.h3_nearest_ms),
+            ("H3 linear", self.h3_linear_ms),
+            ("H8 holes", self.h8_ms),
+            ("H6 colour on depth", self.h6_ms),
+            ("H4 mesh", self.h4_ms),
+            ("H5 stretched faces", self.h5_ms),
+        ] {
+            t.add(stage, ms);
+        }
+        t
+    }
+}
+
 /// Counts of every stage of one [`run`] (serialisable as the CLI's JSON report).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FusionSummary {
