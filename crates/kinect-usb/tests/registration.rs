@@ -12,11 +12,8 @@ fn read_u32(p: &std::path::Path) -> Vec<u32> {
         .collect()
 }
 
-/// Exact equality with the four registration oracle files (protocol §11.3: an independent
-/// implementation matched them exactly; everything is f32 in a fixed order).
-#[test]
-fn registration_matches_vectors_exactly() {
-    let Some(dir) = vectors_or_skip("registration_matches_vectors_exactly") else { return };
+/// The vectors' depth and colour camera parameters (the device's responses).
+fn factory_params(dir: &std::path::Path) -> (DepthParams, ColorParams) {
     let d = DepthParams::from_response(
         &read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap(),
     )
@@ -25,6 +22,15 @@ fn registration_matches_vectors_exactly() {
         &read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap(),
     )
     .unwrap();
+    (d, c)
+}
+
+/// Exact equality with the four registration oracle files (protocol §11.3: an independent
+/// implementation matched them exactly; everything is f32 in a fixed order).
+#[test]
+fn registration_matches_vectors_exactly() {
+    let Some(dir) = vectors_or_skip("registration_matches_vectors_exactly") else { return };
+    let (d, c) = factory_params(&dir);
     let reg = Registration::new(&d, &c);
     let depth = read_f32(&dir.join("oracle/scene_filt_depth.f32")).unwrap();
     // Synthetic coordinate-encoding colour image of the manifest.
@@ -59,14 +65,7 @@ fn registration_matches_vectors_exactly() {
 #[test]
 fn single_point_mappings_match_manifest() {
     let Some(dir) = vectors_or_skip("single_point_mappings_match_manifest") else { return };
-    let d = DepthParams::from_response(
-        &read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap(),
-    )
-    .unwrap();
-    let c = ColorParams::from_response(
-        &read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap(),
-    )
-    .unwrap();
+    let (d, c) = factory_params(&dir);
     let reg = Registration::new(&d, &c);
     let m: serde_json::Value =
         serde_json::from_slice(&read_bytes(&dir.join("manifest.json")).unwrap()).unwrap();
@@ -125,14 +124,7 @@ fn mirrored_factory_parameters_map_mirrored_pixels() {
     let Some(dir) = vectors_or_skip("mirrored_factory_parameters_map_mirrored_pixels") else {
         return;
     };
-    let d = DepthParams::from_response(
-        &read_bytes(&dir.join("inputs/depth_camera_params_response.bin")).unwrap(),
-    )
-    .unwrap();
-    let c = ColorParams::from_response(
-        &read_bytes(&dir.join("inputs/rgb_camera_params_response.bin")).unwrap(),
-    )
-    .unwrap();
+    let (d, c) = factory_params(&dir);
     assert_eq!(d.mirrored().mirrored(), d);
     assert_eq!(c.mirrored().mirrored(), c);
     let reg = Registration::new(&d, &c);
