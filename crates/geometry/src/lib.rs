@@ -2,9 +2,10 @@
 //!
 //! * [`fusion`]: the eight depth → colour stages H1–H8 and their one-call entry point
 //!   [`fusion::run`].
-//! * [`synth`]: analytic synthetic scenes rendered through a rig, with the ground truths the
-//!   fusion tests are checked against.
-//! * [`testdata`]: where every crate's tests find `../shared/data` (and when they skip).
+//! * `synth` (feature `synth`): analytic synthetic scenes rendered through a rig, with the
+//!   ground truths the fusion tests are checked against.
+//! * `testdata` (feature `testdata`): where every crate's tests find `../shared/data` (and when
+//!   they skip).
 //!
 //! # Conventions (the same as `DESIGN.md`; every module of this crate follows them)
 //!
@@ -32,7 +33,9 @@ pub mod image;
 pub mod num_fmt;
 pub mod pose;
 pub mod rig;
+#[cfg(any(test, feature = "synth"))]
 pub mod synth;
+#[cfg(any(test, feature = "testdata"))]
 pub mod testdata;
 pub mod timing;
 
