@@ -1,4 +1,15 @@
-//! Image reading for the calibration tools (the only module of this crate that opens files).
+//! Image reading for the calibration tools.
+//!
+//! The modules of this crate that open files (everything else takes values in memory):
+//!
+//! * `io` (this module): the images to detect in (`kfuse_io::images::read_gray`,
+//!   `image::open` for the bit depth).
+//! * `bouguet`: Bouguet's `Calib_Results*.mat` (`kfuse_io::mat::MatFile::read`).
+//! * `rig_io` (`mod.rs`): a rig source's first 128 bytes (to tell `.mat` from text) and the
+//!   `.mat` sources (`MatFile::read`, `kfuse_io::course`); `rig_io/yaml.rs`: every text source
+//!   (`read_text`: OpenCV/ROS YAML, Bouguet's `.m`, JSON); `rig_io/iai.rs` only tests which of
+//!   its folder's files exist and reads them through `yaml.rs`.
+//! * `files`: writes calibration files (`write_text`, atomically through `kfuse_io::atomic`).
 
 use std::path::Path;
 
