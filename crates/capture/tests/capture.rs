@@ -95,14 +95,29 @@ fn shots_are_staged_and_appear_together() {
     assert_eq!(names(&out), shot_names.into());
 }
 
+/// Largest |decoded − scene| depth, mm, of the simulator's forward model (scene → phases →
+/// raw frame) decoded with the filters off: the bound `kinect-usb/tests/sim.rs` asserts for
+/// the same round trip (protocol §14.3; the vectors' manifest `forward_model_round_trip`
+/// measured 6.0 mm max on its scene). Quantisation of the phases, not noise: the sim adds none.
+const FORWARD_MODEL_MAX_MM: f32 = 8.0;
+
 /// The session on the simulated sensor: a fresh pair's depth equals the scene within the
-/// decoder's forward-model bound (8 mm, protocol §14.3) plus 0.5 mm; a recording of it
+/// decoder's forward-model bound ([`FORWARD_MODEL_MAX_MM`]); a recording of it
 /// replays through the same session type with as many depth frames, then ends.
 #[test]
 fn sim_session_pumps_the_scene_and_a_recording_replays() {
     let source = SensorSource::Sim(SimOptions::default());
     let mut s = Session::open(&source).unwrap();
-    assert!((f64::from(s.info().depth_params.fx) - 368.096588).abs() < 1e-3);
+    // The factory parameters the session reads back over the simulated USB protocol are the
+    // ones the simulator was built from: `geometry::synth`'s Kinect preset depth camera, of
+    // the sensor's mirrored images, stored as f32 on the device (so equal exactly).
+    let depth_cam = geometry::synth::kinect_preset(false).rig.depth.mirrored();
+    let p = s.info().depth_params;
+    let got = [p.fx, p.fy, p.cx, p.cy, p.k1, p.k2, p.k3];
+    let i = &depth_cam.intrinsics;
+    let k = &depth_cam.distortion;
+    let want = [i.fx, i.fy, i.cx, i.cy, k.k1, k.k2, k.k3].map(|v| v as f32);
+    assert_eq!(got, want, "depth factory parameters (fx fy cx cy k1 k2 k3)");
     let opts = DecoderOptions { no_filters: true, ..DecoderOptions::default() };
     let mut pump = FramePump::new(s.decoder(&opts).unwrap());
     pump.fresh_pair(&mut s, Instant::now()).unwrap();
@@ -120,7 +135,8 @@ fn sim_session_pumps_the_scene_and_a_recording_replays() {
             max = max.max((t - d).abs());
         }
     }
-    assert!(n > 150_000 && max <= 8.5, "{n} pixels, max |err| {max} mm");
+    // Measured 7.56 mm max on this scene, 210 964 pixels compared.
+    assert!(n > 150_000 && max <= FORWARD_MODEL_MAX_MM, "{n} pixels, max |err| {max} mm");
 
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("s.kfrec");
