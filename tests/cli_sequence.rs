@@ -182,7 +182,52 @@ fn recording_writes_every_complete_frame_and_lists_exactly_the_lost_ones() {
         let png = out.join(format!("depth/{number:06}.png"));
         let want = registered_units(&mut dec, &mut reg, &f.raw, 1000.0);
         assert_eq!(read_png16(&png), want, "{}", png.display());
-        assert!(out.join(format!("holes/{number:06}.png")).exists());
+    }
+    // The H8 hole masks equal the single-frame path's: `kfuse fuse` on the same frame (its
+    // decoded depth in metres as a float TIFF, the sensor's JPEG of its period, the rig
+    // `kfuse rig import` fits to kinect_params.json), pixel for pixel. The mask depends on the
+    // depth only; two frames (first and last) keep the test short.
+    let rig_file = dir.path().join("rig.json");
+    ok(&kfuse()
+        .args(["rig", "import"])
+        .arg(out.join("kinect_params.json"))
+        .arg("--out")
+        .arg(&rig_file)
+        .output()
+        .unwrap());
+    for f in [&frames[0], &frames[frames.len() - 1]] {
+        let number = u64::from(f.sequence - first);
+        let (mut mm, mut ir) = (vec![0f32; 512 * 424], vec![0f32; 512 * 424]);
+        dec.decode(&f.raw, &mut mm, &mut ir).unwrap();
+        let m: Vec<f32> = mm.iter().map(|&v| if v > 0.0 { v * 1e-3 } else { f32::NAN }).collect();
+        let depth = dir.path().join(format!("depth-{number}.tif"));
+        kfuse_io::images::write_depth_tiff(
+            &depth,
+            &geometry::Image::from_vec(512, 424, m).unwrap(),
+        )
+        .unwrap();
+        let jpeg = &colors.iter().find(|(t, _)| *t == f.timestamp).expect("colour of the period").1;
+        let color = dir.path().join(format!("color-{number}.jpg"));
+        std::fs::write(&color, jpeg).unwrap();
+        let single = dir.path().join(format!("single-{number}"));
+        ok(&kfuse()
+            .args(["fuse", "--rig"])
+            .arg(&rig_file)
+            .arg("--color")
+            .arg(&color)
+            .arg("--depth")
+            .arg(&depth)
+            .args(["--resample", "nearest", "--no-figures", "--out"])
+            .arg(&single)
+            .output()
+            .unwrap());
+        let gray = |p: PathBuf| image::open(&p).unwrap().into_luma8().into_raw();
+        let (seq, one) =
+            (gray(out.join(format!("holes/{number:06}.png"))), gray(single.join("hole_mask.png")));
+        assert!(seq.iter().any(|&v| v > 0), "frame {number}: the sequence's mask has no hole");
+        assert_eq!(seq.len(), one.len(), "frame {number}: mask sizes");
+        let differ = seq.iter().zip(&one).filter(|(a, b)| a != b).count();
+        assert_eq!(differ, 0, "frame {number}: holes/ differs from `kfuse fuse`'s hole_mask.png");
     }
     assert_eq!(ix["interrupted"], false);
 }
