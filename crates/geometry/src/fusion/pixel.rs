@@ -141,8 +141,8 @@ pub fn project_color_point(p: &ColorProjection, xc: [f32; 3]) -> Option<[f32; 3]
 
 /// The colour pixel `[u, v]` of a colour-frame point, without the `z > 0` test (a point
 /// behind the camera gives a meaningless pixel; callers mask it). The one copy of H2's
-/// arithmetic: the scalar path, the vectorised loops of [`super::stream`] and
-/// [`super::register`], and the WGSL shader all evaluate exactly this.
+/// arithmetic: the scalar path, the vectorised loops of `fusion::stream` and
+/// `fusion::register`, and the WGSL shader all evaluate exactly this.
 #[inline(always)]
 pub fn distort_to_pixel(p: &ColorProjection, xc: [f32; 3]) -> [f32; 2] {
     let xn = xc[0] / xc[2];
