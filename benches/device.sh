@@ -25,6 +25,8 @@ GPU_BENCHES="fusion-gpu/decode kfuse/fusion_gpu"
 VECTOR_FILES="inputs/p0_tables_response.bin tables/xtable.f32 tables/ztable.f32 frames/scene.raw"
 # What the device tool carries with a working tree (its README).
 BUNDLE_LIMIT_MIB=64
+# run_all.sh's IDLE_LOAD: below it at most half a core was busy over the last minute.
+IDLE_LOAD=0.5
 
 usage() { awk 'NR == 1 { next } /^#/ { sub(/^# ?/, ""); print; next } { exit }' "$0"; }
 die() { echo "device.sh: $*" >&2; exit 1; }
@@ -36,9 +38,11 @@ prepare() {
   local data=${KFUSE_SHARED_DATA:-$root/../shared/data}/kinect-v2-vectors
   [ -d "$data" ] || die "no decoder test vectors at $data: set KFUSE_SHARED_DATA to the shared data folder"
   local -A exes=()
+  local built=0
   local spec
   for spec in "$@"; do exes[${spec%%=*}]=${spec#*=}; done
   if [ -z "$kfuse" ]; then
+    built=1
     local target=${CARGO_TARGET_DIR:-$root/target}
     (cd "$root" && cargo build --profile bench --bin kfuse) || die "the build of kfuse failed"
     kfuse=$target/release/kfuse
@@ -78,6 +82,11 @@ for line in sys.stdin:
     cp "$data/$f" "$out/data/kinect-v2-vectors/$f"
   done
   cp "$HERE/device.sh" "$HERE/sequence_e2e.sh" "$HERE/render_tables.py" "$out/"
+  if [ "$built" = 1 ]; then
+    echo "bench profile ([profile.bench] of Cargo.toml), stripped of debug info" >"$out/profile"
+  else
+    echo "executables given to --prepare (not the bench build), stripped of debug info" >"$out/profile"
+  fi
   git -C "$root" rev-parse HEAD >"$out/commit" 2>/dev/null || echo unknown >"$out/commit"
   local mib; mib=$(du -sm "$out" | cut -f1)
   echo "bundle: $out, $mib MiB (limit $BUNDLE_LIMIT_MIB MiB)"
@@ -111,6 +120,10 @@ run() {
   m memory_gib "$(awk '/^MemTotal:/ { printf "%.1f", $2 / 1048576 }' /proc/meminfo)"
   m os "$(. /etc/os-release 2>/dev/null && echo "${PRETTY_NAME:-unknown}") / Linux $(uname -r)"
   m commit "$(cat "$HERE/commit")"
+  # No wait for an idle machine (the device's time is short): the header says whether it was.
+  m idle_threshold "$IDLE_LOAD"
+  m waited_s 0
+  m idle_reached "$(awk -v l="$(cut -d' ' -f1 /proc/loadavg)" -v t="$IDLE_LOAD" 'BEGIN { print (l < t) ? "yes" : "no" }')"
   m load_start "$(cut -d' ' -f1-3 /proc/loadavg)"
   m start "$(date -u '+%Y-%m-%d %H:%M')"
   local exe target
