@@ -44,26 +44,29 @@ prepare() {
   if [ -z "$kfuse" ]; then
     built=1
     local target=${CARGO_TARGET_DIR:-$root/target}
-    (cd "$root" && cargo build --profile bench --bin kfuse) || die "the build of kfuse failed"
+    mkdir -p "$(dirname "$out")"
+    (cd "$root" && cargo build --workspace --profile bench --bin kfuse) || die "the build of kfuse failed"
     kfuse=$target/release/kfuse
     [ -x "$kfuse" ] || kfuse=$target/bench/kfuse
-    local json; json=$(cd "$root" && cargo bench --workspace --benches --no-run --message-format=json 2>/dev/null) \
-      || die "the bench build failed (run: cargo bench --workspace --no-run)"
+    # Only the two GPU benches' targets (`--bench decode` also builds kinect-usb's CPU decode).
+    (cd "$root" && cargo bench --workspace --bench decode --bench fusion_gpu --no-run --message-format=json-render-diagnostics) \
+      >"$out.build.json" || die "the bench build failed (run: cargo bench --workspace --bench decode --bench fusion_gpu --no-run)"
+    (cd "$root" && cargo metadata --no-deps --format-version 1) >"$out.metadata.json"
     local b
     for b in $GPU_BENCHES; do
-      exes[$b]=$(python3 -c '
+      exes[$b]=$(python3 - "$b" "$out.build.json" "$out.metadata.json" <<'PY'
 import json, sys
-pkg, name = sys.argv[1].split("/")
-for line in sys.stdin:
+names = {p["manifest_path"]: p["name"] for p in json.load(open(sys.argv[3]))["packages"]}
+for line in open(sys.argv[2]):
     m = json.loads(line)
-    if m.get("reason") == "compiler-artifact" and m["target"]["kind"] == ["bench"] and m["target"]["name"] == name \
-            and m["package_id"].split("#")[-1].split("@")[0].split("/")[-1] in (pkg, pkg.replace("-", "_")) or \
-            m.get("reason") == "compiler-artifact" and m["target"]["kind"] == ["bench"] and m["target"]["name"] == name \
-            and ("/" + pkg + "#") in m["package_id"]:
-        if m.get("executable"):
-            print(m["executable"])' "$b" <<<"$json" | tail -n1)
+    if m.get("reason") == "compiler-artifact" and m["target"]["kind"] == ["bench"] and m.get("executable") \
+            and f'{names.get(m["manifest_path"])}/{m["target"]["name"]}' == sys.argv[1]:
+        print(m["executable"])
+PY
+)
       [ -n "${exes[$b]}" ] || die "cargo built no executable for the bench $b"
     done
+    rm -f "$out.build.json" "$out.metadata.json"
   fi
   [ -x "$kfuse" ] || die "the kfuse binary $kfuse is not an executable"
   rm -rf "$out"
