@@ -77,8 +77,9 @@ PY
     mkdir -p "$out/bin/benches/${b%%/*}"
     cp "${exes[$b]}" "$out/bin/benches/$b"
   done
-  # Debug info (line tables) is most of a binary's size; the device only runs them.
-  find "$out/bin" -type f -exec strip --strip-debug {} +
+  # Debug info and symbols are most of a binary's size; the device only runs them (the bundle
+  # must fit the device tool's 64 MiB).
+  find "$out/bin" -type f -exec strip --strip-all {} +
   local f
   for f in $VECTOR_FILES; do
     mkdir -p "$out/data/kinect-v2-vectors/$(dirname "$f")"
