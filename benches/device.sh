@@ -87,9 +87,9 @@ PY
   done
   cp "$HERE/device.sh" "$HERE/sequence_e2e.sh" "$HERE/render_tables.py" "$out/"
   if [ "$built" = 1 ]; then
-    echo "bench profile ([profile.bench] of Cargo.toml), stripped of debug info" >"$out/profile"
+    echo "bench profile ([profile.bench] of Cargo.toml), stripped (no debug info, no symbols)" >"$out/profile"
   else
-    echo "executables given to --prepare (not the bench build), stripped of debug info" >"$out/profile"
+    echo "executables given to --prepare (not the bench build), stripped (no debug info, no symbols)" >"$out/profile"
   fi
   git -C "$root" rev-parse HEAD >"$out/commit" 2>/dev/null || echo unknown >"$out/commit"
   local mib; mib=$(du -sm "$out" | cut -f1)
@@ -167,7 +167,8 @@ r["gpu_adapter"] = sys.argv[2]
 json.dump(r, open(sys.argv[1], "w"), indent=1, sort_keys=True)
 for t, b in sorted(r["benches"].items()):
     for name, x in sorted(b["results"].items()):
-        print(f"{t} {name}: median {x.get('median_ms', x)} ms")
+        print(f"{t} {name}: median {x['median_ns'] / 1e6:.2f} ms "
+              f"({x['low_ns'] / 1e6:.2f}-{x['high_ns'] / 1e6:.2f} ms, 95 %)")
 PY
   echo "== done: $results"
 }
