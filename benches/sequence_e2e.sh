@@ -8,6 +8,8 @@
 #
 #   benches/sequence_e2e.sh [KFUSE_BINARY] [FRAMES]
 #
+# KFUSE_SEQ_ENGINE (default cpu) is passed as `--engine`, KFUSE_SEQ_LAYOUTS (default "kfuse tum")
+# and KFUSE_SEQ_THREADS (default "1 2") choose the runs (benches/device.sh: gpu, kfuse, 2).
 # Default binary: $CARGO_TARGET_DIR/release/kfuse (build it with `cargo build --release -p kfuse`).
 # The recording (~3.2 MB a frame) and the outputs go to a temporary folder under
 # $KFUSE_SEQ_WORK (default $TMPDIR or /tmp), deleted on exit. benches/run_all.sh runs this with
@@ -19,12 +21,12 @@ work=$(mktemp -d -p "${KFUSE_SEQ_WORK:-${TMPDIR:-/tmp}}")
 trap 'rm -rf "$work"' EXIT
 "$bin" capture record --backend sim --frames "$frames" --out "$work/s.kfrec" 2>/dev/null
 echo "recording: $frames frames, $(du -m "$work/s.kfrec" | cut -f1) MB"
-for layout in kfuse tum; do
-  for threads in 1 2; do
+for layout in ${KFUSE_SEQ_LAYOUTS:-kfuse tum}; do
+  for threads in ${KFUSE_SEQ_THREADS:-1 2}; do
     out="$work/out-$layout-$threads"
     load=$(cut -d' ' -f1-3 /proc/loadavg)
     t0=$(date +%s.%N)
-    "$bin" fuse --recording "$work/s.kfrec" --layout "$layout" --threads "$threads" --out "$out" >/dev/null 2>"$work/err"
+    "$bin" fuse --recording "$work/s.kfrec" --layout "$layout" --threads "$threads" --engine "${KFUSE_SEQ_ENGINE:-cpu}" --out "$out" >/dev/null 2>"$work/err"
     t1=$(date +%s.%N)
     python3 - "$out/index.json" "$layout" "$threads" "$t0" "$t1" "$load" <<'PY'
 import json, sys
