@@ -56,3 +56,19 @@ class Registration:
 
 def read_depth(path: _Path) -> npt.NDArray[np.float32]:
     """A depth file read as `kfuse fuse --depth` reads it: float32 metres, NaN = no sample."""
+
+class Decoder:
+    """Kinect v2 depth decoder on the CPU: raw 2 984 960-byte frames -> (depth mm, IR)."""
+
+    def __init__(
+        self,
+        p0_tables: bytes,
+        x_table: npt.NDArray[np.float32],
+        z_table: npt.NDArray[np.float32],
+        bilateral: bool = True,
+        edge_aware: bool = True,
+        orientation: str = "scene",
+        precision: str = "fast",
+    ) -> None: ...
+    def decode(self, raw: bytes) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """(depth mm, IR), float32 (424, 512) each; depth 0 = no measurement."""

@@ -11,6 +11,10 @@ use calib::CalibError;
 use calib::rig_io::{self, Calibration, ImportOptions};
 use geometry::fusion::{self, ColorProjection, FusionOptions};
 use geometry::{CameraModel, DepthKind, Distortion, GeometryError, Image, Rig};
+use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
+use kinect_usb::orientation::Orientation;
+use kinect_usb::params::{P0Tables, XzTables};
+use kinect_usb::raw::{self, PIXELS};
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
@@ -427,12 +431,108 @@ fn read_depth<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArra
     read_depth_file(py, &path)
 }
 
+/// Kinect v2 depth decoder on the CPU (`kinect_usb::decoder::DepthDecoder`, as `kfuse
+/// capture` decodes): raw 2 984 960-byte depth frames into depth (mm) and IR.
+///
+/// Decoder(p0_tables, x_table, z_table, bilateral=True, edge_aware=True,
+///         orientation="scene", precision="fast")
+///
+/// `p0_tables` is the sensor's P0-table response (bytes); `x_table`, `z_table` are float32
+/// arrays of 424 x 512 values (the protocol's x/z tables). `orientation` "scene" (kfuse's
+/// rule) or "sensor" (mirrored, as libfreenect2 and the test vectors); `precision` "fast" or
+/// "exact" (bit-identical to libfreenect2's CPU decoder).
+#[pyclass(name = "Decoder", module = "kfuse")]
+struct PyDecoder {
+    dec: DepthDecoder,
+}
+
+/// A float32 table of [`PIXELS`] values, 1-D or (424, 512), C-contiguous.
+fn table(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f32>> {
+    let expected = format!("float32 ({}, {}) or ({PIXELS},)", raw::HEIGHT, raw::WIDTH);
+    let bad = |why: &str| bad_array(name, &expected, obj, why);
+    let arr = obj.cast::<numpy::PyArrayDyn<f32>>().map_err(|_| bad(""))?.readonly();
+    if arr.len() != PIXELS || !(arr.ndim() == 1 || arr.shape() == [raw::HEIGHT, raw::WIDTH]) {
+        return Err(bad(""));
+    }
+    let v = arr
+        .as_slice()
+        .map_err(|_| bad(" that is not C-contiguous (pass numpy.ascontiguousarray(...))"))?;
+    Ok(v.to_vec())
+}
+
+#[pymethods]
+impl PyDecoder {
+    /// See the class documentation.
+    #[new]
+    #[pyo3(signature = (p0_tables, x_table, z_table, bilateral = true, edge_aware = true, orientation = "scene", precision = "fast"))]
+    fn new(
+        p0_tables: &[u8],
+        x_table: &Bound<'_, PyAny>,
+        z_table: &Bound<'_, PyAny>,
+        bilateral: bool,
+        edge_aware: bool,
+        orientation: &str,
+        precision: &str,
+    ) -> PyResult<Self> {
+        let orientation = match orientation {
+            "scene" => Orientation::Scene,
+            "sensor" => Orientation::Sensor,
+            o => {
+                return Err(PyValueError::new_err(format!(
+                    "orientation: '{o}' is not \"scene\" or \"sensor\""
+                )));
+            }
+        };
+        let precision = match precision {
+            "fast" => DecoderPrecision::Fast,
+            "exact" => DecoderPrecision::Exact,
+            p => {
+                return Err(PyValueError::new_err(format!(
+                    "precision: '{p}' is not \"fast\" or \"exact\""
+                )));
+            }
+        };
+        let usb = |e: kinect_usb::KinectError| PyValueError::new_err(e.to_string());
+        let p0 = P0Tables::from_response(p0_tables).map_err(usb)?;
+        let xz = XzTables::from_vecs(table(x_table, "x_table")?, table(z_table, "z_table")?)
+            .map_err(usb)?;
+        let config = DecoderConfig { bilateral, edge_aware, parallel: true, orientation };
+        let dec = DepthDecoder::new(DecoderParams::default(), config, &xz, &p0)
+            .map_err(usb)?
+            .with_precision(precision);
+        Ok(Self { dec })
+    }
+
+    /// Decodes one raw depth frame (bytes of 2 984 960) into (depth, ir): float32 (424, 512)
+    /// each, depth in millimetres (0 = no measurement), IR in the decoder's amplitude units.
+    /// Releases the GIL.
+    fn decode<'py>(&mut self, py: Python<'py>, raw: &[u8]) -> PyResult<DecodedFrame<'py>> {
+        let dec = &mut self.dec;
+        let (depth, ir) = py
+            .detach(|| {
+                let mut depth = vec![0f32; PIXELS];
+                let mut ir = vec![0f32; PIXELS];
+                dec.decode(raw, &mut depth, &mut ir).map(|()| (depth, ir))
+            })
+            .map_err(|e| PyValueError::new_err(format!("raw: {e}")))?;
+        let shape = (raw::HEIGHT, raw::WIDTH);
+        let to = |v: Vec<f32>| {
+            Array2::from_shape_vec(shape, v).map_err(|e| PyValueError::new_err(e.to_string()))
+        };
+        Ok((to(depth)?.into_pyarray(py), to(ir)?.into_pyarray(py)))
+    }
+}
+
+/// `Decoder.decode`'s result: depth (mm) and IR, float32 (424, 512) each.
+type DecodedFrame<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>);
+
 /// kfuse from Python: rig files and the exact z-buffered depth-to-colour registration.
 #[pymodule]
 fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCamera>()?;
     m.add_class::<PyRig>()?;
     m.add_class::<PyRegistration>()?;
+    m.add_class::<PyDecoder>()?;
     m.add_function(wrap_pyfunction!(read_depth, m)?)?;
     Ok(())
 }
