@@ -1,6 +1,7 @@
 """kfuse.Rig: the formats of `kfuse rig import`, OpenCV's layouts, save/load round trip."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +12,8 @@ from conftest import KINECT
 # serde_json's default (fast) float parser may land 1 ulp off the correctly rounded value
 # (202.52220153808594 reads as 202.5222015380859): a relative tolerance of 4 ulp of f64.
 ULPS = 4 * np.finfo(np.float64).eps
+# A rotation read from rig JSON is re-orthonormalised (measured: 1.3e-16 on the lab's rigs).
+R_READ_TOL = 4 * np.finfo(np.float64).eps
 
 
 def test_rig_json_values_in_opencv_layout():
@@ -74,3 +77,56 @@ def test_implausible_rig_needs_force(tmp_path):
     with pytest.raises(ValueError, match="force=True"):
         kfuse.Rig.load(p)
     assert kfuse.Rig.load(p, force=True).T[0] == -52.0
+
+
+def _cli_import(tmp_path, *sources):
+    """`kfuse rig import SOURCES --out tmp`: (exit code, stderr, the rig written or None)."""
+    import subprocess
+
+    from conftest import kfuse_binary
+
+    out = tmp_path / "cli-rig.json"
+    r = subprocess.run([str(kfuse_binary()), "rig", "import", *map(str, sources), "--out", str(out)],
+                       capture_output=True, text=True)
+    return r.returncode, r.stderr, (kfuse.Rig.load(out) if r.returncode == 0 else None)
+
+
+def _shared(*parts):
+    import os
+
+    from conftest import REPO
+
+    root = Path(os.environ.get("KFUSE_SHARED_DATA", REPO.parent / "shared" / "data"))
+    p = root.joinpath(*parts)
+    if not p.exists():
+        if os.environ.get("KFUSE_REQUIRE_SHARED_DATA") == "1":
+            pytest.fail(f"KFUSE_REQUIRE_SHARED_DATA=1 but {p} is missing")
+        pytest.skip(f"no {p} (shared data absent)")
+    return p
+
+
+@pytest.mark.parametrize("name", ["Calib_Results_stereo.mat", "KinectData.mat"])
+def test_load_equals_cli_rig_import(tmp_path, name):
+    """The lab's Bouguet and KinectData.mat files: Rig.load gives what `kfuse rig import`
+    writes (through its JSON: the tolerance of the JSON's float parsing, ULPS)."""
+    src = _shared("kinect-lab", name)
+    code, err, cli = _cli_import(tmp_path, src)
+    assert code == 0, err
+    py = kfuse.Rig.load(src)
+    for cam in ("depth", "color"):
+        assert np.allclose(getattr(py, cam).K, getattr(cli, cam).K, rtol=ULPS, atol=0)
+        assert np.allclose(getattr(py, cam).dist, getattr(cli, cam).dist, rtol=ULPS, atol=1e-300)
+    # R is re-orthonormalised when the rig JSON is read: entries move by up to ~1 ulp of 1.0.
+    assert np.allclose(py.R, cli.R, rtol=0, atol=R_READ_TOL)
+    assert np.allclose(py.T, cli.T, rtol=ULPS, atol=1e-300)
+
+
+def test_error_message_equals_cli(tmp_path):
+    """A file of no format kfuse reads: the CLI's one-line message, word for word."""
+    p = tmp_path / "notes.txt"
+    p.write_text("hello: world\n")
+    code, err, _ = _cli_import(tmp_path, p)
+    assert code != 0
+    with pytest.raises(ValueError) as e:
+        kfuse.Rig.load(p)
+    assert str(e.value) in err, (str(e.value), err)
