@@ -1,0 +1,538 @@
+//! The Python module `kfuse`: rig files and the exact z-buffered registration of
+//! `geometry::fusion::Registration`, NumPy in and out. A thin layer: every algorithm and
+//! every file format is the workspace's (`calib::rig_io`, `geometry::fusion`); this crate only
+//! checks arrays, converts them and maps errors (`ValueError` for bad content, `OSError`
+//! for a file that cannot be read or written).
+#![deny(missing_docs)]
+
+use std::path::{Path, PathBuf};
+
+use calib::CalibError;
+use calib::rig_io::{self, Calibration, ImportOptions};
+use geometry::fusion::{self, ColorProjection, FusionOptions};
+use geometry::{CameraModel, DepthKind, Distortion, GeometryError, Image, Rig};
+use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
+use kinect_usb::orientation::Orientation;
+use kinect_usb::params::{P0Tables, XzTables};
+use kinect_usb::raw::{self, PIXELS};
+use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyFileExistsError, PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyTuple;
+
+/// Millimetres to metres, as `kfuse fuse` reads a 16-bit depth PNG
+/// (`kfuse_io::images::MILLIMETRES`).
+const METRES_PER_MM: f64 = kfuse_io::images::MILLIMETRES;
+
+fn calib_err(e: CalibError) -> PyErr {
+    match e {
+        CalibError::Io { .. } => PyOSError::new_err(e.to_string()),
+        CalibError::Geometry(g) => geometry_err(g),
+        other => PyValueError::new_err(other.to_string()),
+    }
+}
+
+fn geometry_err(e: GeometryError) -> PyErr {
+    match e {
+        GeometryError::Io { .. } => PyOSError::new_err(e.to_string()),
+        other => PyValueError::new_err(other.to_string()),
+    }
+}
+
+/// `dtype` and `shape` of any object, for messages ("uint8 (1080, 1920)"; "list" for a
+/// non-array).
+fn describe(obj: &Bound<'_, PyAny>) -> String {
+    let dtype = obj.getattr("dtype").and_then(|d| d.str()).map(|s| s.to_string());
+    let shape = obj.getattr("shape").and_then(|s| s.str()).map(|s| s.to_string());
+    match (dtype, shape) {
+        (Ok(d), Ok(s)) => format!("{d} array of shape {s}"),
+        _ => obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "object".into()),
+    }
+}
+
+/// The error for an argument that is not the array expected.
+fn bad_array(name: &str, expected: &str, obj: &Bound<'_, PyAny>, why: &str) -> PyErr {
+    PyValueError::new_err(format!(
+        "{name}: expected a C-contiguous {expected} NumPy array, got {}{why}",
+        describe(obj)
+    ))
+}
+
+/// A C-contiguous 2-D array of `T` of exactly `rows x cols`, without a copy.
+fn array2<'py, T: numpy::Element>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    dtype: &str,
+    rows: usize,
+    cols: usize,
+) -> PyResult<PyReadonlyArray2<'py, T>> {
+    let expected = format!("{dtype} ({rows}, {cols})");
+    let arr =
+        obj.cast::<PyArray2<T>>().map_err(|_| bad_array(name, &expected, obj, ""))?.readonly();
+    if arr.shape() != [rows, cols] {
+        return Err(bad_array(name, &expected, obj, ""));
+    }
+    if !arr.is_c_contiguous() {
+        return Err(bad_array(
+            name,
+            &expected,
+            obj,
+            " that is not C-contiguous (pass numpy.ascontiguousarray(...))",
+        ));
+    }
+    Ok(arr)
+}
+
+/// One camera of a rig: OpenCV's camera matrix and distortion vector, image size.
+#[pyclass(name = "Camera", module = "kfuse", frozen)]
+struct PyCamera {
+    cam: CameraModel,
+}
+
+#[pymethods]
+impl PyCamera {
+    /// Image width in pixels.
+    #[getter]
+    fn width(&self) -> usize {
+        self.cam.width
+    }
+
+    /// Image height in pixels.
+    #[getter]
+    fn height(&self) -> usize {
+        self.cam.height
+    }
+
+    /// The 3x3 camera matrix in OpenCV's layout: [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]
+    /// (pixels; 0-based, pixel centres at integers, as OpenCV).
+    #[getter(K)]
+    fn k<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let i = &self.cam.intrinsics;
+        let m = [[i.fx, i.skew, i.cx], [0.0, i.fy, i.cy], [0.0, 0.0, 1.0]];
+        Array2::from_shape_fn((3, 3), |(r, c)| m[r][c]).into_pyarray(py)
+    }
+
+    /// The distortion vector in OpenCV's order: (k1, k2, p1, p2, k3).
+    #[getter]
+    fn dist<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let d = &self.cam.distortion;
+        Array1::from(vec![d.k1, d.k2, d.p1, d.p2, d.k3]).into_pyarray(py)
+    }
+
+    fn __repr__(&self) -> String {
+        let i = &self.cam.intrinsics;
+        format!(
+            "Camera({}x{}, fx={}, fy={}, cx={}, cy={})",
+            self.cam.width, self.cam.height, i.fx, i.fy, i.cx, i.cy
+        )
+    }
+}
+
+/// A calibrated depth + colour camera pair: X_color = R · X_depth + T (metres).
+///
+/// Rig.load(path, *more, force=False) reads every format `kfuse rig import` reads (kfuse rig
+/// JSON, Bouguet .mat, KinectData.mat, OpenCV YAML, a ROS camera_info pair, iai_kinect2's
+/// folder, kinect_params.json) with the same checks and messages.
+#[pyclass(name = "Rig", module = "kfuse", frozen)]
+struct PyRig {
+    rig: Rig,
+}
+
+#[pymethods]
+impl PyRig {
+    /// Reads a rig from `path` (and the further files some formats need, as `kfuse rig
+    /// import`). A file that fails the plausibility checks is refused unless `force`.
+    /// Raises OSError when a file cannot be read, ValueError for its content.
+    #[staticmethod]
+    #[pyo3(signature = (path, *more, force = false))]
+    fn load(path: PathBuf, more: &Bound<'_, PyTuple>, force: bool) -> PyResult<Self> {
+        let mut sources = vec![path];
+        for m in more.iter() {
+            sources.push(m.extract::<PathBuf>()?);
+        }
+        let imported = rig_io::import(&sources, &ImportOptions::default()).map_err(calib_err)?;
+        let Calibration::Rig(rig) = imported.calibration else {
+            return Err(PyValueError::new_err(format!(
+                "{}: holds one camera, not a rig; a Registration needs both cameras and their pose (give a rig file, e.g. from `kfuse calibrate --ir ... --color ...`)",
+                sources[0].display()
+            )));
+        };
+        let problems = rig.plausibility_problems();
+        if !problems.is_empty() && !force {
+            return Err(PyValueError::new_err(format!(
+                "{}: {} (pass force=True to load it anyway)",
+                sources[0].display(),
+                problems.join("; ")
+            )));
+        }
+        Ok(Self { rig })
+    }
+
+    /// Writes the rig as kfuse rig JSON (what `kfuse rig import --out` writes), atomically.
+    /// An existing file is refused (FileExistsError) unless `overwrite`.
+    #[pyo3(signature = (path, overwrite = false))]
+    fn save(&self, path: PathBuf, overwrite: bool) -> PyResult<()> {
+        if path.is_dir() {
+            return Err(PyValueError::new_err(format!(
+                "{}: is a folder; give a file name such as rig.json",
+                path.display()
+            )));
+        }
+        if path.exists() && !overwrite {
+            return Err(PyFileExistsError::new_err(format!(
+                "{}: exists; pass overwrite=True to replace it, or give another file name",
+                path.display()
+            )));
+        }
+        kfuse_io::atomic::write_bytes_atomic(&path, self.rig.to_json().as_bytes())
+            .map_err(geometry_err)
+    }
+
+    /// The depth (IR) camera, the rig's reference frame.
+    #[getter]
+    fn depth(&self) -> PyCamera {
+        PyCamera { cam: self.rig.depth }
+    }
+
+    /// The colour camera.
+    #[getter]
+    fn color(&self) -> PyCamera {
+        PyCamera { cam: self.rig.color }
+    }
+
+    /// Rotation R (3x3) of X_color = R · X_depth + T (OpenCV stereoCalibrate's R).
+    #[getter(R)]
+    fn r<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let m = self.rig.color_from_depth.rotation.matrix();
+        Array2::from_shape_fn((3, 3), |(r, c)| m[(r, c)]).into_pyarray(py)
+    }
+
+    /// Translation T (3,), metres.
+    #[getter(T)]
+    fn t<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let t = &self.rig.color_from_depth.translation;
+        Array1::from(vec![t.x, t.y, t.z]).into_pyarray(py)
+    }
+
+    /// True when the rig's images are already undistorted (`kfuse undistort`).
+    #[getter]
+    fn rectified(&self) -> bool {
+        self.rig.rectified
+    }
+
+    fn __repr__(&self) -> String {
+        let t = &self.rig.color_from_depth.translation;
+        format!(
+            "Rig(depth {}x{}, color {}x{}, T=({:.4}, {:.4}, {:.4}) m)",
+            self.rig.depth.width,
+            self.rig.depth.height,
+            self.rig.color.width,
+            self.rig.color.height,
+            t.x,
+            t.y,
+            t.z
+        )
+    }
+}
+
+/// `color_on_depth`'s result: RGB on the depth grid and where it is valid.
+type ColorOnDepth<'py> = (Bound<'py, PyArray3<u8>>, Bound<'py, PyArray2<bool>>);
+
+/// The last registered frame: depth in metres (as fuse reads it) and H3's nearest fill (for
+/// the occlusion test of `color_on_depth`, computed on first use).
+struct Frame {
+    depth: Image<f32>,
+    nearest: Option<Image<f32>>,
+}
+
+/// Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask, frame after frame:
+/// `geometry::fusion::Registration` with `kfuse fuse`'s default options, z depth.
+///
+/// reg = kfuse.Registration(rig); z = reg.register(depth_mm)  # (H, W) float32 metres, NaN = none
+#[pyclass(name = "Registration", module = "kfuse")]
+struct PyRegistration {
+    /// The rig as fuse uses it (no distortion when rectified).
+    rig: Rig,
+    reg: fusion::Registration,
+    radius_px: f32,
+    depth_jump: f32,
+    occlusion_tolerance: f32,
+    frame: Option<Frame>,
+}
+
+impl PyRegistration {
+    fn frame(&self, what: &str) -> PyResult<&Frame> {
+        self.frame.as_ref().ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "{what}: no frame registered yet; call register(depth) first"
+            ))
+        })
+    }
+}
+
+#[pymethods]
+impl PyRegistration {
+    /// Buffers and per-pixel constants for `rig` (kfuse fuse's defaults: z depth, its hole radii).
+    #[new]
+    fn new(rig: &PyRig) -> PyResult<Self> {
+        let mut rig = rig.rig.clone();
+        if rig.rectified {
+            // As `kfuse fuse`: rectified images have the same camera matrix, no distortion.
+            rig.depth.distortion = Distortion::NONE;
+            rig.color.distortion = Distortion::NONE;
+        }
+        let options = FusionOptions::default();
+        let reg = fusion::Registration::new(&rig, DepthKind::Z, &options).map_err(geometry_err)?;
+        Ok(Self {
+            radius_px: fusion::coverage_radius_px(&rig, &options),
+            depth_jump: options.depth_jump,
+            occlusion_tolerance: options.color_occlusion_tolerance,
+            rig,
+            reg,
+            frame: None,
+        })
+    }
+
+    /// Registers one depth frame: `depth` is a C-contiguous uint16 (H, W) array of z in
+    /// millimetres (0 = no sample), the depth camera's size. Returns the colour camera's z in
+    /// metres on the colour grid, float32 (colour H, colour W), NaN where no sample landed:
+    /// the z-buffer `kfuse fuse` writes as depth_zbuffer.exr. The rig's depth correction is
+    /// applied first, as fuse does. Releases the GIL.
+    fn register<'py>(
+        &mut self,
+        py: Python<'py>,
+        depth: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let (dw, dh) = (self.rig.depth.width, self.rig.depth.height);
+        let arr = array2::<u16>(depth, "depth", "uint16", dh, dw)?;
+        let units = arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
+        let correction = self.rig.depth_correction.clone();
+        let reg = &mut self.reg;
+        let (image, zbuffer) = py
+            .detach(|| -> Result<_, GeometryError> {
+                // The same conversion as kfuse_io::images::read_depth on a 16-bit PNG.
+                let data = units
+                    .iter()
+                    .map(|&u| if u == 0 { f32::NAN } else { (u as f64 * METRES_PER_MM) as f32 })
+                    .collect();
+                let mut image = Image::from_vec(dw, dh, data)?;
+                if let Some(c) = &correction {
+                    c.correct_image(&mut image, 1.0)?;
+                }
+                reg.register_parallel(&image)?;
+                Ok((image, reg.zbuffer().to_vec()))
+            })
+            .map_err(geometry_err)?;
+        self.frame = Some(Frame { depth: image, nearest: None });
+        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
+        let z = Array2::from_shape_vec((ch, cw), zbuffer)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(z.into_pyarray(py))
+    }
+
+    /// H8's disocclusion hole mask of the last registered frame: bool (colour H, colour W),
+    /// True where the colour camera sees a surface the depth camera did not.
+    fn hole_mask<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<bool>>> {
+        self.frame("hole_mask")?;
+        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
+        let reg = &mut self.reg;
+        let mask = py.detach(|| {
+            let mut mask = vec![false; cw * ch];
+            reg.hole_mask_parallel(&mut mask);
+            mask
+        });
+        let m = Array2::from_shape_vec((ch, cw), mask)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(m.into_pyarray(py))
+    }
+
+    /// H6: the colour seen by every depth pixel of the last registered frame, bilinear from
+    /// `color` (C-contiguous uint8 (colour H, colour W, 3), RGB), with fuse's occlusion test
+    /// against H3's nearest fill. Returns (rgb uint8 (H, W, 3), valid bool (H, W)) on the
+    /// depth grid; invalid pixels are black. Releases the GIL.
+    fn color_on_depth<'py>(
+        &mut self,
+        py: Python<'py>,
+        color: &Bound<'py, PyAny>,
+    ) -> PyResult<ColorOnDepth<'py>> {
+        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
+        let expected = format!("uint8 ({ch}, {cw}, 3)");
+        let arr: PyReadonlyArray3<u8> = color
+            .cast::<PyArray3<u8>>()
+            .map_err(|_| bad_array("color", &expected, color, ""))?
+            .readonly();
+        if arr.shape() != [ch, cw, 3] {
+            return Err(bad_array("color", &expected, color, ""));
+        }
+        let pixels = arr.as_slice().map_err(|_| {
+            bad_array(
+                "color",
+                &expected,
+                color,
+                " that is not C-contiguous (pass numpy.ascontiguousarray(...))",
+            )
+        })?;
+        self.frame("color_on_depth")?;
+        let (rig, reg) = (&self.rig, &self.reg);
+        let (radius, jump, tol) = (self.radius_px, self.depth_jump, self.occlusion_tolerance);
+        let Some(frame) = self.frame.as_mut() else { unreachable!("checked above") };
+        let (rgb, valid) = py
+            .detach(|| -> Result<_, GeometryError> {
+                if frame.nearest.is_none() {
+                    let z = Image::from_vec(cw, ch, reg.zbuffer().to_vec())?;
+                    frame.nearest = Some(fusion::nearest_fill(&z, radius, jump));
+                }
+                let color_img = Image::from_vec(
+                    cw,
+                    ch,
+                    pixels.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+                )?;
+                let rays = fusion::depth_ray_table(&rig.depth, DepthKind::Z);
+                let proj = ColorProjection::from_rig(rig);
+                Ok(fusion::color_on_depth(
+                    &frame.depth,
+                    &rays,
+                    &proj,
+                    &color_img,
+                    frame.nearest.as_ref(),
+                    tol,
+                ))
+            })
+            .map_err(geometry_err)?;
+        let (dw, dh) = (self.rig.depth.width, self.rig.depth.height);
+        let flat: Vec<u8> = rgb.data().iter().flatten().copied().collect();
+        let rgb = Array3::from_shape_vec((dh, dw, 3), flat)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let valid = Array2::from_shape_vec((dh, dw), valid.data().to_vec())
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok((rgb.into_pyarray(py), valid.into_pyarray(py)))
+    }
+}
+
+/// Reads a depth image file as `kfuse fuse --depth` does (16-bit PNG/TIFF in millimetres,
+/// float TIFF/EXR in metres) into float32 metres (H, W), NaN = no sample.
+fn read_depth_file<'py>(py: Python<'py>, path: &Path) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let img = kfuse_io::images::read_depth(path, METRES_PER_MM).map_err(geometry_err)?;
+    let (w, h) = img.size();
+    let a = Array2::from_shape_vec((h, w), img.data().to_vec())
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(a.into_pyarray(py))
+}
+
+/// read_depth(path) -> float32 (H, W) metres, NaN = no sample: a depth file read exactly as
+/// `kfuse fuse --depth` reads it (16-bit PNG/TIFF in mm, float TIFF or OpenEXR in metres, such
+/// as fuse's own depth_zbuffer.exr).
+#[pyfunction]
+fn read_depth<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    read_depth_file(py, &path)
+}
+
+/// Kinect v2 depth decoder on the CPU (`kinect_usb::decoder::DepthDecoder`, as `kfuse
+/// capture` decodes): raw 2 984 960-byte depth frames into depth (mm) and IR.
+///
+/// Decoder(p0_tables, x_table, z_table, bilateral=True, edge_aware=True,
+///         orientation="scene", precision="fast")
+///
+/// `p0_tables` is the sensor's P0-table response (bytes); `x_table`, `z_table` are float32
+/// arrays of 424 x 512 values (the protocol's x/z tables). `orientation` "scene" (kfuse's
+/// rule) or "sensor" (mirrored, as libfreenect2 and the test vectors); `precision` "fast" or
+/// "exact" (bit-identical to libfreenect2's CPU decoder).
+#[pyclass(name = "Decoder", module = "kfuse")]
+struct PyDecoder {
+    dec: DepthDecoder,
+}
+
+/// A float32 table of [`PIXELS`] values, 1-D or (424, 512), C-contiguous.
+fn table(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f32>> {
+    let expected = format!("float32 ({}, {}) or ({PIXELS},)", raw::HEIGHT, raw::WIDTH);
+    let bad = |why: &str| bad_array(name, &expected, obj, why);
+    let arr = obj.cast::<numpy::PyArrayDyn<f32>>().map_err(|_| bad(""))?.readonly();
+    if arr.len() != PIXELS || !(arr.ndim() == 1 || arr.shape() == [raw::HEIGHT, raw::WIDTH]) {
+        return Err(bad(""));
+    }
+    let v = arr
+        .as_slice()
+        .map_err(|_| bad(" that is not C-contiguous (pass numpy.ascontiguousarray(...))"))?;
+    Ok(v.to_vec())
+}
+
+#[pymethods]
+impl PyDecoder {
+    /// See the class documentation.
+    #[new]
+    #[pyo3(signature = (p0_tables, x_table, z_table, bilateral = true, edge_aware = true, orientation = "scene", precision = "fast"))]
+    fn new(
+        p0_tables: &[u8],
+        x_table: &Bound<'_, PyAny>,
+        z_table: &Bound<'_, PyAny>,
+        bilateral: bool,
+        edge_aware: bool,
+        orientation: &str,
+        precision: &str,
+    ) -> PyResult<Self> {
+        let orientation = match orientation {
+            "scene" => Orientation::Scene,
+            "sensor" => Orientation::Sensor,
+            o => {
+                return Err(PyValueError::new_err(format!(
+                    "orientation: '{o}' is not \"scene\" or \"sensor\""
+                )));
+            }
+        };
+        let precision = match precision {
+            "fast" => DecoderPrecision::Fast,
+            "exact" => DecoderPrecision::Exact,
+            p => {
+                return Err(PyValueError::new_err(format!(
+                    "precision: '{p}' is not \"fast\" or \"exact\""
+                )));
+            }
+        };
+        let usb = |e: kinect_usb::KinectError| PyValueError::new_err(e.to_string());
+        let p0 = P0Tables::from_response(p0_tables).map_err(usb)?;
+        let xz = XzTables::from_vecs(table(x_table, "x_table")?, table(z_table, "z_table")?)
+            .map_err(usb)?;
+        let config = DecoderConfig { bilateral, edge_aware, parallel: true, orientation };
+        let dec = DepthDecoder::new(DecoderParams::default(), config, &xz, &p0)
+            .map_err(usb)?
+            .with_precision(precision);
+        Ok(Self { dec })
+    }
+
+    /// Decodes one raw depth frame (bytes of 2 984 960) into (depth, ir): float32 (424, 512)
+    /// each, depth in millimetres (0 = no measurement), IR in the decoder's amplitude units.
+    /// Releases the GIL.
+    fn decode<'py>(&mut self, py: Python<'py>, raw: &[u8]) -> PyResult<DecodedFrame<'py>> {
+        let dec = &mut self.dec;
+        let (depth, ir) = py
+            .detach(|| {
+                let mut depth = vec![0f32; PIXELS];
+                let mut ir = vec![0f32; PIXELS];
+                dec.decode(raw, &mut depth, &mut ir).map(|()| (depth, ir))
+            })
+            .map_err(|e| PyValueError::new_err(format!("raw: {e}")))?;
+        let shape = (raw::HEIGHT, raw::WIDTH);
+        let to = |v: Vec<f32>| {
+            Array2::from_shape_vec(shape, v).map_err(|e| PyValueError::new_err(e.to_string()))
+        };
+        Ok((to(depth)?.into_pyarray(py), to(ir)?.into_pyarray(py)))
+    }
+}
+
+/// `Decoder.decode`'s result: depth (mm) and IR, float32 (424, 512) each.
+type DecodedFrame<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>);
+
+/// kfuse from Python: rig files and the exact z-buffered depth-to-colour registration.
+#[pymodule]
+fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyCamera>()?;
+    m.add_class::<PyRig>()?;
+    m.add_class::<PyRegistration>()?;
+    m.add_class::<PyDecoder>()?;
+    m.add_function(wrap_pyfunction!(read_depth, m)?)?;
+    Ok(())
+}

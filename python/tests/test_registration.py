@@ -1,0 +1,99 @@
+"""kfuse.Registration against the CLI's own outputs, byte for byte, and its input checks."""
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import kfuse
+from conftest import KINECT
+
+
+@pytest.fixture(scope="module")
+def reg():
+    return kfuse.Registration(kfuse.Rig.load(KINECT / "rig.json"))
+
+
+def test_register_equals_fuse_zbuffer_bit_for_bit(fused, reg):
+    z = reg.register(fused["depth_mm"])
+    cli = kfuse.read_depth(fused["out"] / "depth_zbuffer.exr")
+    assert z.dtype == np.float32 and z.shape == (1080, 1920)
+    # Same NaN pattern and identical bits everywhere else (tolerance 0: the same z-buffer).
+    assert np.array_equal(np.isnan(z), np.isnan(cli))
+    assert np.array_equal(z.view(np.uint32)[~np.isnan(z)], cli.view(np.uint32)[~np.isnan(cli)])
+    # Not vacuous: the desk frame covers a large part of the colour image.
+    assert np.count_nonzero(~np.isnan(z)) > 100_000
+    # The 16-bit PNG fuse writes is the same z-buffer rounded to mm (png16_value's rule).
+    png = np.asarray(Image.open(fused["out"] / "depth_zbuffer.png")).astype(np.uint16)
+    mm = np.where(np.isnan(z), 0, np.clip(np.floor(z.astype(np.float64) * 1e3 + 0.5), 1, 65535))
+    assert np.array_equal(png, mm.astype(np.uint16))
+
+
+def test_hole_mask_equals_fuse(fused, reg):
+    reg.register(fused["depth_mm"])
+    mask = reg.hole_mask()
+    cli = np.asarray(Image.open(fused["out"] / "hole_mask.png")) > 0
+    assert mask.dtype == np.bool_ and mask.shape == cli.shape
+    assert np.array_equal(mask, cli)
+    assert mask.any()
+
+
+def test_color_on_depth_equals_fuse(fused, reg):
+    reg.register(fused["depth_mm"])
+    rgb, valid = reg.color_on_depth(fused["color"])
+    cli = np.asarray(Image.open(fused["out"] / "color_on_depth.png").convert("RGB"))
+    assert rgb.shape == (424, 512, 3) and valid.shape == (424, 512)
+    assert np.array_equal(rgb, cli)
+    assert valid.sum() > 50_000
+
+
+def test_register_calls_are_independent(fused, reg):
+    """A second frame replaces the first: no state leaks between frames."""
+    empty = np.zeros((424, 512), np.uint16)
+    z_empty = reg.register(empty)
+    assert np.isnan(z_empty).all()
+    z = reg.register(fused["depth_mm"])
+    assert np.count_nonzero(~np.isnan(z)) > 100_000
+
+
+@pytest.mark.parametrize(
+    "bad, what",
+    [
+        (np.zeros((424, 512), np.float32), "float32"),
+        (np.zeros((424, 512), np.int32), "int32"),
+        (np.zeros((512, 424), np.uint16), "(512, 424)"),
+        (np.zeros((424, 512, 1), np.uint16), "(424, 512, 1)"),
+        (np.zeros((424, 1024), np.uint16)[:, ::2], "not C-contiguous"),
+        (np.asfortranarray(np.zeros((424, 512), np.uint16)), "not C-contiguous"),
+        ([[0] * 512] * 424, "list"),
+    ],
+)
+def test_register_rejects_wrong_arrays_with_value_error(reg, bad, what):
+    with pytest.raises(ValueError) as e:
+        reg.register(bad)
+    msg = str(e.value)
+    assert msg.startswith("depth: expected a C-contiguous uint16 (424, 512)"), msg
+    assert what in msg, msg
+
+
+@pytest.mark.parametrize(
+    "bad, what",
+    [
+        (np.zeros((1080, 1920, 3), np.float32), "float32"),
+        (np.zeros((1080, 1920), np.uint8), "(1080, 1920)"),
+        (np.zeros((1080, 1920, 4), np.uint8), "(1080, 1920, 4)"),
+        (np.zeros((1080, 3840, 3), np.uint8)[:, ::2], "not C-contiguous"),
+    ],
+)
+def test_color_on_depth_rejects_wrong_arrays_with_value_error(fused, reg, bad, what):
+    reg.register(fused["depth_mm"])
+    with pytest.raises(ValueError) as e:
+        reg.color_on_depth(bad)
+    msg = str(e.value)
+    assert msg.startswith("color: expected a C-contiguous uint8 (1080, 1920, 3)"), msg
+    assert what in msg, msg
+
+
+def test_hole_mask_before_register_is_a_value_error():
+    fresh = kfuse.Registration(kfuse.Rig.load(KINECT / "rig.json"))
+    with pytest.raises(ValueError, match="call register"):
+        fresh.hole_mask()
