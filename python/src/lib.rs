@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use calib::CalibError;
 use calib::rig_io::{self, Calibration, ImportOptions};
 use geometry::fusion::{self, ColorProjection, FusionOptions};
-use geometry::{CameraModel, DepthKind, Distortion, GeometryError, Image, Rig};
+use geometry::{CameraModel, DepthKind, GeometryError, Image, Rig};
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
 use kinect_usb::orientation::Orientation;
 use kinect_usb::params::{P0Tables, XzTables};
@@ -258,6 +258,9 @@ struct PyRegistration {
     /// The rig as fuse uses it (no distortion when rectified).
     rig: Rig,
     reg: fusion::Registration,
+    /// H1's ray per depth pixel and H2's projection, for `color_on_depth` (fixed by the rig).
+    rays: Vec<[f32; 3]>,
+    projection: ColorProjection,
     radius_px: f32,
     depth_jump: f32,
     occlusion_tolerance: f32,
@@ -279,15 +282,12 @@ impl PyRegistration {
     /// Buffers and per-pixel constants for `rig` (kfuse fuse's defaults: z depth, its hole radii).
     #[new]
     fn new(rig: &PyRig) -> PyResult<Self> {
-        let mut rig = rig.rig.clone();
-        if rig.rectified {
-            // As `kfuse fuse`: rectified images have the same camera matrix, no distortion.
-            rig.depth.distortion = Distortion::NONE;
-            rig.color.distortion = Distortion::NONE;
-        }
+        let rig = if rig.rig.rectified { rig.rig.as_rectified() } else { rig.rig.clone() };
         let options = FusionOptions::default();
         let reg = fusion::Registration::new(&rig, DepthKind::Z, &options).map_err(geometry_err)?;
         Ok(Self {
+            rays: fusion::depth_ray_table(&rig.depth, DepthKind::Z),
+            projection: ColorProjection::from_rig(&rig),
             radius_px: fusion::coverage_radius_px(&rig, &options),
             depth_jump: options.depth_jump,
             occlusion_tolerance: options.color_occlusion_tolerance,
@@ -314,12 +314,8 @@ impl PyRegistration {
         let reg = &mut self.reg;
         let (image, zbuffer) = py
             .detach(|| -> Result<_, GeometryError> {
-                // The same conversion as kfuse_io::images::read_depth on a 16-bit PNG.
-                let data = units
-                    .iter()
-                    .map(|&u| if u == 0 { f32::NAN } else { (u as f64 * METRES_PER_MM) as f32 })
-                    .collect();
-                let mut image = Image::from_vec(dw, dh, data)?;
+                // As kfuse_io::images::read_depth reads a 16-bit PNG.
+                let mut image = kfuse_io::images::depth_from_units(dw, dh, units, METRES_PER_MM)?;
                 if let Some(c) = &correction {
                     c.correct_image(&mut image, 1.0)?;
                 }
@@ -377,7 +373,7 @@ impl PyRegistration {
             )
         })?;
         self.frame("color_on_depth")?;
-        let (rig, reg) = (&self.rig, &self.reg);
+        let (reg, rays, proj) = (&self.reg, &self.rays, &self.projection);
         let (radius, jump, tol) = (self.radius_px, self.depth_jump, self.occlusion_tolerance);
         let Some(frame) = self.frame.as_mut() else { unreachable!("checked above") };
         let (rgb, valid) = py
@@ -391,12 +387,10 @@ impl PyRegistration {
                     ch,
                     pixels.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
                 )?;
-                let rays = fusion::depth_ray_table(&rig.depth, DepthKind::Z);
-                let proj = ColorProjection::from_rig(rig);
                 Ok(fusion::color_on_depth(
                     &frame.depth,
-                    &rays,
-                    &proj,
+                    rays,
+                    proj,
                     &color_img,
                     frame.nearest.as_ref(),
                     tol,

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 use calib::rig_io::{self, Calibration};
-use geometry::{DepthKind, Distortion, Image, Rig};
+use geometry::{DepthKind, Image, Rig};
 use kfuse_io::kinect_data::{self, KinectDepth};
 use kfuse_io::mat::MatFile;
 use kfuse_io::{course, image_header, images};
@@ -221,10 +221,7 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
     };
     let rectified = args.rectified || inputs.rig.rectified;
     if rectified {
-        // The images are already undistorted (same camera matrix, no distortion).
-        inputs.rig.depth.distortion = Distortion::NONE;
-        inputs.rig.color.distortion = Distortion::NONE;
-        inputs.rig.rectified = true;
+        inputs.rig = inputs.rig.as_rectified();
     }
     inputs.description["rectified"] = serde_json::json!(rectified);
     apply_depth_correction(&mut inputs)?;

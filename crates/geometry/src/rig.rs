@@ -329,6 +329,19 @@ impl Rig {
         self.color.validate()
     }
 
+    /// The rig through which already undistorted images (`kfuse undistort`, the lab's
+    /// `*_rect`) are seen: the same camera matrices and pose, no distortion, `rectified` set,
+    /// so nothing is undistorted twice. The one copy of that rule (`kfuse fuse`, the viewer,
+    /// the Python package).
+    pub fn as_rectified(&self) -> Rig {
+        Rig {
+            depth: self.depth.without_distortion(),
+            color: self.color.without_distortion(),
+            rectified: true,
+            ..self.clone()
+        }
+    }
+
     /// What makes this rig implausible for real cameras (focal lengths outside
     /// [`MIN_FOCAL_PX`]..[`MAX_FOCAL_PX`], image sides over [`MAX_IMAGE_SIDE`], a radial
     /// distortion no lens has, a baseline outside [`MIN_BASELINE_M`]..[`MAX_BASELINE_M`]), each

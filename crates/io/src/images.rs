@@ -251,15 +251,19 @@ pub fn read_depth_encoded(
     Ok((img, encoding))
 }
 
-fn from_units(
+/// Depth in metres (`NaN` = no sample) from a `w x h` row-major image of 16-bit integers
+/// (`0` = no sample) scaled by `metres_per_unit` ([`MILLIMETRES`] for Kinect depth): how
+/// [`read_depth`] reads a 16-bit PNG or TIFF, for depth that comes as integers from elsewhere
+/// (the Python package's NumPy arrays).
+pub fn depth_from_units(
     w: usize,
     h: usize,
-    units: Vec<u16>,
+    units: &[u16],
     metres_per_unit: f64,
 ) -> Result<Image<f32>, GeometryError> {
     let data = units
-        .into_iter()
-        .map(|u| if u == 0 { f32::NAN } else { (u as f64 * metres_per_unit) as f32 })
+        .iter()
+        .map(|&u| if u == 0 { f32::NAN } else { (u as f64 * metres_per_unit) as f32 })
         .collect();
     Image::from_vec(w, h, data)
 }
@@ -281,7 +285,7 @@ fn read_depth_png(
     match img {
         image::DynamicImage::ImageLuma16(buf) => {
             let (w, h) = (buf.width() as usize, buf.height() as usize);
-            from_units(w, h, buf.into_raw(), metres_per_unit)
+            depth_from_units(w, h, &buf.into_raw(), metres_per_unit)
         }
         other => Err(format_err(
             path,
@@ -304,7 +308,7 @@ fn read_depth_tiff(
     let (w, h) = (w as usize, h as usize);
     match (colour, dec.read_image().map_err(tiff_err)?) {
         (tiff::ColorType::Gray(16), tiff::decoder::DecodingResult::U16(v)) => {
-            Ok((from_units(w, h, v, metres_per_unit)?, DepthEncoding::Integer))
+            Ok((depth_from_units(w, h, &v, metres_per_unit)?, DepthEncoding::Integer))
         }
         (tiff::ColorType::Gray(32), tiff::decoder::DecodingResult::F32(v)) => {
             Ok((from_metres(w, h, v)?, DepthEncoding::FloatMetres))

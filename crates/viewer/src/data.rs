@@ -20,7 +20,7 @@
 
 use std::path::{Path, PathBuf};
 
-use geometry::{DepthKind, Distortion, GeometryError, Image, Rig, synth};
+use geometry::{DepthKind, GeometryError, Image, Rig, synth};
 use kfuse_io::kinect_data::{self, KinectDepth};
 use kfuse_io::mat::MatFile;
 use kfuse_io::{course, images, rig as rigio};
@@ -175,10 +175,8 @@ fn load(
     ir_path: Option<&Path>,
 ) -> Result<(Frame, Vec<String>), ViewerError> {
     if rig.rectified {
-        // Already undistorted images (`kfuse undistort`, the lab's `*_rect`): fused as by
-        // `kfuse fuse --rectified`, without the rig's distortion, never distorted twice.
-        rig.depth.distortion = Distortion::NONE;
-        rig.color.distortion = Distortion::NONE;
+        // Already undistorted images: fused as by `kfuse fuse --rectified`.
+        rig = rig.as_rectified();
     }
     let color = images::read_color(color_path).map_err(|e| bad(color_path, e))?;
     check_size(color_path, "colour", color.size(), (rig.color.width, rig.color.height))?;
@@ -374,9 +372,7 @@ fn open_fuse_output(
         let overrides = MatOverrides { color: color.as_deref(), depth: depth.as_deref(), scale };
         let (mut frame, warnings) = open_mat(name, &mat, overrides, force)?;
         if rectified {
-            frame.rig.rectified = true;
-            frame.rig.depth.distortion = Distortion::NONE;
-            frame.rig.color.distortion = Distortion::NONE;
+            frame.rig = frame.rig.as_rectified();
         }
         return Ok((frame, warnings));
     }
