@@ -94,6 +94,9 @@ pub struct ImportArgs {
   kfuse rig export rig.json --format ros --out ros/   (writes ros/depth.yaml and ros/color.yaml)
   kfuse rig export ir.json --format ros --out ros/    (a single-camera file: ros/depth.yaml)
   kfuse rig export rig.json --format iai-kinect2 --out kinect2_bridge/data/012526541941/
+  kfuse rig export rig3.json --format opencv --out opencv/    (a rig of several cameras: one file per camera)
+  kfuse rig export rig3.json --sensor 012526541941 --format kfuse --out pair.json
+                                                              (one Kinect's depth + colour pair)
 
 OpenCV: stereoCalibrate's names (M1, D1 = depth, M2, D2 = colour, R, T with X_2 = R·X_1 + T),
 T in metres (T_units: m). ROS: one camera_info per camera; the pair's R and P encode the
@@ -102,13 +105,25 @@ iai-kinect2: the four files kinect2_bridge reads (calib_color.yaml, calib_ir.yam
 calib_depth.yaml); the rig must be of the Kinect v2's image sizes and of unmirrored images as
 kinect2_bridge publishes them (colour camera at about +52 mm of the IR camera); the rig is written
 as it is. depthShift = -1000 x the depth correction's offset; a correction with other terms is
-refused unless --depth-offset-only.")]
+refused unless --depth-offset-only. kfuse: the kfuse rig file itself (with --sensor: that sensor's
+pair as a two-camera rig, which every single-Kinect command reads).
+
+A rig of several cameras (`kfuse calibrate --camera ...`, version 2): opencv writes NAME.yml per
+camera into the --out folder (camera_matrix, distortion_coefficients, and R, T with
+X_camera = R·X_reference + T in metres); ros writes NAME.yaml (camera_info) per camera and
+transforms.yaml (each camera's pose in the reference frame for tf static_transform_publisher);
+iai-kinect2 needs --sensor (it holds one Kinect). --sensor SERIAL exports that sensor's depth +
+colour pair in any format.")]
 pub struct ExportArgs {
     /// Rig file, or single-camera file (`kfuse calibrate --ir … --out ir.json`).
     rig: PathBuf,
     /// Output format.
-    #[arg(long, value_parser = ["opencv", "ros", "iai-kinect2"])]
+    #[arg(long, value_parser = ["opencv", "ros", "iai-kinect2", "kfuse"])]
     format: String,
+    /// A rig of several cameras: export only this sensor's depth + colour pair (its serial
+    /// number, as `kfuse rig show` lists the sensors).
+    #[arg(long)]
+    sensor: Option<String>,
     /// Output file (opencv) or folder (ros, iai-kinect2).
     #[arg(long)]
     out: PathBuf,
@@ -275,8 +290,23 @@ fn mirrored(calibration: Calibration, source: &Path) -> Calibration {
 
 fn export(a: ExportArgs) -> Result<()> {
     check_not_input(&a.out, std::slice::from_ref(&a.rig))?;
-    let cal = rig_io::load(&a.rig)?;
+    let cal = match (rig_io::load_multi(&a.rig)?, &a.sensor) {
+        (Some(multi), None) => return export_multi(&a, &multi),
+        (Some(multi), Some(sensor)) => Calibration::Rig(
+            multi.sensor_rig(sensor).map_err(|e| anyhow::anyhow!("{}: {e}", a.rig.display()))?.0,
+        ),
+        (None, Some(_)) => bail!(
+            "{}: is not a rig of several cameras; --sensor picks one sensor's pair from one (leave it out)",
+            a.rig.display()
+        ),
+        (None, None) => rig_io::load(&a.rig)?,
+    };
     match (a.format.as_str(), &cal) {
+        ("kfuse", cal) => {
+            check_new(&a.out, a.overwrite)?;
+            write_bytes_atomic(&a.out, cal.to_json().as_bytes())?;
+            println!("wrote {} (kfuse rig file)", a.out.display());
+        }
         ("opencv", Calibration::Rig(rig)) => {
             check_new(&a.out, a.overwrite)?;
             write_bytes_atomic(&a.out, calib::files::opencv_yaml_rig(rig).as_bytes())?;
@@ -349,9 +379,93 @@ fn export(a: ExportArgs) -> Result<()> {
     Ok(())
 }
 
+/// A file name made of a camera's name: characters other than letters, digits, `.`, `-` and
+/// `_` become `_`, so a name cannot leave the output folder.
+fn file_stem(name: &str) -> String {
+    name.chars()
+        .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '_') { c } else { '_' })
+        .collect::<String>()
+        .trim_start_matches('.')
+        .to_string()
+}
+
+/// `rig export` of a rig of several cameras (no `--sensor`): one file per camera into a folder.
+fn export_multi(a: &ExportArgs, rig: &geometry::MultiRig) -> Result<()> {
+    let mut files: Vec<(PathBuf, String)> = Vec::new();
+    let into_folder = |files: &mut Vec<(PathBuf, String)>,
+                       ext: &str,
+                       text: &dyn Fn(&geometry::RigCamera) -> String|
+     -> Result<()> {
+        if a.out.is_file() {
+            bail!(
+                "{}: is a file; a rig of {} cameras is exported as one file per camera into a folder",
+                a.out.display(),
+                rig.cameras.len()
+            );
+        }
+        for c in &rig.cameras {
+            let path = a.out.join(format!("{}.{ext}", file_stem(&c.name)));
+            if files.iter().any(|(p, _)| *p == path) {
+                bail!(
+                    "{}: two cameras give the file name {}; rename one in the rig",
+                    a.rig.display(),
+                    path.display()
+                );
+            }
+            files.push((path, text(c)));
+        }
+        Ok(())
+    };
+    let what = match a.format.as_str() {
+        "kfuse" => {
+            files.push((a.out.clone(), rig.to_json()));
+            "kfuse rig file"
+        }
+        "opencv" => {
+            into_folder(&mut files, "yml", &|c| {
+                calib::files::opencv_yaml_rig_camera(c, &rig.reference)
+            })?;
+            "OpenCV FileStorage YAML, R and T from the reference camera, metres"
+        }
+        "ros" => {
+            into_folder(&mut files, "yaml", &|c| {
+                rig_io::ros::camera_info_yaml(
+                    &c.name,
+                    &c.model,
+                    &nalgebra::Matrix3::identity(),
+                    &nalgebra::Vector3::zeros(),
+                )
+            })?;
+            files.push((a.out.join("transforms.yaml"), rig_io::ros::rig_static_transforms(rig)));
+            "ROS camera_info; poses in transforms.yaml"
+        }
+        "iai-kinect2" => bail!(
+            "{}: is a rig of {} cameras; iai_kinect2's folder holds one Kinect: pass --sensor SERIAL (its sensors: {})",
+            a.rig.display(),
+            rig.cameras.len(),
+            rig.sensors().join(", ")
+        ),
+        f => bail!("unknown format '{f}'"),
+    };
+    for (p, _) in &files {
+        check_new(p, a.overwrite)?;
+    }
+    if a.format != "kfuse" {
+        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    }
+    for (p, t) in &files {
+        write_bytes_atomic(p, t.as_bytes())?;
+        println!("wrote {} ({what})", p.display());
+    }
+    Ok(())
+}
+
 fn show(path: &Path) -> Result<()> {
-    let cal = rig_io::load(path)?;
-    let (text, warnings) = rig_io::show::describe(&path.display().to_string(), &cal);
+    let name = path.display().to_string();
+    let (text, warnings) = match rig_io::load_multi(path)? {
+        Some(multi) => rig_io::show::describe_multi(&name, &multi),
+        None => rig_io::show::describe(&name, &rig_io::load(path)?),
+    };
     print!("{text}");
     if warnings > 0 {
         println!(

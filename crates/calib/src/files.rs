@@ -191,6 +191,22 @@ pub fn opencv_yaml_rig(rig: &Rig) -> String {
     s
 }
 
+/// OpenCV FileStorage YAML of one camera of a rig of several cameras: [`opencv_yaml_camera`]'s
+/// keys, then its pose `R`, `T` (`X_camera = R·X_reference + T`, metres, `T_units: m`) and the
+/// reference camera's name (`reference`), so that `cv::FileStorage` reads every camera of the
+/// rig into one frame.
+pub fn opencv_yaml_rig_camera(c: &geometry::RigCamera, reference: &str) -> String {
+    let mut s = opencv_yaml_camera(&c.model);
+    let _ = writeln!(s, "camera_name: \"{}\"\nreference: \"{reference}\"", c.name.escape_default());
+    let pose = &c.camera_from_reference;
+    let r = pose.rotation.matrix();
+    let rd: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
+    yaml_matrix(&mut s, "R", 3, 3, &rd);
+    yaml_matrix(&mut s, "T", 3, 1, &[pose.translation.x, pose.translation.y, pose.translation.z]);
+    let _ = writeln!(s, "T_units: m");
+    s
+}
+
 /// Writes text atomically.
 pub fn write_text(path: &Path, text: &str) -> Result<(), CalibError> {
     write_bytes_atomic(path, text.as_bytes())?;

@@ -155,6 +155,21 @@ pub fn load(path: &Path) -> Result<Calibration, CalibError> {
     from_kfuse_json(&text, path)
 }
 
+/// A rig file of several cameras (version 2, `geometry::multi_rig`), validated; `None` when
+/// `path` holds anything else (a two-camera rig, a camera file, another tool's file: read
+/// those with [`load`] or [`import`]).
+pub fn load_multi(path: &Path) -> Result<Option<geometry::MultiRig>, CalibError> {
+    let text = read_text(path)?;
+    let Ok(v) = serde_json::from_str::<Value>(&text) else { return Ok(None) };
+    let multi = v.get("format").and_then(Value::as_str) == Some(geometry::rig::RIG_FORMAT)
+        && v.get("version").and_then(Value::as_u64)
+            == Some(geometry::multi_rig::MULTI_RIG_VERSION.into());
+    if !multi {
+        return Ok(None);
+    }
+    Ok(Some(geometry::MultiRig::from_json(&text, path)?))
+}
+
 fn from_kfuse_json(text: &str, path: &Path) -> Result<Calibration, CalibError> {
     let v: Value = serde_json::from_str(text).map_err(|e| {
         fmt_err(

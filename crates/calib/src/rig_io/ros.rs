@@ -237,3 +237,32 @@ pub fn rig_yaml(rig: &Rig) -> (String, String) {
         camera_info_yaml("color", &rig.color, &r2, &t2),
     )
 }
+
+/// The poses of a rig of several cameras for ROS: one entry per camera other than the
+/// reference, in tf's convention (the child camera's pose in the parent = reference frame,
+/// metres and a unit quaternion x, y, z, w, the arguments of `static_transform_publisher`).
+pub fn rig_static_transforms(rig: &geometry::MultiRig) -> String {
+    let mut s = String::from(
+        "# kfuse rig export --format ros: the cameras' poses as tf static transforms.\n# Each entry is the camera's pose in the reference camera's frame (parent), metres and a\n# unit quaternion (x, y, z, w); publish one with\n#   ros2 run tf2_ros static_transform_publisher X Y Z QX QY QZ QW PARENT CHILD\n",
+    );
+    let _ = writeln!(s, "reference: \"{}\"\ntransforms:", rig.reference.escape_default());
+    for c in rig.cameras.iter().filter(|c| c.name != rig.reference) {
+        let pose = c.camera_from_reference.inverse();
+        let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);
+        let t = pose.translation;
+        let _ = writeln!(
+            s,
+            "  - parent: \"{}\"\n    child: \"{}\"\n    translation: [{:?}, {:?}, {:?}]\n    rotation_xyzw: [{:?}, {:?}, {:?}, {:?}]",
+            rig.reference.escape_default(),
+            c.name.escape_default(),
+            t.x,
+            t.y,
+            t.z,
+            q.i,
+            q.j,
+            q.k,
+            q.w
+        );
+    }
+    s
+}

@@ -7,7 +7,7 @@
 use std::fmt::Write as _;
 
 use geometry::num_fmt::fixed;
-use geometry::{CameraModel, Rig};
+use geometry::{CameraModel, CameraRole, MultiRig, Rig};
 
 use super::{Calibration, Role};
 
@@ -299,6 +299,83 @@ pub fn describe(name: &str, c: &Calibration) -> (String, usize) {
             camera_checks(camera, *role)
         }
     };
+    let _ = writeln!(s, "checks:");
+    let mut warnings = 0;
+    for f in &findings {
+        warnings += f.warning as usize;
+        let _ = writeln!(s, "  {}  {}", if f.warning { "WARN" } else { "ok  " }, f.text);
+    }
+    (s, warnings)
+}
+
+/// The text of `kfuse rig show` for a rig of several cameras: every camera with its role,
+/// sensor, parameters and pose (its centre in the reference frame, mm, and its rotation from
+/// the reference), then the checks: the rig's own ([`MultiRig::plausibility_problems`]), each
+/// camera's ([`camera_checks`]) and each sensor's depth + colour pair ([`rig_checks`]).
+pub fn describe_multi(name: &str, rig: &MultiRig) -> (String, usize) {
+    let mut s = String::new();
+    let sensors = rig.sensors();
+    let _ = writeln!(
+        s,
+        "{name}: kfuse rig of {} cameras ({} sensor(s){}); reference frame = camera \"{}\"",
+        rig.cameras.len(),
+        sensors.len(),
+        if sensors.is_empty() { String::new() } else { format!(": {}", sensors.join(", ")) },
+        rig.reference
+    );
+    let mut findings: Vec<Finding> =
+        rig.plausibility_problems().into_iter().map(|p| finding(true, p)).collect();
+    for c in &rig.cameras {
+        let sensor = c.sensor.as_deref().map(|s| format!(", sensor {s}")).unwrap_or_default();
+        camera_text(
+            &mut s,
+            &format!("camera \"{}\" ({}{sensor})", c.name, c.role.as_str()),
+            &c.model,
+        );
+        // Rounding noise of the pose product shows as "-0.000" otherwise.
+        let centre = (c.camera_from_reference.inverse().translation * 1e3)
+            .map(|x| if x.abs() < 5e-4 { 0.0 } else { x });
+        let _ = writeln!(
+            s,
+            "  pose             centre at ({}, {}, {}) mm in the reference frame, rotated {:.4}° from it (camera_from_reference: X_cam = R·X_ref + T)",
+            fixed(centre.x, 3),
+            fixed(centre.y, 3),
+            fixed(centre.z, 3),
+            c.camera_from_reference.angle_deg()
+        );
+        if let Some(dc) = &c.depth_correction {
+            let _ = writeln!(s, "  depth correction {}x{} raw depth pixels:", dc.width, dc.height);
+            for line in dc.describe() {
+                let _ = writeln!(s, "    {line}");
+            }
+        }
+        let role = match c.role {
+            CameraRole::Depth => Some(Role::Depth),
+            CameraRole::Color => Some(Role::Color),
+            CameraRole::Camera => None,
+        };
+        findings.extend(
+            camera_checks(&c.model, role)
+                .into_iter()
+                .map(|f| Finding { text: format!("\"{}\": {}", c.name, f.text), ..f }),
+        );
+    }
+    for sensor in &sensors {
+        if let Ok((pair, _)) = rig.sensor_rig(sensor) {
+            // The cameras were checked one by one above; keep the pair's own checks.
+            let own: Vec<String> = camera_checks(&pair.depth, Some(Role::Depth))
+                .into_iter()
+                .chain(camera_checks(&pair.color, Some(Role::Color)))
+                .map(|f| f.text)
+                .collect();
+            findings.extend(
+                rig_checks(&pair)
+                    .into_iter()
+                    .filter(|f| !own.contains(&f.text))
+                    .map(|f| Finding { text: format!("sensor {sensor}: {}", f.text), ..f }),
+            );
+        }
+    }
     let _ = writeln!(s, "checks:");
     let mut warnings = 0;
     for f in &findings {
