@@ -22,6 +22,8 @@ Examples:
   kfuse view data/calib --shot 0002   # a named shot of a capture folder (scene NAME or calib NNNN)
   kfuse view DIR --engine cpu    # keep the GPU for the display only
   kfuse view calib/report        # a `kfuse calibrate --report` folder (or its rig.json)
+  kfuse view rig3.json           # a rig of several cameras: every camera as a frustum
+  kfuse view fused3              # ... and the merged cloud of a folder with rig.json + cloud.ply
   kfuse view --backend usb --out shots   # live mode on a connected Kinect v2
   kfuse view --backend sim       # live mode on the simulated Kinect v2
 
@@ -31,6 +33,9 @@ colour on depth; scroll = zoom, drag = pan, the status bar shows pixel, depth in
 nearest/Delaunay, z-buffer, edge-face removal and threshold, hole filling), Summary.
 Calibration: per-image RMS bars (rejected views marked), detected corners over each image,
 residual vectors (scale shown), board poses around the cameras in 3D, parameters ±3σ.
+Rig (a rig of several cameras, rig file version 2): each camera as a frustum in the reference
+frame, coloured per sensor and named, with its centre in mm; the merged cloud (cloud.ply
+beside rig.json, thinned to 40 000 points).
 Live: colour, depth and IR as they stream, frame count, fps and drops; press C to save a
 calibration pair (color_NNNN.jpg, ir_NNNN.png, depth_NNNN.png) and S to save a scene
 (scene_NNNN_*) into --out, the files `kfuse capture` writes.

@@ -139,6 +139,125 @@ pub fn write_mesh_ply(
     })
 }
 
+/// Longest PLY header read, bytes: 64 KiB. kfuse's headers are under 400 bytes and other
+/// tools' a few KiB (comments, a dozen properties); a file without `end_header` within this
+/// is not a PLY to read.
+pub const MAX_PLY_HEADER_BYTES: usize = 64 * 1024;
+
+/// The byte size of a PLY scalar type, `None` for a name the format does not have.
+fn ply_type_size(t: &str) -> Option<usize> {
+    Some(match t {
+        "char" | "uchar" | "int8" | "uint8" => 1,
+        "short" | "ushort" | "int16" | "uint16" => 2,
+        "int" | "uint" | "int32" | "uint32" | "float" | "float32" => 4,
+        "double" | "float64" => 8,
+        _ => return None,
+    })
+}
+
+/// Reads the vertices of a binary little-endian PLY (kfuse's clouds and meshes, and other
+/// tools' files whose first element is `vertex` with scalar properties): `x, y, z` as float or
+/// double, `red, green, blue` as uchar when all three are there; other properties are skipped.
+/// Every count is checked against the file's size before anything is allocated. With
+/// `max_points`, every k-th vertex is kept so that at most that many are returned (a viewer's
+/// preview of a cloud of millions).
+pub fn read_cloud_ply(path: &Path, max_points: Option<usize>) -> Result<PointCloud, GeometryError> {
+    let bad = |m: String| GeometryError::Format { path: path.to_path_buf(), message: m };
+    let bytes = std::fs::read(path)
+        .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+    let end = bytes
+        .windows(b"end_header\n".len())
+        .take(MAX_PLY_HEADER_BYTES)
+        .position(|w| w == b"end_header\n")
+        .ok_or_else(|| {
+            bad(format!(
+                "not a PLY file kfuse reads: no end_header line in its first {MAX_PLY_HEADER_BYTES} bytes"
+            ))
+        })?;
+    let body_start = end + b"end_header\n".len();
+    let header = String::from_utf8_lossy(&bytes[..end]);
+    let mut lines = header.lines().map(str::trim);
+    if lines.next() != Some("ply") {
+        return Err(bad("not a PLY file (it does not start with \"ply\")".into()));
+    }
+    let mut vertices: Option<usize> = None;
+    // (name, offset, size, type) of each vertex property, and the stride.
+    let mut props: Vec<(String, usize, &str)> = Vec::new();
+    let mut stride = 0usize;
+    let mut in_vertex = false;
+    for line in lines {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            ["format", f, _] if *f != "binary_little_endian" => {
+                return Err(bad(format!(
+                    "PLY format {f}; kfuse reads binary_little_endian (convert it in MeshLab or CloudCompare)"
+                )));
+            }
+            ["element", name, count] => {
+                if vertices.is_some() {
+                    break; // The vertex element is read; later elements are not needed.
+                }
+                if *name != "vertex" {
+                    return Err(bad(format!("its first element is \"{name}\", not vertex")));
+                }
+                let count: usize =
+                    count.parse().map_err(|_| bad(format!("vertex count \"{count}\"")))?;
+                vertices = Some(count);
+                in_vertex = true;
+            }
+            ["property", "list", ..] if in_vertex => {
+                return Err(bad("a list property in the vertex element".into()));
+            }
+            ["property", t, name] if in_vertex => {
+                let size =
+                    ply_type_size(t).ok_or_else(|| bad(format!("unknown property type {t}")))?;
+                props.push((name.to_string(), stride, t));
+                stride += size;
+            }
+            _ => {}
+        }
+    }
+    let n = vertices.ok_or_else(|| bad("no vertex element".into()))?;
+    let find = |name: &str| props.iter().find(|p| p.0 == name);
+    let (Some(x), Some(y), Some(z)) = (find("x"), find("y"), find("z")) else {
+        return Err(bad("the vertices have no x, y, z".into()));
+    };
+    let body = &bytes[body_start..];
+    if stride == 0 || n.checked_mul(stride).is_none_or(|len| len > body.len()) {
+        return Err(bad(format!(
+            "{n} vertices of {stride} bytes do not fit in the file's {} bytes after the header (cut short?)",
+            body.len()
+        )));
+    }
+    let rgb = match (find("red"), find("green"), find("blue")) {
+        (Some(r), Some(g), Some(b))
+            if [r, g, b].iter().all(|p| p.2 == "uchar" || p.2 == "uint8") =>
+        {
+            Some([r.1, g.1, b.1])
+        }
+        _ => None,
+    };
+    let coord = |v: &[u8], p: &(String, usize, &str)| -> Result<f32, GeometryError> {
+        let at = &v[p.1..];
+        match p.2 {
+            "float" | "float32" => Ok(f32::from_le_bytes([at[0], at[1], at[2], at[3]])),
+            "double" | "float64" => {
+                Ok(f64::from_le_bytes(at[..8].try_into().unwrap_or([0; 8])) as f32)
+            }
+            t => Err(bad(format!("coordinate {} is {t}; kfuse reads float or double", p.0))),
+        }
+    };
+    let step = max_points.map_or(1, |m| n.div_ceil(m.max(1)).max(1));
+    let mut cloud = PointCloud::default();
+    for v in body.chunks_exact(stride).take(n).step_by(step) {
+        cloud.points.push([coord(v, x)?, coord(v, y)?, coord(v, z)?]);
+        if let Some([r, g, b]) = rgb {
+            cloud.colors.push([v[r], v[g], v[b]]);
+        }
+    }
+    Ok(cloud)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -169,6 +288,47 @@ mod tests {
             Some(Property::UChar(v)) => *v,
             other => panic!("{k}: {other:?}"),
         }
+    }
+
+    /// `read_cloud_ply` gives back what the writers wrote (a cloud; a mesh's vertices past its
+    /// s, t properties), keeps every k-th vertex under `max_points`, and refuses a cut file and
+    /// an ASCII one with a message naming the file.
+    #[test]
+    fn read_cloud_ply_reads_what_kfuse_writes_and_refuses_broken_files() {
+        let dir = scratch("read");
+        let cloud = PointCloud {
+            points: (0..10).map(|i| [i as f32, -0.5 * i as f32, 1.0 + i as f32]).collect(),
+            colors: (0..10).map(|i| [i as u8, 2 * i as u8, 255 - i as u8]).collect(),
+        };
+        let path = dir.join("c.ply");
+        write_cloud_ply(&path, &cloud, "reference").unwrap();
+        assert_eq!(read_cloud_ply(&path, None).unwrap(), cloud);
+        let some = read_cloud_ply(&path, Some(4)).unwrap();
+        // 10 vertices, at most 4: every 3rd (0, 3, 6, 9).
+        assert_eq!(some.points, [0, 3, 6, 9].map(|i| cloud.points[i]).to_vec());
+        let mesh = Mesh {
+            vertices: cloud.points[..3].to_vec(),
+            colors: Vec::new(),
+            uvs: vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
+            faces: vec![[0, 1, 2]],
+        };
+        write_mesh_ply(&dir.join("m.ply"), &mesh, "reference", None).unwrap();
+        let back = read_cloud_ply(&dir.join("m.ply"), None).unwrap();
+        assert_eq!((back.points, back.colors.len()), (mesh.vertices.clone(), 0));
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(dir.join("cut.ply"), &bytes[..bytes.len() - 5]).unwrap();
+        let e = read_cloud_ply(&dir.join("cut.ply"), None).unwrap_err().to_string();
+        assert!(e.contains("cut.ply") && e.contains("cut short"), "{e}");
+        std::fs::write(
+            dir.join("a.ply"),
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n",
+        )
+        .unwrap();
+        let e = read_cloud_ply(&dir.join("a.ply"), None).unwrap_err().to_string();
+        assert!(e.contains("a.ply") && e.contains("binary_little_endian"), "{e}");
+        std::fs::write(dir.join("huge.ply"), "ply\nformat binary_little_endian 1.0\nelement vertex 99999999999\nproperty float x\nproperty float y\nproperty float z\nend_header\n").unwrap();
+        let e = read_cloud_ply(&dir.join("huge.ply"), None).unwrap_err().to_string();
+        assert!(e.contains("do not fit"), "{e}");
     }
 
     #[test]

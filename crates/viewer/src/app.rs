@@ -30,6 +30,8 @@ pub enum Page {
     Calibration,
     /// The sensor's live streams.
     Live,
+    /// The cameras of a rig of several cameras and the merged cloud.
+    Rig,
 }
 
 impl Page {
@@ -44,6 +46,7 @@ impl Page {
             Page::Summary => "Summary",
             Page::Calibration => "Calibration",
             Page::Live => "Live",
+            Page::Rig => "Rig",
         }
     }
 }
@@ -80,6 +83,8 @@ pub struct ViewerApp {
     pub calib: Option<CalibPage>,
     /// The live page, when a sensor (or the simulator) is streaming.
     pub live: Option<LivePage>,
+    /// The rig page, when a rig of several cameras is open.
+    pub rig: Option<crate::rig_page::RigPage>,
     gpu: Option<fusion_gpu::FusionContext>,
     generation: u64,
     geometry: Option<Arc<Geometry3d>>,
@@ -125,6 +130,7 @@ impl ViewerApp {
             backend_note,
             calib: None,
             live: None,
+            rig: None,
             gpu,
             generation: 0,
             geometry: None,
@@ -166,6 +172,18 @@ impl ViewerApp {
         app
     }
 
+    /// The app on a rig of several cameras (a version-2 rig file, or a folder with one as
+    /// `rig.json` and perhaps the merged `cloud.ply`); an unreadable one gives the error.
+    pub fn open_rig(path: &Path) -> Self {
+        let mut app = Self::empty(Engine::Cpu);
+        app.page = Page::Rig;
+        match crate::rig_page::RigPage::open(path) {
+            Ok(page) => app.rig = Some(page),
+            Err(e) => app.error = Some(e),
+        }
+        app
+    }
+
     /// The app on the live streams of `session`.
     pub fn live(page: LivePage) -> Self {
         let mut app = Self::empty(Engine::Cpu);
@@ -186,6 +204,9 @@ impl ViewerApp {
         if self.live.is_some() {
             pages.push(Page::Live);
         }
+        if self.rig.is_some() {
+            pages.push(Page::Rig);
+        }
         pages
     }
 
@@ -205,6 +226,9 @@ impl ViewerApp {
     /// [`ViewerApp::open_with`] on shot `shot` of a `kfuse capture` folder
     /// ([`data::open_folder_shot`]; `None`: the last one).
     pub fn open_shot(dir: &Path, engine: Engine, force: bool, shot: Option<&str>) -> Self {
+        if shot.is_none() && crate::rig_page::is_multi_rig(dir) {
+            return Self::open_rig(dir);
+        }
         if shot.is_none() && (dir.is_file() || crate::calibration::is_calibration_folder(dir)) {
             return Self::open_calibration(dir);
         }
@@ -303,10 +327,11 @@ impl ViewerApp {
                     ui.selectable_value(&mut self.page, page, page.label());
                 }
                 ui.separator();
-                match (&self.frame, &self.calib, &self.live) {
-                    (Some(f), _, _) => ui.label(format!("{} · {}", f.name, self.backend_note)),
-                    (_, Some(c), _) => ui.label(c.report.source.display().to_string()),
-                    (_, _, Some(l)) => ui.label(l.title()),
+                match (&self.frame, &self.calib, &self.live, &self.rig) {
+                    (Some(f), _, _, _) => ui.label(format!("{} · {}", f.name, self.backend_note)),
+                    (_, Some(c), _, _) => ui.label(c.report.source.display().to_string()),
+                    (_, _, Some(l), _) => ui.label(l.title()),
+                    (_, _, _, Some(r)) => ui.label(r.source.display().to_string()),
                     _ => ui.label("nothing open"),
                 };
             });
@@ -333,6 +358,12 @@ impl ViewerApp {
             l.ui(ui);
             return;
         }
+        if self.page == Page::Rig
+            && let Some(r) = self.rig.as_mut()
+        {
+            r.ui(ui);
+            return;
+        }
         if self.frame.is_none() || self.fused.is_none() {
             egui::CentralPanel::default().show(ui, |ui| {
                 ui.label("Open a `kfuse fuse` output folder, a capture folder or a `kfuse calibrate` report: kfuse view DIR (or kfuse view --demo, kfuse view --backend sim).");
@@ -343,7 +374,7 @@ impl ViewerApp {
             Page::Images => self.images_page(ui),
             Page::View3d => self.view3d_page(ui),
             Page::Summary => self.summary_page(ui),
-            Page::Calibration | Page::Live => {}
+            Page::Calibration | Page::Live | Page::Rig => {}
         }
     }
 

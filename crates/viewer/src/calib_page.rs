@@ -11,7 +11,7 @@ use std::collections::HashMap;
 
 use egui::{Color32, Pos2, Rect, Sense, Stroke, TextureHandle, TextureOptions, Vec2};
 use geometry::{CameraModel, RigidTransform};
-use nalgebra::{Vector3, Vector4};
+use nalgebra::Vector3;
 
 use crate::calibration::{CalibCamera, CalibReport, residual_gain};
 use crate::camera3d::OrbitCamera;
@@ -546,39 +546,11 @@ impl CalibPage {
                 self.orbit = self.home;
             }
         });
-        let rect = ui.available_rect_before_wrap();
-        let resp = ui.allocate_rect(rect, Sense::click_and_drag());
-        if resp.dragged_by(egui::PointerButton::Primary) {
-            let d = resp.drag_delta();
-            self.orbit.orbit(d.x, d.y);
-        } else if resp.dragged() {
-            let d = resp.drag_delta();
-            self.orbit.pan(d.x, d.y, rect.height());
-        }
-        if resp.hovered() {
-            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
-            if scroll != 0.0 {
-                self.orbit.zoom(scroll);
-            }
-        }
-        let vp = self.orbit.view_proj(rect.width() / rect.height().max(1.0));
-        let project = |p: Vector3<f64>| -> Option<Pos2> {
-            let c = vp * Vector4::new(p.x as f32, p.y as f32, p.z as f32, 1.0);
-            if c.w <= 1e-4 {
-                return None;
-            }
-            let (x, y) = (c.x / c.w, c.y / c.w);
-            Some(Pos2::new(
-                rect.center().x + x * rect.width() * 0.5,
-                rect.center().y - y * rect.height() * 0.5,
-            ))
-        };
-        let painter = ui.painter_at(rect);
-        let line = |a: Vector3<f64>, b: Vector3<f64>, stroke: Stroke| {
-            if let (Some(a), Some(b)) = (project(a), project(b)) {
-                painter.line_segment([a, b], stroke);
-            }
-        };
+        let canvas = crate::canvas3d::Canvas3d::new(ui, &mut self.orbit);
+        let project = |p: Vector3<f64>| canvas.project(p);
+        let painter = ui.painter_at(canvas.rect);
+        let line =
+            |a: Vector3<f64>, b: Vector3<f64>, stroke: Stroke| canvas.line(&painter, a, b, stroke);
         // Axes of the reference frame: x red, y green, z blue, 0.1 m.
         let o = Vector3::zeros();
         for (axis, c) in [
@@ -589,21 +561,7 @@ impl CalibPage {
             line(o, axis * 0.1, Stroke::new(2.0, c));
         }
         for (label, model, pose) in self.camera_poses() {
-            let k = model.intrinsics;
-            let corners: Vec<Vector3<f64>> = [
-                (0.0, 0.0),
-                (model.width as f64 - 1.0, 0.0),
-                (model.width as f64 - 1.0, model.height as f64 - 1.0),
-                (0.0, model.height as f64 - 1.0),
-            ]
-            .iter()
-            .map(|&(u, v)| {
-                pose.apply(
-                    &(Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0) * FRUSTUM_DEPTH_M),
-                )
-            })
-            .collect();
-            let c = pose.apply(&Vector3::zeros());
+            let (c, corners) = crate::camera3d::frustum(&model, &pose, FRUSTUM_DEPTH_M);
             let colour = if label == "IR" {
                 Color32::from_rgb(230, 120, 230)
             } else {

@@ -5,6 +5,7 @@
 //! [`OrbitCamera::fit`] starts at the colour camera's viewpoint. Clip space is wgpu's
 //! (z in 0..1).
 
+use geometry::{CameraModel, RigidTransform};
 use nalgebra::{Matrix4, Point3, Vector3};
 
 /// Vertical field of view, degrees: the Kinect v2 colour camera's (~54°).
@@ -105,4 +106,22 @@ impl OrbitCamera {
         );
         proj * view
     }
+}
+/// A camera's frustum drawn as a pyramid: its optical centre and the rays through its image
+/// corners cut at `depth` metres, in the frame that `frame_from_camera` maps the camera into.
+/// Corners in the order top-left, top-right, bottom-right, bottom-left.
+pub fn frustum(
+    model: &CameraModel,
+    frame_from_camera: &RigidTransform,
+    depth: f64,
+) -> (Vector3<f64>, [Vector3<f64>; 4]) {
+    let k = model.intrinsics;
+    let (w, h) = (model.width as f64 - 1.0, model.height as f64 - 1.0);
+    let corner = |u: f64, v: f64| {
+        frame_from_camera.apply(&(Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0) * depth))
+    };
+    (
+        frame_from_camera.apply(&Vector3::zeros()),
+        [corner(0.0, 0.0), corner(w, 0.0), corner(w, h), corner(0.0, h)],
+    )
 }

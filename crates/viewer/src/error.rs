@@ -48,6 +48,10 @@ pub enum ViewerError {
         /// What it is and where it should come from.
         hint: String,
     },
+    /// A rig of several cameras or its merged cloud could not be read (the message names the
+    /// file).
+    #[error("{0}")]
+    Rig(String),
     /// A file exists but could not be read or parsed.
     #[error("{path}: {message}")]
     BadFile {

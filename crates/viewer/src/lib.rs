@@ -30,12 +30,14 @@ mod app;
 pub mod calib_page;
 pub mod calibration;
 pub mod camera3d;
+pub mod canvas3d;
 pub mod data;
 mod error;
 pub mod live;
 pub mod panes;
 pub mod pipeline;
 pub mod render3d;
+pub mod rig_page;
 pub mod view2d;
 
 pub use app::{Page, ViewerApp};
