@@ -137,6 +137,16 @@ VIEWER_FRAME = re.compile(
     r"adapter (.*)\); upload ([0-9.]+) ms$"
 )
 VIEWER_COVER = re.compile(r"^mesh covers ([0-9.]+) % of the view$")
+# benches/calibrate_e2e.sh: one line per tool.
+CAL_KFUSE = re.compile(
+    r"^kfuse: 25\+25 images, median ([0-9.]+) s, min ([0-9.]+) s over (\d+) processes; "
+    r"last run's stages ms: (.*); load before (.+)$"
+)
+CAL_CV_PROCESS = re.compile(r"^opencv process: median ([0-9.]+) s, min ([0-9.]+) s over (\d+) processes")
+CAL_CV_SCRIPT = re.compile(
+    r"^opencv: (\d+) pairs, ([0-9.]+) s in the script \(read ([0-9.]+) s, detect ([0-9.]+) s, "
+    r"calibrate ([0-9.]+) s\), rms (\S+) px, OpenCV (\S+), threads (\d+)$"
+)
 SKIP_LINE = re.compile(r"^SKIP \S+: (.+)$")
 
 
@@ -193,9 +203,33 @@ def parse_viewer(lines):
     return out
 
 
-STEP_PARSERS = {"detect_stages": parse_detect_stages, "sequence_e2e": parse_sequence, "viewer_frame_time": parse_viewer}
+def parse_calibrate(lines):
+    out = {}
+    for line in lines:
+        line = line.strip()
+        m = CAL_KFUSE.match(line)
+        if m:
+            g = m.groups()
+            stages = [s.rsplit(" ", 1) for s in g[3].split(", ") if " " in s]
+            out["kfuse"] = {"median_s": float(g[0]), "min_s": float(g[1]), "reps": int(g[2]),
+                            "stages_ms": [[n, float(v)] for n, v in stages], "load_before": floats(g[4])}
+        m = CAL_CV_PROCESS.match(line)
+        if m:
+            out["opencv"] = {"median_s": float(m.group(1)), "min_s": float(m.group(2)), "reps": int(m.group(3))}
+        m = CAL_CV_SCRIPT.match(line)
+        if m and "opencv" in out:
+            g = m.groups()
+            out["opencv"].update({"pairs": int(g[0]), "script_s": float(g[1]), "read_s": float(g[2]),
+                                  "detect_s": float(g[3]), "calibrate_s": float(g[4]), "rms_px": g[5],
+                                  "version": g[6], "threads": int(g[7])})
+    return out
+
+
+STEP_PARSERS = {"detect_stages": parse_detect_stages, "sequence_e2e": parse_sequence,
+                "calibrate_e2e": parse_calibrate, "viewer_frame_time": parse_viewer}
 # What a step's log must yield for its status to stay "ok".
-STEP_NEEDS = {"detect_stages": "classes", "sequence_e2e": "runs", "viewer_frame_time": "ms_per_frame"}
+STEP_NEEDS = {"detect_stages": "classes", "sequence_e2e": "runs", "calibrate_e2e": "kfuse",
+              "viewer_frame_time": "ms_per_frame"}
 
 
 def collect_steps(meta, log_dir):
@@ -655,6 +689,33 @@ def render_sequence(res):
     return lines
 
 
+def render_calibrate(res):
+    st, lines = step_intro(
+        res, "calibrate_e2e",
+        "`kfuse calibrate` end to end against OpenCV's end-to-end script on the same files (`benches/calibrate_e2e.sh`, "
+        "this run's kfuse binary, the peers' Python): 25 IR + 25 colour images of synthetic-calib (15 poses cycled), "
+        "read + detect + both cameras + stereo, whole processes alternated, no figures written on either side",
+    )
+    if st is None:
+        return lines
+    k, o = st["kfuse"], st.get("opencv")
+    lines.append("| tool | processes | median s | min s | split (last kfuse run: its `--timings`; OpenCV: its script) |")
+    lines.append("| --- | --- | --- | --- | --- |")
+    split = ", ".join(f"{n} {v:.0f} ms" for n, v in k["stages_ms"])
+    lines.append(f"| kfuse | {k['reps']} | {k['median_s']:.3f} | {k['min_s']:.3f} | {split} |")
+    if o is None:
+        lines.append("| OpenCV | — | not timed: the peers' Python has no cv2 | | |")
+    else:
+        lines.append(f"| OpenCV {o.get('version', '?')} ({o.get('threads', '?')} threads; Python start-up and `import cv2` "
+                     f"included) | {o['reps']} | {o['median_s']:.3f} | {o['min_s']:.3f} | read {o.get('read_s', 0) * 1e3:.0f} ms, "
+                     f"detect {o.get('detect_s', 0) * 1e3:.0f} ms, calibrate {o.get('calibrate_s', 0) * 1e3:.0f} ms "
+                     f"({o.get('pairs', '?')} pairs, RMS IR/colour/stereo {o.get('rms_px', '?')} px) |")
+    load = "/".join(f"{x:.2f}" for x in k["load_before"]) or "?"
+    lines.append("")
+    lines.append(f"Load (1/5/15 min) before the runs: {load}.")
+    return lines
+
+
 def render_png16(res):
     b = res.d["benches"].get(SEQ)
     if b is None:
@@ -697,6 +758,7 @@ def render_viewer(res):
 RENDERERS = {
     "detect_stages": render_detect_stages,
     "sequence_e2e": render_sequence,
+    "calibrate_e2e": render_calibrate,
     "png16": render_png16,
     "viewer_frame_time": render_viewer,
 }

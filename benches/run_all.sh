@@ -8,7 +8,7 @@
 #   script; the tables say "quick mode").
 # --only STEPS: for testing the script, run only these comma-separated steps: `benches` (every
 #   criterion bench and its peers), `bench:PACKAGE/BENCH` (one bench and its peers),
-#   `detect_stages`, `sequence_e2e`, `viewer_frame_time`. Everything is still built; the
+#   `detect_stages`, `sequence_e2e`, `calibrate_e2e`, `viewer_frame_time`. Everything is still built; the
 #   results and the document go to $CARGO_TARGET_DIR/run_all/{last-run.json,BENCHMARKS.md},
 #   never to the repository's files (a partial run is not a run of the tables).
 #
@@ -30,7 +30,10 @@
 #    one thread, KFUSE_REPS repetitions, default 5; skipped with a note without the shared
 #    data), `benches/sequence_e2e.sh` with the kfuse binary of this build (a FRAMES-frame
 #    simulated recording, default 300, under the run folder, deleted after; kfuse and TUM
-#    layouts, 1 and 2 threads) and the viewer's frame-time test
+#    layouts, 1 and 2 threads), `benches/calibrate_e2e.sh` (`kfuse calibrate` of 25 IR + 25
+#    colour images end to end against OpenCV's end-to-end script on the same files, whole
+#    processes alternated, CALIB_REPS times each, default 5; skipped without the shared data)
+#    and the viewer's frame-time test
 #    (`crates/viewer/tests/frame_time.rs`, the 3D view's textured mesh on the wgpu adapter);
 # 6. writes benches/results/last-run.json (machine, date UTC, commit + dirty flag, load at start
 #    and end, every criterion median with its 95 % interval, the peers' and the steps' figures)
@@ -72,11 +75,11 @@ while [ $# -gt 0 ]; do
   shift
 done
 [[ $MAX_WAIT_S =~ ^[0-9]+$ ]] || { echo "run_all.sh: --max-wait '$MAX_WAIT_S' is not a whole number of seconds" >&2; exit 2; }
-STEPS_KNOWN="benches bench:PACKAGE/BENCH detect_stages sequence_e2e viewer_frame_time"
+STEPS_KNOWN="benches bench:PACKAGE/BENCH detect_stages sequence_e2e calibrate_e2e viewer_frame_time"
 IFS=, read -ra SELECTED <<<"$ONLY"
 for s in "${SELECTED[@]}"; do
   case "$s" in
-    benches|bench:*/*|detect_stages|sequence_e2e|viewer_frame_time) ;;
+    benches|bench:*/*|detect_stages|sequence_e2e|calibrate_e2e|viewer_frame_time) ;;
     *) echo "run_all.sh: --only: unknown step '$s' (known: $STEPS_KNOWN)" >&2; exit 2 ;;
   esac
 done
@@ -123,10 +126,12 @@ if [ "$QUICK" = 1 ]; then
   CRIT_ARGS=(--warm-up-time 1 --measurement-time 2 --sample-size 10 --noplot)
   DETECT_REPS=1
   SEQ_FRAMES=60
+  CALIB_REPS=1
 else
   CRIT_ARGS=(--noplot)
   DETECT_REPS=${KFUSE_REPS:-5}
   SEQ_FRAMES=300
+  CALIB_REPS=5
 fi
 
 META=$RUN/meta.txt
@@ -306,6 +311,15 @@ if want sequence_e2e; then
   mkdir -p "$RUN/sequence"
   run_step sequence_e2e "$ROOT" env KFUSE_SEQ_WORK="$RUN/sequence" benches/sequence_e2e.sh "$KFUSE_BIN" "$SEQ_FRAMES"
   rm -rf "$RUN/sequence"
+fi
+if want calibrate_e2e; then
+  if [ -d "$DATA/synthetic-calib" ]; then
+    meta step.calibrate_e2e.reps "$CALIB_REPS"
+    run_step calibrate_e2e "$ROOT" benches/calibrate_e2e.sh "$KFUSE_BIN" "$DATA" "$CALIB_REPS" "$PY"
+  else
+    echo "== calibrate_e2e: SKIPPED, no shared data at $DATA (synthetic-calib); its table will say so"
+    meta step.calibrate_e2e "skipped: no shared data at $DATA"
+  fi
 fi
 if want viewer_frame_time; then
   run_step viewer_frame_time crates/viewer "$FRAME_TIME" frame_time_kinect_textured_mesh --exact --nocapture --test-threads 1
