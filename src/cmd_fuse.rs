@@ -7,12 +7,10 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use fusion_gpu::{Engine, EngineUsed};
-use geometry::Image;
 use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
 use indicatif::{ProgressBar, ProgressStyle};
-use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
-use kfuse_io::{images, obj, ply};
-use serde::Serialize;
+use kfuse_io::atomic::StagedDir;
+use kfuse_io::{fused, images};
 
 use crate::figures;
 
@@ -231,17 +229,6 @@ pub fn options(args: &FuseArgs) -> Result<FusionOptions> {
     })
 }
 
-#[derive(Serialize)]
-struct SummaryFile<'a> {
-    format: &'static str,
-    kfuse_version: &'static str,
-    inputs: &'a serde_json::Value,
-    units: serde_json::Value,
-    options: &'a FusionOptions,
-    summary: &'a fusion::FusionSummary,
-    files: Vec<String>,
-}
-
 /// What [`run`] produced.
 pub struct FuseResult {
     /// The committed output folder.
@@ -306,11 +293,11 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     crate::interrupt::check(STOPPED)?;
     let mut files = Vec::new();
     bar.set_message("writing cloud and depth images");
-    write_data(&staged, &inputs, &output, &mut files)?;
+    fused::write_data(&staged, &output, &mut files)?;
     bar.inc(1);
     crate::interrupt::check(STOPPED)?;
     bar.set_message("writing meshes");
-    write_meshes(&staged, &inputs, &output, &mut files)?;
+    fused::write_meshes(&staged, &inputs.color, &output, &mut files)?;
     bar.inc(1);
     crate::interrupt::check(STOPPED)?;
     if !args.no_figures {
@@ -319,24 +306,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     }
     bar.inc(1);
     crate::interrupt::check(STOPPED)?;
-    files.push("summary.json".into());
-    let summary = SummaryFile {
-        format: "kfuse-fuse-summary",
-        kfuse_version: env!("CARGO_PKG_VERSION"),
-        inputs: &inputs.description,
-        units: serde_json::json!({
-            "lengths": "metres",
-            "depth_png": "16-bit millimetres, 0 = no sample",
-            "depth_exr": "32-bit float metres (channel Y), NaN = no sample",
-            "pixels": "0-based, integer coordinates are pixel centres",
-            "frames": "cloud.ply: depth camera; meshes and depth_*: colour camera (x right, y down, z forward)",
-        }),
-        options: &options,
-        summary: &output.summary,
-        files,
-    };
-    let json = serde_json::to_string_pretty(&summary).context("serialising summary.json")?;
-    write_bytes_atomic(&staged.join("summary.json"), json.as_bytes())?;
+    fused::write_summary(&staged, &inputs.description, &options, &output.summary, files)?;
     bar.set_message("committing");
     crate::interrupt::check(STOPPED)?;
     let out = staged.commit()?;
@@ -368,80 +338,12 @@ fn input_names(args: &FuseArgs) -> String {
     }
 }
 
-fn write_depth_pair(
-    staged: &StagedDir,
-    name: &str,
-    depth: &Image<f32>,
-    files: &mut Vec<String>,
-) -> Result<()> {
-    images::write_depth_png16(&staged.join(format!("{name}.png")), depth)?;
-    images::write_depth_exr(&staged.join(format!("{name}.exr")), depth)?;
-    files.push(format!("{name}.png"));
-    files.push(format!("{name}.exr"));
-    Ok(())
-}
-
-fn write_data(
-    staged: &StagedDir,
-    _inputs: &Inputs,
-    out: &FusionOutput,
-    files: &mut Vec<String>,
-) -> Result<()> {
-    ply::write_cloud_ply(&staged.join("cloud.ply"), &out.cloud, "depth camera")?;
-    files.push("cloud.ply".into());
-    write_depth_pair(staged, "depth_zbuffer", &out.zbuffer, files)?;
-    write_depth_pair(staged, "depth_nearest", &out.nearest, files)?;
-    if let Some(linear) = &out.linear {
-        write_depth_pair(staged, "depth_linear", linear, files)?;
-    }
-    write_depth_pair(staged, "depth_filled", &out.filled, files)?;
-    images::write_mask_png(&staged.join("hole_mask.png"), &out.hole_mask)?;
-    images::write_color_png(&staged.join("color_on_depth.png"), &out.color_on_depth)?;
-    files.push("hole_mask.png".into());
-    files.push("color_on_depth.png".into());
-    Ok(())
-}
-
 /// Every name `fuse` may write into `--out` (a run writes a subset: `depth_linear.*` only with
 /// `--linear`, figures unless `--no-figures`); checked against real runs by a test.
 fn output_names() -> Vec<String> {
-    let mut names: Vec<String> =
-        ["summary.json", "cloud.ply", "hole_mask.png", "color_on_depth.png"]
-            .map(String::from)
-            .into();
-    for depth in ["depth_zbuffer", "depth_nearest", "depth_linear", "depth_filled"] {
-        names.extend([format!("{depth}.png"), format!("{depth}.exr")]);
-    }
-    for mesh in MESH_NAMES {
-        names.extend([".ply", ".obj", ".mtl", "_texture.png"].map(|ext| format!("{mesh}{ext}")));
-    }
+    let mut names = fused::output_names();
     names.extend((1..=figures::LAB_FIGURES).map(|n| format!("task{n}.png")));
     names
-}
-
-/// The two meshes `fuse` writes: before and after H5.
-const MESH_NAMES: [&str; 2] = ["mesh", "mesh_clean"];
-
-fn write_meshes(
-    staged: &StagedDir,
-    inputs: &Inputs,
-    out: &FusionOutput,
-    files: &mut Vec<String>,
-) -> Result<()> {
-    for (name, mesh) in MESH_NAMES.into_iter().zip([&out.mesh, &out.mesh_clean]) {
-        let texture = format!("{name}_texture.png");
-        ply::write_mesh_ply(
-            &staged.join(format!("{name}.ply")),
-            mesh,
-            "colour camera",
-            Some(&texture),
-        )?;
-        obj::write_textured_obj(&staged.join(format!("{name}.obj")), mesh, Some(&inputs.color))?;
-        for ext in [".ply", ".obj", ".mtl", "_texture.png"] {
-            files.push(format!("{name}{ext}"));
-        }
-    }
-    Ok(())
 }
 
 fn write_figures(

@@ -7,6 +7,9 @@
 
 use std::path::{Path, PathBuf};
 
+mod fuse;
+mod recording;
+
 use calib::CalibError;
 use calib::rig_io::{self, Calibration, ImportOptions};
 use geometry::fusion::{self, ColorProjection, FusionOptions};
@@ -268,6 +271,25 @@ struct PyRegistration {
 }
 
 impl PyRegistration {
+    /// H6 of the last registered frame (which must exist): fuse's colour on the depth grid
+    /// with its occlusion test against H3's nearest fill (computed on first use).
+    fn color_of_frame(
+        &mut self,
+        color: &Image<[u8; 3]>,
+    ) -> Result<(Image<[u8; 3]>, Image<bool>), GeometryError> {
+        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
+        let (reg, rays, proj) = (&self.reg, &self.rays, &self.projection);
+        let (radius, jump, tol) = (self.radius_px, self.depth_jump, self.occlusion_tolerance);
+        let Some(frame) = self.frame.as_mut() else {
+            return Err(GeometryError::InvalidInput("no frame registered yet".into()));
+        };
+        if frame.nearest.is_none() {
+            let z = Image::from_vec(cw, ch, reg.zbuffer().to_vec())?;
+            frame.nearest = Some(fusion::nearest_fill(&z, radius, jump));
+        }
+        Ok(fusion::color_on_depth(&frame.depth, rays, proj, color, frame.nearest.as_ref(), tol))
+    }
+
     fn frame(&self, what: &str) -> PyResult<&Frame> {
         self.frame.as_ref().ok_or_else(|| {
             PyValueError::new_err(format!(
@@ -307,18 +329,10 @@ impl PyRegistration {
         py: Python<'py>,
         depth: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let (dw, dh) = (self.rig.depth.width, self.rig.depth.height);
-        let arr = array2::<u16>(depth, "depth", "uint16", dh, dw)?;
-        let units = arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
-        let correction = self.rig.depth_correction.clone();
+        let image = depth_metres(py, &self.rig, depth)?;
         let reg = &mut self.reg;
         let (image, zbuffer) = py
             .detach(|| -> Result<_, GeometryError> {
-                // As kfuse_io::images::read_depth reads a 16-bit PNG.
-                let mut image = kfuse_io::images::depth_from_units(dw, dh, units, METRES_PER_MM)?;
-                if let Some(c) = &correction {
-                    c.correct_image(&mut image, 1.0)?;
-                }
                 reg.register_parallel(&image)?;
                 Ok((image, reg.zbuffer().to_vec()))
             })
@@ -355,48 +369,9 @@ impl PyRegistration {
         py: Python<'py>,
         color: &Bound<'py, PyAny>,
     ) -> PyResult<ColorOnDepth<'py>> {
-        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
-        let expected = format!("uint8 ({ch}, {cw}, 3)");
-        let arr: PyReadonlyArray3<u8> = color
-            .cast::<PyArray3<u8>>()
-            .map_err(|_| bad_array("color", &expected, color, ""))?
-            .readonly();
-        if arr.shape() != [ch, cw, 3] {
-            return Err(bad_array("color", &expected, color, ""));
-        }
-        let pixels = arr.as_slice().map_err(|_| {
-            bad_array(
-                "color",
-                &expected,
-                color,
-                " that is not C-contiguous (pass numpy.ascontiguousarray(...))",
-            )
-        })?;
+        let color_img = color_image(py, &self.rig, color)?;
         self.frame("color_on_depth")?;
-        let (reg, rays, proj) = (&self.reg, &self.rays, &self.projection);
-        let (radius, jump, tol) = (self.radius_px, self.depth_jump, self.occlusion_tolerance);
-        let Some(frame) = self.frame.as_mut() else { unreachable!("checked above") };
-        let (rgb, valid) = py
-            .detach(|| -> Result<_, GeometryError> {
-                if frame.nearest.is_none() {
-                    let z = Image::from_vec(cw, ch, reg.zbuffer().to_vec())?;
-                    frame.nearest = Some(fusion::nearest_fill(&z, radius, jump));
-                }
-                let color_img = Image::from_vec(
-                    cw,
-                    ch,
-                    pixels.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-                )?;
-                Ok(fusion::color_on_depth(
-                    &frame.depth,
-                    rays,
-                    proj,
-                    &color_img,
-                    frame.nearest.as_ref(),
-                    tol,
-                ))
-            })
-            .map_err(geometry_err)?;
+        let (rgb, valid) = py.detach(|| self.color_of_frame(&color_img)).map_err(geometry_err)?;
         let (dw, dh) = (self.rig.depth.width, self.rig.depth.height);
         let flat: Vec<u8> = rgb.data().iter().flatten().copied().collect();
         let rgb = Array3::from_shape_vec((dh, dw, 3), flat)
@@ -405,6 +380,108 @@ impl PyRegistration {
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok((rgb.into_pyarray(py), valid.into_pyarray(py)))
     }
+
+    /// H1 (and H6): the point cloud `kfuse fuse` writes as cloud.ply. `depth` is as for
+    /// `register` (uint16 (H, W) mm, the rig's depth correction applied); returns
+    /// (points float32 (N, 3) metres in the depth camera's frame, x right, y down, z forward,
+    /// one per valid depth pixel in row-major order; colors uint8 (N, 3) or None). With
+    /// `color` (uint8 (colour H, colour W, 3), RGB) the frame is registered as by `register`
+    /// (it becomes the last frame) and every point gets H6's colour, black where fuse does
+    /// not trust it (occluded or outside the colour image), as in cloud.ply. Without it
+    /// nothing is registered. Releases the GIL.
+    #[pyo3(signature = (depth, color = None))]
+    fn cloud<'py>(
+        &mut self,
+        py: Python<'py>,
+        depth: &Bound<'py, PyAny>,
+        color: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<CloudArrays<'py>> {
+        let color_img = color.map(|c| color_image(py, &self.rig, c)).transpose()?;
+        let image = depth_metres(py, &self.rig, depth)?;
+        let (points, pixels) = py.detach(|| fusion::backproject_cloud(&image, &self.rays));
+        let colors = match color_img {
+            None => None,
+            Some(color_img) => {
+                let reg = &mut self.reg;
+                py.detach(|| reg.register_parallel(&image)).map_err(geometry_err)?;
+                self.frame = Some(Frame { depth: image, nearest: None });
+                let (rgb, valid) =
+                    py.detach(|| self.color_of_frame(&color_img)).map_err(geometry_err)?;
+                Some(rows(py, &fusion::cloud_colors(&pixels, &rgb, &valid))?)
+            }
+        };
+        Ok((rows(py, &points.points)?, colors))
+    }
+}
+
+/// `cloud`'s result: points (N, 3) float32 metres and colours (N, 3) uint8 or None.
+type CloudArrays<'py> = (Bound<'py, PyArray2<f32>>, Option<Bound<'py, PyArray2<u8>>>);
+
+/// `depth` in metres, NaN or 0 = no sample, with the rig's depth correction applied as fuse
+/// applies it: a uint16 (H, W) array of millimetres as `kfuse_io::images::read_depth` reads
+/// a 16-bit PNG, or a float32 (H, W) array of millimetres (the decoder's and `Recording`'s
+/// output) as `kfuse fuse --recording` converts it (`kfuse_sequence::process::depth_in_metres`);
+/// (H, W) is the rig's depth camera's size.
+fn depth_metres(py: Python<'_>, rig: &Rig, depth: &Bound<'_, PyAny>) -> PyResult<Image<f32>> {
+    let (dw, dh) = (rig.depth.width, rig.depth.height);
+    let correction = rig.depth_correction.clone();
+    let correct = |mut image: Image<f32>| -> Result<Image<f32>, GeometryError> {
+        if let Some(c) = &correction {
+            c.correct_image(&mut image, 1.0)?;
+        }
+        Ok(image)
+    };
+    if depth.cast::<PyArray2<f32>>().is_ok() {
+        let arr = array2::<f32>(depth, "depth", "float32", dh, dw)?;
+        let mm = arr.as_slice().map_err(|_| bad_array("depth", "float32", depth, ""))?;
+        return py
+            .detach(|| {
+                let image = kfuse_sequence::process::depth_in_metres(mm, dw, dh)
+                    .map_err(|e| GeometryError::InvalidInput(e.to_string()))?;
+                correct(image)
+            })
+            .map_err(geometry_err);
+    }
+    let arr = array2::<u16>(depth, "depth", "uint16", dh, dw)?;
+    let units = arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
+    py.detach(|| correct(kfuse_io::images::depth_from_units(dw, dh, units, METRES_PER_MM)?))
+        .map_err(geometry_err)
+}
+
+/// `color` (C-contiguous uint8 (colour H, colour W, 3), RGB) as an image.
+fn color_image(py: Python<'_>, rig: &Rig, color: &Bound<'_, PyAny>) -> PyResult<Image<[u8; 3]>> {
+    let (cw, ch) = (rig.color.width, rig.color.height);
+    let expected = format!("uint8 ({ch}, {cw}, 3)");
+    let arr: PyReadonlyArray3<u8> = color
+        .cast::<PyArray3<u8>>()
+        .map_err(|_| bad_array("color", &expected, color, ""))?
+        .readonly();
+    if arr.shape() != [ch, cw, 3] {
+        return Err(bad_array("color", &expected, color, ""));
+    }
+    let pixels = arr.as_slice().map_err(|_| {
+        bad_array(
+            "color",
+            &expected,
+            color,
+            " that is not C-contiguous (pass numpy.ascontiguousarray(...))",
+        )
+    })?;
+    py.detach(|| {
+        Image::from_vec(cw, ch, pixels.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    })
+    .map_err(geometry_err)
+}
+
+/// Rows of `N` values as an (len, N) array.
+fn rows<'py, T: numpy::Element + Copy, const N: usize>(
+    py: Python<'py>,
+    v: &[[T; N]],
+) -> PyResult<Bound<'py, PyArray2<T>>> {
+    let flat: Vec<T> = v.iter().flatten().copied().collect();
+    let a = Array2::from_shape_vec((v.len(), N), flat)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(a.into_pyarray(py))
 }
 
 /// Reads a depth image file as `kfuse fuse --depth` does (16-bit PNG/TIFF in millimetres,
@@ -528,5 +605,10 @@ fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRegistration>()?;
     m.add_class::<PyDecoder>()?;
     m.add_function(wrap_pyfunction!(read_depth, m)?)?;
+    m.add_class::<fuse::PyFusedFrame>()?;
+    m.add_function(wrap_pyfunction!(fuse::fuse, m)?)?;
+    m.add_class::<fuse::PyEngine>()?;
+    m.add_class::<recording::PyRecording>()?;
+    m.add_class::<recording::PyRecordingFrame>()?;
     Ok(())
 }

@@ -46,6 +46,22 @@ def test_color_on_depth_equals_fuse(fused, reg):
     assert valid.sum() > 50_000
 
 
+def test_register_takes_float32_millimetres_as_the_decoder_gives_them(fused, reg):
+    """float32 mm (kfuse.Decoder's and Recording's depth, converted as fuse --recording
+    converts it) against the same integers in uint16 (converted as a 16-bit PNG): the two
+    conversions differ by float32 rounding (one ulp, < 1e-6 m), so z agrees to 1e-6 m where
+    both have a sample, and a rounding-level move flips the winner of at most
+    FLIPPED_PIXELS_MAX of the ~184 000 z-buffer pixels (6 on this frame)."""
+    FLIPPED_PIXELS_MAX = 50
+    z16 = reg.register(fused["depth_mm"])
+    z32 = reg.register(fused["depth_mm"].astype(np.float32))
+    assert (np.isnan(z16) != np.isnan(z32)).sum() <= FLIPPED_PIXELS_MAX
+    both = ~np.isnan(z16) & ~np.isnan(z32)
+    assert both.sum() > 100_000 and np.abs(z16 - z32)[both].max() <= 1e-6
+    with pytest.raises(ValueError, match=r"^depth: expected a C-contiguous float32 \(424, 512\)"):
+        reg.register(np.zeros((512, 424), np.float32))
+
+
 def test_register_calls_are_independent(fused, reg):
     """A second frame replaces the first: no state leaks between frames."""
     empty = np.zeros((424, 512), np.uint16)
@@ -58,7 +74,7 @@ def test_register_calls_are_independent(fused, reg):
 @pytest.mark.parametrize(
     "bad, what",
     [
-        (np.zeros((424, 512), np.float32), "float32"),
+        (np.zeros((424, 512), np.float64), "float64"),
         (np.zeros((424, 512), np.int32), "int32"),
         (np.zeros((512, 424), np.uint16), "(512, 424)"),
         (np.zeros((424, 512, 1), np.uint16), "(424, 512, 1)"),

@@ -448,7 +448,10 @@ fn write_depth_exr_with(
             software_name: mark.map(Text::from),
             ..LayerAttributes::named("depth_m")
         },
-        Encoding::FAST_LOSSLESS,
+        // Tiles in increasing order, not in the order the parallel compressor finishes them:
+        // the same depth gives the same bytes (the CLI's and Python's outputs are compared
+        // byte for byte).
+        Encoding { line_order: LineOrder::Increasing, ..Encoding::FAST_LOSSLESS },
         AnyChannels::sort(list),
     );
     let mut out = Cursor::new(Vec::new());

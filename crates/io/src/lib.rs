@@ -7,6 +7,7 @@
 //! | --- | --- |
 //! | [`atomic`] | every write: temporary file + rename, [`atomic::StagedDir`] for output folders |
 //! | [`mat`] | MATLAB v5 `.mat` files (reader for every numeric class, char, struct, cell; small writer) |
+//! | [`fused`] | `kfuse fuse`'s output folder (cloud, depth images, mask, meshes, `summary.json`), for the CLI and Python |
 //! | [`course`] | the lab's `synthdata.mat` and `KinectData.mat` → [`geometry::Rig`] + images |
 //! | [`kinect_data`] | the lab's `KinectData.mat`: rig, colour image, uint16 depth (mm) |
 //! | [`image_header`] | image sizes from headers, checked against limits before decoding; JPEG completeness |
@@ -22,6 +23,7 @@
 
 pub mod atomic;
 pub mod course;
+pub mod fused;
 pub mod image_header;
 pub mod images;
 pub mod kinect_data;
