@@ -292,6 +292,42 @@ fn three_kinect_ring_calibration_capture() {
         "{checked} views checked against the images, {seen_by_some_not_all} of {n_poses} shots seen by a subset"
     );
     assert_eq!(seen_by_some_not_all, n_poses);
+
+    // The detector and calibration, independent of the simulator: the second sensor's own
+    // images calibrate to its own (perturbed) factory parameters within 3σ, and its detector
+    // finds no board in shot 1 (facing the first sensor) but one in shot 2 (facing it).
+    let fitted = dir.path().join("rig2.json");
+    let s2 = out.join(SERIALS[1]);
+    let st = kfuse()
+        .args(["calibrate", "--allow-unpaired", "--ir"])
+        .arg(s2.join("ir_*.png"))
+        .arg("--color")
+        .arg(s2.join("color_*.jpg"))
+        .arg("--out")
+        .arg(&fitted)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&st.stdout);
+    assert!(st.status.success(), "{}{text}", String::from_utf8_lossy(&st.stderr));
+    let row = |name: &str| text.lines().find(|l| l.trim_start().starts_with(name)).unwrap_or("");
+    assert!(row("color_0001.jpg").contains("no board found"), "{text}");
+    assert!(row("color_0002.jpg").contains(" ok"), "{text}");
+    let fit = json(&fitted);
+    let c = &fit["calibration"];
+    for (which, sigma, truth) in [
+        ("depth_camera", "depth_std_1sigma", cam(format!("{}.depth", SERIALS[1]))),
+        ("color_camera", "color_std_1sigma", cam(format!("{}.color", SERIALS[1]))),
+    ] {
+        for (k, want) in ["fx", "fy", "cx", "cy"].iter().zip(truth.k) {
+            let got = fit[which][k].as_f64().unwrap();
+            let sd = c[sigma][k].as_f64().unwrap();
+            eprintln!("{which} {k}: {got:.3} ± {sd:.3}, true {want:.3}");
+            assert!((got - want).abs() <= 3.0 * sd, "{which} {k}: {got} ± {sd}, true {want}");
+        }
+    }
+    // The perturbation (+1.2 % depth focal length) is resolved: far beyond 10σ.
+    let sd = c["depth_std_1sigma"]["fx"].as_f64().unwrap();
+    assert!((fit["depth_camera"]["fx"].as_f64().unwrap() - fx[0]).abs() > 10.0 * sd);
 }
 
 /// One sensor of three unplugged mid-run: named on stderr, the other two take every shot,
