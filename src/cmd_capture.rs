@@ -12,11 +12,12 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use geometry::depth_correction::DepthCorrection;
 use indicatif::{ProgressBar, ProgressStyle};
+use kfuse_capture::multi::{self, Connected};
 use kfuse_capture::session::{decoder_summary, list_devices};
 use kfuse_capture::settings::{LedState, parse_exposure, parse_led};
 use kfuse_capture::{
     CaptureError, ColorSettings, DecoderOptions, FramePump, ReplayOptions, SensorSource, Session,
-    ShotKind, ShotWriter, SimOptions, shot_files, write_params_json,
+    ShotKind, ShotWriter, SimOptions, SimRing, shot_files, write_params_json,
 };
 use kinect_usb::KinectError;
 use kinect_usb::decoder::DecoderPrecision;
@@ -24,6 +25,7 @@ use kinect_usb::protocol::Exposure;
 use kinect_usb::sim::depth_error::DepthError;
 
 mod depth;
+mod several;
 use depth::{parse_depth_error, scene_depth_correction, write_corrected};
 
 /// The colour-camera and LED options' help, shared by every capture mode.
@@ -80,6 +82,10 @@ pub struct DevicesArgs {
     /// Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
+    /// With `--backend sim`: how many simulated Kinects (1–4), in a ring around the scene
+    /// (`kinect_usb::sim::ring`), each with its own serial and factory parameters.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=4))]
+    sim_sensors: u8,
 }
 
 /// Options shared by every capture mode.
@@ -111,9 +117,30 @@ pub struct CommonArgs {
     /// Kinect preset (objects before a wall).
     #[arg(long, value_enum, default_value_t = Backend::Usb)]
     backend: Backend,
+    /// The Kinect to capture from, by serial number (`kfuse devices` lists them); repeat it for
+    /// several, or `all`. With more than one, each sensor's files go into `OUT/SERIAL/` (the
+    /// same names as for one), `OUT/index.json` lists each shot's sensor timestamps and a
+    /// recording is `OUT/SERIAL.kfrec`. Without it: the first Kinect, files in `OUT`.
+    #[arg(long = "device", value_name = "SERIAL|all", conflicts_with = "replay")]
+    devices: Vec<String>,
+    /// With `--backend sim`: how many simulated Kinects (1–4), in a ring 1.6 m from the centre
+    /// facing it, 360°/N apart (two face each other), each with its own serial number
+    /// (000000000001…) and factory parameters; `capture calib --device all` writes the true
+    /// rig of the chosen sensors as `OUT/true_rig.json`.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=4))]
+    sim_sensors: u8,
+    /// Simulated ring: the `--sim-*` faults only on the sensor of this serial.
+    #[arg(long, hide = true, value_name = "SERIAL")]
+    sim_fault_sensor: Option<String>,
+    /// Simulated ring: the second sensor reports the first one's serial number.
+    #[arg(long, hide = true)]
+    sim_same_serial: bool,
     /// Set by `capture calib`: the simulated sensor shows its calibration scene.
     #[arg(skip)]
     sim_calib_scene: bool,
+    /// The one sensor `--device SERIAL` chose (its source opens exactly it).
+    #[arg(skip)]
+    chosen_source: Option<SensorSource>,
     /// Simulated device: disappear after this many frame periods.
     #[arg(long, hide = true)]
     sim_unplug_after: Option<u64>,
@@ -269,14 +296,43 @@ enum CaptureMode {
 
 /// Runs `kfuse devices`.
 pub fn run_devices(args: DevicesArgs) -> Result<()> {
-    for line in list_devices(&args.backend.source(SimOptions::default()))? {
+    let sim = SimOptions { ring: ring(args.sim_sensors), ..SimOptions::default() };
+    for line in list_devices(&args.backend.source(sim))? {
         println!("{line}");
     }
     Ok(())
 }
 
+/// The ring of `--sim-sensors N` (`None` for one: the single simulated sensor).
+fn ring(sensors: u8) -> Option<SimRing> {
+    (sensors > 1).then(|| SimRing {
+        sensors: sensors as usize,
+        index: 0,
+        serial: kinect_usb::sim::ring::serial(0),
+    })
+}
+
 impl CommonArgs {
+    /// The sensors `--device` chooses; `None` without `--device` and a ring (the one sensor
+    /// of today's capture).
+    fn chosen(&self) -> Result<Option<Vec<Connected>>> {
+        if self.devices.is_empty() {
+            return Ok(None);
+        }
+        let chosen = multi::select(&multi::connected(&self.source())?, &self.devices)?;
+        Ok(Some(chosen))
+    }
+
+    /// `self` capturing from the one sensor of `chosen` (from [`CommonArgs::chosen`]), if any.
+    fn with_chosen(&self, chosen: Option<Vec<Connected>>) -> CommonArgs {
+        let chosen_source = chosen.and_then(|c| c.into_iter().next()).map(|c| c.source);
+        CommonArgs { chosen_source, ..self.clone() }
+    }
+
     fn source(&self) -> SensorSource {
+        if let Some(s) = &self.chosen_source {
+            return s.clone();
+        }
         match &self.replay {
             Some(path) => SensorSource::Replay(ReplayOptions {
                 path: path.clone(),
@@ -289,8 +345,15 @@ impl CommonArgs {
                 iso_drop: self.sim_iso_drop,
                 calib_scene: self.sim_calib_scene,
                 depth_error: self.sim_depth_error,
+                ring: ring(self.sim_sensors),
+                fault_sensor: self.sim_fault_sensor.clone(),
+                same_serial: self.sim_same_serial,
             }),
         }
+    }
+
+    fn settings(&self) -> ColorSettings {
+        ColorSettings { exposure: self.exposure, led: self.led.map(|l| l.setting(self.led_id)) }
     }
 
     fn decoder(&self) -> DecoderOptions {
@@ -324,7 +387,15 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
             let common = CommonArgs { sim_calib_scene: true, ..common };
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
-            shots(&out, &names, ShotKind::Calib, interval, overwrite, &common, None)
+            match common.chosen()? {
+                Some(s) if s.len() > 1 => {
+                    several::shots(&out, &names, ShotKind::Calib, interval, overwrite, &common, &s)
+                }
+                s => {
+                    let common = common.with_chosen(s);
+                    shots(&out, &names, ShotKind::Calib, interval, overwrite, &common, None)
+                }
+            }
         }
         CaptureMode::Scene { out, name, count, interval, overwrite, rig, common } => {
             let correction = rig.as_deref().map(scene_depth_correction).transpose()?;
@@ -333,11 +404,26 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
             } else {
                 (1..=count).map(|i| format!("{name}_{i:04}")).collect()
             };
-            shots(&out, &names, ShotKind::Scene, interval, overwrite, &common, correction.as_ref())
+            match common.chosen()? {
+                Some(s) if s.len() > 1 => {
+                    if rig.is_some() {
+                        bail!(
+                            "--rig applies one sensor's depth correction: with several --device, capture each sensor's scene with its own rig, or drop --rig"
+                        );
+                    }
+                    several::shots(&out, &names, ShotKind::Scene, interval, overwrite, &common, &s)
+                }
+                s => {
+                    let common = common.with_chosen(s);
+                    let c = correction.as_ref();
+                    shots(&out, &names, ShotKind::Scene, interval, overwrite, &common, c)
+                }
+            }
         }
-        CaptureMode::Record { output, frames, overwrite, common } => {
-            record(&output, frames, overwrite, &common)
-        }
+        CaptureMode::Record { output, frames, overwrite, common } => match common.chosen()? {
+            Some(s) if s.len() > 1 => several::record(&output, frames, overwrite, &common, &s),
+            s => record(&output, frames, overwrite, &common.with_chosen(s)),
+        },
     }
 }
 
@@ -353,11 +439,7 @@ fn start(common: &CommonArgs) -> Result<Session> {
         ": stopped while the sensor was starting; nothing was written",
         move || Session::open(&source),
     )??;
-    let settings = ColorSettings {
-        exposure: common.exposure,
-        led: common.led.map(|l| l.setting(common.led_id)),
-    };
-    match session.apply_settings(&settings) {
+    match session.apply_settings(&common.settings()) {
         Ok(lines) => lines.iter().for_each(|l| eprintln!("{l}")),
         Err(e) => {
             session.close();
@@ -377,7 +459,7 @@ fn write_sim_report(common: &CommonArgs, session: &Session) -> Result<()> {
 }
 
 /// Waits for the trigger of the next shot: `interval` seconds, or one line on stdin.
-enum Trigger {
+pub(crate) enum Trigger {
     Interval(Duration),
     Lines(mpsc::Receiver<()>),
 }
@@ -408,7 +490,7 @@ impl Trigger {
 }
 
 /// What ended the wait for a shot's trigger.
-enum Waited {
+pub(crate) enum Waited {
     Shoot,
     StdinClosed,
     Interrupted,
@@ -576,7 +658,7 @@ fn replay_outcome(common: &CommonArgs, session: &Session) -> Option<KinectError>
     outcome.error
 }
 
-fn report_counters(session: &Session) {
+pub(crate) fn report_counters(session: &Session) {
     let c = session.counters();
     if c.depth_dropped + c.depth_incomplete + c.color_dropped > 0 || c.iso_errors > 0 {
         eprintln!(

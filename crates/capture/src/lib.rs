@@ -11,6 +11,7 @@
 //! | 3 pump | [`pump`] | [`FramePump`] pulls frames: decodes each depth frame into depth (mm) and IR, keeps the newest colour JPEG; [`FramePump::fresh_pair`] waits for a pair newer than an instant |
 //! | 4a shots | [`shots`] | [`ShotWriter`]: a shot's colour JPEG, IR and depth PNGs are staged inside the output folder and moved into place together; [`shot_files`] names them; [`write_params_json`] the factory intrinsics |
 //! | 4b recording | [`record`] | [`record::record`]: every raw USB packet and the device metadata into a `.kfrec` file, published atomically |
+//! | several | [`multi`] | several sensors: [`multi::connected`] lists what a source offers (a ring of simulated sensors, `kinect_usb::sim::ring`), [`multi::select`] takes `--device SERIAL\|all`, [`multi::MultiShots`] takes each shot from every sensor at one trigger, paired by sensor timestamps, into `OUT/SERIAL/` with `OUT/index.json` (a lost sensor is dropped, the others go on), [`multi::record_all`] records each to `OUT/SERIAL.kfrec`; [`source::sim_true_rig`] is the simulated ring's rig (`true_rig.json`) |
 //! | PNG | [`shots::write_png16`] | the 16-bit PNG of IR and depth (rule: `kfuse_io::images::png16_value`) |
 //!
 //! # Files of one shot
@@ -39,6 +40,7 @@
 #![deny(missing_docs)]
 
 pub mod error;
+pub mod multi;
 pub mod pump;
 pub mod record;
 pub mod session;
@@ -51,4 +53,4 @@ pub use pump::{FramePump, Pumped};
 pub use session::{DecoderOptions, ReplayOutcome, Session};
 pub use settings::ColorSettings;
 pub use shots::{ShotKind, ShotWriter, shot_files, write_params_json, write_png16};
-pub use source::{ReplayOptions, SensorSource, SimOptions};
+pub use source::{ReplayOptions, SensorSource, SimOptions, SimRing};

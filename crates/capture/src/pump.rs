@@ -39,6 +39,8 @@ pub struct FramePump {
     depth_at: Option<Instant>,
     color_at: Option<Instant>,
     depth_frames: u64,
+    depth_timestamp: Option<u32>,
+    color_timestamp: Option<u32>,
 }
 
 impl FramePump {
@@ -52,6 +54,8 @@ impl FramePump {
             depth_at: None,
             color_at: None,
             depth_frames: 0,
+            depth_timestamp: None,
+            color_timestamp: None,
         }
     }
 
@@ -75,6 +79,16 @@ impl FramePump {
         &self.color_jpeg
     }
 
+    /// The sensor timestamp of the newest decoded depth frame (0.125 ms units).
+    pub fn depth_timestamp(&self) -> Option<u32> {
+        self.depth_timestamp
+    }
+
+    /// The sensor timestamp of the newest colour frame (0.125 ms units).
+    pub fn color_timestamp(&self) -> Option<u32> {
+        self.color_timestamp
+    }
+
     /// Depth frames decoded so far.
     pub fn depth_frames(&self) -> u64 {
         self.depth_frames
@@ -94,9 +108,11 @@ impl FramePump {
                     .map_err(CaptureError::Decode)?;
                 self.depth_at = Some(Instant::now());
                 self.depth_frames += 1;
+                self.depth_timestamp = Some(f.timestamp);
                 Ok(Some(Pumped::Depth { number: self.depth_frames, timestamp: f.timestamp }))
             }
-            Some(Frame::Color(jpeg, _)) => {
+            Some(Frame::Color(jpeg, meta)) => {
+                self.color_timestamp = Some(meta.timestamp);
                 self.color_jpeg.clear();
                 self.color_jpeg.extend_from_slice(jpeg);
                 self.color_at = Some(Instant::now());

@@ -66,31 +66,35 @@ fn no_sensor(e: KinectError) -> CaptureError {
 }
 
 /// The Kinect v2 sensors `source` offers, one line each (bus, address, product id, serial;
-/// the simulator is one, a recording none). Error: [`CaptureError::NoSensor`] when there is
-/// none.
+/// the simulator one line per simulated sensor, a recording none). Error:
+/// [`CaptureError::NoSensor`] when there is none.
 pub fn list_devices(source: &SensorSource) -> Result<Vec<String>, CaptureError> {
-    let list = match source {
-        SensorSource::Usb => usb::list_devices().map_err(no_sensor)?,
-        SensorSource::Sim(_) => {
-            return Ok(vec!["simulated Kinect v2  serial 000000000001  (sim backend)".into()]);
-        }
-        SensorSource::Replay(_) | SensorSource::Absent => Vec::new(),
-    };
+    Ok(crate::multi::connected(source)?.into_iter().map(|c| c.line).collect())
+}
+
+pub(crate) fn usb_sensors() -> Result<Vec<crate::multi::Connected>, CaptureError> {
+    let list = usb::list_devices().map_err(no_sensor)?;
     if list.is_empty() {
         return Err(no_sensor(KinectError::NotFound));
     }
     Ok(list
         .iter()
-        .map(|d| {
-            format!(
+        .map(|d| crate::multi::Connected {
+            serial: d.serial.clone(),
+            line: format!(
                 "Kinect v2  bus {:03} address {:03}  pid {:04x}  serial {}",
                 d.bus,
                 d.address,
                 d.product_id,
                 d.serial.as_deref().unwrap_or("(unreadable: device busy or no permission)")
-            )
+            ),
+            source: SensorSource::UsbAt { bus: d.bus, address: d.address },
         })
         .collect())
+}
+
+pub(crate) fn no_sensor_error() -> CaptureError {
+    no_sensor(KinectError::NotFound)
 }
 
 impl Session {
@@ -124,6 +128,9 @@ impl Session {
                 Box::new(h)
             }
             SensorSource::Usb => Box::new(usb::open_first().map_err(no_sensor)?),
+            SensorSource::UsbAt { bus, address } => {
+                Box::new(usb::open_at(*bus, *address).map_err(no_sensor)?)
+            }
             SensorSource::Absent => return Err(no_sensor(KinectError::NotFound)),
         };
         let mut dev = KinectDevice::open(backend).map_err(|e| match e {

@@ -21,6 +21,14 @@ const SIM_JPEG_QUALITY: u8 = 90;
 pub enum SensorSource {
     /// A real Kinect v2 over libusb (the first one found).
     Usb,
+    /// The real Kinect v2 at this USB bus and address (one of several, `kfuse capture
+    /// --device SERIAL`).
+    UsbAt {
+        /// Bus number.
+        bus: u8,
+        /// Device address on the bus.
+        address: u8,
+    },
     /// The simulated Kinect v2: `geometry::synth`'s Kinect preset scene over the same USB
     /// protocol, with optional faults.
     Sim(SimOptions),
@@ -47,6 +55,26 @@ pub struct SimOptions {
     /// A depth error the sensor makes on purpose (issue 16), applied to every depth frame of
     /// either scene; `None`: the depth is exact.
     pub depth_error: Option<kinect_usb::sim::depth_error::DepthError>,
+    /// Which sensor of a simulated ring this is (`kinect_usb::sim::ring`); `None`: the single
+    /// simulated sensor (as a ring of one).
+    pub ring: Option<SimRing>,
+    /// With a ring: the faults above only on the sensor of this serial (`None`: on every one).
+    pub fault_sensor: Option<String>,
+    /// With a ring: the second sensor reports the first one's serial (tests of two Kinects
+    /// with the same serial number).
+    pub same_serial: bool,
+}
+
+/// One sensor of a ring of simulated Kinects (`kfuse --backend sim --sim-sensors N`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SimRing {
+    /// Sensors in the ring, 1..=`kinect_usb::sim::ring::MAX_SIM_SENSORS`.
+    pub sensors: usize,
+    /// This sensor, 0-based.
+    pub index: usize,
+    /// The serial number this sensor reports: its own (`ring::serial(index)`) unless a test
+    /// gives it another sensor's (two sensors with the same serial).
+    pub serial: String,
 }
 
 /// How to read a recording.
@@ -64,7 +92,7 @@ impl SensorSource {
     /// The sensor's name for titles and messages.
     pub fn name(&self) -> &'static str {
         match self {
-            SensorSource::Usb => "Kinect v2",
+            SensorSource::Usb | SensorSource::UsbAt { .. } => "Kinect v2",
             SensorSource::Sim(_) => "simulated Kinect v2",
             SensorSource::Replay(_) => "recorded Kinect v2",
             SensorSource::Absent => "no Kinect v2",
@@ -168,8 +196,18 @@ fn sim_profile(d: &geometry::CameraModel, color_fx: f64) -> SimProfile {
     SimProfile::synthetic(params, color_fx as f32)
 }
 
+/// Timestamp origin of sensor `index` of a simulated ring (0.125 ms units): each Kinect has its
+/// own free-running clock, so the ring's sensors start at different times (sensor 0 as the
+/// single sensor, at 1000; the others 1.234 s, 2.468 s, … later).
+fn ring_clock_origin(index: usize) -> u32 {
+    1000 + 9_872 * index as u32
+}
+
 /// The simulated device of [`SensorSource::Sim`] (fixed seed 1: runs are reproducible).
 pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
+    if let Some(r) = options.ring.as_ref().filter(|r| r.sensors > 1) {
+        return ring_device(options, r);
+    }
     // The calibration scene needs only the profile: the default scene is not rendered for it
     // (a 1920x1080 render and JPEG that start-up threw away).
     let (mut scene, profile) =
@@ -186,12 +224,125 @@ pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
             e.apply(depth_mm);
         }
     }
-    let faults = SimFaults {
+    Ok(SimDevice::new(profile, scene, sim_faults(options)))
+}
+
+fn sim_faults(options: &SimOptions) -> SimFaults {
+    SimFaults {
         seed: 1,
         busy: options.busy,
         iso_drop_rate: options.iso_drop,
         unplug_after_frames: options.unplug_after,
         ..SimFaults::default()
+    }
+}
+
+/// Sensor `r.index` of a ring: its own profile and pose (`kinect_usb::sim::ring`), the
+/// ring's calibration scene or room, its own clock.
+fn ring_device(options: &SimOptions, r: &SimRing) -> Result<SimDevice, CaptureError> {
+    use kinect_usb::sim::ring;
+    if r.sensors > ring::MAX_SIM_SENSORS || r.index >= r.sensors {
+        return Err(CaptureError::Config(format!(
+            "simulated sensor {} of {}: a ring holds 1 to {} sensors",
+            r.index + 1,
+            r.sensors,
+            ring::MAX_SIM_SENSORS
+        )));
+    }
+    let mut profile = ring::sensor_profile(&sim_scene_profile(), r.index);
+    let scene = if options.calib_scene {
+        ring::calibration_scene(&profile, r.sensors, r.index)
+    } else {
+        ring::view_scene(&profile, r.sensors, r.index)
     };
-    Ok(SimDevice::new(profile, scene, faults))
+    let mut scene = scene.ok_or_else(|| {
+        CaptureError::Config(
+            "the simulated sensor's colour parameters are not a pinhole camera".into(),
+        )
+    })?;
+    if let Some(e) = &options.depth_error {
+        for (depth_mm, _) in &mut scene.depth_frames {
+            e.apply(depth_mm);
+        }
+    }
+    profile.serial = r.serial.clone();
+    let mut dev = SimDevice::new(profile, scene, sim_faults(options));
+    dev.set_timestamp(ring_clock_origin(r.index));
+    Ok(dev)
+}
+
+/// The true rig of a ring of `sensors` simulated Kinects, as the images a capture writes
+/// (scene orientation): for each sensor its depth camera `SERIAL.depth` (the factory depth
+/// intrinsics and distortion) and colour camera `SERIAL.color` (pinhole, `X_color = X_depth + t`,
+/// `kinect_usb::sim::calib_scene::FactoryRig::of_scene`), posed by the ring
+/// (`kinect_usb::sim::ring::depth_from_world`); the reference is the first sensor's depth
+/// camera. One sensor gives its pair (written as a version-1 rig file).
+pub fn sim_true_rig(sensors: usize) -> Result<geometry::multi_rig::MultiRig, CaptureError> {
+    use geometry::multi_rig::{CameraRole, MultiRig, RigCamera};
+    use geometry::{CameraModel, Distortion, Intrinsics, RigidTransform};
+    use kinect_usb::sim::calib_scene::FactoryRig;
+    use kinect_usb::sim::ring;
+    let n = sensors.clamp(1, ring::MAX_SIM_SENSORS);
+    let base = sim_scene_profile();
+    let transform = |p: &ring::Pose| {
+        let m = nalgebra::Matrix3::from_fn(|i, j| p.r[i][j]);
+        RigidTransform::from_matrix(m, nalgebra::Vector3::from(p.t))
+            .map_err(|e| CaptureError::Config(format!("a ring pose is not a rotation: {e}")))
+    };
+    let world_from_ref = transform(&ring::world_from_depth(n, 0))?;
+    let mut cameras = Vec::new();
+    for i in 0..n {
+        let profile = ring::sensor_profile(&base, i);
+        let f = FactoryRig::of_scene(&profile).ok_or_else(|| {
+            CaptureError::Config(
+                "the simulated sensor's colour parameters are not a pinhole camera".into(),
+            )
+        })?;
+        let d = &f.depth;
+        let depth_model = CameraModel::new(
+            kinect_usb::raw::WIDTH,
+            kinect_usb::raw::HEIGHT,
+            Intrinsics::new(d.fx as f64, d.fy as f64, d.cx as f64, d.cy as f64),
+            Distortion {
+                k1: d.k1 as f64,
+                k2: d.k2 as f64,
+                p1: d.p1 as f64,
+                p2: d.p2 as f64,
+                k3: d.k3 as f64,
+            },
+        );
+        let [fx, fy, cx, cy] = f.color;
+        let color_model =
+            CameraModel::new(1920, 1080, Intrinsics::new(fx, fy, cx, cy), Distortion::NONE);
+        let depth_from_ref = transform(&ring::depth_from_world(n, i))?.compose(&world_from_ref);
+        let color_from_depth = RigidTransform::from_axis_angle(
+            nalgebra::Vector3::zeros(),
+            nalgebra::Vector3::from(f.t_m),
+        );
+        let serial = ring::serial(i);
+        cameras.push(RigCamera {
+            name: format!("{serial}.depth"),
+            role: CameraRole::Depth,
+            sensor: Some(serial.clone()),
+            model: depth_model,
+            camera_from_reference: depth_from_ref,
+            depth_correction: None,
+        });
+        cameras.push(RigCamera {
+            name: format!("{serial}.color"),
+            role: CameraRole::Color,
+            sensor: Some(serial.clone()),
+            model: color_model,
+            camera_from_reference: color_from_depth.compose(&depth_from_ref),
+            depth_correction: None,
+        });
+    }
+    let rig = MultiRig {
+        reference: cameras[0].name.clone(),
+        cameras,
+        calibration: None,
+        rectified: false,
+    };
+    rig.validate()?;
+    Ok(rig)
 }

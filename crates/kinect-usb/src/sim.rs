@@ -7,10 +7,12 @@
 //! handlers, stream generator, replay source and fault injection all read and change the same
 //! private state; split into modules, that state would have to become crate-visible. It is
 //! compiled only with the `sim` feature. The calibration scene it can show (a checkerboard in
-//! tilted poses, labs L1–L3) is [`calib_scene`].
+//! tilted poses, labs L1–L3) is [`calib_scene`]; several sensors in a ring around it are
+//! [`ring`].
 
 pub mod calib_scene;
 pub mod depth_error;
+pub mod ring;
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -470,6 +472,11 @@ impl SimDevice {
                 .filter(|(d, i)| d.len() == PIXELS && i.len() == PIXELS)
                 .map(|(d, i)| forward_frame(d, i, &xz, &self.profile.p0, &p))
                 .collect();
+            if !self.raw_frames.is_empty() {
+                // Only the raw frames are streamed: the decoded images are not kept twice
+                // (a ring of simulated sensors holds dozens of frames each).
+                self.scene.depth_frames = Vec::new();
+            }
         }
         &self.raw_frames
     }
@@ -685,6 +692,12 @@ impl SimDevice {
         self.frame_index += 1;
         self.depth_sequence = (self.depth_sequence + 1) % (1 << 16);
         self.timestamp = self.timestamp.wrapping_add(TICKS_PER_FRAME);
+    }
+
+    /// Sets the timestamp of the next frame period, 0.125 ms units (each sensor of a simulated
+    /// ring has its own clock, as real Kinects do).
+    pub fn set_timestamp(&mut self, ticks: u32) {
+        self.timestamp = ticks;
     }
 
     /// Sets the next depth sequence number (to test wrap-around).

@@ -89,6 +89,21 @@ pub fn list_devices() -> Result<Vec<DeviceSummary>> {
 pub fn open_first() -> Result<RusbBackend> {
     let ctx = context()?;
     let (dev, _) = kinects(&ctx)?.into_iter().next().ok_or(KinectError::NotFound)?;
+    open_device(ctx, dev)
+}
+
+/// Opens the Kinect v2 at `bus` / `address` ([`DeviceSummary`]'s), retrying as
+/// [`open_first`]: one of several sensors (two may even report the same serial).
+pub fn open_at(bus: u8, address: u8) -> Result<RusbBackend> {
+    let ctx = context()?;
+    let (dev, _) = kinects(&ctx)?
+        .into_iter()
+        .find(|(d, _)| d.bus_number() == bus && d.address() == address)
+        .ok_or(KinectError::NotFound)?;
+    open_device(ctx, dev)
+}
+
+fn open_device(ctx: rusb::Context, dev: rusb::Device<rusb::Context>) -> Result<RusbBackend> {
     let mut last = UsbError::Io;
     for _ in 0..OPEN_ATTEMPTS {
         match dev.open() {

@@ -20,7 +20,7 @@ use crate::params::DepthParams;
 use crate::raw::{HEIGHT, WIDTH};
 
 /// The colour image's size, pixels.
-const COLOR_SIZE: (usize, usize) = (1920, 1080);
+pub(crate) const COLOR_SIZE: (usize, usize) = (1920, 1080);
 
 /// Inner corners per row × per column (`kfuse calibrate --board 7x5`, its default).
 pub const BOARD_INNER_CORNERS: (usize, usize) = (7, 5);
@@ -28,11 +28,17 @@ pub const BOARD_INNER_CORNERS: (usize, usize) = (7, 5);
 pub const BOARD_SQUARE_M: f64 = 0.04;
 /// White margin around the squares, metres (a detector needs a quiet zone around the board).
 const BOARD_MARGIN_M: f64 = 0.03;
-/// IR albedo of the white squares and margin, of the black squares and of the wall: a printed
-/// board's black absorbs most of the 860 nm light, its paper reflects most of it.
-const ALBEDO: [f64; 3] = [0.85, 0.10, 0.5];
-/// Colour of the white squares, black squares and wall (RGB).
-const COLOR_RGB: [[f64; 3]; 3] = [[235.0, 235.0, 228.0], [25.0, 25.0, 28.0], [120.0, 110.0, 95.0]];
+/// IR albedo of the white squares and margin, of the black squares, of the wall and of the
+/// board's plain back: a printed board's black absorbs most of the 860 nm light, its paper
+/// reflects most of it; the back is grey foam board (printed on one side only, as real boards
+/// are, so a sensor behind the board sees no pattern: [`crate::sim::ring`]).
+const ALBEDO: [f64; 4] = [0.85, 0.10, 0.5, 0.6];
+/// Colour of the white squares, black squares, wall and the board's back (RGB).
+const COLOR_RGB: [[f64; 3]; 4] =
+    [[235.0, 235.0, 228.0], [25.0, 25.0, 28.0], [120.0, 110.0, 95.0], [190.0, 188.0, 182.0]];
+/// Material index of the wall (or the ring's round room) and of the board's back.
+const WALL: usize = 2;
+const BACK: usize = 3;
 /// The wall behind the board: a plane z = this many metres (inside the Kinect's 4.5 m range,
 /// 5 cm behind the farthest pose's corners).
 const WALL_Z_M: f64 = 2.6;
@@ -48,7 +54,7 @@ const COLOR_NOISE: f64 = 2.0;
 const IR_SAMPLES: usize = 3;
 const COLOR_SAMPLES: usize = 2;
 /// JPEG quality of the colour frames (the sensor's own JPEGs are of similar quality).
-const JPEG_QUALITY: u8 = 92;
+pub(crate) const JPEG_QUALITY: u8 = 92;
 /// Fixed-point iterations undistorting a depth pixel (the depth lens's distortion is mild:
 /// converges to < 1e-9 in ~10).
 const UNDISTORT_ITERATIONS: usize = 20;
@@ -195,7 +201,13 @@ fn mat_mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 impl BoardPose {
     /// Pose `k` of [`BOARD_POSES`].
     pub fn of_index(k: usize) -> Self {
-        let [fx, fy, z, ax, ay, az] = BOARD_POSES[k % BOARD_POSES.len()];
+        Self::from_row(BOARD_POSES[k % BOARD_POSES.len()])
+    }
+
+    /// The pose a row of [`BOARD_POSES`] describes: board centre `(x/z, y/z, z in m)`, then
+    /// rotations about the board's x, y and z axes in degrees.
+    pub fn from_row(row: [f64; 6]) -> Self {
+        let [fx, fy, z, ax, ay, az] = row;
         let (sx, cx) = ax.to_radians().sin_cos();
         let (sy, cy) = ay.to_radians().sin_cos();
         let (sz, cz) = az.to_radians().sin_cos();
@@ -220,8 +232,23 @@ impl BoardPose {
         self.r[2][2].abs().acos().to_degrees()
     }
 
-    /// What a ray `o + s·d` (depth frame) hits: (material index into [`ALBEDO`], the point).
-    fn hit(&self, o: [f64; 3], d: [f64; 3]) -> (usize, [f64; 3]) {
+    /// Left-multiplies the pose by `X_to = r·X_from + t`: the same board in another frame.
+    pub fn transformed(&self, r: &[[f64; 3]; 3], t: &[f64; 3]) -> Self {
+        let rr = mat_mul(r, &self.r);
+        let tt = std::array::from_fn(|i| (0..3).map(|k| r[i][k] * self.t[k]).sum::<f64>() + t[i]);
+        BoardPose { r: rr, t: tt }
+    }
+
+    /// Whether a camera at `o` (same frame as the pose) sees the printed side: it lies on
+    /// the side the board's −z axis points to (the side every pose of [`BOARD_POSES`] faces).
+    pub fn front_faces(&self, o: [f64; 3]) -> bool {
+        let n = [self.r[0][2], self.r[1][2], self.r[2][2]];
+        (0..3).map(|i| n[i] * (self.t[i] - o[i])).sum::<f64>() > 0.0
+    }
+
+    /// What a ray `o + s·d` (depth frame) hits: (material index into [`ALBEDO`], the point,
+    /// the surface normal), the board (printed side or back) or else `backdrop`.
+    fn hit(&self, o: [f64; 3], d: [f64; 3], backdrop: &Backdrop) -> (usize, [f64; 3], [f64; 3]) {
         let n = [self.r[0][2], self.r[1][2], self.r[2][2]];
         let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
         let nd = dot(n, d);
@@ -238,24 +265,79 @@ impl BoardPose {
                 let (w, h) = (BOARD_INNER_CORNERS.0 as f64 * sq, BOARD_INNER_CORNERS.1 as f64 * sq);
                 let m = BOARD_MARGIN_M;
                 if bx >= -sq - m && bx <= w + m && by >= -sq - m && by <= h + m {
+                    // A ray reaching the plane along −n comes from behind: the plain back.
+                    if nd < 0.0 {
+                        return (BACK, p, n);
+                    }
                     let inside = bx >= -sq && bx < w && by >= -sq && by < h;
                     let (i, j) = ((bx / sq).floor() as i64, (by / sq).floor() as i64);
                     let black = inside && (i + j).rem_euclid(2) == 0;
-                    return (usize::from(black), p);
+                    return (usize::from(black), p, n);
                 }
             }
         }
-        let s = (WALL_Z_M - o[2]) / d[2];
-        (2, [o[0] + s * d[0], o[1] + s * d[1], WALL_Z_M])
+        backdrop.hit(o, d)
+    }
+}
+
+/// What lies behind the board.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Backdrop {
+    /// The single sensor's wall: the plane z = [`WALL_Z_M`] of its depth frame.
+    Wall,
+    /// A round room: the vertical cylinder of `radius` metres about the world's y axis, seen
+    /// by a camera with `world_from_camera` (`X_world = r·X_camera + t`).
+    Cylinder {
+        /// Rotation, row-major.
+        r: [[f64; 3]; 3],
+        /// Translation, metres.
+        t: [f64; 3],
+        /// Radius, metres.
+        radius: f64,
+    },
+}
+
+impl Backdrop {
+    /// (material, point, normal) of the backdrop along `o + s·d`.
+    fn hit(&self, o: [f64; 3], d: [f64; 3]) -> (usize, [f64; 3], [f64; 3]) {
+        match *self {
+            Backdrop::Wall => {
+                let s = (WALL_Z_M - o[2]) / d[2];
+                (WALL, [o[0] + s * d[0], o[1] + s * d[1], WALL_Z_M], [0.0, 0.0, 1.0])
+            }
+            Backdrop::Cylinder { r, t, radius } => {
+                let rot = |v: [f64; 3]| -> [f64; 3] {
+                    std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
+                };
+                let (ow, dw) = (rot(o), rot(d));
+                let ow = [ow[0] + t[0], ow[1] + t[1], ow[2] + t[2]];
+                let a = dw[0] * dw[0] + dw[2] * dw[2];
+                let b = 2.0 * (ow[0] * dw[0] + ow[2] * dw[2]);
+                let c = ow[0] * ow[0] + ow[2] * ow[2] - radius * radius;
+                // Inside the room (c < 0) the far root is the wall; a vertical ray (outside
+                // any Kinect's field of view) ends 4 m away.
+                let s = if a > 1e-12 {
+                    (-b + (b * b - 4.0 * a * c).max(0.0).sqrt()) / (2.0 * a)
+                } else {
+                    4.0
+                };
+                let p = [o[0] + s * d[0], o[1] + s * d[1], o[2] + s * d[2]];
+                let pw = [ow[0] + s * dw[0], ow[2] + s * dw[2]];
+                let nw = [pw[0] / radius, 0.0, pw[1] / radius];
+                // Normal in the camera frame: rᵀ·n_world.
+                let n =
+                    std::array::from_fn(|i| r[0][i] * nw[0] + r[1][i] * nw[1] + r[2][i] * nw[2]);
+                (WALL, p, n)
+            }
+        }
     }
 }
 
 /// IR amplitude (decoder units, no noise) and z (mm) seen along undistorted depth ray `(x, y)`.
-fn ir_sample(pose: &BoardPose, x: f64, y: f64) -> (f64, f64) {
+fn ir_sample(pose: &BoardPose, backdrop: &Backdrop, x: f64, y: f64) -> (f64, f64) {
     let d = [x, y, 1.0];
-    let (m, p) = pose.hit([0.0; 3], d);
+    let (m, p, n) = pose.hit([0.0; 3], d, backdrop);
     let r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
-    let n = if m == 2 { [0.0, 0.0, 1.0] } else { [pose.r[0][2], pose.r[1][2], pose.r[2][2]] };
     let cos = (n[0] * p[0] + n[1] * p[1] + n[2] * p[2]).abs() / r2.sqrt();
     (ALBEDO[m] * cos / r2 * IR_SCALE, p[2] * 1000.0)
 }
@@ -265,7 +347,7 @@ const RAYS_PER_PIXEL: usize = IR_SAMPLES * IR_SAMPLES + 1;
 
 /// The undistorted rays of every depth pixel's samples (row-major, [`RAYS_PER_PIXEL`] each):
 /// computed once for all poses (the fixed-point undistortion is the costly part).
-fn depth_rays(rig: &FactoryRig) -> Vec<[f64; 2]> {
+pub(crate) fn depth_rays(rig: &FactoryRig) -> Vec<[f64; 2]> {
     let n = IR_SAMPLES as f64;
     let mut rays = vec![[0.0; 2]; WIDTH * HEIGHT * RAYS_PER_PIXEL];
     rays.par_chunks_mut(WIDTH * RAYS_PER_PIXEL).enumerate().for_each(|(v, row)| {
@@ -295,8 +377,20 @@ fn render_pose_with(
     rays: &[[f64; 2]],
     k: usize,
 ) -> (Vec<f32>, Vec<f32>, Vec<u8>) {
-    let pose = BoardPose::of_index(k);
-    let mut rng = ChaCha8Rng::seed_from_u64(0x5EED_0000 + k as u64);
+    render_view(rig, rays, &BoardPose::of_index(k), &Backdrop::Wall, 0x5EED_0000 + k as u64)
+}
+
+/// Renders the board at `pose` (in the depth camera's frame) before `backdrop` with the rig
+/// `rig` (depth rays `rays` of [`depth_rays`]); noise seeded with `seed`.
+pub(crate) fn render_view(
+    rig: &FactoryRig,
+    rays: &[[f64; 2]],
+    pose: &BoardPose,
+    backdrop: &Backdrop,
+    seed: u64,
+) -> (Vec<f32>, Vec<f32>, Vec<u8>) {
+    let pose = *pose;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut depth = vec![0f32; WIDTH * HEIGHT];
     let mut ir = vec![0f32; WIDTH * HEIGHT];
     let n = IR_SAMPLES as f64;
@@ -304,10 +398,12 @@ fn render_pose_with(
         |(v, (drow, irow))| {
             for u in 0..WIDTH {
                 let px = &rays[(v * WIDTH + u) * RAYS_PER_PIXEL..][..RAYS_PER_PIXEL];
-                let sum: f64 =
-                    px[..RAYS_PER_PIXEL - 1].iter().map(|&[x, y]| ir_sample(&pose, x, y).0).sum();
+                let sum: f64 = px[..RAYS_PER_PIXEL - 1]
+                    .iter()
+                    .map(|&[x, y]| ir_sample(&pose, backdrop, x, y).0)
+                    .sum();
                 let [x, y] = px[RAYS_PER_PIXEL - 1];
-                drow[u] = ir_sample(&pose, x, y).1 as f32;
+                drow[u] = ir_sample(&pose, backdrop, x, y).1 as f32;
                 irow[u] = (sum / (n * n)) as f32;
             }
         },
@@ -339,9 +435,9 @@ fn render_pose_with(
                 for b in 0..ns {
                     let (du, dv) = ((b as f64 + 0.5) / m - 0.5, (a as f64 + 0.5) / m - 0.5);
                     let d = [(u as f64 + du - cx) / fx, (v as f64 + dv - cy) / fy, 1.0];
-                    let (mat, p) = pose.hit(o, d);
+                    let (mat, p, _) = pose.hit(o, d, backdrop);
                     // Wall: a soft vertical gradient, so it is not a flat field.
-                    let shade = if mat == 2 { 1.0 + 0.15 * p[1] } else { 1.0 };
+                    let shade = if mat == WALL { 1.0 + 0.15 * p[1] } else { 1.0 };
                     for (c, a) in acc.iter_mut().enumerate() {
                         *a += COLOR_RGB[mat][c] * shade;
                     }
