@@ -24,6 +24,21 @@ fn print_lost(report: &ShotReport, shot: usize, live: usize) {
     }
 }
 
+/// What every command of several sensors refuses before it starts: `--sim-report` (one
+/// sensor's report) and an `--out` that is a file (`what` says where the files go).
+fn check_options(common: &CommonArgs, out: &Path, what: &str) -> Result<()> {
+    if common.sim_report.is_some() {
+        bail!("--sim-report writes one sensor's report: give one --device with it");
+    }
+    if out.exists() && !out.is_dir() {
+        bail!(
+            "--out {}: exists and is not a folder; several sensors' {what}: give a folder name",
+            out.display()
+        );
+    }
+    Ok(())
+}
+
 /// `capture calib|scene` from every sensor of `sensors` into `out/SERIAL/`.
 pub(super) fn shots(
     out: &Path,
@@ -34,15 +49,7 @@ pub(super) fn shots(
     common: &CommonArgs,
     sensors: &[Connected],
 ) -> Result<()> {
-    if common.sim_report.is_some() {
-        bail!("--sim-report writes one sensor's report: give one --device with it");
-    }
-    if out.exists() && !out.is_dir() {
-        bail!(
-            "--out {}: exists and is not a folder; several sensors' shots go into OUT/SERIAL/ folders: give a folder name",
-            out.display()
-        );
-    }
+    check_options(common, out, "shots go into OUT/SERIAL/ folders")?;
     if !overwrite {
         for s in sensors {
             let folder = out.join(s.serial_text());
@@ -152,15 +159,7 @@ pub(super) fn record(
     common: &CommonArgs,
     sensors: &[Connected],
 ) -> Result<()> {
-    if common.sim_report.is_some() {
-        bail!("--sim-report writes one sensor's report: give one --device with it");
-    }
-    if out.exists() && !out.is_dir() {
-        bail!(
-            "--out {}: exists and is not a folder; several sensors' recordings are OUT/SERIAL.kfrec: give a folder name",
-            out.display()
-        );
-    }
+    check_options(common, out, "recordings are OUT/SERIAL.kfrec")?;
     if !overwrite {
         for s in sensors {
             let p = out.join(format!("{}.kfrec", s.serial_text()));

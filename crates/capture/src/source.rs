@@ -219,12 +219,17 @@ pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
             )
         })?;
     }
+    add_depth_error(&mut scene, options);
+    Ok(SimDevice::new(profile, scene, sim_faults(options)))
+}
+
+/// The depth error `--sim-depth-error` injects, applied to every depth frame of `scene`.
+fn add_depth_error(scene: &mut SimScene, options: &SimOptions) {
     if let Some(e) = &options.depth_error {
         for (depth_mm, _) in &mut scene.depth_frames {
             e.apply(depth_mm);
         }
     }
-    Ok(SimDevice::new(profile, scene, sim_faults(options)))
 }
 
 fn sim_faults(options: &SimOptions) -> SimFaults {
@@ -260,11 +265,7 @@ fn ring_device(options: &SimOptions, r: &SimRing) -> Result<SimDevice, CaptureEr
             "the simulated sensor's colour parameters are not a pinhole camera".into(),
         )
     })?;
-    if let Some(e) = &options.depth_error {
-        for (depth_mm, _) in &mut scene.depth_frames {
-            e.apply(depth_mm);
-        }
-    }
+    add_depth_error(&mut scene, options);
     profile.serial = r.serial.clone();
     let mut dev = SimDevice::new(profile, scene, sim_faults(options));
     dev.set_timestamp(ring_clock_origin(r.index));

@@ -62,6 +62,14 @@ const MULTI_KEYS: [&str; 7] =
 const CAMERA_ENTRY_EXTRA_KEYS: [&str; 5] =
     ["name", "role", "sensor", "camera_from_reference", "depth_correction"];
 
+/// True when a parsed JSON file says it is a kfuse rig file of version 2 (several cameras):
+/// the one test [`MultiRig::from_json`], [`Rig::from_json`] and the readers use to tell the
+/// two versions apart.
+pub fn is_multi_rig_json(value: &serde_json::Value) -> bool {
+    value.get("format").and_then(|f| f.as_str()) == Some(RIG_FORMAT)
+        && value.get("version").and_then(|v| v.as_u64()) == Some(MULTI_RIG_VERSION.into())
+}
+
 /// What a camera of a rig is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -395,9 +403,7 @@ impl MultiRig {
         let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
             format_err(format!("not a kfuse rig file ({e}); create one with `kfuse calibrate`"))
         })?;
-        if value.get("version").and_then(|v| v.as_u64()) != Some(MULTI_RIG_VERSION as u64)
-            || value.get("format").and_then(|f| f.as_str()) != Some(RIG_FORMAT)
-        {
+        if !is_multi_rig_json(&value) {
             return Rig::from_json(text, source).map(|r| MultiRig::from_pair(&r, None));
         }
         if let Some(repeated) = duplicate_key(text) {

@@ -465,7 +465,7 @@ impl Rig {
         if let Some(repeated) = duplicate_key(text) {
             return Err(format_err(repeated));
         }
-        if is_rig && value["version"].as_u64() == Some(crate::multi_rig::MULTI_RIG_VERSION.into()) {
+        if crate::multi_rig::is_multi_rig_json(&value) {
             let n = value["cameras"].as_array().map_or(0, Vec::len);
             return Err(format_err(format!(
                 "a rig of {n} cameras (version {}); this needs one depth + colour pair: pick one sensor's pair with `kfuse rig export --sensor SERIAL`, or use a command that takes several sensors",

@@ -38,31 +38,6 @@ pub fn write_rig(path: &Path, rig: &Rig) -> Result<(), GeometryError> {
     write_bytes_atomic(path, rig.to_json().as_bytes())
 }
 
-/// Reads a rig file of any number of cameras (version 1 or 2, [`MultiRig::from_json`]), checks
-/// that its cameras can be real ones ([`MultiRig::plausibility_problems`]) unless `force`, and
-/// returns the problems it let through under `force` as warnings for the caller to print.
-pub fn read_multi_rig(path: &Path, force: bool) -> Result<(MultiRig, Vec<String>), GeometryError> {
-    let bytes = std::fs::read(path)
-        .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
-    let text = String::from_utf8(bytes).map_err(|_| GeometryError::Format {
-        path: path.to_path_buf(),
-        message: "not a kfuse rig file (binary, not JSON text); create one with `kfuse calibrate`"
-            .into(),
-    })?;
-    let rig = MultiRig::from_json(&text, path)?;
-    let problems = rig.plausibility_problems();
-    if !force && !problems.is_empty() {
-        return Err(GeometryError::Format {
-            path: path.to_path_buf(),
-            message: format!(
-                "{} (pass --force if the rig really is meant this way)",
-                problems.join("; ")
-            ),
-        });
-    }
-    Ok((rig, problems))
-}
-
 /// Writes a rig file of any number of cameras atomically (a depth + colour pair as version 1).
 pub fn write_multi_rig(path: &Path, rig: &MultiRig) -> Result<(), GeometryError> {
     rig.validate()

@@ -161,10 +161,7 @@ pub fn load(path: &Path) -> Result<Calibration, CalibError> {
 pub fn load_multi(path: &Path) -> Result<Option<geometry::MultiRig>, CalibError> {
     let text = read_text(path)?;
     let Ok(v) = serde_json::from_str::<Value>(&text) else { return Ok(None) };
-    let multi = v.get("format").and_then(Value::as_str) == Some(geometry::rig::RIG_FORMAT)
-        && v.get("version").and_then(Value::as_u64)
-            == Some(geometry::multi_rig::MULTI_RIG_VERSION.into());
-    if !multi {
+    if !geometry::multi_rig::is_multi_rig_json(&v) {
         return Ok(None);
     }
     Ok(Some(geometry::MultiRig::from_json(&text, path)?))

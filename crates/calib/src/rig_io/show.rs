@@ -299,13 +299,7 @@ pub fn describe(name: &str, c: &Calibration) -> (String, usize) {
             camera_checks(camera, *role)
         }
     };
-    let _ = writeln!(s, "checks:");
-    let mut warnings = 0;
-    for f in &findings {
-        warnings += f.warning as usize;
-        let _ = writeln!(s, "  {}  {}", if f.warning { "WARN" } else { "ok  " }, f.text);
-    }
-    (s, warnings)
+    checks_text(s, &findings)
 }
 
 /// The text of `kfuse rig show` for a rig of several cameras: every camera with its role,
@@ -376,13 +370,18 @@ pub fn describe_multi(name: &str, rig: &MultiRig) -> (String, usize) {
             );
         }
     }
-    let _ = writeln!(s, "checks:");
+    checks_text(s, &findings)
+}
+
+/// `text` followed by the checks (`WARN` or `ok`, one a line), and the number of warnings.
+fn checks_text(mut text: String, findings: &[Finding]) -> (String, usize) {
+    let _ = writeln!(text, "checks:");
     let mut warnings = 0;
-    for f in &findings {
+    for f in findings {
         warnings += f.warning as usize;
-        let _ = writeln!(s, "  {}  {}", if f.warning { "WARN" } else { "ok  " }, f.text);
+        let _ = writeln!(text, "  {}  {}", if f.warning { "WARN" } else { "ok  " }, f.text);
     }
-    (s, warnings)
+    (text, warnings)
 }
 
 #[cfg(test)]

@@ -475,19 +475,44 @@ pub fn calibration_scene(profile: &SimProfile) -> Option<SimScene> {
     let frames: Vec<Option<_>> = (0..BOARD_POSES.len())
         .into_par_iter()
         .map(|k| {
-            let (mut depth, mut ir, rgb) = render_pose_with(&rig, &rays, k);
-            mirror_rows(&mut depth, WIDTH);
-            mirror_rows(&mut ir, WIDTH);
-            let mut px: Vec<[u8; 3]> = rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-            mirror_rows(&mut px, COLOR_SIZE.0);
-            let rgb: Vec<u8> = px.concat();
-            let mut jpeg = Vec::new();
-            let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, JPEG_QUALITY);
-            image::ImageEncoder::write_image(enc, &rgb, 1920, 1080, image::ExtendedColorType::Rgb8)
-                .ok()?;
-            Some(((depth, ir), jpeg))
+            let (depth, ir, rgb) = render_pose_with(&rig, &rays, k);
+            as_streamed(depth, ir, rgb)
         })
         .collect();
+    scene_of_frames(frames)
+}
+
+/// A view as the sensor streams it: `((depth, IR), colour JPEG)`, mirrored left–right.
+pub(crate) type StreamedView = ((Vec<f32>, Vec<f32>), Vec<u8>);
+
+/// One rendered view as the sensor streams it: depth, IR and colour mirrored left–right
+/// (`crate::orientation`), the colour as a quality-[`JPEG_QUALITY`] JPEG. `None` when the
+/// encoder fails.
+pub(crate) fn as_streamed(
+    mut depth: Vec<f32>,
+    mut ir: Vec<f32>,
+    rgb: Vec<u8>,
+) -> Option<StreamedView> {
+    mirror_rows(&mut depth, WIDTH);
+    mirror_rows(&mut ir, WIDTH);
+    let mut px: Vec<[u8; 3]> = rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    mirror_rows(&mut px, COLOR_SIZE.0);
+    let rgb: Vec<u8> = px.concat();
+    let mut jpeg = Vec::new();
+    let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, JPEG_QUALITY);
+    image::ImageEncoder::write_image(
+        enc,
+        &rgb,
+        COLOR_SIZE.0 as u32,
+        COLOR_SIZE.1 as u32,
+        image::ExtendedColorType::Rgb8,
+    )
+    .ok()?;
+    Some(((depth, ir), jpeg))
+}
+
+/// The scene of streamed views in order; `None` when any failed.
+pub(crate) fn scene_of_frames(frames: Vec<Option<StreamedView>>) -> Option<SimScene> {
     let mut scene = SimScene::default();
     for f in frames {
         let (d, jpeg) = f?;

@@ -26,11 +26,9 @@
 //! than 180° apart, each of [`SHARED_POSES`] facing the pair (the views that link the sensors).
 
 use super::calib_scene::{
-    Backdrop, BoardPose, COLOR_SIZE, FactoryRig, JPEG_QUALITY, depth_rays, render_view,
+    Backdrop, BoardPose, FactoryRig, as_streamed, depth_rays, render_view, scene_of_frames,
 };
 use super::{SimProfile, SimScene};
-use crate::orientation::mirror_rows;
-use crate::raw::WIDTH;
 use rayon::prelude::*;
 
 /// Most sensors one simulated ring holds: 4. Each Kinect v2 needs a USB 3 controller of its
@@ -209,33 +207,11 @@ fn scene_of(
         .enumerate()
         .map(|(k, world)| {
             let pose = world.transformed(&dw.r, &dw.t);
-            let (mut depth, mut ir, rgb) =
-                render_view(&rig, &rays, &pose, &backdrop, seed + k as u64);
-            mirror_rows(&mut depth, WIDTH);
-            mirror_rows(&mut ir, WIDTH);
-            let mut px: Vec<[u8; 3]> = rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-            mirror_rows(&mut px, COLOR_SIZE.0);
-            let rgb: Vec<u8> = px.concat();
-            let mut jpeg = Vec::new();
-            let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, JPEG_QUALITY);
-            image::ImageEncoder::write_image(
-                enc,
-                &rgb,
-                COLOR_SIZE.0 as u32,
-                COLOR_SIZE.1 as u32,
-                image::ExtendedColorType::Rgb8,
-            )
-            .ok()?;
-            Some(((depth, ir), jpeg))
+            let (depth, ir, rgb) = render_view(&rig, &rays, &pose, &backdrop, seed + k as u64);
+            as_streamed(depth, ir, rgb)
         })
         .collect();
-    let mut scene = SimScene::default();
-    for f in frames {
-        let (d, jpeg) = f?;
-        scene.depth_frames.push(d);
-        scene.color_jpegs.push(jpeg);
-    }
-    Some(scene)
+    scene_of_frames(frames)
 }
 
 #[cfg(test)]
