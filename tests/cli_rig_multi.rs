@@ -163,3 +163,29 @@ fn multi_rig_mistakes_are_one_line_each() {
         run(&["rig", "export", s(&v1), "--sensor", "A", "--format", "kfuse", "--out", "x.json"]);
     assert!(!ok && err.contains("is not a rig of several cameras"), "{err}");
 }
+
+/// A rig whose second sensor's translations are in millimetres (a user's unit mistake) is
+/// shown with each problem once: the camera kilometres away, and the sensor's 52-m baseline.
+#[test]
+fn show_names_each_problem_of_a_unit_mistake_once() {
+    let dir = scratch("rig-multi-mm");
+    let mut rig = two_kinects();
+    for c in &mut rig.cameras[2..] {
+        c.camera_from_reference.translation *= 1000.0;
+    }
+    let path = dir.join("mm.json");
+    std::fs::write(&path, rig.to_json()).unwrap();
+    let (ok, out, err) = run(&["rig", "show", s(&path)]);
+    assert!(ok, "{out}\n{err}");
+    let warns: Vec<&str> = out.lines().filter(|l| l.contains("WARN")).collect();
+    assert!(
+        warns.iter().any(|w| w.contains("\"B.depth\" is 2000.0 m from the reference")),
+        "{out}"
+    );
+    assert!(warns.iter().any(|w| w.contains("baseline")), "{out}");
+    let mut distinct: Vec<String> =
+        warns.iter().map(|w| w.replace("sensor \"B\"", "sensor B")).collect();
+    distinct.sort();
+    distinct.dedup();
+    assert_eq!(distinct.len(), warns.len(), "a problem is listed twice:\n{out}");
+}

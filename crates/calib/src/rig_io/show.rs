@@ -356,11 +356,13 @@ pub fn describe_multi(name: &str, rig: &MultiRig) -> (String, usize) {
     }
     for sensor in &sensors {
         if let Ok((pair, _)) = rig.sensor_rig(sensor) {
-            // The cameras were checked one by one above; keep the pair's own checks.
+            // The cameras were checked one by one above and the pair's plausibility (its
+            // baseline) is in the rig's own problems: keep only the pair's other checks.
             let own: Vec<String> = camera_checks(&pair.depth, Some(Role::Depth))
                 .into_iter()
                 .chain(camera_checks(&pair.color, Some(Role::Color)))
                 .map(|f| f.text)
+                .chain(pair.plausibility_problems())
                 .collect();
             findings.extend(
                 rig_checks(&pair)
