@@ -38,6 +38,8 @@ Examples:
   kfuse fuse --recording session.kfrec --out seq               (every frame: depth/NNNNNN.png, index.json)
   kfuse fuse --recording session.kfrec --layout tum --out tum  (TUM RGB-D: rgb/, depth/, associations.txt)
   kfuse fuse --rig rig.json --frames shots --write holes,color-on-depth --out seq
+  kfuse fuse --rig rig3.json --sensor A=a_color.jpg,a_depth.png --sensor B=b_color.jpg,b_depth.png \
+             --sensor C=c_color.jpg,c_depth.png --out merged   (a rig of several Kinects)
 
 Inputs are the raw (distorted) camera images; the rig's distortion is applied exactly.
 Images from `kfuse undistort` are rectified: pass --rectified, or they are distorted twice.
