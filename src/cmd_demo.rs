@@ -95,6 +95,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         gpu: None,
         force: false,
         timings: false,
+        sensor: Vec::new(),
+        view: None,
         sequence: Default::default(),
     };
     let result =

@@ -16,6 +16,7 @@ use crate::figures;
 
 mod checks;
 mod inputs;
+pub mod multi;
 pub mod sequence;
 
 pub use inputs::{Inputs, load_inputs};
@@ -35,6 +36,8 @@ Examples:
   kfuse fuse --recording session.kfrec --out seq               (every frame: depth/NNNNNN.png, index.json)
   kfuse fuse --recording session.kfrec --layout tum --out tum  (TUM RGB-D: rgb/, depth/, associations.txt)
   kfuse fuse --rig rig.json --frames shots --write holes,color-on-depth --out seq
+  kfuse fuse --rig rig3.json --sensor A=a_color.jpg,a_depth.png --sensor B=b_color.jpg,b_depth.png \
+             --sensor C=c_color.jpg,c_depth.png --out merged   (a rig of several Kinects)
 
 Inputs are the raw (distorted) camera images; the rig's distortion is applied exactly.
 Images from `kfuse undistort` are rectified: pass --rectified, or they are distorted twice.
@@ -61,11 +64,11 @@ pub struct FuseArgs {
     pub rig: Option<PathBuf>,
     /// Colour image (PNG, JPEG, TIFF or BMP), as captured (distorted) or rectified (then
     /// --rectified). With --mat it replaces the file's image.
-    #[arg(long, value_name = "C.png", required_unless_present_any = ["mat", "recording", "frames"])]
+    #[arg(long, value_name = "C.png", required_unless_present_any = ["mat", "recording", "frames", "sensor"])]
     pub color: Option<PathBuf>,
     /// Depth image of the depth camera, as captured or rectified. With --mat it replaces the
     /// file's depth (e.g. the handout's Depth_rect.tif).
-    #[arg(long, value_name = "D.png", required_unless_present_any = ["mat", "recording", "frames"])]
+    #[arg(long, value_name = "D.png", required_unless_present_any = ["mat", "recording", "frames", "sensor"])]
     pub depth: Option<PathBuf>,
     /// What the depth values measure: z (along the optical axis, Kinect) or range (distance to
     /// the optical centre).
@@ -128,6 +131,16 @@ pub struct FuseArgs {
     /// register, encode, write as in index.json), as `kfuse calibrate --timings` does.
     #[arg(long)]
     pub timings: bool,
+    /// With a rig of several Kinects (a version-2 rig file): one sensor's colour and depth
+    /// image, SERIAL=COLOR,DEPTH; once per sensor of the rig. Writes rig.json, cloud.ply
+    /// (merged, reference frame), depth_zbuffer.png (--view) and summary.json (consistency
+    /// per sensor pair) instead of the one-frame outputs.
+    #[arg(long, value_name = "SERIAL=C.png,D.png", value_parser = multi::parse_sensor, conflicts_with_all = ["color", "depth", "mat"])]
+    pub sensor: Vec<multi::SensorArg>,
+    /// With --sensor: the camera of the rig the merged samples are z-buffered into
+    /// (default: the reference sensor's colour camera).
+    #[arg(long, value_name = "CAMERA", requires = "sensor")]
+    pub view: Option<String>,
     /// A whole recording or frame folder instead of one frame.
     #[command(flatten)]
     pub sequence: sequence::SequenceArgs,

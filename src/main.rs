@@ -100,6 +100,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("poses: color_from_depth maps X_depth to X_color = R X_depth + T (metres)");
         }
         Command::Fuse(args) if args.is_sequence() => cmd_fuse::sequence::run(&args)?,
+        Command::Fuse(args) if !args.sensor.is_empty() => {
+            cmd_fuse::multi::run(&args)?;
+        }
         Command::Fuse(args) => {
             let result = cmd_fuse::run(&args)?;
             cmd_fuse::report(&result);

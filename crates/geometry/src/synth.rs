@@ -41,10 +41,12 @@ use rayon::prelude::*;
 use crate::{CameraModel, DepthKind, Distortion, Image, Intrinsics, Rig, RigidTransform};
 
 mod noisy;
+mod ring;
 pub use noisy::{
     FLYING_EDGE_JUMP, FLYING_MIX_MIN, FLYING_PIXEL_FRACTION, KinectNoise, NoisyFrame,
     apply_kinect_noise, kinect_noisy_preset, render_noisy,
 };
+pub use ring::{KinectRing, RING_RADIUS_M, RING_SENSORS, kinect_ring_preset, render_ring};
 
 /// Relative tolerance of the "hidden" test: the first hit must be closer than
 /// `(1 - 1e-6)` times the distance to the point; f64 intersections are exact to ~1e-12, so
@@ -131,6 +133,15 @@ pub enum Texture {
         /// Amplitude of every channel (keep `base ± amplitude` within 0..=255).
         amplitude: f64,
     },
+    /// Another texture evaluated in another frame: the colour at `p` is `texture`'s colour
+    /// at `texture_from_scene · p` ([`Scene::transformed`] keeps a surface's colours where
+    /// they were when it moves the geometry into a sensor's frame).
+    Placed {
+        /// The pattern, in its own frame.
+        texture: Box<Texture>,
+        /// Scene point → the pattern's frame.
+        texture_from_scene: RigidTransform,
+    },
 }
 
 impl Texture {
@@ -160,6 +171,9 @@ impl Texture {
                     b[1] + amplitude * (w * p.y).sin(),
                     b[2] + amplitude * (w * p.z).sin(),
                 ]
+            }
+            Texture::Placed { texture, texture_from_scene } => {
+                texture.color_at(&texture_from_scene.apply(p))
             }
         }
     }
@@ -202,6 +216,53 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// The same scene with every surface moved by `to_from_scene` (`X_to = R·X + T`): the
+    /// scene as seen from another frame, e.g. a sensor's depth camera
+    /// (`depth_from_world`). Textures stay attached to the surfaces
+    /// ([`Texture::Placed`]), so every sensor sees the same colours on the same point.
+    pub fn transformed(&self, to_from_scene: &RigidTransform) -> Scene {
+        let r = to_from_scene.rotation;
+        let back = to_from_scene.inverse();
+        let objects = self
+            .objects
+            .iter()
+            .map(|o| {
+                let shape = match &o.shape {
+                    Shape::Plane { point, normal } => {
+                        Shape::Plane { point: to_from_scene.apply(point), normal: r * normal }
+                    }
+                    Shape::Box { center, half_extents, rotation } => Shape::Box {
+                        center: to_from_scene.apply(center),
+                        half_extents: *half_extents,
+                        rotation: r * rotation,
+                    },
+                    Shape::Sphere { center, radius } => {
+                        Shape::Sphere { center: to_from_scene.apply(center), radius: *radius }
+                    }
+                    Shape::Cone { apex, axis, half_angle, height } => Shape::Cone {
+                        apex: to_from_scene.apply(apex),
+                        axis: r * axis,
+                        half_angle: *half_angle,
+                        height: *height,
+                    },
+                };
+                let texture = match &o.texture {
+                    Texture::Solid(c) => Texture::Solid(*c),
+                    Texture::Placed { texture, texture_from_scene } => Texture::Placed {
+                        texture: texture.clone(),
+                        texture_from_scene: texture_from_scene.compose(&back),
+                    },
+                    other => Texture::Placed {
+                        texture: Box::new(other.clone()),
+                        texture_from_scene: back,
+                    },
+                };
+                SceneObject { shape, texture, ir_albedo: o.ir_albedo }
+            })
+            .collect();
+        Scene { objects }
+    }
+
     /// The first hit along `origin + t · dir`, `t > 0`.
     pub fn cast(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
         let mut best: Option<(f64, Vector3<f64>, usize)> = None;

@@ -43,6 +43,7 @@
 mod color;
 mod holes;
 mod mesh;
+pub mod multi;
 mod pipeline;
 pub mod pixel;
 mod register;

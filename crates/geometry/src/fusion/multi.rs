@@ -1,0 +1,565 @@
+//! Fusion of several Kinects: every sensor's depth into one coloured cloud in the rig's
+//! reference frame, z-buffered into any camera of the rig, with the rig's overlap
+//! consistency per pair of sensors.
+//!
+//! Per sensor ([`fuse_multi`]): its depth image is corrected with the depth camera's
+//! [`crate::DepthCorrection`] (where the rig has one), back-projected with H1
+//! ([`backproject_cloud`]), coloured by its own colour camera with H6 ([`color_on_depth`],
+//! occlusions judged against H3's nearest fill of its own z-buffer, as `fusion::run` does),
+//! and moved into the reference frame. The merged cloud keeps, where two sensors see the same
+//! surface (the other sensor's depth within [`OVERLAP_GATE_M`] of the point), the sample of
+//! the sensor closer to it: the Kinect's noise grows with z², so the closer one measures it
+//! better (the "best-seeing" rule of issue 32).
+//!
+//! [`MultiFusion::zbuffer_into`] z-buffers every sensor's samples into one camera with H2
+//! and H7's rules ([`project_point`], [`zbuffer_index`], [`zbuffer_min`]: nearest wins), the
+//! points projected from their own depth frame with the composed `camera_from_depth` pose, so
+//! that one sensor into its own colour camera is bit-identical to [`super::Registration`].
+//!
+//! **Consistency** of a pair (A, B): every sample of B is projected into A's depth camera;
+//! where A has a sample at that pixel within [`OVERLAP_GATE_M`] the signed difference
+//! `z_A − z_B` (A's frame) is kept. Each B sample is compared (no z-buffer: the minimum of
+//! several noisy samples on one pixel is biased towards the camera). Reported: the median
+//! `|z_A − z_B|` over the compared pixels (the noise of both sensors included: ~0.95·σ√2),
+//! and the **tile consistency**, the median over [`CONSISTENCY_TILE_PX`]-pixel tiles of A's
+//! image (with at least [`MIN_TILE_SAMPLES`] comparisons) of the absolute median difference
+//! in the tile: the rig's misalignment with the per-pixel noise averaged out, the number a
+//! user can trust or distrust.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::pixel::{
+    ColorProjection, ZBUFFER_EMPTY, depth_ray_table, project_point, zbuffer_index, zbuffer_min,
+    zbuffer_pixel,
+};
+use super::{
+    FusionOptions, backproject_cloud, cloud_colors, color_on_depth, coverage_radius_px,
+    nearest_fill,
+};
+use crate::{
+    CameraModel, DepthKind, GeometryError, Image, MultiRig, PointCloud, Rig, RigCamera,
+    RigidTransform,
+};
+
+/// Largest depth difference, metres, at which a sample of one sensor and a sample of another
+/// on the same pixel are the same surface: 50 mm, over ten times the Kinect's noise at 2 m
+/// (σ ≈ 6 mm for the difference of two sensors) and a 1 cm / 1° pose error at 1.5 m (~3 cm),
+/// and below the gaps between the objects and what is behind them (≥ 10 cm in a room).
+pub const OVERLAP_GATE_M: f32 = 0.05;
+
+/// Side of the tiles of the tile consistency, depth pixels: 8 (64 pixels, ~3 cm at 1.5 m):
+/// the median of up to 64 differences has an eighth of the per-pixel noise, and a pose error
+/// changes the difference little across 3 cm.
+pub const CONSISTENCY_TILE_PX: usize = 8;
+
+/// Fewest comparisons in a tile for it to count: 16, a quarter of a tile (the tile's median
+/// then still has a quarter of the per-pixel noise; tiles on the rim of an overlap have fewer).
+pub const MIN_TILE_SAMPLES: usize = 16;
+
+/// The images of one sensor.
+#[derive(Debug, Clone)]
+pub struct SensorImages {
+    /// The sensor (a Kinect's serial number) of the rig.
+    pub sensor: String,
+    /// Depth image of the sensor's depth camera, metres (NaN or 0 for no sample).
+    pub depth: Image<f32>,
+    /// Colour image of its colour camera.
+    pub color: Image<[u8; 3]>,
+}
+
+/// One sensor's samples.
+#[derive(Debug, Clone)]
+pub struct SensorCloud {
+    /// The sensor.
+    pub sensor: String,
+    /// Its depth + colour pair (its depth camera's frame the reference), as fused
+    /// (undistorted when the rig is rectified).
+    pub rig: Rig,
+    /// Its depth camera's pose: `X_depth = R · X_reference + T`.
+    pub depth_from_reference: RigidTransform,
+    /// H1 points in its depth camera's frame, metres, row-major.
+    pub points: Vec<[f32; 3]>,
+    /// The depth pixel (row-major index) of every point.
+    pub pixels: Vec<u32>,
+    /// H6 colour of every point (black where its colour camera does not see it).
+    pub colors: Vec<[u8; 3]>,
+    /// `z` of every depth pixel's sample (depth camera frame, after the correction), NaN for
+    /// none.
+    pub z: Image<f32>,
+    /// Per point: kept in the merged cloud (no other sensor sees its surface closer).
+    pub kept: Vec<bool>,
+}
+
+/// The overlap of two sensors.
+#[derive(Debug, Clone, Serialize)]
+pub struct PairConsistency {
+    /// The sensor whose depth camera the comparison is in.
+    pub a: String,
+    /// The sensor whose samples are projected into A.
+    pub b: String,
+    /// Samples of B compared with a sample of A (the overlap, in pixels of A).
+    pub pixels: usize,
+    /// Median `|z_A − z_B|` over them, millimetres (both sensors' noise included).
+    pub median_abs_mm: f64,
+    /// Tiles of A's image with at least [`MIN_TILE_SAMPLES`] comparisons.
+    pub tiles: usize,
+    /// Median over those tiles of the tile's absolute median difference, millimetres.
+    pub tile_median_mm: f64,
+}
+
+/// Wall-clock times of [`fuse_multi`]'s stages, milliseconds.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct MultiTimings {
+    /// Correction, H1 and H6 of every sensor.
+    pub sensors_ms: f64,
+    /// The best-seeing rule and the merged cloud.
+    pub merge_ms: f64,
+    /// Consistency of every pair.
+    pub consistency_ms: f64,
+}
+
+/// Everything [`fuse_multi`] makes.
+#[derive(Debug, Clone)]
+pub struct MultiFusion {
+    /// Per sensor of the rig (in [`MultiRig::sensors`] order).
+    pub sensors: Vec<SensorCloud>,
+    /// The merged cloud in the reference frame, with colours.
+    pub cloud: PointCloud,
+    /// Per point of [`MultiFusion::cloud`]: index of its sensor in [`MultiFusion::sensors`].
+    pub cloud_sensor: Vec<u16>,
+    /// Every pair `a < b` of sensors (B's samples in A's camera).
+    pub consistency: Vec<PairConsistency>,
+    /// Stage times.
+    pub timings: MultiTimings,
+    rectified: bool,
+}
+
+fn model_as_fused(model: &CameraModel, rectified: bool) -> CameraModel {
+    if rectified { model.without_distortion() } else { *model }
+}
+
+/// The projection of `camera_from_depth` points into `camera` (H2's arithmetic).
+fn projection(camera: &CameraModel, camera_from_depth: RigidTransform) -> ColorProjection {
+    ColorProjection::from_rig(&Rig::new(*camera, *camera, camera_from_depth))
+}
+
+/// Fuses one depth + colour pair per sensor of `rig` (depth of kind `kind`, metres); see
+/// the module docs. `options` gives H6's occlusion tolerance and H3's coverage radius and
+/// depth jump.
+///
+/// Errors ([`GeometryError::InvalidInput`], before any work): a sensor of the rig without
+/// images, images of a sensor the rig does not have or given twice, a rig sensor without a
+/// depth or a colour camera; [`GeometryError::SizeMismatch`] for an image of another size
+/// than its camera; the depth correction's errors.
+pub fn fuse_multi(
+    rig: &MultiRig,
+    inputs: &[SensorImages],
+    kind: DepthKind,
+    options: &FusionOptions,
+) -> Result<MultiFusion, GeometryError> {
+    rig.validate()?;
+    let sensors = rig.sensors();
+    for (i, input) in inputs.iter().enumerate() {
+        if !sensors.contains(&input.sensor.as_str()) {
+            return Err(GeometryError::InvalidInput(format!(
+                "sensor \"{}\" is not in the rig (its sensors: {})",
+                input.sensor,
+                sensors.join(", ")
+            )));
+        }
+        if inputs[..i].iter().any(|o| o.sensor == input.sensor) {
+            return Err(GeometryError::InvalidInput(format!(
+                "sensor \"{}\" is given twice",
+                input.sensor
+            )));
+        }
+    }
+    let mut pairs = Vec::with_capacity(sensors.len());
+    for s in &sensors {
+        let input = inputs.iter().find(|i| i.sensor == *s).ok_or_else(|| {
+            GeometryError::InvalidInput(format!(
+                "sensor \"{s}\" of the rig has no depth and colour images"
+            ))
+        })?;
+        let (pair, depth_from_reference) = rig.sensor_rig(s)?;
+        let pair = if rig.rectified { pair.as_rectified() } else { pair };
+        input.depth.expect_size(
+            &format!("depth image of sensor {s}"),
+            pair.depth.width,
+            pair.depth.height,
+        )?;
+        input.color.expect_size(
+            &format!("colour image of sensor {s}"),
+            pair.color.width,
+            pair.color.height,
+        )?;
+        pairs.push((input, pair, depth_from_reference));
+    }
+
+    let t0 = Instant::now();
+    let mut clouds = pairs
+        .into_par_iter()
+        .map(|(input, pair, depth_from_reference)| {
+            sensor_cloud(input, pair, depth_from_reference, kind, options)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let sensors_ms = t0.elapsed().as_secs_f64() * 1e3;
+
+    let t1 = Instant::now();
+    let kept: Vec<Vec<bool>> =
+        (0..clouds.len()).into_par_iter().map(|b| best_seeing(&clouds, b)).collect();
+    let mut cloud = PointCloud::default();
+    let mut cloud_sensor = Vec::new();
+    for (k, (c, kept)) in clouds.iter_mut().zip(kept).enumerate() {
+        c.kept = kept;
+        let m = c.depth_from_reference.inverse();
+        let r = m.rotation.matrix();
+        let t = m.translation;
+        for ((p, col), _) in c.points.iter().zip(&c.colors).zip(&c.kept).filter(|(_, k)| **k) {
+            let p = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            let q = r * p + t;
+            cloud.points.push([q.x as f32, q.y as f32, q.z as f32]);
+            cloud.colors.push(*col);
+            cloud_sensor.push(k as u16);
+        }
+    }
+    let merge_ms = t1.elapsed().as_secs_f64() * 1e3;
+
+    let t2 = Instant::now();
+    let index_pairs: Vec<(usize, usize)> =
+        (0..clouds.len()).flat_map(|a| (a + 1..clouds.len()).map(move |b| (a, b))).collect();
+    let consistency =
+        index_pairs.into_par_iter().map(|(a, b)| consistency(&clouds[a], &clouds[b])).collect();
+    let consistency_ms = t2.elapsed().as_secs_f64() * 1e3;
+
+    Ok(MultiFusion {
+        sensors: clouds,
+        cloud,
+        cloud_sensor,
+        consistency,
+        timings: MultiTimings { sensors_ms, merge_ms, consistency_ms },
+        rectified: rig.rectified,
+    })
+}
+
+fn sensor_cloud(
+    input: &SensorImages,
+    rig: Rig,
+    depth_from_reference: RigidTransform,
+    kind: DepthKind,
+    options: &FusionOptions,
+) -> Result<SensorCloud, GeometryError> {
+    let mut depth = input.depth.clone();
+    if let Some(correction) = &rig.depth_correction {
+        correction.correct_image(&mut depth, 1.0)?;
+    }
+    let rays = depth_ray_table(&rig.depth, kind);
+    let (cloud, pixels) = backproject_cloud(&depth, &rays);
+    let proj = ColorProjection::from_rig(&rig);
+    let mut own = Image::filled(rig.color.width, rig.color.height, ZBUFFER_EMPTY);
+    zbuffer_points(&cloud.points, &proj, own.data_mut());
+    let dense = nearest_fill(&own, coverage_radius_px(&rig, options), options.depth_jump);
+    let (on_depth, valid) = color_on_depth(
+        &depth,
+        &rays,
+        &proj,
+        &input.color,
+        Some(&dense),
+        options.color_occlusion_tolerance,
+    );
+    let colors = cloud_colors(&pixels, &on_depth, &valid);
+    let (w, h) = depth.size();
+    let mut z = Image::filled(w, h, f32::NAN);
+    for (p, &i) in cloud.points.iter().zip(&pixels) {
+        z.data_mut()[i as usize] = p[2];
+    }
+    let kept = vec![true; cloud.points.len()];
+    Ok(SensorCloud {
+        sensor: input.sensor.clone(),
+        rig,
+        depth_from_reference,
+        points: cloud.points,
+        pixels,
+        colors,
+        z,
+        kept,
+    })
+}
+
+/// H2 + H7 of `points` into a z-buffer of `proj`'s size.
+fn zbuffer_points(points: &[[f32; 3]], proj: &ColorProjection, zbuffer: &mut [f32]) {
+    for &p in points {
+        if let Some([u, v, z]) = project_point(proj, p)
+            && let Some(i) = zbuffer_index(u, v, proj.width, proj.height)
+        {
+            zbuffer_min(&mut zbuffer[i], z);
+        }
+    }
+}
+
+/// `a`'s depth camera seeing `b`'s points: the projection of b's depth frame into a's.
+fn depth_into(a: &SensorCloud, b: &SensorCloud) -> ColorProjection {
+    let a_from_b = a.depth_from_reference.compose(&b.depth_from_reference.inverse());
+    projection(&a.rig.depth, a_from_b)
+}
+
+/// Per point of sensor `b`: no other sensor has a sample within the gate of it that is
+/// closer to that sensor than the point is to `b`.
+fn best_seeing(clouds: &[SensorCloud], b: usize) -> Vec<bool> {
+    let cb = &clouds[b];
+    let mut kept = vec![true; cb.points.len()];
+    for (a, ca) in clouds.iter().enumerate() {
+        if a == b {
+            continue;
+        }
+        let proj = depth_into(ca, cb);
+        let za = ca.z.data();
+        for (p, k) in cb.points.iter().zip(kept.iter_mut()) {
+            if !*k {
+                continue;
+            }
+            if let Some([u, v, z]) = project_point(&proj, *p)
+                && let Some(i) = zbuffer_index(u, v, proj.width, proj.height)
+                && (za[i] - z).abs() <= OVERLAP_GATE_M
+                && z < p[2]
+            {
+                *k = false;
+            }
+        }
+    }
+    kept
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) }
+}
+
+fn consistency(a: &SensorCloud, b: &SensorCloud) -> PairConsistency {
+    let proj = depth_into(a, b);
+    let (w, h) = a.z.size();
+    let za = a.z.data();
+    let (tw, th) = (w.div_ceil(CONSISTENCY_TILE_PX), h.div_ceil(CONSISTENCY_TILE_PX));
+    let mut tiles: Vec<Vec<f64>> = vec![Vec::new(); tw * th];
+    let mut abs = Vec::new();
+    for p in &b.points {
+        let Some([u, v, z]) = project_point(&proj, *p) else { continue };
+        let Some((x, y)) = zbuffer_pixel(u, v, proj.width, proj.height) else { continue };
+        let d = za[y * w + x] - z;
+        if d.abs() <= OVERLAP_GATE_M {
+            abs.push(d.abs() as f64);
+            tiles[(y / CONSISTENCY_TILE_PX) * tw + x / CONSISTENCY_TILE_PX].push(d as f64);
+        }
+    }
+    let mut tile_values: Vec<f64> =
+        tiles.iter_mut().filter(|t| t.len() >= MIN_TILE_SAMPLES).map(|t| median(t).abs()).collect();
+    let pixels = abs.len();
+    PairConsistency {
+        a: a.sensor.clone(),
+        b: b.sensor.clone(),
+        pixels,
+        median_abs_mm: median(&mut abs) * 1e3,
+        tiles: tile_values.len(),
+        tile_median_mm: median(&mut tile_values) * 1e3,
+    }
+}
+
+impl MultiFusion {
+    /// Every sensor's samples z-buffered into `camera` (a camera of the rig the fusion was
+    /// made with): per pixel the smallest `z` in that camera's frame, [`ZBUFFER_EMPTY`]
+    /// where no sample lands (H2 + H7's rules, see the module docs).
+    pub fn zbuffer_into(&self, camera: &RigCamera) -> Image<f32> {
+        let all: Vec<usize> = (0..self.sensors.len()).collect();
+        self.zbuffer_of_sensors(camera, &all)
+    }
+
+    /// [`MultiFusion::zbuffer_into`] with the samples of the sensors at `sensors` (indices
+    /// into [`MultiFusion::sensors`]) only.
+    pub fn zbuffer_of_sensors(&self, camera: &RigCamera, sensors: &[usize]) -> Image<f32> {
+        let model = model_as_fused(&camera.model, self.rectified);
+        let mut out = Image::filled(model.width, model.height, ZBUFFER_EMPTY);
+        for s in sensors.iter().filter_map(|&k| self.sensors.get(k)) {
+            let camera_from_depth =
+                camera.camera_from_reference.compose(&s.depth_from_reference.inverse());
+            zbuffer_points(&s.points, &projection(&model, camera_from_depth), out.data_mut());
+        }
+        out
+    }
+
+    /// Points of each sensor in the merged cloud.
+    pub fn points_per_sensor(&self) -> Vec<usize> {
+        self.sensors.iter().map(|s| s.kept.iter().filter(|k| **k).count()).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::Registration;
+    use crate::synth::{KinectNoise, KinectRing, kinect_ring_preset, render_ring};
+
+    /// The consistency bar of issue 32: 2 mm.
+    const CONSISTENCY_BAR_MM: f64 = 2.0;
+
+    fn inputs(ring: &KinectRing, frames: &[crate::synth::SynthFrame]) -> Vec<SensorImages> {
+        ring.serials
+            .iter()
+            .zip(frames)
+            .map(|(s, f)| SensorImages {
+                sensor: s.clone(),
+                depth: f.depth.clone(),
+                color: f.color.clone(),
+            })
+            .collect()
+    }
+
+    /// Per point of sensor `k`: distance to the true surface point along its pixel's ray.
+    fn errors(
+        fusion: &MultiFusion,
+        frames: &[crate::synth::SynthFrame],
+        k: usize,
+        only_kept: bool,
+    ) -> Vec<f64> {
+        let s = &fusion.sensors[k];
+        let rays = depth_ray_table(&s.rig.depth, DepthKind::Z);
+        let truth = frames[k].true_depth_z.data();
+        s.points
+            .iter()
+            .zip(&s.pixels)
+            .zip(&s.kept)
+            .filter(|(_, kept)| !only_kept || **kept)
+            .filter_map(|((p, &i), _)| {
+                let t = truth[i as usize] as f64;
+                let [x, y, _] = rays[i as usize];
+                let norm = ((x * x + y * y + 1.0) as f64).sqrt();
+                t.is_finite().then(|| (p[2] as f64 - t).abs() * norm)
+            })
+            .collect()
+    }
+
+    fn perturbed(ring: &KinectRing, serial: &str) -> MultiRig {
+        // 1° about an oblique axis and 1 cm, applied to the whole sensor (both cameras).
+        let delta = RigidTransform::from_axis_angle(
+            nalgebra::Vector3::new(0.6, 0.8, 0.0) * 1f64.to_radians(),
+            nalgebra::Vector3::new(0.006, -0.008, 0.0),
+        );
+        let mut rig = ring.rig.clone();
+        let depth = rig.camera(&format!("{serial}.depth")).unwrap().camera_from_reference;
+        // The depth camera moves about its own centre; the colour camera moves with it.
+        let moved = delta.compose(&depth);
+        for c in rig.cameras.iter_mut().filter(|c| c.sensor.as_deref() == Some(serial)) {
+            let from_depth = c.camera_from_reference.compose(&depth.inverse());
+            c.camera_from_reference = from_depth.compose(&moved);
+        }
+        rig
+    }
+
+    #[test]
+    fn ring_merged_cloud_beats_every_sensor_and_the_true_rig_is_consistent() {
+        let ring = kinect_ring_preset();
+        let frames = render_ring(&ring, Some(&KinectNoise::default()));
+        let fusion =
+            fuse_multi(&ring.rig, &inputs(&ring, &frames), DepthKind::Z, &FusionOptions::default())
+                .unwrap();
+        let mut merged = Vec::new();
+        let mut singles = Vec::new();
+        for k in 0..ring.serials.len() {
+            let mut all = errors(&fusion, &frames, k, false);
+            singles.push(median(&mut all) * 1e3);
+            merged.extend(errors(&fusion, &frames, k, true));
+        }
+        let merged = median(&mut merged) * 1e3;
+        println!("median point error per sensor (mm): {singles:.3?}; merged: {merged:.3}");
+        println!("points per sensor in the merged cloud: {:?}", fusion.points_per_sensor());
+        for &s in &singles {
+            assert!(merged <= s, "merged {merged:.3} mm > single sensor {s:.3} mm");
+        }
+        assert_eq!(fusion.consistency.len(), 3);
+        for c in &fusion.consistency {
+            println!(
+                "true rig {}-{}: {} px, per-pixel median |dz| {:.3} mm, tile consistency {:.3} mm over {} tiles",
+                c.a, c.b, c.pixels, c.median_abs_mm, c.tile_median_mm, c.tiles
+            );
+            // The ring's sensors overlap on the floor and the objects' sides: thousands of pixels.
+            assert!(c.pixels > 2000 && c.tiles > 30, "{c:?}");
+            assert!(c.tile_median_mm <= CONSISTENCY_BAR_MM, "{c:?}");
+        }
+
+        let broken = perturbed(&ring, "RING2");
+        let fusion =
+            fuse_multi(&broken, &inputs(&ring, &frames), DepthKind::Z, &FusionOptions::default())
+                .unwrap();
+        for c in &fusion.consistency {
+            println!(
+                "RING2 moved 1 cm, 1°: {}-{}: {} px, per-pixel median |dz| {:.3} mm, tile consistency {:.3} mm over {} tiles",
+                c.a, c.b, c.pixels, c.median_abs_mm, c.tile_median_mm, c.tiles
+            );
+            if c.b == "RING2" {
+                // Twice the bar: a pose error of this size is not mistaken for noise.
+                assert!(c.tile_median_mm > 2.0 * CONSISTENCY_BAR_MM, "{c:?}");
+            } else {
+                assert!(c.tile_median_mm <= CONSISTENCY_BAR_MM, "{c:?}");
+            }
+        }
+    }
+
+    /// One sensor's samples z-buffered into its own colour camera are bit-identical to
+    /// `Registration`'s z-buffer of the same frame: the same f64 pose (the rig's
+    /// `transform`), rounded to the same f32 projection, and H2/H7's rules.
+    #[test]
+    fn own_colour_camera_zbuffer_equals_registration() {
+        let ring = kinect_ring_preset();
+        let frames = render_ring(&ring, Some(&KinectNoise::default()));
+        let fusion =
+            fuse_multi(&ring.rig, &inputs(&ring, &frames), DepthKind::Z, &FusionOptions::default())
+                .unwrap();
+        for (k, serial) in ring.serials.iter().enumerate() {
+            let (pair, _) = ring.rig.sensor_rig(serial).unwrap();
+            let mut reg =
+                Registration::new(&pair, DepthKind::Z, &FusionOptions::default()).unwrap();
+            let landed = reg.register(&frames[k].depth).unwrap();
+            assert!(landed > 50_000, "{landed}");
+            let camera = ring.rig.camera(&format!("{serial}.color")).unwrap();
+            let ours = fusion.zbuffer_of_sensors(camera, &[k]);
+            let same = ours
+                .data()
+                .iter()
+                .zip(reg.zbuffer())
+                .filter(|(a, b)| a.to_bits() == b.to_bits())
+                .count();
+            assert_eq!(same, ours.data().len(), "sensor {serial}: pixels differ");
+        }
+        // All sensors into one camera: at least as many pixels as its own sensor alone.
+        let camera = ring.rig.camera("RING0.color").unwrap();
+        let filled = |img: &Image<f32>| img.data().iter().filter(|z| z.is_finite()).count();
+        assert!(
+            filled(&fusion.zbuffer_into(camera)) > filled(&fusion.zbuffer_of_sensors(camera, &[0]))
+        );
+    }
+
+    #[test]
+    fn missing_unknown_and_wrongly_sized_inputs_are_refused() {
+        let ring = kinect_ring_preset();
+        let frames: Vec<_> = ring.setups.iter().map(crate::synth::render).collect();
+        let mut inp = inputs(&ring, &frames);
+        let opts = FusionOptions::default();
+        inp.pop();
+        let e = fuse_multi(&ring.rig, &inp, DepthKind::Z, &opts).unwrap_err().to_string();
+        assert!(e.contains("RING2") && e.contains("no depth and colour images"), "{e}");
+        let mut inp = inputs(&ring, &frames);
+        inp[1].sensor = "NOPE".into();
+        let e = fuse_multi(&ring.rig, &inp, DepthKind::Z, &opts).unwrap_err().to_string();
+        assert!(e.contains("\"NOPE\" is not in the rig"), "{e}");
+        let mut inp = inputs(&ring, &frames);
+        inp[0].color = Image::filled(640, 480, [0; 3]);
+        let e = fuse_multi(&ring.rig, &inp, DepthKind::Z, &opts).unwrap_err().to_string();
+        assert!(e.contains("colour image of sensor RING0"), "{e}");
+    }
+}
