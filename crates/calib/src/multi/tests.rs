@@ -30,10 +30,10 @@ fn gauss(rng: &mut ChaCha8Rng) -> f64 {
 }
 
 /// Board poses facing one sensor (seen by its pair only).
-const VIEWS_PER_SENSOR: usize = 5;
+const VIEWS_PER_SENSOR: usize = 6;
 /// Board poses between two sensors (seen by both pairs): they carry the sensor-to-sensor
 /// poses, so there are more of them.
-const VIEWS_PER_PAIR: usize = 8;
+const VIEWS_PER_PAIR: usize = 26;
 
 struct Truth {
     models: Vec<CameraModel>,
@@ -120,9 +120,9 @@ fn board_poses(rng: &mut ChaCha8Rng, board: &Board) -> Vec<RigidTransform> {
         );
         let r = base * tilt;
         let center = Vector3::new(
-            0.15 * rng.random_range(-1.0..1.0),
-            0.1 * rng.random_range(-1.0..1.0),
-            0.15 * rng.random_range(-1.0..1.0),
+            0.45 * rng.random_range(-1.0..1.0),
+            0.3 * rng.random_range(-1.0..1.0),
+            0.45 * rng.random_range(-1.0..1.0),
         );
         out.push(RigidTransform::new(r, center - r * half));
     }
@@ -192,7 +192,7 @@ fn views(truth: &Truth, board: &Board, seed: u64) -> Vec<CameraViews> {
 }
 
 fn board() -> Board {
-    Board::new(9, 6, 0.07).expect("valid board")
+    Board::new(11, 8, 0.08).expect("valid board")
 }
 
 /// Per camera: (centre error m, centre σ norm m, rotation error °, worst centre error in σ).
