@@ -4,6 +4,9 @@ use std::collections::VecDeque;
 
 use crate::CalibError;
 
+/// One tree node: the camera, its parent (`None` for the reference) and the shared view ids.
+pub(crate) type TreeNode = (usize, Option<usize>, Vec<u64>);
+
 /// Per camera, the view ids with a board pose. Returns, in BFS order from `reference`,
 /// `(camera, parent, shared view ids)` (the reference has parent `None`), or
 /// [`CalibError::NotConnected`] naming the groups of cameras that share no view.
@@ -11,7 +14,7 @@ pub(crate) fn spanning_tree(
     names: &[String],
     views: &[Vec<u64>],
     reference: usize,
-) -> Result<Vec<(usize, Option<usize>, Vec<u64>)>, CalibError> {
+) -> Result<Vec<TreeNode>, CalibError> {
     let n = names.len();
     let shared = |a: usize, b: usize| -> Vec<u64> {
         views[a].iter().copied().filter(|v| views[b].contains(v)).collect()
@@ -51,9 +54,9 @@ pub(crate) fn spanning_tree(
         let mut members = Vec::new();
         while let Some(a) = q.pop_front() {
             members.push(names[a].clone());
-            for b in 0..n {
-                if comp[b] == usize::MAX && !shared(a, b).is_empty() {
-                    comp[b] = g;
+            for (b, cb) in comp.iter_mut().enumerate() {
+                if *cb == usize::MAX && !shared(a, b).is_empty() {
+                    *cb = g;
                     q.push_back(b);
                 }
             }
