@@ -129,6 +129,14 @@ pub enum CalibError {
         /// or empty.
         moves: String,
     },
+    /// Joint calibration (`multi`): the cameras' covisibility graph falls apart.
+    #[error(
+        "the cameras form separate groups that share no board view: {groups}; they need a view of the board in common (take shots in which cameras of both groups see the board at once)"
+    )]
+    NotConnected {
+        /// The groups, e.g. "{a.ir, a.color} and {b.ir}".
+        groups: String,
+    },
     /// An error of the geometry core (rig file, atomic write).
     #[error(transparent)]
     Geometry(#[from] geometry::GeometryError),

@@ -28,6 +28,7 @@ pub mod files;
 pub mod holdout;
 pub mod io;
 pub mod mono;
+pub mod multi;
 pub mod rig_io;
 pub mod stereo;
 pub mod timing;
