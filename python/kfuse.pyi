@@ -105,6 +105,10 @@ class FusedFrame:
     @property
     def summary(self) -> Dict[str, Any]:
         """summary.json's "summary": counts and per-stage timings (ms)."""
+    def cloud_to_open3d(self) -> Any:
+        """open3d.geometry.PointCloud of `cloud`; ImportError without Open3D."""
+    def mesh_to_open3d(self, clean: bool = True) -> Any:
+        """open3d.geometry.TriangleMesh of mesh_clean (or mesh); ImportError without Open3D."""
     def save(self, folder: _Path, overwrite: bool = False) -> pathlib.Path:
         """What `kfuse fuse --no-figures --out folder` writes; FileExistsError unless overwrite."""
 
@@ -179,3 +183,8 @@ class Recording:
     def info(self) -> Dict[str, str]: ...
     @property
     def path(self) -> pathlib.Path: ...
+
+def to_open3d(
+    points: npt.NDArray[np.float32], colors: Optional[npt.NDArray[np.uint8]] = None
+) -> Any:
+    """Registration.cloud's result as open3d.geometry.PointCloud; ImportError without Open3D."""

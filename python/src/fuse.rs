@@ -221,6 +221,50 @@ impl PyFusedFrame {
         .map_err(geometry_err)
     }
 
+    /// The cloud as an Open3D `open3d.geometry.PointCloud` (points in metres, depth camera
+    /// frame; colours in [0, 1]). Open3D is not a dependency of kfuse: without it, ImportError
+    /// saying how to install it.
+    fn cloud_to_open3d<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let (points, colors) = self.cloud(py)?;
+        crate::open3d_cloud(py, points.as_any(), Some(colors.as_any()))
+    }
+
+    /// A mesh as an Open3D `open3d.geometry.TriangleMesh` (colour camera frame, vertex colours
+    /// in [0, 1], per-corner `triangle_uvs` with OBJ's bottom-left origin): `mesh_clean` (H5)
+    /// by default, `mesh` (H4) with clean=False. ImportError without Open3D.
+    #[pyo3(signature = (clean = true))]
+    fn mesh_to_open3d<'py>(&self, py: Python<'py>, clean: bool) -> PyResult<Bound<'py, PyAny>> {
+        let mesh = if clean { &self.out.mesh_clean } else { &self.out.mesh };
+        let o3d = crate::open3d(py)?;
+        let utility = o3d.getattr("utility")?;
+        let m = o3d.getattr("geometry")?.getattr("TriangleMesh")?.call0()?;
+        let f64s = |v: &Bound<'py, PyAny>| v.call_method1("astype", ("float64",));
+        m.setattr(
+            "vertices",
+            utility
+                .getattr("Vector3dVector")?
+                .call1((f64s(rows(py, &mesh.vertices)?.as_any())?,))?,
+        )?;
+        m.setattr(
+            "triangles",
+            utility
+                .getattr("Vector3iVector")?
+                .call1((rows(py, &mesh.faces)?.call_method1("astype", ("int32",))?,))?,
+        )?;
+        if !mesh.colors.is_empty() {
+            let c = rows(py, &mesh.colors)?.call_method1("astype", ("float64",))?;
+            let c = c.call_method1("__truediv__", (255.0,))?;
+            m.setattr("vertex_colors", utility.getattr("Vector3dVector")?.call1((c,))?)?;
+        }
+        if !mesh.uvs.is_empty() {
+            let corners: Vec<[f32; 2]> =
+                mesh.faces.iter().flatten().map(|&i| mesh.uvs[i as usize]).collect();
+            let uv = f64s(rows(py, &corners)?.as_any())?;
+            m.setattr("triangle_uvs", utility.getattr("Vector2dVector")?.call1((uv,))?)?;
+        }
+        Ok(m)
+    }
+
     fn __repr__(&self) -> String {
         let s = &self.out.summary;
         format!(

@@ -473,6 +473,47 @@ fn color_image(py: Python<'_>, rig: &Rig, color: &Bound<'_, PyAny>) -> PyResult<
     .map_err(geometry_err)
 }
 
+/// The `open3d` module, or an ImportError that says kfuse does not depend on it and how to
+/// install it.
+fn open3d(py: Python<'_>) -> PyResult<Bound<'_, PyModule>> {
+    py.import("open3d").map_err(|e| {
+        pyo3::exceptions::PyImportError::new_err(format!(
+            "to_open3d needs Open3D, which kfuse does not depend on: pip install open3d-cpu (or open3d) ({e})"
+        ))
+    })
+}
+
+/// `points` (N, 3) metres and optional uint8 `colors` (N, 3) as an `open3d.geometry.PointCloud`.
+fn open3d_cloud<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    colors: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let o3d = open3d(py)?;
+    let v3 = o3d.getattr("utility")?.getattr("Vector3dVector")?;
+    let pcd = o3d.getattr("geometry")?.getattr("PointCloud")?.call0()?;
+    pcd.setattr("points", v3.call1((points.call_method1("astype", ("float64",))?,))?)?;
+    if let Some(c) = colors {
+        let c = c.call_method1("astype", ("float64",))?.call_method1("__truediv__", (255.0,))?;
+        pcd.setattr("colors", v3.call1((c,))?)?;
+    }
+    Ok(pcd)
+}
+
+/// to_open3d(points, colors=None) -> open3d.geometry.PointCloud: `Registration.cloud`'s
+/// result (points float (N, 3) metres, colours uint8 (N, 3)) as an Open3D cloud (colours in
+/// [0, 1]). Open3D is not a dependency of kfuse: without it, ImportError saying how to
+/// install it.
+#[pyfunction]
+#[pyo3(signature = (points, colors = None))]
+fn to_open3d<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    colors: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    open3d_cloud(py, points, colors)
+}
+
 /// Rows of `N` values as an (len, N) array.
 fn rows<'py, T: numpy::Element + Copy, const N: usize>(
     py: Python<'py>,
@@ -608,6 +649,7 @@ fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<fuse::PyFusedFrame>()?;
     m.add_function(wrap_pyfunction!(fuse::fuse, m)?)?;
     m.add_class::<fuse::PyEngine>()?;
+    m.add_function(wrap_pyfunction!(to_open3d, m)?)?;
     m.add_class::<recording::PyRecording>()?;
     m.add_class::<recording::PyRecordingFrame>()?;
     Ok(())
