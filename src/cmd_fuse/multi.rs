@@ -82,6 +82,31 @@ fn check_size(
     Ok(())
 }
 
+/// Reads `--rig` as a rig of several cameras (version 2), its plausibility checked unless
+/// `force` (then the problems are printed as warnings).
+fn read_rig(path: &Path, force: bool) -> Result<MultiRig> {
+    let Some(rig) = calib::rig_io::load_multi(path)? else {
+        bail!(
+            "{}: not a rig of several cameras (version 2): --sensor of several Kinects needs one (a two-camera rig fuses one Kinect: --color/--depth)",
+            path.display()
+        );
+    };
+    let problems = rig.plausibility_problems();
+    if !problems.is_empty() {
+        if !force {
+            bail!(
+                "{}: {} (pass --force if the rig really is meant this way)",
+                path.display(),
+                problems.join("; ")
+            );
+        }
+        for w in &problems {
+            eprintln!("warning: {}: {w}", path.display());
+        }
+    }
+    Ok(rig)
+}
+
 /// Runs the fusion of several sensors; returns the output folder.
 pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     let started = std::time::Instant::now();
@@ -92,11 +117,7 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     if args.color.is_some() || args.depth.is_some() || args.mat.is_some() {
         bail!("--sensor gives every sensor's images: drop --color/--depth/--mat");
     }
-    let (rig, warnings) = kfuse_io::rig::read_multi_rig(rig_path, args.force)?;
-    for w in &warnings {
-        eprintln!("warning: {}: {w}", rig_path.display());
-    }
-    let mut rig: MultiRig = rig;
+    let mut rig = read_rig(rig_path, args.force)?;
     rig.rectified |= args.rectified;
     let sensors = rig.sensors();
     let names = || sensors.join(", ");
