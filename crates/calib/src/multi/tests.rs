@@ -256,6 +256,13 @@ fn multi_shuffled_view_ids_are_visible() {
     let truth = ring();
     let b = board();
     let mut cams = views(&truth, &b, 32);
+    // One joint fit, without the outlier rounds: each round reruns the dense LM (~670
+    // unknowns), and with wrong ids every round finds new outliers, so the rounds took over
+    // 300 s in the debug profile. What is proved stays: wrong ids are not fitted away
+    // silently (the RMS or the poses show them).
+    for c in &mut cams {
+        c.flags.reject_outliers = false;
+    }
     // Camera k1.ir: its view ids rotated among its own views.
     let c = &mut cams[2];
     let keys: Vec<u64> = c.views.keys().copied().collect();
