@@ -1,6 +1,8 @@
 //! H1 back-projection (`backproject.wgsl`): depth pixels → points in the depth camera frame.
 
-use super::{Shader, SizeParams};
+use super::{PerSlot, Shader, SizeParams, Stage, dispatch, write_uniform};
+use crate::frame::{FrameBuffers, TableRefs, Work};
+use crate::gpu::Gpu;
 use crate::shaders;
 
 /// `params`: [`Params`].
@@ -23,7 +25,44 @@ pub(crate) const SHADER: Shader = Shader {
 /// `size = [depth pixels, row stride, 0, 0]`.
 pub(crate) type Params = SizeParams;
 
-/// The stage's pipeline.
-pub(crate) fn pipeline(device: &wgpu::Device) -> wgpu::ComputePipeline {
-    super::pipeline(device, &SHADER, "main")
+/// H1: its pipeline, uniform and a bind group per frame slot.
+pub(crate) struct Backproject {
+    pipeline: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    groups: PerSlot<wgpu::BindGroup>,
+}
+
+impl Backproject {
+    pub(crate) fn boxed(gpu: &Gpu) -> Box<dyn Stage> {
+        Box::new(Self {
+            pipeline: super::pipeline(&gpu.device, &SHADER, "main"),
+            params: gpu.uniform::<Params>("H1 params"),
+            groups: PerSlot::default(),
+        })
+    }
+}
+
+impl Stage for Backproject {
+    fn runs(&self, _: &Work<'_>) -> bool {
+        true
+    }
+
+    fn bind(&mut self, gpu: &Gpu, slot: usize, frame: &FrameBuffers, tables: &TableRefs<'_>) {
+        let group = gpu.bind(
+            &self.pipeline,
+            &[
+                (PARAMS, &self.params),
+                (DEPTH, &frame.depth),
+                (RAYS, &tables.depth_rays.buffer),
+                (POINTS, &frame.points),
+            ],
+        );
+        self.groups.set(slot, group);
+    }
+
+    fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>) {
+        let grid = gpu.grid(work.depth_pixels);
+        write_uniform(gpu, &self.params, &Params { size: [work.depth_pixels, grid.stride, 0, 0] });
+        dispatch(pass, &self.pipeline, self.groups.get(slot), grid);
+    }
 }

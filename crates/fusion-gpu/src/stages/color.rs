@@ -3,7 +3,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::Shader;
+use super::{PerSlot, Shader, Stage, dispatch, write_uniform};
+use crate::frame::{FrameBuffers, TableRefs, Work};
+use crate::gpu::Gpu;
 use crate::shaders;
 
 /// `params`: [`Params`].
@@ -43,7 +45,53 @@ pub(crate) struct Params {
     pub opaque: [u32; 4],
 }
 
-/// The stage's pipeline.
-pub(crate) fn pipeline(device: &wgpu::Device) -> wgpu::ComputePipeline {
-    super::pipeline(device, &SHADER, "main")
+/// H6: its pipeline, uniform and a bind group per frame slot.
+pub(crate) struct ColorOnDepth {
+    pipeline: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    groups: PerSlot<wgpu::BindGroup>,
+}
+
+impl ColorOnDepth {
+    pub(crate) fn boxed(gpu: &Gpu) -> Box<dyn Stage> {
+        Box::new(Self {
+            pipeline: super::pipeline(&gpu.device, &SHADER, "main"),
+            params: gpu.uniform::<Params>("H6 params"),
+            groups: PerSlot::default(),
+        })
+    }
+}
+
+impl Stage for ColorOnDepth {
+    fn runs(&self, work: &Work<'_>) -> bool {
+        work.stages.is_some() && work.color
+    }
+
+    fn bind(&mut self, gpu: &Gpu, slot: usize, frame: &FrameBuffers, _: &TableRefs<'_>) {
+        let group = gpu.bind(
+            &self.pipeline,
+            &[
+                (PARAMS, &self.params),
+                (SAMPLES, &frame.samples),
+                (COLOR, &frame.color),
+                (DENSE, &frame.nearest),
+                (RGBA, &frame.rgba),
+            ],
+        );
+        self.groups.set(slot, group);
+    }
+
+    fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>) {
+        let tolerance = work.stages.and_then(|s| s.occlusion_tolerance);
+        let (tol, on) = tolerance.map_or((0.0, 0.0), |t| (t, 1.0));
+        let (cw, ch) = work.color_size;
+        let grid = gpu.grid(work.depth_pixels);
+        let params = Params {
+            size: [cw, ch, work.depth_pixels, grid.stride],
+            occlusion: [tol, on, 0.0, 0.0],
+            opaque: [0; 4],
+        };
+        write_uniform(gpu, &self.params, &params);
+        dispatch(pass, &self.pipeline, self.groups.get(slot), grid);
+    }
 }

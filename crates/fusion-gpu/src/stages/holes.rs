@@ -5,7 +5,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::Shader;
+use super::{PerSlot, Shader, Stage, dispatch, write_uniform};
+use crate::frame::{FrameBuffers, TableRefs, Work};
+use crate::gpu::Gpu;
 use crate::shaders;
 
 /// `params`: [`Params`].
@@ -60,21 +62,113 @@ pub(crate) struct Params {
     pub radius: [u32; 4],
 }
 
-/// The stage's four pipelines.
-pub(crate) struct Pipelines {
-    pub extents: wgpu::ComputePipeline,
-    pub coverage: wgpu::ComputePipeline,
-    pub core: wgpu::ComputePipeline,
-    pub grow: wgpu::ComputePipeline,
+/// H8's mask: four pipelines, two uniforms (the per-line `extents` pass and the per-pixel
+/// passes), and per frame slot the buffers only this stage uses and the four bind groups.
+pub(crate) struct HoleMask {
+    extents: wgpu::ComputePipeline,
+    coverage: wgpu::ComputePipeline,
+    core: wgpu::ComputePipeline,
+    grow: wgpu::ComputePipeline,
+    line_params: wgpu::Buffer,
+    pixel_params: wgpu::Buffer,
+    slots: PerSlot<Bound>,
 }
 
-impl Pipelines {
-    pub(crate) fn new(device: &wgpu::Device) -> Self {
-        Self {
-            extents: super::pipeline(device, &SHADER, "extents"),
-            coverage: super::pipeline(device, &SHADER, "coverage"),
-            core: super::pipeline(device, &SHADER, "core_mask"),
-            grow: super::pipeline(device, &SHADER, "grow"),
-        }
+/// A slot's own buffers (kept alive with the bind groups that name them) and bind groups in
+/// dispatch order: coverage, extents, core, grow.
+struct Bound {
+    _buffers: [wgpu::Buffer; 4],
+    groups: [wgpu::BindGroup; 4],
+}
+
+impl HoleMask {
+    pub(crate) fn boxed(gpu: &Gpu) -> Box<dyn Stage> {
+        let pipeline = |entry| super::pipeline(&gpu.device, &SHADER, entry);
+        Box::new(Self {
+            extents: pipeline("extents"),
+            coverage: pipeline("coverage"),
+            core: pipeline("core_mask"),
+            grow: pipeline("grow"),
+            line_params: gpu.uniform::<Params>("H8 extents params"),
+            pixel_params: gpu.uniform::<Params>("H8 mask params"),
+            slots: PerSlot::default(),
+        })
+    }
+}
+
+impl Stage for HoleMask {
+    fn runs(&self, work: &Work<'_>) -> bool {
+        work.stages.is_some()
+    }
+
+    fn bind(&mut self, gpu: &Gpu, slot: usize, frame: &FrameBuffers, tables: &TableRefs<'_>) {
+        let (cw, ch) = (frame.color_size.0 as u64, frame.color_size.1 as u64);
+        let m = cw * ch;
+        let covered = gpu.storage("covered", m * 4);
+        let row_extent = gpu.storage("row extents", ch * 8);
+        let col_extent = gpu.storage("column extents", cw * 8);
+        let core = gpu.storage("hole cores", m * 4);
+        let pixel = &self.pixel_params;
+        let groups = [
+            gpu.bind(
+                &self.coverage,
+                &[
+                    (PARAMS, pixel),
+                    (ZBUFFER, &frame.zbuffer),
+                    (HALF_WIDTH, &tables.half_widths.buffer),
+                    (COVERED, &covered),
+                ],
+            ),
+            gpu.bind(
+                &self.extents,
+                &[
+                    (PARAMS, &self.line_params),
+                    (COVERED, &covered),
+                    (ROW_EXTENT, &row_extent),
+                    (COL_EXTENT, &col_extent),
+                ],
+            ),
+            gpu.bind(
+                &self.core,
+                &[
+                    (PARAMS, pixel),
+                    (COVERED, &covered),
+                    (ROW_EXTENT, &row_extent),
+                    (COL_EXTENT, &col_extent),
+                    (CORE, &core),
+                ],
+            ),
+            gpu.bind(
+                &self.grow,
+                &[
+                    (PARAMS, pixel),
+                    (ZBUFFER, &frame.zbuffer),
+                    (CORE, &core),
+                    (GROW_HALF_WIDTH, &tables.grow_half_widths.buffer),
+                    (HOLES, &frame.holes),
+                ],
+            ),
+        ];
+        self.slots.set(slot, Bound { _buffers: [covered, row_extent, col_extent, core], groups });
+    }
+
+    fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>) {
+        let (cw, ch) = work.color_size;
+        let m = work.color_pixels();
+        let t = &work.tables;
+        let radius =
+            [t.half_widths.len.saturating_sub(1), t.grow_half_widths.len.saturating_sub(1), 0, 0];
+        let (px, line) = (gpu.grid(m), gpu.grid_sized(cw + ch, EXTENT_WORKGROUP_SIZE));
+        write_uniform(
+            gpu,
+            &self.line_params,
+            &Params { size: [cw, ch, cw + ch, line.stride], radius },
+        );
+        write_uniform(gpu, &self.pixel_params, &Params { size: [cw, ch, m, px.stride], radius });
+        let [coverage, extents, core, grow] = &self.slots.get(slot).groups;
+        dispatch(pass, &self.coverage, coverage, px);
+        dispatch(pass, &self.extents, extents, line);
+        dispatch(pass, &self.core, core, px);
+        dispatch(pass, &self.grow, grow, px);
     }
 }

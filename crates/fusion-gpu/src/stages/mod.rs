@@ -1,19 +1,19 @@
 //! The GPU stages, one module each: its WGSL ([`crate::shaders`]), entry points, named binding
 //! numbers (checked against the WGSL's `@binding(n)` declarations by naga reflection in this
-//! module's test), parameter struct (the WGSL's uniform, field for field) and pipelines.
+//! module's test), parameter struct (the WGSL's uniform, field for field) and the stage type.
 //!
-//! | stage | module | shader | entry points |
-//! | --- | --- | --- | --- |
-//! | H1 back-projection | [`backproject`] | `backproject.wgsl` | `main` |
-//! | H2 projection | [`project`] | `project.wgsl` | `main` |
-//! | H7 z-buffer | [`zbuffer`] | `zbuffer.wgsl` | `clear`, `scatter` |
-//! | H3 nearest fill | [`nearest`] | `nearest_fill.wgsl` | `main` |
-//! | H8 hole mask | [`holes`] | `hole_mask.wgsl` | `extents`, `coverage`, `core_mask`, `grow` |
-//! | H6 colour on depth | [`color`] | `color_on_depth.wgsl` | `main` |
-//! | H8 plane fill | [`plane`] | `plane_fill.wgsl` | `main` |
-//! | Kinect v2 depth decoding (stage 1, filter + stage 2, edge filter) | [`decode`] | `decode_stage1.wgsl`, `decode_filter.wgsl`, `decode_edge.wgsl` | `main` each |
+//! Each stage type owns its pipelines, its uniform buffers, its bind groups (one per frame
+//! slot) and the buffers only it uses, created from the device ([`Gpu`]), and implements
+//! [`Stage`]: `bind` (a slot's shared buffers and the lookup tables of [`crate::frame`]) and
+//! `encode` (writes its uniforms, records its dispatches). A frame is the [`FRAME`] list in
+//! dispatch order, so adding a stage touches its file here, its WGSL (and that file's line in
+//! [`crate::shaders`]) and its entry in [`FRAME`]. The H8 plane fill ([`plane::PlaneFill`],
+//! after the CPU's plane fit) and the Kinect v2 decoder ([`decode::Decode`], before H1 on raw
+//! frames) are called on their own.
 //!
-//! `FusionContext::submit` chains them for one frame, naming every binding by its constant.
+//! Dependencies point down only: the stages use `crate::gpu`, `crate::frame`, `crate::plan`,
+//! `crate::shaders` and `crate::error`, never the context (`tests/module_cycles.rs` fails on
+//! an import cycle between the crate's modules).
 
 pub(crate) mod backproject;
 pub(crate) mod color;
@@ -25,6 +25,96 @@ pub(crate) mod project;
 pub(crate) mod zbuffer;
 
 use bytemuck::{Pod, Zeroable};
+
+use crate::frame::{FrameBuffers, TableRefs, Work};
+use crate::gpu::{Gpu, Grid};
+
+/// A stage of a frame (see the module docs).
+pub(crate) trait Stage {
+    /// Whether the stage runs on a frame of `work` (H3, H8 and H6 only with stages, H6 only
+    /// with a colour image).
+    fn runs(&self, work: &Work<'_>) -> bool;
+    /// (Re)creates the stage's bind groups, and buffers of its own, for frame slot `slot`;
+    /// called when the slot's buffers or the tables are new, before any `encode` on it.
+    fn bind(&mut self, gpu: &Gpu, slot: usize, frame: &FrameBuffers, tables: &TableRefs<'_>);
+    /// Writes the stage's uniforms for `work` and records its dispatches on slot `slot`.
+    fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>);
+}
+
+/// A stage of [`FRAME`]: its shader (checked against the WGSL without a device) and its
+/// constructor.
+pub(crate) struct Entry {
+    /// Read by the tests below.
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) shader: &'static Shader,
+    pub(crate) new: fn(&Gpu) -> Box<dyn Stage>,
+}
+
+/// The stages of a frame in dispatch order: the one list a new stage joins.
+pub(crate) const FRAME: [Entry; 6] = [
+    Entry { shader: &backproject::SHADER, new: backproject::Backproject::boxed },
+    Entry { shader: &project::SHADER, new: project::Project::boxed },
+    Entry { shader: &zbuffer::SHADER, new: zbuffer::ZBuffer::boxed },
+    Entry { shader: &nearest::SHADER, new: nearest::Nearest::boxed },
+    Entry { shader: &holes::SHADER, new: holes::HoleMask::boxed },
+    Entry { shader: &color::SHADER, new: color::ColorOnDepth::boxed },
+];
+
+/// Every shader: those of [`FRAME`], the plane fill's and the decoder's three.
+#[cfg(test)]
+fn all() -> impl Iterator<Item = &'static Shader> {
+    FRAME.iter().map(|e| e.shader).chain([
+        &plane::SHADER,
+        &decode::STAGE1,
+        &decode::FILTER,
+        &decode::EDGE,
+    ])
+}
+
+/// Per-slot state of a stage, set by [`Stage::bind`].
+pub(crate) struct PerSlot<T>(Vec<Option<T>>);
+
+impl<T> Default for PerSlot<T> {
+    fn default() -> Self {
+        Self(Vec::new())
+    }
+}
+
+impl<T> PerSlot<T> {
+    /// Sets slot `slot`'s state.
+    pub(crate) fn set(&mut self, slot: usize, value: T) {
+        if self.0.len() <= slot {
+            self.0.resize_with(slot + 1, || None);
+        }
+        self.0[slot] = Some(value);
+    }
+
+    /// Slot `slot`'s state. The context binds a slot before it encodes a frame on it, so a
+    /// missing one is a bug of this crate, not of its input.
+    pub(crate) fn get(&self, slot: usize) -> &T {
+        match self.0.get(slot) {
+            Some(Some(v)) => v,
+            _ => panic!("fusion-gpu: a stage encoded on frame slot {slot} before it was bound"),
+        }
+    }
+}
+
+/// Records one dispatch of `pipe` with `group` over `grid`.
+pub(crate) fn dispatch(
+    pass: &mut wgpu::ComputePass<'_>,
+    pipe: &wgpu::ComputePipeline,
+    group: &wgpu::BindGroup,
+    grid: Grid,
+) {
+    pass.set_pipeline(pipe);
+    pass.set_bind_group(0, group, &[]);
+    pass.dispatch_workgroups(grid.x, grid.y, 1);
+}
+
+/// Writes a stage's uniform.
+pub(crate) fn write_uniform<T: Pod>(gpu: &Gpu, buffer: &wgpu::Buffer, value: &T) {
+    gpu.queue.write_buffer(buffer, 0, bytemuck::bytes_of(value));
+}
 
 /// A stage's shader: file name, WGSL source, entry points and its bindings by name (the WGSL
 /// variable name and the constant of the stage module that holds the number).
@@ -38,21 +128,6 @@ pub(crate) struct Shader {
     #[cfg_attr(not(test), allow(dead_code))]
     pub bindings: &'static [(&'static str, u32)],
 }
-
-/// Every stage's shader (for the binding test).
-#[cfg(test)]
-pub(crate) const ALL: [&Shader; 10] = [
-    &backproject::SHADER,
-    &project::SHADER,
-    &zbuffer::SHADER,
-    &nearest::SHADER,
-    &holes::SHADER,
-    &color::SHADER,
-    &plane::SHADER,
-    &decode::STAGE1,
-    &decode::FILTER,
-    &decode::EDGE,
-];
 
 /// The uniform of the stages that only need sizes: `size = [a, b, count, row stride]` (see
 /// each shader's `Params`).
@@ -106,7 +181,7 @@ mod tests {
 
     #[test]
     fn binding_constants_match_the_wgsl_declarations() {
-        for shader in ALL {
+        for shader in all() {
             let declared = wgsl_bindings(shader);
             let ours: BTreeMap<String, u32> =
                 shader.bindings.iter().map(|&(n, b)| (n.to_string(), b)).collect();
@@ -117,14 +192,14 @@ mod tests {
 
     #[test]
     fn entry_points_exist_and_every_shader_file_has_a_stage() {
-        for shader in ALL {
+        for shader in all() {
             let module = naga::front::wgsl::parse_str(shader.source).expect("parses");
             let names: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
             for entry in shader.entry_points {
                 assert!(names.contains(entry), "{}: no entry point {entry}", shader.file);
             }
         }
-        let mut ours: Vec<&str> = ALL.iter().map(|s| s.file).collect();
+        let mut ours: Vec<&str> = all().map(|s| s.file).collect();
         let mut files: Vec<&str> = crate::shaders::ALL.iter().map(|(f, _)| *f).collect();
         ours.sort();
         files.sort();

@@ -3,7 +3,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::Shader;
+use super::{PerSlot, Shader, Stage, dispatch, write_uniform};
+use crate::frame::{FrameBuffers, TableRefs, Work};
+use crate::gpu::Gpu;
 use crate::shaders;
 
 /// `params`: [`Params`].
@@ -35,7 +37,52 @@ pub(crate) struct Params {
     pub jump: [f32; 4],
 }
 
-/// The stage's pipeline.
-pub(crate) fn pipeline(device: &wgpu::Device) -> wgpu::ComputePipeline {
-    super::pipeline(device, &SHADER, "main")
+/// H3 nearest: its pipeline, uniform and a bind group per frame slot.
+pub(crate) struct Nearest {
+    pipeline: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    groups: PerSlot<wgpu::BindGroup>,
+}
+
+impl Nearest {
+    pub(crate) fn boxed(gpu: &Gpu) -> Box<dyn Stage> {
+        Box::new(Self {
+            pipeline: super::pipeline(&gpu.device, &SHADER, "main"),
+            params: gpu.uniform::<Params>("H3 params"),
+            groups: PerSlot::default(),
+        })
+    }
+}
+
+impl Stage for Nearest {
+    fn runs(&self, work: &Work<'_>) -> bool {
+        work.stages.is_some()
+    }
+
+    fn bind(&mut self, gpu: &Gpu, slot: usize, frame: &FrameBuffers, tables: &TableRefs<'_>) {
+        let group = gpu.bind(
+            &self.pipeline,
+            &[
+                (PARAMS, &self.params),
+                (ZBUFFER, &frame.zbuffer),
+                (OFFSETS, &tables.offsets.buffer),
+                (DENSE, &frame.nearest),
+            ],
+        );
+        self.groups.set(slot, group);
+    }
+
+    fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>) {
+        let jump = work.stages.map_or(0.0, |s| s.depth_jump);
+        let (cw, ch) = work.color_size;
+        let m = work.color_pixels();
+        let grid = gpu.grid(m);
+        let params = Params {
+            size: [cw, ch, m, grid.stride],
+            offsets: [work.tables.offsets.len, 0, 0, 0],
+            jump: [jump, 0.0, 0.0, 0.0],
+        };
+        write_uniform(gpu, &self.params, &params);
+        dispatch(pass, &self.pipeline, self.groups.get(slot), grid);
+    }
 }

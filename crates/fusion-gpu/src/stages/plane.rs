@@ -6,9 +6,10 @@ use std::sync::mpsc;
 use bytemuck::{Pod, Zeroable};
 use geometry::{CameraModel, Image};
 
-use super::Shader;
-use crate::context::{FusionContext, U_PLANE};
-use crate::{GpuError, shaders};
+use super::{Shader, dispatch, write_uniform};
+use crate::error::GpuError;
+use crate::gpu::Gpu;
+use crate::shaders;
 
 /// `params`: [`Params`].
 pub(crate) const PARAMS: u32 = 0;
@@ -47,73 +48,103 @@ pub(crate) struct Params {
     pub opaque: [u32; 4],
 }
 
-/// The stage's pipeline.
-pub(crate) fn pipeline(device: &wgpu::Device) -> wgpu::ComputePipeline {
-    super::pipeline(device, &SHADER, "main")
+/// H8's fill: its pipeline and uniform, and, for the last colour camera, its ray table (on the
+/// device and on the host, for the count of pixels filled), its buffers and bind group.
+pub(crate) struct PlaneFill {
+    pipeline: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    bound: Option<Bound>,
 }
 
-impl FusionContext {
-    /// H8 fill on the GPU: `nearest` (H3, colour-sized) with every `holes` pixel replaced by the
-    /// depth of the plane `normal · X = offset` (colour frame, metres) along the pixel's
-    /// undistorted ray. Bit-identical to `geometry::fusion::fill_holes_with_plane` with the
-    /// plane rounded to `f32`, including the count of pixels filled. The plane itself comes
-    /// from the CPU RANSAC fit (`geometry::fusion::fit_plane_ransac`).
-    pub fn fill_holes_with_plane(
+struct Bound {
+    camera: CameraModel,
+    host_rays: Vec<[f32; 2]>,
+    dense: wgpu::Buffer,
+    holes: wgpu::Buffer,
+    filled: wgpu::Buffer,
+    read: wgpu::Buffer,
+    group: wgpu::BindGroup,
+    _rays: wgpu::Buffer,
+}
+
+impl PlaneFill {
+    pub(crate) fn new(gpu: &Gpu) -> Self {
+        Self {
+            pipeline: super::pipeline(&gpu.device, &SHADER, "main"),
+            params: gpu.uniform::<Params>("H8 fill params"),
+            bound: None,
+        }
+    }
+
+    /// `nearest` (checked to be `camera`'s size) with every `holes` pixel replaced by the
+    /// depth of the plane `normal · X = offset` along the pixel's undistorted ray, and the
+    /// count of pixels filled (hole pixels whose ray meets the plane in front, as the CPU
+    /// twin counts them).
+    pub(crate) fn fill(
         &mut self,
-        color_camera: &CameraModel,
+        gpu: &Gpu,
+        camera: &CameraModel,
         nearest: &Image<f32>,
         holes: &Image<bool>,
         normal: [f32; 3],
         offset: f32,
     ) -> Result<(Image<f32>, usize), GpuError> {
-        color_camera.validate()?;
-        let (w, h) = (color_camera.width, color_camera.height);
-        nearest.expect_size("nearest-filled colour depth", w, h)?;
-        holes.expect_size("hole mask", w, h)?;
-        // The depth side is irrelevant here; reuse slot 0 with whatever depth size it has.
-        self.check_frame_size((1, 1), (w, h))?;
-        let depth_size = self.slots.first().map_or((1, 1), |s| s.depth_size);
-        self.ensure_slot(0, depth_size, (w, h));
-        self.ensure_color_rays(color_camera);
+        let (w, h) = (camera.width, camera.height);
         let m = (w * h) as u32;
-        let (gx, gy, stride) = self.grid(m);
-        let s = &self.slots[0];
-        let q = &self.queue;
-        q.write_buffer(&s.nearest, 0, bytemuck::cast_slice(nearest.data()));
-        let mask: Vec<u32> = holes.data().iter().map(|&b| b as u32).collect();
-        q.write_buffer(&s.holes, 0, bytemuck::cast_slice(&mask));
+        if self.bound.as_ref().is_none_or(|b| b.camera != *camera) {
+            let host_rays = camera.ray_table();
+            let rays = gpu.upload("colour ray table", &host_rays);
+            let bytes = m as u64 * 4;
+            let (dense, holes, filled) = (
+                gpu.storage("plane fill input", bytes),
+                gpu.storage("plane fill mask", bytes),
+                gpu.storage("plane fill", bytes),
+            );
+            let read = gpu.read_back("plane fill read-back", bytes);
+            let group = gpu.bind(
+                &self.pipeline,
+                &[
+                    (PARAMS, &self.params),
+                    (DENSE, &dense),
+                    (HOLES, &holes),
+                    (RAYS, &rays),
+                    (FILLED, &filled),
+                ],
+            );
+            self.bound = Some(Bound {
+                camera: *camera,
+                host_rays,
+                dense,
+                holes,
+                filled,
+                read,
+                group,
+                _rays: rays,
+            });
+        }
+        let Some(b) = &self.bound else {
+            return Err(gpu.device_error("filling holes", "colour ray table missing".into()));
+        };
+        let grid = gpu.grid(m);
+        let q = &gpu.queue;
+        q.write_buffer(&b.dense, 0, bytemuck::cast_slice(nearest.data()));
+        let mask: Vec<u32> = holes.data().iter().map(|&v| v as u32).collect();
+        q.write_buffer(&b.holes, 0, bytemuck::cast_slice(&mask));
         let params = Params {
-            size: [w as u32, h as u32, m, stride],
+            size: [w as u32, h as u32, m, grid.stride],
             plane: [normal[0], normal[1], normal[2], offset],
             opaque: [0; 4],
         };
-        q.write_buffer(&s.uniforms[U_PLANE], 0, bytemuck::bytes_of(&params));
-        let (rays, host_rays) = match &self.color_rays {
-            Some((c, host)) => (&c.buffer, host),
-            None => {
-                return Err(self.device_error("filling holes", "colour ray table missing".into()));
-            }
-        };
-        // The count the CPU twin reports: hole pixels whose ray meets the plane in front.
+        write_uniform(gpu, &self.params, &params);
         let filled = holes
             .data()
             .iter()
-            .zip(host_rays)
+            .zip(&b.host_rays)
             .filter(|(m, ray)| {
                 **m && geometry::fusion::plane_depth_pixel(normal, offset, **ray).is_some()
             })
             .count();
-        let group = self.bind(
-            &self.kernels.plane_fill,
-            &[
-                (PARAMS, &s.uniforms[U_PLANE]),
-                (DENSE, &s.nearest),
-                (HOLES, &s.holes),
-                (RAYS, rays),
-                (FILLED, &s.filled),
-            ],
-        );
-        let mut enc = self
+        let mut enc = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("H8 fill") });
         {
@@ -121,19 +152,17 @@ impl FusionContext {
                 label: Some("H8 fill"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.kernels.plane_fill);
-            pass.set_bind_group(0, &group, &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
+            dispatch(&mut pass, &self.pipeline, &b.group, grid);
         }
         let bytes = m as u64 * 4;
-        enc.copy_buffer_to_buffer(&s.filled, 0, &s.read_nearest, 0, bytes);
+        enc.copy_buffer_to_buffer(&b.filled, 0, &b.read, 0, bytes);
         let submission = q.submit([enc.finish()]);
         let (tx, rx) = mpsc::channel();
-        s.read_nearest.map_async(wgpu::MapMode::Read, 0..bytes, move |r| {
+        b.read.map_async(wgpu::MapMode::Read, 0..bytes, move |r| {
             let _ = tx.send(r);
         });
-        self.wait(submission, &rx, 1)?;
-        let data: Vec<f32> = self.read_mapped(&self.slots[0].read_nearest, bytes)?;
+        gpu.wait(submission, &rx, 1)?;
+        let data: Vec<f32> = gpu.read_mapped(&b.read, bytes)?;
         Ok((Image::from_vec(w, h, data)?, filled))
     }
 }

@@ -3,7 +3,9 @@
 use bytemuck::{Pod, Zeroable};
 use geometry::fusion::ColorProjection;
 
-use super::Shader;
+use super::{PerSlot, Shader, Stage, dispatch, write_uniform};
+use crate::frame::{FrameBuffers, TableRefs, Work};
+use crate::gpu::Gpu;
 use crate::shaders;
 
 /// `proj`: [`Params`].
@@ -50,7 +52,39 @@ impl Params {
     }
 }
 
-/// The stage's pipeline.
-pub(crate) fn pipeline(device: &wgpu::Device) -> wgpu::ComputePipeline {
-    super::pipeline(device, &SHADER, "main")
+/// H2: its pipeline, uniform and a bind group per frame slot.
+pub(crate) struct Project {
+    pipeline: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    groups: PerSlot<wgpu::BindGroup>,
+}
+
+impl Project {
+    pub(crate) fn boxed(gpu: &Gpu) -> Box<dyn Stage> {
+        Box::new(Self {
+            pipeline: super::pipeline(&gpu.device, &SHADER, "main"),
+            params: gpu.uniform::<Params>("H2 params"),
+            groups: PerSlot::default(),
+        })
+    }
+}
+
+impl Stage for Project {
+    fn runs(&self, _: &Work<'_>) -> bool {
+        true
+    }
+
+    fn bind(&mut self, gpu: &Gpu, slot: usize, frame: &FrameBuffers, _: &TableRefs<'_>) {
+        let group = gpu.bind(
+            &self.pipeline,
+            &[(PARAMS, &self.params), (POINTS, &frame.points), (SAMPLES, &frame.samples)],
+        );
+        self.groups.set(slot, group);
+    }
+
+    fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>) {
+        let grid = gpu.grid(work.depth_pixels);
+        write_uniform(gpu, &self.params, &Params::new(work.proj, work.depth_pixels, grid.stride));
+        dispatch(pass, &self.pipeline, self.groups.get(slot), grid);
+    }
 }

@@ -1,7 +1,9 @@
 //! H7 (`zbuffer.wgsl`): `clear` fills the z-buffer with the empty value, `scatter` keeps the
 //! smallest `z` per colour pixel (`atomicMin` on the f32 bits).
 
-use super::{Shader, SizeParams};
+use super::{PerSlot, Shader, SizeParams, Stage, dispatch, write_uniform};
+use crate::frame::{FrameBuffers, TableRefs, Work};
+use crate::gpu::Gpu;
 use crate::shaders;
 
 /// `params`: [`Params`].
@@ -23,17 +25,50 @@ pub(crate) const SHADER: Shader = Shader {
 /// `clear`, depth pixels for `scatter`).
 pub(crate) type Params = SizeParams;
 
-/// The stage's two pipelines.
-pub(crate) struct Pipelines {
-    pub clear: wgpu::ComputePipeline,
-    pub scatter: wgpu::ComputePipeline,
+/// H7: `clear` then `scatter`, each with its uniform, bind groups per frame slot.
+pub(crate) struct ZBuffer {
+    clear: wgpu::ComputePipeline,
+    scatter: wgpu::ComputePipeline,
+    clear_params: wgpu::Buffer,
+    scatter_params: wgpu::Buffer,
+    groups: PerSlot<[wgpu::BindGroup; 2]>,
 }
 
-impl Pipelines {
-    pub(crate) fn new(device: &wgpu::Device) -> Self {
-        Self {
-            clear: super::pipeline(device, &SHADER, "clear"),
-            scatter: super::pipeline(device, &SHADER, "scatter"),
-        }
+impl ZBuffer {
+    pub(crate) fn boxed(gpu: &Gpu) -> Box<dyn Stage> {
+        Box::new(Self {
+            clear: super::pipeline(&gpu.device, &SHADER, "clear"),
+            scatter: super::pipeline(&gpu.device, &SHADER, "scatter"),
+            clear_params: gpu.uniform::<Params>("H7 clear params"),
+            scatter_params: gpu.uniform::<Params>("H7 scatter params"),
+            groups: PerSlot::default(),
+        })
+    }
+}
+
+impl Stage for ZBuffer {
+    fn runs(&self, _: &Work<'_>) -> bool {
+        true
+    }
+
+    fn bind(&mut self, gpu: &Gpu, slot: usize, frame: &FrameBuffers, _: &TableRefs<'_>) {
+        let clear =
+            gpu.bind(&self.clear, &[(PARAMS, &self.clear_params), (ZBUFFER, &frame.zbuffer)]);
+        let scatter = gpu.bind(
+            &self.scatter,
+            &[(PARAMS, &self.scatter_params), (SAMPLES, &frame.samples), (ZBUFFER, &frame.zbuffer)],
+        );
+        self.groups.set(slot, [clear, scatter]);
+    }
+
+    fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>) {
+        let (cw, ch) = work.color_size;
+        let (m, n) = (work.color_pixels(), work.depth_pixels);
+        let (c, d) = (gpu.grid(m), gpu.grid(n));
+        write_uniform(gpu, &self.clear_params, &Params { size: [cw, ch, m, c.stride] });
+        write_uniform(gpu, &self.scatter_params, &Params { size: [cw, ch, n, d.stride] });
+        let [clear, scatter] = self.groups.get(slot);
+        dispatch(pass, &self.clear, clear, c);
+        dispatch(pass, &self.scatter, scatter, d);
     }
 }
