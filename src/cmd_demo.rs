@@ -97,6 +97,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         timings: false,
         sensor: Vec::new(),
         view: None,
+        shot: None,
+        virtual_view: None,
         sequence: Default::default(),
     };
     let result =

@@ -38,6 +38,10 @@ Examples:
   kfuse fuse --rig rig.json --frames shots --write holes,color-on-depth --out seq
   kfuse fuse --rig rig3.json --sensor A=a_color.jpg,a_depth.png --sensor B=b_color.jpg,b_depth.png \
              --sensor C=c_color.jpg,c_depth.png --out merged   (a rig of several Kinects)
+  kfuse fuse --rig ring_scene/true_rig.json --frames ring_scene --out merged
+             (a capture of several sensors: DIR/index.json; --shot NAME|K when it holds several)
+  kfuse fuse --rig rig3.json --frames room --virtual-view 'from=0.5,-0.8,0.4;look-at=0,0.2,1.6' --out v
+             (also virtual_depth.png, virtual_color.png: the merged cloud seen from that pose)
 
 Inputs are the raw (distorted) camera images; the rig's distortion is applied exactly.
 Images from `kfuse undistort` are rectified: pass --rectified, or they are distorted twice.
@@ -55,7 +59,15 @@ Outputs (in --out; the folder appears only when everything was written):
   mesh.ply, mesh.obj/.mtl/_texture.png           H4 textured mesh (colour camera frame)
   mesh_clean.ply, mesh_clean.obj/.mtl/_texture.png   H5 without stretched faces
   summary.json                   counts, plane, timings, inputs and units
-  task1.png ... task8.png        the lab's figures")]
+  task1.png ... task8.png        the lab's figures
+
+Outputs of several Kinects (--sensor or --frames of a capture of several sensors):
+  rig.json, cloud.ply            the rig; the merged cloud (reference frame, own-colour H6)
+  depth_zbuffer.png              merged samples z-buffered into --view (16-bit mm)
+  mesh_SERIAL.ply, mesh_SERIAL.obj/.mtl/_texture.png   per sensor: H4 on its depth grid, H5,
+                                 in the reference frame, textured by its own colour image
+  virtual_depth.png, virtual_color.png   with --virtual-view (16-bit mm z; RGB)
+  summary.json                   points per sensor, mesh faces, consistency per pair")]
 pub struct FuseArgs {
     /// Rig file (JSON from `kfuse calibrate` or `kfuse rig import`) describing both cameras
     /// and color_from_depth. A single-camera file is not enough.
@@ -137,10 +149,22 @@ pub struct FuseArgs {
     /// per sensor pair) instead of the one-frame outputs.
     #[arg(long, value_name = "SERIAL=C.png,D.png", value_parser = multi::parse_sensor, conflicts_with_all = ["color", "depth", "mat"])]
     pub sensor: Vec<multi::SensorArg>,
-    /// With --sensor: the camera of the rig the merged samples are z-buffered into
-    /// (default: the reference sensor's colour camera).
-    #[arg(long, value_name = "CAMERA", requires = "sensor")]
+    /// With several Kinects (--sensor, or --frames of a capture of several sensors): the
+    /// camera of the rig the merged samples are z-buffered into (default: the reference
+    /// sensor's colour camera).
+    #[arg(long, value_name = "CAMERA")]
     pub view: Option<String>,
+    /// With --frames of a capture of several sensors (DIR/index.json): the shot to fuse, by
+    /// its name or 0-based index in index.json (needed when the capture holds several).
+    #[arg(long, value_name = "NAME|K")]
+    pub shot: Option<String>,
+    /// With several Kinects: also z-buffer the merged cloud into a virtual camera with the
+    /// reference depth camera's intrinsics at this pose, written as virtual_depth.png (z, mm)
+    /// and virtual_color.png: 'from=X,Y,Z;look-at=X,Y,Z' with an optional ';up=X,Y,Z'
+    /// (metres, the rig's reference frame: x right, y down, z forward of the reference
+    /// camera; up defaults to 0,-1,0).
+    #[arg(long, value_name = "from=X,Y,Z;look-at=X,Y,Z", allow_hyphen_values = true)]
+    pub virtual_view: Option<String>,
     /// A whole recording or frame folder instead of one frame.
     #[command(flatten)]
     pub sequence: sequence::SequenceArgs,

@@ -99,10 +99,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("frames: x right, y down, z forward; the depth camera is the reference");
             println!("poses: color_from_depth maps X_depth to X_color = R X_depth + T (metres)");
         }
-        Command::Fuse(args) if args.is_sequence() => cmd_fuse::sequence::run(&args)?,
-        Command::Fuse(args) if !args.sensor.is_empty() => {
+        Command::Fuse(args) if cmd_fuse::multi::is_multi(&args) => {
             cmd_fuse::multi::run(&args)?;
         }
+        Command::Fuse(args) if args.is_sequence() => cmd_fuse::sequence::run(&args)?,
         Command::Fuse(args) => {
             let result = cmd_fuse::run(&args)?;
             cmd_fuse::report(&result);

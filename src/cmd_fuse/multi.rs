@@ -1,21 +1,260 @@
-//! `kfuse fuse --rig RIG.json --sensor SERIAL=COLOR,DEPTH ...`: several Kinects of a rig of
-//! N cameras fused into one coloured cloud in the rig's reference frame
-//! ([`geometry::fusion::multi::fuse_multi`]), z-buffered into one camera of the rig, with the
-//! rig's overlap consistency per pair of sensors.
+//! `kfuse fuse --rig RIG.json --sensor SERIAL=COLOR,DEPTH ...` or `--frames DIR` (a capture of
+//! several sensors, `DIR/index.json`): several Kinects of a rig of N cameras fused into one
+//! coloured cloud in the rig's reference frame ([`geometry::fusion::multi::fuse_multi`]),
+//! z-buffered into one camera of the rig and optionally into a virtual camera, meshed per
+//! sensor with H5's edge rule, with the rig's overlap consistency per pair of sensors.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use geometry::fusion::multi::{SensorImages, fuse_multi};
-use geometry::{DepthKind, MultiRig};
+use geometry::fusion::multi::{SensorImages, fuse_multi, look_at};
+use geometry::{DepthKind, MultiRig, RigidTransform};
 use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
-use kfuse_io::{image_header, images, ply};
+use kfuse_io::{image_header, images, obj, ply};
+use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::{DepthKindArg, FuseArgs, options};
 
-/// Every name this command writes into `--out`.
+/// The names this command always writes into `--out`; beside them `mesh_SERIAL.*` per
+/// sensor ([`mesh_names`]) and, with `--virtual-view`, [`VIRTUAL_OUTPUTS`].
 const OUTPUTS: [&str; 4] = ["rig.json", "cloud.ply", "depth_zbuffer.png", "summary.json"];
+
+/// What `--virtual-view` writes.
+const VIRTUAL_OUTPUTS: [&str; 2] = ["virtual_depth.png", "virtual_color.png"];
+
+/// Largest `index.json` of a capture folder read: 16 MiB (a capture of four sensors writes
+/// ~0.5 kB per shot: over 30 000 shots).
+const MAX_INDEX_BYTES: u64 = 16 << 20;
+
+/// The `format` of a capture of several sensors' `index.json` (`kfuse_capture::multi`).
+const INDEX_FORMAT: &str = "kfuse-multi-capture";
+
+/// Longest sensor name that names output files (`mesh_SERIAL.obj`): 64 characters (Kinect
+/// serials have 12).
+const MAX_SERIAL_CHARS: usize = 64;
+
+/// Whether `dir` is a capture folder of several sensors (it holds an `index.json`).
+pub fn is_multi_capture(dir: &Path) -> bool {
+    dir.join("index.json").is_file()
+}
+
+/// Whether `kfuse fuse` fuses several Kinects: `--sensor`, `--frames` of a capture of several
+/// sensors, or one of the flags only that fusion takes (which [`run`] then checks).
+pub fn is_multi(args: &FuseArgs) -> bool {
+    !args.sensor.is_empty()
+        || args.sequence.frames.as_deref().is_some_and(is_multi_capture)
+        || args.shot.is_some()
+        || args.virtual_view.is_some()
+        || args.view.is_some()
+}
+
+/// The per-sensor mesh files of sensor `serial`: the H5-clean mesh as PLY and OBJ (with its
+/// material and texture), as single `fuse` writes `mesh_clean.*`.
+fn mesh_names(serial: &str) -> [String; 4] {
+    [".ply", ".obj", ".mtl", "_texture.png"].map(|ext| format!("mesh_{serial}{ext}"))
+}
+
+/// Refuses a sensor name that cannot name a file.
+fn check_serial_for_files(serial: &str, rig: &Path) -> Result<()> {
+    let ok = !serial.is_empty()
+        && serial.chars().count() <= MAX_SERIAL_CHARS
+        && !serial.starts_with('.')
+        && serial.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c));
+    if !ok {
+        bail!(
+            "{}: sensor \"{}\" cannot name its mesh file (mesh_SERIAL.obj): rename it to at most {MAX_SERIAL_CHARS} letters, digits, '-', '_' or '.'",
+            rig.display(),
+            serial.escape_debug().take(MAX_SERIAL_CHARS).collect::<String>()
+        );
+    }
+    Ok(())
+}
+
+/// Reads `--rig` as a rig of several cameras (version 2), its plausibility checked unless
+/// `force` (then the problems are printed as warnings).
+fn read_rig(path: &Path, force: bool) -> Result<MultiRig> {
+    let Some(rig) = calib::rig_io::load_multi(path)? else {
+        bail!(
+            "{}: not a rig of several cameras (version 2): --sensor/--frames of several Kinects need one; make it with `kfuse calibrate --camera NAME=GLOB ...` (a two-camera rig fuses one Kinect: --color/--depth)",
+            path.display()
+        );
+    };
+    let problems = rig.plausibility_problems();
+    if !problems.is_empty() {
+        if !force {
+            bail!(
+                "{}: {} (pass --force if the rig really is meant this way)",
+                path.display(),
+                problems.join("; ")
+            );
+        }
+        for w in &problems {
+            eprintln!("warning: {}: {w}", path.display());
+        }
+    }
+    Ok(rig)
+}
+
+/// One shot of a capture folder chosen by `--frames DIR [--shot K]`.
+#[derive(Debug, Clone, Serialize)]
+struct ShotChoice {
+    folder: String,
+    shot: String,
+    index: usize,
+}
+
+/// Every sensor's colour and depth file of one shot of the capture folder `dir`
+/// (`index.json`): the shot `shot` names (its name, or its 0-based index), or the only one.
+/// Errors, one line each: no or a broken index, two sensors with one serial, an unknown shot,
+/// several shots without `--shot`.
+fn frames_inputs(dir: &Path, shot: Option<&str>) -> Result<(Vec<SensorArg>, ShotChoice)> {
+    let path = dir.join("index.json");
+    let len =
+        std::fs::metadata(&path).with_context(|| format!("reading {}", path.display()))?.len();
+    if len > MAX_INDEX_BYTES {
+        bail!(
+            "{}: {len} bytes, over the {MAX_INDEX_BYTES} an index of a capture may have: is it one?",
+            path.display()
+        );
+    }
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let bad = |m: String| {
+        anyhow::anyhow!(
+            "{}: {m} (the index.json of `kfuse capture --device ...` of several sensors)",
+            path.display()
+        )
+    };
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| bad(format!("not JSON ({e})")))?;
+    if v.get("format").and_then(|f| f.as_str()) != Some(INDEX_FORMAT) {
+        return Err(bad(format!(
+            "not a capture of several sensors (no \"format\": \"{INDEX_FORMAT}\")"
+        )));
+    }
+    if v.get("version").and_then(|f| f.as_u64()) != Some(1) {
+        return Err(bad("an index version this kfuse does not read (1): upgrade kfuse".into()));
+    }
+    let scene = match v.get("kind").and_then(|k| k.as_str()) {
+        Some("scene") => true,
+        Some("calib") => false,
+        _ => return Err(bad("\"kind\" must be \"scene\" or \"calib\"".into())),
+    };
+    let sensors = v
+        .get("sensors")
+        .and_then(|s| s.as_array())
+        .ok_or_else(|| bad("no \"sensors\" list".into()))?;
+    let max = geometry::multi_rig::MAX_RIG_CAMERAS;
+    if sensors.len() > max {
+        return Err(bad(format!(
+            "{} sensors, over the {max} cameras a rig may hold",
+            sensors.len()
+        )));
+    }
+    let mut folders: Vec<(String, String)> = Vec::new();
+    for s in sensors {
+        let serial = s
+            .get("serial")
+            .and_then(|x| x.as_str())
+            .ok_or_else(|| bad("a sensor without \"serial\"".into()))?;
+        let folder = s.get("folder").and_then(|x| x.as_str()).unwrap_or(serial);
+        let mut parts = Path::new(folder).components();
+        let plain =
+            matches!(parts.next(), Some(std::path::Component::Normal(_))) && parts.next().is_none();
+        if !plain {
+            return Err(bad(format!(
+                "sensor {serial}'s folder \"{}\" is not a folder inside {}",
+                folder.escape_debug(),
+                dir.display()
+            )));
+        }
+        if folders.iter().any(|(o, _)| o == serial) {
+            return Err(bad(format!(
+                "two sensors with the same serial {serial}: their frames cannot be told apart; capture them again with distinct sensors"
+            )));
+        }
+        folders.push((serial.to_string(), folder.to_string()));
+    }
+    let shots =
+        v.get("shots").and_then(|s| s.as_array()).ok_or_else(|| bad("no \"shots\" list".into()))?;
+    let name_of =
+        |s: &serde_json::Value| s.get("name").and_then(|n| n.as_str()).map(str::to_string);
+    let index = match shot {
+        Some(want) => match shots.iter().position(|s| name_of(s).as_deref() == Some(want)) {
+            Some(k) => k,
+            None => match want.parse::<usize>() {
+                Ok(k) if k < shots.len() => k,
+                _ => bail!(
+                    "--shot {want}: {} has no shot of that name, and {} shots (indices 0-{})",
+                    path.display(),
+                    shots.len(),
+                    shots.len().saturating_sub(1)
+                ),
+            },
+        },
+        None if shots.len() == 1 => 0,
+        None if shots.is_empty() => {
+            bail!("{}: no shots were taken into {}", path.display(), dir.display())
+        }
+        None => bail!(
+            "{} holds {} shots: choose one with --shot NAME or --shot K (0-{})",
+            dir.display(),
+            shots.len(),
+            shots.len() - 1
+        ),
+    };
+    let chosen = &shots[index];
+    let name = name_of(chosen).ok_or_else(|| bad(format!("shot {index} has no \"name\"")))?;
+    let taken = chosen.get("sensors").and_then(|s| s.as_object());
+    let mut out = Vec::new();
+    for (serial, folder) in &folders {
+        if !taken.is_some_and(|t| t.contains_key(serial)) {
+            // A sensor lost before this shot (index.json's "lost_after_shot").
+            continue;
+        }
+        let base = dir.join(folder);
+        let (color, depth) = if scene {
+            (base.join(format!("{name}_color.jpg")), base.join(format!("{name}_depth.png")))
+        } else {
+            (base.join(format!("color_{name}.jpg")), base.join(format!("depth_{name}.png")))
+        };
+        out.push(SensorArg { serial: serial.clone(), color, depth });
+    }
+    let choice = ShotChoice { folder: dir.display().to_string(), shot: name, index };
+    Ok((out, choice))
+}
+
+/// Parses `--virtual-view 'from=X,Y,Z;look-at=X,Y,Z[;up=X,Y,Z]'` (reference frame, metres;
+/// `up` by default the reference camera's up, −y) into the camera's `camera_from_reference`.
+pub fn parse_virtual_view(s: &str) -> Result<RigidTransform, String> {
+    let usage = "--virtual-view takes 'from=X,Y,Z;look-at=X,Y,Z[;up=X,Y,Z]' (metres, in the rig's reference frame)";
+    let mut from = None;
+    let mut at = None;
+    let mut up = Vector3::new(0.0, -1.0, 0.0);
+    for part in s.split(';').map(str::trim).filter(|p| !p.is_empty()) {
+        let (key, value) = part.split_once('=').ok_or_else(|| format!("'{part}': {usage}"))?;
+        let c: Vec<f64> = value
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| format!("'{part}': three numbers X,Y,Z expected; {usage}"))?;
+        let [x, y, z] = c[..] else {
+            return Err(format!("'{part}': three numbers X,Y,Z expected; {usage}"));
+        };
+        let v = Vector3::new(x, y, z);
+        match key.trim() {
+            "from" => from = Some(v),
+            "look-at" | "at" => at = Some(v),
+            "up" => up = v,
+            other => return Err(format!("'{other}': unknown key; {usage}")),
+        }
+    }
+    let (Some(from), Some(at)) = (from, at) else {
+        return Err(format!("'{s}': both from= and look-at= are needed; {usage}"));
+    };
+    look_at(from, at, up).map_err(|e| format!("--virtual-view '{s}': {e}"))
+}
 
 /// One `--sensor SERIAL=COLOR,DEPTH`.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -47,6 +286,10 @@ struct Summary<'a> {
     sensors: Vec<SensorSummary>,
     points: usize,
     view_pixels: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    shot: Option<ShotChoice>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    virtual_view: Option<VirtualSummary>,
     consistency: &'a [geometry::fusion::multi::PairConsistency],
     consistency_gate_mm: f64,
     timings_ms: serde_json::Value,
@@ -60,6 +303,18 @@ struct SensorSummary {
     depth: String,
     samples: usize,
     points_in_cloud: usize,
+    mesh: String,
+    mesh_faces_before_h5: usize,
+    mesh_faces: usize,
+    mesh_vertices: usize,
+}
+
+#[derive(Serialize)]
+struct VirtualSummary {
+    spec: String,
+    camera_model_of: String,
+    camera_from_reference: [[f64; 4]; 3],
+    pixels: usize,
 }
 
 fn check_size(
@@ -82,64 +337,93 @@ fn check_size(
     Ok(())
 }
 
-/// Reads `--rig` as a rig of several cameras (version 2), its plausibility checked unless
-/// `force` (then the problems are printed as warnings).
-fn read_rig(path: &Path, force: bool) -> Result<MultiRig> {
-    let Some(rig) = calib::rig_io::load_multi(path)? else {
-        bail!(
-            "{}: not a rig of several cameras (version 2): --sensor of several Kinects needs one (a two-camera rig fuses one Kinect: --color/--depth)",
-            path.display()
-        );
-    };
-    let problems = rig.plausibility_problems();
-    if !problems.is_empty() {
-        if !force {
-            bail!(
-                "{}: {} (pass --force if the rig really is meant this way)",
-                path.display(),
-                problems.join("; ")
-            );
-        }
-        for w in &problems {
-            eprintln!("warning: {}: {w}", path.display());
-        }
-    }
-    Ok(rig)
-}
-
 /// Runs the fusion of several sensors; returns the output folder.
 pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     let started = std::time::Instant::now();
     let options = options(args)?;
+    let frames_dir = args.sequence.frames.as_deref().filter(|d| is_multi_capture(d));
+    if args.sensor.is_empty() && frames_dir.is_none() {
+        match &args.sequence.frames {
+            Some(f) => bail!(
+                "{}: no index.json, so not a capture of several sensors: --view/--shot/--virtual-view fuse several Kinects (give `kfuse capture --device ...`'s folder, or --sensor SERIAL=COLOR,DEPTH per sensor)",
+                f.display()
+            ),
+            None => bail!(
+                "--view/--shot/--virtual-view fuse several Kinects: give --sensor SERIAL=COLOR,DEPTH per sensor or --frames DIR of a capture of several sensors"
+            ),
+        }
+    }
+    if !args.sensor.is_empty() && args.sequence.frames.is_some() {
+        bail!(
+            "--sensor gives every sensor's images and --frames a capture folder: give one of them"
+        );
+    }
+    if args.sequence.recording.is_some() {
+        bail!(
+            "--recording is one sensor's recording: fuse several Kinects from --sensor images or a --frames capture folder"
+        );
+    }
+    if args.shot.is_some() && frames_dir.is_none() {
+        bail!(
+            "--shot chooses a shot of --frames DIR (a capture of several sensors): drop it with --sensor"
+        );
+    }
     let Some(rig_path) = &args.rig else {
-        bail!("--sensor needs --rig RIG.json (a rig of several cameras)")
+        bail!(
+            "several Kinects need --rig RIG.json (a rig of several cameras; a simulated capture writes true_rig.json beside its frames)"
+        )
     };
     if args.color.is_some() || args.depth.is_some() || args.mat.is_some() {
-        bail!("--sensor gives every sensor's images: drop --color/--depth/--mat");
+        bail!("--sensor/--frames give every sensor's images: drop --color/--depth/--mat");
     }
     let mut rig = read_rig(rig_path, args.force)?;
     rig.rectified |= args.rectified;
+    let (sensor_args, shot) = match frames_dir {
+        Some(dir) => {
+            let (a, c) = frames_inputs(dir, args.shot.as_deref())?;
+            (a, Some(c))
+        }
+        None => (args.sensor.clone(), None),
+    };
+    let given = if shot.is_some() { "the capture" } else { "--sensor" };
     let sensors = rig.sensors();
     let names = || sensors.join(", ");
-    for (i, s) in args.sensor.iter().enumerate() {
+    if sensors.is_empty() {
+        bail!(
+            "{}: no camera belongs to a sensor (\"sensor\": SERIAL): nothing to fuse",
+            rig_path.display()
+        );
+    }
+    for s in &sensors {
+        check_serial_for_files(s, rig_path)?;
+    }
+    for (i, s) in sensor_args.iter().enumerate() {
         if !sensors.contains(&s.serial.as_str()) {
             bail!(
-                "--sensor {}: no sensor {} in {} (its sensors: {})",
+                "{given} {}: no sensor {} in {} (its sensors: {})",
                 s.serial,
                 s.serial,
                 rig_path.display(),
                 names()
             );
         }
-        if args.sensor[..i].iter().any(|o| o.serial == s.serial) {
+        if sensor_args[..i].iter().any(|o| o.serial == s.serial) {
             bail!("--sensor {} is given twice", s.serial);
         }
     }
-    if let Some(missing) = sensors.iter().find(|s| !args.sensor.iter().any(|a| a.serial == **s)) {
-        bail!(
-            "sensor {missing} of {} has no images: add --sensor {missing}=COLOR,DEPTH (or fuse with a rig without it)",
-            rig_path.display()
-        );
+    if let Some(missing) = sensors.iter().find(|s| !sensor_args.iter().any(|a| a.serial == **s)) {
+        match &shot {
+            Some(c) => bail!(
+                "sensor {missing} of {} has no frames in shot {} of {} (lost or not captured): fuse with a rig without it",
+                rig_path.display(),
+                c.shot,
+                c.folder
+            ),
+            None => bail!(
+                "sensor {missing} of {} has no images: add --sensor {missing}=COLOR,DEPTH (or fuse with a rig without it)",
+                rig_path.display()
+            ),
+        }
     }
     let view_name = match &args.view {
         Some(v) => v.clone(),
@@ -166,12 +450,26 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
             rig.names().join(", ")
         );
     };
+    let virtual_pose = match &args.virtual_view {
+        Some(spec) => Some((spec.clone(), parse_virtual_view(spec).map_err(anyhow::Error::msg)?)),
+        None => None,
+    };
     let kind = match args.depth_kind {
         DepthKindArg::Z => DepthKind::Z,
         DepthKindArg::Range => DepthKind::Range,
     };
+    let mut outputs: Vec<String> = OUTPUTS.map(String::from).to_vec();
+    for s in &sensors {
+        outputs.extend(mesh_names(s));
+    }
+    if virtual_pose.is_some() {
+        outputs.extend(VIRTUAL_OUTPUTS.map(String::from));
+    }
+    let staged = StagedDir::new(&args.out)?;
+    staged.refuse_foreign(&outputs)?;
+
     let mut inputs = Vec::new();
-    for s in &args.sensor {
+    for s in &sensor_args {
         let (pair, _) = rig.sensor_rig(&s.serial)?;
         let (dname, cname) = (format!("{}.depth", s.serial), format!("{}.color", s.serial));
         let want_c = (pair.color.width, pair.color.height);
@@ -188,11 +486,41 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
         .with_context(|| format!("fusing the sensors of {}", rig_path.display()))?;
     let zbuffer = fused.zbuffer_into(view);
 
-    let staged = StagedDir::new(&args.out)?;
-    staged.refuse_foreign(&OUTPUTS.map(String::from))?;
     kfuse_io::rig::write_multi_rig(&staged.join("rig.json"), &rig)?;
     ply::write_cloud_ply(&staged.join("cloud.ply"), &fused.cloud, "rig reference camera")?;
     images::write_depth_png16(&staged.join("depth_zbuffer.png"), &zbuffer)?;
+    let t_mesh = std::time::Instant::now();
+    let mut meshes = Vec::new();
+    for (k, c) in fused.sensors.iter().enumerate() {
+        let (mesh, before) = fused.sensor_mesh(k, &options).context("a sensor of the fusion")?;
+        let [ply_name, obj_name, _, texture] = mesh_names(&c.sensor);
+        ply::write_mesh_ply(
+            &staged.join(&ply_name),
+            &mesh,
+            "rig reference camera",
+            Some(&texture),
+        )?;
+        let color = &inputs.iter().find(|i| i.sensor == c.sensor).context("a fused sensor")?.color;
+        obj::write_textured_obj(&staged.join(&obj_name), &mesh, Some(color))?;
+        meshes.push((obj_name, before, mesh.faces.len(), mesh.vertices.len()));
+    }
+    let mesh_ms = t_mesh.elapsed().as_secs_f64() * 1e3;
+    let virtual_view = match &virtual_pose {
+        Some((spec, pose)) => {
+            let reference = rig.camera(&rig.reference).context("the rig's reference camera")?;
+            let (depth, color) = fused.render_merged(&reference.model, pose);
+            images::write_depth_png16(&staged.join(VIRTUAL_OUTPUTS[0]), &depth)?;
+            images::write_color_png(&staged.join(VIRTUAL_OUTPUTS[1]), &color)?;
+            let m = pose.matrix();
+            Some(VirtualSummary {
+                spec: spec.clone(),
+                camera_model_of: rig.reference.clone(),
+                camera_from_reference: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
+                pixels: depth.data().iter().filter(|z| z.is_finite()).count(),
+            })
+        }
+        None => None,
+    };
     let per_sensor = fused.points_per_sensor();
     let summary = Summary {
         rig: rig_path.display().to_string(),
@@ -202,28 +530,36 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
             .sensors
             .iter()
             .zip(&per_sensor)
-            .map(|(c, &n)| {
-                let a = args.sensor.iter().find(|a| a.serial == c.sensor).expect("checked above");
+            .zip(&meshes)
+            .map(|((c, &n), m)| {
+                let a = sensor_args.iter().find(|a| a.serial == c.sensor).expect("checked above");
                 SensorSummary {
                     sensor: c.sensor.clone(),
                     color: a.color.display().to_string(),
                     depth: a.depth.display().to_string(),
                     samples: c.points.len(),
                     points_in_cloud: n,
+                    mesh: m.0.clone(),
+                    mesh_faces_before_h5: m.1,
+                    mesh_faces: m.2,
+                    mesh_vertices: m.3,
                 }
             })
             .collect(),
         points: fused.cloud.points.len(),
         view_pixels: zbuffer.data().iter().filter(|z| z.is_finite()).count(),
+        shot: shot.clone(),
+        virtual_view,
         consistency: &fused.consistency,
         consistency_gate_mm: geometry::fusion::multi::OVERLAP_GATE_M as f64 * 1e3,
         timings_ms: serde_json::json!({
             "sensors": fused.timings.sensors_ms,
             "merge": fused.timings.merge_ms,
             "consistency": fused.timings.consistency_ms,
+            "meshes": mesh_ms,
             "total": started.elapsed().as_secs_f64() * 1e3,
         }),
-        frames: "cloud.ply: the rig's reference camera; depth_zbuffer.png: --view camera, z in mm",
+        frames: "cloud.ply, mesh_SERIAL.*: the rig's reference camera; depth_zbuffer.png: --view camera, z in mm; virtual_depth.png: the --virtual-view camera, z in mm",
     };
     let json = serde_json::to_string_pretty(&summary).context("serialising summary.json")?;
     write_bytes_atomic(&staged.join("summary.json"), json.as_bytes())?;
@@ -234,6 +570,12 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
         fused.cloud.points.len(),
         out.display()
     );
+    if let Some(c) = &shot {
+        println!("  shot {} ({}) of {}", c.index, c.shot, c.folder);
+    }
+    for (c, m) in fused.sensors.iter().zip(&meshes) {
+        println!("  mesh {}: {} -> {} faces after H5 ({})", c.sensor, m.1, m.2, m.0);
+    }
     for c in &fused.consistency {
         println!(
             "consistency {}-{}: {:.2} mm over {} tiles ({} pixels; per pixel {:.2} mm)",

@@ -27,7 +27,7 @@ pub const BOARD_INNER_CORNERS: (usize, usize) = (7, 5);
 /// Side of one square, metres (`--square 40mm`, calibrate's default).
 pub const BOARD_SQUARE_M: f64 = 0.04;
 /// White margin around the squares, metres (a detector needs a quiet zone around the board).
-const BOARD_MARGIN_M: f64 = 0.03;
+pub const BOARD_MARGIN_M: f64 = 0.03;
 /// IR albedo of the white squares and margin, of the black squares, of the wall and of the
 /// board's plain back: a printed board's black absorbs most of the 860 nm light, its paper
 /// reflects most of it; the back is grey foam board (printed on one side only, as real boards

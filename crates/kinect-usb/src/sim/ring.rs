@@ -184,10 +184,16 @@ pub fn calibration_scene(profile: &SimProfile, sensors: usize, index: usize) -> 
 /// The scene sensor `index` shows for `kfuse capture scene`: the ring's room with the board
 /// at the first pose it shares with its neighbours (at the centre for two sensors), one frame.
 pub fn view_scene(profile: &SimProfile, sensors: usize, index: usize) -> Option<SimScene> {
+    scene_of(profile, sensors, index, &[view_pose(sensors)], 0x5EED_2000 * (index as u64 + 1))
+}
+
+/// The board's world pose in [`view_scene`] of a ring of `sensors`: the first pose it shares
+/// with its neighbours (at the centre for two sensors). With the round wall of
+/// [`RING_WALL_RADIUS_M`] it is the whole scene (the truth of tests of the fused scene).
+pub fn view_pose(sensors: usize) -> BoardPose {
     let n = sensors.max(1);
     let all = board_poses(n);
-    let pose = if n >= 3 { all[OWN_POSES.len() * n] } else { all[0] };
-    scene_of(profile, sensors, index, &[pose], 0x5EED_2000 * (index as u64 + 1))
+    if n >= 3 { all[OWN_POSES.len() * n] } else { all[0] }
 }
 
 fn scene_of(
