@@ -12,7 +12,7 @@ use kfuse_io::images::write_color_png;
 use nalgebra::Vector2;
 use plotters::prelude::*;
 
-use crate::cmd_calibrate::bar;
+use indicatif::{ProgressBar, ProgressStyle};
 // The one copy of the bundled font, shared with `kfuse fuse`'s figures.
 use kfuse_figures::{FONT_NAME, register_font};
 
@@ -257,11 +257,9 @@ pub(crate) fn print_stereo(s: &StereoCalibration, ir_views: &[ViewCorners]) {
     }
 }
 
-/// Prints the held-out check (`calib::holdout`) and returns its `report.json` entry; a check
-/// that could not be made (too few views) is said so, in both.
-pub(crate) fn print_held_out(
-    h: &std::result::Result<calib::holdout::HoldOut, calib::CalibError>,
-) -> serde_json::Value {
+/// Prints the held-out check (`calib::holdout`); a check that could not be made (too few
+/// views) is said so (`calib::pipeline::fit::held_out_json` is its `report.json` entry).
+pub(crate) fn print_held_out(h: &std::result::Result<calib::holdout::HoldOut, calib::CalibError>) {
     match h {
         Ok(h) => {
             println!(
@@ -280,13 +278,21 @@ pub(crate) fn print_held_out(
                     "  (colour through the rig: the board pose from the held-out IR corners only, carried by the rig)"
                 );
             }
-            h.report_json()
         }
-        Err(e) => {
-            println!("\nheld-out check: not done: {e}");
-            serde_json::json!({ "not_done": e.to_string() })
-        }
+        Err(e) => println!("\nheld-out check: not done: {e}"),
     }
+}
+
+/// A progress bar of `len` steps labelled `msg` (on stderr).
+pub(crate) fn bar(len: usize, msg: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len as u64);
+    pb.set_style(
+        ProgressStyle::with_template("{msg:>18} [{bar:30}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    pb.set_message(msg.to_string());
+    pb
 }
 
 /// What the report folder shows.

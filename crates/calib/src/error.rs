@@ -77,6 +77,20 @@ pub enum CalibError {
     /// Invalid argument (board size, square length, flags).
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// Bad input to a calibration run (`pipeline`): what is wrong and the fix, in one line
+    /// (the message `kfuse calibrate` prints).
+    #[error("{0}")]
+    Input(String),
+    /// An error and what was being done when it happened (`pipeline`); shown as
+    /// `context: cause` by whoever walks the sources (as `kfuse` prints every error).
+    #[error("{context}")]
+    Context {
+        /// What was being done, naming the file or option.
+        context: String,
+        /// What went wrong.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// A file could not be read or written.
     #[error("{path}: {source}")]
     Io {

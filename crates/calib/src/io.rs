@@ -10,6 +10,10 @@
 //!   (`read_text`: OpenCV/ROS YAML, Bouguet's `.m`, JSON); `rig_io/iai.rs` only tests which of
 //!   its folder's files exist and reads them through `yaml.rs`.
 //! * `files`: writes calibration files (`write_text`, atomically through `kfuse_io::atomic`).
+//! * `pipeline`: a run's images through this module, `pipeline::inputs` the first image's
+//!   header (`kfuse_io::image_header`) and the patterns' matches (`glob`), `pipeline::depth`
+//!   the depth images (`kfuse_io::images::read_depth`, `image::open` for the 16-bit IR) and
+//!   `--rig` (`rig_io::load`).
 
 use std::path::Path;
 

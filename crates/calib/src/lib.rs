@@ -29,6 +29,7 @@ pub mod holdout;
 pub mod io;
 pub mod mono;
 pub mod multi;
+pub mod pipeline;
 pub mod rig_io;
 pub mod stereo;
 pub mod timing;
