@@ -376,7 +376,12 @@ fn load_and_detect(
     }
     let pb = bar(names.len(), &format!("detecting {camera}"));
     let (found, board, detect_ms) = timings
-        .time(&detect_stage, || detect_views_timed(&names, &board, refinement, &|| pb.inc(1)));
+        .time(&detect_stage, || {
+            detect_views_timed(&names, &board, refinement, &|| {
+                pb.inc(1);
+                crate::interrupt::pause_point("calibrate-detect");
+            })
+        });
     pb.finish();
     let with_board = found.iter().filter(|v| !v.corners.is_empty()).count();
     if auto {
