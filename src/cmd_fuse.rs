@@ -331,6 +331,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let mut files = Vec::new();
     bar.set_message("writing cloud and depth images");
     fused::write_data(&staged, &output, &mut files)?;
+    crate::interrupt::pause_point("fuse-data");
     bar.inc(1);
     crate::interrupt::check(STOPPED)?;
     bar.set_message("writing meshes");
@@ -344,6 +345,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     bar.inc(1);
     crate::interrupt::check(STOPPED)?;
     fused::write_summary(&staged, &inputs.description, &options, &output.summary, files)?;
+    crate::interrupt::pause_point("fuse-staged");
     bar.set_message("committing");
     crate::interrupt::check(STOPPED)?;
     let out = staged.commit()?;

@@ -9,8 +9,8 @@
 //! (`timeout -s INT` sends its signal to the command and to its process group: two signals
 //! at once.)
 
-use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Once, OnceLock};
 
 static REQUESTED: AtomicBool = AtomicBool::new(false);
 static INSTALLED: OnceLock<Result<(), String>> = OnceLock::new();
@@ -94,5 +94,40 @@ pub fn run_until_interrupted<T: Send + 'static>(
     match worker.join() {
         Ok(value) => Ok(value),
         Err(panic) => std::panic::resume_unwind(panic),
+    }
+}
+
+/// Environment variable naming a point of a command at which it pauses for good (**test-only**:
+/// for the tests that must kill or interrupt a run at a known moment,
+/// `tests/cli_reliability.rs`; never set it otherwise). On reaching the point the command
+/// prints [`PAUSED_MARKER`] and the point's name on its standard output, and the thread waits
+/// there until the process ends: killed, or exiting from another thread (a worker paused in
+/// [`run_until_interrupted`] leaves the main thread to answer Ctrl-C). Points: `fuse-data`
+/// (`fuse`: the cloud and depth images written into the staging folder, the meshes not yet),
+/// `fuse-staged` (`fuse`: every output staged, not yet published), `calibrate-detect`
+/// (`calibrate`: the board detected in a first image, on the worker thread, so that the
+/// detection cannot end before a signal).
+pub const PAUSE_AT_ENV: &str = "KFUSE_TEST_PAUSE_AT";
+
+/// The line [`pause_point`] prints (followed by the point's name) when it pauses.
+pub const PAUSED_MARKER: &str = "kfuse test hook: paused at";
+
+/// Pauses the calling thread for good when [`PAUSE_AT_ENV`] names `point` (test-only, see
+/// there); returns at once otherwise. Reached by several threads, it prints its line once and
+/// pauses each of them.
+pub fn pause_point(point: &str) {
+    if std::env::var_os(PAUSE_AT_ENV).is_none_or(|v| v != point) {
+        return;
+    }
+    static ANNOUNCED: Once = Once::new();
+    ANNOUNCED.call_once(|| {
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "{PAUSED_MARKER} {point}");
+        let _ = out.flush();
+    });
+    loop {
+        // park may return spuriously; the loop keeps the thread here.
+        std::thread::park();
     }
 }

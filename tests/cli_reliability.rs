@@ -11,6 +11,11 @@ use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
 use kfuse_io::atomic::MANIFEST;
+
+/// The test hook of the binary (`src/interrupt.rs`, `interrupt::PAUSE_AT_ENV` and
+/// `PAUSED_MARKER`; the binary's modules are not a library the tests can import).
+const PAUSE_AT_ENV: &str = "KFUSE_TEST_PAUSE_AT";
+const PAUSED_MARKER: &str = "kfuse test hook: paused at";
 use kfuse_io::{images, rig as rigio};
 
 fn s(p: &Path) -> &str {
@@ -267,64 +272,48 @@ fn fuse_outputs_are_all_or_nothing_and_never_touch_the_users_files() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// `fuse` killed (SIGKILL) mid-run at known points (the test hook
+/// `KFUSE_TEST_PAUSE_AT`, `src/interrupt.rs`: the run pauses there for good and says so):
+/// with the cloud and depth images written into its staging folder (`fuse-data`), and with
+/// every output staged but not published (`fuse-staged`). Each kill lands mid-run (the process
+/// ends by the signal, its staging folder holds what it had written) and leaves no `--out`; the
+/// next run removes the killed runs' staging folders.
 #[test]
-fn fuse_killed_at_any_moment_leaves_all_or_nothing() {
+fn fuse_killed_mid_run_leaves_no_out_and_the_next_run_removes_its_staging() {
+    use std::os::unix::process::ExitStatusExt;
     let case = small_case("kill");
-    // Kill runs at a known point: as soon as the run's staging folder exists (the run is past
-    // its checks and writing), then after increasing delays. Each leaves no --out or a
-    // complete one; the next run removes the killed runs' staging folders.
-    let staging_in = |dir: &Path| names(dir).into_iter().any(|n| n.contains("staging"));
-    let mut outcomes = (0, 0);
-    let mut mid_run = 0;
-    for i in 0..8u64 {
+    // (pause point, files its staging folder must hold, files it must not hold yet)
+    let points: [(&str, &[&str], &[&str]); 2] = [
+        ("fuse-data", &["cloud.ply", "depth_zbuffer.png", "hole_mask.png"], &["mesh.ply", "summary.json"]),
+        ("fuse-staged", &["cloud.ply", "mesh.ply", "summary.json"], &[]),
+    ];
+    for (i, (point, written, not_yet)) in points.into_iter().enumerate() {
         let out = case.dir.join(format!("out{i}"));
-        let mut child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
-            .args(["fuse", "--rig", s(&case.rig), "--color", s(&case.color)])
+        let mut cmd = common::kfuse_command();
+        cmd.args(["fuse", "--rig", s(&case.rig), "--color", s(&case.color)])
             .args(["--depth", s(&case.depth), "--out", s(&out)])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        if i < 4 {
-            // Wait for the staging folder (or the end of the run), polling; no time bound.
-            while !staging_in(&case.dir) && child.try_wait().unwrap().is_none() {
-                std::thread::sleep(Duration::from_millis(1));
-            }
-        } else {
-            std::thread::sleep(Duration::from_millis(40 * i * i));
+            .env(PAUSE_AT_ENV, point);
+        let mut run = Paused::spawn(cmd, &format!("{PAUSED_MARKER} {point}"));
+        let staging = case.dir.join(format!(".out{i}.kfuse-staging-{}", run.child.id()));
+        run.child.kill().unwrap();
+        let (status, _) = run.wait();
+        assert_eq!(status.signal(), Some(9), "{point}: the run was not ended by the kill: {status}");
+        assert!(!out.exists(), "{point}: --out exists after a kill before the commit");
+        let held = names(&staging);
+        for f in written {
+            assert!(held.contains(&f.to_string()), "{point}: {f} not staged: {held:?}");
         }
-        let _ = child.kill();
-        let _ = child.wait();
-        // Evidence that the kill landed mid-run: no --out and the run's staging folder left.
-        if !out.exists() && staging_in(&case.dir) {
-            mid_run += 1;
-        }
-        if out.exists() {
-            outcomes.1 += 1;
-            let summary: serde_json::Value =
-                serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
-                    .unwrap();
-            for f in summary["files"].as_array().unwrap() {
-                assert!(out.join(f.as_str().unwrap()).is_file(), "{f} missing after a kill");
-            }
-        } else {
-            outcomes.0 += 1;
+        for f in not_yet {
+            assert!(!held.contains(&f.to_string()), "{point}: {f} staged already: {held:?}");
         }
     }
     let o = fuse(&case, &case.rig, &case.color, &case.dir.join("last"), &[]);
-    assert!(o.status.success());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let left: Vec<String> = names(&case.dir)
         .into_iter()
         .filter(|n| n.contains("staging") || n.contains("partial"))
         .collect();
     assert!(left.is_empty(), "staging of killed runs left: {left:?}");
-    eprintln!(
-        "killed runs: {} left nothing ({mid_run} of them killed mid-run), {} had finished",
-        outcomes.0, outcomes.1
-    );
-    // The four kills at the staging folder's creation must land before the commit of a run
-    // that then still computes and writes every output; otherwise nothing was tested.
-    assert!(mid_run >= 2, "only {mid_run} of 8 kills landed mid-run: the test tested nothing");
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
@@ -761,36 +750,85 @@ fn calibrate_replaces_only_its_own_files_without_overwrite() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Starts `kfuse ARGS` with its output piped and reads its standard output up to the first
-/// line containing `marker` (failing if it ends first); the child then runs on, and the
-/// returned thread collects the rest of its standard output.
-fn spawn_until(
-    args: &[&str],
-    marker: &str,
-) -> (std::process::Child, std::thread::JoinHandle<String>) {
-    use std::io::{BufRead, BufReader};
-    let mut child = Command::new(env!("CARGO_BIN_EXE_kfuse"))
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut stdout = BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    loop {
-        line.clear();
-        assert!(stdout.read_line(&mut line).unwrap() > 0, "kfuse ended before '{marker}'");
-        if line.contains(marker) {
-            break;
+/// How long a test waits for a line of a child or for its exit before it kills the child and
+/// fails: only so that a broken build fails instead of hanging (not a measurement; the runs
+/// waited for take seconds).
+const HANG_GUARD: Duration = Duration::from_secs(300);
+
+/// A child whose standard output was read up to a marker line; its standard output and error
+/// are read on to their ends by threads (so that a full pipe never blocks it).
+struct Paused {
+    child: std::process::Child,
+    stdout: std::thread::JoinHandle<String>,
+    stderr: std::thread::JoinHandle<String>,
+}
+
+impl Paused {
+    /// Starts `cmd` with its output piped and waits (at most [`HANG_GUARD`]) for the first line
+    /// of its standard output containing `marker`, failing if it ends first.
+    fn spawn(mut cmd: Command, marker: &str) -> Self {
+        use std::io::{BufRead, BufReader, Read};
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        let (stdout, mut stderr) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
+        let (seen, seen_rx) = std::sync::mpsc::channel();
+        let marker_owned = marker.to_string();
+        let stdout = std::thread::spawn(move || {
+            let (mut before, mut rest) = (true, String::new());
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                if before && line.contains(&marker_owned) {
+                    before = false;
+                    let _ = seen.send(());
+                } else if !before {
+                    rest.push_str(&line);
+                    rest.push('\n');
+                }
+            }
+            rest
+        });
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = stderr.read_to_string(&mut text);
+            text
+        });
+        match seen_rx.recv_timeout(HANG_GUARD) {
+            Ok(()) => Paused { child, stdout, stderr },
+            Err(e) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                let err = stderr.join().unwrap();
+                panic!("kfuse did not print '{marker}' ({e}): {err}");
+            }
         }
     }
-    // Keep reading the rest, so that a full pipe never blocks the child.
-    let rest = std::thread::spawn(move || {
-        let mut rest = String::new();
-        let _ = std::io::Read::read_to_string(&mut stdout, &mut rest);
-        rest
-    });
-    (child, rest)
+
+    /// Waits (at most [`HANG_GUARD`], then kills it and fails) for the child to end: its exit
+    /// status and standard error. The standard output after the marker: [`Paused::stdout`].
+    fn wait(&mut self) -> (std::process::ExitStatus, String) {
+        let start = std::time::Instant::now();
+        let status = loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                break status;
+            }
+            if start.elapsed() > HANG_GUARD {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                panic!("kfuse did not exit within {} s", HANG_GUARD.as_secs());
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        let stderr = std::mem::replace(&mut self.stderr, std::thread::spawn(String::new));
+        (status, stderr.join().unwrap())
+    }
+}
+
+/// Starts `kfuse ARGS` with its output piped and reads its standard output up to the first
+/// line containing `marker` (failing if it ends first, or after [`HANG_GUARD`]); the child
+/// then runs on.
+fn spawn_until(args: &[&str], marker: &str) -> Paused {
+    let mut cmd = common::kfuse_command();
+    cmd.args(args);
+    Paused::spawn(cmd, marker)
 }
 
 #[test]
@@ -840,44 +878,39 @@ fn ctrl_c_and_sigterm_during_fuse_remove_the_staging_and_exit_130() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Ctrl-C while `calibrate` detects the board (15 synthetic 1920x1080 images, seconds of
-/// detection): exit 130 before detection ends, one line saying nothing was written, and no
-/// rig file, report folder or temporary left.
+/// Ctrl-C while `calibrate` detects the board (15 synthetic 1920x1080 images): the run is
+/// held inside the detection by the test hook (`KFUSE_TEST_PAUSE_AT=calibrate-detect`,
+/// `src/interrupt.rs`: the worker pauses for good once the board is found in a first image),
+/// so the detection cannot end before the signal, whatever the machine's speed. The main
+/// thread must answer it on its own: exit 130, one line saying nothing was written, no rig
+/// file, report folder or temporary left. (A run that waited for its worker would hang here
+/// and fail at the guard.)
 #[test]
-fn ctrl_c_during_calibrate_detection_exits_130_before_detection_ends_and_writes_nothing() {
-    let test =
-        "ctrl_c_during_calibrate_detection_exits_130_before_detection_ends_and_writes_nothing";
+fn ctrl_c_during_calibrate_detection_exits_130_and_writes_nothing() {
+    let test = "ctrl_c_during_calibrate_detection_exits_130_and_writes_nothing";
     let Some(data) = geometry::testdata::shared_data_or_skip(test) else { return };
     let dir = scratch("calib-sigint");
     let (rig, report) = (dir.join("rig.json"), dir.join("report"));
     let pattern = data.join("synthetic-calib/color/color_*.png");
-    // Wait for the line printed as detection starts, then interrupt.
-    let (child, rest) = spawn_until(
-        &["calibrate", "--color", s(&pattern), "--board", "auto"]
-            .into_iter()
-            .chain(["--out", s(&rig), "--report", s(&report)])
-            .collect::<Vec<_>>(),
-        "detecting the board",
-    );
-    let sent_at = std::time::Instant::now();
-    let sent = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    let mut cmd = common::kfuse_command();
+    cmd.args(["calibrate", "--color", s(&pattern), "--board", "auto"])
+        .args(["--out", s(&rig), "--report", s(&report)])
+        .env(PAUSE_AT_ENV, "calibrate-detect");
+    let mut run = Paused::spawn(cmd, &format!("{PAUSED_MARKER} calibrate-detect"));
+    let sent = Command::new("kill").args(["-INT", &run.child.id().to_string()]).status().unwrap();
     assert!(sent.success());
-    let o = child.wait_with_output().unwrap();
-    let took = sent_at.elapsed();
-    let err = String::from_utf8_lossy(&o.stderr);
-    eprintln!("calibrate: SIGINT during detection answered in {} ms", took.as_millis());
-    assert_eq!(o.status.code(), Some(130), "{err}");
+    let (status, err) = run.wait();
+    assert_eq!(status.code(), Some(130), "{err}");
     let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
     assert_eq!(lines.len(), 1, "{err}");
     assert!(
         lines[0].contains("interrupted") && lines[0].contains("no rig file or report"),
         "{err}"
     );
-    // The signal stopped the detection itself, not the command after it: the line printed
-    // once all images are detected ("--board auto: N of 15 ... images show ...") never came.
-    // (No wall-clock bound: the evidence is what the run printed before it exited.)
-    let rest = rest.join().unwrap();
-    assert!(!rest.contains("--board auto:"), "detection ran to its end before exiting: {rest}");
+    // The detection never ended: the line printed once every image is detected
+    // ("--board auto: N of 15 ... images show ...") never came.
+    let rest = run.stdout.join().unwrap();
+    assert!(!rest.contains("--board auto:"), "detection ran to its end: {rest}");
     assert!(names(&dir).is_empty(), "left after the signal: {:?}", names(&dir));
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -896,7 +929,7 @@ fn a_second_ctrl_c_while_calibrate_writes_leaves_nothing_behind() {
     let pattern = data.join("synthetic-calib/color/color_*.png");
     // The per-image table is printed after the fit; the outputs are written right after it,
     // and the report's figures of 15 images take well over a second in this build.
-    let (child, _rest) = spawn_until(
+    let mut run = spawn_until(
         &["calibrate", "--color", s(&pattern), "--board", "7x5", "--square", "40mm"]
             .into_iter()
             .chain(["--out", s(&rig), "--opencv-yaml", s(&yaml), "--report", s(&report)])
@@ -905,13 +938,13 @@ fn a_second_ctrl_c_while_calibrate_writes_leaves_nothing_behind() {
     );
     std::thread::sleep(Duration::from_millis(300));
     for _ in 0..2 {
-        let sent = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+        let sent =
+            Command::new("kill").args(["-INT", &run.child.id().to_string()]).status().unwrap();
         assert!(sent.success());
         std::thread::sleep(Duration::from_millis(50));
     }
-    let o = child.wait_with_output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(130), "{err}");
+    let (status, err) = run.wait();
+    assert_eq!(status.code(), Some(130), "{err}");
     assert!(err.contains("interrupted twice") && err.contains("removed"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
     assert!(names(&dir).is_empty(), "left after the signals: {:?}", names(&dir));

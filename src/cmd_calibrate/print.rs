@@ -2,6 +2,7 @@
 //! lines of the command line, its long stages as progress bars.
 
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use calib::pipeline::{Event, Observer};
 use indicatif::ProgressBar;
@@ -14,6 +15,8 @@ use crate::calibrate_report::{bar, print_held_out, print_mono, print_stereo};
 #[derive(Default)]
 pub(super) struct Printer {
     bar: Mutex<Option<ProgressBar>>,
+    /// The current stage is a board detection (the test hook's `calibrate-detect` point).
+    detecting: AtomicBool,
 }
 
 impl Printer {
@@ -28,6 +31,7 @@ impl Printer {
 
 impl Observer for Printer {
     fn progress_start(&self, label: &str, len: usize) {
+        self.detecting.store(label.starts_with("detecting"), Ordering::Relaxed);
         if let Ok(mut b) = self.bar.lock() {
             *b = Some(bar(len, label));
         }
@@ -35,6 +39,10 @@ impl Observer for Printer {
 
     fn progress_step(&self) {
         self.with_bar(|b| b.inc(1));
+        if self.detecting.load(Ordering::Relaxed) {
+            // The board found in a first image, on the worker thread (test-only hook).
+            crate::interrupt::pause_point("calibrate-detect");
+        }
     }
 
     fn progress_end(&self) {

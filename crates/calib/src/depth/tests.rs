@@ -301,3 +301,76 @@ fn an_error_outside_the_model_is_reported_as_residual() {
         assert!((t.value - truth.value(k)).abs() <= 3.0 * t.std.max(1e-6), "{k:?}: {t:?}");
     }
 }
+
+/// Height of the ring error of [`a_ring_outside_the_model_is_reported_as_residual`], metres: a
+/// few times a Kinect's ~1–2 mm fixed-pattern error, so that what the terms cannot absorb
+/// stands far above the 1 mm quantisation (0.29 mm RMS).
+const RING_HEIGHT_M: f64 = 0.010;
+
+/// Least residual RMS, metres, the ring must leave after *any* combination of the candidate
+/// terms on the fit's samples (computed in the test): 1 mm, over three times the quantisation's
+/// RMS, so a fit that reported only quantisation (≤ 0.4 mm, the clean test's bound) would be a
+/// false success the test sees.
+const RING_LEFT_MIN_M: f64 = 1e-3;
+
+/// An error outside the model that the spatial terms can partly absorb: a ring (a Gaussian
+/// bump of [`RING_HEIGHT_M`] at ρ = 0.45 of the half-diagonal, σ = 0.06), added to the modelled
+/// error. No fit of a subset of the candidate terms (offset, scale, x, y, ρ², ρ⁴) can leave
+/// less than the least-squares fit of all of them on the same samples: that floor is computed
+/// here independently of the fit's own solver (an SVD of the full design matrix on the fit's
+/// samples of the views it used), must itself exceed [`RING_LEFT_MIN_M`] (the ring is outside
+/// the model), and the fit must report at least it, as its RMS after the fit.
+#[test]
+fn a_ring_outside_the_model_is_reported_as_residual() {
+    let cam = camera();
+    let board = Board::new(7, 5, 0.04).unwrap();
+    let coords = ImageCoords::new(cam.width, cam.height);
+    let ring = |u: usize, v: usize| {
+        let rho = coords.term(DepthTermKind::Radial2, u as f64, v as f64).sqrt();
+        RING_HEIGHT_M * (-0.5 * ((rho - 0.45) / 0.06).powi(2)).exp()
+    };
+    let fit =
+        fit_depth_from_corners(&cam, &board, &shots(&cam, &board, &truth(), &ring), true).unwrap();
+    let all = [
+        DepthTermKind::Offset,
+        DepthTermKind::Scale,
+        DepthTermKind::X,
+        DepthTermKind::Y,
+        DepthTermKind::Radial2,
+        DepthTermKind::Radial4,
+    ];
+    let used: Vec<&Sample> = fit
+        .samples
+        .iter()
+        .zip(&fit.views)
+        .filter(|(_, v)| v.rejected.is_none())
+        .flat_map(|(s, _)| s)
+        .collect();
+    let a = DMatrix::from_fn(used.len(), all.len(), |i, j| {
+        let s = used[i];
+        match all[j] {
+            DepthTermKind::Scale => s.z_plane,
+            k => coords.term(k, f64::from(s.u), f64::from(s.v)),
+        }
+    });
+    let y = DVector::from_fn(used.len(), |i, _| used[i].z_measured - used[i].z_plane);
+    let x = a.clone().svd(true, true).solve(&y, 1e-12).unwrap();
+    let floor = ((&y - &a * x).norm_squared() / used.len() as f64).sqrt();
+    eprintln!(
+        "ring of {:.0} mm: RMS before {:.3} mm, after the fit {:.3} mm ({}), least possible with every term {:.3} mm; {} of {} views used",
+        1e3 * RING_HEIGHT_M,
+        1e3 * fit.rms_before_m,
+        1e3 * fit.rms_after_m,
+        fit.correction.terms.iter().map(|t| t.kind.name()).collect::<Vec<_>>().join(" "),
+        1e3 * floor,
+        fit.views.iter().filter(|v| v.rejected.is_none()).count(),
+        fit.views.len()
+    );
+    assert!(floor > RING_LEFT_MIN_M, "the ring is inside the model: {floor} m left");
+    // 1e-9 m: the two solvers' rounding.
+    assert!(
+        fit.rms_after_m >= floor - 1e-9,
+        "the fit reports {} m RMS, less than the {floor} m no term set can remove",
+        fit.rms_after_m
+    );
+}
