@@ -209,8 +209,9 @@ fn check_read_size(
     Ok(())
 }
 
-/// Runs the command.
-pub fn run(args: UndistortArgs) -> Result<()> {
+/// The camera to undistort with: `--camera` of the rig or single-camera file, whose
+/// implausibilities refuse the run (warnings with `--force`).
+fn load_camera(args: &UndistortArgs) -> Result<geometry::CameraModel> {
     // A rig or the single-camera JSON that `kfuse calibrate --ir/--color --out` writes.
     let role = if args.camera == "color" { Role::Color } else { Role::Depth };
     let calibration = calib::rig_io::load(&args.rig)?;
@@ -228,8 +229,12 @@ pub fn run(args: UndistortArgs) -> Result<()> {
             eprintln!("warning: {}: {problem} (--force)", args.rig.display());
         }
     }
-    // Everything that can be checked is checked before the (large) map is built and before
-    // anything is written: one output name per input, every image's size from its header.
+    Ok(cam)
+}
+
+/// The images to undistort, checked before the (large) map is built and before anything is
+/// written: one output name per input, every image's size from its header.
+fn checked_images(args: &UndistortArgs, cam: &geometry::CameraModel) -> Result<Vec<PathBuf>> {
     let images = skip_earlier_outputs(expand_images(&args.images)?, &args.out, args.force)?;
     let mut names: HashMap<String, &PathBuf> = HashMap::new();
     for path in &images {
@@ -254,6 +259,13 @@ pub fn run(args: UndistortArgs) -> Result<()> {
             );
         }
     }
+    Ok(images)
+}
+
+/// Runs the command.
+pub fn run(args: UndistortArgs) -> Result<()> {
+    let cam = load_camera(&args)?;
+    let images = checked_images(&args, &cam)?;
     let staged = StagedDir::new(&args.out)?;
     // Before the work: an entry of the user's carrying one of this run's output names.
     staged.refuse_foreign(&images.iter().map(|p| output_name(p)).collect::<Vec<_>>())?;

@@ -34,12 +34,29 @@ pub enum SequenceError {
     /// A pipeline thread could not be started or stopped unexpectedly.
     #[error("pipeline: {0}")]
     Pipeline(String),
+    /// An option of the run that cannot work (`--threads 3`), before anything is opened.
+    #[error("{0}")]
+    Options(String),
+    /// What the run was doing when `source` happened (`processing REC.kfrec`).
+    #[error("{what}")]
+    Context {
+        /// What was being done.
+        what: String,
+        /// What went wrong.
+        #[source]
+        source: Box<SequenceError>,
+    },
 }
 
 impl SequenceError {
     /// An [`SequenceError::Input`] for `path`.
     pub fn input(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         SequenceError::Input { path: path.into(), message: message.into() }
+    }
+
+    /// This error with what was being done when it happened.
+    pub fn context(self, what: impl Into<String>) -> Self {
+        SequenceError::Context { what: what.into(), source: Box::new(self) }
     }
 }
 

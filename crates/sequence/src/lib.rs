@@ -13,6 +13,7 @@
 //! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the colour JPEG as the scene is ([`color`]: a capture's copied unchanged, a recording's mirrored and encoded anew), `index.json` |
 //! | export | [`tum`] | `rgb.txt`, `depth.txt`, `associations.txt`, README of the TUM layout |
 //! | pipeline | [`pipeline`] | the stages on one or two worker threads joined by bounded queues; Ctrl-C finishes the frames in flight |
+//! | the run | [`command`] | the whole `kfuse fuse --recording/--frames`: options checked, input and staged output opened ([`command::open`]), the pipeline, `index.json` and the TUM lists, the folder committed ([`command::run`]); the caller sees progress through [`command::Observer`] |
 //!
 //! # Conventions
 //!
@@ -26,6 +27,7 @@
 #![deny(missing_docs)]
 
 pub mod color;
+pub mod command;
 pub mod error;
 pub mod matching;
 pub mod pipeline;
