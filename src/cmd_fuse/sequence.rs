@@ -2,7 +2,7 @@
 //! streamed pipeline of `kfuse-sequence`, into one output folder that appears when the run
 //! ends (Ctrl-C included: the complete frames and a valid index are kept).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};

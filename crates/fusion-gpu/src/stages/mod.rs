@@ -30,7 +30,7 @@ use crate::frame::{FrameBuffers, TableRefs, Work};
 use crate::gpu::{Gpu, Grid};
 
 /// A stage of a frame (see the module docs).
-pub(crate) trait Stage {
+pub(crate) trait Stage: Send + Sync {
     /// Whether the stage runs on a frame of `work` (H3, H8 and H6 only with stages, H6 only
     /// with a colour image).
     fn runs(&self, work: &Work<'_>) -> bool;
