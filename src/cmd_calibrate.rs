@@ -25,6 +25,7 @@ use crate::calibrate_report::{Figures, print_held_out, print_mono, print_stereo}
 
 mod depth;
 mod depth_figures;
+mod multi;
 
 /// Arguments of `kfuse calibrate`.
 #[derive(clap::Args, Debug)]
@@ -138,6 +139,22 @@ pub struct CalibrateArgs {
     /// (`timings_ms`) with every image's times.
     #[arg(long)]
     timings: bool,
+    /// Joint calibration of N cameras (issue 32): one camera's images as NAME=GLOB, e.g.
+    /// 0001.depth='shots/000000000001/ir_*.png'; repeatable. The view id of an image is the
+    /// shot number in its name (the last run of digits); one id in two cameras is one board
+    /// pose. SERIAL.depth / SERIAL.color name a Kinect's IR and colour cameras. Writes a rig of
+    /// every camera (--out) and, with --report, report.json with every camera's corners.
+    #[arg(long = "camera", value_name = "NAME=GLOB")]
+    camera: Vec<String>,
+    /// Joint calibration of a multi-sensor capture folder (`kfuse capture calib --device all
+    /// --out DIR`): every DIR/SERIAL/ir_* as camera SERIAL.depth, DIR/SERIAL/color_* as
+    /// SERIAL.color (the names of its true_rig.json); --camera adds cameras.
+    #[arg(long, value_name = "DIR")]
+    shots: Option<PathBuf>,
+    /// The reference camera of a joint calibration (its frame is the rig's); default: the
+    /// first depth camera.
+    #[arg(long, value_name = "NAME")]
+    reference: Option<String>,
 }
 
 /// `--corners`: the final sub-pixel estimator.
@@ -796,6 +813,9 @@ fn timing_lines(wall_ms: f64, timings: &Timings, images: &[ImageTiming]) -> Vec<
 
 /// Runs the command.
 pub fn run(args: CalibrateArgs) -> Result<()> {
+    if !args.camera.is_empty() || args.shots.is_some() || args.reference.is_some() {
+        return multi::run(&args);
+    }
     let started = Instant::now();
     let mut timings = Timings::new();
     let mut image_times: Vec<ImageTiming> = Vec::new();
