@@ -15,6 +15,7 @@ use geometry::timing::{Timings, ms_since};
 
 mod depth;
 mod depth_figures;
+mod multi;
 mod outputs;
 mod print;
 
@@ -130,6 +131,22 @@ pub struct CalibrateArgs {
     /// (`timings_ms`) with every image's times.
     #[arg(long)]
     timings: bool,
+    /// Joint calibration of N cameras (issue 32): one camera's images as NAME=GLOB, e.g.
+    /// 0001.depth='shots/000000000001/ir_*.png'; repeatable. The view id of an image is the
+    /// shot number in its name (the last run of digits); one id in two cameras is one board
+    /// pose. SERIAL.depth / SERIAL.color name a Kinect's IR and colour cameras. Writes a rig of
+    /// every camera (--out) and, with --report, report.json with every camera's corners.
+    #[arg(long = "camera", value_name = "NAME=GLOB")]
+    camera: Vec<String>,
+    /// Joint calibration of a multi-sensor capture folder (`kfuse capture calib --device all
+    /// --out DIR`): every DIR/SERIAL/ir_* as camera SERIAL.depth, DIR/SERIAL/color_* as
+    /// SERIAL.color (the names of its true_rig.json); --camera adds cameras.
+    #[arg(long, value_name = "DIR")]
+    shots: Option<PathBuf>,
+    /// The reference camera of a joint calibration (its frame is the rig's); default: the
+    /// first depth camera.
+    #[arg(long, value_name = "NAME")]
+    reference: Option<String>,
 }
 
 /// `--corners`: the final sub-pixel estimator.
@@ -150,18 +167,23 @@ impl From<CornerEstimator> for Refinement {
     }
 }
 
-/// The pipeline's request of `args`: the board, the images (patterns expanded), the flags.
-fn request(args: &CalibrateArgs) -> Result<Request> {
-    let (board, auto_board) = parse_board(&args.board, &args.square, args.top_left.as_deref())?;
-    let (ir, color, depth) = expand_all(&args.ir, &args.color, &args.depth)?;
+/// The fits' flags of `args` (`--lab-settings`, the `--fix-*` flags, `--no-outlier-rejection`).
+fn flags(args: &CalibrateArgs) -> CalibFlags {
     let mut flags = if args.lab_settings { CalibFlags::bouguet() } else { CalibFlags::default() };
     flags.fix_principal_point |= args.fix_principal_point;
     flags.fix_aspect_ratio |= args.fix_aspect_ratio;
     flags.fix_k3 |= args.fix_k3;
     flags.zero_tangential |= args.zero_tangential;
     flags.reject_outliers = !args.no_outlier_rejection;
+    flags
+}
+
+/// The pipeline's request of `args`: the board, the images (patterns expanded), the flags.
+fn request(args: &CalibrateArgs) -> Result<Request> {
+    let (board, auto_board) = parse_board(&args.board, &args.square, args.top_left.as_deref())?;
+    let (ir, color, depth) = expand_all(&args.ir, &args.color, &args.depth)?;
     let options = Options {
-        flags,
+        flags: flags(args),
         fix_intrinsics: args.fix_intrinsics,
         allow_unpaired: args.allow_unpaired,
         refinement: args.corners.into(),
@@ -187,6 +209,9 @@ const STOPPED: &str = ": stopped; no rig file or report was written";
 /// nothing, and Ctrl-C is answered within a poll interval whatever stage they are in), then
 /// the outputs written all or nothing.
 pub fn run(args: CalibrateArgs) -> Result<()> {
+    if !args.camera.is_empty() || args.shots.is_some() || args.reference.is_some() {
+        return multi::run(&args);
+    }
     let started = Instant::now();
     let printer = Arc::new(print::Printer::default());
     let prepared = calib::pipeline::prepare(request(&args)?, &*printer)?;

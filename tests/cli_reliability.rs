@@ -284,7 +284,11 @@ fn fuse_killed_mid_run_leaves_no_out_and_the_next_run_removes_its_staging() {
     let case = small_case("kill");
     // (pause point, files its staging folder must hold, files it must not hold yet)
     let points: [(&str, &[&str], &[&str]); 2] = [
-        ("fuse-data", &["cloud.ply", "depth_zbuffer.png", "hole_mask.png"], &["mesh.ply", "summary.json"]),
+        (
+            "fuse-data",
+            &["cloud.ply", "depth_zbuffer.png", "hole_mask.png"],
+            &["mesh.ply", "summary.json"],
+        ),
         ("fuse-staged", &["cloud.ply", "mesh.ply", "summary.json"], &[]),
     ];
     for (i, (point, written, not_yet)) in points.into_iter().enumerate() {
@@ -297,7 +301,11 @@ fn fuse_killed_mid_run_leaves_no_out_and_the_next_run_removes_its_staging() {
         let staging = case.dir.join(format!(".out{i}.kfuse-staging-{}", run.child.id()));
         run.child.kill().unwrap();
         let (status, _) = run.wait();
-        assert_eq!(status.signal(), Some(9), "{point}: the run was not ended by the kill: {status}");
+        assert_eq!(
+            status.signal(),
+            Some(9),
+            "{point}: the run was not ended by the kill: {status}"
+        );
         assert!(!out.exists(), "{point}: --out exists after a kill before the commit");
         let held = names(&staging);
         for f in written {

@@ -17,7 +17,7 @@ use super::{CalibrateArgs, STOPPED, depth_figures};
 use crate::calibrate_report::Figures;
 
 /// The folder of an output path (`.` for a bare file name).
-fn parent_folder(path: &Path) -> &Path {
+pub(super) fn parent_folder(path: &Path) -> &Path {
     match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -26,7 +26,7 @@ fn parent_folder(path: &Path) -> &Path {
 
 /// Where an output path leads, for telling whether two outputs are one file: the path with
 /// its links and `..` resolved, or (missing) its resolved folder and its name.
-fn resolved_output(path: &Path) -> PathBuf {
+pub(super) fn resolved_output(path: &Path) -> PathBuf {
     path.canonicalize().unwrap_or_else(|_| {
         let folder = parent_folder(path);
         let folder = folder.canonicalize().unwrap_or_else(|_| folder.to_path_buf());

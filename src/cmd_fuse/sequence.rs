@@ -171,7 +171,10 @@ fn sequence_rig(args: &FuseArgs, opened: &Opened) -> Result<Rig> {
         None => {
             let rig = if opened.is_recording() {
                 load_rig(&params, args.force).with_context(|| {
-                    format!("fitting a rig to the factory parameters stored in {}", source.display())
+                    format!(
+                        "fitting a rig to the factory parameters stored in {}",
+                        source.display()
+                    )
                 })?
             } else {
                 load_rig(&params, args.force)?
@@ -235,8 +238,7 @@ pub fn run(args: &FuseArgs) -> Result<()> {
     let opened = command::open(&input, &args.out, &options)?;
     let rig = sequence_rig(args, &opened)?;
     let mut shown = Shown::new(opened.progress().clone(), &rig);
-    let finished =
-        command::run(opened, &rig, &options, &mut shown, &crate::interrupt::requested)?;
+    let finished = command::run(opened, &rig, &options, &mut shown, &crate::interrupt::requested)?;
     shown.finish();
     print_summary(&finished, seq.threads, args.timings)
 }
@@ -267,7 +269,10 @@ impl<'a> Shown<'a> {
     fn finish(&self) {
         self.bar.finish_and_clear();
         if self.listed > MAX_LISTED {
-            eprintln!("... and {} more such lines (all are in index.json)", self.listed - MAX_LISTED);
+            eprintln!(
+                "... and {} more such lines (all are in index.json)",
+                self.listed - MAX_LISTED
+            );
         }
     }
 }

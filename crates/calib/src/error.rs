@@ -151,6 +151,28 @@ pub enum CalibError {
         /// The groups, e.g. "{a.ir, a.color} and {b.ir}".
         groups: String,
     },
+    /// Joint calibration (`multi::input`): a camera's files do not give one view id each.
+    #[error("camera {camera}: {message}")]
+    ViewIds {
+        /// The camera's name.
+        camera: String,
+        /// Which files, and the fix.
+        message: String,
+    },
+    /// Joint calibration (`multi`): the views two cameras share disagree on their relative pose.
+    #[error(
+        "cameras {parent} and {camera}: only {agreeing} of their {shared} shared views agree on where {camera} is relative to {parent} (within 50 mm and 3°): one shot number does not show one board pose in both; check that the images of a shot carry the same number in every camera (and are of one session)"
+    )]
+    ViewsDisagree {
+        /// The camera placed by the edge.
+        camera: String,
+        /// The camera it is placed from.
+        parent: String,
+        /// The views the two share.
+        shared: usize,
+        /// Those that agree with the most central one.
+        agreeing: usize,
+    },
     /// An error of the geometry core (rig file, atomic write).
     #[error(transparent)]
     Geometry(#[from] geometry::GeometryError),

@@ -85,7 +85,8 @@ impl SequenceOptions {
             return bad(format!("--max-skew-ms must be in (0, {MAX_SKEW_LIMIT_MS}], got {skew}"));
         }
         if self.layout == Layout::Tum && matches!(input, SequenceInput::Frames(_)) {
-            return Err(SequenceError::input(input.path(), 
+            return Err(SequenceError::input(
+                input.path(),
                 "a frame folder has no sensor timestamps, which the TUM layout is named by; \
                  export a recording (`kfuse capture record`) with --layout tum, or use --layout kfuse",
             ));
@@ -204,8 +205,7 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
             let info = src.info().clone();
             let decoder = process::recording_decoder(&info)?;
             let (count, len) = src.progress();
-            let max_skew =
-                (options.max_skew_ms * TICKS_PER_SECOND as f64 / 1e3).round() as u64;
+            let max_skew = (options.max_skew_ms * TICKS_PER_SECOND as f64 / 1e3).round() as u64;
             let progress = Progress::Bytes(count, len);
             (Input::Recording(Box::new(src), max_skew), Some(decoder), Some(info), progress)
         }
@@ -306,9 +306,8 @@ pub fn run(
                         "no colour image of this shot".to_string()
                     };
                     let name = entry.name.clone().unwrap_or_else(|| entry.number.to_string());
-                    observer.warn(format!(
-                        "frame {name}: {why}; its depth is written without colour"
-                    ));
+                    observer
+                        .warn(format!("frame {name}: {why}; its depth is written without colour"));
                 }
                 if let Some(k) = kept {
                     observer.kept(&staged, &k);

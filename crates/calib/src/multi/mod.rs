@@ -19,6 +19,8 @@
 //! ids (≈ 700 unknowns) are accepted.
 
 mod graph;
+pub mod input;
+pub mod report;
 #[cfg(test)]
 mod tests;
 
@@ -118,6 +120,51 @@ fn medoid(ts: &[RigidTransform]) -> RigidTransform {
         .expect("a tree edge has at least one shared view")
 }
 
+/// A shared view agrees with its tree edge's medoid when its relative pose is within
+/// 50 mm of it: a single view's board pose is off by a few mm plus its rotation error times
+/// the distance (0.3° at 2 m: 10 mm), so real views stay well inside, while a view whose id
+/// names another board pose in one of the cameras is off by the distance between two board
+/// poses (tens of cm).
+const EDGE_AGREE_M: f64 = 0.05;
+/// See [`EDGE_AGREE_M`]: 3°, ten times a single view's rotation error, far below the tens of
+/// degrees between two board poses.
+const EDGE_AGREE_DEG: f64 = 3.0;
+/// Edges with fewer shared views are not checked: with one or two views the medoid is one of
+/// them, and nothing tells the good view from the bad.
+const EDGE_CHECK_MIN_VIEWS: usize = 3;
+
+/// Fails when fewer than half of a tree edge's shared views agree with its medoid
+/// ([`EDGE_AGREE_M`], [`EDGE_AGREE_DEG`]): the same view id does not show the same board
+/// pose in the two cameras (files numbered differently, shots of two sessions). Without it
+/// the joint fit starts from a wrong pose and its outlier rounds run for minutes before
+/// giving a wrong rig.
+fn check_edge_agrees(
+    parent: &str,
+    camera: &str,
+    candidates: &[RigidTransform],
+    medoid: &RigidTransform,
+) -> Result<(), CalibError> {
+    if candidates.len() < EDGE_CHECK_MIN_VIEWS {
+        return Ok(());
+    }
+    let agreeing = candidates
+        .iter()
+        .filter(|c| {
+            (c.translation - medoid.translation).norm() <= EDGE_AGREE_M
+                && (c.rotation.inverse() * medoid.rotation).angle().to_degrees() <= EDGE_AGREE_DEG
+        })
+        .count();
+    if 2 * agreeing < candidates.len() {
+        return Err(CalibError::ViewsDisagree {
+            camera: camera.to_string(),
+            parent: parent.to_string(),
+            shared: candidates.len(),
+            agreeing,
+        });
+    }
+    Ok(())
+}
+
 /// Calibrates the cameras jointly. `reference` names the reference camera; `None` takes the
 /// first depth camera (or the first camera when there is none).
 pub fn calibrate_multi(
@@ -186,7 +233,9 @@ pub fn calibrate_multi(
             .iter()
             .map(|v| poses[*b][v].compose(&poses[a][v].inverse()).compose(&cam_from_ref[a]))
             .collect();
-        cam_from_ref[*b] = medoid(&candidates);
+        let m = medoid(&candidates);
+        check_edge_agrees(&names[a], &names[*b], &candidates, &m)?;
+        cam_from_ref[*b] = m;
         tree[*b] = Some((names[a].clone(), shared.len()));
     }
     // Solver order: the reference first (the bundle keeps camera 0 fixed).

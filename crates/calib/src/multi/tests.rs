@@ -286,7 +286,13 @@ fn multi_shuffled_view_ids_are_visible() {
                 worst * 1e3
             );
         }
-        Err(e) => println!("shuffled: refused: {e}"),
+        Err(e) => {
+            // The refusal must be the one that names the camera whose ids are wrong.
+            let msg = e.to_string();
+            println!("shuffled: refused: {msg}");
+            assert!(matches!(e, CalibError::ViewsDisagree { .. }), "{msg}");
+            assert!(msg.contains("k1.ir") && msg.contains("shot number"), "{msg}");
+        }
     }
 }
 

@@ -18,6 +18,7 @@ pub mod depth;
 mod detect;
 pub mod fit;
 pub mod inputs;
+pub mod joint;
 
 use std::path::PathBuf;
 
