@@ -114,7 +114,7 @@ fn check_virtual_view(ring: &KinectRing, out: &Path, spec: &str) {
         100.0 * covered,
         100.0 * right
     );
-    assert_eq!(v["pixels"].as_u64().unwrap() as usize >= diffs.len(), true);
+    assert!(v["pixels"].as_u64().unwrap() as usize >= diffs.len());
     assert!(covered >= MIN_COVERAGE, "{covered}");
     assert!(med <= MEDIAN_BOUND_MM, "{med} mm");
     assert!(right >= MIN_RIGHT_FRACTION, "{right}");

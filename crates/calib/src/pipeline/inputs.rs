@@ -173,6 +173,9 @@ pub fn expand(patterns: &[String], what: &str) -> Result<Vec<PathBuf>, CalibErro
     Ok(files)
 }
 
+/// The IR, colour and depth files of a run, in that order.
+pub type RunFiles = (Vec<PathBuf>, Vec<PathBuf>, Vec<PathBuf>);
+
 /// The files of `--ir`, `--color` and `--depth` ([`expand`], in that order of their messages:
 /// colour first, as `kfuse calibrate` has always checked them); fails first when neither IR
 /// nor colour images are given.
@@ -180,7 +183,7 @@ pub fn expand_all(
     ir: &[String],
     color: &[String],
     depth: &[String],
-) -> Result<(Vec<PathBuf>, Vec<PathBuf>, Vec<PathBuf>), CalibError> {
+) -> Result<RunFiles, CalibError> {
     if color.is_empty() && ir.is_empty() {
         return Err(input(NO_IMAGES.into()));
     }
