@@ -67,14 +67,22 @@ fn sphere_cloud() -> PointCloud {
     cloud
 }
 
-/// A fixed folder (the page shows the rig's path, so the snapshot needs it stable).
+/// A fixed folder (the page shows the rig's path, so the snapshot needs it stable), written
+/// once per test process: the tests of this file run in parallel and read it at the same time,
+/// and a second writer removing it under a reader made the cloud comparison fail at random.
 fn rig_folder() -> PathBuf {
-    let dir = std::env::temp_dir().join("kfuse-viewer-test-rig-page");
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    kfuse_io::rig::write_multi_rig(&dir.join("rig.json"), &ring_rig()).unwrap();
-    kfuse_io::ply::write_cloud_ply(&dir.join("cloud.ply"), &sphere_cloud(), "S0.depth").unwrap();
-    dir
+    static FOLDER: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    FOLDER
+        .get_or_init(|| {
+            let dir = std::env::temp_dir().join("kfuse-viewer-test-rig-page");
+            let _ = std::fs::remove_dir_all(&dir);
+            std::fs::create_dir_all(&dir).unwrap();
+            kfuse_io::rig::write_multi_rig(&dir.join("rig.json"), &ring_rig()).unwrap();
+            let cloud = dir.join("cloud.ply");
+            kfuse_io::ply::write_cloud_ply(&cloud, &sphere_cloud(), "S0.depth").unwrap();
+            dir
+        })
+        .clone()
 }
 
 #[test]
