@@ -17,7 +17,7 @@ use calib::pipeline::joint::{JointRequest, run_joint};
 use calib::pipeline::{expand, parse_board};
 use kfuse_io::atomic::StagedDir;
 
-use super::outputs::{parent_folder, resolved_output};
+use super::outputs::resolved_output;
 use super::{CalibrateArgs, STOPPED, flags};
 
 /// The options of the one- and two-camera runs that a joint calibration does not take, with
@@ -88,32 +88,7 @@ fn cameras_of(args: &CalibrateArgs) -> Result<Vec<CameraFiles>> {
 /// joint calibration wrote; `--report` not a file.
 fn check_outputs(args: &CalibrateArgs, cameras: &[CameraFiles]) -> Result<()> {
     let out = &args.out;
-    if out.is_dir() {
-        bail!("--out {} is a folder; give a file name such as rig.json", out.display());
-    }
-    let parent = parent_folder(out);
-    if !parent.is_dir() {
-        bail!(
-            "--out {}: folder {} does not exist; create it first",
-            out.display(),
-            parent.display()
-        );
-    }
-    if let Err(e) = kfuse_io::atomic::writable_target(out) {
-        bail!("--out {e}");
-    }
-    let resolved = resolved_output(out);
-    if let Some(f) = cameras
-        .iter()
-        .flat_map(|c| c.files.values())
-        .find(|f| f.canonicalize().ok().as_ref() == Some(&resolved))
-    {
-        bail!(
-            "--out {} is one of the input images ({}); give a new file name such as rig.json",
-            out.display(),
-            f.display()
-        );
-    }
+    super::outputs::check_file("--out", out, cameras.iter().flat_map(|c| c.files.values()))?;
     if !args.overwrite && out.exists() {
         let ours = std::fs::read_to_string(out)
             .ok()
@@ -130,7 +105,7 @@ fn check_outputs(args: &CalibrateArgs, cameras: &[CameraFiles]) -> Result<()> {
         if dir.exists() && !dir.is_dir() {
             bail!("--report {} exists and is not a folder", dir.display());
         }
-        if resolved_output(dir) == resolved {
+        if resolved_output(dir) == resolved_output(out) {
             bail!(
                 "--report {} is the same path as --out; give the report its own folder",
                 dir.display()
@@ -196,9 +171,9 @@ pub(super) fn run(args: &CalibrateArgs) -> Result<()> {
     };
     let printer = Arc::new(super::print::Printer::default());
     let observer = printer.clone();
-    let req = request.clone();
-    let outcome =
-        crate::interrupt::run_until_interrupted(STOPPED, move || run_joint(&req, &*observer))??;
+    let outcome = crate::interrupt::run_until_interrupted(STOPPED, move || {
+        run_joint(&request, &*observer)
+    })??;
     print_table(&outcome.calibration, &outcome.inputs);
     crate::interrupt::check(STOPPED)?;
     // The report is staged first and published after the rig: a failure leaves neither.

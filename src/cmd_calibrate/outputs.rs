@@ -37,39 +37,50 @@ pub(super) fn resolved_output(path: &Path) -> PathBuf {
 /// Checks the output paths before any work: each names a file in an existing folder (a
 /// missing file, a regular file or a link to one: no folder, device or pipe), none is one of
 /// the input images, no two outputs are the same path, and the report folder is not a file.
+/// Whether two paths name one existing file.
+fn same(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
+}
+
+/// One output file `path` of flag `flag`, before any work: not a folder, in a folder that
+/// exists, writable, and none of the `inputs` images.
+pub(super) fn check_file<'a>(
+    flag: &str,
+    path: &Path,
+    mut inputs: impl Iterator<Item = &'a PathBuf>,
+) -> Result<()> {
+    if path.is_dir() {
+        bail!("{flag} {} is a folder; give a file name such as rig.json", path.display());
+    }
+    let parent = parent_folder(path);
+    if !parent.is_dir() {
+        bail!("{flag} {}: folder {} does not exist; create it first", path.display(), parent.display());
+    }
+    if let Err(e) = kfuse_io::atomic::writable_target(path) {
+        bail!("{flag} {e}");
+    }
+    if let Some(input) = inputs.find(|i| same(i, path)) {
+        bail!(
+            "{flag} {} is one of the input images ({}); give a new file name such as rig.json",
+            path.display(),
+            input.display()
+        );
+    }
+    Ok(())
+}
+
 pub(super) fn check<'a>(
     args: &CalibrateArgs,
     inputs: impl Iterator<Item = &'a PathBuf> + Clone,
 ) -> Result<()> {
-    let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
-    };
     let mut taken: Vec<(&str, PathBuf)> = Vec::new();
     for (flag, path) in std::iter::once(("--out", &args.out))
         .chain(args.opencv_yaml.iter().map(|y| ("--opencv-yaml", y)))
     {
-        if path.is_dir() {
-            bail!("{flag} {} is a folder; give a file name such as rig.json", path.display());
-        }
-        let parent = parent_folder(path);
-        if !parent.is_dir() {
-            bail!(
-                "{flag} {}: folder {} does not exist; create it first",
-                path.display(),
-                parent.display()
-            );
-        }
-        if let Err(e) = kfuse_io::atomic::writable_target(path) {
-            bail!("{flag} {e}");
-        }
-        if let Some(input) = inputs.clone().find(|i| same(i, path)) {
-            bail!(
-                "{flag} {} is one of the input images ({}); give a new file name such as rig.json",
-                path.display(),
-                input.display()
-            );
-        }
+        check_file(flag, path, inputs.clone())?;
         let here = resolved_output(path);
         if let Some((other, _)) = taken.iter().find(|(_, p)| *p == here) {
             bail!(

@@ -156,3 +156,40 @@ pub(super) fn load_and_detect(
     let images = images.into_iter().map(Result::ok).collect();
     Ok(Detected { views, images, board, timings, image_times })
 }
+
+/// One board colouring over several cameras: a board shows the same colouring (which corner
+/// square is black) to every camera whose images decide it. Holds the first camera's, and
+/// refuses a later camera that decides the other way (images of two sessions).
+#[derive(Debug, Default)]
+pub(crate) struct Colouring(Option<(bool, String)>);
+
+fn colour_word(black: bool) -> &'static str {
+    if black { "black" } else { "white" }
+}
+
+impl Colouring {
+    /// Notes the colouring `black` that `camera`'s images decide (`None`: they do not);
+    /// [`CalibError::Input`] naming both cameras when an earlier one decided the other way.
+    pub(crate) fn agree(
+        &mut self,
+        camera: &str,
+        black: Option<bool>,
+        board: &Board,
+    ) -> Result<(), CalibError> {
+        let Some(black) = black else { return Ok(()) };
+        match &self.0 {
+            Some((first_black, first)) if *first_black != black => Err(CalibError::Input(format!(
+                "the {first} images show a {}x{} board whose top-left square is {}, the {camera} images one whose top-left square is {}: not of the same board (images of two sessions?); give the images of one session, or --top-left black|white if the board really is the same",
+                board.cols,
+                board.rows,
+                colour_word(*first_black),
+                colour_word(black)
+            ))),
+            Some(_) => Ok(()),
+            None => {
+                self.0 = Some((black, camera.to_string()));
+                Ok(())
+            }
+        }
+    }
+}

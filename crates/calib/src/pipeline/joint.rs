@@ -60,16 +60,12 @@ pub struct JointOutcome {
 /// The stage name of the joint fit in [`JointOutcome::timings`].
 pub const JOINT_FIT_STAGE: &str = "joint calibration";
 
-fn word(black: bool) -> &'static str {
-    if black { "black" } else { "white" }
-}
-
 /// Runs a joint calibration (module docs).
 pub fn run_joint(req: &JointRequest, obs: &dyn Observer) -> Result<JointOutcome, CalibError> {
     let mut board = req.board;
     let mut timings = Timings::new();
     let mut inputs = Vec::with_capacity(req.cameras.len());
-    let mut colouring: Option<(bool, String)> = None;
+    let mut colouring = super::detect::Colouring::default();
     for (i, cam) in req.cameras.iter().enumerate() {
         let asked =
             Board { top_left_black: board.top_left_black.filter(|_| req.top_left_given), ..board };
@@ -85,19 +81,8 @@ pub fn run_joint(req: &JointRequest, obs: &dyn Observer) -> Result<JointOutcome,
         timings.extend("", &d.timings);
         (board.cols, board.rows) = (d.board.cols, d.board.rows);
         // One board shows one colouring to every camera that decides it.
-        if let Some(black) = d.board.top_left_black {
-            match &colouring {
-                Some((b, first)) if *b != black && !req.top_left_given => {
-                    return Err(CalibError::Input(format!(
-                        "camera {first} sees a board whose top-left square is {}, camera {} one whose top-left square is {}: not the same board (images of two sessions?); give the images of one session, or --top-left black|white if the board really is the same",
-                        word(*b),
-                        cam.name,
-                        word(black)
-                    )));
-                }
-                Some(_) => {}
-                None => colouring = Some((black, cam.name.clone())),
-            }
+        if !req.top_left_given {
+            colouring.agree(&cam.name, d.board.top_left_black, &board)?;
         }
         let views: BTreeMap<u64, _> = cam.files.keys().copied().zip(d.views).collect();
         let Some(size) = views.values().find(|v| v.width > 0) else {

@@ -378,18 +378,10 @@ impl Prepared {
         let board = if req.color.is_empty() {
             board
         } else {
-            if let (Some(ir_black), Some(color_black)) = (ir_colouring, color_board.top_left_black)
-                && ir_black != color_black
-                && !ir.views.is_empty()
-            {
-                let name = |black: bool| if black { "black" } else { "white" };
-                return Err(CalibError::Input(format!(
-                    "the IR images show a {}x{} board whose top-left square is {}, the colour images one whose top-left square is {}: the two sets are not of the same board (images of two sessions?); give the IR and colour images of one session, or --top-left black|white if the board really is the same",
-                    board.cols,
-                    board.rows,
-                    name(ir_black),
-                    name(color_black)
-                )));
+            if !ir.views.is_empty() {
+                let mut colouring = detect::Colouring::default();
+                colouring.agree("IR", ir_colouring, &board)?;
+                colouring.agree("colour", color_board.top_left_black, &board)?;
             }
             if ir_colouring.is_some() { board } else { color_board }
         };
