@@ -311,20 +311,9 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let (output, used) =
         fusion_gpu::fuse(engine, &inputs.rig, &inputs.depth, inputs.kind, &inputs.color, &options)
             .with_context(|| format!("fusing {}{on}", input_names(args)))?;
-    match used {
-        EngineUsed::Cpu => {}
+    if let Some(note) = engine_note(&used) {
         // Printed beside the progress bar (which is hidden when stderr is not a terminal).
-        EngineUsed::Gpu { adapter, software } => bar.suspend(|| {
-            let note = if software {
-                " (software Vulkan: exact, but slower than the CPU path)"
-            } else {
-                ""
-            };
-            eprintln!("GPU adapter: {adapter}{note}");
-        }),
-        EngineUsed::CpuFallback { reason } => {
-            bar.suspend(|| eprintln!("warning: {reason}; fusing on the CPU"))
-        }
+        bar.suspend(|| eprintln!("{note}"));
     }
     bar.inc(1);
     crate::interrupt::check(STOPPED)?;
@@ -359,6 +348,20 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
         }
     }
     Ok(FuseResult { out, summary: output.summary, figures: !args.no_figures })
+}
+
+/// The line `--engine` prints on stderr about where the stages ran: the GPU adapter, or the
+/// warning of a fallback to the CPU; nothing on the CPU as asked.
+pub fn engine_note(used: &EngineUsed) -> Option<String> {
+    match used {
+        EngineUsed::Cpu => None,
+        EngineUsed::Gpu { adapter, software } => {
+            let note =
+                if *software { " (software Vulkan: exact, but slower than the CPU path)" } else { "" };
+            Some(format!("GPU adapter: {adapter}{note}"))
+        }
+        EngineUsed::CpuFallback { reason } => Some(format!("warning: {reason}; fusing on the CPU")),
+    }
 }
 
 fn rig_name(args: &FuseArgs) -> String {

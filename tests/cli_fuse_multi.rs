@@ -192,6 +192,8 @@ fn fuse_three_kinects_into_one_cloud_against_the_truth() {
     assert_eq!(back.names(), ring.rig.names());
     let zbuffer = kfuse_io::images::read_depth(&out.join("depth_zbuffer.png"), 0.001).unwrap();
     assert_eq!(zbuffer.size(), (1920, 1080));
+    assert_eq!(summary["engine"], "cpu");
+    same_on_the_gpu(&args, &out);
 
     // Bad inputs: one line, non-zero exit, nothing written.
     let bad_out = dir.join("bad");
@@ -228,6 +230,39 @@ fn fuse_three_kinects_into_one_cloud_against_the_truth() {
         "{e}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The run of `args` (which wrote `cpu_out`) again with `--engine gpu`: every file but
+/// summary.json (its timings and engine) byte for byte the CPU's, the adapter named on
+/// stderr; without an adapter (outside CI) one line naming that and a SKIP.
+fn same_on_the_gpu(args: &[&str], cpu_out: &Path) {
+    let test = "fuse_three_kinects_into_one_cloud_against_the_truth (GPU)";
+    let gpu_out = cpu_out.with_file_name("fused-gpu");
+    let mut gpu_args: Vec<&str> = args.iter().take(args.len() - 2).copied().collect();
+    gpu_args.extend(["--engine", "gpu", "--out", gpu_out.to_str().unwrap()]);
+    let run = kfuse(&gpu_args);
+    let err = String::from_utf8_lossy(&run.stderr).into_owned();
+    if !run.status.success() {
+        assert!(err.contains("no GPU adapter") && !gpu_out.exists(), "{err}");
+        assert!(std::env::var("KFUSE_REQUIRE_GPU").map_or(true, |v| v != "1"), "{test}: {err}");
+        test_skip::skip(test, "no GPU adapter");
+        return;
+    }
+    assert!(err.contains("GPU adapter: "), "{err}");
+    let mut names: Vec<_> = std::fs::read_dir(cpu_out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n != "summary.json")
+        .collect();
+    names.sort();
+    assert!(names.len() >= 8, "{names:?}");
+    for name in &names {
+        let (a, b) = (std::fs::read(cpu_out.join(name)), std::fs::read(gpu_out.join(name)));
+        assert!(a.unwrap() == b.expect("the GPU run's file"), "{name} differs on the GPU");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(gpu_out.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["engine"].as_str().unwrap().starts_with("gpu: "), "{}", summary["engine"]);
 }
 
 /// Distance of a point (world frame of the simulated ring, `kinect_usb::sim::ring`) to the

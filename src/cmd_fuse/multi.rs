@@ -1,13 +1,16 @@
 //! `kfuse fuse --rig RIG.json --sensor SERIAL=COLOR,DEPTH ...` or `--frames DIR` (a capture of
 //! several sensors, `DIR/index.json`): several Kinects of a rig of N cameras fused into one
-//! coloured cloud in the rig's reference frame ([`geometry::fusion::multi::fuse_multi`]),
-//! z-buffered into one camera of the rig and optionally into a virtual camera, meshed per
-//! sensor with H5's edge rule, with the rig's overlap consistency per pair of sensors.
+//! coloured cloud in the rig's reference frame, z-buffered into one camera of the rig
+//! ([`fusion_gpu::fuse_multi`]: the per-pixel stages and the z-buffer across the sensors on
+//! `--engine`) and optionally into a virtual camera, meshed per sensor with H5's edge rule,
+//! with the rig's overlap consistency per pair of sensors.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use geometry::fusion::multi::{SensorImages, fuse_multi, look_at};
+use fusion_gpu::{Engine, EngineUsed};
+use geometry::fusion::multi::{MultiFusion, SensorImages, look_at};
+use geometry::fusion::FusionOptions;
 use geometry::{DepthKind, MultiRig, RigidTransform};
 use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
 use kfuse_io::{image_header, images, obj, ply};
@@ -292,6 +295,7 @@ struct Summary<'a> {
     virtual_view: Option<VirtualSummary>,
     consistency: &'a [geometry::fusion::multi::PairConsistency],
     consistency_gate_mm: f64,
+    engine: String,
     timings_ms: serde_json::Value,
     frames: &'static str,
 }
@@ -337,10 +341,9 @@ fn check_size(
     Ok(())
 }
 
-/// Runs the fusion of several sensors; returns the output folder.
-pub fn run(args: &FuseArgs) -> Result<PathBuf> {
-    let started = std::time::Instant::now();
-    let options = options(args)?;
+/// The flags of a fusion of several sensors agree; returns `--frames` when it is a capture
+/// folder of several sensors.
+fn check_flags(args: &FuseArgs) -> Result<Option<&Path>> {
     let frames_dir = args.sequence.frames.as_deref().filter(|d| is_multi_capture(d));
     if args.sensor.is_empty() && frames_dir.is_none() {
         match &args.sequence.frames {
@@ -368,26 +371,22 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
             "--shot chooses a shot of --frames DIR (a capture of several sensors): drop it with --sensor"
         );
     }
-    let Some(rig_path) = &args.rig else {
-        bail!(
-            "several Kinects need --rig RIG.json (a rig of several cameras; a simulated capture writes true_rig.json beside its frames)"
-        )
-    };
     if args.color.is_some() || args.depth.is_some() || args.mat.is_some() {
         bail!("--sensor/--frames give every sensor's images: drop --color/--depth/--mat");
     }
-    let mut rig = read_rig(rig_path, args.force)?;
-    rig.rectified |= args.rectified;
-    let (sensor_args, shot) = match frames_dir {
-        Some(dir) => {
-            let (a, c) = frames_inputs(dir, args.shot.as_deref())?;
-            (a, Some(c))
-        }
-        None => (args.sensor.clone(), None),
-    };
+    Ok(frames_dir)
+}
+
+/// Every sensor of `rig` has exactly one pair of images in `sensor_args`, and every pair
+/// belongs to a sensor of the rig.
+fn check_sensors(
+    rig: &MultiRig,
+    rig_path: &Path,
+    sensor_args: &[SensorArg],
+    shot: Option<&ShotChoice>,
+) -> Result<()> {
     let given = if shot.is_some() { "the capture" } else { "--sensor" };
     let sensors = rig.sensors();
-    let names = || sensors.join(", ");
     if sensors.is_empty() {
         bail!(
             "{}: no camera belongs to a sensor (\"sensor\": SERIAL): nothing to fuse",
@@ -404,7 +403,7 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
                 s.serial,
                 s.serial,
                 rig_path.display(),
-                names()
+                sensors.join(", ")
             );
         }
         if sensor_args[..i].iter().any(|o| o.serial == s.serial) {
@@ -412,7 +411,7 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
         }
     }
     if let Some(missing) = sensors.iter().find(|s| !sensor_args.iter().any(|a| a.serial == **s)) {
-        match &shot {
+        match shot {
             Some(c) => bail!(
                 "sensor {missing} of {} has no frames in shot {} of {} (lost or not captured): fuse with a rig without it",
                 rig_path.display(),
@@ -425,10 +424,15 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
             ),
         }
     }
-    let view_name = match &args.view {
+    Ok(())
+}
+
+/// The camera the merged cloud is z-buffered into: `--view`, or the reference sensor's colour
+/// camera.
+fn view_name(args: &FuseArgs, rig: &MultiRig, rig_path: &Path) -> Result<String> {
+    let name = match &args.view {
         Some(v) => v.clone(),
         None => {
-            // The reference sensor's colour camera.
             let sensor = rig.camera(&rig.reference).and_then(|c| c.sensor.clone());
             let color = rig.cameras.iter().find(|c| {
                 c.role == geometry::CameraRole::Color && c.sensor.is_some() && c.sensor == sensor
@@ -443,33 +447,25 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
             }
         }
     };
-    let Some(view) = rig.camera(&view_name) else {
+    if rig.camera(&name).is_none() {
         bail!(
-            "--view {view_name}: no such camera in {} (its cameras: {})",
+            "--view {name}: no such camera in {} (its cameras: {})",
             rig_path.display(),
             rig.names().join(", ")
         );
-    };
-    let virtual_pose = match &args.virtual_view {
-        Some(spec) => Some((spec.clone(), parse_virtual_view(spec).map_err(anyhow::Error::msg)?)),
-        None => None,
-    };
-    let kind = match args.depth_kind {
-        DepthKindArg::Z => DepthKind::Z,
-        DepthKindArg::Range => DepthKind::Range,
-    };
-    let mut outputs: Vec<String> = OUTPUTS.map(String::from).to_vec();
-    for s in &sensors {
-        outputs.extend(mesh_names(s));
     }
-    if virtual_pose.is_some() {
-        outputs.extend(VIRTUAL_OUTPUTS.map(String::from));
-    }
-    let staged = StagedDir::new(&args.out)?;
-    staged.refuse_foreign(&outputs)?;
+    Ok(name)
+}
 
+/// Every sensor's colour and depth image, each checked against its camera's size in `rig`
+/// (from the file's header before decoding, then the decoded image).
+fn read_inputs(
+    rig: &MultiRig,
+    sensor_args: &[SensorArg],
+    depth_scale: f64,
+) -> Result<Vec<SensorImages>> {
     let mut inputs = Vec::new();
-    for s in &sensor_args {
+    for s in sensor_args {
         let (pair, _) = rig.sensor_rig(&s.serial)?;
         let (dname, cname) = (format!("{}.depth", s.serial), format!("{}.color", s.serial));
         let want_c = (pair.color.width, pair.color.height);
@@ -477,22 +473,32 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
         check_size("colour image", &s.color, image_header::image_size(&s.color)?, want_c, &cname)?;
         check_size("depth image", &s.depth, image_header::image_size(&s.depth)?, want_d, &dname)?;
         let color = images::read_color(&s.color)?;
-        let depth = images::read_depth(&s.depth, args.depth_scale)?;
+        let depth = images::read_depth(&s.depth, depth_scale)?;
         check_size("colour image", &s.color, color.size(), want_c, &cname)?;
         check_size("depth image", &s.depth, depth.size(), want_d, &dname)?;
         inputs.push(SensorImages { sensor: s.serial.clone(), depth, color });
     }
-    let fused = fuse_multi(&rig, &inputs, kind, &options)
-        .with_context(|| format!("fusing the sensors of {}", rig_path.display()))?;
-    let zbuffer = fused.zbuffer_into(view);
+    Ok(inputs)
+}
 
-    kfuse_io::rig::write_multi_rig(&staged.join("rig.json"), &rig)?;
-    ply::write_cloud_ply(&staged.join("cloud.ply"), &fused.cloud, "rig reference camera")?;
-    images::write_depth_png16(&staged.join("depth_zbuffer.png"), &zbuffer)?;
-    let t_mesh = std::time::Instant::now();
+/// One sensor's mesh as written: its OBJ's name and the faces before and after H5's rule.
+struct MeshWritten {
+    obj: String,
+    faces_before_h5: usize,
+    faces: usize,
+    vertices: usize,
+}
+
+/// Every sensor's mesh (H5's edge rule) as `mesh_SERIAL.ply` and a textured `mesh_SERIAL.obj`.
+fn write_meshes(
+    staged: &StagedDir,
+    fused: &MultiFusion,
+    inputs: &[SensorImages],
+    options: &FusionOptions,
+) -> Result<Vec<MeshWritten>> {
     let mut meshes = Vec::new();
     for (k, c) in fused.sensors.iter().enumerate() {
-        let (mesh, before) = fused.sensor_mesh(k, &options).context("a sensor of the fusion")?;
+        let (mesh, before) = fused.sensor_mesh(k, options).context("a sensor of the fusion")?;
         let [ply_name, obj_name, _, texture] = mesh_names(&c.sensor);
         ply::write_mesh_ply(
             &staged.join(&ply_name),
@@ -502,56 +508,166 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
         )?;
         let color = &inputs.iter().find(|i| i.sensor == c.sensor).context("a fused sensor")?.color;
         obj::write_textured_obj(&staged.join(&obj_name), &mesh, Some(color))?;
-        meshes.push((obj_name, before, mesh.faces.len(), mesh.vertices.len()));
+        meshes.push(MeshWritten {
+            obj: obj_name,
+            faces_before_h5: before,
+            faces: mesh.faces.len(),
+            vertices: mesh.vertices.len(),
+        });
     }
-    let mesh_ms = t_mesh.elapsed().as_secs_f64() * 1e3;
-    let virtual_view = match &virtual_pose {
-        Some((spec, pose)) => {
-            let reference = rig.camera(&rig.reference).context("the rig's reference camera")?;
-            let (depth, color) = fused.render_merged(&reference.model, pose);
-            images::write_depth_png16(&staged.join(VIRTUAL_OUTPUTS[0]), &depth)?;
-            images::write_color_png(&staged.join(VIRTUAL_OUTPUTS[1]), &color)?;
-            let m = pose.matrix();
-            Some(VirtualSummary {
-                spec: spec.clone(),
-                camera_model_of: rig.reference.clone(),
-                camera_from_reference: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
-                pixels: depth.data().iter().filter(|z| z.is_finite()).count(),
-            })
-        }
+    Ok(meshes)
+}
+
+/// `--virtual-view`: the merged cloud rendered into a camera of the reference camera's model at
+/// `pose`, written as [`VIRTUAL_OUTPUTS`].
+fn write_virtual(
+    staged: &StagedDir,
+    rig: &MultiRig,
+    fused: &MultiFusion,
+    spec: &str,
+    pose: &RigidTransform,
+) -> Result<VirtualSummary> {
+    let reference = rig.camera(&rig.reference).context("the rig's reference camera")?;
+    let (depth, color) = fused.render_merged(&reference.model, pose);
+    images::write_depth_png16(&staged.join(VIRTUAL_OUTPUTS[0]), &depth)?;
+    images::write_color_png(&staged.join(VIRTUAL_OUTPUTS[1]), &color)?;
+    let m = pose.matrix();
+    Ok(VirtualSummary {
+        spec: spec.to_string(),
+        camera_model_of: rig.reference.clone(),
+        camera_from_reference: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
+        pixels: depth.data().iter().filter(|z| z.is_finite()).count(),
+    })
+}
+
+/// Each sensor's line of summary.json.
+fn sensor_summaries(
+    fused: &MultiFusion,
+    sensor_args: &[SensorArg],
+    meshes: &[MeshWritten],
+) -> Vec<SensorSummary> {
+    let per_sensor = fused.points_per_sensor();
+    fused
+        .sensors
+        .iter()
+        .zip(&per_sensor)
+        .zip(meshes)
+        .map(|((c, &n), m)| {
+            let a = sensor_args.iter().find(|a| a.serial == c.sensor).expect("checked above");
+            SensorSummary {
+                sensor: c.sensor.clone(),
+                color: a.color.display().to_string(),
+                depth: a.depth.display().to_string(),
+                samples: c.points.len(),
+                points_in_cloud: n,
+                mesh: m.obj.clone(),
+                mesh_faces_before_h5: m.faces_before_h5,
+                mesh_faces: m.faces,
+                mesh_vertices: m.vertices,
+            }
+        })
+        .collect()
+}
+
+/// What a run prints: the points, the shot, each mesh and each pair's consistency.
+fn print_result(out: &Path, fused: &MultiFusion, shot: Option<&ShotChoice>, meshes: &[MeshWritten]) {
+    println!(
+        "fused {} sensors: {} points into {}",
+        fused.sensors.len(),
+        fused.cloud.points.len(),
+        out.display()
+    );
+    if let Some(c) = shot {
+        println!("  shot {} ({}) of {}", c.index, c.shot, c.folder);
+    }
+    for (c, m) in fused.sensors.iter().zip(meshes) {
+        println!(
+            "  mesh {}: {} -> {} faces after H5 ({})",
+            c.sensor, m.faces_before_h5, m.faces, m.obj
+        );
+    }
+    for c in &fused.consistency {
+        println!(
+            "consistency {}-{}: {:.2} mm over {} tiles ({} pixels; per pixel {:.2} mm)",
+            c.a, c.b, c.tile_median_mm, c.tiles, c.pixels, c.median_abs_mm
+        );
+    }
+}
+
+/// How summary.json names the engine that ran.
+fn engine_name(used: &EngineUsed) -> String {
+    match used {
+        EngineUsed::Cpu => "cpu".to_string(),
+        EngineUsed::Gpu { adapter, .. } => format!("gpu: {adapter}"),
+        EngineUsed::CpuFallback { .. } => "cpu (no GPU adapter)".to_string(),
+    }
+}
+
+/// Runs the fusion of several sensors; returns the output folder.
+pub fn run(args: &FuseArgs) -> Result<PathBuf> {
+    let started = std::time::Instant::now();
+    let options = options(args)?;
+    let frames_dir = check_flags(args)?;
+    let Some(rig_path) = &args.rig else {
+        bail!(
+            "several Kinects need --rig RIG.json (a rig of several cameras; a simulated capture writes true_rig.json beside its frames)"
+        )
+    };
+    let mut rig = read_rig(rig_path, args.force)?;
+    rig.rectified |= args.rectified;
+    let (sensor_args, shot) = match frames_dir {
+        Some(dir) => frames_inputs(dir, args.shot.as_deref()).map(|(a, c)| (a, Some(c)))?,
+        None => (args.sensor.clone(), None),
+    };
+    check_sensors(&rig, rig_path, &sensor_args, shot.as_ref())?;
+    let view_name = view_name(args, &rig, rig_path)?;
+    let view = rig.camera(&view_name).context("the --view camera")?;
+    let virtual_pose = match &args.virtual_view {
+        Some(spec) => Some((spec.clone(), parse_virtual_view(spec).map_err(anyhow::Error::msg)?)),
         None => None,
     };
-    let per_sensor = fused.points_per_sensor();
+    let kind = match args.depth_kind {
+        DepthKindArg::Z => DepthKind::Z,
+        DepthKindArg::Range => DepthKind::Range,
+    };
+    let mut outputs: Vec<String> = OUTPUTS.map(String::from).to_vec();
+    outputs.extend(rig.sensors().into_iter().flat_map(mesh_names));
+    if virtual_pose.is_some() {
+        outputs.extend(VIRTUAL_OUTPUTS.map(String::from));
+    }
+    let staged = StagedDir::new(&args.out)?;
+    staged.refuse_foreign(&outputs)?;
+
+    let inputs = read_inputs(&rig, &sensor_args, args.depth_scale)?;
+    let engine = args.engine();
+    let on = if engine == Engine::Cpu { "" } else { " on the GPU" };
+    let (fused, zbuffer, used) = fusion_gpu::fuse_multi(engine, &rig, &inputs, kind, &options, view)
+        .with_context(|| format!("fusing the sensors of {}{on}", rig_path.display()))?;
+    if let Some(note) = super::engine_note(&used) {
+        eprintln!("{note}");
+    }
+    kfuse_io::rig::write_multi_rig(&staged.join("rig.json"), &rig)?;
+    ply::write_cloud_ply(&staged.join("cloud.ply"), &fused.cloud, "rig reference camera")?;
+    images::write_depth_png16(&staged.join("depth_zbuffer.png"), &zbuffer)?;
+    let t_mesh = std::time::Instant::now();
+    let meshes = write_meshes(&staged, &fused, &inputs, &options)?;
+    let mesh_ms = t_mesh.elapsed().as_secs_f64() * 1e3;
+    let virtual_view = match &virtual_pose {
+        Some((spec, pose)) => Some(write_virtual(&staged, &rig, &fused, spec, pose)?),
+        None => None,
+    };
     let summary = Summary {
         rig: rig_path.display().to_string(),
         reference: &rig.reference,
         view: &view_name,
-        sensors: fused
-            .sensors
-            .iter()
-            .zip(&per_sensor)
-            .zip(&meshes)
-            .map(|((c, &n), m)| {
-                let a = sensor_args.iter().find(|a| a.serial == c.sensor).expect("checked above");
-                SensorSummary {
-                    sensor: c.sensor.clone(),
-                    color: a.color.display().to_string(),
-                    depth: a.depth.display().to_string(),
-                    samples: c.points.len(),
-                    points_in_cloud: n,
-                    mesh: m.0.clone(),
-                    mesh_faces_before_h5: m.1,
-                    mesh_faces: m.2,
-                    mesh_vertices: m.3,
-                }
-            })
-            .collect(),
+        sensors: sensor_summaries(&fused, &sensor_args, &meshes),
         points: fused.cloud.points.len(),
         view_pixels: zbuffer.data().iter().filter(|z| z.is_finite()).count(),
         shot: shot.clone(),
         virtual_view,
         consistency: &fused.consistency,
         consistency_gate_mm: geometry::fusion::multi::OVERLAP_GATE_M as f64 * 1e3,
+        engine: engine_name(&used),
         timings_ms: serde_json::json!({
             "sensors": fused.timings.sensors_ms,
             "merge": fused.timings.merge_ms,
@@ -564,23 +680,6 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     let json = serde_json::to_string_pretty(&summary).context("serialising summary.json")?;
     write_bytes_atomic(&staged.join("summary.json"), json.as_bytes())?;
     let out = staged.commit()?;
-    println!(
-        "fused {} sensors: {} points into {}",
-        fused.sensors.len(),
-        fused.cloud.points.len(),
-        out.display()
-    );
-    if let Some(c) = &shot {
-        println!("  shot {} ({}) of {}", c.index, c.shot, c.folder);
-    }
-    for (c, m) in fused.sensors.iter().zip(&meshes) {
-        println!("  mesh {}: {} -> {} faces after H5 ({})", c.sensor, m.1, m.2, m.0);
-    }
-    for c in &fused.consistency {
-        println!(
-            "consistency {}-{}: {:.2} mm over {} tiles ({} pixels; per pixel {:.2} mm)",
-            c.a, c.b, c.tile_median_mm, c.tiles, c.pixels, c.median_abs_mm
-        );
-    }
+    print_result(&out, &fused, shot.as_ref(), &meshes);
     Ok(out)
 }

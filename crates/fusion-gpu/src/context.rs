@@ -7,7 +7,7 @@
 use std::collections::VecDeque;
 use std::sync::mpsc;
 
-use geometry::fusion::ColorProjection;
+use geometry::fusion::{ColorProjection, DepthView, ZBUFFER_EMPTY};
 use geometry::{CameraModel, DepthKind, Image, Rig};
 
 use crate::error::GpuError;
@@ -251,7 +251,7 @@ impl FusionContext {
                 }
             }
             self.ensure_slot(slot, depth_size, color_size)?;
-            let p = self.submit(slot, k, depth, color, &proj, &plan)?;
+            let p = self.submit(slot, k, depth, color, &proj, &plan, false)?;
             pending.push_back(p);
             count += 1;
         }
@@ -303,7 +303,8 @@ impl FusionContext {
 
     /// One frame on slot `slot` (ensured and bound): inputs uploaded, the stages that run on
     /// it encoded in [`FRAME`] order into one compute pass, the asked-for outputs copied to
-    /// the read-back buffers.
+    /// the read-back buffers. With `accumulate_zbuffer` H7 adds to the slot's z-buffer.
+    #[allow(clippy::too_many_arguments)]
     fn submit(
         &self,
         slot: usize,
@@ -312,6 +313,7 @@ impl FusionContext {
         color: Option<&Image<[u8; 3]>>,
         proj: &ColorProjection,
         plan: &FramePlan,
+        accumulate_zbuffer: bool,
     ) -> Result<Pending, GpuError> {
         let gpu = &self.gpu;
         let tables = self.tables.get().ok_or_else(|| {
@@ -329,6 +331,7 @@ impl FusionContext {
             stages: plan.stages,
             color: upload_color,
             tables,
+            accumulate_zbuffer,
         };
         // A raw frame is decoded in this command buffer, the depth in metres written straight
         // into the slot's depth buffer.
@@ -404,6 +407,42 @@ impl FusionContext {
             color_on_depth = Some((Image::from_vec(dw, dh, rgb)?, Image::from_vec(dw, dh, valid)?));
         }
         Ok((p.frame, GpuFrame { zbuffer, points, samples, nearest, holes, color_on_depth }))
+    }
+
+    /// H1 + H2 + H7 of several depth images into one `camera`, one atomic-min z-buffer on
+    /// the GPU across all of them (cleared before the first view only): per pixel the
+    /// smallest `z` of any view's samples. Bit-identical to
+    /// [`geometry::fusion::CpuPixels`]' [`PerPixel::zbuffer_views`](geometry::fusion::PerPixel)
+    /// (a minimum does not depend on the order of its samples). Views may have different
+    /// depth cameras; each is its own submission on frame slot 0 (their lookup tables
+    /// differ), read back once after the last.
+    pub fn zbuffer_views(
+        &mut self,
+        camera: &CameraModel,
+        views: &[DepthView<'_>],
+        kind: DepthKind,
+    ) -> Result<Image<f32>, GpuError> {
+        camera.validate()?;
+        if views.is_empty() {
+            return Ok(Image::filled(camera.width, camera.height, ZBUFFER_EMPTY));
+        }
+        let color_size = (camera.width, camera.height);
+        let plan = FramePlan::default();
+        let mut last = None;
+        for (k, v) in views.iter().enumerate() {
+            let rig = Rig::new(*v.depth_camera, *camera, v.camera_from_depth);
+            rig.validate()?;
+            let depth_size = (rig.depth.width, rig.depth.height);
+            v.depth.expect_size("depth image", depth_size.0, depth_size.1)?;
+            self.check_frame_size(depth_size, color_size)?;
+            self.tables.ensure(&self.gpu, &rig, kind, None);
+            self.ensure_slot(0, depth_size, color_size)?;
+            let proj = ColorProjection::from_rig(&rig);
+            let p = self.submit(0, k, DepthInput::Metres(v.depth), None, &proj, &plan, k > 0)?;
+            // One read-back buffer per slot: each submission is read before the next maps it.
+            last = Some(self.finish(p)?.1.zbuffer);
+        }
+        last.ok_or_else(|| self.gpu.device_error("reading back the frame", "no result".into()))
     }
 
     /// H8 fill on the GPU: `nearest` (H3, colour-sized) with every `holes` pixel replaced by the

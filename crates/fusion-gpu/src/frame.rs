@@ -213,6 +213,9 @@ pub(crate) struct Work<'a> {
     pub(crate) color: bool,
     /// The lookup tables (their lengths are in the uniforms).
     pub(crate) tables: TableRefs<'a>,
+    /// H7 keeps the z-buffer of the previous submission (no clear): the z-buffer across the
+    /// sensors of a rig ([`crate::FusionContext::zbuffer_views`]).
+    pub(crate) accumulate_zbuffer: bool,
 }
 
 impl Work<'_> {

@@ -1,14 +1,15 @@
 //! [`FusionContext::run`]: the whole H1–H8 pipeline ([`geometry::fusion::run_on`]) with the
-//! per-pixel stages on the GPU ([`PerPixel`] for [`FusionContext`]), and [`fuse`], the
-//! [`Engine`] selector in one call.
+//! per-pixel stages on the GPU ([`PerPixel`] for [`FusionContext`]), and [`fuse`] and
+//! [`fuse_multi`] (several Kinects), the [`Engine`] selector in one call.
 
 use std::time::Instant;
 
 use geometry::fusion::{
-    ColorSample, FusionOptions, FusionOutput, PerPixel, PerPixelOutput, PixelParams, PlaneFit,
-    StageTimings, run_on, zbuffer_index,
+    ColorSample, DepthView, FusionOptions, FusionOutput, PerPixel, PerPixelOutput, PixelParams,
+    PlaneFit, StageTimings, run_on, zbuffer_index,
 };
-use geometry::{CameraModel, DepthKind, Image, Rig};
+use geometry::fusion::multi::{MultiFusion, SensorImages, fuse_multi_on};
+use geometry::{CameraModel, DepthKind, Image, MultiRig, Rig, RigCamera};
 
 use crate::{Engine, FramePlan, FusionContext, GpuError, StageOptions};
 
@@ -92,6 +93,16 @@ impl PerPixel for FusionContext {
         let normal = plane.normal.map(|c| c as f32);
         self.fill_holes_with_plane(camera, depth, mask, normal, plane.offset as f32)
     }
+
+    /// [`FusionContext::zbuffer_views`]: one atomic-min z-buffer across the views.
+    fn zbuffer_views(
+        &mut self,
+        camera: &CameraModel,
+        views: &[DepthView<'_>],
+        kind: DepthKind,
+    ) -> Result<Image<f32>, GpuError> {
+        FusionContext::zbuffer_views(self, camera, views, kind)
+    }
 }
 
 impl FusionContext {
@@ -165,6 +176,43 @@ pub fn fuse(
         Err(e @ GpuError::NoAdapter { .. }) if engine.falls_back_to_cpu() => {
             let out = geometry::fusion::run(rig, depth, kind, color, options)?;
             Ok((out, EngineUsed::CpuFallback { reason: e.to_string() }))
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// [`fuse`] for several Kinects: [`geometry::fusion::multi::fuse_multi_on`] and the z-buffer
+/// of every sensor into `view` (a camera of `rig`, [`MultiFusion::zbuffer_into_on`]) on the
+/// engine `engine` selects, a new [`FusionContext`] for the GPU, the CPU under
+/// [`Engine::Auto`] without an adapter. The same fusion and z-buffer on every engine.
+pub fn fuse_multi(
+    engine: Engine,
+    rig: &MultiRig,
+    inputs: &[SensorImages],
+    kind: DepthKind,
+    options: &FusionOptions,
+    view: &RigCamera,
+) -> Result<(MultiFusion, Image<f32>, EngineUsed), GpuError> {
+    let on_cpu = |used: EngineUsed| -> Result<_, GpuError> {
+        let fused = geometry::fusion::multi::fuse_multi(rig, inputs, kind, options)?;
+        let zbuffer = fused.zbuffer_into(view);
+        Ok((fused, zbuffer, used))
+    };
+    if !engine.wants_gpu() {
+        return on_cpu(EngineUsed::Cpu);
+    }
+    match FusionContext::new() {
+        Ok(mut ctx) => {
+            let used = EngineUsed::Gpu {
+                adapter: ctx.adapter_name().to_string(),
+                software: ctx.is_software(),
+            };
+            let fused = fuse_multi_on(&mut ctx, rig, inputs, kind, options)?;
+            let zbuffer = fused.zbuffer_into_on(&mut ctx, view)?;
+            Ok((fused, zbuffer, used))
+        }
+        Err(e @ GpuError::NoAdapter { .. }) if engine.falls_back_to_cpu() => {
+            on_cpu(EngineUsed::CpuFallback { reason: e.to_string() })
         }
         Err(e) => Err(e),
     }

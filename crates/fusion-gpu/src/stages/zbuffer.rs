@@ -1,5 +1,7 @@
 //! H7 (`zbuffer.wgsl`): `clear` fills the z-buffer with the empty value, `scatter` keeps the
-//! smallest `z` per colour pixel (`atomicMin` on the f32 bits).
+//! smallest `z` per colour pixel (`atomicMin` on the f32 bits). Without the clear
+//! ([`crate::frame::Work::accumulate_zbuffer`]) the scatter adds a frame's samples to the
+//! z-buffer of the one before: the z-buffer across the sensors of a rig.
 
 use super::{PerSlot, Shader, SizeParams, Stage, dispatch, write_uniform};
 use crate::frame::{FrameBuffers, TableRefs, Work};
@@ -68,7 +70,9 @@ impl Stage for ZBuffer {
         write_uniform(gpu, &self.clear_params, &Params { size: [cw, ch, m, c.stride] });
         write_uniform(gpu, &self.scatter_params, &Params { size: [cw, ch, n, d.stride] });
         let [clear, scatter] = self.groups.get(slot);
-        dispatch(pass, &self.clear, clear, c);
+        if !work.accumulate_zbuffer {
+            dispatch(pass, &self.clear, clear, c);
+        }
         dispatch(pass, &self.scatter, scatter, d);
     }
 }

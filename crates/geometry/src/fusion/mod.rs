@@ -65,12 +65,13 @@ pub use mesh::{
     remove_stretched_faces,
 };
 pub use pipeline::{
-    CpuPixels, PerPixel, PerPixelOutput, PixelParams, cloud_colors, run, run_on, stretch_test,
+    CpuPixels, DepthView, PerPixel, PerPixelOutput, PixelFrame, PixelParams, cloud_colors, run,
+    run_on, stretch_test,
 };
 pub use pixel::{
     ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32,
     project_color_point, project_point, register_pixel, transform_point, zbuffer_index,
-    zbuffer_min, zbuffer_pixel,
+    zbuffer_min, zbuffer_pixel, zbuffer_points,
 };
 pub use register::{ColorSample, backproject_cloud, first_write_wins, project_cloud};
 pub use resample::{LinearStats, disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel};
@@ -230,6 +231,19 @@ pub struct StageTimings {
 }
 
 impl StageTimings {
+    /// Adds `other`'s time of every stage to this one's.
+    pub fn add(&mut self, other: &StageTimings) {
+        self.h1_ms += other.h1_ms;
+        self.h2_ms += other.h2_ms;
+        self.h7_ms += other.h7_ms;
+        self.h3_nearest_ms += other.h3_nearest_ms;
+        self.h3_linear_ms += other.h3_linear_ms;
+        self.h8_ms += other.h8_ms;
+        self.h6_ms += other.h6_ms;
+        self.h4_ms += other.h4_ms;
+        self.h5_ms += other.h5_ms;
+    }
+
     /// The stages as a [`crate::timing::Timings`] (for the `--timings` summary), in pipeline
     /// order.
     pub fn to_timings(&self) -> crate::timing::Timings {

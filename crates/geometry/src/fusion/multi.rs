@@ -2,19 +2,22 @@
 //! reference frame, z-buffered into any camera of the rig, with the rig's overlap
 //! consistency per pair of sensors.
 //!
-//! Per sensor ([`fuse_multi`]): its depth image is corrected with the depth camera's
-//! [`crate::DepthCorrection`] (where the rig has one), back-projected with H1
-//! ([`backproject_cloud`]), coloured by its own colour camera with H6 ([`color_on_depth`],
-//! occlusions judged against H3's nearest fill of its own z-buffer, as `fusion::run` does),
-//! and moved into the reference frame. The merged cloud keeps, where two sensors see the same
+//! Per sensor ([`fuse_multi_on`]): its depth image is corrected with the depth camera's
+//! [`crate::DepthCorrection`] (where the rig has one), then the per-pixel stages of a
+//! single-sensor `fusion::run` run on it, all sensors as one batch on the chosen engine
+//! ([`PerPixel::per_pixel_batch`]: [`CpuPixels`], or the GPU's `fusion_gpu::FusionContext`):
+//! H1 back-projection, coloured by its own colour camera with H6 (occlusions judged against
+//! H3's nearest fill of its own z-buffer), and the samples moved into the reference frame. The merged cloud keeps, where two sensors see the same
 //! surface (the other sensor's depth within [`OVERLAP_GATE_M`] of the point), the sample of
 //! the sensor closer to it: the Kinect's noise grows with z², so the closer one measures it
 //! better (the "best-seeing" rule of issue 32).
 //!
 //! [`MultiFusion::zbuffer_into`] z-buffers every sensor's samples into one camera with H2
-//! and H7's rules ([`project_point`], [`zbuffer_index`], [`zbuffer_min`]: nearest wins), the
-//! points projected from their own depth frame with the composed `camera_from_depth` pose, so
-//! that one sensor into its own colour camera is bit-identical to [`super::Registration`].
+//! and H7's rules ([`project_point`], [`zbuffer_index`], [`super::zbuffer_min`]: nearest
+//! wins), the points projected from their own depth frame with the composed
+//! `camera_from_depth` pose, so that one sensor into its own colour camera is bit-identical
+//! to [`super::Registration`]; [`MultiFusion::zbuffer_into_on`] is the same on an engine
+//! ([`PerPixel::zbuffer_views`]: on the GPU one atomic-min buffer across the sensors).
 //!
 //! **Per-sensor meshes** ([`MultiFusion::sensor_mesh`]): each sensor's depth grid meshed by
 //! the single-sensor path's H4 ([`mesh_on_depth_grid`], texture coordinates into its own
@@ -42,12 +45,12 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::pixel::{
-    ColorProjection, ZBUFFER_EMPTY, depth_ray_table, project_point, zbuffer_index, zbuffer_min,
-    zbuffer_pixel,
+    ColorProjection, ZBUFFER_EMPTY, project_point, zbuffer_index, zbuffer_pixel, zbuffer_points,
 };
 use super::{
-    FusionOptions, backproject_cloud, cloud_colors, color_on_depth, coverage_radius_px,
-    mesh_on_depth_grid, nearest_fill, project_cloud, remove_edge_faces, stretch_test,
+    CpuPixels, DepthView, FusionOptions, PerPixel, PerPixelOutput, PixelFrame, PixelParams,
+    StageTimings, cloud_colors, mesh_on_depth_grid, project_cloud, remove_edge_faces,
+    stretch_test,
 };
 use crate::{
     CameraModel, DepthKind, GeometryError, Image, Mesh, MultiRig, PointCloud, Rig, RigCamera,
@@ -96,6 +99,8 @@ pub struct SensorCloud {
     pub rig: Rig,
     /// Its depth camera's pose: `X_depth = R · X_reference + T`.
     pub depth_from_reference: RigidTransform,
+    /// Its depth image as fused: metres, after the depth correction.
+    pub depth: Image<f32>,
     /// H1 points in its depth camera's frame, metres, row-major.
     pub points: Vec<[f32; 3]>,
     /// The depth pixel (row-major index) of every point.
@@ -155,6 +160,8 @@ pub struct MultiFusion {
     /// Stage times.
     pub timings: MultiTimings,
     rectified: bool,
+    /// What the depth images hold (for [`MultiFusion::zbuffer_into_on`]).
+    kind: DepthKind,
 }
 
 fn model_as_fused(model: &CameraModel, rectified: bool) -> CameraModel {
@@ -166,20 +173,34 @@ fn projection(camera: &CameraModel, camera_from_depth: RigidTransform) -> ColorP
     ColorProjection::from_rig(&Rig::new(*camera, *camera, camera_from_depth))
 }
 
-/// Fuses one depth + colour pair per sensor of `rig` (depth of kind `kind`, metres); see
-/// the module docs. `options` gives H6's occlusion tolerance and H3's coverage radius and
-/// depth jump.
-///
-/// Errors ([`GeometryError::InvalidInput`], before any work): a sensor of the rig without
-/// images, images of a sensor the rig does not have or given twice, a rig sensor without a
-/// depth or a colour camera; [`GeometryError::SizeMismatch`] for an image of another size
-/// than its camera; the depth correction's errors.
+/// Fuses one depth + colour pair per sensor of `rig` (depth of kind `kind`, metres) on the
+/// CPU: [`fuse_multi_on`] with [`CpuPixels`].
 pub fn fuse_multi(
     rig: &MultiRig,
     inputs: &[SensorImages],
     kind: DepthKind,
     options: &FusionOptions,
 ) -> Result<MultiFusion, GeometryError> {
+    fuse_multi_on(&mut CpuPixels, rig, inputs, kind, options)
+}
+
+/// Fuses one depth + colour pair per sensor of `rig` (depth of kind `kind`, metres), with
+/// every sensor's per-pixel stages (H1, its own H2 + H7, H3 nearest, H6) on `engine` as one
+/// batch ([`PerPixel::per_pixel_batch`], the stages of a single-sensor `fusion::run`); see
+/// the module docs. `options` gives H6's occlusion tolerance and H3's coverage radius and
+/// depth jump. The output is the same on every engine.
+///
+/// Errors ([`GeometryError::InvalidInput`], before any work): a sensor of the rig without
+/// images, images of a sensor the rig does not have or given twice, a rig sensor without a
+/// depth or a colour camera; [`GeometryError::SizeMismatch`] for an image of another size
+/// than its camera; the depth correction's errors; the engine's.
+pub fn fuse_multi_on<E: PerPixel>(
+    engine: &mut E,
+    rig: &MultiRig,
+    inputs: &[SensorImages],
+    kind: DepthKind,
+    options: &FusionOptions,
+) -> Result<MultiFusion, E::Error> {
     rig.validate()?;
     let sensors = rig.sensors();
     for (i, input) in inputs.iter().enumerate() {
@@ -188,13 +209,15 @@ pub fn fuse_multi(
                 "sensor \"{}\" is not in the rig (its sensors: {})",
                 input.sensor,
                 sensors.join(", ")
-            )));
+            ))
+            .into());
         }
         if inputs[..i].iter().any(|o| o.sensor == input.sensor) {
             return Err(GeometryError::InvalidInput(format!(
                 "sensor \"{}\" is given twice",
                 input.sensor
-            )));
+            ))
+            .into());
         }
     }
     let mut pairs = Vec::with_capacity(sensors.len());
@@ -220,12 +243,29 @@ pub fn fuse_multi(
     }
 
     let t0 = Instant::now();
-    let mut clouds = pairs
-        .into_par_iter()
-        .map(|(input, pair, depth_from_reference)| {
-            sensor_cloud(input, pair, depth_from_reference, kind, options)
-        })
+    let depths = pairs
+        .par_iter()
+        .map(|(input, pair, _)| corrected_depth(input, pair))
         .collect::<Result<Vec<_>, _>>()?;
+    let frames: Vec<PixelFrame<'_>> = pairs
+        .iter()
+        .zip(&depths)
+        .map(|((input, pair, _), depth)| PixelFrame {
+            rig: pair,
+            depth,
+            color: &input.color,
+            params: PixelParams::new(pair, &FusionOptions { zbuffer: true, ..*options }),
+        })
+        .collect();
+    let outputs = engine.per_pixel_batch(&frames, kind, &mut StageTimings::default())?;
+    let mut clouds: Vec<SensorCloud> = pairs
+        .into_iter()
+        .zip(depths)
+        .zip(outputs)
+        .map(|(((input, pair, depth_from_reference), depth), out)| {
+            sensor_cloud(&input.sensor, pair, depth_from_reference, depth, out)
+        })
+        .collect();
     let sensors_ms = t0.elapsed().as_secs_f64() * 1e3;
 
     let t1 = Instant::now();
@@ -262,63 +302,46 @@ pub fn fuse_multi(
         consistency,
         timings: MultiTimings { sensors_ms, merge_ms, consistency_ms },
         rectified: rig.rectified,
+        kind,
     })
 }
 
-fn sensor_cloud(
-    input: &SensorImages,
-    rig: Rig,
-    depth_from_reference: RigidTransform,
-    kind: DepthKind,
-    options: &FusionOptions,
-) -> Result<SensorCloud, GeometryError> {
+/// Sensor `input`'s depth, corrected with its depth camera's correction where the rig has one.
+fn corrected_depth(input: &SensorImages, rig: &Rig) -> Result<Image<f32>, GeometryError> {
     let mut depth = input.depth.clone();
     if let Some(correction) = &rig.depth_correction {
         correction.correct_image(&mut depth, 1.0)?;
     }
-    let rays = depth_ray_table(&rig.depth, kind);
-    let (cloud, pixels) = backproject_cloud(&depth, &rays);
-    let proj = ColorProjection::from_rig(&rig);
-    let mut own = Image::filled(rig.color.width, rig.color.height, ZBUFFER_EMPTY);
-    zbuffer_points(&cloud.points, &proj, own.data_mut());
-    let dense = nearest_fill(&own, coverage_radius_px(&rig, options), options.depth_jump);
-    let (on_depth, valid) = color_on_depth(
-        &depth,
-        &rays,
-        &proj,
-        &input.color,
-        Some(&dense),
-        options.color_occlusion_tolerance,
-    );
-    let colors = cloud_colors(&pixels, &on_depth, &valid);
+    Ok(depth)
+}
+
+/// A sensor's samples from its per-pixel stages' output.
+fn sensor_cloud(
+    sensor: &str,
+    rig: Rig,
+    depth_from_reference: RigidTransform,
+    depth: Image<f32>,
+    out: PerPixelOutput,
+) -> SensorCloud {
+    let colors = cloud_colors(&out.cloud_pixels, &out.color_on_depth, &out.color_on_depth_valid);
     let (w, h) = depth.size();
     let mut z = Image::filled(w, h, f32::NAN);
-    for (p, &i) in cloud.points.iter().zip(&pixels) {
+    for (p, &i) in out.points.iter().zip(&out.cloud_pixels) {
         z.data_mut()[i as usize] = p[2];
     }
-    let kept = vec![true; cloud.points.len()];
-    Ok(SensorCloud {
-        sensor: input.sensor.clone(),
+    let kept = vec![true; out.points.len()];
+    SensorCloud {
+        sensor: sensor.to_string(),
         rig,
         depth_from_reference,
-        points: cloud.points,
-        pixels,
+        depth,
+        points: out.points,
+        pixels: out.cloud_pixels,
         colors,
         z,
         kept,
-        color_on_depth: on_depth,
-        color_valid: valid,
-    })
-}
-
-/// H2 + H7 of `points` into a z-buffer of `proj`'s size.
-fn zbuffer_points(points: &[[f32; 3]], proj: &ColorProjection, zbuffer: &mut [f32]) {
-    for &p in points {
-        if let Some([u, v, z]) = project_point(proj, p)
-            && let Some(i) = zbuffer_index(u, v, proj.width, proj.height)
-        {
-            zbuffer_min(&mut zbuffer[i], z);
-        }
+        color_on_depth: out.color_on_depth,
+        color_valid: out.color_on_depth_valid,
     }
 }
 
@@ -448,6 +471,29 @@ impl MultiFusion {
         out
     }
 
+    /// [`MultiFusion::zbuffer_into`] on `engine` ([`PerPixel::zbuffer_views`] of every
+    /// sensor's corrected depth): on the GPU one atomic-min z-buffer across the sensors. The
+    /// same image as [`MultiFusion::zbuffer_into`] on every engine.
+    pub fn zbuffer_into_on<E: PerPixel>(
+        &self,
+        engine: &mut E,
+        camera: &RigCamera,
+    ) -> Result<Image<f32>, E::Error> {
+        let model = model_as_fused(&camera.model, self.rectified);
+        let views: Vec<DepthView<'_>> = self
+            .sensors
+            .iter()
+            .map(|s| DepthView {
+                depth_camera: &s.rig.depth,
+                depth: &s.depth,
+                camera_from_depth: camera
+                    .camera_from_reference
+                    .compose(&s.depth_from_reference.inverse()),
+            })
+            .collect();
+        engine.zbuffer_views(&model, &views, self.kind)
+    }
+
     /// H4 + H5 of sensor `k` (index into [`MultiFusion::sensors`]; `None` past the end): its
     /// depth grid meshed and cleaned in its colour camera's frame as the single-sensor
     /// pipeline does (`fusion::run` with [`super::MeshSource::DepthGrid`]: the samples landing
@@ -521,7 +567,7 @@ impl MultiFusion {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fusion::Registration;
+    use crate::fusion::{Registration, depth_ray_table};
     use crate::synth::{KinectNoise, KinectRing, kinect_ring_preset, render_ring};
 
     /// The consistency bar of issue 32: 2 mm.

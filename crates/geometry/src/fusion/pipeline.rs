@@ -17,14 +17,17 @@
 
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use super::{
     ColorProjection, ColorSample, FusionOptions, FusionOutput, FusionSummary, MeshSource, PlaneFit,
     Registration, StageTimings, StretchTest, backproject_cloud, check_inputs, color_on_depth,
     coverage_radius_px, depth_ray_table, fill_holes_with_plane, first_write_wins, fit_plane_ransac,
     hole_grow_px, hole_mask, linear_resample, mesh_from_depth, mesh_on_depth_grid, nearest_fill,
-    project_cloud, remove_edge_faces, sample_spacing_px,
+    project_cloud, remove_edge_faces, sample_spacing_px, zbuffer_points,
 };
-use crate::{CameraModel, DepthKind, GeometryError, Image, PointCloud, Rig};
+use crate::fusion::ZBUFFER_EMPTY;
+use crate::{CameraModel, DepthKind, GeometryError, Image, PointCloud, Rig, RigidTransform};
 
 /// The parameters of the per-pixel stages, in colour pixels (from [`FusionOptions`] and the
 /// rig; see [`PixelParams::new`]).
@@ -77,6 +80,33 @@ pub struct PerPixelOutput {
     pub color_on_depth_valid: Image<bool>,
 }
 
+/// One frame of [`PerPixel::per_pixel_batch`]: each frame of a batch has its own rig (the
+/// sensors of a multi-Kinect rig) and parameters.
+#[derive(Debug, Clone, Copy)]
+pub struct PixelFrame<'a> {
+    /// The frame's depth + colour pair.
+    pub rig: &'a Rig,
+    /// Depth image of `rig.depth`'s size, metres (checked by the caller).
+    pub depth: &'a Image<f32>,
+    /// Colour image of `rig.color`'s size.
+    pub color: &'a Image<[u8; 3]>,
+    /// The per-pixel stages' parameters for `rig` ([`PixelParams::new`]).
+    pub params: PixelParams,
+}
+
+/// One depth image seen by another camera, for [`PerPixel::zbuffer_views`]: the depth
+/// camera's model, its depth image (metres, that model's size) and the pose of the seeing
+/// camera, `X_camera = R · X_depth + T`.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthView<'a> {
+    /// The depth camera (as fused: undistorted when the rig is rectified).
+    pub depth_camera: &'a CameraModel,
+    /// Its depth image, metres (NaN or 0 for no sample).
+    pub depth: &'a Image<f32>,
+    /// The seeing camera's pose in the depth camera's frame.
+    pub camera_from_depth: RigidTransform,
+}
+
 /// An engine for the per-pixel stages. Every engine's output is bit-identical to
 /// [`CpuPixels`]'s (the GPU's on an adapter with IEEE division, see `fusion-gpu`).
 pub trait PerPixel {
@@ -103,6 +133,33 @@ pub trait PerPixel {
         mask: &Image<bool>,
         plane: &PlaneFit,
     ) -> Result<(Image<f32>, usize), Self::Error>;
+
+    /// The batch form of [`PerPixel::per_pixel`]: every frame of `frames` (checked), outputs
+    /// in order, each frame's stage times added to `timings`. One after another unless the
+    /// engine does better ([`CpuPixels`]: the frames in parallel).
+    fn per_pixel_batch(
+        &mut self,
+        frames: &[PixelFrame<'_>],
+        kind: DepthKind,
+        timings: &mut StageTimings,
+    ) -> Result<Vec<PerPixelOutput>, Self::Error> {
+        frames
+            .iter()
+            .map(|f| self.per_pixel(f.rig, f.depth, kind, f.color, &f.params, timings))
+            .collect()
+    }
+
+    /// H1 + H2 + H7 of several depth images into one `camera`: per pixel of `camera`'s image
+    /// the smallest `z` (its frame, metres) of any view's samples, [`super::ZBUFFER_EMPTY`]
+    /// where none lands; the z-buffer across the sensors of a rig. Each view is H1 of its
+    /// depth camera, H2 with the composed pose, and H7's min, so one view into its own
+    /// colour camera is bit-identical to [`Registration`].
+    fn zbuffer_views(
+        &mut self,
+        camera: &CameraModel,
+        views: &[DepthView<'_>],
+        kind: DepthKind,
+    ) -> Result<Image<f32>, Self::Error>;
 }
 
 /// The CPU engine. H7 and H8's mask run on [`Registration`] (the fast path of the
@@ -196,6 +253,50 @@ impl PerPixel for CpuPixels {
         plane: &PlaneFit,
     ) -> Result<(Image<f32>, usize), GeometryError> {
         Ok(fill_holes_with_plane(depth, mask, camera, plane))
+    }
+
+    /// The frames on all rayon threads, each on its own [`CpuPixels`]; `timings` gets the sum
+    /// of the frames' stage times (CPU time, above the batch's wall time).
+    fn per_pixel_batch(
+        &mut self,
+        frames: &[PixelFrame<'_>],
+        kind: DepthKind,
+        timings: &mut StageTimings,
+    ) -> Result<Vec<PerPixelOutput>, GeometryError> {
+        let outputs: Vec<(PerPixelOutput, StageTimings)> = frames
+            .par_iter()
+            .map(|f| {
+                let mut t = StageTimings::default();
+                let out = CpuPixels.per_pixel(f.rig, f.depth, kind, f.color, &f.params, &mut t)?;
+                Ok((out, t))
+            })
+            .collect::<Result<_, GeometryError>>()?;
+        Ok(outputs
+            .into_iter()
+            .map(|(out, t)| {
+                timings.add(&t);
+                out
+            })
+            .collect())
+    }
+
+    fn zbuffer_views(
+        &mut self,
+        camera: &CameraModel,
+        views: &[DepthView<'_>],
+        kind: DepthKind,
+    ) -> Result<Image<f32>, GeometryError> {
+        camera.validate()?;
+        let mut out = Image::filled(camera.width, camera.height, ZBUFFER_EMPTY);
+        for v in views {
+            v.depth_camera.validate()?;
+            v.depth.expect_size("depth image", v.depth_camera.width, v.depth_camera.height)?;
+            let (cloud, _) = backproject_cloud(v.depth, &depth_ray_table(v.depth_camera, kind));
+            let proj =
+                ColorProjection::from_rig(&Rig::new(*v.depth_camera, *camera, v.camera_from_depth));
+            zbuffer_points(&cloud.points, &proj, out.data_mut());
+        }
+        Ok(out)
     }
 }
 

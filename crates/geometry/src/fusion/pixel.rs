@@ -201,6 +201,18 @@ pub fn zbuffer_min(slot: &mut f32, z: f32) {
     }
 }
 
+/// H2 + H7 of `points` (the frame `proj` projects from) into `zbuffer`, a buffer of `proj`'s
+/// size: per pixel the smallest `z` ([`zbuffer_min`]), pixels outside the image dropped.
+pub fn zbuffer_points(points: &[[f32; 3]], proj: &ColorProjection, zbuffer: &mut [f32]) {
+    for &p in points {
+        if let Some([u, v, z]) = project_point(proj, p)
+            && let Some(i) = zbuffer_index(u, v, proj.width, proj.height)
+        {
+            zbuffer_min(&mut zbuffer[i], z);
+        }
+    }
+}
+
 /// H1 + H2 for one depth pixel: `[u, v, z_color]`, or `None` when the pixel has no sample or
 /// the point is not in front of the colour camera.
 #[inline]
