@@ -100,10 +100,7 @@ fn color_codes_round_trip_and_pair_get_with_set() {
     }
     // Protocol §4.10 lists codes 0, 1, 2, 10..=83: 3 + 74.
     assert_eq!(n, 77);
-    assert_eq!(
-        ColorSettingCode::GetAnalogGain.set_of_get(),
-        Some(ColorSettingCode::SetAnalogGain)
-    );
+    assert_eq!(ColorSettingCode::GetAnalogGain.set_of_get(), Some(ColorSettingCode::SetAnalogGain));
     assert_eq!(
         ColorSettingCode::GetExposureMode.set_of_get(),
         Some(ColorSettingCode::SetExposureMode)
