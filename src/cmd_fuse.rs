@@ -356,8 +356,11 @@ pub fn engine_note(used: &EngineUsed) -> Option<String> {
     match used {
         EngineUsed::Cpu => None,
         EngineUsed::Gpu { adapter, software } => {
-            let note =
-                if *software { " (software Vulkan: exact, but slower than the CPU path)" } else { "" };
+            let note = if *software {
+                " (software Vulkan: exact, but slower than the CPU path)"
+            } else {
+                ""
+            };
             Some(format!("GPU adapter: {adapter}{note}"))
         }
         EngineUsed::CpuFallback { reason } => Some(format!("warning: {reason}; fusing on the CPU")),

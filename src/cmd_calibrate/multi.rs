@@ -171,9 +171,8 @@ pub(super) fn run(args: &CalibrateArgs) -> Result<()> {
     };
     let printer = Arc::new(super::print::Printer::default());
     let observer = printer.clone();
-    let outcome = crate::interrupt::run_until_interrupted(STOPPED, move || {
-        run_joint(&request, &*observer)
-    })??;
+    let outcome =
+        crate::interrupt::run_until_interrupted(STOPPED, move || run_joint(&request, &*observer))??;
     print_table(&outcome.calibration, &outcome.inputs);
     crate::interrupt::check(STOPPED)?;
     // The report is staged first and published after the rig: a failure leaves neither.

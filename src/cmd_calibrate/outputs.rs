@@ -57,7 +57,11 @@ pub(super) fn check_file<'a>(
     }
     let parent = parent_folder(path);
     if !parent.is_dir() {
-        bail!("{flag} {}: folder {} does not exist; create it first", path.display(), parent.display());
+        bail!(
+            "{flag} {}: folder {} does not exist; create it first",
+            path.display(),
+            parent.display()
+        );
     }
     if let Err(e) = kfuse_io::atomic::writable_target(path) {
         bail!("{flag} {e}");

@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use fusion_gpu::{Engine, EngineUsed};
-use geometry::fusion::multi::{MultiFusion, SensorImages, look_at};
 use geometry::fusion::FusionOptions;
+use geometry::fusion::multi::{MultiFusion, SensorImages, look_at};
 use geometry::{DepthKind, MultiRig, RigidTransform};
 use kfuse_io::atomic::{StagedDir, write_bytes_atomic};
 use kfuse_io::{image_header, images, obj, ply};
@@ -570,7 +570,12 @@ fn sensor_summaries(
 }
 
 /// What a run prints: the points, the shot, each mesh and each pair's consistency.
-fn print_result(out: &Path, fused: &MultiFusion, shot: Option<&ShotChoice>, meshes: &[MeshWritten]) {
+fn print_result(
+    out: &Path,
+    fused: &MultiFusion,
+    shot: Option<&ShotChoice>,
+    meshes: &[MeshWritten],
+) {
     println!(
         "fused {} sensors: {} points into {}",
         fused.sensors.len(),
@@ -641,8 +646,9 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     let inputs = read_inputs(&rig, &sensor_args, args.depth_scale)?;
     let engine = args.engine();
     let on = if engine == Engine::Cpu { "" } else { " on the GPU" };
-    let (fused, zbuffer, used) = fusion_gpu::fuse_multi(engine, &rig, &inputs, kind, &options, view)
-        .with_context(|| format!("fusing the sensors of {}{on}", rig_path.display()))?;
+    let (fused, zbuffer, used) =
+        fusion_gpu::fuse_multi(engine, &rig, &inputs, kind, &options, view)
+            .with_context(|| format!("fusing the sensors of {}{on}", rig_path.display()))?;
     if let Some(note) = super::engine_note(&used) {
         eprintln!("{note}");
     }

@@ -1,17 +1,20 @@
 //! [`FusionContext::run`]: the whole H1–H8 pipeline ([`geometry::fusion::run_on`]) with the
-//! per-pixel stages on the GPU ([`PerPixel`] for [`FusionContext`]), and [`fuse`] and
-//! [`fuse_multi`] (several Kinects), the [`Engine`] selector in one call.
+//! per-pixel stages on the GPU ([`PerPixel`] for [`FusionContext`]); [`PixelEngine`], an
+//! opened [`Engine`] (the CPU or a GPU context as one [`PerPixel`], [`Engine::open`]), which
+//! single frames, several Kinects and sequences run on; and [`fuse`] and [`fuse_multi`]
+//! (several Kinects), the [`Engine`] selector in one call.
 
 use std::time::Instant;
 
-use geometry::fusion::{
-    ColorSample, DepthView, FusionOptions, FusionOutput, PerPixel, PerPixelOutput, PixelParams,
-    PlaneFit, StageTimings, run_on, zbuffer_index,
-};
 use geometry::fusion::multi::{MultiFusion, SensorImages, fuse_multi_on};
+use geometry::fusion::{
+    ColorSample, CpuPixels, DepthView, FusionOptions, FusionOutput, PerPixel, PerPixelOutput,
+    PixelFrame, PixelParams, PlaneFit, StageTimings, StreamFrame, StreamPlan, StreamResult, run_on,
+    zbuffer_index,
+};
 use geometry::{CameraModel, DepthKind, Image, MultiRig, Rig, RigCamera};
 
-use crate::{Engine, FramePlan, FusionContext, GpuError, StageOptions};
+use crate::{Engine, FramePlan, FusionContext, GpuDecoder, GpuError, GpuFrame, StageOptions};
 
 impl PerPixel for FusionContext {
     type Error = GpuError;
@@ -28,13 +31,7 @@ impl PerPixel for FusionContext {
         timings: &mut StageTimings,
     ) -> Result<PerPixelOutput, GpuError> {
         let (cw, ch) = (rig.color.width, rig.color.height);
-        let stages = StageOptions {
-            nearest_radius_px: params.radius_px,
-            depth_jump: params.depth_jump,
-            hole_radius_px: params.radius_px,
-            hole_grow_px: params.grow_px,
-            occlusion_tolerance: params.occlusion_tolerance,
-        };
+        let stages = stage_options(params);
         let t = Instant::now();
         let frame = self.frame(
             rig,
@@ -103,6 +100,170 @@ impl PerPixel for FusionContext {
     ) -> Result<Image<f32>, GpuError> {
         FusionContext::zbuffer_views(self, camera, views, kind)
     }
+
+    /// [`FusionContext::stream`]: two frames in flight, only what `plan` asks read back.
+    fn per_pixel_stream(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        frames: &[StreamFrame<'_>],
+        params: &PixelParams,
+        plan: StreamPlan,
+        sink: &mut dyn FnMut(usize, StreamResult<'_>),
+    ) -> Result<(), GpuError> {
+        let gpu_plan = FramePlan {
+            stages: (plan.holes || plan.color_on_depth).then_some(stage_options(params)),
+            read_intermediates: false,
+        };
+        let inputs = frames.iter().map(|f| (f.depth, f.color.filter(|_| plan.color_on_depth)));
+        self.stream(rig, kind, inputs, gpu_plan, |i, r| lend(i, &r, plan, sink))?;
+        Ok(())
+    }
+}
+
+/// One raw frame of [`FusionContext::per_pixel_stream_raw`]: the Kinect v2's raw depth data
+/// and, for H6, the frame's colour image.
+pub type RawStreamFrame<'a> = (&'a [u8], Option<&'a Image<[u8; 3]>>);
+
+/// The GPU stages' parameters from the pipeline's.
+fn stage_options(params: &PixelParams) -> StageOptions {
+    StageOptions {
+        nearest_radius_px: params.radius_px,
+        depth_jump: params.depth_jump,
+        hole_radius_px: params.radius_px,
+        hole_grow_px: params.grow_px,
+        occlusion_tolerance: params.occlusion_tolerance,
+    }
+}
+
+/// A GPU frame's results lent to a stream's sink, as `plan` asked for them.
+fn lend(i: usize, r: &GpuFrame, plan: StreamPlan, sink: &mut dyn FnMut(usize, StreamResult<'_>)) {
+    sink(
+        i,
+        StreamResult {
+            zbuffer: r.zbuffer.data(),
+            hole_mask: r.holes.as_ref().filter(|_| plan.holes).map(|m| m.data()),
+            color_on_depth: r.color_on_depth.as_ref().map(|(c, v)| (c, v)),
+        },
+    );
+}
+
+/// An opened [`Engine`]: the per-pixel stages on the CPU ([`CpuPixels`]) or on a GPU
+/// context, as one [`PerPixel`] whose errors are [`GpuError`]s (a CPU error is
+/// [`GpuError::Input`]). What `kfuse fuse` (one frame, several Kinects) and `kfuse fuse
+/// --recording` run on.
+#[derive(Debug)]
+pub enum PixelEngine {
+    /// The CPU.
+    Cpu(CpuPixels),
+    /// A GPU context.
+    Gpu(Box<FusionContext>),
+}
+
+impl PixelEngine {
+    /// The GPU context, `None` on the CPU.
+    pub fn gpu(&mut self) -> Option<&mut FusionContext> {
+        match self {
+            PixelEngine::Gpu(ctx) => Some(ctx),
+            PixelEngine::Cpu(_) => None,
+        }
+    }
+}
+
+impl Engine {
+    /// Opens the engine: [`Engine::Cpu`] the CPU; [`Engine::Gpu`] a new [`FusionContext`]
+    /// (no adapter: [`GpuError::NoAdapter`]); [`Engine::Auto`] a context when an adapter
+    /// exists, else the CPU with the reason in [`EngineUsed::CpuFallback`].
+    pub fn open(self) -> Result<(PixelEngine, EngineUsed), GpuError> {
+        if !self.wants_gpu() {
+            return Ok((PixelEngine::Cpu(CpuPixels::new()), EngineUsed::Cpu));
+        }
+        match FusionContext::new() {
+            Ok(ctx) => {
+                let used = EngineUsed::Gpu {
+                    adapter: ctx.adapter_name().to_string(),
+                    software: ctx.is_software(),
+                };
+                Ok((PixelEngine::Gpu(Box::new(ctx)), used))
+            }
+            Err(e @ GpuError::NoAdapter { .. }) if self.falls_back_to_cpu() => Ok((
+                PixelEngine::Cpu(CpuPixels::new()),
+                EngineUsed::CpuFallback { reason: e.to_string() },
+            )),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+impl PerPixel for PixelEngine {
+    type Error = GpuError;
+
+    fn per_pixel(
+        &mut self,
+        rig: &Rig,
+        depth: &Image<f32>,
+        kind: DepthKind,
+        color: &Image<[u8; 3]>,
+        params: &PixelParams,
+        timings: &mut StageTimings,
+    ) -> Result<PerPixelOutput, GpuError> {
+        match self {
+            PixelEngine::Cpu(c) => Ok(c.per_pixel(rig, depth, kind, color, params, timings)?),
+            PixelEngine::Gpu(g) => g.per_pixel(rig, depth, kind, color, params, timings),
+        }
+    }
+
+    fn fill_holes(
+        &mut self,
+        camera: &CameraModel,
+        depth: &Image<f32>,
+        mask: &Image<bool>,
+        plane: &PlaneFit,
+    ) -> Result<(Image<f32>, usize), GpuError> {
+        match self {
+            PixelEngine::Cpu(c) => Ok(c.fill_holes(camera, depth, mask, plane)?),
+            PixelEngine::Gpu(g) => g.fill_holes(camera, depth, mask, plane),
+        }
+    }
+
+    fn per_pixel_batch(
+        &mut self,
+        frames: &[PixelFrame<'_>],
+        kind: DepthKind,
+        timings: &mut StageTimings,
+    ) -> Result<Vec<PerPixelOutput>, GpuError> {
+        match self {
+            PixelEngine::Cpu(c) => Ok(c.per_pixel_batch(frames, kind, timings)?),
+            PixelEngine::Gpu(g) => g.per_pixel_batch(frames, kind, timings),
+        }
+    }
+
+    fn zbuffer_views(
+        &mut self,
+        camera: &CameraModel,
+        views: &[DepthView<'_>],
+        kind: DepthKind,
+    ) -> Result<Image<f32>, GpuError> {
+        match self {
+            PixelEngine::Cpu(c) => Ok(c.zbuffer_views(camera, views, kind)?),
+            PixelEngine::Gpu(g) => PerPixel::zbuffer_views(g.as_mut(), camera, views, kind),
+        }
+    }
+
+    fn per_pixel_stream(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        frames: &[StreamFrame<'_>],
+        params: &PixelParams,
+        plan: StreamPlan,
+        sink: &mut dyn FnMut(usize, StreamResult<'_>),
+    ) -> Result<(), GpuError> {
+        match self {
+            PixelEngine::Cpu(c) => Ok(c.per_pixel_stream(rig, kind, frames, params, plan, sink)?),
+            PixelEngine::Gpu(g) => g.per_pixel_stream(rig, kind, frames, params, plan, sink),
+        }
+    }
 }
 
 impl FusionContext {
@@ -128,6 +289,30 @@ impl FusionContext {
     ) -> Result<FusionOutput, GpuError> {
         run_on(self, rig, depth, kind, color, options)
     }
+
+    /// [`PerPixel::per_pixel_stream`] on raw Kinect v2 depth frames that `decoder` decodes
+    /// on this GPU in front of the same stages ([`FusionContext::stream_raw`]: the depth
+    /// never leaves the GPU), each with its colour image for H6. `params` as
+    /// [`PixelParams::new`] gives them, with the z-buffer on.
+    ///
+    /// Errors: those of [`FusionContext::stream_raw`].
+    pub fn per_pixel_stream_raw(
+        &mut self,
+        decoder: &GpuDecoder,
+        rig: &Rig,
+        frames: &[RawStreamFrame<'_>],
+        params: &PixelParams,
+        plan: StreamPlan,
+        sink: &mut dyn FnMut(usize, StreamResult<'_>),
+    ) -> Result<(), GpuError> {
+        let gpu_plan = FramePlan {
+            stages: (plan.holes || plan.color_on_depth).then_some(stage_options(params)),
+            read_intermediates: false,
+        };
+        let inputs = frames.iter().map(|&(raw, c)| (raw, c.filter(|_| plan.color_on_depth)));
+        self.stream_raw(decoder, rig, inputs, gpu_plan, |i, r| lend(i, &r, plan, sink))?;
+        Ok(())
+    }
 }
 
 /// Which engine [`fuse`] ran the frame on.
@@ -150,10 +335,10 @@ pub enum EngineUsed {
     },
 }
 
-/// The CLI's `--engine` in one call: runs the frame on the CPU ([`geometry::fusion::run`])
-/// for [`Engine::Cpu`], else on a new [`FusionContext`], or, under [`Engine::Auto`] when there
-/// is no adapter, on the CPU. Under [`Engine::Gpu`] no adapter is [`GpuError::NoAdapter`].
-/// For many frames keep a [`FusionContext`] instead.
+/// The CLI's `--engine` in one call: [`run_on`] the engine [`Engine::open`] gives (the CPU
+/// for [`Engine::Cpu`], else a new [`FusionContext`], or, under [`Engine::Auto`] when there
+/// is no adapter, the CPU). Under [`Engine::Gpu`] no adapter is [`GpuError::NoAdapter`].
+/// For many frames keep the opened engine instead.
 pub fn fuse(
     engine: Engine,
     rig: &Rig,
@@ -162,23 +347,8 @@ pub fn fuse(
     color: &Image<[u8; 3]>,
     options: &FusionOptions,
 ) -> Result<(FusionOutput, EngineUsed), GpuError> {
-    if !engine.wants_gpu() {
-        return Ok((geometry::fusion::run(rig, depth, kind, color, options)?, EngineUsed::Cpu));
-    }
-    match FusionContext::new() {
-        Ok(mut ctx) => {
-            let used = EngineUsed::Gpu {
-                adapter: ctx.adapter_name().to_string(),
-                software: ctx.is_software(),
-            };
-            Ok((ctx.run(rig, depth, kind, color, options)?, used))
-        }
-        Err(e @ GpuError::NoAdapter { .. }) if engine.falls_back_to_cpu() => {
-            let out = geometry::fusion::run(rig, depth, kind, color, options)?;
-            Ok((out, EngineUsed::CpuFallback { reason: e.to_string() }))
-        }
-        Err(e) => Err(e),
-    }
+    let (mut pixels, used) = engine.open()?;
+    Ok((run_on(&mut pixels, rig, depth, kind, color, options)?, used))
 }
 
 /// [`fuse`] for several Kinects: [`geometry::fusion::multi::fuse_multi_on`] and the z-buffer
@@ -193,27 +363,8 @@ pub fn fuse_multi(
     options: &FusionOptions,
     view: &RigCamera,
 ) -> Result<(MultiFusion, Image<f32>, EngineUsed), GpuError> {
-    let on_cpu = |used: EngineUsed| -> Result<_, GpuError> {
-        let fused = geometry::fusion::multi::fuse_multi(rig, inputs, kind, options)?;
-        let zbuffer = fused.zbuffer_into(view);
-        Ok((fused, zbuffer, used))
-    };
-    if !engine.wants_gpu() {
-        return on_cpu(EngineUsed::Cpu);
-    }
-    match FusionContext::new() {
-        Ok(mut ctx) => {
-            let used = EngineUsed::Gpu {
-                adapter: ctx.adapter_name().to_string(),
-                software: ctx.is_software(),
-            };
-            let fused = fuse_multi_on(&mut ctx, rig, inputs, kind, options)?;
-            let zbuffer = fused.zbuffer_into_on(&mut ctx, view)?;
-            Ok((fused, zbuffer, used))
-        }
-        Err(e @ GpuError::NoAdapter { .. }) if engine.falls_back_to_cpu() => {
-            on_cpu(EngineUsed::CpuFallback { reason: e.to_string() })
-        }
-        Err(e) => Err(e),
-    }
+    let (mut pixels, used) = engine.open()?;
+    let fused = fuse_multi_on(&mut pixels, rig, inputs, kind, options)?;
+    let zbuffer = fused.zbuffer_into_on(&mut pixels, view)?;
+    Ok((fused, zbuffer, used))
 }

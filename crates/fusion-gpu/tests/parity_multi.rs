@@ -54,7 +54,8 @@ fn assert_same_fusion(cpu: &MultiFusion, gpu: &MultiFusion) {
 
 #[test]
 fn several_kinects_fuse_and_zbuffer_bit_identically_on_the_gpu() {
-    let Some(mut ctx) = context_or_skip("several_kinects_fuse_and_zbuffer_bit_identically_on_the_gpu")
+    let Some(mut ctx) =
+        context_or_skip("several_kinects_fuse_and_zbuffer_bit_identically_on_the_gpu")
     else {
         return;
     };
@@ -73,7 +74,7 @@ fn several_kinects_fuse_and_zbuffer_bit_identically_on_the_gpu() {
         println!("{}: {landed} pixels z-buffered, {differing} differ", camera.name);
         assert_eq!(differing, 0, "{}", camera.name);
         // The CPU engine's own zbuffer_views is the same image.
-        assert_eq!(bits(&cpu.zbuffer_into_on(&mut CpuPixels, camera).unwrap()), bits(&want));
+        assert_eq!(bits(&cpu.zbuffer_into_on(&mut CpuPixels::new(), camera).unwrap()), bits(&want));
         // Across the sensors, not only the last one submitted (a clear before every sensor
         // would leave the last sensor's samples alone): more pixels than the last sensor's,
         // by thousands where the camera is another sensor's (the last sensor's own cameras
@@ -99,7 +100,10 @@ fn views_of_another_size_and_no_views_are_handled() {
     // No views: the empty z-buffer of the camera's size, as on the CPU.
     let none = ctx.zbuffer_views(&pair.color, &[], DepthKind::Z).unwrap();
     assert_eq!(none.size(), (pair.color.width, pair.color.height));
-    assert_eq!(bits(&none), bits(&CpuPixels.zbuffer_views(&pair.color, &[], DepthKind::Z).unwrap()));
+    assert_eq!(
+        bits(&none),
+        bits(&CpuPixels::new().zbuffer_views(&pair.color, &[], DepthKind::Z).unwrap())
+    );
     // A depth image of the wrong size is an error naming it, on both engines.
     let small = Image::filled(10, 10, 1.0f32);
     let view = DepthView {
@@ -108,7 +112,8 @@ fn views_of_another_size_and_no_views_are_handled() {
         camera_from_depth: pair.color_from_depth,
     };
     let gpu = ctx.zbuffer_views(&pair.color, &[view], DepthKind::Z).unwrap_err().to_string();
-    let cpu = CpuPixels.zbuffer_views(&pair.color, &[view], DepthKind::Z).unwrap_err().to_string();
+    let cpu =
+        CpuPixels::new().zbuffer_views(&pair.color, &[view], DepthKind::Z).unwrap_err().to_string();
     assert!(gpu.contains("depth image") && gpu.contains("10x10"), "{gpu}");
     assert!(cpu.contains("depth image") && cpu.contains("10x10"), "{cpu}");
     // The context stays usable: one sensor into its own colour camera is its registration.

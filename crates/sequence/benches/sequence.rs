@@ -59,9 +59,9 @@ fn benches(c: &mut Criterion) {
     let n = raws.len() as u32;
     let src = RecordingSource::open(&path, ReadOptions::default()).unwrap();
     let decoder = process::recording_decoder(src.info()).unwrap();
+    let cpu = fusion_gpu::Engine::Cpu.open().unwrap();
     let mut p =
-        Processor::new(&rig, Some(decoder), Extras::default(), KFUSE_UNITS_PER_METRE, false)
-            .unwrap();
+        Processor::new(&rig, Some(decoder), Extras::default(), KFUSE_UNITS_PER_METRE, cpu).unwrap();
 
     let mut g = c.benchmark_group("stage");
     g.sample_size(20);

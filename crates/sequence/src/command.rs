@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use fusion_gpu::Engine;
+use fusion_gpu::{Engine, EngineUsed};
 use geometry::Rig;
 use kfuse_io::atomic::StagedDir;
 use kinect_usb::decoder::DepthDecoder;
@@ -266,13 +266,13 @@ pub fn run(
 ) -> Result<Finished> {
     let Opened { input, decoder, info, progress: _, staged, source, started } = opened;
     let recording = info.is_some();
-    let gpu = match options.engine {
-        Engine::Cpu => false,
-        Engine::Gpu => true,
-        Engine::Auto => fusion_gpu::FusionContext::new().is_ok(),
-    };
+    let engine = options.engine.open()?;
+    if let EngineUsed::CpuFallback { reason } = &engine.1 {
+        observer.note(&format!("no GPU, registering on the CPU: {reason}"));
+    }
+    let gpu = matches!(engine.1, EngineUsed::Gpu { .. });
     let units = options.layout.units_per_metre();
-    let mut processor = Processor::new(rig, decoder, options.extras(), units, gpu)
+    let mut processor = Processor::new(rig, decoder, options.extras(), units, engine)
         .map_err(|e| e.context(format!("setting up registration for {}", source.display())))?;
     // On the GPU, a recording's depth is decoded there too (the frame never leaves the GPU)
     // unless the depth is needed on the CPU: figures, the cloud, a depth correction.

@@ -1,20 +1,21 @@
 //! Stages 3 and 4, decode and register: a frame's depth (raw sensor data through the
-//! `kinect_usb` decoder, or a 16-bit millimetre PNG of a frame folder) in metres, then its
-//! registration on the colour grid (`geometry::fusion::Registration`, one thread, or
-//! `fusion_gpu::FusionContext::stream` with `--gpu`), and what the caller asked for besides:
-//! the H8 hole mask, H6 colour on the depth grid, the coloured H1 cloud.
+//! `kinect_usb` decoder, or a 16-bit millimetre PNG of a frame folder) in metres, then the
+//! per-pixel stages of the one fusion pipeline on the opened engine
+//! ([`geometry::fusion::stream_on`] on a [`PixelEngine`], the engine `kfuse fuse` runs a single
+//! frame on): the registration on the colour grid and what the caller asked for besides, the
+//! H8 hole mask and H6 colour on the depth grid; then the coloured H1 cloud. On the GPU a
+//! recording's raw frames can be decoded there too
+//! ([`fusion_gpu::FusionContext::per_pixel_stream_raw`], the same stages behind the GPU decoder).
 //!
-//! Every output is what `kfuse fuse` computes for one frame with the same rig and options:
-//! the same functions, in the same order.
+//! Every output is what `kfuse fuse` computes for one frame with the same rig and options.
 
 use std::path::Path;
 
 use crate::color::ColorJpeg;
-use fusion_gpu::{FramePlan, FusionContext, GpuDecoder, GpuFrame, StageOptions};
-use geometry::fusion::pixel::ColorProjection;
+use fusion_gpu::{EngineUsed, GpuDecoder, PixelEngine};
 use geometry::fusion::{
-    self, FusionOptions, Registration, backproject_cloud, color_on_depth, depth_ray_table,
-    nearest_fill,
+    self, FusionOptions, PixelParams, StreamFrame, StreamPlan, StreamResult, backproject_cloud,
+    depth_ray_table, stream_on,
 };
 use geometry::{DepthKind, Image, PointCloud, Rig};
 use kfuse_io::images::png16_value;
@@ -57,7 +58,8 @@ pub struct Registered {
     /// Registered depth on the colour grid, in the writer's units (`png16_value` of
     /// `z · units_per_metre`; 0 = no sample), row-major.
     pub depth_units: Vec<u16>,
-    /// Depth samples that landed on the colour image.
+    /// Colour pixels that received a depth sample (the z-buffer's non-empty pixels; the same
+    /// count on every engine).
     pub landed: usize,
     /// H8 hole mask (255 = hole), colour grid, row-major.
     pub holes: Option<Vec<u8>>,
@@ -67,28 +69,23 @@ pub struct Registered {
     pub cloud: Option<PointCloud>,
 }
 
-/// Where registration runs.
-enum Engine {
-    Cpu(Box<Registration>),
-    Gpu(Box<FusionContext>),
-}
-
-/// The decoder (recordings only), the registration and the constants of the extras.
+/// The decoder (recordings only), the engine of the per-pixel stages and the constants of the
+/// extras.
 pub struct Processor {
     decoder: Option<DepthDecoder>,
-    /// The depth decoder on the GPU (`--gpu` on a recording): raw frames are decoded and
-    /// registered without the depth leaving the GPU.
+    /// The depth decoder on the GPU (`--engine gpu` on a recording): raw frames are decoded
+    /// and registered without the depth leaving the GPU.
     gpu_decoder: Option<GpuDecoder>,
     depth_mm: Vec<f32>,
     ir: Vec<f32>,
-    engine: Engine,
+    engine: PixelEngine,
+    used: EngineUsed,
     rig: Rig,
     rays: Vec<[f32; 3]>,
-    proj: ColorProjection,
     extras: Extras,
     units_per_metre: f64,
-    stages: StageOptions,
-    mask: Vec<bool>,
+    options: FusionOptions,
+    params: PixelParams,
 }
 
 /// The depth decoder for a recording's calibration tables, with both filters, one thread
@@ -109,16 +106,18 @@ pub fn recording_decoder(info: &DeviceInfo) -> Result<DepthDecoder> {
 impl Processor {
     /// A processor for frames of `rig` (a Kinect v2's depth camera: 512 × 424, z depth),
     /// decoding raw frames with `decoder` when given, writing depth at `units_per_metre`,
-    /// on the GPU with `gpu` (errors: no adapter, frames too large for it).
+    /// running the per-pixel stages on `engine` (opened by [`fusion_gpu::Engine::open`], which
+    /// says in `used` what it is).
     ///
     /// Errors: [`SequenceError::Geometry`] for a rig that is invalid, not of a Kinect v2's
-    /// depth size, or whose coverage radius is out of bounds; [`SequenceError::Gpu`].
+    /// depth size, or whose coverage radius is out of bounds; [`SequenceError::Gpu`] for
+    /// frames too large for the GPU.
     pub fn new(
         rig: &Rig,
         decoder: Option<DepthDecoder>,
         extras: Extras,
         units_per_metre: f64,
-        gpu: bool,
+        (mut engine, used): (PixelEngine, EngineUsed),
     ) -> Result<Self> {
         if decoder.is_some() && (rig.depth.width, rig.depth.height) != (WIDTH, HEIGHT) {
             return Err(SequenceError::Geometry(geometry::GeometryError::InvalidInput(format!(
@@ -127,53 +126,48 @@ impl Processor {
                 rig.depth.width, rig.depth.height
             ))));
         }
+        rig.validate()?;
         let options = FusionOptions::default();
-        let radius = fusion::checked_coverage_radius_px(rig, &options)?;
-        let stages = StageOptions {
-            nearest_radius_px: radius,
-            depth_jump: options.depth_jump,
-            hole_radius_px: radius,
-            hole_grow_px: fusion::hole_grow_px(rig, &options),
-            occlusion_tolerance: Some(options.color_occlusion_tolerance),
-        };
-        let engine = if gpu {
-            let ctx = FusionContext::new()?;
+        fusion::checked_coverage_radius_px(rig, &options)?;
+        if let Some(ctx) = engine.gpu() {
             ctx.check_frame_size(
                 (rig.depth.width, rig.depth.height),
                 (rig.color.width, rig.color.height),
             )?;
-            Engine::Gpu(Box::new(ctx))
-        } else {
-            Engine::Cpu(Box::new(Registration::new(rig, DepthKind::Z, &options)?))
-        };
+        }
         Ok(Self {
             decoder,
             gpu_decoder: None,
             depth_mm: vec![0.0; PIXELS],
             ir: vec![0.0; PIXELS],
             engine,
+            used,
             rig: rig.clone(),
             rays: depth_ray_table(&rig.depth, DepthKind::Z),
-            proj: ColorProjection::from_rig(rig),
             extras,
             units_per_metre,
-            stages,
-            mask: Vec::new(),
+            params: PixelParams::new(rig, &options),
+            options,
         })
     }
 
-    /// The GPU adapter in use, `None` on the CPU path.
+    /// What the per-pixel stages run on.
+    pub fn engine_used(&self) -> &EngineUsed {
+        &self.used
+    }
+
+    /// The GPU adapter in use (name, type, backend, driver), `None` on the CPU path.
     pub fn adapter(&self) -> Option<String> {
         match &self.engine {
-            Engine::Gpu(ctx) => Some(ctx.adapter_summary()),
-            Engine::Cpu(_) => None,
+            PixelEngine::Gpu(ctx) => Some(ctx.adapter_summary()),
+            PixelEngine::Cpu(_) => None,
         }
     }
 
     /// Whether registration runs on the GPU (frames are then registered in batches of
     /// [`GPU_BATCH`]).
     pub fn on_gpu(&self) -> bool {
-        matches!(self.engine, Engine::Gpu(_))
+        matches!(self.engine, PixelEngine::Gpu(_))
     }
 
     /// Moves depth decoding onto the GPU for a recording made by the sensor `info` describes
@@ -182,7 +176,7 @@ impl Processor {
     /// cloud, or no decoder (a frame folder). On the GPU the frame's depth equals the CPU
     /// `Fast` decoder's (fusion-gpu's parity test: bit-identical on lavapipe).
     pub fn decode_on_gpu(&mut self, info: &DeviceInfo) -> Result<bool> {
-        let Engine::Gpu(ctx) = &self.engine else { return Ok(false) };
+        let PixelEngine::Gpu(ctx) = &self.engine else { return Ok(false) };
         if self.decoder.is_none() || self.rig.depth_correction.is_some() || self.extras.cloud {
             return Ok(false);
         }
@@ -277,90 +271,48 @@ impl Processor {
     }
 
     /// Registers `frames` (one on the CPU path; up to [`GPU_BATCH`] on the GPU path, streamed
-    /// with two in flight) and computes the extras; results in order.
+    /// with two in flight) through the pipeline's per-pixel stages and computes the extras;
+    /// results in order.
     pub fn register(&mut self, frames: &[Decoded]) -> Result<Vec<Registered>> {
+        let plan = StreamPlan { holes: self.extras.holes, color_on_depth: self.needs_color() };
+        let units = self.units_per_metre;
         let mut out = Vec::with_capacity(frames.len());
-        let needs_color = self.needs_color();
-        match &mut self.engine {
-            Engine::Cpu(reg) => {
-                for f in frames {
-                    let landed = reg.register(&f.depth)?;
-                    let depth_units = to_units(reg.zbuffer(), self.units_per_metre);
-                    let holes = if self.extras.holes {
-                        self.mask.resize(reg.zbuffer().len(), false);
-                        reg.hole_mask(&mut self.mask);
-                        Some(self.mask.iter().map(|&m| if m { 255 } else { 0 }).collect())
-                    } else {
-                        None
-                    };
-                    let color_on_depth = match &f.color {
-                        Some(color) if needs_color => {
-                            // H6 as `kfuse fuse` does it: occlusion against H3's nearest fill.
-                            let nearest = nearest_fill(
-                                &reg.zbuffer_image(),
-                                self.stages.nearest_radius_px,
-                                self.stages.depth_jump,
-                            );
-                            let tolerance = self.stages.occlusion_tolerance.unwrap_or(0.0);
-                            let (c, _) = color_on_depth(
-                                &f.depth,
-                                &self.rays,
-                                &self.proj,
-                                color,
-                                Some(&nearest),
-                                tolerance,
-                            );
-                            Some(c)
-                        }
-                        _ => None,
-                    };
-                    out.push(Registered {
-                        depth_units,
-                        landed,
-                        holes,
-                        color_on_depth,
-                        cloud: None,
-                    });
-                }
+        let mut sink = |_: usize, r: StreamResult<'_>| {
+            out.push(Registered {
+                depth_units: to_units(r.zbuffer, units),
+                landed: r.zbuffer.iter().filter(|z| !z.is_nan()).count(),
+                holes: r.hole_mask.map(|m| m.iter().map(|&h| if h { 255 } else { 0 }).collect()),
+                color_on_depth: r.color_on_depth.map(|(c, _)| c.clone()),
+                cloud: None,
+            })
+        };
+        match (&self.gpu_decoder, self.engine.gpu()) {
+            (Some(decoder), Some(ctx)) => {
+                let raws = frames
+                    .iter()
+                    .map(|f| f.raw.as_deref().map(|r| (r, f.color.as_ref())))
+                    .collect::<Option<Vec<_>>>()
+                    .ok_or_else(|| {
+                        SequenceError::Pipeline(
+                            "a decoded frame reached the GPU decoder without its raw data".into(),
+                        )
+                    })?;
+                ctx.per_pixel_stream_raw(decoder, &self.rig, &raws, &self.params, plan, &mut sink)?;
             }
-            Engine::Gpu(ctx) => {
-                let plan = FramePlan {
-                    stages: (self.extras.holes || needs_color).then_some(self.stages),
-                    read_intermediates: false,
-                };
-                let mut results: Vec<GpuFrame> = Vec::with_capacity(frames.len());
-                if let Some(decoder) = &self.gpu_decoder {
-                    let raws = frames
-                        .iter()
-                        .map(|f| f.raw.as_deref().map(|r| (r, f.color.as_ref())))
-                        .collect::<Option<Vec<_>>>()
-                        .ok_or_else(|| {
-                            SequenceError::Pipeline(
-                                "a decoded frame reached the GPU decoder without its raw data"
-                                    .into(),
-                            )
-                        })?;
-                    ctx.stream_raw(decoder, &self.rig, raws, plan, |_, r| results.push(r))?;
-                } else {
-                    let inputs = frames.iter().map(|f| (&f.depth, f.color.as_ref()));
-                    ctx.stream(&self.rig, DepthKind::Z, inputs, plan, |_, r| results.push(r))?;
-                }
-                for r in results {
-                    let z = r.zbuffer.data();
-                    let landed = z.iter().filter(|v| !v.is_nan()).count();
-                    let holes = if self.extras.holes {
-                        r.holes.map(|m| m.data().iter().map(|&h| if h { 255 } else { 0 }).collect())
-                    } else {
-                        None
-                    };
-                    out.push(Registered {
-                        depth_units: to_units(z, self.units_per_metre),
-                        landed,
-                        holes,
-                        color_on_depth: r.color_on_depth.map(|(c, _)| c),
-                        cloud: None,
-                    });
-                }
+            _ => {
+                let inputs: Vec<StreamFrame<'_>> = frames
+                    .iter()
+                    .map(|f| StreamFrame { depth: &f.depth, color: f.color.as_ref() })
+                    .collect();
+                stream_on(
+                    &mut self.engine,
+                    &self.rig,
+                    DepthKind::Z,
+                    &inputs,
+                    &self.options,
+                    plan,
+                    &mut sink,
+                )?;
             }
         }
         if self.extras.cloud {

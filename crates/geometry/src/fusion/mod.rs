@@ -64,9 +64,11 @@ pub use mesh::{
     face_normal, is_stretched, mesh_from_depth, mesh_on_depth_grid, remove_edge_faces,
     remove_stretched_faces,
 };
+#[cfg(feature = "fault-injection")]
+pub use pipeline::fault;
 pub use pipeline::{
-    CpuPixels, DepthView, PerPixel, PerPixelOutput, PixelFrame, PixelParams, cloud_colors, run,
-    run_on, stretch_test,
+    CpuPixels, DepthView, PerPixel, PerPixelOutput, PixelFrame, PixelParams, StreamFrame,
+    StreamPlan, StreamResult, cloud_colors, run, run_on, stream_on, stretch_test,
 };
 pub use pixel::{
     ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32,

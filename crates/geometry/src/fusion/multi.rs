@@ -49,8 +49,7 @@ use super::pixel::{
 };
 use super::{
     CpuPixels, DepthView, FusionOptions, PerPixel, PerPixelOutput, PixelFrame, PixelParams,
-    StageTimings, cloud_colors, mesh_on_depth_grid, project_cloud, remove_edge_faces,
-    stretch_test,
+    StageTimings, cloud_colors, mesh_on_depth_grid, project_cloud, remove_edge_faces, stretch_test,
 };
 use crate::{
     CameraModel, DepthKind, GeometryError, Image, Mesh, MultiRig, PointCloud, Rig, RigCamera,
@@ -181,7 +180,7 @@ pub fn fuse_multi(
     kind: DepthKind,
     options: &FusionOptions,
 ) -> Result<MultiFusion, GeometryError> {
-    fuse_multi_on(&mut CpuPixels, rig, inputs, kind, options)
+    fuse_multi_on(&mut CpuPixels::new(), rig, inputs, kind, options)
 }
 
 /// Fuses one depth + colour pair per sensor of `rig` (depth of kind `kind`, metres), with

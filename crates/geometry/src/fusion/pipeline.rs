@@ -9,6 +9,11 @@
 //! | H8 plane fill | the engine ([`PerPixel::fill_holes`]) |
 //! | cloud colours, H4 mesh, H5 face removal, summary | here |
 //!
+//! A sequence (`kfuse fuse --recording/--frames`) runs the same per-pixel stages on the same
+//! engine through [`stream_on`]: per frame H1, H2, H7 and, as its [`StreamPlan`] asks, the H8
+//! mask and H3 nearest + H6 ([`PerPixel::per_pixel_stream`]), with the engine's state kept
+//! between frames.
+//!
 //! The switches of the viewer are options of the same run: [`FusionOptions::zbuffer`] off
 //! (first write wins, H6 without its occlusion test; a teaching switch that always runs on
 //! [`CpuPixels`]), [`FusionOptions::linear`] and [`MeshSource`] (which depth is meshed, with
@@ -49,13 +54,37 @@ impl PixelParams {
     /// The parameters `options` give for `rig` (radii not checked: [`run_on`] checks them
     /// first).
     pub fn new(rig: &Rig, options: &FusionOptions) -> Self {
+        let grow_px = hole_grow_px(rig, options);
+        #[cfg(feature = "fault-injection")]
+        let grow_px = if fault::hole_growth_broken() { 0.0 } else { grow_px };
         Self {
             radius_px: coverage_radius_px(rig, options),
-            grow_px: hole_grow_px(rig, options),
+            grow_px,
             depth_jump: options.depth_jump,
             occlusion_tolerance: options.zbuffer.then_some(options.color_occlusion_tolerance),
             zbuffer: options.zbuffer,
         }
+    }
+}
+
+/// A fault in the pipeline's wiring for tests (feature `fault-injection`): while set,
+/// [`PixelParams::new`] gives H8 no growth radius, so every path that takes its parameters from
+/// it (a single frame, several Kinects, a sequence; on every engine) computes another hole
+/// mask. Off unless a test sets it; a process-wide switch, so a test that sets it runs alone
+/// in its test binary.
+#[cfg(feature = "fault-injection")]
+pub mod fault {
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    static HOLE_GROWTH_BROKEN: AtomicBool = AtomicBool::new(false);
+
+    /// Breaks (`true`) or mends (`false`) H8's growth radius in [`super::PixelParams::new`].
+    pub fn break_hole_growth(broken: bool) {
+        HOLE_GROWTH_BROKEN.store(broken, Ordering::SeqCst);
+    }
+
+    pub(super) fn hole_growth_broken() -> bool {
+        HOLE_GROWTH_BROKEN.load(Ordering::SeqCst)
     }
 }
 
@@ -105,6 +134,39 @@ pub struct DepthView<'a> {
     pub depth: &'a Image<f32>,
     /// The seeing camera's pose in the depth camera's frame.
     pub camera_from_depth: RigidTransform,
+}
+
+/// What [`stream_on`] computes for each frame besides H1, H2 and H7's z-buffer: the
+/// per-frame outputs of `kfuse fuse --recording`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StreamPlan {
+    /// H8's hole mask.
+    pub holes: bool,
+    /// H3 nearest + H6 colour on the depth grid, for the frames that bring a colour image.
+    pub color_on_depth: bool,
+}
+
+/// One frame of a stream ([`stream_on`]): its depth (metres, 0 or NaN for no sample, the
+/// rig's depth size) and its colour image (the rig's colour size), which only H6 reads.
+#[derive(Debug, Clone, Copy)]
+pub struct StreamFrame<'a> {
+    /// Depth, metres.
+    pub depth: &'a Image<f32>,
+    /// Colour, when the frame has one decoded.
+    pub color: Option<&'a Image<[u8; 3]>>,
+}
+
+/// One streamed frame's results, lent to the sink of [`PerPixel::per_pixel_stream`] (the
+/// engine reuses the buffers for the next frame).
+#[derive(Debug, Clone, Copy)]
+pub struct StreamResult<'a> {
+    /// H7 z-buffer on the colour grid, row-major, [`ZBUFFER_EMPTY`] where no sample landed.
+    pub zbuffer: &'a [f32],
+    /// H8 hole mask on the colour grid, row-major, with [`StreamPlan::holes`].
+    pub hole_mask: Option<&'a [bool]>,
+    /// H6 colour on the depth grid and where it is trustworthy, with
+    /// [`StreamPlan::color_on_depth`] for a frame with colour.
+    pub color_on_depth: Option<(&'a Image<[u8; 3]>, &'a Image<bool>)>,
 }
 
 /// An engine for the per-pixel stages. Every engine's output is bit-identical to
@@ -160,13 +222,93 @@ pub trait PerPixel {
         views: &[DepthView<'_>],
         kind: DepthKind,
     ) -> Result<Image<f32>, Self::Error>;
+
+    /// The streaming form for sequences ([`stream_on`], which checks the frames first): H1,
+    /// H2 and H7 of every frame of `frames` (all of `rig`), with H8's mask and H3 nearest +
+    /// H6 as `plan` asks and with the H7 z-buffer of [`PixelParams::zbuffer`] on; each frame's
+    /// results lent to `sink` in order. The engine keeps its state between calls for the
+    /// same rig ([`CpuPixels`]: its [`Registration`]'s buffers and tables; the GPU: two
+    /// frames in flight). Every result equals [`PerPixel::per_pixel`]'s on the frame.
+    fn per_pixel_stream(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        frames: &[StreamFrame<'_>],
+        params: &PixelParams,
+        plan: StreamPlan,
+        sink: &mut dyn FnMut(usize, StreamResult<'_>),
+    ) -> Result<(), Self::Error>;
 }
 
 /// The CPU engine. H7 and H8's mask run on [`Registration`] (the fast path of the
-/// `register+holes` benchmark, on all rayon threads), H1/H2 keep the cloud and the samples
-/// the outputs need, H3 nearest and H6 are the stage functions.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct CpuPixels;
+/// `register+holes` benchmark: on all rayon threads for a frame, on one thread per frame of
+/// a stream, whose caller runs its own stages beside it), H1/H2 keep the cloud and the samples
+/// the outputs need, H3 nearest and H6 are the stage functions. It keeps the stream's
+/// [`Registration`] between [`PerPixel::per_pixel_stream`] calls for the same rig.
+#[derive(Debug, Default, Clone)]
+pub struct CpuPixels {
+    stream: Option<Box<CpuStream>>,
+}
+
+/// What [`CpuPixels`] keeps for a stream: the rig, kind and radii it was built for, and
+/// the buffers.
+#[derive(Debug, Clone)]
+struct CpuStream {
+    rig: Rig,
+    kind: DepthKind,
+    radii: (f32, f32),
+    reg: Registration,
+    rays: Vec<[f32; 3]>,
+    proj: ColorProjection,
+    mask: Vec<bool>,
+}
+
+impl CpuPixels {
+    /// A CPU engine (no stream state yet).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The stream state for `rig`, `kind` and `params`' radii, built on first use and when
+    /// any of them changes.
+    fn stream_state(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        params: &PixelParams,
+    ) -> Result<&mut CpuStream, GeometryError> {
+        let radii = (params.radius_px, params.grow_px);
+        let fresh = self
+            .stream
+            .as_ref()
+            .is_some_and(|s| s.kind == kind && s.radii == radii && s.rig == *rig);
+        if !fresh {
+            let rays = depth_ray_table(&rig.depth, kind);
+            let proj = ColorProjection::from_rig(rig);
+            let reg = Registration::from_parts(proj, &rays, rig.depth.width, radii.0, radii.1)?;
+            let mask = vec![false; rig.color.width * rig.color.height];
+            self.stream =
+                Some(Box::new(CpuStream { rig: rig.clone(), kind, radii, reg, rays, proj, mask }));
+        }
+        Ok(self.stream.as_mut().expect("built above"))
+    }
+}
+
+/// H6 of one frame as every CPU path runs it: with the occlusion test against `nearest`
+/// (H3) when `params` has a tolerance, without it otherwise.
+fn h6(
+    depth: &Image<f32>,
+    rays: &[[f32; 3]],
+    proj: &ColorProjection,
+    color: &Image<[u8; 3]>,
+    nearest: &Image<f32>,
+    params: &PixelParams,
+) -> (Image<[u8; 3]>, Image<bool>) {
+    match params.occlusion_tolerance {
+        Some(tol) => color_on_depth(depth, rays, proj, color, Some(nearest), tol),
+        None => color_on_depth(depth, rays, proj, color, None, 0.0),
+    }
+}
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
@@ -227,10 +369,7 @@ impl PerPixel for CpuPixels {
         timings.h3_nearest_ms += ms(t);
 
         let t = Instant::now();
-        let (color_img, color_valid) = match params.occlusion_tolerance {
-            Some(tol) => color_on_depth(depth, &rays, &proj, color, Some(&nearest), tol),
-            None => color_on_depth(depth, &rays, &proj, color, None, 0.0),
-        };
+        let (color_img, color_valid) = h6(depth, &rays, &proj, color, &nearest, params);
         timings.h6_ms += ms(t);
 
         Ok(PerPixelOutput {
@@ -267,7 +406,8 @@ impl PerPixel for CpuPixels {
             .par_iter()
             .map(|f| {
                 let mut t = StageTimings::default();
-                let out = CpuPixels.per_pixel(f.rig, f.depth, kind, f.color, &f.params, &mut t)?;
+                let out =
+                    CpuPixels::new().per_pixel(f.rig, f.depth, kind, f.color, &f.params, &mut t)?;
                 Ok((out, t))
             })
             .collect::<Result<_, GeometryError>>()?;
@@ -297,6 +437,61 @@ impl PerPixel for CpuPixels {
             zbuffer_points(&cloud.points, &proj, out.data_mut());
         }
         Ok(out)
+    }
+
+    /// One thread per frame on the kept [`Registration`]; with [`PixelParams::zbuffer`] off
+    /// (first write wins), [`PerPixel::per_pixel`] per frame.
+    fn per_pixel_stream(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        frames: &[StreamFrame<'_>],
+        params: &PixelParams,
+        plan: StreamPlan,
+        sink: &mut dyn FnMut(usize, StreamResult<'_>),
+    ) -> Result<(), GeometryError> {
+        if !params.zbuffer {
+            let black = Image::filled(rig.color.width, rig.color.height, [0u8; 3]);
+            for (i, f) in frames.iter().enumerate() {
+                let color = f.color.unwrap_or(&black);
+                let mut t = StageTimings::default();
+                let out = self.per_pixel(rig, f.depth, kind, color, params, &mut t)?;
+                sink(
+                    i,
+                    StreamResult {
+                        zbuffer: out.zbuffer.data(),
+                        hole_mask: plan.holes.then_some(out.hole_mask.data()),
+                        color_on_depth: (plan.color_on_depth && f.color.is_some())
+                            .then_some((&out.color_on_depth, &out.color_on_depth_valid)),
+                    },
+                );
+            }
+            return Ok(());
+        }
+        let s = self.stream_state(rig, kind, params)?;
+        for (i, f) in frames.iter().enumerate() {
+            s.reg.register(f.depth)?;
+            if plan.holes {
+                s.reg.hole_mask(&mut s.mask);
+            }
+            let colored = match f.color {
+                Some(color) if plan.color_on_depth => {
+                    let zbuffer = s.reg.zbuffer_image();
+                    let nearest = nearest_fill(&zbuffer, params.radius_px, params.depth_jump);
+                    Some(h6(f.depth, &s.rays, &s.proj, color, &nearest, params))
+                }
+                _ => None,
+            };
+            sink(
+                i,
+                StreamResult {
+                    zbuffer: s.reg.zbuffer(),
+                    hole_mask: plan.holes.then_some(&s.mask[..]),
+                    color_on_depth: colored.as_ref().map(|(c, v)| (c, v)),
+                },
+            );
+        }
+        Ok(())
     }
 }
 
@@ -345,7 +540,7 @@ pub fn run_on<E: PerPixel>(
     let px = if options.zbuffer {
         engine.per_pixel(rig, depth, kind, color, &params, &mut timings)?
     } else {
-        CpuPixels.per_pixel(rig, depth, kind, color, &params, &mut timings)?
+        CpuPixels::new().per_pixel(rig, depth, kind, color, &params, &mut timings)?
     };
 
     let t = Instant::now();
@@ -372,7 +567,7 @@ pub fn run_on<E: PerPixel>(
     let mut fill = |d: &Image<f32>| -> Result<(Image<f32>, usize), E::Error> {
         match &plane {
             Some(p) if options.zbuffer => engine.fill_holes(&rig.color, d, &px.hole_mask, p),
-            Some(p) => Ok(CpuPixels.fill_holes(&rig.color, d, &px.hole_mask, p)?),
+            Some(p) => Ok(CpuPixels::new().fill_holes(&rig.color, d, &px.hole_mask, p)?),
             None => Ok((d.clone(), 0)),
         }
     };
@@ -463,6 +658,40 @@ pub fn run_on<E: PerPixel>(
     })
 }
 
+/// The per-pixel stages of [`run_on`] on a stream of frames of one rig, on `engine`: what
+/// `kfuse fuse --recording/--frames` runs per frame ([`PerPixel::per_pixel_stream`]; each
+/// frame's results lent to `sink` in order). With [`FusionOptions::zbuffer`] off the stages
+/// run on [`CpuPixels`] whatever the engine, as in [`run_on`].
+///
+/// Errors, before any work: an invalid rig, a coverage radius out of bounds
+/// ([`super::checked_coverage_radius_px`]), a frame whose depth or colour image is not of its
+/// camera's size; then the engine's. A frame without any depth sample is not an error here
+/// (a stream goes on; [`run_on`] refuses such a frame).
+pub fn stream_on<E: PerPixel>(
+    engine: &mut E,
+    rig: &Rig,
+    kind: DepthKind,
+    frames: &[StreamFrame<'_>],
+    options: &FusionOptions,
+    plan: StreamPlan,
+    sink: &mut dyn FnMut(usize, StreamResult<'_>),
+) -> Result<(), E::Error> {
+    rig.validate()?;
+    super::checked_coverage_radius_px(rig, options)?;
+    for f in frames {
+        f.depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
+        if let Some(c) = f.color {
+            c.expect_size("colour image", rig.color.width, rig.color.height)?;
+        }
+    }
+    let params = PixelParams::new(rig, options);
+    if options.zbuffer {
+        engine.per_pixel_stream(rig, kind, frames, &params, plan, sink)
+    } else {
+        Ok(CpuPixels::new().per_pixel_stream(rig, kind, frames, &params, plan, sink)?)
+    }
+}
+
 /// Runs H1–H8 on one frame on the CPU ([`run_on`] with [`CpuPixels`]). `depth` is
 /// depth-camera-sized (metres, kind `kind`, NaN / 0 = no sample), `color` colour-camera-sized.
 ///
@@ -477,5 +706,5 @@ pub fn run(
     color: &Image<[u8; 3]>,
     options: &FusionOptions,
 ) -> Result<FusionOutput, GeometryError> {
-    run_on(&mut CpuPixels, rig, depth, kind, color, options)
+    run_on(&mut CpuPixels::new(), rig, depth, kind, color, options)
 }
