@@ -356,6 +356,12 @@ LF2_O3 = ("peer", "libfreenect2", "CpuDepthPacketProcessor, filters on, 1 thread
 LF2 = "kfuse / libfreenect2 -O2"
 FE = "Fast / Exact"
 REG_RATIOS = {"kfuse / OpenCV": OPENCV_REG, "kfuse / Open3D": OPEN3D_REG}
+# issue 31: the same registration called from Python (benches/peers/register_peers.py), and
+# what the call costs against the Rust bench of the same run.
+PY_REG = ("peer", "register_peers", "kfuse python register+hole_mask (all cores)")
+PY_REG_OUT = ("peer", "register_peers", "kfuse python register+hole_mask out= (all cores)")
+PY_RUST = "Python / Rust `register+holes/rayon`"
+PY_RATIO = {"kfuse / OpenCV": OPENCV_REG, "kfuse / Open3D": OPEN3D_REG, PY_RUST: ("bench", REG, "register+holes/rayon")}
 
 
 def dec(name):
@@ -389,13 +395,15 @@ TABLES = {
         "kind": "list",
         "caption": "Depth → colour registration of one Kinect frame (512×424 → 1920×1080); "
         "the peers run on the frame the bench wrote (`KFUSE_WRITE_PEER_FRAME=1`)",
-        "ratios": list(REG_RATIOS),
+        "ratios": list(REG_RATIOS) + [PY_RUST],
         "rows": [
             ("kfuse `register+holes/single` (1 thread; both lenses' distortion, exact z-buffer, hole mask)", ("bench", REG, "register+holes/single"), REG_RATIOS),
             ("kfuse `register+holes/single_bits` (the same, mask kept as bits)", ("bench", REG, "register+holes/single_bits"), REG_RATIOS),
             ("kfuse `register+holes/rayon` (all cores)", ("bench", REG, "register+holes/rayon"), REG_RATIOS),
             ("OpenCV `registerDepth` (1 thread; colour distortion only, no hole mask)", OPENCV_REG, {}),
             ("Open3D `create_from_depth_image` + `project_to_depth_image` (all cores; no distortion)", OPEN3D_REG, {}),
+            ("kfuse from Python `Registration.register` + `.hole_mask()` (all cores; new arrays)", PY_REG, PY_RATIO),
+            ("kfuse from Python, the same with `out=` arrays reused", PY_REG_OUT, PY_RATIO),
         ],
     },
     "decode": {

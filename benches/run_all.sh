@@ -17,7 +17,8 @@
 #    binaries and examples and the viewer's frame-time test, in one profile, the bench profile
 #    (= release, see PROFILE_FLAGS below);
 # 2. sets up a throwaway venv (OpenCV, Open3D, numpy from PyPI) in $KFUSE_BENCH_VENV
-#    (default ~/.cache/kfuse-bench-venv) unless --no-peers;
+#    (default ~/.cache/kfuse-bench-venv) unless --no-peers, and builds kfuse's Python package
+#    (python/, release) into it;
 # 3. waits until the machine is idle (1-minute load average below IDLE_LOAD), at most
 #    --max-wait seconds, then runs anyway and records that it was not idle;
 # 4. runs each bench (criterion defaults, or short times with --quick) and right after it the
@@ -200,6 +201,14 @@ if [ "$PEERS" = 1 ]; then
       || { echo "run_all.sh: the peers' venv $VENV cannot import cv2, open3d and numpy (above)" >&2; exit 1; }
   fi
   PY=$VENV/bin/python
+  # kfuse from Python (issue 31) in the same venv, built with the release settings (python/'s
+  # [profile.release] is the workspace's), so that register_peers.py times it beside OpenCV
+  # and Open3D in one process, on the frame the Rust bench measured.
+  echo "== building the Python package (python/) into $VENV, release"
+  "$VENV/bin/pip" install --disable-pip-version-check -q maturin \
+    && (cd python && VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH" maturin develop --release -q) \
+    && "$VENV/bin/python" -c 'import kfuse' \
+    || { echo "run_all.sh: the Python package (python/) does not build into $VENV (above)" >&2; exit 1; }
 fi
 
 waited=0

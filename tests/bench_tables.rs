@@ -67,14 +67,22 @@ fn fixture_tables_show_medians_ratios_and_the_runs_load() {
 
     // Ratios to the peer of the same run: 1.64 / 72.1 = 0.02275, 1.64 / 40.1 = 0.04090,
     // 1.30 / 72.1 = 0.01803; the rayon row's median keeps three figures (1.30, not 1.3).
+    // The Python column is for the Python rows only.
     assert_eq!(
         row(&doc, "kfuse `register+holes/single` ")[1..],
-        ["1.64 ms", "1.62 ms – 1.66 ms", "0.023×", "0.041×"]
+        ["1.64 ms", "1.62 ms – 1.66 ms", "0.023×", "0.041×", "—"]
     );
     assert_eq!(
         row(&doc, "kfuse `register+holes/rayon`")[1..],
-        ["1.30 ms", "1.25 ms – 1.35 ms", "0.018×", "0.032×"]
+        ["1.30 ms", "1.25 ms – 1.35 ms", "0.018×", "0.032×", "—"]
     );
+    // kfuse from Python against the peers and the Rust bench of the same run: 1.43 / 72.1 =
+    // 0.01983, 1.43 / 40.1 = 0.03566, 1.43 / 1.30 = 1.100 (the call's overhead, 10 %).
+    assert_eq!(
+        row(&doc, "kfuse from Python `Registration.register`")[1..],
+        ["1.43 ms", "min 1.38 ms; process CPU 2.60 ms", "0.020×", "0.036×", "1.10×"]
+    );
+    assert_eq!(row(&doc, "kfuse from Python, the same with `out=`")[1], "no result");
     // A bench id the run lacks is said, not invented.
     assert_eq!(row(&doc, "kfuse `register+holes/single_bits`")[1], "no result");
     // Decoder: 7.69 / 72.5 = 0.1061 against the recorded libfreenect2 figure (marked †),

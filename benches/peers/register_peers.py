@@ -25,6 +25,13 @@ What is timed (median and minimum wall-clock and median process CPU time of repe
   colour camera's distortion; it assumes an undistorted depth image (the depth lens is ignored).
 * Open3D (tensor API): `PointCloud.create_from_depth_image` (pinhole, no distortion) followed by
   `project_to_depth_image` into the colour camera (no distortion), reported separately and summed.
+* kfuse from Python (issue 31), when the venv has the package (`benches/run_all.sh` builds
+  `python/` into it with the bench profile): `kfuse.Registration(rig).register(depth_mm)` then
+  `.hole_mask()`, the uint16 array in and both NumPy arrays out (all cores: it runs
+  `register_parallel` and `hole_mask_parallel`), and the same with `out=` arrays reused from
+  frame to frame. Compare with the Rust bench's `register+holes/rayon` of the same run: the
+  difference is what the call from Python costs (the millimetre-to-metre conversion, the
+  arrays handed to NumPy, the GIL).
 
 Compare with kfuse's `register+holes/single` (registration + hole mask, with both lenses'
 distortion) in the criterion report.
@@ -122,6 +129,31 @@ def main():
     results["open3d project_to_depth_image"] = b
     results["open3d total"] = tuple(x + y for x, y in zip(a, b))
 
+    try:
+        import kfuse
+    except ImportError:
+        kfuse = None
+        print("kfuse (Python) not installed in this venv: its rows are left out")
+    if kfuse is not None:
+        reg = kfuse.Registration(kfuse.Rig.load(frame_dir / "rig.json"))
+
+        def kfuse_register():
+            return reg.register(depth_mm), reg.hole_mask()
+
+        z, holes = kfuse_register()
+        print(f"kfuse (Python): {int(np.isfinite(z).sum())} registered pixels, {int(holes.sum())} hole pixels")
+        results["kfuse python register+hole_mask (all cores)"] = median_ms(kfuse_register)
+        z_out = np.empty_like(z)
+        holes_out = np.empty_like(holes)
+
+        def kfuse_register_into():
+            return reg.register(depth_mm, out=z_out), reg.hole_mask(out=holes_out)
+
+        kfuse_register_into()
+        assert np.array_equal(np.isnan(z_out), np.isnan(z)) and np.array_equal(z_out[np.isfinite(z)], z[np.isfinite(z)])
+        assert np.array_equal(holes_out, holes)
+        results["kfuse python register+hole_mask out= (all cores)"] = median_ms(kfuse_register_into)
+
     # CPU ms sums all threads of the process: compare it with the Rust bench's "cpu-time"
     # lines on a machine shared with other jobs, where wall-clock times include waiting.
     print(f"{'method':40s} {'median ms':>10s} {'min ms':>10s} {'CPU ms':>10s}")
@@ -129,7 +161,8 @@ def main():
         print(f"{k:40s} {med:10.2f} {mn:10.2f} {c:10.2f}")
     if args.json:
         out = {
-            "versions": {"opencv": cv2.__version__, "open3d": o3d.__version__, "numpy": np.__version__},
+            "versions": {"opencv": cv2.__version__, "open3d": o3d.__version__, "numpy": np.__version__}
+            | ({"kfuse": kfuse.__version__} if kfuse is not None and hasattr(kfuse, "__version__") else {}),
             "frame": str(frame_dir),
             "results": {k: {"median_ms": med, "min_ms": mn, "cpu_ms": c} for k, (med, mn, c) in results.items()},
         }
