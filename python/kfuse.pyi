@@ -31,6 +31,10 @@ class Rig:
     @staticmethod
     def load(path: _Path, *more: _Path, force: bool = False) -> "Rig":
         """Every format `kfuse rig import` reads; OSError (unreadable) or ValueError (content)."""
+    @staticmethod
+    def from_kinect_params(path: _Path, force: bool = False) -> "Rig":
+        """A sensor's kinect_params.json (`kfuse capture`) as `kfuse rig import` reads it;
+        ValueError for any other format (use Rig.load), OSError when unreadable."""
     def save(self, path: _Path, overwrite: bool = False) -> None:
         """kfuse rig JSON, atomically; FileExistsError unless overwrite."""
     @property
@@ -48,10 +52,14 @@ class Registration:
     """Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask, as `kfuse fuse`."""
 
     def __init__(self, rig: Rig) -> None: ...
-    def register(self, depth: _Depth) -> npt.NDArray[np.float32]:
-        """uint16 or float32 (depth H, W) mm -> float32 (colour H, W) metres, NaN = no sample."""
-    def hole_mask(self) -> npt.NDArray[np.bool_]:
-        """bool (colour H, W): disocclusion holes of the last registered frame."""
+    def register(
+        self, depth: _Depth, out: Optional[npt.NDArray[np.float32]] = None
+    ) -> npt.NDArray[np.float32]:
+        """uint16 or float32 (depth H, W) mm -> float32 (colour H, W) metres, NaN = no sample;
+        into `out` (writable, C-contiguous, that shape) when given, which is returned."""
+    def hole_mask(self, out: Optional[npt.NDArray[np.bool_]] = None) -> npt.NDArray[np.bool_]:
+        """bool (colour H, W): disocclusion holes of the last registered frame; into `out`
+        when given."""
     def color_on_depth(
         self, color: npt.NDArray[np.uint8]
     ) -> Tuple[npt.NDArray[np.uint8], npt.NDArray[np.bool_]]:
@@ -184,7 +192,134 @@ class Recording:
     @property
     def path(self) -> pathlib.Path: ...
 
+class DeviceFrame:
+    """A depth + colour pair of a live sensor, both received after next_frame() began."""
+
+    @property
+    def number(self) -> int:
+        """Depth frames decoded since the device opened."""
+    @property
+    def depth(self) -> npt.NDArray[np.float32]:
+        """float32 (424, 512) millimetres, 0 = none, as the scene is."""
+    @property
+    def ir(self) -> npt.NDArray[np.float32]:
+        """float32 (424, 512) IR amplitude, as the scene is."""
+    @property
+    def color_jpeg(self) -> bytes:
+        """The sensor's JPEG (mirrored left-right)."""
+    @property
+    def depth_timestamp(self) -> Optional[int]:
+        """Sensor ticks of 0.125 ms."""
+    @property
+    def color_timestamp(self) -> Optional[int]: ...
+    def color(self) -> npt.NDArray[np.uint8]:
+        """Decoded as the scene is, uint8 (1080, 1920, 3); releases the GIL."""
+
+class Device:
+    """A Kinect v2 opened and streaming ("usb", or "sim": the simulated sensor); no sensor is
+    an OSError with the CLI's message. A context manager; iterating yields DeviceFrames."""
+
+    def __init__(self, backend: str = "usb", serial: Optional[str] = None) -> None: ...
+    @property
+    def info(self) -> Dict[str, str]:
+        """serial, firmware."""
+    def next_frame(self, timeout: float = 3.0) -> DeviceFrame:
+        """A fresh depth + colour pair; waits at most timeout s (0 < timeout <= 60)."""
+    def __iter__(self) -> "Device": ...
+    def __next__(self) -> DeviceFrame: ...
+    def record(self, path: _Path, frames: int) -> Dict[str, Any]:
+        """A .kfrec of `frames` depth frames (1..=108000), written atomically: frames, path,
+        stopped_by. Ctrl-C writes the frames so far, then raises KeyboardInterrupt."""
+    def write_params(self, folder: _Path) -> pathlib.Path:
+        """folder/kinect_params.json, the factory parameters (Rig.from_kinect_params)."""
+    def close(self) -> None: ...
+    def __enter__(self) -> "Device": ...
+    def __exit__(self, *args: Any) -> bool: ...
+
 def to_open3d(
     points: npt.NDArray[np.float32], colors: Optional[npt.NDArray[np.uint8]] = None
 ) -> Any:
     """Registration.cloud's result as open3d.geometry.PointCloud; ImportError without Open3D."""
+
+# One camera's images: a glob pattern or file (expanded and sorted as --ir / --color), or a
+# list of image files or of uint8 (H, W) grey arrays, kept in list order.
+_Images = Union[_Path, List[_Path], List[npt.NDArray[np.uint8]]]
+
+class CameraFit:
+    """One calibrated camera: final K / dist (the joint fit's for stereo), their 1σ, and its
+    single-camera fit's per-image table."""
+
+    @property
+    def name(self) -> str:
+        """"IR" or "colour"."""
+    @property
+    def camera(self) -> Camera: ...
+    @property
+    def K(self) -> npt.NDArray[np.float64]:
+        """3x3, OpenCV's layout [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] (px)."""
+    @property
+    def dist(self) -> npt.NDArray[np.float64]:
+        """(k1, k2, p1, p2, k3), OpenCV's order."""
+    @property
+    def K_std(self) -> npt.NDArray[np.float64]:
+        """1σ of K entry by entry: [[σfx, σskew, σcx], [0, σfy, σcy], [0, 0, 0]]."""
+    @property
+    def dist_std(self) -> npt.NDArray[np.float64]:
+        """1σ of dist (k1, k2, p1, p2, k3)."""
+    @property
+    def rms_px(self) -> float:
+        """This camera's RMS reprojection error, px (after the joint fit for stereo)."""
+    @property
+    def sigma_px(self) -> float: ...
+    @property
+    def views(self) -> List[Dict[str, Any]]:
+        """Per image: name, corners, rms_px, tilt_deg, rejected (None or why)."""
+    @property
+    def rejected_corners(self) -> List[Dict[str, Any]]:
+        """Outlier corners: view, id, error_px, threshold_px."""
+
+class Calibration:
+    """What `kfuse calibrate` computes (calib::pipeline), as Python values."""
+
+    @property
+    def rig(self) -> Optional[Rig]:
+        """The rig of a stereo run; None for one camera."""
+    @property
+    def ir(self) -> Optional[CameraFit]: ...
+    @property
+    def color(self) -> Optional[CameraFit]: ...
+    @property
+    def rms_px(self) -> float:
+        """The joint fit's RMS over both cameras (stereo), or the camera's, px."""
+    @property
+    def pairs(self) -> Optional[List[Dict[str, Any]]]:
+        """Stereo, per pair: ir, color, ir_rms_px, color_rms_px, ir_weight, color_weight,
+        used, rejected."""
+    @property
+    def rejected_views(self) -> List[Tuple[str, str, str]]:
+        """(camera "IR" / "colour" / "pair", image name, reason) of every view left out."""
+    @property
+    def board(self) -> Tuple[int, int, float, Optional[bool]]:
+        """(cols, rows, square_m, top_left_black): the size found with board="auto"."""
+    @property
+    def report(self) -> Dict[str, Any]:
+        """report.json's content less timings_ms (held_out with held_out=True)."""
+    @property
+    def text(self) -> str:
+        """The file `kfuse calibrate --out` writes, byte for byte."""
+    @property
+    def warnings(self) -> List[str]:
+        """The run's warnings (also issued as UserWarning)."""
+    def save(self, path: _Path, overwrite: bool = False) -> None:
+        """`text` written atomically; FileExistsError unless overwrite."""
+
+def calibrate(
+    ir: Optional[_Images] = None,
+    color: Optional[_Images] = None,
+    board: str = "auto",
+    square: Union[float, str, None] = None,
+    held_out: bool = False,
+    top_left: Optional[str] = None,
+) -> Calibration:
+    """`kfuse calibrate`'s run: board "COLSxROWS" inner corners or "auto"; square in metres
+    or with a unit ("40mm"; None = 40 mm); ValueError / OSError with the library's message."""

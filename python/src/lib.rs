@@ -7,6 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
+mod calibrate;
+mod device;
 mod fuse;
 mod recording;
 
@@ -39,6 +41,24 @@ fn calib_err(e: CalibError) -> PyErr {
     }
 }
 
+/// Writes `text` to the file `path` atomically, as the CLI's `--out`: a folder is a
+/// ValueError, an existing file a FileExistsError unless `overwrite`.
+fn save_text(path: &Path, text: &str, overwrite: bool) -> PyResult<()> {
+    if path.is_dir() {
+        return Err(PyValueError::new_err(format!(
+            "{}: is a folder; give a file name such as rig.json",
+            path.display()
+        )));
+    }
+    if path.exists() && !overwrite {
+        return Err(PyFileExistsError::new_err(format!(
+            "{}: exists; pass overwrite=True to replace it, or give another file name",
+            path.display()
+        )));
+    }
+    kfuse_io::atomic::write_bytes_atomic(path, text.as_bytes()).map_err(geometry_err)
+}
+
 fn geometry_err(e: GeometryError) -> PyErr {
     match e {
         GeometryError::Io { .. } => PyOSError::new_err(e.to_string()),
@@ -63,6 +83,38 @@ fn bad_array(name: &str, expected: &str, obj: &Bound<'_, PyAny>, why: &str) -> P
         "{name}: expected a C-contiguous {expected} NumPy array, got {}{why}",
         describe(obj)
     ))
+}
+
+/// `out=`: a C-contiguous 2-D array of `T` of exactly `rows x cols` (whether it is writable is
+/// checked by [`writable`] when it is borrowed).
+fn out_array2<'py, T: numpy::Element>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    dtype: &str,
+    rows: usize,
+    cols: usize,
+) -> PyResult<Bound<'py, PyArray2<T>>> {
+    let expected = format!("writable {dtype} ({rows}, {cols})");
+    let arr = obj.cast::<PyArray2<T>>().map_err(|_| bad_array(name, &expected, obj, ""))?;
+    if arr.shape() != [rows, cols] {
+        return Err(bad_array(name, &expected, obj, ""));
+    }
+    if !arr.is_c_contiguous() {
+        return Err(bad_array(name, &expected, obj, " that is not C-contiguous"));
+    }
+    Ok(arr.clone())
+}
+
+/// `out`'s write borrow: a ValueError when it is read-only or borrowed elsewhere (an input of
+/// the same call).
+fn writable<'py, T: numpy::Element>(
+    array: &Bound<'py, PyArray2<T>>,
+    obj: &Bound<'py, PyAny>,
+    expected: &str,
+) -> PyResult<numpy::PyReadwriteArray2<'py, T>> {
+    array.try_readwrite().map_err(|_| {
+        bad_array("out", expected, obj, " that is read-only or also an input of this call")
+    })
 }
 
 /// A C-contiguous 2-D array of `T` of exactly `rows x cols`, without a copy.
@@ -175,24 +227,39 @@ impl PyRig {
         Ok(Self { rig })
     }
 
+    /// Reads a Kinect v2's `kinect_params.json` (the factory parameters `kfuse capture`
+    /// saves beside a capture) as a rig, through the import `kfuse rig import
+    /// kinect_params.json` makes: the same as `Rig.load(path)`, but any other format is
+    /// refused (ValueError naming the format found and saying to use Rig.load). Raises OSError
+    /// when the file cannot be read, ValueError for its content.
+    #[staticmethod]
+    #[pyo3(signature = (path, force = false))]
+    fn from_kinect_params(py: Python<'_>, path: PathBuf, force: bool) -> PyResult<Self> {
+        let bytes = std::fs::read(&path)
+            .map_err(|e| PyOSError::new_err(format!("{}: {e}", path.display())))?;
+        let format = serde_json::from_slice::<serde_json::Value>(&bytes)
+            .ok()
+            .map(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
+        if format != Some(Some(rig_io::KINECT_PARAMS_FORMAT.to_string())) {
+            let found = match format {
+                None => "not JSON".to_string(),
+                Some(None) => "JSON without a \"format\" field".to_string(),
+                Some(Some(f)) => format!("JSON of format \"{f}\""),
+            };
+            return Err(PyValueError::new_err(format!(
+                "{}: is {found}, not a kinect_params.json (format \"{}\", written by `kfuse capture`); Rig.load reads every rig format",
+                path.display(),
+                rig_io::KINECT_PARAMS_FORMAT
+            )));
+        }
+        Self::load(path, &PyTuple::empty(py), force)
+    }
+
     /// Writes the rig as kfuse rig JSON (what `kfuse rig import --out` writes), atomically.
     /// An existing file is refused (FileExistsError) unless `overwrite`.
     #[pyo3(signature = (path, overwrite = false))]
     fn save(&self, path: PathBuf, overwrite: bool) -> PyResult<()> {
-        if path.is_dir() {
-            return Err(PyValueError::new_err(format!(
-                "{}: is a folder; give a file name such as rig.json",
-                path.display()
-            )));
-        }
-        if path.exists() && !overwrite {
-            return Err(PyFileExistsError::new_err(format!(
-                "{}: exists; pass overwrite=True to replace it, or give another file name",
-                path.display()
-            )));
-        }
-        kfuse_io::atomic::write_bytes_atomic(&path, self.rig.to_json().as_bytes())
-            .map_err(geometry_err)
+        save_text(&path, &self.rig.to_json(), overwrite)
     }
 
     /// The depth (IR) camera, the rig's reference frame.
@@ -324,40 +391,78 @@ impl PyRegistration {
     /// metres on the colour grid, float32 (colour H, colour W), NaN where no sample landed:
     /// the z-buffer `kfuse fuse` writes as depth_zbuffer.exr. The rig's depth correction is
     /// applied first, as fuse does. Releases the GIL.
+    ///
+    /// `out`: a writable C-contiguous float32 (colour H, colour W) array to fill and return
+    /// instead of a new one (a stream of frames then allocates nothing per frame).
+    #[pyo3(signature = (depth, out = None))]
     fn register<'py>(
         &mut self,
         py: Python<'py>,
         depth: &Bound<'py, PyAny>,
+        out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let image = depth_metres(py, &self.rig, depth)?;
-        let reg = &mut self.reg;
-        let (image, zbuffer) = py
-            .detach(|| -> Result<_, GeometryError> {
-                reg.register_parallel(&image)?;
-                Ok((image, reg.zbuffer().to_vec()))
-            })
-            .map_err(geometry_err)?;
-        self.frame = Some(Frame { depth: image, nearest: None });
         let (cw, ch) = (self.rig.color.width, self.rig.color.height);
-        let z = Array2::from_shape_vec((ch, cw), zbuffer)
-            .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        Ok(z.into_pyarray(py))
+        let reg = &mut self.reg;
+        let Some(out) = out else {
+            let (image, zbuffer) = py
+                .detach(|| -> Result<_, GeometryError> {
+                    reg.register_parallel(&image)?;
+                    Ok((image, reg.zbuffer().to_vec()))
+                })
+                .map_err(geometry_err)?;
+            self.frame = Some(Frame { depth: image, nearest: None });
+            let z = Array2::from_shape_vec((ch, cw), zbuffer)
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            return Ok(z.into_pyarray(py));
+        };
+        let array = out_array2::<f32>(out, "out", "float32", ch, cw)?;
+        {
+            let mut dst = writable(&array, out, "float32 (colour H, colour W)")?;
+            let dst = dst.as_slice_mut().map_err(|_| bad_array("out", "float32", out, ""))?;
+            let image = py
+                .detach(|| -> Result<_, GeometryError> {
+                    reg.register_parallel(&image)?;
+                    dst.copy_from_slice(reg.zbuffer());
+                    Ok(image)
+                })
+                .map_err(geometry_err)?;
+            self.frame = Some(Frame { depth: image, nearest: None });
+        }
+        Ok(array)
     }
 
     /// H8's disocclusion hole mask of the last registered frame: bool (colour H, colour W),
     /// True where the colour camera sees a surface the depth camera did not.
-    fn hole_mask<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<bool>>> {
+    ///
+    /// `out`: a writable C-contiguous bool (colour H, colour W) array to fill and return
+    /// instead of a new one.
+    #[pyo3(signature = (out = None))]
+    fn hole_mask<'py>(
+        &mut self,
+        py: Python<'py>,
+        out: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray2<bool>>> {
         self.frame("hole_mask")?;
         let (cw, ch) = (self.rig.color.width, self.rig.color.height);
         let reg = &mut self.reg;
-        let mask = py.detach(|| {
-            let mut mask = vec![false; cw * ch];
-            reg.hole_mask_parallel(&mut mask);
-            mask
-        });
-        let m = Array2::from_shape_vec((ch, cw), mask)
-            .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        Ok(m.into_pyarray(py))
+        let Some(out) = out else {
+            let mask = py.detach(|| {
+                let mut mask = vec![false; cw * ch];
+                reg.hole_mask_parallel(&mut mask);
+                mask
+            });
+            let m = Array2::from_shape_vec((ch, cw), mask)
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            return Ok(m.into_pyarray(py));
+        };
+        let array = out_array2::<bool>(out, "out", "bool", ch, cw)?;
+        {
+            let mut dst = writable(&array, out, "bool (colour H, colour W)")?;
+            let dst = dst.as_slice_mut().map_err(|_| bad_array("out", "bool", out, ""))?;
+            py.detach(|| reg.hole_mask_parallel(dst));
+        }
+        Ok(array)
     }
 
     /// H6: the colour seen by every depth pixel of the last registered frame, bilinear from
@@ -638,7 +743,8 @@ impl PyDecoder {
 /// `Decoder.decode`'s result: depth (mm) and IR, float32 (424, 512) each.
 type DecodedFrame<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>);
 
-/// kfuse from Python: rig files and the exact z-buffered depth-to-colour registration.
+/// kfuse from Python: calibration (`calibrate`), rig files and the exact z-buffered
+/// depth-to-colour registration.
 #[pymodule]
 fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCamera>()?;
@@ -652,5 +758,10 @@ fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(to_open3d, m)?)?;
     m.add_class::<recording::PyRecording>()?;
     m.add_class::<recording::PyRecordingFrame>()?;
+    m.add_class::<calibrate::PyCalibration>()?;
+    m.add_class::<calibrate::PyCameraFit>()?;
+    m.add_function(wrap_pyfunction!(calibrate::calibrate, m)?)?;
+    m.add_class::<device::PyDevice>()?;
+    m.add_class::<device::PyDeviceFrame>()?;
     Ok(())
 }

@@ -113,3 +113,48 @@ def test_hole_mask_before_register_is_a_value_error():
     fresh = kfuse.Registration(kfuse.Rig.load(KINECT / "rig.json"))
     with pytest.raises(ValueError, match="call register"):
         fresh.hole_mask()
+
+
+def test_out_arrays_are_filled_in_place_with_the_same_result(fused, reg):
+    """register(out=) / hole_mask(out=) write into the caller's arrays (no new array per frame)
+    and give exactly what the allocating calls give; stale content is overwritten."""
+    z = reg.register(fused["depth_mm"])
+    mask = reg.hole_mask()
+    z_out = np.full((1080, 1920), 7.0, np.float32)
+    m_out = np.ones((1080, 1920), np.bool_)
+    got = reg.register(fused["depth_mm"], out=z_out)
+    assert got is z_out
+    assert np.array_equal(z_out.view(np.uint32), z.view(np.uint32))
+    got = reg.hole_mask(out=m_out)
+    assert got is m_out and np.array_equal(m_out, mask)
+    # The next frame replaces the whole array (an empty frame: NaN everywhere, no holes).
+    reg.register(np.zeros((424, 512), np.uint16), out=z_out)
+    assert np.isnan(z_out).all()
+
+
+@pytest.mark.parametrize(
+    "bad, what",
+    [
+        (np.zeros((1080, 1920), np.float64), "float64"),
+        (np.zeros((1920, 1080), np.float32), "(1920, 1080)"),
+        (np.zeros((1080, 3840), np.float32)[:, ::2], "not C-contiguous"),
+    ],
+)
+def test_register_out_rejects_wrong_arrays_with_value_error(fused, reg, bad, what):
+    with pytest.raises(ValueError) as e:
+        reg.register(fused["depth_mm"], out=bad)
+    msg = str(e.value)
+    assert msg.startswith("out: expected a C-contiguous writable float32 (1080, 1920)"), msg
+    assert what in msg, msg
+
+
+def test_register_out_refuses_a_read_only_array(fused, reg):
+    ro = np.zeros((1080, 1920), np.float32)
+    ro.flags.writeable = False
+    with pytest.raises(ValueError, match="read-only"):
+        reg.register(fused["depth_mm"], out=ro)
+    assert (ro == 0).all()
+    m = np.zeros((1080, 1920), np.bool_)
+    m.flags.writeable = False
+    with pytest.raises(ValueError, match="read-only"):
+        reg.hole_mask(out=m)

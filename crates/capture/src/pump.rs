@@ -122,6 +122,14 @@ impl FramePump {
         }
     }
 
+    /// Whether both the held depth frame and the held colour frame were received at or after
+    /// `since` (a caller that pumps frame by frame, e.g. to answer Ctrl-C between frames,
+    /// asks this where [`FramePump::fresh_pair`] loops by itself).
+    pub fn holds_pair_since(&self, since: Instant) -> bool {
+        let fresh = |t: Option<Instant>| t.is_some_and(|t| t >= since);
+        fresh(self.depth_at) && fresh(self.color_at)
+    }
+
     /// Pumps until both a depth and a colour frame received at or after `since` are held, at
     /// most [`FRAME_TIMEOUT`] (then a protocol error naming the timeout).
     pub fn fresh_pair(
@@ -131,8 +139,7 @@ impl FramePump {
     ) -> Result<(), CaptureError> {
         let deadline = Instant::now() + FRAME_TIMEOUT;
         loop {
-            let fresh = |t: Option<Instant>| t.is_some_and(|t| t >= since);
-            if fresh(self.depth_at) && fresh(self.color_at) {
+            if self.holds_pair_since(since) {
                 return Ok(());
             }
             if Instant::now() > deadline {

@@ -1,0 +1,329 @@
+//! `kfuse.Device(backend)`: a live Kinect v2 (or the simulated one) through `kfuse-capture`,
+//! what `kfuse capture` and the viewer's live page open: `Session::open` opens and starts
+//! the sensor, `FramePump` decodes each depth frame with the session's decoder and keeps the
+//! newest colour JPEG, `record::record` writes a `.kfrec` recording. No algorithm of its own.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use kfuse_capture::{
+    CaptureError, DecoderOptions, FramePump, SensorSource, Session, SimOptions, multi,
+    write_params_json,
+};
+use kinect_usb::raw::{HEIGHT, WIDTH};
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyArray2, PyArray3};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+/// Longest wait `Device.next_frame` accepts, seconds: a sensor that sends nothing for a minute
+/// is gone, and the bound keeps `Duration::from_secs_f64` away from huge or invalid values.
+const MAX_TIMEOUT_S: f64 = 60.0;
+
+/// Most depth frames `Device.record` takes in one call: an hour at the sensor's 30 Hz (a
+/// recording holds about 3 MB per frame, so this is already ~300 GB).
+const MAX_RECORD_FRAMES: u64 = 30 * 3600;
+
+/// A capture error as the exception a Python user expects: no sensor, a busy one or a file
+/// that cannot be written is an OSError, a bad setting a ValueError, a failing stream a
+/// RuntimeError. The message is the CLI's (`error: ` aside).
+fn capture_err(e: CaptureError) -> PyErr {
+    match &e {
+        CaptureError::NoSensor { .. } | CaptureError::Busy(_) | CaptureError::Write { .. } => {
+            PyOSError::new_err(e.to_string())
+        }
+        CaptureError::Config(_) | CaptureError::Setting { .. } => {
+            PyValueError::new_err(e.to_string())
+        }
+        _ => PyRuntimeError::new_err(e.to_string()),
+    }
+}
+
+/// One frame pair of a live sensor, taken by `Device.next_frame`: the newest depth frame
+/// (decoded) and the newest colour frame, both received after the call began.
+#[pyclass(name = "DeviceFrame", module = "kfuse", frozen)]
+pub(crate) struct PyDeviceFrame {
+    number: u64,
+    depth_mm: Vec<f32>,
+    ir: Vec<f32>,
+    color_jpeg: Vec<u8>,
+    depth_timestamp: Option<u32>,
+    color_timestamp: Option<u32>,
+}
+
+fn image2<'py>(py: Python<'py>, data: &[f32]) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let a = Array2::from_shape_vec((HEIGHT, WIDTH), data.to_vec())
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(a.into_pyarray(py))
+}
+
+#[pymethods]
+impl PyDeviceFrame {
+    /// Depth frames decoded since the device opened (1 for the first).
+    #[getter]
+    fn number(&self) -> u64 {
+        self.number
+    }
+
+    /// Depth, float32 (424, 512) millimetres, 0 = no measurement, as the scene is (the
+    /// decoder's default: both filters, the Fast precision, as `kfuse capture`). Registration.register
+    /// and kfuse.fuse take it as it is.
+    #[getter]
+    fn depth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        image2(py, &self.depth_mm)
+    }
+
+    /// IR amplitude, float32 (424, 512), as the scene is (what `kfuse capture` writes, before
+    /// its 16-bit rounding, into ir_NNNN.png).
+    #[getter]
+    fn ir<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        image2(py, &self.ir)
+    }
+
+    /// The colour JPEG as the sensor streamed it (mirrored left-right).
+    #[getter]
+    fn color_jpeg<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &self.color_jpeg)
+    }
+
+    /// The depth frame's sensor timestamp, ticks of 0.125 ms (wraps at 2^32).
+    #[getter]
+    fn depth_timestamp(&self) -> Option<u32> {
+        self.depth_timestamp
+    }
+
+    /// The colour frame's sensor timestamp, ticks of 0.125 ms (wraps at 2^32).
+    #[getter]
+    fn color_timestamp(&self) -> Option<u32> {
+        self.color_timestamp
+    }
+
+    /// The colour frame decoded as the scene is (unmirrored), uint8 (1080, 1920, 3) RGB.
+    /// Releases the GIL.
+    fn color<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<u8>>> {
+        let jpeg = &self.color_jpeg;
+        let img = py
+            .detach(|| kfuse_io::sensor_color::decode_mirrored(jpeg))
+            .map_err(|e| PyValueError::new_err(format!("colour frame {}: {e}", self.number)))?;
+        let (w, h) = img.size();
+        let flat: Vec<u8> = img.data().iter().flatten().copied().collect();
+        let a = Array3::from_shape_vec((h, w, 3), flat)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(a.into_pyarray(py))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "DeviceFrame(number={}, depth_timestamp={:?}, color_timestamp={:?})",
+            self.number, self.depth_timestamp, self.color_timestamp
+        )
+    }
+}
+
+/// A Kinect v2, opened and streaming: for frame in kfuse.Device("usb"): frame.depth, ...
+///
+/// Device(backend="usb", serial=None): "usb" opens the first Kinect v2 on the USB bus (or
+/// the one of this serial, as `kfuse capture --device SERIAL`), "sim" the simulated Kinect
+/// v2 (`--backend sim`: the synthetic scene, its own factory parameters, no hardware). No
+/// sensor is an OSError with the message `kfuse capture` prints. Use it as a context manager
+/// (or call close()) to release the sensor. next_frame() waits for a fresh depth + colour
+/// pair; iterating yields them one after another; record(path, frames) writes a .kfrec
+/// recording that kfuse.Recording and `kfuse fuse --recording` read. Waits release the GIL;
+/// Ctrl-C interrupts them with KeyboardInterrupt.
+#[pyclass(name = "Device", module = "kfuse", unsendable)]
+pub(crate) struct PyDevice {
+    session: Option<Session>,
+    pump: FramePump,
+}
+
+/// The source of `backend` (and `serial`): the CLI's `--backend` and `--device SERIAL`.
+fn source_of(backend: &str, serial: Option<&str>) -> PyResult<SensorSource> {
+    let base = match backend {
+        "usb" => SensorSource::Usb,
+        "sim" => SensorSource::Sim(SimOptions::default()),
+        // The CLI's hidden `--backend absent`: a bus with no Kinect, whatever is plugged in
+        // (tests of what happens without a sensor).
+        "absent" => SensorSource::Absent,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "backend: expected \"usb\" or \"sim\", got {other:?}"
+            )));
+        }
+    };
+    let Some(serial) = serial else { return Ok(base) };
+    let sensors = multi::connected(&base).map_err(capture_err)?;
+    let found = sensors.iter().find(|c| c.serial.as_deref() == Some(serial));
+    match found {
+        Some(c) => Ok(c.source.clone()),
+        None => {
+            let have: Vec<&str> =
+                sensors.iter().map(|c| c.serial.as_deref().unwrap_or("?")).collect();
+            Err(PyOSError::new_err(format!(
+                "no Kinect v2 with serial {serial}; connected: {}",
+                have.join(", ")
+            )))
+        }
+    }
+}
+
+impl PyDevice {
+    fn session(&mut self) -> PyResult<&mut Session> {
+        self.session.as_mut().ok_or_else(|| PyValueError::new_err("the device is closed"))
+    }
+}
+
+#[pymethods]
+impl PyDevice {
+    /// See the class documentation.
+    #[new]
+    #[pyo3(signature = (backend = "usb", serial = None))]
+    fn new(py: Python<'_>, backend: &str, serial: Option<&str>) -> PyResult<Self> {
+        let source = source_of(backend, serial)?;
+        let session = py.detach(|| Session::open(&source)).map_err(capture_err)?;
+        let decoder = session.decoder(&DecoderOptions::default()).map_err(capture_err)?;
+        Ok(Self { session: Some(session), pump: FramePump::new(decoder) })
+    }
+
+    /// The sensor's serial number and firmware version, as it reported them.
+    #[getter]
+    fn info<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let i = self.session()?.info();
+        let d = PyDict::new(py);
+        d.set_item("serial", i.serial.clone())?;
+        d.set_item("firmware", i.firmware.clone())?;
+        Ok(d)
+    }
+
+    /// Waits for a depth and a colour frame both received after this call began (at most
+    /// `timeout` seconds, 0 < timeout <= 60) and returns them as a DeviceFrame. Errors: a
+    /// stream that stops (RuntimeError), Ctrl-C (KeyboardInterrupt), a closed device.
+    #[pyo3(signature = (timeout = 3.0))]
+    fn next_frame(&mut self, py: Python<'_>, timeout: f64) -> PyResult<PyDeviceFrame> {
+        if !(timeout > 0.0 && timeout <= MAX_TIMEOUT_S) {
+            return Err(PyValueError::new_err(format!(
+                "timeout: expected seconds in (0, {MAX_TIMEOUT_S}], got {timeout}"
+            )));
+        }
+        let since = Instant::now();
+        let deadline = since + Duration::from_secs_f64(timeout);
+        let session =
+            self.session.as_mut().ok_or_else(|| PyValueError::new_err("the device is closed"))?;
+        let pump = &mut self.pump;
+        // One frame at a time without the GIL, Ctrl-C checked between frames.
+        loop {
+            let fresh = py
+                .detach(|| -> Result<bool, CaptureError> {
+                    pump.pump(session, deadline.saturating_duration_since(Instant::now()))?;
+                    Ok(pump.holds_pair_since(since))
+                })
+                .map_err(capture_err)?;
+            py.check_signals()?;
+            if fresh {
+                break;
+            }
+            if Instant::now() >= deadline {
+                return Err(PyRuntimeError::new_err(format!(
+                    "no complete depth + colour pair within {timeout} s"
+                )));
+            }
+        }
+        Ok(PyDeviceFrame {
+            number: self.pump.depth_frames(),
+            depth_mm: self.pump.depth_mm().to_vec(),
+            ir: self.pump.ir().to_vec(),
+            color_jpeg: self.pump.color_jpeg().to_vec(),
+            depth_timestamp: self.pump.depth_timestamp(),
+            color_timestamp: self.pump.color_timestamp(),
+        })
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__(&mut self, py: Python<'_>) -> PyResult<PyDeviceFrame> {
+        self.next_frame(py, 3.0)
+    }
+
+    /// Records `frames` depth frames (1..=108000, an hour) and the colour frames between them
+    /// into the .kfrec file `path`, as `kfuse capture record` does: written to a temporary
+    /// file and moved into place, so `path` is a complete, replayable recording or is left
+    /// as it was. Returns the frames recorded. A stream that stops early still leaves a
+    /// complete file of the frames so far (`stopped_by` in the result says why); Ctrl-C stops
+    /// at the next frame, writes the frames so far and then raises KeyboardInterrupt
+    /// (nothing is written when it comes before the first frame). Releases the GIL.
+    fn record<'py>(
+        &mut self,
+        py: Python<'py>,
+        path: PathBuf,
+        frames: u64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        if !(1..=MAX_RECORD_FRAMES).contains(&frames) {
+            return Err(PyValueError::new_err(format!(
+                "frames: expected 1..={MAX_RECORD_FRAMES}, got {frames}"
+            )));
+        }
+        let session = self.session()?;
+        let interrupted = std::sync::atomic::AtomicBool::new(false);
+        let stop = || {
+            // Signals are only seen with the GIL: take it for the check, once per frame.
+            let hit = Python::attach(|py| py.check_signals().is_err());
+            if hit {
+                interrupted.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+            hit
+        };
+        let done = py
+            .detach(|| kfuse_capture::record::record(session, &path, frames, &stop, &mut |_| {}))
+            .map_err(capture_err)?;
+        if interrupted.load(std::sync::atomic::Ordering::SeqCst) {
+            let what = if done.written {
+                format!("recording stopped: {} frames written to {}", done.frames, path.display())
+            } else {
+                "recording stopped before the first frame: nothing written".to_string()
+            };
+            return Err(PyKeyboardInterrupt::new_err(what));
+        }
+        let d = PyDict::new(py);
+        d.set_item("frames", done.frames)?;
+        d.set_item("path", path)?;
+        d.set_item("stopped_by", done.stopped_by.map(|e| e.to_string()))?;
+        Ok(d)
+    }
+
+    /// Writes `folder/kinect_params.json`, the sensor's factory parameters of the images as
+    /// the scene is (what `kfuse capture` writes beside its shots; kfuse.Rig.from_kinect_params
+    /// reads it). Returns the file's path.
+    fn write_params(&mut self, folder: PathBuf) -> PyResult<PathBuf> {
+        let info = self.session()?.info().clone();
+        write_params_json(&folder, &info).map_err(capture_err)?;
+        Ok(folder.join("kinect_params.json"))
+    }
+
+    /// Stops the streams and releases the sensor (again: nothing).
+    fn close(&mut self) {
+        if let Some(mut s) = self.session.take() {
+            s.close();
+        }
+    }
+
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    #[pyo3(signature = (*_args))]
+    fn __exit__(&mut self, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
+        self.close();
+        false
+    }
+
+    fn __repr__(&mut self) -> String {
+        match &self.session {
+            Some(s) => {
+                format!("Device(serial={:?}, source={:?})", s.info().serial, s.source().name())
+            }
+            None => "Device(closed)".into(),
+        }
+    }
+}
