@@ -8,9 +8,9 @@ use std::hint::black_box;
 use std::sync::atomic::AtomicU32;
 
 use criterion::{Criterion, SamplingMode, Throughput, criterion_group, criterion_main};
-use fusion_gpu::{FramePlan, FusionContext, StageOptions};
+use fusion_gpu::{FramePlan, FusionContext};
 use geometry::fusion::{
-    ColorProjection, FusionOptions, PlaneFit, backproject_cloud, color_on_depth,
+    ColorProjection, FusionOptions, PixelParams, PlaneFit, backproject_cloud, color_on_depth,
     coverage_radius_px, depth_ray_table, fill_holes_with_plane, hole_grow_px, hole_mask,
     nearest_fill, project_cloud, register_depth, register_depth_parallel, run,
     zbuffer_from_samples,
@@ -101,12 +101,12 @@ fn bench(c: &mut Criterion) {
     };
     println!("GPU adapter: {}", ctx.adapter_summary());
     // The later stages with the parameters geometry::fusion::run derives for this rig.
-    let stages = StageOptions {
-        nearest_radius_px: radius,
+    let stages = PixelParams {
+        radius_px: radius,
+        grow_px: grow,
         depth_jump: 0.05,
-        hole_radius_px: radius,
-        hole_grow_px: grow,
         occlusion_tolerance: Some(0.02),
+        zbuffer: true,
     };
     let all = FramePlan { stages: Some(stages), read_intermediates: false };
     let mut g = c.benchmark_group("gpu");

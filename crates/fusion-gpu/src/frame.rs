@@ -3,11 +3,10 @@
 //! one frame's description handed to every stage's `encode` ([`Work`]). Buffers only one
 //! stage uses belong to that stage (`crate::stages`).
 
-use geometry::fusion::{ColorProjection, depth_ray_table, disc_offsets};
+use geometry::fusion::{ColorProjection, PixelParams, depth_ray_table, disc_offsets};
 use geometry::{CameraModel, DepthKind, Rig};
 
 use crate::gpu::Gpu;
-use crate::plan::StageOptions;
 use crate::tables::hole_half_widths;
 
 /// One frame slot's buffers that pass between stages, with their read-back copies.
@@ -152,10 +151,10 @@ impl Tables {
         gpu: &Gpu,
         rig: &Rig,
         kind: DepthKind,
-        stages: Option<&StageOptions>,
+        stages: Option<&PixelParams>,
     ) {
-        let (nearest_r, hole_r, grow_r) = stages
-            .map_or((0.0, 0.0, 0.0), |s| (s.nearest_radius_px, s.hole_radius_px, s.hole_grow_px));
+        let (nearest_r, hole_r, grow_r) =
+            stages.map_or((0.0, 0.0, 0.0), |s| (s.radius_px, s.radius_px, s.grow_px));
         let rays = || depth_ray_table(&rig.depth, kind);
         let offsets = || -> Vec<[i32; 2]> {
             disc_offsets(nearest_r).into_iter().map(|(dx, dy, _)| [dx, dy]).collect()
@@ -208,7 +207,7 @@ pub(crate) struct Work<'a> {
     /// H2's projection into the colour camera.
     pub(crate) proj: &'a ColorProjection,
     /// H3, H8 and H6 when given.
-    pub(crate) stages: Option<StageOptions>,
+    pub(crate) stages: Option<PixelParams>,
     /// Whether the colour image was uploaded (H6 runs with `stages` only).
     pub(crate) color: bool,
     /// The lookup tables (their lengths are in the uniforms).

@@ -72,5 +72,5 @@ pub use context::FusionContext;
 pub use decode::{GpuDecoder, METRES_PER_MM};
 pub use engine::Engine;
 pub use error::GpuError;
-pub use plan::{FramePlan, GpuFrame, StageOptions};
+pub use plan::{FramePlan, GpuFrame};
 pub use run::{EngineUsed, PixelEngine, RawStreamFrame, fuse, fuse_multi};

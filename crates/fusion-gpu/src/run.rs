@@ -14,7 +14,7 @@ use geometry::fusion::{
 };
 use geometry::{CameraModel, DepthKind, Image, MultiRig, Rig, RigCamera};
 
-use crate::{Engine, FramePlan, FusionContext, GpuDecoder, GpuError, GpuFrame, StageOptions};
+use crate::{Engine, FramePlan, FusionContext, GpuDecoder, GpuError, GpuFrame};
 
 impl PerPixel for FusionContext {
     type Error = GpuError;
@@ -31,7 +31,7 @@ impl PerPixel for FusionContext {
         timings: &mut StageTimings,
     ) -> Result<PerPixelOutput, GpuError> {
         let (cw, ch) = (rig.color.width, rig.color.height);
-        let stages = stage_options(params);
+        let stages = *params;
         let t = Instant::now();
         let frame = self.frame(
             rig,
@@ -112,7 +112,7 @@ impl PerPixel for FusionContext {
         sink: &mut dyn FnMut(usize, StreamResult<'_>),
     ) -> Result<(), GpuError> {
         let gpu_plan = FramePlan {
-            stages: (plan.holes || plan.color_on_depth).then_some(stage_options(params)),
+            stages: (plan.holes || plan.color_on_depth).then_some(*params),
             read_intermediates: false,
         };
         let inputs = frames.iter().map(|f| (f.depth, f.color.filter(|_| plan.color_on_depth)));
@@ -124,17 +124,6 @@ impl PerPixel for FusionContext {
 /// One raw frame of [`FusionContext::per_pixel_stream_raw`]: the Kinect v2's raw depth data
 /// and, for H6, the frame's colour image.
 pub type RawStreamFrame<'a> = (&'a [u8], Option<&'a Image<[u8; 3]>>);
-
-/// The GPU stages' parameters from the pipeline's.
-fn stage_options(params: &PixelParams) -> StageOptions {
-    StageOptions {
-        nearest_radius_px: params.radius_px,
-        depth_jump: params.depth_jump,
-        hole_radius_px: params.radius_px,
-        hole_grow_px: params.grow_px,
-        occlusion_tolerance: params.occlusion_tolerance,
-    }
-}
 
 /// A GPU frame's results lent to a stream's sink, as `plan` asked for them.
 fn lend(i: usize, r: &GpuFrame, plan: StreamPlan, sink: &mut dyn FnMut(usize, StreamResult<'_>)) {
@@ -306,7 +295,7 @@ impl FusionContext {
         sink: &mut dyn FnMut(usize, StreamResult<'_>),
     ) -> Result<(), GpuError> {
         let gpu_plan = FramePlan {
-            stages: (plan.holes || plan.color_on_depth).then_some(stage_options(params)),
+            stages: (plan.holes || plan.color_on_depth).then_some(*params),
             read_intermediates: false,
         };
         let inputs = frames.iter().map(|&(raw, c)| (raw, c.filter(|_| plan.color_on_depth)));

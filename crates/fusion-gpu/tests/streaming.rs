@@ -4,7 +4,8 @@
 mod common;
 
 use common::{context_or_skip, kinect, with_small_color};
-use fusion_gpu::{FramePlan, StageOptions};
+use fusion_gpu::FramePlan;
+use geometry::fusion::PixelParams;
 use geometry::{DepthKind, Image};
 
 #[test]
@@ -21,12 +22,12 @@ fn streamed_frames_equal_single_frames_in_order() {
     let depths: Vec<Image<f32>> =
         (0..4).map(|k| frame.depth.map(|&z| z * (1.0 + 0.02 * k as f32))).collect();
     let plan = FramePlan {
-        stages: Some(StageOptions {
-            nearest_radius_px: 1.5,
+        stages: Some(PixelParams {
+            radius_px: 1.5,
+            grow_px: 1.0,
             depth_jump: 0.05,
-            hole_radius_px: 1.5,
-            hole_grow_px: 1.0,
             occlusion_tolerance: Some(0.02),
+            zbuffer: true,
         }),
         read_intermediates: false,
     };

@@ -51,6 +51,25 @@ pub struct PixelParams {
 }
 
 impl PixelParams {
+    /// Checks the two radii against [`super::MAX_COVERAGE_RADIUS_PX`] before an engine builds
+    /// their lookup tables (the disc table grows with the square of the radius).
+    ///
+    /// Error: [`GeometryError::InvalidInput`] naming the radius and the limit.
+    pub fn check(&self) -> Result<(), GeometryError> {
+        let limit = super::MAX_COVERAGE_RADIUS_PX;
+        for (what, r) in [
+            ("H3 nearest / H8 coverage radius", self.radius_px),
+            ("H8 growth radius", self.grow_px),
+        ] {
+            if !(0.0..=limit).contains(&r) {
+                return Err(GeometryError::InvalidInput(format!(
+                    "{what} {r} px is outside 0..={limit} px"
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// The parameters `options` give for `rig` (radii not checked: [`run_on`] checks them
     /// first).
     pub fn new(rig: &Rig, options: &FusionOptions) -> Self {
