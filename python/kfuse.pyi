@@ -215,11 +215,17 @@ class DeviceFrame:
     def color(self) -> npt.NDArray[np.uint8]:
         """Decoded as the scene is, uint8 (1080, 1920, 3); releases the GIL."""
 
+def devices(backend: str = "usb", sim_sensors: int = 1) -> List[Dict[str, Optional[str]]]:
+    """`kfuse devices`: serial and line of every sensor; OSError without one."""
+
 class Device:
     """A Kinect v2 opened and streaming ("usb", or "sim": the simulated sensor); no sensor is
     an OSError with the CLI's message. A context manager; iterating yields DeviceFrames."""
 
-    def __init__(self, backend: str = "usb", serial: Optional[str] = None) -> None: ...
+    def __init__(
+        self, backend: str = "usb", serial: Optional[str] = None, sim_sensors: int = 1
+    ) -> None:
+        """sim_sensors 2..4: one sensor of the simulated ring (the first, or `serial`)."""
     @property
     def info(self) -> Dict[str, str]:
         """serial, firmware."""

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use kfuse_capture::{
-    CaptureError, DecoderOptions, FramePump, SensorSource, Session, SimOptions, multi,
+    CaptureError, DecoderOptions, FramePump, SensorSource, Session, SimOptions, SimRing, multi,
     write_params_json,
 };
 use kinect_usb::raw::{HEIGHT, WIDTH};
@@ -123,9 +123,11 @@ impl PyDeviceFrame {
 
 /// A Kinect v2, opened and streaming: for frame in kfuse.Device("usb"): frame.depth, ...
 ///
-/// Device(backend="usb", serial=None): "usb" opens the first Kinect v2 on the USB bus (or
-/// the one of this serial, as `kfuse capture --device SERIAL`), "sim" the simulated Kinect
-/// v2 (`--backend sim`: the synthetic scene, its own factory parameters, no hardware). No
+/// Device(backend="usb", serial=None, sim_sensors=1): "usb" opens the first Kinect v2 on the
+/// USB bus (or the one of this serial, as `kfuse capture --device SERIAL`), "sim" the
+/// simulated Kinect v2 (`--backend sim`: the synthetic scene, its own factory parameters, no
+/// hardware; with sim_sensors=2..4 one sensor of the simulated ring of `--sim-sensors N`,
+/// the first or the one of `serial`; kfuse.devices lists them). No
 /// sensor is an OSError with the message `kfuse capture` prints. Use it as a context manager
 /// (or call close()) to release the sensor. next_frame() waits for a fresh depth + colour
 /// pair; iterating yields them one after another; record(path, frames) writes a .kfrec
@@ -137,11 +139,23 @@ pub(crate) struct PyDevice {
     pump: FramePump,
 }
 
-/// The source of `backend` (and `serial`): the CLI's `--backend` and `--device SERIAL`.
-fn source_of(backend: &str, serial: Option<&str>) -> PyResult<SensorSource> {
+/// The source of `backend` (and `serial`, `sim_sensors`): the CLI's `--backend`,
+/// `--device SERIAL` and `--sim-sensors N`.
+fn source_of(backend: &str, serial: Option<&str>, sim_sensors: usize) -> PyResult<SensorSource> {
+    let max = kinect_usb::sim::ring::MAX_SIM_SENSORS;
+    if !(1..=max).contains(&sim_sensors) || (sim_sensors > 1 && backend != "sim") {
+        return Err(PyValueError::new_err(format!(
+            "sim_sensors: expected 1..={max} with backend=\"sim\", got {sim_sensors} with backend={backend:?}"
+        )));
+    }
+    let ring = (sim_sensors > 1).then(|| SimRing {
+        sensors: sim_sensors,
+        index: 0,
+        serial: kinect_usb::sim::ring::serial(0),
+    });
     let base = match backend {
         "usb" => SensorSource::Usb,
-        "sim" => SensorSource::Sim(SimOptions::default()),
+        "sim" => SensorSource::Sim(SimOptions { ring, ..SimOptions::default() }),
         // The CLI's hidden `--backend absent`: a bus with no Kinect, whatever is plugged in
         // (tests of what happens without a sensor).
         "absent" => SensorSource::Absent,
@@ -167,6 +181,29 @@ fn source_of(backend: &str, serial: Option<&str>) -> PyResult<SensorSource> {
     }
 }
 
+/// The sensors a backend offers, as `kfuse devices` lists them: dicts of serial (None when a
+/// real sensor could not be asked: busy, permissions) and line (its line in `kfuse devices`).
+/// No sensor is an OSError with the CLI's message.
+#[pyfunction]
+#[pyo3(signature = (backend = "usb", sim_sensors = 1))]
+pub(crate) fn devices<'py>(
+    py: Python<'py>,
+    backend: &str,
+    sim_sensors: usize,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    let source = source_of(backend, None, sim_sensors)?;
+    let sensors = py.detach(|| multi::connected(&source)).map_err(capture_err)?;
+    sensors
+        .into_iter()
+        .map(|c| {
+            let d = PyDict::new(py);
+            d.set_item("serial", c.serial)?;
+            d.set_item("line", c.line)?;
+            Ok(d)
+        })
+        .collect()
+}
+
 impl PyDevice {
     fn session(&mut self) -> PyResult<&mut Session> {
         self.session.as_mut().ok_or_else(|| PyValueError::new_err("the device is closed"))
@@ -177,9 +214,14 @@ impl PyDevice {
 impl PyDevice {
     /// See the class documentation.
     #[new]
-    #[pyo3(signature = (backend = "usb", serial = None))]
-    fn new(py: Python<'_>, backend: &str, serial: Option<&str>) -> PyResult<Self> {
-        let source = source_of(backend, serial)?;
+    #[pyo3(signature = (backend = "usb", serial = None, sim_sensors = 1))]
+    fn new(
+        py: Python<'_>,
+        backend: &str,
+        serial: Option<&str>,
+        sim_sensors: usize,
+    ) -> PyResult<Self> {
+        let source = source_of(backend, serial, sim_sensors)?;
         let session = py.detach(|| Session::open(&source)).map_err(capture_err)?;
         let decoder = session.decoder(&DecoderOptions::default()).map_err(capture_err)?;
         Ok(Self { session: Some(session), pump: FramePump::new(decoder) })

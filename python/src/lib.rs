@@ -763,5 +763,6 @@ fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(calibrate::calibrate, m)?)?;
     m.add_class::<device::PyDevice>()?;
     m.add_class::<device::PyDeviceFrame>()?;
+    m.add_function(wrap_pyfunction!(device::devices, m)?)?;
     Ok(())
 }

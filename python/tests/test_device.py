@@ -134,3 +134,32 @@ def test_bad_arguments_are_value_errors(tmp_path):
         assert not (tmp_path / "n.kfrec").exists()
     with pytest.raises(ValueError, match="closed"):
         dev.next_frame()
+
+
+def test_a_simulated_ring_lists_and_opens_each_sensor_as_the_cli(tmp_path):
+    """kfuse.devices and Device(sim_sensors=3, serial=...) against `kfuse devices` and
+    `kfuse capture scene --device SERIAL` on the same ring: the same lines, and the second
+    sensor's depth (another pose: not the first sensor's) rounds to the CLI's PNG exactly."""
+    cli = subprocess.run([str(kfuse_binary()), "devices", "--backend", "sim", "--sim-sensors", "3"],
+                         check=True, capture_output=True, text=True)
+    listed = kfuse.devices("sim", sim_sensors=3)
+    assert [d["line"] for d in listed] == cli.stdout.strip().splitlines()
+    serials = [d["serial"] for d in listed]
+    assert len(set(serials)) == 3, serials
+    out = tmp_path / "ring"
+    subprocess.run([str(kfuse_binary()), "capture", "scene", "--backend", "sim", "--sim-sensors", "3",
+                    "--device", serials[1], "--interval", "0", "--out", str(out), "--name", "s"],
+                   check=True, capture_output=True)
+    [png] = list(out.rglob("s_depth.png"))
+    with kfuse.Device("sim", serial=serials[1], sim_sensors=3) as dev:
+        assert dev.info["serial"] == serials[1]
+        second = dev.next_frame().depth
+    with kfuse.Device("sim", sim_sensors=3) as dev:
+        assert dev.info["serial"] == serials[0]
+        first = dev.next_frame().depth
+    np.testing.assert_array_equal(png16(second), np.asarray(Image.open(png)))
+    assert np.abs(png16(second).astype(int) - png16(first).astype(int)).mean() > 10, "same pose"
+    with pytest.raises(ValueError, match="sim_sensors"):
+        kfuse.Device("sim", sim_sensors=9)
+    with pytest.raises(OSError, match="no Kinect v2 with serial nope"):
+        kfuse.Device("sim", serial="nope", sim_sensors=3)
