@@ -59,7 +59,7 @@ fn benches(c: &mut Criterion) {
     let n = raws.len() as u32;
     let src = RecordingSource::open(&path, ReadOptions::default()).unwrap();
     let decoder = process::recording_decoder(src.info()).unwrap();
-    let cpu = fusion_gpu::Engine::Cpu.open().unwrap();
+    let (cpu, _) = fusion_gpu::Engine::Cpu.open().unwrap();
     let mut p =
         Processor::new(&rig, Some(decoder), Extras::default(), KFUSE_UNITS_PER_METRE, cpu).unwrap();
 

@@ -272,7 +272,7 @@ pub fn run(
     }
     let gpu = matches!(engine.1, EngineUsed::Gpu { .. });
     let units = options.layout.units_per_metre();
-    let mut processor = Processor::new(rig, decoder, options.extras(), units, engine)
+    let mut processor = Processor::new(rig, decoder, options.extras(), units, engine.0)
         .map_err(|e| e.context(format!("setting up registration for {}", source.display())))?;
     // On the GPU, a recording's depth is decoded there too (the frame never leaves the GPU)
     // unless the depth is needed on the CPU: figures, the cloud, a depth correction.

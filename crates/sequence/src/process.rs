@@ -12,7 +12,7 @@
 use std::path::Path;
 
 use crate::color::ColorJpeg;
-use fusion_gpu::{EngineUsed, GpuDecoder, PixelEngine};
+use fusion_gpu::{GpuDecoder, PixelEngine};
 use geometry::fusion::{
     self, FusionOptions, PixelParams, StreamFrame, StreamPlan, StreamResult, backproject_cloud,
     depth_ray_table, stream_on,
@@ -79,7 +79,6 @@ pub struct Processor {
     depth_mm: Vec<f32>,
     ir: Vec<f32>,
     engine: PixelEngine,
-    used: EngineUsed,
     rig: Rig,
     rays: Vec<[f32; 3]>,
     extras: Extras,
@@ -106,8 +105,7 @@ pub fn recording_decoder(info: &DeviceInfo) -> Result<DepthDecoder> {
 impl Processor {
     /// A processor for frames of `rig` (a Kinect v2's depth camera: 512 × 424, z depth),
     /// decoding raw frames with `decoder` when given, writing depth at `units_per_metre`,
-    /// running the per-pixel stages on `engine` (opened by [`fusion_gpu::Engine::open`], which
-    /// says in `used` what it is).
+    /// running the per-pixel stages on `engine` (opened by [`fusion_gpu::Engine::open`]).
     ///
     /// Errors: [`SequenceError::Geometry`] for a rig that is invalid, not of a Kinect v2's
     /// depth size, or whose coverage radius is out of bounds; [`SequenceError::Gpu`] for
@@ -117,7 +115,7 @@ impl Processor {
         decoder: Option<DepthDecoder>,
         extras: Extras,
         units_per_metre: f64,
-        (mut engine, used): (PixelEngine, EngineUsed),
+        mut engine: PixelEngine,
     ) -> Result<Self> {
         if decoder.is_some() && (rig.depth.width, rig.depth.height) != (WIDTH, HEIGHT) {
             return Err(SequenceError::Geometry(geometry::GeometryError::InvalidInput(format!(
@@ -141,7 +139,6 @@ impl Processor {
             depth_mm: vec![0.0; PIXELS],
             ir: vec![0.0; PIXELS],
             engine,
-            used,
             rig: rig.clone(),
             rays: depth_ray_table(&rig.depth, DepthKind::Z),
             extras,
@@ -149,11 +146,6 @@ impl Processor {
             params: PixelParams::new(rig, &options),
             options,
         })
-    }
-
-    /// What the per-pixel stages run on.
-    pub fn engine_used(&self) -> &EngineUsed {
-        &self.used
     }
 
     /// The GPU adapter in use (name, type, backend, driver), `None` on the CPU path.

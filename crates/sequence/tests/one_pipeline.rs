@@ -44,7 +44,7 @@ fn single_frame(frame: &synth::SynthFrame, rig: &geometry::Rig, engine: Engine) 
 
 fn sequence(frame: &synth::SynthFrame, rig: &geometry::Rig, engine: Engine) -> Outputs {
     let extras = Extras { holes: true, color_on_depth: true, cloud: false };
-    let opened = engine.open().expect("engine");
+    let (opened, _) = engine.open().expect("engine");
     let mut p =
         Processor::new(rig, None, extras, KFUSE_UNITS_PER_METRE, opened).expect("processor");
     // NaN (no sample) as 0, the decoder's and the frame folder reader's convention.
