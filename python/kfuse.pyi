@@ -148,6 +148,18 @@ class Decoder:
     def decode(self, raw: bytes) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """(depth mm, IR), float32 (424, 512) each; depth 0 = no measurement."""
 
+def decode(
+    raw: bytes,
+    p0_tables: bytes,
+    x_table: npt.NDArray[np.float32],
+    z_table: npt.NDArray[np.float32],
+    bilateral: bool = True,
+    edge_aware: bool = True,
+    orientation: str = "scene",
+    precision: str = "fast",
+) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Decoder(p0_tables, x_table, z_table, ...).decode(raw) in one call: (depth mm, IR)."""
+
 class RecordingFrame:
     """A depth frame of a recording and its colour partner, as `kfuse fuse --recording` pairs them."""
 

@@ -33,6 +33,14 @@ fn capture_err(e: CaptureError) -> PyErr {
         CaptureError::NoSensor { .. } | CaptureError::Busy(_) | CaptureError::Write { .. } => {
             PyOSError::new_err(e.to_string())
         }
+        // A recording or parameter file that cannot be created (a missing folder, no
+        // permission): Python's OSError with errno, so that `except FileNotFoundError` works.
+        CaptureError::Device(kinect_usb::KinectError::File { path, source })
+        | CaptureError::File(geometry::GeometryError::Io { path, source }) => PyOSError::new_err((
+            source.raw_os_error().unwrap_or(0),
+            source.to_string(),
+            path.clone(),
+        )),
         CaptureError::Config(_) | CaptureError::Setting { .. } => {
             PyValueError::new_err(e.to_string())
         }

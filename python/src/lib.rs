@@ -539,6 +539,7 @@ fn depth_metres(py: Python<'_>, rig: &Rig, depth: &Bound<'_, PyAny>) -> PyResult
     if depth.cast::<PyArray2<f32>>().is_ok() {
         let arr = array2::<f32>(depth, "depth", "float32", dh, dw)?;
         let mm = arr.as_slice().map_err(|_| bad_array("depth", "float32", depth, ""))?;
+        warn_if_metres(py, mm)?;
         return py
             .detach(|| {
                 let image = kfuse_sequence::process::depth_in_metres(mm, dw, dh)
@@ -551,6 +552,40 @@ fn depth_metres(py: Python<'_>, rig: &Rig, depth: &Bound<'_, PyAny>) -> PyResult
     let units = arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
     py.detach(|| correct(kfuse_io::images::depth_from_units(dw, dh, units, METRES_PER_MM)?))
         .map_err(geometry_err)
+}
+
+/// A float32 depth map whose largest sample is below this many millimetres is almost surely
+/// in metres: the Kinect v2 measures from 500 mm (its nearest range) to about 8 000 mm, so a
+/// map in millimetres has no sample under 500 while one in metres has none above 8 (20 leaves
+/// room for other sensors' ranges in metres and still flags no real millimetre map).
+const METRES_SUSPECT_MAX_MM: f32 = 20.0;
+/// The stride of the first look for metres: every 97th pixel (about 2 200 of a Kinect frame,
+/// a few microseconds), so that a frame in millimetres pays almost nothing; only a frame whose
+/// sampled pixels all look like metres is scanned in full.
+const METRES_PROBE_STRIDE: usize = 97;
+
+/// Warns (a Python `UserWarning`) when every sample of a float32 depth map is positive-or-zero
+/// and below [`METRES_SUSPECT_MAX_MM`] with at least one sample: depth in metres given where
+/// millimetres are expected, which would otherwise register to an all-NaN z-buffer silently.
+fn warn_if_metres(py: Python<'_>, mm: &[f32]) -> PyResult<()> {
+    let max_of = |it: &mut dyn Iterator<Item = &f32>| {
+        it.filter(|v| v.is_finite() && **v > 0.0)
+            .fold(None, |m: Option<f32>, &v| Some(m.map_or(v, |m| m.max(v))))
+    };
+    let looks_metres = |m: Option<f32>| m.is_some_and(|m| m < METRES_SUSPECT_MAX_MM);
+    if !looks_metres(max_of(&mut mm.iter().step_by(METRES_PROBE_STRIDE))) {
+        return Ok(());
+    }
+    let Some(max) = max_of(&mut mm.iter()).filter(|m| *m < METRES_SUSPECT_MAX_MM) else {
+        return Ok(());
+    };
+    let message = std::ffi::CString::new(format!(
+        "depth: every sample is below {METRES_SUSPECT_MAX_MM} (the largest is {max}): this looks like \
+         metres, but float32 depth is read in millimetres (as kfuse.Decoder gives it), so \
+         nothing will land on the colour grid; pass depth * 1000"
+    ))
+    .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &message, 1)
 }
 
 /// `color` (C-contiguous uint8 (colour H, colour W, 3), RGB) as an image.
@@ -740,6 +775,31 @@ impl PyDecoder {
     }
 }
 
+/// decode(raw, p0_tables, x_table, z_table, bilateral=True, edge_aware=True,
+///        orientation="scene", precision="fast") -> (depth, ir)
+///
+/// One raw depth frame decoded in one call: `kfuse.Decoder(p0_tables, x_table, z_table,
+/// ...).decode(raw)`, with the same arguments, results and errors. Depth in millimetres and IR,
+/// float32 (424, 512) each. For a stream, build one `Decoder` and call its `decode` per frame:
+/// this builds the decoder's tables (a few milliseconds) on every call. Releases the GIL.
+#[pyfunction]
+#[pyo3(signature = (raw, p0_tables, x_table, z_table, bilateral = true, edge_aware = true, orientation = "scene", precision = "fast"))]
+#[allow(clippy::too_many_arguments)] // Decoder's own signature, plus the frame
+fn decode<'py>(
+    py: Python<'py>,
+    raw: &[u8],
+    p0_tables: &[u8],
+    x_table: &Bound<'py, PyAny>,
+    z_table: &Bound<'py, PyAny>,
+    bilateral: bool,
+    edge_aware: bool,
+    orientation: &str,
+    precision: &str,
+) -> PyResult<DecodedFrame<'py>> {
+    PyDecoder::new(p0_tables, x_table, z_table, bilateral, edge_aware, orientation, precision)?
+        .decode(py, raw)
+}
+
 /// `Decoder.decode`'s result: depth (mm) and IR, float32 (424, 512) each.
 type DecodedFrame<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>);
 
@@ -751,6 +811,7 @@ fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRig>()?;
     m.add_class::<PyRegistration>()?;
     m.add_class::<PyDecoder>()?;
+    m.add_function(wrap_pyfunction!(decode, m)?)?;
     m.add_function(wrap_pyfunction!(read_depth, m)?)?;
     m.add_class::<fuse::PyFusedFrame>()?;
     m.add_function(wrap_pyfunction!(fuse::fuse, m)?)?;

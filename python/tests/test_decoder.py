@@ -60,3 +60,23 @@ def test_wrong_raw_size_and_table_dtype_are_value_errors():
     with pytest.raises(ValueError, match=r"x_table: expected a C-contiguous float32 \(424, 512\)"):
         kfuse.Decoder((d / "inputs" / "p0_tables_response.bin").read_bytes(),
                       np.zeros(424 * 512, np.float64), np.zeros(424 * 512, np.float32))
+
+
+def test_module_decode_equals_the_decoder_and_rejects_what_it_rejects():
+    """kfuse.decode is Decoder(...).decode in one call: bit-identical output on a vector,
+    the same ValueError for a short frame (broken variant: a decode that built other tables
+    or ignored the precision would differ from the exact reference above)."""
+    d = vectors_dir()
+    run = json.loads((d / "manifest.json").read_text())["oracle_runs"][0]
+    f32 = lambda p: np.fromfile(d / p, dtype="<f4")  # noqa: E731
+    p0 = (d / "inputs" / "p0_tables_response.bin").read_bytes()
+    raw = (d / run["frame"]).read_bytes()
+    args = (p0, f32(run["xtable"]), f32(run["ztable"]))
+    kw = dict(bilateral=run["bilateral"], edge_aware=run["edge_aware"], orientation="sensor",
+              precision="exact")
+    depth, ir = kfuse.decode(raw, *args, **kw)
+    for got, path in ((depth, run["depth"]), (ir, run["ir"])):
+        want = np.fromfile(d / path, dtype="<f4").reshape(424, 512)
+        assert np.array_equal(got.view(np.uint32), want.view(np.uint32)), path
+    with pytest.raises(ValueError, match="raw"):
+        kfuse.decode(b"\0" * 1000, *args)

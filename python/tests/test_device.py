@@ -163,3 +163,14 @@ def test_a_simulated_ring_lists_and_opens_each_sensor_as_the_cli(tmp_path):
         kfuse.Device("sim", sim_sensors=9)
     with pytest.raises(OSError, match="no Kinect v2 with serial nope"):
         kfuse.Device("sim", serial="nope", sim_sensors=3)
+
+
+def test_recording_into_a_missing_folder_is_a_file_not_found_error(tmp_path):
+    """The CLI's record refuses a missing folder; from Python it is FileNotFoundError (an
+    OSError with errno and the path), and nothing is created."""
+    target = tmp_path / "no" / "such" / "rec.kfrec"
+    with kfuse.Device("sim") as dev:
+        with pytest.raises(FileNotFoundError) as e:
+            dev.record(target, 2)
+    assert str(e.value.filename) == str(target) and e.value.errno == 2
+    assert not (tmp_path / "no").exists()

@@ -158,3 +158,18 @@ def test_register_out_refuses_a_read_only_array(fused, reg):
     m.flags.writeable = False
     with pytest.raises(ValueError, match="read-only"):
         reg.hole_mask(out=m)
+
+
+def test_depth_in_metres_warns_and_millimetres_do_not(fused, reg):
+    """float32 metres passed where millimetres are read: every sample under 20, so nothing
+    lands on the colour grid; kfuse says so with a UserWarning naming `depth` and the fix.
+    The same frame in millimetres registers without any warning."""
+    import warnings
+    metres = fused["depth_mm"].astype(np.float32) / 1000.0
+    with pytest.warns(UserWarning, match=r"^depth: every sample is below 20 .*pass depth \* 1000"):
+        z = reg.register(metres)
+    assert np.isnan(z).all()  # why the warning matters: the result is empty
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        z = reg.register(fused["depth_mm"].astype(np.float32))
+    assert (~np.isnan(z)).sum() > 100_000
