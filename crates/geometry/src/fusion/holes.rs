@@ -124,7 +124,10 @@ fn dilate_stream(
 }
 
 /// Writes one bit row (bit `x % 64` of word `x / 64`) into `out` as `bool`s; returns the
-/// number of bits set.
+/// number of bits set. Compiled for x86-64's baseline and for AVX2, picked at run time by the
+/// CPU (`multiversion`): AVX2's per-lane shifts vectorise `bits >> b`, which SSE2 cannot
+/// (it shifts every lane by the same amount). Integer operations: the same result on both.
+#[multiversion::multiversion(targets("x86_64+avx2"))]
 pub(crate) fn unpack_bits_row(bits: &[u64], out: &mut [bool]) -> usize {
     let mut count = 0;
     for (chunk, &bits) in out.chunks_mut(64).zip(bits) {
