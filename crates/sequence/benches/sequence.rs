@@ -74,11 +74,11 @@ fn benches(c: &mut Criterion) {
             t.elapsed() / n
         })
     });
-    g.bench_function("decode", |b| b.iter(|| black_box(p.decode_raw(&raws[0]).unwrap())));
-    let depth = p.decode_raw(&raws[0]).unwrap();
+    g.bench_function("decode", |b| b.iter(|| black_box(p.decoding.decode_raw(&raws[0]).unwrap())));
+    let depth = p.decoding.decode_raw(&raws[0]).unwrap();
     let frame = [Decoded { depth, raw: None, color: None }];
-    g.bench_function("register", |b| b.iter(|| black_box(p.register(&frame).unwrap())));
-    let registered = p.register(&frame).unwrap().remove(0);
+    g.bench_function("register", |b| b.iter(|| black_box(p.registering.register(&frame).unwrap())));
+    let registered = p.registering.register(&frame).unwrap().remove(0);
     let (w, h) = (rig.color.width, rig.color.height);
     let be: Vec<u8> = registered.depth_units.iter().flat_map(|v| v.to_be_bytes()).collect();
     let encode = |c, f| {

@@ -1,10 +1,12 @@
-//! The streamed pipeline: read → match → decode → register (worker A) and encode → write
+//! The streamed pipeline: read → match → decode (worker A) and register → encode → write
 //! (worker B), connected by bounded queues, so that with two threads both cores are busy at
 //! once and memory stays bounded whatever the recording's length: at most
-//! [`QUEUE_FRAMES`] registered frames wait between the workers, [`REPORT_QUEUE`] results
+//! [`QUEUE_FRAMES`] decoded frames wait between the workers, [`REPORT_QUEUE`] results
 //! wait for the caller, the matcher holds [`crate::matching::MAX_PENDING_DEPTH`] raw frames
 //! and the GPU path [`GPU_BATCH`] decoded ones. With one thread, one worker runs every stage
-//! in turn.
+//! in turn. The cut between the workers splits a frame's work about in half on the CPU
+//! (BENCHMARKS.md, sequences: reading + decoding ~14 ms, registering + encoding + writing
+//! ~12 ms); with registration on worker A, worker A was the bottleneck at ~21 ms a frame.
 //!
 //! A stop request (Ctrl-C) is polled before each frame is read: the frames already read are
 //! finished and reported, so the caller's index lists every complete frame.
@@ -17,15 +19,16 @@ use kinect_usb::recording::ReadReport;
 
 use crate::color::ColorJpeg;
 use crate::matching::{Matched, Matcher, Missing};
-use crate::process::{Decoded, GPU_BATCH, Processor};
+use crate::process::{Decoded, FrameDecoder, FrameRegistrar, GPU_BATCH, Processor};
 use crate::source::{FolderSource, RecordingSource};
 use crate::write::{
     ColorRef, FrameMeta, FrameWriter, IndexEntry, SkippedShot, StageSeconds, seconds_text,
 };
 use crate::{Result, SequenceError};
 
-/// Registered frames that may wait for the encoder: two keep the encoder fed while the
-/// register worker is one frame ahead (each holds a 4 MB 16-bit colour-grid depth).
+/// Decoded frames that may wait for worker B: two keep it fed while worker A is one frame
+/// ahead (each holds a 0.9 MB depth image, its colour JPEG, and its decoded colour image when
+/// an extra needs it).
 pub const QUEUE_FRAMES: usize = 2;
 
 /// Results that may wait for the caller (progress, index, figures).
@@ -62,7 +65,7 @@ pub enum Report {
 /// How the pipeline runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Config {
-    /// Worker threads: 1 (one worker runs every stage) or 2 (read…register | encode+write).
+    /// Worker threads: 1 (one worker runs every stage) or 2 (read…decode | register…write).
     pub threads: usize,
     /// Hand every `n`-th frame's depth and JPEG to the caller ([`Report::Frame`]'s `Kept`).
     pub keep_every: Option<u64>,
@@ -83,14 +86,13 @@ pub struct Outcome {
     pub read_report: ReadReport,
 }
 
-/// One frame between worker A and worker B.
+/// One frame between worker A (read, decode) and worker B (register, encode, write).
 struct Item {
-    meta: FrameMeta,
-    registered: crate::process::Registered,
-    jpeg: Option<ColorJpeg>,
-    kept: Option<Box<Kept>>,
+    job: Job,
+    decoded: Decoded,
 }
 
+/// What worker A hands to worker B, in frame order.
 enum Stage2 {
     Frame(Box<Item>),
     Missing(Missing),
@@ -212,86 +214,125 @@ fn secs(t: Instant) -> f64 {
     t.elapsed().as_secs_f64()
 }
 
-/// Worker A: reads, decodes and registers every frame, handing each to `emit`.
+/// Worker A: reads and decodes every frame, handing each (and every gap) to `emit`.
 fn produce(
     reader: &mut Reader,
-    processor: &mut Processor,
-    config: &Config,
+    decoding: &mut FrameDecoder,
     stop: &(dyn Fn() -> bool + Sync),
     emit: &mut dyn FnMut(Stage2) -> Result<bool>,
     times: &mut StageSeconds,
 ) -> Result<bool> {
-    let batch_size = if processor.on_gpu() { GPU_BATCH } else { 1 };
-    let mut batch: Vec<(Job, Decoded)> = Vec::with_capacity(batch_size);
-    let mut interrupted = false;
     loop {
-        let mut end = false;
         if stop() {
-            interrupted = true;
-            end = true;
-        } else {
-            let t = Instant::now();
-            let next = reader.next()?;
-            times.read += secs(t);
-            match next {
-                None => end = true,
-                Some(Err(gap)) => {
-                    if !emit(gap)? {
-                        return Ok(interrupted);
+            return Ok(true);
+        }
+        let t = Instant::now();
+        let next = reader.next()?;
+        times.read += secs(t);
+        let item = match next {
+            None => return Ok(false),
+            Some(Err(gap)) => gap,
+            Some(Ok(mut job)) => {
+                let t = Instant::now();
+                let mut raw_for_gpu = None;
+                let depth = match (&job.raw, &job.depth_png) {
+                    (Some(_), _) if decoding.decodes_on_gpu() => {
+                        raw_for_gpu = job.raw.take();
+                        Image::filled(0, 0, 0.0)
                     }
+                    (Some(raw), _) => decoding.decode_raw(raw)?,
+                    (None, Some(p)) => decoding.read_depth_png(p)?,
+                    (None, None) => {
+                        return Err(SequenceError::Pipeline("a frame without depth".into()));
+                    }
+                };
+                // The raw frame (2.9 MB) is not needed past decoding.
+                job.raw = None;
+                times.decode_depth += secs(t);
+                let t_color = Instant::now();
+                let name = job.color_file.clone().unwrap_or_else(|| {
+                    std::path::PathBuf::from(format!("frame {}", job.meta.number))
+                });
+                let color = match &job.jpeg {
+                    Some(j) => decoding.decode_color(j, &name)?,
+                    None => None,
+                };
+                times.decode_color += secs(t_color);
+                times.decode += secs(t);
+                let decoded = Decoded { depth, raw: raw_for_gpu, color };
+                Stage2::Frame(Box::new(Item { job, decoded }))
+            }
+        };
+        if !emit(item)? {
+            return Ok(false);
+        }
+    }
+}
+
+/// Worker B: registers the decoded frames (one at a time on the CPU, in batches of
+/// [`GPU_BATCH`] on the GPU), encodes and writes them, and passes gaps on, as reports.
+struct Backend<'a> {
+    registering: &'a mut FrameRegistrar,
+    writer: &'a FrameWriter,
+    keep_every: Option<u64>,
+    batch: Vec<Item>,
+    times: StageSeconds,
+}
+
+impl<'a> Backend<'a> {
+    fn new(registering: &'a mut FrameRegistrar, writer: &'a FrameWriter, config: &Config) -> Self {
+        Self {
+            registering,
+            writer,
+            keep_every: config.keep_every,
+            batch: Vec::new(),
+            times: StageSeconds::default(),
+        }
+    }
+
+    /// Takes the next item; reports go to `report` (false: the caller stopped taking them).
+    fn take(&mut self, s: Stage2, report: &mut dyn FnMut(Report) -> bool) -> Result<bool> {
+        match s {
+            Stage2::Missing(m) => Ok(report(Report::Missing(m))),
+            Stage2::Skipped(k) => Ok(report(Report::Skipped(k))),
+            Stage2::Frame(item) => {
+                self.batch.push(*item);
+                let batch_size = if self.registering.on_gpu() { GPU_BATCH } else { 1 };
+                if self.batch.len() < batch_size {
+                    return Ok(true);
                 }
-                Some(Ok(mut job)) => {
-                    let t = Instant::now();
-                    let mut raw_for_gpu = None;
-                    let depth = match (&job.raw, &job.depth_png) {
-                        (Some(_), _) if processor.decodes_on_gpu() => {
-                            raw_for_gpu = job.raw.take();
-                            Image::filled(0, 0, 0.0)
-                        }
-                        (Some(raw), _) => processor.decode_raw(raw)?,
-                        (None, Some(p)) => processor.read_depth_png(p)?,
-                        (None, None) => {
-                            return Err(SequenceError::Pipeline("a frame without depth".into()));
-                        }
-                    };
-                    times.decode_depth += secs(t);
-                    let t_color = Instant::now();
-                    let name = job.color_file.clone().unwrap_or_else(|| {
-                        std::path::PathBuf::from(format!("frame {}", job.meta.number))
-                    });
-                    let color = match &job.jpeg {
-                        Some(j) => processor.decode_color(j, &name)?,
-                        None => None,
-                    };
-                    times.decode_color += secs(t_color);
-                    times.decode += secs(t);
-                    batch.push((job, Decoded { depth, raw: raw_for_gpu, color }));
-                }
+                self.flush(report)
             }
         }
-        if batch.len() == batch_size || (end && !batch.is_empty()) {
+    }
+
+    /// Registers, encodes and writes the frames waiting in the batch.
+    fn flush(&mut self, report: &mut dyn FnMut(Report) -> bool) -> Result<bool> {
+        if self.batch.is_empty() {
+            return Ok(true);
+        }
+        let t = Instant::now();
+        let mut decoded: Vec<Decoded> =
+            self.batch.iter_mut().map(|i| take_decoded(&mut i.decoded)).collect();
+        let registered = self.registering.register(&decoded)?;
+        self.times.register += secs(t);
+        for ((item, d), r) in self.batch.drain(..).zip(decoded.drain(..)).zip(registered) {
+            let job = item.job;
+            let kept = self.keep_every.filter(|&n| n > 0 && job.meta.number % n == 0).map(|_| {
+                Box::new(Kept { number: job.meta.number, depth: d.depth, jpeg: job.jpeg.clone() })
+            });
             let t = Instant::now();
-            let decoded: Vec<Decoded> = batch.iter_mut().map(|(_, d)| take_decoded(d)).collect();
-            let registered = processor.register(&decoded)?;
-            times.register += secs(t);
-            for (((job, _), d), r) in batch.drain(..).zip(decoded).zip(registered) {
-                let kept =
-                    config.keep_every.filter(|&n| n > 0 && job.meta.number % n == 0).map(|_| {
-                        Box::new(Kept {
-                            number: job.meta.number,
-                            depth: d.depth,
-                            jpeg: job.jpeg.clone(),
-                        })
-                    });
-                let item = Item { meta: job.meta, registered: r, jpeg: job.jpeg, kept };
-                if !emit(Stage2::Frame(Box::new(item)))? {
-                    return Ok(interrupted);
-                }
+            let encoded = self.writer.encode(job.meta, &r, job.jpeg.as_ref())?;
+            drop(r);
+            self.times.encode += secs(t);
+            let t = Instant::now();
+            let entry = self.writer.write(encoded)?;
+            self.times.write += secs(t);
+            if !report(Report::Frame(entry, kept)) {
+                return Ok(false);
             }
         }
-        if end {
-            return Ok(interrupted);
-        }
+        Ok(true)
     }
 }
 
@@ -301,25 +342,6 @@ fn take_decoded(d: &mut Decoded) -> Decoded {
         raw: d.raw.take(),
         color: d.color.take(),
     }
-}
-
-/// Worker B's step: encodes and writes a frame (or passes a gap on) as a report.
-fn consume(writer: &FrameWriter, s: Stage2, times: &mut StageSeconds) -> Result<Report> {
-    Ok(match s {
-        Stage2::Missing(m) => Report::Missing(m),
-        Stage2::Skipped(k) => Report::Skipped(k),
-        Stage2::Frame(item) => {
-            let Item { meta, registered, jpeg, kept } = *item;
-            let t = Instant::now();
-            let encoded = writer.encode(meta, &registered, jpeg.as_ref())?;
-            drop(registered);
-            times.encode += secs(t);
-            let t = Instant::now();
-            let entry = writer.write(encoded)?;
-            times.write += secs(t);
-            Report::Frame(entry, kept)
-        }
-    })
 }
 
 fn send<T>(tx: &SyncSender<T>, v: T) -> bool {
@@ -343,9 +365,10 @@ pub fn run(
     let start = Instant::now();
     let mut reader = Reader::new(input);
     let (report_tx, report_rx): (SyncSender<Report>, Receiver<Report>) = sync_channel(REPORT_QUEUE);
+    let Processor { decoding, registering } = &mut processor;
     let result = std::thread::scope(|s| -> Result<(bool, StageSeconds)> {
         let reader = &mut reader;
-        let processor = &mut processor;
+        let mut backend = Backend::new(registering, writer, &config);
         let worker_a;
         let mut worker_b = None;
         if config.threads >= 2 {
@@ -355,14 +378,14 @@ pub fn run(
                 std::thread::Builder::new()
                     .name("kfuse-seq-write".into())
                     .spawn_scoped(s, move || -> Result<StageSeconds> {
-                        let mut times = StageSeconds::default();
+                        let mut report = |r: Report| send(&report_tx, r);
                         for item in rx {
-                            let r = consume(writer, item, &mut times)?;
-                            if !send(&report_tx, r) {
-                                break;
+                            if !backend.take(item, &mut report)? {
+                                return Ok(backend.times);
                             }
                         }
-                        Ok(times)
+                        backend.flush(&mut report)?;
+                        Ok(backend.times)
                     })
                     .map_err(|e| SequenceError::Pipeline(format!("cannot start a thread: {e}")))?,
             );
@@ -371,7 +394,7 @@ pub fn run(
                 .spawn_scoped(s, move || -> Result<(bool, StageSeconds)> {
                     let mut times = StageSeconds::default();
                     let mut emit = |x: Stage2| Ok(send(&tx, x));
-                    let i = produce(reader, processor, &config, stop, &mut emit, &mut times)?;
+                    let i = produce(reader, decoding, stop, &mut emit, &mut times)?;
                     Ok((i, times))
                 })
                 .map_err(|e| SequenceError::Pipeline(format!("cannot start a thread: {e}")))?;
@@ -381,13 +404,11 @@ pub fn run(
                 .name("kfuse-seq".into())
                 .spawn_scoped(s, move || -> Result<(bool, StageSeconds)> {
                     let mut times = StageSeconds::default();
-                    let mut b_times = StageSeconds::default();
-                    let mut emit = |x: Stage2| -> Result<bool> {
-                        Ok(send(&report_tx, consume(writer, x, &mut b_times)?))
-                    };
-                    let i = produce(reader, processor, &config, stop, &mut emit, &mut times)?;
-                    times.encode = b_times.encode;
-                    times.write = b_times.write;
+                    let mut report = |r: Report| send(&report_tx, r);
+                    let mut emit = |x: Stage2| backend.take(x, &mut report);
+                    let i = produce(reader, decoding, stop, &mut emit, &mut times)?;
+                    backend.flush(&mut report)?;
+                    times.add_backend(&backend.times);
                     Ok((i, times))
                 })
                 .map_err(|e| SequenceError::Pipeline(format!("cannot start a thread: {e}")))?;
@@ -410,9 +431,7 @@ pub fn run(
         }
         let (interrupted, mut times) = a?;
         if let Some(b) = b {
-            let b = b?;
-            times.encode = b.encode;
-            times.write = b.write;
+            times.add_backend(&b?);
         }
         Ok((interrupted, times))
     });

@@ -18,7 +18,7 @@ use geometry::fusion::{
     depth_ray_table, stream_on,
 };
 use geometry::{DepthKind, Image, PointCloud, Rig};
-use kfuse_io::images::png16_value;
+use kfuse_io::images::png16_values;
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
 use kinect_usb::device::DeviceInfo;
 use kinect_usb::params::XzTables;
@@ -69,15 +69,34 @@ pub struct Registered {
     pub cloud: Option<PointCloud>,
 }
 
-/// The decoder (recordings only), the engine of the per-pixel stages and the constants of the
-/// extras.
+/// The two halves of a frame's processing, which the pipeline runs on its two workers
+/// ([`crate::pipeline`]): [`FrameDecoder`] (depth decoding, colour decoding; worker A, after
+/// reading) and [`FrameRegistrar`] (the per-pixel stages and the extras; worker B, before
+/// encoding), so that with two threads each core carries about half of a frame's work.
 pub struct Processor {
+    /// Decoding: raw depth (or a depth PNG) into metres, the colour JPEG when needed.
+    pub decoding: FrameDecoder,
+    /// Registration and the extras on the engine.
+    pub registering: FrameRegistrar,
+}
+
+/// Worker A's half of [`Processor`]: the depth decoder (recordings only) and its buffers.
+pub struct FrameDecoder {
     decoder: Option<DepthDecoder>,
+    depth_mm: Vec<f32>,
+    ir: Vec<f32>,
+    rig: Rig,
+    needs_color: bool,
+    /// Raw frames go to the registrar undecoded ([`Processor::decode_on_gpu`]).
+    raw_to_gpu: bool,
+}
+
+/// Worker B's half of [`Processor`]: the engine of the per-pixel stages and the constants of
+/// the extras.
+pub struct FrameRegistrar {
     /// The depth decoder on the GPU (`--engine gpu` on a recording): raw frames are decoded
     /// and registered without the depth leaving the GPU.
     gpu_decoder: Option<GpuDecoder>,
-    depth_mm: Vec<f32>,
-    ir: Vec<f32>,
     engine: PixelEngine,
     rig: Rig,
     rays: Vec<[f32; 3]>,
@@ -134,32 +153,33 @@ impl Processor {
             )?;
         }
         Ok(Self {
-            decoder,
-            gpu_decoder: None,
-            depth_mm: vec![0.0; PIXELS],
-            ir: vec![0.0; PIXELS],
-            engine,
-            rig: rig.clone(),
-            rays: depth_ray_table(&rig.depth, DepthKind::Z),
-            extras,
-            units_per_metre,
-            params: PixelParams::new(rig, &options),
-            options,
+            decoding: FrameDecoder {
+                decoder,
+                depth_mm: vec![0.0; PIXELS],
+                ir: vec![0.0; PIXELS],
+                rig: rig.clone(),
+                needs_color: extras.color_on_depth || extras.cloud,
+                raw_to_gpu: false,
+            },
+            registering: FrameRegistrar {
+                gpu_decoder: None,
+                engine,
+                rig: rig.clone(),
+                rays: depth_ray_table(&rig.depth, DepthKind::Z),
+                extras,
+                units_per_metre,
+                params: PixelParams::new(rig, &options),
+                options,
+            },
         })
     }
 
     /// The GPU adapter in use (name, type, backend, driver), `None` on the CPU path.
     pub fn adapter(&self) -> Option<String> {
-        match &self.engine {
+        match &self.registering.engine {
             PixelEngine::Gpu(ctx) => Some(ctx.adapter_summary()),
             PixelEngine::Cpu(_) => None,
         }
-    }
-
-    /// Whether registration runs on the GPU (frames are then registered in batches of
-    /// [`GPU_BATCH`]).
-    pub fn on_gpu(&self) -> bool {
-        matches!(self.engine, PixelEngine::Gpu(_))
     }
 
     /// Moves depth decoding onto the GPU for a recording made by the sensor `info` describes
@@ -168,8 +188,9 @@ impl Processor {
     /// cloud, or no decoder (a frame folder). On the GPU the frame's depth equals the CPU
     /// `Fast` decoder's (fusion-gpu's parity test: bit-identical on lavapipe).
     pub fn decode_on_gpu(&mut self, info: &DeviceInfo) -> Result<bool> {
-        let PixelEngine::Gpu(ctx) = &self.engine else { return Ok(false) };
-        if self.decoder.is_none() || self.rig.depth_correction.is_some() || self.extras.cloud {
+        let r = &mut self.registering;
+        let PixelEngine::Gpu(ctx) = &r.engine else { return Ok(false) };
+        if self.decoding.decoder.is_none() || r.rig.depth_correction.is_some() || r.extras.cloud {
             return Ok(false);
         }
         let xz = XzTables::from_params(&info.depth_params);
@@ -179,20 +200,22 @@ impl Processor {
             parallel: false,
             ..DecoderConfig::default()
         };
-        self.gpu_decoder =
-            Some(GpuDecoder::new(ctx, DecoderParams::default(), cfg, &xz, &info.p0)?);
+        r.gpu_decoder = Some(GpuDecoder::new(ctx, DecoderParams::default(), cfg, &xz, &info.p0)?);
+        self.decoding.raw_to_gpu = true;
         Ok(true)
     }
+}
 
-    /// Whether raw frames go to [`Processor::register`] undecoded (see
+impl FrameDecoder {
+    /// Whether raw frames go to [`FrameRegistrar::register`] undecoded (see
     /// [`Processor::decode_on_gpu`]).
     pub fn decodes_on_gpu(&self) -> bool {
-        self.gpu_decoder.is_some()
+        self.raw_to_gpu
     }
 
     /// Whether a frame's colour must be decoded for the extras asked for.
     pub fn needs_color(&self) -> bool {
-        self.extras.color_on_depth || self.extras.cloud
+        self.needs_color
     }
 
     /// Decodes a raw depth frame into metres. Error: no decoder (a frame folder's processor)
@@ -261,19 +284,29 @@ impl Processor {
         }
         Ok(Some(img))
     }
+}
+
+impl FrameRegistrar {
+    /// Whether registration runs on the GPU (frames are then registered in batches of
+    /// [`GPU_BATCH`]).
+    pub fn on_gpu(&self) -> bool {
+        matches!(self.engine, PixelEngine::Gpu(_))
+    }
 
     /// Registers `frames` (one on the CPU path; up to [`GPU_BATCH`] on the GPU path, streamed
     /// with two in flight) through the pipeline's per-pixel stages and computes the extras;
     /// results in order.
     pub fn register(&mut self, frames: &[Decoded]) -> Result<Vec<Registered>> {
-        let plan = StreamPlan { holes: self.extras.holes, color_on_depth: self.needs_color() };
+        let needs_color = self.extras.color_on_depth || self.extras.cloud;
+        let plan = StreamPlan { holes: self.extras.holes, color_on_depth: needs_color };
         let units = self.units_per_metre;
         let mut out = Vec::with_capacity(frames.len());
         let mut sink = |_: usize, r: StreamResult<'_>| {
+            let (depth_units, landed) = to_units_counted(r.zbuffer, units);
             out.push(Registered {
-                depth_units: to_units(r.zbuffer, units),
-                landed: r.zbuffer.iter().filter(|z| !z.is_nan()).count(),
-                holes: r.hole_mask.map(|m| m.iter().map(|&h| if h { 255 } else { 0 }).collect()),
+                depth_units,
+                landed,
+                holes: r.hole_mask.map(|m| m.iter().map(|&h| u8::from(h) * 255).collect()),
                 color_on_depth: r.color_on_depth.map(|(c, _)| c.clone()),
                 cloud: None,
             })
@@ -331,5 +364,13 @@ pub fn depth_in_metres(mm: &[f32], width: usize, height: usize) -> Result<Image<
 
 /// A z-buffer (metres, NaN = empty) in 16-bit units by `png16_value`'s rule.
 pub fn to_units(zbuffer: &[f32], units_per_metre: f64) -> Vec<u16> {
-    zbuffer.iter().map(|&z| png16_value(f64::from(z) * units_per_metre)).collect()
+    to_units_counted(zbuffer, units_per_metre).0
+}
+
+/// [`to_units`] and the number of non-empty (non-NaN) z-buffer pixels, in one pass over the
+/// 8 MB z-buffer of a 1920×1080 frame instead of two.
+pub fn to_units_counted(zbuffer: &[f32], units_per_metre: f64) -> (Vec<u16>, usize) {
+    let mut units = vec![0; zbuffer.len()];
+    let landed = png16_values(zbuffer, units_per_metre, &mut units);
+    (units, landed)
 }

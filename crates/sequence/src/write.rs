@@ -392,6 +392,13 @@ pub struct StageSeconds {
 }
 
 impl StageSeconds {
+    /// Takes worker B's stages (register, encode, write) from `b`.
+    pub(crate) fn add_backend(&mut self, b: &StageSeconds) {
+        self.register = b.register;
+        self.encode = b.encode;
+        self.write = b.write;
+    }
+
     /// The stages as a [`geometry::timing::Timings`] in milliseconds (for the `--timings`
     /// summary), in pipeline order; `setup_s` first.
     pub fn to_timings(&self, setup_s: f64) -> geometry::timing::Timings {
