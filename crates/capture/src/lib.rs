@@ -17,7 +17,7 @@
 //! # Files of one shot
 //!
 //! A calibration shot `NNNN` is `color_NNNN.jpg` (the sensor's colour frame mirrored into the
-//! scene orientation and encoded at `kfuse_io::sensor_color::MIRRORED_JPEG_QUALITY`),
+//! scene orientation without loss, in the DCT domain: `kfuse_io::sensor_color::mirrored_jpeg`),
 //! `ir_NNNN.png` (16-bit amplitude) and `depth_NNNN.png` (16-bit, millimetres, 0 = invalid); a
 //! scene `NAME` is `NAME_color.jpg`, `NAME_ir.png`, `NAME_depth.png`. `kinect_params.json`
 //! holds the factory intrinsics of both cameras, adjusted to the scene orientation

@@ -126,7 +126,7 @@ impl ShotWriter {
 
     /// Writes one shot: `files` (from [`shot_files`], inside the output folder) receive the
     /// sensor's colour JPEG mirrored into the scene orientation
-    /// (`kfuse_io::sensor_color::mirrored_jpeg`: the IR and depth, from the decoder, are in it
+    /// without loss (`kfuse_io::sensor_color::mirrored_jpeg`: the IR and depth, from the decoder, are in it
     /// already) and the IR and depth (mm) as 16-bit PNGs. All three appear together or none
     /// does. Error: the colour frame does not decode, or a write failed (the staging folder is
     /// removed).

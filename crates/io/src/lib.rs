@@ -17,7 +17,7 @@
 //! | [`ply`] | binary PLY point clouds and meshes (colours, `s, t` texture coordinates) |
 //! | [`obj`] | OBJ + MTL + PNG texture |
 //! | [`rig`] | rig JSON files |
-//! | [`sensor_color`] | the Kinect v2's colour JPEG (streamed mirrored) decoded or re-encoded as the scene is |
+//! | [`sensor_color`] | the Kinect v2's colour JPEG (streamed mirrored) decoded, or flipped without loss (libjpeg-turbo's DCT-domain transform), as the scene is |
 
 #![deny(missing_docs)]
 

@@ -3,10 +3,17 @@
 //! mirrored by the decoder; the colour frame is a JPEG, so it is decoded, mirrored and, where
 //! a file is written, encoded again.
 //!
-//! A baseline JPEG can be mirrored without loss only in the DCT domain (libjpeg's `jpegtran
-//! -flip horizontal`); no maintained pure-Rust crate does that, and a C library would put a
-//! system dependency on every build, so the mirrored frame is encoded anew at
-//! [`MIRRORED_JPEG_QUALITY`].
+//! Where a JPEG is written ([`mirrored_jpeg`]: TUM's `rgb/`, capture shots), the frame is mirrored
+//! without loss in the DCT domain, exactly as `jpegtran -flip horizontal` does (libjpeg-turbo's
+//! transform, through the `turbojpeg` crate; byte for byte the same file, tested against Debian's
+//! `jpegtran`): no pixel is decoded or quantised again, and it costs a fraction of a decode and
+//! an encode. No maintained pure-Rust crate transforms JPEGs in the DCT domain, and writing the
+//! entropy decoder, the coefficient flip and libjpeg's encoder again only to match its bytes
+//! would be a second JPEG codec to keep; libjpeg-turbo is the reference implementation users
+//! already run (the crate builds it from its bundled source with CMake and NASM, so there is no
+//! system library to match). Only a frame whose width is not a multiple of its MCU width (not
+//! the Kinect's 1920 pixels) cannot be flipped exactly this way: it is decoded, mirrored and
+//! encoded anew at [`MIRRORED_JPEG_QUALITY`].
 
 use geometry::Image;
 
@@ -40,10 +47,49 @@ pub fn encode_jpeg(rgb: &Image<[u8; 3]>) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// The sensor's colour JPEG as a JPEG in the scene orientation ([`decode_mirrored`] then
-/// [`encode_jpeg`]).
+/// The sensor's colour JPEG as a JPEG in the scene orientation: [`flip_jpeg_lossless`] where the
+/// frame's width allows it (every Kinect frame), else [`decode_mirrored`] then [`encode_jpeg`].
+/// A damaged or cut-short JPEG is refused either way, with one line naming "the sensor's colour
+/// frame".
 pub fn mirrored_jpeg(jpeg: &[u8]) -> Result<Vec<u8>, String> {
-    encode_jpeg(&decode_mirrored(jpeg)?)
+    match flip_jpeg_lossless(jpeg)? {
+        Some(flipped) => Ok(flipped),
+        None => encode_jpeg(&decode_mirrored(jpeg)?),
+    }
+}
+
+/// The JPEG mirrored left–right in the DCT domain, without decoding a pixel: the bytes
+/// `jpegtran -flip horizontal` writes (same libjpeg transform; markers other than JFIF's are
+/// copied, the entropy coding is the standard tables' as jpegtran's is). `Ok(None)` when the
+/// image's width is not a whole number of MCUs, where the flip would not be exact (libjpeg's
+/// "perfect" option refuses it; `jpegtran` would leave the right edge unflipped). Error: the
+/// bytes are not a complete JPEG (checked first, as every reader does), or its data is damaged.
+pub fn flip_jpeg_lossless(jpeg: &[u8]) -> Result<Option<Vec<u8>>, String> {
+    let name = std::path::Path::new("the sensor's colour frame");
+    crate::images::check_picture(name, jpeg).map_err(|e| e.to_string())?;
+    let header = turbojpeg::read_header(jpeg)
+        .map_err(|e| format!("{}: is not a JPEG libjpeg can read: {e}", name.display()))?;
+    if header.width % mcu_width(header.subsamp) != 0 {
+        return Ok(None);
+    }
+    let mut transform = turbojpeg::Transform::op(turbojpeg::TransformOp::Hflip);
+    transform.perfect = true;
+    turbojpeg::transform(&transform, jpeg)
+        .map(|buf| Some(buf.to_vec()))
+        .map_err(|e| format!("{}: a damaged JPEG ({e})", name.display()))
+}
+
+/// The width in pixels of one MCU (minimum coded unit) for a chroma subsampling: 8 pixels
+/// without horizontal subsampling, 16 with 2× (4:2:2, 4:2:0), 32 with 4× (4:1:1).
+fn mcu_width(subsamp: turbojpeg::Subsamp) -> usize {
+    use turbojpeg::Subsamp;
+    match subsamp {
+        Subsamp::None | Subsamp::Gray | Subsamp::Sub1x2 | Subsamp::Sub1x4 => 8,
+        Subsamp::Sub2x1 | Subsamp::Sub2x2 => 16,
+        Subsamp::Sub4x1 => 32,
+        // Not a standard sampling: no flip is exact by this rule; re-encode.
+        _ => usize::MAX,
+    }
 }
 
 #[cfg(test)]
@@ -112,5 +158,141 @@ mod tests {
         // Cut short: refused, not filled with grey.
         let e = decode_mirrored(&jpeg[..jpeg.len() / 2]).unwrap_err();
         assert!(e.contains("the sensor's colour frame"), "{e}");
+    }
+
+    /// A 1920×1080 frame of the Kinect's size: left–right asymmetric, with texture in every
+    /// block (gradients, a checker, a diagonal) so that each DCT coefficient's sign matters.
+    fn kinect_sized_rgb() -> Vec<u8> {
+        let (w, h) = (1920usize, 1080usize);
+        let mut raw = Vec::with_capacity(w * h * 3);
+        for y in 0..h {
+            for x in 0..w {
+                let checker = ((x / 7 + y / 5) % 2) as u8 * 60;
+                let diag = if (x + 2 * y) % 97 < 9 { 120 } else { 0 };
+                raw.extend([(x * 255 / w) as u8 ^ checker, (y % 256) as u8, diag + (x % 31) as u8]);
+            }
+        }
+        raw
+    }
+
+    fn encode_image_crate(raw: &[u8], w: u32, h: u32, quality: u8) -> Vec<u8> {
+        let mut jpeg = Vec::new();
+        let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, quality);
+        image::ImageEncoder::write_image(enc, raw, w, h, image::ExtendedColorType::Rgb8).unwrap();
+        jpeg
+    }
+
+    /// The JPEGs of the lossless-flip tests: the image crate's encoder (4:2:2, what the
+    /// simulator streams) at the sensor's quality, and libjpeg-turbo's at 4:2:0 and 4:4:4.
+    fn kinect_sized_jpegs() -> Vec<(&'static str, Vec<u8>)> {
+        let raw = kinect_sized_rgb();
+        let tj = |subsamp| {
+            let img = turbojpeg::Image {
+                pixels: raw.as_slice(),
+                width: 1920,
+                pitch: 1920 * 3,
+                height: 1080,
+                format: turbojpeg::PixelFormat::RGB,
+            };
+            turbojpeg::compress(img, 90, subsamp).unwrap().to_vec()
+        };
+        vec![
+            ("image crate 4:2:2 q90", encode_image_crate(&raw, 1920, 1080, 90)),
+            ("libjpeg-turbo 4:2:0 q90", tj(turbojpeg::Subsamp::Sub2x2)),
+            ("libjpeg-turbo 4:4:4 q90", tj(turbojpeg::Subsamp::None)),
+        ]
+    }
+
+    /// `jpegtran -flip horizontal` (Debian's libjpeg-turbo-progs, a separate build of another
+    /// libjpeg-turbo release) is the independent reference: the flip must give its file byte
+    /// for byte. `.ci/run` installs it and sets `KFUSE_REQUIRE_JPEGTRAN`, so CI cannot skip.
+    #[test]
+    fn lossless_flip_equals_jpegtran_byte_for_byte() {
+        let dir = std::env::temp_dir().join(format!("kfuse-jpegtran-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let probe = std::process::Command::new("jpegtran").arg("-version").output();
+        if probe.is_err() {
+            assert!(
+                std::env::var_os("KFUSE_REQUIRE_JPEGTRAN").is_none(),
+                "KFUSE_REQUIRE_JPEGTRAN is set but jpegtran does not run (apt-get install libjpeg-turbo-progs)"
+            );
+            test_skip::skip(
+                "lossless_flip_equals_jpegtran_byte_for_byte",
+                "jpegtran not installed (apt-get install libjpeg-turbo-progs)",
+            );
+            return;
+        }
+        for (what, jpeg) in kinect_sized_jpegs() {
+            let input = dir.join("in.jpg");
+            std::fs::write(&input, &jpeg).unwrap();
+            let out = std::process::Command::new("jpegtran")
+                .args(["-flip", "horizontal"])
+                .arg(&input)
+                .output()
+                .unwrap();
+            assert!(out.status.success(), "{what}: jpegtran failed: {:?}", out);
+            let ours = flip_jpeg_lossless(&jpeg).unwrap().expect("1920 is a whole number of MCUs");
+            assert!(ours != jpeg, "{what}: the flip must change the file");
+            assert_eq!(ours.len(), out.stdout.len(), "{what}: length differs from jpegtran's");
+            assert!(ours == out.stdout, "{what}: bytes differ from jpegtran -flip horizontal");
+            assert_eq!(mirrored_jpeg(&jpeg).unwrap(), ours, "{what}: mirrored_jpeg takes the flip");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn decode_rgb(jpeg: &[u8]) -> (usize, Vec<u8>) {
+        let img = image::load_from_memory(jpeg).unwrap().into_rgb8();
+        (img.width() as usize, img.into_raw())
+    }
+
+    /// Decoding the flipped file (with the image crate's decoder, not libjpeg) gives the
+    /// mirrored pixels of the original's decode within JPEG's rounding: the coefficients are
+    /// the same up to sign, but the integer IDCT and the chroma upsampling round towards one
+    /// side, so a level or two may differ (measured: at most 2 levels, mean 0.0001 levels on
+    /// these frames; the bars 4 and 0.25). A missing flip is ~80 levels off on average.
+    #[test]
+    fn lossless_flip_decodes_to_the_mirrored_pixels() {
+        for (what, jpeg) in kinect_sized_jpegs() {
+            let (w, original) = decode_rgb(&jpeg);
+            let (w2, flipped) = decode_rgb(&flip_jpeg_lossless(&jpeg).unwrap().unwrap());
+            assert_eq!(w, w2);
+            let mut mirrored = original.clone();
+            for row in mirrored.chunks_exact_mut(w * 3) {
+                let mut px: Vec<[u8; 3]> =
+                    row.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+                px.reverse();
+                row.copy_from_slice(&px.concat());
+            }
+            let diff = |a: &[u8], b: &[u8]| {
+                let max = a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y)).max().unwrap();
+                let mean = a.iter().zip(b).map(|(&x, &y)| f64::from(x.abs_diff(y))).sum::<f64>()
+                    / a.len() as f64;
+                (max, mean)
+            };
+            let (max, mean) = diff(&flipped, &mirrored);
+            eprintln!("{what}: mirrored decode vs decode of the flip: max {max}, mean {mean:.4}");
+            assert!(max <= 4 && mean < 0.25, "{what}: max {max}, mean {mean}");
+            let (_, unflipped_mean) = diff(&flipped, &original);
+            assert!(
+                unflipped_mean > 20.0,
+                "{what}: the frame must be asymmetric ({unflipped_mean})"
+            );
+        }
+    }
+
+    /// A width that is not a whole number of MCUs (100 pixels at 4:2:2, MCU 16) cannot be
+    /// flipped exactly in the DCT domain: no lossless result, and `mirrored_jpeg` re-encodes,
+    /// still the mirror of the frame. A damaged middle is refused, not passed on.
+    #[test]
+    fn partial_mcu_widths_are_reencoded_and_damage_is_refused() {
+        let (scene, jpeg) = sensor_frame(100, 64);
+        assert_eq!(flip_jpeg_lossless(&jpeg).unwrap(), None);
+        let again = mirrored_jpeg(&jpeg).unwrap();
+        let (w, px) = decode_rgb(&again);
+        let px = px.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        assert!(rms(&Image::from_vec(w, 64, px).unwrap(), &scene) < 4.0);
+        let e = flip_jpeg_lossless(&jpeg[..jpeg.len() / 2]).unwrap_err();
+        assert!(e.contains("the sensor's colour frame"), "{e}");
+        assert!(flip_jpeg_lossless(b"not a jpeg").is_err());
     }
 }

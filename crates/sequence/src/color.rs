@@ -2,7 +2,8 @@
 //! mirrored left–right (`kinect_usb::orientation`); a capture folder's JPEG is as the scene is.
 //! Every consumer (colour on the depth grid, the frame's colour file, the figures) gets the
 //! scene orientation through [`ColorJpeg::decode`] or [`ColorJpeg::scene_jpeg`], and a
-//! recording's JPEG is decoded or re-encoded only where an output needs it. Decoding goes
+//! recording's JPEG is decoded only where an output needs its pixels, and flipped in the DCT
+//! domain where an output is a JPEG. Decoding goes
 //! through `kfuse_io::images`' one reader and its checks (a JPEG cut short is refused).
 
 use std::borrow::Cow;
@@ -38,16 +39,17 @@ impl ColorJpeg {
         Ok(img)
     }
 
-    /// A JPEG as the scene is: the bytes as read (checked), or the sensor's frame mirrored and
-    /// encoded anew (`kfuse_io::sensor_color::MIRRORED_JPEG_QUALITY`).
+    /// A JPEG as the scene is: the bytes as read (checked), or the sensor's frame mirrored
+    /// without loss in the DCT domain (`kfuse_io::sensor_color::mirrored_jpeg`: the bytes
+    /// `jpegtran -flip horizontal` writes; nothing is decoded or quantised again).
     pub fn scene_jpeg(&self, name: &Path) -> Result<Cow<'_, [u8]>> {
         if !self.mirrored {
             kfuse_io::images::check_picture(name, &self.bytes)?;
             return Ok(Cow::Borrowed(&self.bytes));
         }
-        let img = self.decode(name)?;
-        kfuse_io::sensor_color::encode_jpeg(&img)
-            .map(Cow::Owned)
-            .map_err(|m| SequenceError::input(name, m))
+        kfuse_io::sensor_color::mirrored_jpeg(&self.bytes).map(Cow::Owned).map_err(|m| {
+            // The message names "the sensor's colour frame"; say which frame.
+            SequenceError::input(name, m)
+        })
     }
 }

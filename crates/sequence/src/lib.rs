@@ -10,7 +10,7 @@
 //! | 1 read | [`source`] | [`source::RecordingSource`]: the recording's packets assembled into depth frames and colour JPEGs (`kinect_usb::stream`), one record in memory at a time; [`source::FolderSource`]: the shots of a capture folder or glob |
 //! | 2 match | [`matching`] | depth and colour paired by the sensor's timestamps, frame numbers from the depth sequence numbers, every lost depth frame listed |
 //! | 3–4 decode, register | [`process`] | the `Fast` depth decoder, `geometry::fusion::Registration` (or `fusion_gpu::FusionContext::stream`), the hole mask, colour on the depth grid, the cloud |
-//! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the colour JPEG as the scene is ([`color`]: a capture's copied unchanged, a recording's mirrored and encoded anew), `index.json` |
+//! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the colour JPEG as the scene is ([`color`]: a capture's copied unchanged, a recording's flipped without loss in the DCT domain), `index.json` |
 //! | export | [`tum`] | `rgb.txt`, `depth.txt`, `associations.txt`, README of the TUM layout |
 //! | pipeline | [`pipeline`] | the stages on one or two worker threads joined by bounded queues; Ctrl-C finishes the frames in flight |
 //! | the run | [`command`] | the whole `kfuse fuse --recording/--frames`: options checked, input and staged output opened ([`command::open`]), the pipeline, `index.json` and the TUM lists, the folder committed ([`command::run`]); the caller sees progress through [`command::Observer`] |

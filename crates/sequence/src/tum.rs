@@ -45,7 +45,7 @@ pub fn readme(source: &str, max_skew_ms: f64) -> String {
     format!(
         "TUM RGB-D layout written by kfuse {version} from {source}\n\
          \n\
-         rgb/<t>.jpg       the Kinect v2 colour camera's frame as the scene is (1920x1080; the sensor's mirrored JPEG mirrored and re-encoded at quality 95)\n\
+         rgb/<t>.jpg       the Kinect v2 colour camera's frame as the scene is (1920x1080; the sensor's mirrored JPEG flipped without loss, as jpegtran -flip horizontal does)\n\
          depth/<t>.png     16-bit depth registered on the colour grid: the colour camera's z of the\n\
          \x20                 nearest depth sample landing on each colour pixel; 0 = no sample\n\
          rgb.txt, depth.txt   'timestamp filename' per line\n\

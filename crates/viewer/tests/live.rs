@@ -82,8 +82,8 @@ fn sim_frames_are_counted_and_shots_hold_the_frame_exactly() {
         .map(|&d| if d.is_finite() && d > 0.0 { d.round().clamp(1.0, 65535.0) as u16 } else { 0 })
         .collect();
     assert_eq!(ir, want_ir);
-    // The colour file is the sensor's frame mirrored into the scene orientation (re-encoded:
-    // mean |Δ| under 2 grey levels against the sensor frame mirrored here; unmirrored, far more).
+    // The colour file is the sensor's frame mirrored into the scene orientation (flipped in
+    // the DCT domain: mean |Δ| under 2 grey levels against the sensor frame mirrored here; unmirrored, far more).
     let sensor = image::load_from_memory(latest.color_jpeg.as_ref().unwrap()).unwrap().into_rgb8();
     let saved = image::open(&shot.files[0]).unwrap().into_rgb8();
     let (w, h) = sensor.dimensions();
