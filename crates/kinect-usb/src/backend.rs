@@ -64,7 +64,9 @@ pub enum StopReason {
     Requested,
     /// The device disappeared.
     Disconnected,
-    /// Every transfer of the pool was retired (their resubmissions failed for another reason).
+    /// The stream could not go on: every transfer of its pool was retired (their
+    /// resubmissions failed for a reason other than a disconnection), or a replayed recording
+    /// was corrupt.
     Stalled,
 }
 
