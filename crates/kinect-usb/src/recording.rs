@@ -592,9 +592,19 @@ pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Re
     Ok(Recording { meta: r.meta.clone(), events, complete })
 }
 
-/// Reads and parses a whole recording file into memory (see [`RecordingReader`] to stream).
+/// Largest recording [`read_recording_file`] reads into memory: 1 GiB (about 300 depth frames
+/// with their colour). Whole-file reading is for tests and short recordings; longer ones are
+/// streamed with [`RecordingReader`], whose memory is bounded by [`MAX_RECORD`].
+pub const MAX_IN_MEMORY_RECORDING: u64 = 1 << 30;
+
+/// Reads and parses a whole recording file into memory, at most
+/// [`MAX_IN_MEMORY_RECORDING`] bytes whatever the file is (see [`RecordingReader`] to stream).
 pub fn read_recording_file(path: &Path, keep_prefix: bool) -> Result<Recording> {
-    let b = std::fs::read(path)
+    let expected = bounded_read::Expected {
+        what: "recordings read whole",
+        fix: "replay it with `kfuse capture --replay`, which streams it",
+    };
+    let b = bounded_read::read_bounded(path, MAX_IN_MEMORY_RECORDING, expected)
         .map_err(|source| KinectError::File { path: PathBuf::from(path), source })?;
     read_recording(&b, path, keep_prefix)
 }
