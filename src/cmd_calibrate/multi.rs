@@ -90,7 +90,7 @@ fn check_outputs(args: &CalibrateArgs, cameras: &[CameraFiles]) -> Result<()> {
     let out = &args.out;
     super::outputs::check_file("--out", out, cameras.iter().flat_map(|c| c.files.values()))?;
     if !args.overwrite && out.exists() {
-        let expected = bounded_read::Expected { what: "rig files", fix: "" };
+        let expected = bounded_read::Expected { what: "a rig file", fix: "" };
         let ours = bounded_read::read_bounded(out, kfuse_io::rig::MAX_RIG_FILE_BYTES, expected)
             .ok()
             .and_then(|t| serde_json::from_slice::<serde_json::Value>(&t).ok())

@@ -25,14 +25,14 @@ pub struct Expected<'a> {
 
 /// The message of a file over its limit (the caller's error adds the path in front).
 fn too_large(limit: u64, stated: Option<u64>, expected: Expected<'_>) -> std::io::Error {
-    let size = match stated {
-        Some(n) => format!("is {n} bytes"),
-        None => format!("gave more than {limit} bytes (a device or pipe? reading stopped there)"),
+    let (what, fix) = (expected.what, expected.fix);
+    let message = match stated {
+        Some(n) => format!("is {n} bytes, over the {limit}-byte limit for {what}; {fix}"),
+        None => format!(
+            "gave more than {limit} bytes, the limit for {what} (a device or a pipe? reading stopped there); {fix}"
+        ),
     };
-    std::io::Error::new(
-        ErrorKind::FileTooLarge,
-        format!("{size}, over the {limit}-byte limit for {}; {}", expected.what, expected.fix),
-    )
+    std::io::Error::new(ErrorKind::FileTooLarge, message)
 }
 
 /// Reads all of `path`, at most `limit` bytes: a regular file that states a larger size fails

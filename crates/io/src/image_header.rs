@@ -96,7 +96,7 @@ pub(crate) fn read_image_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
     use std::io::Read;
     let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
     let expected = bounded_read::Expected {
-        what: "image files",
+        what: "an image file",
         fix: "is this the right file? Give a PNG, JPEG, TIFF, BMP or OpenEXR file",
     };
     let mut file = bounded_read::open_bounded(path, MAX_IMAGE_FILE_BYTES, expected).map_err(io)?;

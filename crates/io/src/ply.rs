@@ -168,7 +168,7 @@ pub const MAX_PLY_FILE_BYTES: u64 = 2 << 30;
 fn read_ply_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
     use std::io::Read;
     let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
-    let expected = bounded_read::Expected { what: "PLY files", fix: "is this the right file?" };
+    let expected = bounded_read::Expected { what: "a PLY file", fix: "is this the right file?" };
     let mut file = bounded_read::open_bounded(path, MAX_PLY_FILE_BYTES, expected).map_err(io)?;
     let mut head = Vec::new();
     (&mut file).take(4).read_to_end(&mut head).map_err(io)?;

@@ -41,7 +41,7 @@ pub const MAX_RIG_FILE_BYTES: u64 = 4 << 20;
 /// a pipe states no size; see [`bounded_read`]).
 pub fn read_rig_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
     let expected = bounded_read::Expected {
-        what: "rig files",
+        what: "a rig file",
         fix: "give the rig JSON that `kfuse calibrate` or `kfuse rig import` wrote",
     };
     bounded_read::read_bounded(path, MAX_RIG_FILE_BYTES, expected)

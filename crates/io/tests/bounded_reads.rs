@@ -50,7 +50,7 @@ fn rig_from_dev_zero_stops_at_the_limit() {
     let e = read_rig(Path::new("/dev/zero")).unwrap_err().to_string();
     assert!(e.starts_with("/dev/zero: "), "{e}");
     assert!(e.contains(&format!("more than {MAX_RIG_FILE_BYTES} bytes")), "{e}");
-    assert!(e.contains("rig files") && e.contains("kfuse calibrate"), "{e}");
+    assert!(e.contains("a rig file") && e.contains("kfuse calibrate"), "{e}");
     assert_eq!(e.lines().count(), 1, "{e}");
 }
 

@@ -652,7 +652,7 @@ pub const MAX_IN_MEMORY_RECORDING: u64 = 1 << 30;
 /// [`MAX_IN_MEMORY_RECORDING`] bytes whatever the file is (see [`RecordingReader`] to stream).
 pub fn read_recording_file(path: &Path, keep_prefix: bool) -> Result<Recording> {
     let expected = bounded_read::Expected {
-        what: "recordings read whole",
+        what: "a recording read whole",
         fix: "replay it with `kfuse capture --replay`, which streams it",
     };
     let b = bounded_read::read_bounded(path, MAX_IN_MEMORY_RECORDING, expected)

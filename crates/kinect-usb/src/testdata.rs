@@ -38,7 +38,7 @@ pub const MAX_VECTOR_BYTES: u64 = 64 << 20;
 /// Reads a whole test-vector file, at most [`MAX_VECTOR_BYTES`] (see `bounded_read`).
 pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     let expected = bounded_read::Expected {
-        what: "test-vector files",
+        what: "a test-vector file",
         fix: "is KFUSE_SHARED_DATA the right folder?",
     };
     bounded_read::read_bounded(path, MAX_VECTOR_BYTES, expected)

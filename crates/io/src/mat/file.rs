@@ -32,7 +32,7 @@ impl MatFile {
     pub fn read(path: &Path) -> Result<Self, GeometryError> {
         let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
         let expected =
-            bounded_read::Expected { what: ".mat files", fix: "is this the right file?" };
+            bounded_read::Expected { what: "a .mat file", fix: "is this the right file?" };
         use std::io::Read;
         // The 128-byte header first: a device, a pipe or another kind of file is refused
         // there instead of being read to the limit.

@@ -36,7 +36,7 @@ impl SimProfile {
     pub fn from_vectors(dir: &std::path::Path) -> crate::Result<Self> {
         let read_bytes = |path: &std::path::Path| {
             let expected = bounded_read::Expected {
-                what: "the simulator's vector files",
+                what: "a simulator vector file",
                 fix: "is the vectors folder the right one?",
             };
             bounded_read::read_bounded(path, MAX_PROFILE_FILE_BYTES, expected)
