@@ -643,10 +643,29 @@ fn shots(
 fn replay_outcome(common: &CommonArgs, session: &Session) -> Option<KinectError> {
     let path = common.replay.as_ref()?;
     let outcome = session.replay_outcome()?;
-    for (index, offset) in &outcome.report.skipped {
+    let report = &outcome.report;
+    for run in &report.skipped {
+        let (i, at, n) = (run.first_index, run.offset, run.bytes);
+        if run.records == 1 {
+            eprintln!(
+                "warning: {}: record {i} at byte {at} is corrupt (checksum mismatch) and was left out",
+                path.display()
+            );
+        } else {
+            eprintln!(
+                "warning: {}: {} records from record {i} at byte {at} ({n} bytes) are corrupt (checksum mismatch) and were left out",
+                path.display(),
+                run.records
+            );
+        }
+    }
+    if report.unlisted_runs > 0 {
         eprintln!(
-            "warning: {}: record {index} at byte {offset} is corrupt (checksum mismatch) and was left out",
-            path.display()
+            "warning: {}: {} more damaged places not listed; in all {} records ({} bytes) were left out",
+            path.display(),
+            report.unlisted_runs,
+            report.skipped_records,
+            report.skipped_bytes
         );
     }
     if outcome.report.truncated {

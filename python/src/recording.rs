@@ -249,7 +249,7 @@ impl PyRecording {
 
     /// The depth frames that never arrived complete, so far (all of them once the iteration
     /// has ended): dicts of number, depth_sequence and reason ("dropped", "incomplete",
-    /// "dropped_or_incomplete", "repeated"), in frame order.
+    /// "dropped_or_incomplete", "repeated", "out_of_order", "discontinuity"), in frame order.
     #[getter]
     fn lost<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
         self.lost.iter().map(|m| missing_dict(py, m)).collect()

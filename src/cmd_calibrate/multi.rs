@@ -90,9 +90,10 @@ fn check_outputs(args: &CalibrateArgs, cameras: &[CameraFiles]) -> Result<()> {
     let out = &args.out;
     super::outputs::check_file("--out", out, cameras.iter().flat_map(|c| c.files.values()))?;
     if !args.overwrite && out.exists() {
-        let ours = std::fs::read_to_string(out)
+        let expected = bounded_read::Expected { what: "a rig file", fix: "" };
+        let ours = bounded_read::read_bounded(out, kfuse_io::rig::MAX_RIG_FILE_BYTES, expected)
             .ok()
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .and_then(|t| serde_json::from_slice::<serde_json::Value>(&t).ok())
             .is_some_and(|v| v["calibration"]["format"] == REPORT_FORMAT);
         if !ours {
             bail!(

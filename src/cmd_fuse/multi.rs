@@ -113,16 +113,14 @@ struct ShotChoice {
 /// several shots without `--shot`.
 fn frames_inputs(dir: &Path, shot: Option<&str>) -> Result<(Vec<SensorArg>, ShotChoice)> {
     let path = dir.join("index.json");
-    let len =
-        std::fs::metadata(&path).with_context(|| format!("reading {}", path.display()))?.len();
-    if len > MAX_INDEX_BYTES {
-        bail!(
-            "{}: {len} bytes, over the {MAX_INDEX_BYTES} an index of a capture may have: is it one?",
-            path.display()
-        );
-    }
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let expected = bounded_read::Expected {
+        what: "the index.json of a capture",
+        fix: "is it one? Give the folder `kfuse capture --device ...` wrote",
+    };
+    let bytes = bounded_read::read_bounded(&path, MAX_INDEX_BYTES, expected)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let text = String::from_utf8(bytes)
+        .map_err(|_| anyhow::anyhow!("{}: binary data, not JSON text", path.display()))?;
     let bad = |m: String| {
         anyhow::anyhow!(
             "{}: {m} (the index.json of `kfuse capture --device ...` of several sensors)",

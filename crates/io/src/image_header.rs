@@ -85,17 +85,29 @@ pub fn check_image_size(path: &Path, w: u64, h: u64) -> Result<(), GeometryError
     Ok(())
 }
 
-/// Reads a whole image file into memory after checking its size on disk.
+/// Bytes looked at before an image file is read on: enough for every signature [`sniff`] knows.
+const SNIFF_BYTES: u64 = 8;
+
+/// Reads a whole image file into memory, at most [`MAX_IMAGE_FILE_BYTES`] whatever the file
+/// is (a device or pipe states no size), through [`bounded_read`]. A file whose first bytes
+/// are no image signature is returned as those bytes alone, for the caller's format error
+/// (so `/dev/zero` or random bytes are refused after 8 bytes, not read on).
 pub(crate) fn read_image_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
+    use std::io::Read;
     let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
-    let size = std::fs::metadata(path).map_err(io)?.len();
-    if size > MAX_IMAGE_FILE_BYTES {
-        return Err(format_err(
-            path,
-            format!("is {size} bytes, over the {MAX_IMAGE_FILE_BYTES}-byte limit for image files"),
-        ));
+    let expected = bounded_read::Expected {
+        what: "an image file",
+        fix: "is this the right file? Give a PNG, JPEG, TIFF, BMP or OpenEXR file",
+    };
+    let mut file = bounded_read::open_bounded(path, MAX_IMAGE_FILE_BYTES, expected).map_err(io)?;
+    let mut head = Vec::new();
+    (&mut file).take(SNIFF_BYTES).read_to_end(&mut head).map_err(io)?;
+    if sniff(&head) == Container::Unknown {
+        // Not an image: the first bytes are enough for the caller's format error.
+        return Ok(head);
     }
-    std::fs::read(path).map_err(io)
+    bounded_read::read_bounded_from(Cursor::new(head).chain(file), MAX_IMAGE_FILE_BYTES, expected)
+        .map_err(io)
 }
 
 /// The `(width, height)` an image's header declares, read without decoding any pixel.

@@ -155,6 +155,34 @@ fn ply_type_size(t: &str) -> Option<usize> {
     })
 }
 
+/// Largest PLY file read into memory, bytes: 2 GiB. The largest kfuse writes, a mesh of 64
+/// Kinects' full depth images (64 × 217 088 vertices of 15 bytes and twice as many faces of
+/// 13 bytes), is about 0.6 GB; the rest is room for other tools' denser clouds (~140 M points
+/// of x, y, z and colour).
+pub const MAX_PLY_FILE_BYTES: u64 = 2 << 30;
+
+/// The bytes of a PLY file: its first four must be `ply` and a line end (so a device such as
+/// `/dev/zero` or another kind of file is refused after 4 bytes, with the first bytes alone
+/// returned for the caller's error), the rest is read up to [`MAX_PLY_FILE_BYTES`] through
+/// [`bounded_read`].
+fn read_ply_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
+    use std::io::Read;
+    let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
+    let expected = bounded_read::Expected { what: "a PLY file", fix: "is this the right file?" };
+    let mut file = bounded_read::open_bounded(path, MAX_PLY_FILE_BYTES, expected).map_err(io)?;
+    let mut head = Vec::new();
+    (&mut file).take(4).read_to_end(&mut head).map_err(io)?;
+    if !(head.starts_with(b"ply\n") || head.starts_with(b"ply\r")) {
+        return Ok(head);
+    }
+    bounded_read::read_bounded_from(
+        std::io::Cursor::new(head).chain(file),
+        MAX_PLY_FILE_BYTES,
+        expected,
+    )
+    .map_err(io)
+}
+
 /// Reads the vertices of a binary little-endian PLY (kfuse's clouds and meshes, and other
 /// tools' files whose first element is `vertex` with scalar properties): `x, y, z` as float or
 /// double, `red, green, blue` as uchar when all three are there; other properties are skipped.
@@ -163,8 +191,7 @@ fn ply_type_size(t: &str) -> Option<usize> {
 /// preview of a cloud of millions).
 pub fn read_cloud_ply(path: &Path, max_points: Option<usize>) -> Result<PointCloud, GeometryError> {
     let bad = |m: String| GeometryError::Format { path: path.to_path_buf(), message: m };
-    let bytes = std::fs::read(path)
-        .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+    let bytes = read_ply_bytes(path)?;
     let end = bytes
         .windows(b"end_header\n".len())
         .take(MAX_PLY_HEADER_BYTES)

@@ -20,8 +20,7 @@ pub fn read_rig(path: &Path) -> Result<Rig, GeometryError> {
 /// Reads and validates a rig file without the plausibility check (`--force`): the caller
 /// reports [`Rig::plausibility_problems`] as warnings.
 pub fn read_rig_unchecked(path: &Path) -> Result<Rig, GeometryError> {
-    let bytes = std::fs::read(path)
-        .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })?;
+    let bytes = read_rig_bytes(path)?;
     let text = String::from_utf8(bytes).map_err(|_| GeometryError::Format {
         path: path.to_path_buf(),
         message: "not a kfuse rig file (binary, not JSON text); create one with `kfuse calibrate`"
@@ -31,6 +30,22 @@ pub fn read_rig_unchecked(path: &Path) -> Result<Rig, GeometryError> {
     rig.validate()
         .map_err(|e| GeometryError::Format { path: path.to_path_buf(), message: e.to_string() })?;
     Ok(rig)
+}
+
+/// Largest rig file read, bytes: 4 MiB. A depth + colour rig is about 3 KB and one of the
+/// most cameras a rig may have (64, [`geometry::multi_rig::MAX_RIG_CAMERAS`]) about 100 KB;
+/// the limit bounds what a wrong file, a device or a pipe can make kfuse read.
+pub const MAX_RIG_FILE_BYTES: u64 = 4 << 20;
+
+/// The bytes of a rig file, at most [`MAX_RIG_FILE_BYTES`] whatever the file is (a device or
+/// a pipe states no size; see [`bounded_read`]).
+pub fn read_rig_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
+    let expected = bounded_read::Expected {
+        what: "a rig file",
+        fix: "give the rig JSON that `kfuse calibrate` or `kfuse rig import` wrote",
+    };
+    bounded_read::read_bounded(path, MAX_RIG_FILE_BYTES, expected)
+        .map_err(|source| GeometryError::Io { path: path.to_path_buf(), source })
 }
 
 /// Writes a rig file atomically.

@@ -226,13 +226,64 @@ pub struct ReadOptions {
     pub skip_corrupt: bool,
 }
 
+/// Most runs of skipped records a [`ReadReport`] lists: 1000. Consecutive corrupt records are
+/// one run (a zero-filled tail of 2 GB parses as 200 million 10-byte records, which were one
+/// entry each and aborted the replay at 3.5 GB); a file damaged in more than 1000 separate
+/// places is reported by its totals, the first 1000 runs listed (32 KB), so the report stays
+/// within the memory bound of the streaming reader whatever the file.
+pub const MAX_SKIPPED_RUNS: usize = 1000;
+
+/// Consecutive records skipped as corrupt (checksum mismatch): a run of the file's bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SkippedRun {
+    /// Index of the run's first record (records counted as the reader parsed them).
+    pub first_index: u64,
+    /// Records in the run.
+    pub records: u64,
+    /// Byte offset of the run's first record.
+    pub offset: u64,
+    /// Bytes the run covers.
+    pub bytes: u64,
+}
+
 /// What a streaming reader found wrong so far.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct ReadReport {
-    /// Records skipped because their checksum did not match: (index, byte offset).
-    pub skipped: Vec<(u64, u64)>,
+    /// Runs of consecutive records skipped because their checksum did not match, in file
+    /// order: the first [`MAX_SKIPPED_RUNS`] runs (the totals count every one).
+    pub skipped: Vec<SkippedRun>,
+    /// Records skipped in all, listed or not.
+    pub skipped_records: u64,
+    /// Bytes skipped in all, listed or not.
+    pub skipped_bytes: u64,
+    /// Runs of skipped records beyond [`MAX_SKIPPED_RUNS`], counted but not listed.
+    pub unlisted_runs: u64,
     /// The file ended before its end record (only with [`ReadOptions::keep_prefix`]).
     pub truncated: bool,
+    /// Where the last skipped record ended (a next one there extends its run).
+    last_end: u64,
+}
+
+impl ReadReport {
+    /// Counts a skipped record of `bytes` at `offset`: it extends the last run when it starts
+    /// where that run ended, else opens a run (listed while fewer than [`MAX_SKIPPED_RUNS`]).
+    pub fn skip(&mut self, index: u64, offset: u64, bytes: u64) {
+        self.skipped_records += 1;
+        self.skipped_bytes += bytes;
+        let extends = self.skipped_records > 1 && self.last_end == offset;
+        self.last_end = offset + bytes;
+        if extends
+            && self.unlisted_runs == 0
+            && let Some(last) = self.skipped.last_mut()
+        {
+            last.records += 1;
+            last.bytes += bytes;
+        } else if !extends && self.skipped.len() < MAX_SKIPPED_RUNS {
+            self.skipped.push(SkippedRun { first_index: index, records: 1, offset, bytes });
+        } else if !extends {
+            self.unlisted_runs += 1;
+        }
+    }
 }
 
 /// Streams a recording's events one at a time: holds the metadata and at most one record.
@@ -497,7 +548,7 @@ impl<R: Read> RecordingReader<R> {
             let (stored, computed) = (u32::from_le_bytes(crc), record_crc(&head, &data));
             if stored != computed {
                 if self.opts.skip_corrupt {
-                    self.report.skipped.push((index, at));
+                    self.report.skip(index, at, self.pos - at);
                     self.index += 1;
                     continue;
                 }
@@ -592,9 +643,19 @@ pub fn read_recording(bytes: &[u8], path: &Path, keep_prefix: bool) -> Result<Re
     Ok(Recording { meta: r.meta.clone(), events, complete })
 }
 
-/// Reads and parses a whole recording file into memory (see [`RecordingReader`] to stream).
+/// Largest recording [`read_recording_file`] reads into memory: 1 GiB (about 300 depth frames
+/// with their colour). Whole-file reading is for tests and short recordings; longer ones are
+/// streamed with [`RecordingReader`], whose memory is bounded by [`MAX_RECORD`].
+pub const MAX_IN_MEMORY_RECORDING: u64 = 1 << 30;
+
+/// Reads and parses a whole recording file into memory, at most
+/// [`MAX_IN_MEMORY_RECORDING`] bytes whatever the file is (see [`RecordingReader`] to stream).
 pub fn read_recording_file(path: &Path, keep_prefix: bool) -> Result<Recording> {
-    let b = std::fs::read(path)
+    let expected = bounded_read::Expected {
+        what: "a recording read whole",
+        fix: "replay it with `kfuse capture --replay`, which streams it",
+    };
+    let b = bounded_read::read_bounded(path, MAX_IN_MEMORY_RECORDING, expected)
         .map_err(|source| KinectError::File { path: PathBuf::from(path), source })?;
     read_recording(&b, path, keep_prefix)
 }

@@ -32,9 +32,17 @@ pub fn vectors_or_skip(test: &str) -> Option<PathBuf> {
     d
 }
 
-/// Reads a whole file.
+/// Largest test-vector file read: 64 MiB (the largest vector, a raw depth frame, is 3 MB).
+pub const MAX_VECTOR_BYTES: u64 = 64 << 20;
+
+/// Reads a whole test-vector file, at most [`MAX_VECTOR_BYTES`] (see `bounded_read`).
 pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|source| KinectError::File { path: path.to_path_buf(), source })
+    let expected = bounded_read::Expected {
+        what: "a test-vector file",
+        fix: "is KFUSE_SHARED_DATA the right folder?",
+    };
+    bounded_read::read_bounded(path, MAX_VECTOR_BYTES, expected)
+        .map_err(|source| KinectError::File { path: path.to_path_buf(), source })
 }
 
 /// Reads a little-endian f32 file.

@@ -369,7 +369,8 @@ pub fn run(
         missing,
         skipped_shots: skipped,
         unmatched_color_frames: outcome.unmatched_colors,
-        corrupt_records_skipped: outcome.read_report.skipped.len(),
+        corrupt_records_skipped: usize::try_from(outcome.read_report.skipped_records)
+            .unwrap_or(usize::MAX),
         truncated_recording_used: outcome.read_report.truncated,
         threads: options.threads,
         engine,

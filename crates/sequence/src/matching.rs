@@ -18,6 +18,14 @@ use crate::source::{ColorFrame, RawDepth, SourceEvent};
 /// Depth sequence numbers wrap at 2^16 (protocol §7).
 pub const DEPTH_SEQUENCE_MODULUS: u32 = 1 << 16;
 
+/// Largest forward step of the depth sequence read as frames lost: 1800, one minute at
+/// 30 Hz. A longer silence of a running stream is no USB drop (a stalled stream is restarted
+/// within seconds); a larger step, or one backwards in the 16-bit sequence at a later
+/// timestamp, is a discontinuity (a stream restart, a reordered record), listed once as
+/// [`MissingReason::Discontinuity`] instead of as up to 65 534 frames lost, which it was (a
+/// 13 MB `index.json`). It also bounds the entries one gap adds to the missing list.
+pub const MAX_SEQUENCE_GAP: u32 = 1800;
+
 /// Default largest time between a depth frame and its colour partner: 133 ticks = 16.6 ms,
 /// half the 33.3 ms frame period. Two free-running 30 Hz streams always have a colour frame
 /// within half a period of every depth frame; one farther away belongs to a neighbouring depth
@@ -45,6 +53,13 @@ pub enum MissingReason {
     DroppedOrIncomplete,
     /// Its sequence number repeated the previous frame's; the repeat is left out.
     Repeated,
+    /// Its timestamp is not after the previous frame's (a duplicated USB block, a reordered
+    /// record): left out, so that frame numbers and times only go forward.
+    OutOfOrder,
+    /// The sequence number jumped backwards or more than [`MAX_SEQUENCE_GAP`] ahead while
+    /// time went on (a stream restart): how many frames were lost there is unknown; this one
+    /// entry stands for them, and the frame after it goes on being numbered.
+    Discontinuity,
 }
 
 impl MissingReason {
@@ -55,6 +70,12 @@ impl MissingReason {
             MissingReason::Incomplete => "incomplete (a sub-image was lost)",
             MissingReason::DroppedOrIncomplete => "dropped or incomplete",
             MissingReason::Repeated => "repeated sequence number (left out)",
+            MissingReason::OutOfOrder => {
+                "out of order: its timestamp is not after the previous frame's (a duplicated or reordered record; left out)"
+            }
+            MissingReason::Discontinuity => {
+                "sequence discontinuity: the depth sequence number jumped back or too far ahead (a stream restart?); the frames lost there are unknown"
+            }
         }
     }
 }
@@ -94,7 +115,8 @@ pub enum Matched {
 #[derive(Debug)]
 pub struct Matcher {
     max_skew: u64,
-    last_sequence: Option<u32>,
+    /// Sequence number and timestamp of the last depth frame taken.
+    last: Option<(u32, u64)>,
     number: u64,
     pending: VecDeque<(u64, RawDepth)>,
     colors: VecDeque<ColorFrame>,
@@ -107,7 +129,7 @@ impl Matcher {
     pub fn new(max_skew: u64) -> Self {
         Self {
             max_skew,
-            last_sequence: None,
+            last: None,
             number: 0,
             pending: VecDeque::new(),
             colors: VecDeque::new(),
@@ -152,37 +174,52 @@ impl Matcher {
 
     fn number_depth(&mut self, frame: RawDepth, incomplete_before: u64) {
         let seq = frame.sequence % DEPTH_SEQUENCE_MODULUS;
-        if let Some(last) = self.last_sequence {
+        if let Some((last, last_time)) = self.last {
             let gap = (seq + DEPTH_SEQUENCE_MODULUS - last) % DEPTH_SEQUENCE_MODULUS;
-            if gap == 0 {
+            let left_out = match gap {
+                0 => Some(MissingReason::Repeated),
+                _ if frame.timestamp <= last_time => Some(MissingReason::OutOfOrder),
+                _ => None,
+            };
+            if let Some(reason) = left_out {
                 // Resolve what waits first so that the list stays in frame order.
                 self.resolve(true);
                 self.out.push_back(Matched::Missing(Missing {
                     number: self.number,
                     depth_sequence: seq,
-                    reason: MissingReason::Repeated,
+                    reason,
                 }));
                 return;
             }
-            let lost = u64::from(gap - 1);
-            let reason = match incomplete_before {
-                0 => MissingReason::Dropped,
-                n if n >= lost => MissingReason::Incomplete,
-                _ => MissingReason::DroppedOrIncomplete,
-            };
-            if lost > 0 {
+            if gap > MAX_SEQUENCE_GAP {
                 self.resolve(true);
-            }
-            for k in 1..=lost {
                 self.out.push_back(Matched::Missing(Missing {
-                    number: self.number + k,
-                    depth_sequence: (last + k as u32) % DEPTH_SEQUENCE_MODULUS,
-                    reason,
+                    number: self.number + 1,
+                    depth_sequence: seq,
+                    reason: MissingReason::Discontinuity,
                 }));
+                self.number += 2;
+            } else {
+                let lost = u64::from(gap - 1);
+                let reason = match incomplete_before {
+                    0 => MissingReason::Dropped,
+                    n if n >= lost => MissingReason::Incomplete,
+                    _ => MissingReason::DroppedOrIncomplete,
+                };
+                if lost > 0 {
+                    self.resolve(true);
+                }
+                for k in 1..=lost {
+                    self.out.push_back(Matched::Missing(Missing {
+                        number: self.number + k,
+                        depth_sequence: (last + k as u32) % DEPTH_SEQUENCE_MODULUS,
+                        reason,
+                    }));
+                }
+                self.number += u64::from(gap);
             }
-            self.number += u64::from(gap);
         }
-        self.last_sequence = Some(seq);
+        self.last = Some((seq, frame.timestamp));
         self.pending.push_back((self.number, frame));
     }
 
@@ -336,6 +373,64 @@ mod tests {
         // over colour 0 (67 ticks).
         assert_eq!(frames, vec![(0, 65535, None), (1, 0, Some(1)), (3, 2, None)]);
         assert_eq!(missing, vec![(2, MissingReason::Dropped)]);
+    }
+
+    /// A duplicated block (an earlier frame again), a reordered pair, a restart of the
+    /// sequence and a jump far ahead: each is one entry, never a 16-bit wrap-around of
+    /// 65 000 frames lost; frame numbers and timestamps of the frames only go forward.
+    #[test]
+    fn backwards_and_implausible_sequence_steps_are_one_entry_each() {
+        let events = vec![
+            depth(100, 1000, 0),
+            depth(101, 1267, 0),
+            depth(100, 1000, 0), // the block of frame 100 again
+            depth(102, 1534, 0),
+            depth(104, 2068, 0),
+            depth(103, 1801, 0), // arrives after 104
+            depth(105, 2335, 0),
+            depth(3, 2602, 0), // the stream restarted: sequence back to 3, time goes on
+            depth(4, 2869, 0),
+            depth(4 + MAX_SEQUENCE_GAP + 1, 3136, 0), // far ahead
+            depth(6 + MAX_SEQUENCE_GAP, 3403, 0),
+        ];
+        let (out, _) = run(events, DEFAULT_MAX_SKEW_TICKS);
+        let (frames, missing) = summary(&out);
+        let numbers: Vec<(u64, u32)> = frames.iter().map(|f| (f.0, f.1)).collect();
+        assert_eq!(
+            numbers,
+            vec![
+                (0, 100),
+                (1, 101),
+                (2, 102),
+                (4, 104),
+                (5, 105),
+                (7, 3),
+                (8, 4),
+                (10, 5 + MAX_SEQUENCE_GAP),
+                (11, 6 + MAX_SEQUENCE_GAP)
+            ]
+        );
+        assert_eq!(
+            missing,
+            vec![
+                (1, MissingReason::OutOfOrder),
+                (3, MissingReason::Dropped),
+                (4, MissingReason::OutOfOrder),
+                (6, MissingReason::Discontinuity),
+                (9, MissingReason::Discontinuity),
+            ]
+        );
+        let times: Vec<u64> = out
+            .iter()
+            .filter_map(|r| match r {
+                Matched::Frame(p) => Some(p.depth.timestamp),
+                Matched::Missing(_) => None,
+            })
+            .collect();
+        assert!(times.windows(2).all(|w| w[0] < w[1]), "{times:?}");
+        // The largest step still read as frames lost lists them all.
+        let (out, _) = run(vec![depth(0, 0, 0), depth(MAX_SEQUENCE_GAP, 1, 0)], 133);
+        assert_eq!(summary(&out).1.len(), (MAX_SEQUENCE_GAP - 1) as usize);
     }
 
     #[test]

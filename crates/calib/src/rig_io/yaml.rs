@@ -48,19 +48,16 @@ pub fn fmt_err(path: &Path, message: impl Into<String>) -> CalibError {
     CalibError::Format { path: path.to_path_buf(), message: message.into() }
 }
 
-/// Reads a text file of bounded size.
+/// Reads a text file of at most [`MAX_TEXT_BYTES`], whatever the file is (a device or a pipe
+/// states no size; see [`bounded_read`]).
 pub fn read_text(path: &Path) -> Result<String, CalibError> {
     let io = |source| CalibError::Io { path: path.to_path_buf(), source };
-    let len = std::fs::metadata(path).map_err(io)?.len();
-    if len > MAX_TEXT_BYTES {
-        return Err(fmt_err(
-            path,
-            format!(
-                "{len} bytes is too large for a calibration file (limit {MAX_TEXT_BYTES}); is this the right file?"
-            ),
-        ));
-    }
-    let bytes = std::fs::read(path).map_err(io)?;
+    let expected = bounded_read::Expected {
+        what: "a calibration file",
+        fix: "is this the right file? Give the calibration's YAML or JSON file",
+    };
+    let bytes = bounded_read::read_bounded(path, MAX_TEXT_BYTES, expected).map_err(io)?;
+    let len = bytes.len();
     let text = String::from_utf8(bytes)
         .map_err(|_| fmt_err(path, "binary data, not a text calibration file (YAML or JSON)"))?;
     if text.trim_start_matches('\u{feff}').trim().is_empty() {
@@ -403,6 +400,42 @@ fn numbers(seq: &[Value]) -> Result<Vec<f64>, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `/dev/zero` and a FIFO that never ends, given as a calibration file, are refused after
+    /// [`MAX_TEXT_BYTES`] + 1 bytes (they stated a size of 0 and were read to 4 GB): the
+    /// FIFO's writer got at most the limit, the pipe buffer and one chunk into the pipe.
+    #[test]
+    fn devices_and_pipes_are_read_to_the_limit_only() {
+        use std::io::Write;
+        let e = crate::rig_io::load(Path::new("/dev/zero")).unwrap_err().to_string();
+        assert!(e.starts_with("/dev/zero: "), "{e}");
+        assert!(e.contains(&format!("more than {MAX_TEXT_BYTES} bytes")), "{e}");
+        assert!(e.contains("a calibration file"), "{e}");
+
+        let dir = std::env::temp_dir().join(format!("kfuse-calib-fifo-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("rig.yml");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+        const CHUNK: usize = 64 << 10;
+        let writer = {
+            let fifo = fifo.clone();
+            std::thread::spawn(move || {
+                let mut f = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+                let mut sent = 0u64;
+                while f.write_all(&[b'a'; CHUNK]).is_ok() {
+                    sent += CHUNK as u64;
+                }
+                sent
+            })
+        };
+        let e = read_text(&fifo).unwrap_err().to_string();
+        let sent = writer.join().unwrap();
+        assert!(e.contains(&format!("more than {MAX_TEXT_BYTES} bytes")), "{e}");
+        // 1 MiB: Linux's largest pipe buffer.
+        assert!(sent > MAX_TEXT_BYTES && sent <= MAX_TEXT_BYTES + (1 << 20) + CHUNK as u64);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn opencv_header_and_matrix_tag_are_understood() {

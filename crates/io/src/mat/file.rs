@@ -31,16 +31,23 @@ impl MatFile {
     /// Reads and parses the file at `path`.
     pub fn read(path: &Path) -> Result<Self, GeometryError> {
         let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
-        let size = std::fs::metadata(path).map_err(io)?.len();
-        if size > MAX_MAT_FILE_BYTES {
-            return Err(GeometryError::Format {
-                path: path.to_path_buf(),
-                message: format!(
-                    "is {size} bytes, over the {MAX_MAT_FILE_BYTES}-byte limit for .mat files; is this the right file?"
-                ),
-            });
-        }
-        let bytes = std::fs::read(path).map_err(io)?;
+        let expected =
+            bounded_read::Expected { what: "a .mat file", fix: "is this the right file?" };
+        use std::io::Read;
+        // The 128-byte header first: a device, a pipe or another kind of file is refused
+        // there instead of being read to the limit.
+        let mut file =
+            bounded_read::open_bounded(path, MAX_MAT_FILE_BYTES, expected).map_err(io)?;
+        let mut head = Vec::new();
+        (&mut file).take(HEADER_LEN as u64).read_to_end(&mut head).map_err(io)?;
+        parse_header(&head)
+            .map_err(|message| GeometryError::Format { path: path.to_path_buf(), message })?;
+        let bytes = bounded_read::read_bounded_from(
+            std::io::Cursor::new(head).chain(file),
+            MAX_MAT_FILE_BYTES,
+            expected,
+        )
+        .map_err(io)?;
         Self::parse(&bytes, path)
     }
 

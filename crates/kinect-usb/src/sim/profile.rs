@@ -26,12 +26,20 @@ pub struct SimProfile {
     pub bytes_per_interval: u32,
 }
 
+/// Largest vector file a profile reads: 64 MiB. The responses are at most 1.3 MB (the P0
+/// tables); the limit bounds what a wrong file, a device or a pipe can make it read.
+const MAX_PROFILE_FILE_BYTES: u64 = 64 << 20;
+
 impl SimProfile {
     /// A profile from the vectors' inputs (real factory intrinsics, synthetic P0 and colour
     /// parameters) with a real-looking firmware version and status sequence.
     pub fn from_vectors(dir: &std::path::Path) -> crate::Result<Self> {
         let read_bytes = |path: &std::path::Path| {
-            std::fs::read(path)
+            let expected = bounded_read::Expected {
+                what: "a simulator vector file",
+                fix: "is the vectors folder the right one?",
+            };
+            bounded_read::read_bounded(path, MAX_PROFILE_FILE_BYTES, expected)
                 .map_err(|source| crate::KinectError::File { path: path.to_path_buf(), source })
         };
         let hw = read_bytes(&dir.join("real/protocol/hardware_info_response.bin"))?;
