@@ -42,6 +42,14 @@ pub fn record(
 ) -> Result<Recorded, CaptureError> {
     let meta = RecordingMeta::from_info(session.info());
     let mut done = Recorded { frames: 0, interrupted: false, stopped_by: None, written: false };
+    // Every raw event from now on, not only the newest frames (bounded: a recorder that falls
+    // behind by more than `TAP_QUEUE_BYTES` loses events, counted in `tap_dropped`).
+    session.device_mut().set_raw_tap(true);
+    let handed_out = |s: &Session| {
+        let c = s.counters();
+        c.depth_taken + c.depth_overwritten
+    };
+    let first = handed_out(session);
     let written = write_atomic(output, |w| {
         let mut rw = RecordingWriter::new(w, &meta)?;
         let mut io_err = None;
@@ -61,7 +69,8 @@ pub fn record(
             };
             match session.device_mut().next_frame(FRAME_TIMEOUT, &mut tap) {
                 Ok(Some(Frame::Depth(_))) => {
-                    done.frames += 1;
+                    // Frames this loop did not take in time were still recorded by the tap.
+                    done.frames = handed_out(session) - first;
                     progress(done.frames);
                 }
                 Ok(_) => {}
@@ -76,6 +85,7 @@ pub fn record(
         }
         rw.finish().map(|_| ())
     });
+    session.device_mut().set_raw_tap(false);
     match written {
         Ok(()) => done.written = true,
         Err(_) if done.interrupted && done.frames == 0 => {}
