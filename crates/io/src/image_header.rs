@@ -92,7 +92,7 @@ const SNIFF_BYTES: u64 = 8;
 /// is (a device or pipe states no size), through [`bounded_read`]. A file whose first bytes
 /// are no image signature is returned as those bytes alone, for the caller's format error
 /// (so `/dev/zero` or random bytes are refused after 8 bytes, not read on).
-pub(crate) fn read_image_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
+pub fn read_image_bytes(path: &Path) -> Result<Vec<u8>, GeometryError> {
     use std::io::Read;
     let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
     let expected = bounded_read::Expected {

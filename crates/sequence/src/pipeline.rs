@@ -174,7 +174,9 @@ impl Reader {
                     }))));
                 };
                 let jpeg = match &shot.color {
-                    Some(c) => Some(std::fs::read(c).map_err(|e| {
+                    // Bounded like every image read (a FIFO or a device named as a shot's
+                    // colour file is refused, not read to the end).
+                    Some(c) => Some(kfuse_io::image_header::read_image_bytes(c).map_err(|e| {
                         SequenceError::input(c, format!("cannot read the colour JPEG: {e}"))
                     })?),
                     None => None,
