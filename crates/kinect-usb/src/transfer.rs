@@ -11,8 +11,9 @@
 #![allow(unsafe_code)]
 
 use std::os::raw::{c_int, c_uint, c_void};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc::Sender;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rusb::ffi;
@@ -21,14 +22,16 @@ use rusb::ffi::constants::{
     LIBUSB_TRANSFER_TIMED_OUT, LIBUSB_TRANSFER_TYPE_ISOCHRONOUS,
 };
 
-use crate::backend::{EventSink, StopReason, StreamEvent, XferStatus};
+use crate::backend::{StopReason, StreamEvent, StreamHandle, XferStatus};
 use crate::error::UsbError;
 use crate::pool::{resubmit_failed, submit_pool};
 
+/// Event sender shared by every transfer of a backend.
+pub(crate) type EventTx = Sender<(StreamHandle, StreamEvent)>;
+
 struct Shared {
-    /// Where the pool's events go: the device's frame sink, which assembles frames here, on
-    /// the event thread (protocol §5.5), instead of queueing packets for the consumer.
-    sink: Arc<dyn EventSink>,
+    tx: Mutex<EventTx>,
+    handle: StreamHandle,
     iso: bool,
     packet_size: usize,
     stopping: AtomicBool,
@@ -37,7 +40,9 @@ struct Shared {
 
 impl Shared {
     fn send(&self, ev: StreamEvent) {
-        self.sink.deliver(ev);
+        if let Ok(tx) = self.tx.lock() {
+            let _ = tx.send((self.handle, ev));
+        }
     }
 }
 
@@ -231,11 +236,13 @@ impl TransferPool {
         count: usize,
         packets: usize,
         packet_size: usize,
-        sink: Arc<dyn EventSink>,
+        handle: StreamHandle,
+        tx: EventTx,
         timeout: Duration,
     ) -> Result<Self, UsbError> {
         let shared = Arc::new(Shared {
-            sink,
+            tx: Mutex::new(tx),
+            handle,
             iso: packets > 0,
             packet_size,
             stopping: AtomicBool::new(false),

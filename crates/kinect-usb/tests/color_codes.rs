@@ -10,9 +10,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use kinect_usb::backend::{
-    EventSink, ResetOutcome, Serviced, StreamHandle, StreamSpec, UsbBackend,
-};
+use kinect_usb::backend::{ResetOutcome, StreamEvent, StreamHandle, StreamSpec, UsbBackend};
 use kinect_usb::device::KinectDevice;
 use kinect_usb::error::UsbError;
 use kinect_usb::params::DepthParams;
@@ -74,15 +72,14 @@ impl UsbBackend for Spy {
     fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError> {
         self.inner.iso_bytes_per_interval(ep, alt)
     }
-    fn start_stream(
-        &mut self,
-        spec: StreamSpec,
-        sink: Arc<dyn EventSink>,
-    ) -> Result<StreamHandle, UsbError> {
-        self.inner.start_stream(spec, sink)
+    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
+        self.inner.start_stream(spec)
     }
-    fn service(&mut self, timeout: Duration) -> Result<Serviced, UsbError> {
-        self.inner.service(timeout)
+    fn next_event(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
+        self.inner.next_event(timeout)
     }
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
         self.inner.stop_stream(h, max_wait)
