@@ -64,7 +64,9 @@ pub enum StopReason {
     Requested,
     /// The device disappeared.
     Disconnected,
-    /// Resubmission failed for another reason.
+    /// The stream could not go on: every transfer of its pool was retired (their
+    /// resubmissions failed for a reason other than a disconnection), or a replayed recording
+    /// was corrupt.
     Stalled,
 }
 
@@ -89,6 +91,15 @@ pub enum StreamEvent {
         /// `actual_length` bytes.
         data: Vec<u8>,
     },
+    /// One transfer of the stream's pool was retired: its first submission or a resubmission
+    /// failed with `error` (not a disconnection). The stream goes on with `in_flight`
+    /// transfers; when that is 0, a [`StreamEvent::Stopped`] follows (protocol §5.5).
+    Retired {
+        /// Why it could not be submitted ([`UsbError::NoMem`]: Linux's usbfs memory limit).
+        error: UsbError,
+        /// Transfers of the pool still in flight.
+        in_flight: usize,
+    },
     /// The stream ended.
     Stopped {
         /// Why.
@@ -104,6 +115,11 @@ pub trait UsbBackend: Send {
     fn set_config(&mut self, cfg: u8) -> Result<(), UsbError>;
     /// USB port reset.
     fn reset(&mut self) -> Result<ResetOutcome, UsbError>;
+    /// After a reset that re-enumerated the device ([`ResetOutcome::Reenumerated`]): closes
+    /// this handle, waits `wait`, finds the same sensor again (same serial) and opens it,
+    /// without another reset (libfreenect2's workaround, protocol §5.1). `Err(NoDevice)` when
+    /// no sensor with that serial came back.
+    fn reopen(&mut self, wait: Duration) -> Result<(), UsbError>;
     /// Claims an interface.
     fn claim(&mut self, iface: u8) -> Result<(), UsbError>;
     /// Releases an interface.
@@ -148,6 +164,9 @@ impl<T: UsbBackend + ?Sized> UsbBackend for Box<T> {
     }
     fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
         (**self).reset()
+    }
+    fn reopen(&mut self, wait: Duration) -> Result<(), UsbError> {
+        (**self).reopen(wait)
     }
     fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
         (**self).claim(iface)
@@ -207,6 +226,9 @@ impl<T: UsbBackend> UsbBackend for std::sync::Arc<std::sync::Mutex<T>> {
     }
     fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
         lock(self).reset()
+    }
+    fn reopen(&mut self, wait: Duration) -> Result<(), UsbError> {
+        lock(self).reopen(wait)
     }
     fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
         lock(self).claim(iface)

@@ -6,8 +6,10 @@
 
 use std::time::{Duration, Instant};
 
-use crate::backend::{StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend, XferStatus};
-use crate::error::{KinectError, Result, UsbError};
+use crate::backend::{
+    ResetOutcome, StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend, XferStatus,
+};
+use crate::error::{KinectError, Result, USBFS_MEMORY_FIX, UsbError};
 use crate::params::{ColorParams, DepthParams, P0Tables};
 use crate::protocol::{
     self, ColorSettingCode, ColorSettingResponse, Command, Exposure, ExposureMode, LedSetting,
@@ -26,9 +28,46 @@ pub const STOP_WAIT: Duration = Duration::from_secs(2);
 /// Colour transfers in flight × size (Linux default, protocol §5.5).
 pub const COLOR_STREAM: StreamSpec =
     StreamSpec::Bulk { ep: ep::COLOR_IN, transfers: 20, size: 16_384 };
-/// Depth transfers in flight × packets × packet size (Linux default, protocol §5.5).
-pub const DEPTH_STREAM: StreamSpec =
-    StreamSpec::Iso { ep: ep::DEPTH_IN, transfers: 60, packets: 8, packet_size: 33_792 };
+/// Depth transfers in flight (Linux default, protocol §5.5).
+pub const DEPTH_TRANSFERS: usize = 60;
+/// Isochronous packets per depth transfer (Linux default, protocol §5.5).
+pub const DEPTH_PACKETS_PER_TRANSFER: usize = 8;
+/// Largest `wBytesPerInterval` accepted from endpoint 0x84's companion descriptor: a
+/// SuperSpeed isochronous endpoint moves at most (Mult + 1 ≤ 3) × (bMaxBurst + 1 ≤ 16) packets
+/// of 1024 bytes per service interval (USB 3.2 specification, section 9.6.7), so anything
+/// larger is a corrupt descriptor, not bandwidth. Real sensors report 33 792 (protocol §2.2).
+pub const MAX_BYTES_PER_INTERVAL: u32 = 3 * 16 * 1024;
+
+/// The depth stream: [`DEPTH_TRANSFERS`] × [`DEPTH_PACKETS_PER_TRANSFER`] packets of
+/// `packet_size` bytes, the endpoint's `wBytesPerInterval` (as libfreenect2 sizes them,
+/// protocol §5.5).
+pub fn depth_stream(packet_size: usize) -> StreamSpec {
+    StreamSpec::Iso {
+        ep: ep::DEPTH_IN,
+        transfers: DEPTH_TRANSFERS,
+        packets: DEPTH_PACKETS_PER_TRANSFER,
+        packet_size,
+    }
+}
+
+/// Wait between closing a handle whose port reset re-enumerated the sensor and looking for it
+/// again: libfreenect2's value (`libfreenect2.cpp:1219-1249`, a workaround for host controllers
+/// that re-enumerate on reset), enough for the host to enumerate the device anew.
+pub const REENUMERATION_WAIT: Duration = Duration::from_secs(1);
+
+/// Options of [`KinectDevice::open_with`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OpenOptions {
+    /// Wait after a re-enumerating reset before looking for the sensor again
+    /// ([`REENUMERATION_WAIT`] by default; tests make it short).
+    pub reenumeration_wait: Duration,
+}
+
+impl Default for OpenOptions {
+    fn default() -> Self {
+        OpenOptions { reenumeration_wait: REENUMERATION_WAIT }
+    }
+}
 
 /// Session state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -97,6 +136,18 @@ pub struct StreamCounters {
     pub color_frames: u64,
     /// Colour packets dropped.
     pub color_dropped: u64,
+    /// Colour frames whose header magic was not 'BBBB' (kept unless
+    /// [`KinectDevice::strict_checks`]; libfreenect2 does not check it).
+    pub color_bad_header_magic: u64,
+    /// 0x3E colour-setting responses with a non-zero status word (accepted unless
+    /// [`KinectDevice::strict_checks`]; libfreenect2 ignores it).
+    pub color_setting_nonzero_status: u64,
+    /// LED API completions with a non-zero status word (accepted unless
+    /// [`KinectDevice::strict_checks`]; libfreenect2 ignores it).
+    pub led_nonzero_status: u64,
+    /// Transfers retired because their submission or resubmission failed (the stream goes on
+    /// with the others, as libfreenect2's; it ends when none is left).
+    pub transfers_retired: u64,
 }
 
 /// An opened Kinect v2 session over a backend.
@@ -109,18 +160,47 @@ pub struct KinectDevice<B: UsbBackend> {
     color: ColorAssembler,
     depth_h: Option<StreamHandle>,
     color_h: Option<StreamHandle>,
+    depth_packet_size: usize,
     iso_errors: u64,
+    color_setting_nonzero_status: u64,
+    led_nonzero_status: u64,
+    transfers_retired: u64,
     /// Non-fatal protocol warnings (sequence mismatches, status never ready…).
     pub warnings: Vec<String>,
     /// Treat a completion sequence mismatch as an error.
     pub strict_sequence: bool,
+    /// Enforce the three values the sensor is not known to promise and libfreenect2 ignores:
+    /// a non-zero 0x3E status or LED completion status becomes [`KinectError::Rejected`], and
+    /// a colour frame whose header magic is not 'BBBB' is dropped. Off by default: each is
+    /// counted ([`StreamCounters`]) and, for the status words, noted in [`Self::warnings`].
+    pub strict_checks: bool,
 }
 
 impl<B: UsbBackend> KinectDevice<B> {
-    /// Opens the device (protocol §5.1 steps 2–9) on an already-opened backend handle.
-    pub fn open(mut backend: B) -> Result<Self> {
+    /// Opens the device (protocol §5.1 steps 2–9) on an already-opened backend handle, with
+    /// the default [`OpenOptions`].
+    pub fn open(backend: B) -> Result<Self> {
+        Self::open_with(backend, OpenOptions::default())
+    }
+
+    /// Opens the device (protocol §5.1 steps 2–9). When the port reset re-enumerates the
+    /// sensor, the handle is closed and the same sensor (serial) is opened again after
+    /// `options.reenumeration_wait`, once and without another reset, as libfreenect2 does;
+    /// [`KinectError::NotBackAfterReset`] when it does not come back.
+    pub fn open_with(mut backend: B, options: OpenOptions) -> Result<Self> {
         let b = &mut backend;
-        b.reset().map_err(|e| KinectError::usb("port reset", e))?;
+        match b.reset().map_err(|e| KinectError::usb("port reset", e))? {
+            ResetOutcome::Ok => {}
+            ResetOutcome::Reenumerated => {
+                let wait = options.reenumeration_wait;
+                b.reopen(wait).map_err(|e| match e {
+                    UsbError::NoDevice => {
+                        KinectError::NotBackAfterReset { waited_ms: wait.as_millis() as u64 }
+                    }
+                    e => KinectError::usb("reopening after a re-enumerating reset", e),
+                })?;
+            }
+        }
         if b.active_config().map_err(|e| KinectError::usb("reading configuration", e))? != 1 {
             b.set_config(1).map_err(|e| KinectError::usb("set configuration 1", e))?;
         }
@@ -146,6 +226,18 @@ impl<B: UsbBackend> KinectDevice<B> {
                 need: MIN_BYTES_PER_INTERVAL,
             });
         }
+        if bpi > MAX_BYTES_PER_INTERVAL {
+            let _ = b.release(0);
+            let _ = b.release(1);
+            return Err(KinectError::Protocol {
+                what: "endpoint 0x84 descriptor".into(),
+                detail: format!(
+                    "wBytesPerInterval {bpi} is more than a SuperSpeed isochronous endpoint can \
+                     move ({MAX_BYTES_PER_INTERVAL} = 3 × 16 × 1024 bytes): corrupt descriptor; \
+                     replug the sensor or try another USB 3 port"
+                ),
+            });
+        }
         Ok(KinectDevice {
             backend,
             seq: 0,
@@ -155,10 +247,21 @@ impl<B: UsbBackend> KinectDevice<B> {
             color: ColorAssembler::new(),
             depth_h: None,
             color_h: None,
+            depth_packet_size: bpi as usize,
             iso_errors: 0,
+            color_setting_nonzero_status: 0,
+            led_nonzero_status: 0,
+            transfers_retired: 0,
             warnings: Vec::new(),
             strict_sequence: false,
+            strict_checks: false,
         })
+    }
+
+    /// Bytes per depth isochronous packet: the `wBytesPerInterval` read at open (bounded by
+    /// [`MIN_BYTES_PER_INTERVAL`] and [`MAX_BYTES_PER_INTERVAL`]).
+    pub fn depth_packet_size(&self) -> usize {
+        self.depth_packet_size
     }
 
     /// Current state.
@@ -250,7 +353,9 @@ impl<B: UsbBackend> KinectDevice<B> {
     }
 
     /// Sends one 0x3E colour-camera setting (protocol §4.10) and returns its parsed response.
-    /// A non-zero `status` in the response is returned as [`KinectError::Rejected`].
+    /// A non-zero `status` in the response is counted
+    /// ([`StreamCounters::color_setting_nonzero_status`]) and noted in [`Self::warnings`]; with
+    /// [`Self::strict_checks`] it is returned as [`KinectError::Rejected`].
     /// Prefer the typed methods ([`Self::set_exposure`], [`Self::integration_time_ms`], …).
     pub fn color_setting(
         &mut self,
@@ -272,11 +377,19 @@ impl<B: UsbBackend> KinectDevice<B> {
         let r = protocol::parse_color_setting_response(&data)
             .map_err(|e| KinectError::Protocol { what: name.clone(), detail: e.to_string() })?;
         if r.status != 0 {
-            return Err(KinectError::Rejected {
-                what: name,
-                status: r.status,
-                detail: format!("response {r:?}"),
-            });
+            self.color_setting_nonzero_status += 1;
+            if self.strict_checks {
+                return Err(KinectError::Rejected {
+                    what: name,
+                    status: r.status,
+                    detail: format!("response {r:?}"),
+                });
+            }
+            self.warnings.push(format!(
+                "{name}: response status {:#x} (ignored, as libfreenect2 does; strict_checks \
+                 rejects it)",
+                r.status
+            ));
         }
         Ok(r)
     }
@@ -402,8 +515,9 @@ impl<B: UsbBackend> KinectDevice<B> {
     }
 
     /// Sets an LED (protocol §4.9) after validating the setting. Sent with sequence 0 without
-    /// advancing the counter; a non-zero completion status is returned as
-    /// [`KinectError::Rejected`].
+    /// advancing the counter; a non-zero completion status is counted
+    /// ([`StreamCounters::led_nonzero_status`]) and noted in [`Self::warnings`], or, with
+    /// [`Self::strict_checks`], returned as [`KinectError::Rejected`].
     pub fn set_led(&mut self, led: LedSetting) -> Result<()> {
         self.require_open("set LED")?;
         led.validate()?;
@@ -411,11 +525,18 @@ impl<B: UsbBackend> KinectDevice<B> {
         let name = cmd.name();
         let (_, status) = self.transact(cmd)?;
         if status != 0 {
-            return Err(KinectError::Rejected {
-                what: name,
-                status,
-                detail: "completion status".into(),
-            });
+            self.led_nonzero_status += 1;
+            if self.strict_checks {
+                return Err(KinectError::Rejected {
+                    what: name,
+                    status,
+                    detail: "completion status".into(),
+                });
+            }
+            self.warnings.push(format!(
+                "{name}: completion status {status:#x} (ignored, as libfreenect2 does; \
+                 strict_checks rejects it)"
+            ));
         }
         Ok(())
     }
@@ -509,9 +630,9 @@ impl<B: UsbBackend> KinectDevice<B> {
             );
         }
         if depth {
-            self.depth_h = Some(
-                self.usb(ep::DEPTH_IN, "start depth stream", |b| b.start_stream(DEPTH_STREAM))?,
-            );
+            let spec = depth_stream(self.depth_packet_size);
+            self.depth_h =
+                Some(self.usb(ep::DEPTH_IN, "start depth stream", |b| b.start_stream(spec))?);
         }
         Ok(())
     }
@@ -551,6 +672,19 @@ impl<B: UsbBackend> KinectDevice<B> {
                 StreamEvent::Stopped { reason: StopReason::Requested } => {
                     return Err(KinectError::EndOfStream);
                 }
+                StreamEvent::Retired { error, in_flight } => {
+                    self.transfers_retired += 1;
+                    let mut w = format!(
+                        "{kind:?} stream: a transfer was retired ({error}); {in_flight} still in \
+                         flight"
+                    );
+                    if error == UsbError::NoMem {
+                        w.push_str(". ");
+                        w.push_str(USBFS_MEMORY_FIX);
+                    }
+                    self.warnings.push(w);
+                    continue;
+                }
                 StreamEvent::Stopped { reason } => {
                     return Err(KinectError::Protocol {
                         what: format!("{kind:?} stream"),
@@ -571,6 +705,7 @@ impl<B: UsbBackend> KinectDevice<B> {
                     if status != XferStatus::Completed {
                         continue;
                     }
+                    self.color.strict_header = self.strict_checks;
                     if self.color.push(&data).is_some() {
                         return Ok(self.color_last());
                     }
@@ -599,6 +734,10 @@ impl<B: UsbBackend> KinectDevice<B> {
             iso_errors: self.iso_errors,
             color_frames: self.color.stats.frames,
             color_dropped: self.color.stats.dropped,
+            color_bad_header_magic: self.color.stats.bad_header_magic,
+            color_setting_nonzero_status: self.color_setting_nonzero_status,
+            led_nonzero_status: self.led_nonzero_status,
+            transfers_retired: self.transfers_retired,
         }
     }
 

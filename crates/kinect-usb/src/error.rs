@@ -24,6 +24,10 @@ pub enum UsbError {
     /// Permission denied opening the device node.
     #[error("access denied (udev rule / permissions)")]
     Access,
+    /// The kernel refused memory for a transfer (libusb `NO_MEM`, or `ENOMEM` from usbfs):
+    /// on Linux usually the `usbfs_memory_mb` limit ([`USBFS_MEMORY_FIX`]).
+    #[error("out of memory for USB transfers")]
+    NoMem,
     /// Any other I/O error.
     #[error("USB I/O error")]
     Io,
@@ -31,6 +35,15 @@ pub enum UsbError {
     #[error("operation not supported")]
     NotSupported,
 }
+
+/// What to do when transfers fail for lack of memory: Linux caps the buffers of all programs'
+/// USB transfers at `usbfs_memory_mb` (16 MiB by default), and one Kinect v2 streaming depth and
+/// colour takes 60 × 8 × 33 792 + 20 × 16 384 bytes (16.5 MB), so a second sensor on the same
+/// host (or another USB program) exceeds it.
+pub const USBFS_MEMORY_FIX: &str = "Linux limits the memory of all programs' USB transfers to \
+    usbfs_memory_mb (16 MiB by default; one Kinect v2 needs about 16 MiB, several sensors on one \
+    host exceed it): raise it with `echo 0 | sudo tee /sys/module/usbcore/parameters/usbfs_memory_mb` \
+    (0 = no limit, until reboot) or boot with the kernel parameter usbcore.usbfs_memory_mb=1000";
 
 /// Every error of `kinect-usb`.
 #[derive(Debug, thiserror::Error)]
@@ -42,6 +55,12 @@ pub enum KinectError {
         what: String,
         /// The transport error.
         source: UsbError,
+    },
+    /// Submitting the stream's transfers failed for lack of kernel memory.
+    #[error("the kernel refused memory for USB transfers during {what}. {fix}", fix = USBFS_MEMORY_FIX)]
+    UsbMemory {
+        /// What the driver was doing.
+        what: String,
     },
     /// The sensor is in use by another program.
     #[error(
@@ -64,6 +83,17 @@ pub enum KinectError {
     Disconnected {
         /// What the driver was doing.
         what: String,
+    },
+    /// The port reset at open re-enumerated the sensor (libusb `NOT_FOUND`) and no sensor with
+    /// the same serial was found again after the wait (protocol §5.1).
+    #[error(
+        "the Kinect v2 re-enumerated after its USB port reset and no sensor with the same serial \
+         came back within {waited_ms} ms (+ 10 open attempts 100 ms apart); unplug and replug it, \
+         or try another USB 3 port (some host controllers re-enumerate on every reset)"
+    )]
+    NotBackAfterReset {
+        /// How long the driver waited before looking for it again, ms.
+        waited_ms: u64,
     },
     /// The isochronous bandwidth is too small (USB 2 port or a bad hub).
     #[error(
@@ -140,12 +170,13 @@ pub enum KinectError {
 }
 
 impl KinectError {
-    /// Wraps a transport error with context; `NoDevice` becomes [`KinectError::Disconnected`]
-    /// and `Busy` becomes [`KinectError::Busy`].
+    /// Wraps a transport error with context; `NoDevice` becomes [`KinectError::Disconnected`],
+    /// `Busy` becomes [`KinectError::Busy`] and `NoMem` [`KinectError::UsbMemory`].
     pub fn usb(what: impl Into<String>, source: UsbError) -> Self {
         match source {
             UsbError::NoDevice => KinectError::Disconnected { what: what.into() },
             UsbError::Busy => KinectError::Busy,
+            UsbError::NoMem => KinectError::UsbMemory { what: what.into() },
             _ => KinectError::Usb { what: what.into(), source },
         }
     }

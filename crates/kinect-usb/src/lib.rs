@@ -41,6 +41,7 @@ pub mod error;
 pub mod forward;
 pub mod orientation;
 pub mod params;
+mod pool;
 pub mod protocol;
 pub mod raw;
 pub mod recording;

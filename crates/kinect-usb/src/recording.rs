@@ -162,7 +162,7 @@ impl<W: Write> RecordingWriter<W> {
             StreamEvent::IsoPacket { status, data } | StreamEvent::Bulk { status, data } => {
                 (*status, data)
             }
-            StreamEvent::Stopped { .. } => return Ok(()),
+            StreamEvent::Stopped { .. } | StreamEvent::Retired { .. } => return Ok(()),
         };
         let k = if kind == StreamKind::Depth { KIND_ISO } else { KIND_BULK };
         self.record(k, status_code(status), data)?;

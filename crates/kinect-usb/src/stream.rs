@@ -240,6 +240,10 @@ pub struct ColorStats {
     pub frames: u64,
     /// Packets rejected (size, sequence, end marker) or overflowing the buffer.
     pub dropped: u64,
+    /// Frames whose header magic was not 'BBBB' (protocol §6). libfreenect2 never checks it,
+    /// so kfuse counts it and keeps the frame, unless [`ColorAssembler::strict_header`] is set
+    /// (then the frame is also counted in `dropped`).
+    pub bad_header_magic: u64,
 }
 
 /// Assembles colour JPEG frames from bulk transfers.
@@ -249,6 +253,9 @@ pub struct ColorAssembler {
     last: Option<(usize, ColorMeta)>,
     /// Stream counters.
     pub stats: ColorStats,
+    /// Drop frames whose header magic is not 'BBBB' (default: count and keep them, as
+    /// libfreenect2 does not check it).
+    pub strict_header: bool,
 }
 
 impl Default for ColorAssembler {
@@ -265,6 +272,7 @@ impl ColorAssembler {
             pending_clear: false,
             last: None,
             stats: ColorStats::default(),
+            strict_header: false,
         }
     }
 
@@ -301,8 +309,7 @@ impl ColorAssembler {
             gamma: f32::from_bits(u32_at(f, 40)),
         };
         let header_ok = u32_at(&self.buf, 4) == COLOR_MAGIC;
-        if !header_ok
-            || packet_size != n
+        if packet_size != n
             || seq != footer_seq
             || n - COLOR_HEADER_BYTES - COLOR_FOOTER_BYTES < filler
         {
@@ -324,6 +331,15 @@ impl ColorAssembler {
             self.stats.dropped += 1;
             return None;
         };
+        if !header_ok {
+            // Only once the packet is otherwise valid, so one bad frame counts once.
+            self.stats.bad_header_magic += 1;
+            if self.strict_header {
+                self.buf.clear();
+                self.stats.dropped += 1;
+                return None;
+            }
+        }
         self.stats.frames += 1;
         // Cleared on the next push (the frame borrows the buffer until then).
         let out = &self.buf[COLOR_HEADER_BYTES..COLOR_HEADER_BYTES + jl];

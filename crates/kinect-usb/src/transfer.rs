@@ -2,7 +2,8 @@
 //! kfuse. rusb has no isochronous API, so this drives `libusb1-sys` (re-exported as
 //! `rusb::ffi`) directly, following protocol §5.5: a pool of transfers that resubmit themselves on
 //! completion, per-packet data handed over in descriptor order at offsets `i × packet_size`
-//! (always advancing by the nominal size), failed resubmission surfaced as a `Stopped` event.
+//! (always advancing by the nominal size), a failed submission or resubmission retiring that
+//! transfer only (`crate::pool`: the stream ends when none is left).
 //!
 //! Lifetime rule: a transfer and its buffer are freed only once libusb has returned it (its
 //! callback ran with resubmission disabled or cancellation); if cancellation does not finish
@@ -23,6 +24,7 @@ use rusb::ffi::constants::{
 
 use crate::backend::{StopReason, StreamEvent, StreamHandle, XferStatus};
 use crate::error::UsbError;
+use crate::pool::{resubmit_failed, submit_pool};
 
 /// Event sender shared by every transfer of a backend.
 pub(crate) type EventTx = Sender<(StreamHandle, StreamEvent)>;
@@ -74,14 +76,33 @@ fn disposition(status: c_int, stopping: bool) -> Disposition {
     }
 }
 
-/// Why a stream stops when resubmission returned libusb error `rc` (protocol §5.5 \[QUIRK\]: the
-/// reference silently lets the stream die; kfuse reports it).
-fn resubmit_failure(rc: c_int) -> StopReason {
-    if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE {
-        StopReason::Disconnected
-    } else {
-        StopReason::Stalled
+/// Linux's errno for "out of memory" (`asm-generic/errno-base.h`): what usbfs returns when a
+/// transfer would exceed `usbfs_memory_mb`.
+const ENOMEM: i32 = 12;
+
+/// The transport error of a failed `libusb_submit_transfer` returning `rc`, `errno` the OS error
+/// right after the call. libusb 1.0.27 reports usbfs's `ENOMEM` as `NO_MEM` for bulk transfers
+/// but as `IO` for isochronous ones (`linux_usbfs.c` `submit_iso_transfer`), hence the errno.
+fn submit_error(rc: c_int, errno: Option<i32>) -> UsbError {
+    match rc {
+        ffi::constants::LIBUSB_ERROR_NO_DEVICE => UsbError::NoDevice,
+        ffi::constants::LIBUSB_ERROR_NO_MEM => UsbError::NoMem,
+        ffi::constants::LIBUSB_ERROR_IO if errno == Some(ENOMEM) => UsbError::NoMem,
+        _ => UsbError::Io,
     }
+}
+
+/// Submits `t`, returning its transport error on failure.
+///
+/// # Safety
+/// `t` must be a filled transfer that is not in flight.
+unsafe fn submit(t: *mut ffi::libusb_transfer) -> Result<(), UsbError> {
+    // SAFETY: guaranteed by the caller.
+    let rc = unsafe { ffi::libusb_submit_transfer(t) };
+    if rc == 0 {
+        return Ok(());
+    }
+    Err(submit_error(rc, std::io::Error::last_os_error().raw_os_error()))
 }
 
 /// One isochronous packet descriptor as libusb reports it on completion.
@@ -185,10 +206,12 @@ extern "system" fn on_complete(t: *mut ffi::libusb_transfer) {
         shared.send(ev);
     }
     // SAFETY: resubmitting a transfer from its own completion callback is allowed by libusb.
-    let rc = unsafe { ffi::libusb_submit_transfer(t) };
-    if rc != 0 {
-        shared.in_flight.fetch_sub(1, Ordering::SeqCst);
-        shared.send(StreamEvent::Stopped { reason: resubmit_failure(rc) });
+    if let Err(e) = unsafe { submit(t) } {
+        // Retire this transfer only; the stream ends when none is left (protocol §5.5).
+        let left = shared.in_flight.fetch_sub(1, Ordering::SeqCst).saturating_sub(1);
+        for ev in resubmit_failed(e, left) {
+            shared.send(ev);
+        }
     }
 }
 
@@ -271,21 +294,30 @@ impl TransferPool {
             pool.transfers.push(t);
             pool._buffers.push(buf);
         }
-        for &t in &pool.transfers {
+        // The pool starts if at least one transfer went in flight (protocol §5.5); the others
+        // are reported retired.
+        let submitted = submit_pool(pool.transfers.len(), |i| {
+            let t = pool.transfers[i];
             pool.shared.in_flight.fetch_add(1, Ordering::SeqCst);
             // SAFETY: `t` was filled above and is not in flight.
-            let rc = unsafe { ffi::libusb_submit_transfer(t) };
-            if rc != 0 {
+            let r = unsafe { submit(t) };
+            if r.is_err() {
                 pool.shared.in_flight.fetch_sub(1, Ordering::SeqCst);
+            }
+            r
+        });
+        match submitted {
+            Ok(s) => {
+                for ev in s.retired_events() {
+                    pool.shared.send(ev);
+                }
+                Ok(pool)
+            }
+            Err(e) => {
                 pool.stop(Duration::from_secs(2));
-                return Err(if rc == ffi::constants::LIBUSB_ERROR_NO_DEVICE {
-                    UsbError::NoDevice
-                } else {
-                    UsbError::Io
-                });
+                Err(e)
             }
         }
-        Ok(pool)
     }
 
     /// Disables resubmission, cancels every transfer and waits up to `max_wait` for them to
@@ -432,7 +464,7 @@ mod tests {
     }
 
     #[test]
-    fn disposition_and_resubmit_failure() {
+    fn disposition_of_completions() {
         assert_eq!(disposition(LIBUSB_TRANSFER_NO_DEVICE, false), Disposition::Disconnected);
         assert_eq!(disposition(LIBUSB_TRANSFER_NO_DEVICE, true), Disposition::Disconnected);
         assert_eq!(disposition(LIBUSB_TRANSFER_CANCELLED, false), Disposition::Retire);
@@ -440,11 +472,17 @@ mod tests {
         for s in [OK, LIBUSB_TRANSFER_ERROR, LIBUSB_TRANSFER_TIMED_OUT, LIBUSB_TRANSFER_STALL] {
             assert_eq!(disposition(s, false), Disposition::Deliver, "{s}");
         }
-        assert_eq!(
-            resubmit_failure(ffi::constants::LIBUSB_ERROR_NO_DEVICE),
-            StopReason::Disconnected
-        );
-        assert_eq!(resubmit_failure(LIBUSB_ERROR_IO), StopReason::Stalled);
+    }
+
+    #[test]
+    fn submit_errors_name_usbfs_memory() {
+        use ffi::constants::{LIBUSB_ERROR_NO_DEVICE, LIBUSB_ERROR_NO_MEM};
+        assert_eq!(submit_error(LIBUSB_ERROR_NO_DEVICE, None), UsbError::NoDevice);
+        assert_eq!(submit_error(LIBUSB_ERROR_NO_MEM, None), UsbError::NoMem);
+        // Isochronous: libusb says IO, errno says ENOMEM.
+        assert_eq!(submit_error(LIBUSB_ERROR_IO, Some(ENOMEM)), UsbError::NoMem);
+        assert_eq!(submit_error(LIBUSB_ERROR_IO, Some(5)), UsbError::Io);
+        assert_eq!(submit_error(LIBUSB_ERROR_IO, None), UsbError::Io);
     }
 
     /// Packets laid out as a host controller fills real `libusb_transfer`s (8 descriptors of

@@ -36,6 +36,7 @@ fn map_err(e: rusb::Error) -> UsbError {
         rusb::Error::Overflow => UsbError::Overflow,
         rusb::Error::Access => UsbError::Access,
         rusb::Error::NotSupported => UsbError::NotSupported,
+        rusb::Error::NoMem => UsbError::NoMem,
         _ => UsbError::Io,
     }
 }
@@ -115,11 +116,28 @@ fn open_device(ctx: rusb::Context, dev: rusb::Device<rusb::Context>) -> Result<R
     Err(KinectError::usb("opening the Kinect v2", last))
 }
 
+fn serial_of(
+    dev: &rusb::Device<rusb::Context>,
+    handle: &rusb::DeviceHandle<rusb::Context>,
+) -> Option<String> {
+    let desc = dev.device_descriptor().ok()?;
+    handle.read_serial_number_string_ascii(&desc).ok()
+}
+
+/// Where a sensor is plugged in (bus and hub port path): unlike the address, it survives a
+/// re-enumeration. Used to find a sensor again when its serial could not be read.
+fn port_path(dev: &rusb::Device<rusb::Context>) -> (u8, Vec<u8>) {
+    (dev.bus_number(), dev.port_numbers().unwrap_or_default())
+}
+
 /// [`UsbBackend`] over libusb.
 pub struct RusbBackend {
     ctx: rusb::Context,
     device: rusb::Device<rusb::Context>,
-    handle: rusb::DeviceHandle<rusb::Context>,
+    /// `None` between closing a re-enumerated handle and reopening the sensor.
+    handle: Option<rusb::DeviceHandle<rusb::Context>>,
+    /// The sensor's serial, read at open, to find it again after a re-enumeration.
+    serial: Option<String>,
     tx: Sender<(StreamHandle, StreamEvent)>,
     rx: Receiver<(StreamHandle, StreamEvent)>,
     pools: HashMap<StreamHandle, TransferPool>,
@@ -134,16 +152,41 @@ impl RusbBackend {
         handle: rusb::DeviceHandle<rusb::Context>,
     ) -> Self {
         let (tx, rx) = mpsc::channel();
+        let serial = serial_of(&device, &handle);
         RusbBackend {
             ctx,
             device,
-            handle,
+            handle: Some(handle),
+            serial,
             tx,
             rx,
             pools: HashMap::new(),
             next_handle: 1,
             events: None,
         }
+    }
+
+    fn h(&mut self) -> std::result::Result<&mut rusb::DeviceHandle<rusb::Context>, UsbError> {
+        self.handle.as_mut().ok_or(UsbError::NoDevice)
+    }
+
+    /// The same sensor on the bus now: same serial, or same port path when the serial was
+    /// unreadable. Candidates that cannot be opened (busy, still enumerating) are skipped.
+    fn find_again(
+        &self,
+        port: &(u8, Vec<u8>),
+    ) -> Option<(rusb::Device<rusb::Context>, rusb::DeviceHandle<rusb::Context>)> {
+        let list = kinects(&self.ctx).ok()?;
+        list.into_iter().find_map(|(d, _)| {
+            if self.serial.is_none() && port_path(&d) != *port {
+                return None;
+            }
+            let h = d.open().ok()?;
+            match &self.serial {
+                Some(s) if serial_of(&d, &h).as_deref() != Some(s.as_str()) => None,
+                _ => Some((d, h)),
+            }
+        })
     }
 
     fn ensure_event_thread(&mut self) {
@@ -174,26 +217,41 @@ impl Drop for RusbBackend {
 
 impl UsbBackend for RusbBackend {
     fn active_config(&mut self) -> std::result::Result<u8, UsbError> {
-        self.handle.active_configuration().map_err(map_err)
+        self.h()?.active_configuration().map_err(map_err)
     }
     fn set_config(&mut self, cfg: u8) -> std::result::Result<(), UsbError> {
-        self.handle.set_active_configuration(cfg).map_err(map_err)
+        self.h()?.set_active_configuration(cfg).map_err(map_err)
     }
     fn reset(&mut self) -> std::result::Result<ResetOutcome, UsbError> {
-        match self.handle.reset() {
+        match self.h()?.reset() {
             Ok(()) => Ok(ResetOutcome::Ok),
             Err(rusb::Error::NotFound) => Ok(ResetOutcome::Reenumerated),
             Err(e) => Err(map_err(e)),
         }
     }
+    fn reopen(&mut self, wait: Duration) -> std::result::Result<(), UsbError> {
+        let port = port_path(&self.device);
+        self.pools.clear();
+        self.handle = None; // closes the dead handle
+        std::thread::sleep(wait);
+        for _ in 0..OPEN_ATTEMPTS {
+            if let Some((d, h)) = self.find_again(&port) {
+                self.device = d;
+                self.handle = Some(h);
+                return Ok(());
+            }
+            std::thread::sleep(OPEN_RETRY);
+        }
+        Err(UsbError::NoDevice)
+    }
     fn claim(&mut self, iface: u8) -> std::result::Result<(), UsbError> {
-        self.handle.claim_interface(iface).map_err(map_err)
+        self.h()?.claim_interface(iface).map_err(map_err)
     }
     fn release(&mut self, iface: u8) -> std::result::Result<(), UsbError> {
-        self.handle.release_interface(iface).map_err(map_err)
+        self.h()?.release_interface(iface).map_err(map_err)
     }
     fn set_alt(&mut self, iface: u8, alt: u8) -> std::result::Result<(), UsbError> {
-        self.handle.set_alternate_setting(iface, alt).map_err(map_err)
+        self.h()?.set_alternate_setting(iface, alt).map_err(map_err)
     }
     fn control_out(
         &mut self,
@@ -204,7 +262,7 @@ impl UsbBackend for RusbBackend {
         data: &[u8],
         timeout: Duration,
     ) -> std::result::Result<usize, UsbError> {
-        self.handle.write_control(req_type, req, value, index, data, timeout).map_err(map_err)
+        self.h()?.write_control(req_type, req, value, index, data, timeout).map_err(map_err)
     }
     fn bulk_out(
         &mut self,
@@ -212,7 +270,7 @@ impl UsbBackend for RusbBackend {
         data: &[u8],
         timeout: Duration,
     ) -> std::result::Result<usize, UsbError> {
-        self.handle.write_bulk(ep, data, timeout).map_err(map_err)
+        self.h()?.write_bulk(ep, data, timeout).map_err(map_err)
     }
     fn bulk_in(
         &mut self,
@@ -220,10 +278,10 @@ impl UsbBackend for RusbBackend {
         buf: &mut [u8],
         timeout: Duration,
     ) -> std::result::Result<usize, UsbError> {
-        self.handle.read_bulk(ep, buf, timeout).map_err(map_err)
+        self.h()?.read_bulk(ep, buf, timeout).map_err(map_err)
     }
     fn clear_halt(&mut self, ep: u8) -> std::result::Result<(), UsbError> {
-        self.handle.clear_halt(ep).map_err(map_err)
+        self.h()?.clear_halt(ep).map_err(map_err)
     }
     fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> std::result::Result<u32, UsbError> {
         let cfg = self.device.config_descriptor(0).map_err(map_err)?;
@@ -249,10 +307,10 @@ impl UsbBackend for RusbBackend {
         Err(UsbError::NotSupported)
     }
     fn start_stream(&mut self, spec: StreamSpec) -> std::result::Result<StreamHandle, UsbError> {
+        let raw = self.h()?.as_raw();
         self.ensure_event_thread();
         let h = StreamHandle(self.next_handle);
         self.next_handle += 1;
-        let raw = self.handle.as_raw();
         let pool = match spec {
             StreamSpec::Iso { ep, transfers, packets, packet_size } => TransferPool::start(
                 raw,

@@ -34,6 +34,9 @@ impl UsbBackend for Spy {
     fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
         self.inner.reset()
     }
+    fn reopen(&mut self, wait: std::time::Duration) -> Result<(), UsbError> {
+        self.inner.reopen(wait)
+    }
     fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
         self.inner.claim(iface)
     }

@@ -160,6 +160,8 @@ fn bad_values_are_rejected_by_host_and_by_device() {
     assert_eq!(dev.backend().transcript.len(), n, "nothing may be sent for invalid input");
 
     // Bypassing host validation: the device answers status ≠ 0 and keeps the old value.
+    // libfreenect2 ignores that word; strict_checks makes kfuse reject it.
+    dev.strict_checks = true;
     let e = dev.set_color_f32(ColorSettingCode::SetAnalogGain, 8.0).unwrap_err();
     match &e {
         KinectError::Rejected { status, what, .. } => {
@@ -320,4 +322,64 @@ fn colour_setting_after_unplug_is_disconnected() {
     while dev.next_frame(T, &mut |_, _| {}).is_ok() {}
     let e = dev.set_exposure(Exposure::Auto { compensation: 0.0 }).unwrap_err();
     assert!(matches!(e, KinectError::Disconnected { .. }), "{e}");
+}
+
+/// libfreenect2 ignores the 0x3E status word and the LED completion status: by default a
+/// non-zero one is counted and noted as a warning and the call succeeds; `strict_checks`
+/// turns it into `Rejected`. The device accepts every request here (the setting takes effect)
+/// but answers status 7.
+#[test]
+fn nonzero_status_words_are_counted_not_fatal_unless_strict() {
+    let mut dev = started(SimFaults { accepted_status: Some(7), ..SimFaults::default() });
+    let warnings0 = dev.warnings.len();
+    dev.set_digital_gain(2.0).unwrap();
+    assert_eq!(dev.digital_gain().unwrap(), 2.0);
+    let led = LedSetting {
+        id: 0,
+        mode: LedMode::Constant,
+        start_level: 500,
+        stop_level: 500,
+        interval_ms: 0,
+    };
+    dev.set_led(led).unwrap();
+    let c = dev.counters();
+    // One SET and one GET 0x3E, one LED API command.
+    assert_eq!((c.color_setting_nonzero_status, c.led_nonzero_status), (2, 1));
+    let w = &dev.warnings[warnings0..];
+    assert_eq!(w.len(), 3, "{w:?}");
+    assert!(w.iter().all(|l| l.contains("status 0x7")), "{w:?}");
+    assert_eq!(dev.backend().led_api_log(), &[led]);
+
+    dev.strict_checks = true;
+    let e = dev.set_digital_gain(1.0).unwrap_err();
+    assert!(matches!(e, KinectError::Rejected { status: 7, .. }), "{e}");
+    let e = dev.set_led(led).unwrap_err();
+    assert!(matches!(e, KinectError::Rejected { status: 7, .. }), "{e}");
+    let c = dev.counters();
+    assert_eq!((c.color_setting_nonzero_status, c.led_nonzero_status), (3, 2));
+    assert_eq!(dev.warnings.len(), warnings0 + 3);
+}
+
+/// A colour header magic other than 'BBBB' (libfreenect2 never reads it) is counted and the
+/// frame kept; with `strict_checks` every such frame is dropped and counted as dropped too.
+#[test]
+fn colour_header_magic_is_counted_not_fatal_unless_strict() {
+    let mut dev =
+        started(SimFaults { color_header_magic: Some(0x4141_4141), ..SimFaults::default() });
+    for _ in 0..5 {
+        match dev.next_frame(T, &mut |_, _| {}).unwrap() {
+            Some(Frame::Color(jpeg, _)) => assert_eq!(jpeg, fake_jpeg(5_000).as_slice()),
+            other => panic!("expected a colour frame, got {other:?}"),
+        }
+    }
+    let c = dev.counters();
+    assert_eq!((c.color_frames, c.color_bad_header_magic, c.color_dropped), (5, 5, 0));
+
+    dev.strict_checks = true;
+    let got = dev.next_frame(Duration::from_millis(200), &mut |_, _| {}).unwrap();
+    assert!(got.is_none(), "strict mode must drop every frame");
+    let c = dev.counters();
+    assert_eq!(c.color_frames, 5);
+    assert!(c.color_bad_header_magic > 5, "{c:?}");
+    assert_eq!(c.color_dropped, c.color_bad_header_magic - 5, "{c:?}");
 }

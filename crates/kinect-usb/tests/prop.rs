@@ -106,14 +106,17 @@ proptest! {
     }
 
     /// Colour packets with random JPEG length, 0..3 pad bytes, random filler and random
-    /// transfer size parse back to the exact JPEG; a corrupted magic drops only that packet.
+    /// transfer size parse back to the exact JPEG; a corrupted header magic is counted once and
+    /// the frame kept (libfreenect2 does not check it), or, with `strict_header`, drops only
+    /// that packet.
     #[test]
-    fn color_packets_roundtrip(len in 0usize..5000, pad in 0usize..4, filler in 0usize..300, xfer in 512usize..4096, corrupt in any::<bool>()) {
+    fn color_packets_roundtrip(len in 0usize..5000, pad in 0usize..4, filler in 0usize..300, xfer in 512usize..4096, corrupt in any::<bool>(), strict in any::<bool>()) {
         let mut jpeg = vec![0xFF, 0xD8];
         jpeg.extend((0..len).map(|i| (i % 200) as u8));
         jpeg.extend([0xFF, 0xD9]);
         let meta = |s| ColorMeta { sequence: s, timestamp: 100 + s, exposure: 5.0, gain: 1.25, gamma: 2.0 };
         let mut c = ColorAssembler::new();
+        c.strict_header = strict;
         let mut got = Vec::new();
         for s in 0..3u32 {
             let mut p = build_color_packet(&jpeg, &meta(s), pad, filler);
@@ -122,8 +125,10 @@ proptest! {
                 if let Some((j, m)) = c.push(ch) { got.push((m.sequence, j == jpeg.as_slice(), m == meta(m.sequence))); }
             }
         }
-        let want: Vec<(u32, bool, bool)> = (0..3).filter(|&s| !(corrupt && s == 1)).map(|s| (s, true, true)).collect();
+        let want: Vec<(u32, bool, bool)> = (0..3).filter(|&s| !(corrupt && strict && s == 1)).map(|s| (s, true, true)).collect();
         prop_assert_eq!(got, want);
+        prop_assert_eq!(c.stats.bad_header_magic, corrupt as u64);
+        prop_assert_eq!(c.stats.dropped, (corrupt && strict) as u64);
     }
 
     /// pack ∘ unpack is the identity on random 11-bit code images.

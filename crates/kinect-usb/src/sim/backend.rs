@@ -7,11 +7,12 @@ use std::time::Duration;
 use super::{Phase, SimDevice};
 use crate::backend::{ResetOutcome, StreamEvent, StreamHandle, StreamSpec, UsbBackend};
 use crate::error::UsbError;
+use crate::pool::submit_pool;
 use crate::protocol::{self, COLOR_SETTING_ID, COLOR_SETTING_RESPONSE_LEN, SET_MODE_ID, ep};
 
 impl SimDevice {
     fn check(&mut self) -> Result<(), UsbError> {
-        if self.gone { Err(UsbError::NoDevice) } else { Ok(()) }
+        if self.gone || self.stale_handle { Err(UsbError::NoDevice) } else { Ok(()) }
     }
 }
 
@@ -31,7 +32,28 @@ impl UsbBackend for SimDevice {
     fn reset(&mut self) -> Result<ResetOutcome, UsbError> {
         self.check()?;
         self.transcript.push("reset".into());
+        if self.faults.reset_reenumerates {
+            // Once: the device comes back at a new address, this handle is dead.
+            self.faults.reset_reenumerates = false;
+            self.stale_handle = true;
+            return Ok(ResetOutcome::Reenumerated);
+        }
         Ok(ResetOutcome::Ok)
+    }
+
+    fn reopen(&mut self, wait: Duration) -> Result<(), UsbError> {
+        self.transcript.push("close".into());
+        std::thread::sleep(wait);
+        if self.gone || self.faults.lost_after_reenumeration {
+            return Err(UsbError::NoDevice);
+        }
+        self.transcript.push(format!("reopen serial {}", self.profile.serial));
+        // A fresh enumeration: unconfigured, nothing claimed, alt 0.
+        self.stale_handle = false;
+        self.config = 0;
+        self.claimed = [false; 2];
+        self.alt1 = 0;
+        Ok(())
     }
 
     fn claim(&mut self, iface: u8) -> Result<(), UsbError> {
@@ -238,11 +260,22 @@ impl UsbBackend for SimDevice {
         let h = StreamHandle(self.next_handle);
         self.next_handle += 1;
         match spec {
-            StreamSpec::Iso { packet_size, .. } => {
+            StreamSpec::Iso { packet_size, transfers, .. } => {
                 if self.alt1 != 1 || !self.streaming_on || self.suspended {
                     self.violations.push("iso stream started before alt 1 + streaming on".into());
                 }
                 self.transcript.push("start_stream iso".into());
+                // The pool's submissions, through the same policy as the libusb pool.
+                let fail = self.faults.depth_submit_failures;
+                let first_failing = transfers.saturating_sub(fail.map_or(0, |f| f.0));
+                let submitted = submit_pool(transfers, |i| match fail {
+                    Some((_, e)) if i >= first_failing => Err(e),
+                    _ => Ok(()),
+                })?;
+                self.iso_in_flight = submitted.in_flight;
+                for ev in submitted.retired_events() {
+                    self.queue.push_back((h, ev));
+                }
                 // Build the forward-modelled frames now, not inside a frame wait.
                 self.raw_frames();
                 self.iso = Some((h, packet_size));

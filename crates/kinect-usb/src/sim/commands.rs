@@ -41,7 +41,15 @@ impl SimDevice {
                 }
                 w.to_le_bytes().to_vec()
             }
-            (COLOR_SETTING_ID, _) => self.color.apply(&m.params).to_bytes().to_vec(),
+            (COLOR_SETTING_ID, _) => {
+                let mut r = self.color.apply(&m.params);
+                if r.status == 0
+                    && let Some(s) = self.faults.accepted_status
+                {
+                    r.status = s;
+                }
+                r.to_bytes().to_vec()
+            }
             _ => Vec::new(),
         }
     }
@@ -59,6 +67,7 @@ impl SimDevice {
                 self.leds[l.id as usize & 1] = Some(l);
                 if api {
                     self.led_api.push(l);
+                    return self.faults.accepted_status.unwrap_or(0);
                 }
                 0
             }

@@ -5,10 +5,12 @@
 use rand::Rng;
 
 use super::SimDevice;
+use crate::UsbError;
 use crate::backend::{StopReason, StreamEvent, XferStatus};
 use crate::decoder::DecoderParams;
 use crate::forward::forward_frame;
 use crate::params::XzTables;
+use crate::pool::resubmit_failed;
 use crate::raw::PIXELS;
 use crate::stream::{ColorMeta, build_color_packet, packetize_depth_frame};
 
@@ -97,16 +99,20 @@ impl SimDevice {
                 for g in gaps.iter_mut() {
                     *g = self.rng.random_range(1..=3);
                 }
+                // The device fills packets up to its own wBytesPerInterval; a host buffer
+                // slot smaller than that overflows (libusb: LIBUSB_TRANSFER_OVERFLOW, no data).
+                let device_packet = self.profile.bytes_per_interval as usize;
                 let packets = packetize_depth_frame(
                     &self.raw_frames[idx],
                     self.depth_sequence,
                     self.timestamp,
-                    psize,
+                    device_packet,
                     gaps,
                 );
                 for mut pk in packets {
                     let r: f64 = self.rng.random();
-                    let status = if r < self.faults.iso_drop_rate {
+                    // Overflowing the host's slot, or lost at the injected rate.
+                    let status = if pk.len() > psize || r < self.faults.iso_drop_rate {
                         pk.clear();
                         XferStatus::Error
                     } else {
@@ -119,6 +125,17 @@ impl SimDevice {
                         XferStatus::Completed
                     };
                     depth_events.push((h, StreamEvent::IsoPacket { status, data: pk }));
+                }
+            }
+            if self.faults.depth_resubmit_failures > 0 && self.iso_in_flight > 0 {
+                // One transfer's resubmission fails: the shared pool policy retires it.
+                self.faults.depth_resubmit_failures -= 1;
+                self.iso_in_flight -= 1;
+                for ev in resubmit_failed(UsbError::Io, self.iso_in_flight) {
+                    depth_events.push((h, ev));
+                }
+                if self.iso_in_flight == 0 {
+                    self.iso = None;
                 }
             }
         }
@@ -138,7 +155,10 @@ impl SimDevice {
                 gain,
                 gamma: 1.0,
             };
-            let packet = build_color_packet(jpeg, &meta, pad, filler);
+            let mut packet = build_color_packet(jpeg, &meta, pad, filler);
+            if let Some(magic) = self.faults.color_header_magic {
+                packet[4..8].copy_from_slice(&magic.to_le_bytes());
+            }
             for chunk in packet.chunks(size.max(1)) {
                 let r: f64 = self.rng.random();
                 let status = if r < self.faults.bulk_error_rate {

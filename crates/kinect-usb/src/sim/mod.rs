@@ -77,6 +77,24 @@ pub struct SimFaults {
     pub unplug_after_frames: Option<u64>,
     /// Command id whose data phase is cut to half its length (once).
     pub short_response: Option<u32>,
+    /// The colour packets' header magic (offset 4) is this word instead of 'BBBB' (a firmware
+    /// that writes something else there; libfreenect2 never reads it).
+    pub color_header_magic: Option<u32>,
+    /// Every accepted 0x3E response and LED API completion carries this status word instead
+    /// of 0 (the setting still takes effect): the meaning of the word is undocumented.
+    pub accepted_status: Option<u32>,
+    /// The next port reset re-enumerates the device (libusb `NOT_FOUND`): the handle is dead
+    /// until [`UsbBackend::reopen`](crate::backend::UsbBackend::reopen) finds it again.
+    pub reset_reenumerates: bool,
+    /// After a re-enumeration the sensor does not come back (a reopen finds no such serial).
+    pub lost_after_reenumeration: bool,
+    /// The last `n` transfers of the depth pool fail their first submission with this error
+    /// ([`UsbError::NoMem`](crate::UsbError::NoMem): Linux's `usbfs_memory_mb` exhausted).
+    pub depth_submit_failures: Option<(usize, crate::UsbError)>,
+    /// This many depth transfers fail their resubmission (I/O error), one at the end of each
+    /// frame period from the first. The simulated stream itself does not thin out with fewer
+    /// transfers in flight; it ends when none is left.
+    pub depth_resubmit_failures: usize,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -113,7 +131,11 @@ pub struct SimDevice {
     led_api: Vec<LedSetting>,
     halted_out: bool,
     gone: bool,
+    /// The handle died in a re-enumerating reset and was not reopened yet.
+    stale_handle: bool,
     iso: Option<(StreamHandle, usize)>,
+    /// Depth transfers in flight (the pool's size less the retired ones).
+    iso_in_flight: usize,
     bulk: Option<(StreamHandle, usize)>,
     next_handle: u32,
     queue: VecDeque<(StreamHandle, StreamEvent)>,
@@ -154,7 +176,9 @@ impl SimDevice {
             led_api: Vec::new(),
             halted_out: false,
             gone: false,
+            stale_handle: false,
             iso: None,
+            iso_in_flight: 0,
             bulk: None,
             next_handle: 1,
             queue: VecDeque::new(),
