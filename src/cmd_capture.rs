@@ -690,6 +690,20 @@ pub(crate) fn report_counters(session: &Session) {
             c.color_dropped
         );
     }
+    if c.depth_overwritten + c.color_overwritten + c.tap_dropped > 0 {
+        // Frames nobody took in time (newest wins, issue 45): reported, not an error.
+        eprintln!(
+            "stream: {} depth and {} colour frames arrived while nothing was reading and were \
+             replaced by newer ones{}",
+            c.depth_overwritten,
+            c.color_overwritten,
+            if c.tap_dropped > 0 {
+                format!("; the recorder fell behind and lost {} raw packets", c.tap_dropped)
+            } else {
+                String::new()
+            }
+        );
+    }
 }
 
 fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> Result<()> {

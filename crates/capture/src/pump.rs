@@ -101,37 +101,39 @@ impl FramePump {
         session: &mut Session,
         timeout: Duration,
     ) -> Result<Option<Pumped>, CaptureError> {
-        match session.next_frame(timeout, &mut |_, _| {})? {
-            Some(Frame::Depth(f)) => {
+        match session.next_frame_at(timeout, &mut |_, _| {})? {
+            Some((Frame::Depth(f), arrived)) => {
                 self.decoder
                     .decode(f.data, &mut self.depth_mm, &mut self.ir)
                     .map_err(CaptureError::Decode)?;
-                self.depth_at = Some(Instant::now());
+                self.depth_at = Some(arrived);
                 self.depth_frames += 1;
                 self.depth_timestamp = Some(f.timestamp);
                 Ok(Some(Pumped::Depth { number: self.depth_frames, timestamp: f.timestamp }))
             }
-            Some(Frame::Color(jpeg, meta)) => {
+            Some((Frame::Color(jpeg, meta), arrived)) => {
                 self.color_timestamp = Some(meta.timestamp);
                 self.color_jpeg.clear();
                 self.color_jpeg.extend_from_slice(jpeg);
-                self.color_at = Some(Instant::now());
+                self.color_at = Some(arrived);
                 Ok(Some(Pumped::Color))
             }
             None => Ok(None),
         }
     }
 
-    /// Whether both the held depth frame and the held colour frame were received at or after
-    /// `since` (a caller that pumps frame by frame, e.g. to answer Ctrl-C between frames,
+    /// Whether both the held depth frame and the held colour frame arrived (their last packet
+    /// completed, host time) at or after `since` (a caller that pumps frame by frame, e.g. to answer Ctrl-C between frames,
     /// asks this where [`FramePump::fresh_pair`] loops by itself).
     pub fn holds_pair_since(&self, since: Instant) -> bool {
         let fresh = |t: Option<Instant>| t.is_some_and(|t| t >= since);
         fresh(self.depth_at) && fresh(self.color_at)
     }
 
-    /// Pumps until both a depth and a colour frame received at or after `since` are held, at
-    /// most [`FRAME_TIMEOUT`] (then a protocol error naming the timeout).
+    /// Pumps until both a depth and a colour frame that arrived at or after `since` are held,
+    /// at most [`FRAME_TIMEOUT`] (then a protocol error naming the timeout). Frames that
+    /// arrived before `since` are passed over: after a pause this returns the sensor's present,
+    /// not a frame from the start of the pause (the device keeps only the newest per stream).
     pub fn fresh_pair(
         &mut self,
         session: &mut Session,

@@ -6,8 +6,10 @@ use std::path::Path;
 
 use kfuse_io::atomic::write_atomic;
 use kinect_usb::KinectError;
-use kinect_usb::device::{Frame, StreamKind};
+use kinect_usb::backend::{StreamEvent, XferStatus};
+use kinect_usb::device::StreamKind;
 use kinect_usb::recording::{RecordingMeta, RecordingWriter};
+use kinect_usb::stream::DepthAssembler;
 
 use crate::pump::FRAME_TIMEOUT;
 use crate::{CaptureError, Session};
@@ -42,6 +44,13 @@ pub fn record(
 ) -> Result<Recorded, CaptureError> {
     let meta = RecordingMeta::from_info(session.info());
     let mut done = Recorded { frames: 0, interrupted: false, stopped_by: None, written: false };
+    // Every raw event from now on, not only the newest frames (bounded: a recorder that falls
+    // behind by more than `TAP_QUEUE_BYTES` loses events, counted in `tap_dropped`).
+    session.device_mut().set_raw_tap(true);
+    // The depth frames in the file: the written packets run through a parser of their own (a
+    // frame this loop did not take in time is still in the file; one whose first packets came
+    // before the tap is not).
+    let mut in_file = DepthAssembler::new();
     let written = write_atomic(output, |w| {
         let mut rw = RecordingWriter::new(w, &meta)?;
         let mut io_err = None;
@@ -54,17 +63,23 @@ pub fn record(
                 }
                 break;
             }
-            let mut tap = |k: StreamKind, e: &_| {
+            let before = done.frames;
+            let mut tap = |k: StreamKind, e: &StreamEvent| {
                 if let Err(err) = rw.write_event(k, e) {
                     io_err.get_or_insert(err);
                 }
-            };
-            match session.device_mut().next_frame(FRAME_TIMEOUT, &mut tap) {
-                Ok(Some(Frame::Depth(_))) => {
+                if let StreamEvent::IsoPacket { status: XferStatus::Completed, data } = e
+                    && in_file.push(data).is_some()
+                {
                     done.frames += 1;
-                    progress(done.frames);
                 }
-                Ok(_) => {}
+            };
+            let r = session.device_mut().next_frame(FRAME_TIMEOUT, &mut tap).map(|_| ());
+            if done.frames > before {
+                progress(done.frames);
+            }
+            match r {
+                Ok(()) => {}
                 Err(e) => {
                     done.stopped_by = Some(e);
                     break;
@@ -76,6 +91,7 @@ pub fn record(
         }
         rw.finish().map(|_| ())
     });
+    session.device_mut().set_raw_tap(false);
     match written {
         Ok(()) => done.written = true,
         Err(_) if done.interrupted && done.frames == 0 => {}

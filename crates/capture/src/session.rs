@@ -4,7 +4,7 @@
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use kfuse_io::atomic::write_atomic;
 use kinect_usb::backend::{StreamEvent, UsbBackend};
@@ -228,8 +228,39 @@ impl Session {
         Ok(self.dev.next_frame(timeout, tap)?)
     }
 
+    /// [`Session::next_frame`] with the host time at which the frame arrived (its last
+    /// packet completed): each stream keeps only its newest frame, so a frame taken after a
+    /// pause is at most one period old, and this tells whether it came after a moment.
+    pub fn next_frame_at(
+        &mut self,
+        timeout: Duration,
+        tap: &mut dyn FnMut(StreamKind, &StreamEvent),
+    ) -> Result<Option<(Frame<'_>, Instant)>, CaptureError> {
+        Ok(self.dev.next_frame_at(timeout, tap)?)
+    }
+
     pub(crate) fn device_mut(&mut self) -> &mut Device {
         &mut self.dev
+    }
+
+    /// A simulated sensor produces `periods` frame periods (depth and colour) at once, through
+    /// its transfer-completion path, with nobody reading (tests of idle consumers: what is
+    /// held stays bounded, a fresh pair after it is current). Returns false, doing nothing,
+    /// for a real sensor or a replay.
+    pub fn advance_sim(&self, periods: u64) -> bool {
+        match (&self.source, &self.sim) {
+            (SensorSource::Sim(_), Some(sim)) => {
+                sim.lock().unwrap_or_else(|p| p.into_inner()).advance(periods);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Bytes the device holds between its transfer-completion side and the next frame taken
+    /// (bounded: one frame per stream, `KinectDevice::buffered_bytes`).
+    pub fn buffered_bytes(&self) -> usize {
+        self.dev.buffered_bytes()
     }
 
     /// Frames received, dropped and incomplete so far.

@@ -177,6 +177,39 @@ fn sim_session_pumps_the_scene_and_a_recording_replays() {
 }
 
 /// No sensor and bad configuration are plain errors that say what to do.
+/// Sensor timestamp step per frame period: 30 Hz in 0.125 ms units (1/30 s = 266.7 ticks, the
+/// simulator steps 267).
+const TICKS_PER_PERIOD: u32 = 267;
+
+/// Issue 45 item 1: a shot after a 10 s pause is the present. The simulated sensor produces
+/// 300 frame periods with nobody reading; the session holds one frame per stream (under three
+/// raw depth frames), every frame not taken is counted, and `fresh_pair` then returns the
+/// newest depth frame (the old unbounded queue returned the frame from the pause's start).
+#[test]
+fn fresh_pair_after_an_idle_pause_is_current() {
+    let mut s = Session::open(&SensorSource::Sim(SimOptions::default())).unwrap();
+    let opts = DecoderOptions { no_filters: true, ..DecoderOptions::default() };
+    let mut pump = FramePump::new(s.decoder(&opts).unwrap());
+    pump.fresh_pair(&mut s, Instant::now()).unwrap();
+    let ts0 = pump.depth_timestamp().unwrap();
+    let c0 = s.counters();
+    let n0 = c0.depth_taken + c0.depth_overwritten;
+    assert!(s.advance_sim(300));
+    let held = s.buffered_bytes();
+    assert!(held < 3 * kinect_usb::raw::RAW_FRAME_BYTES, "{held} bytes held");
+    pump.fresh_pair(&mut s, Instant::now()).unwrap();
+    let c = s.counters();
+    let n1 = c.depth_taken + c.depth_overwritten;
+    // 300 periods and at least one more after the call; all but the frames taken overwritten.
+    assert!(n1 > n0 + 300, "{c:?}");
+    assert!(c.depth_overwritten >= c0.depth_overwritten + 299, "{c:?}");
+    // The frame the pump holds is frame n1: the newest assembled (none waits behind it
+    // but at most the one of the next period).
+    assert!(c.depth_frames - n1 <= 1, "{c:?}");
+    let ts1 = pump.depth_timestamp().unwrap();
+    assert_eq!(ts1.wrapping_sub(ts0), TICKS_PER_PERIOD * (n1 - n0) as u32, "{c:?}");
+}
+
 #[test]
 fn absent_sensor_and_bad_drop_rate_are_refused() {
     let e = Session::open(&SensorSource::Absent).err().unwrap();

@@ -1,11 +1,14 @@
 //! The transport abstraction (protocol §14.1). The protocol layer, the parsers and the decoder see
 //! only this trait and byte slices.
 //!
-//! Deviation from the sketch of protocol §14.1: streaming events are *pulled* with
-//! [`UsbBackend::next_event`] instead of being pushed on a channel. A libusb backend fills an
-//! internal queue from its event thread; the simulated device generates events on demand,
-//! which keeps it deterministic and single-threaded.
+//! Streaming events are *pushed* where the transfers complete: each stream delivers into the
+//! [`EventSink`] given to [`UsbBackend::start_stream`] (the device's
+//! [`FrameSink`](crate::latest::FrameSink), which assembles frames there and keeps the newest,
+//! protocol §5.5). The libusb backend delivers from its event thread; the simulated device,
+//! which has no thread of its own, completes its due transfers when
+//! [`UsbBackend::service`] (or [`crate::sim::SimDevice::advance`]) runs, through the same sink.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use crate::error::UsbError;
@@ -107,6 +110,24 @@ pub enum StreamEvent {
     },
 }
 
+/// What [`UsbBackend::service`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Serviced {
+    /// It delivered events to the streams' sinks.
+    Delivered,
+    /// Nothing was due within the timeout (or nothing is streaming).
+    Idle,
+    /// Transfers complete on the backend's own thread: wait on the sink.
+    Background,
+}
+
+/// Where a stream's completed transfers go, called on the completion side (the libusb event
+/// thread) for every event of that stream, in order.
+pub trait EventSink: Send + Sync {
+    /// One event of the stream.
+    fn deliver(&self, ev: StreamEvent);
+}
+
 /// A USB transport to one opened Kinect v2.
 pub trait UsbBackend: Send {
     /// Active configuration value.
@@ -144,13 +165,18 @@ pub trait UsbBackend: Send {
     fn clear_halt(&mut self, ep: u8) -> Result<(), UsbError>;
     /// `wBytesPerInterval` of the SuperSpeed companion descriptor of `ep` in alt setting `alt`.
     fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError>;
-    /// Starts continuous streaming.
-    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError>;
-    /// Next streaming event of any stream, or `Ok(None)` after `timeout` without one.
-    fn next_event(
+    /// Starts continuous streaming: every event of the stream goes to `sink`, from the
+    /// completion side.
+    fn start_stream(
         &mut self,
-        timeout: Duration,
-    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError>;
+        spec: StreamSpec,
+        sink: Arc<dyn EventSink>,
+    ) -> Result<StreamHandle, UsbError>;
+    /// Lets a backend without a completion thread of its own (the simulator) complete the
+    /// transfers that are due, waiting at most `timeout` for one. A backend whose transfers
+    /// complete on their own thread (libusb) returns [`Serviced::Background`] at once and the
+    /// caller waits on its sink.
+    fn service(&mut self, timeout: Duration) -> Result<Serviced, UsbError>;
     /// Cancels a stream and waits at most `max_wait` for its transfers.
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError>;
 }
@@ -200,14 +226,15 @@ impl<T: UsbBackend + ?Sized> UsbBackend for Box<T> {
     fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError> {
         (**self).iso_bytes_per_interval(ep, alt)
     }
-    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
-        (**self).start_stream(spec)
-    }
-    fn next_event(
+    fn start_stream(
         &mut self,
-        timeout: Duration,
-    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
-        (**self).next_event(timeout)
+        spec: StreamSpec,
+        sink: Arc<dyn EventSink>,
+    ) -> Result<StreamHandle, UsbError> {
+        (**self).start_stream(spec, sink)
+    }
+    fn service(&mut self, timeout: Duration) -> Result<Serviced, UsbError> {
+        (**self).service(timeout)
     }
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
         (**self).stop_stream(h, max_wait)
@@ -262,14 +289,15 @@ impl<T: UsbBackend> UsbBackend for std::sync::Arc<std::sync::Mutex<T>> {
     fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError> {
         lock(self).iso_bytes_per_interval(ep, alt)
     }
-    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
-        lock(self).start_stream(spec)
-    }
-    fn next_event(
+    fn start_stream(
         &mut self,
-        timeout: Duration,
-    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
-        lock(self).next_event(timeout)
+        spec: StreamSpec,
+        sink: Arc<dyn EventSink>,
+    ) -> Result<StreamHandle, UsbError> {
+        lock(self).start_stream(spec, sink)
+    }
+    fn service(&mut self, timeout: Duration) -> Result<Serviced, UsbError> {
+        lock(self).service(timeout)
     }
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
         lock(self).stop_stream(h, max_wait)

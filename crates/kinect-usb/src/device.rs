@@ -4,18 +4,20 @@
 //! Size (~670 lines): the session state machine of protocol §5 and the commands that are only
 //! valid in its states (colour settings, LED); its steps share the device's private state.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::backend::{
-    ResetOutcome, StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend, XferStatus,
+    ResetOutcome, Serviced, StopReason, StreamEvent, StreamHandle, StreamSpec, UsbBackend,
 };
 use crate::error::{KinectError, Result, USBFS_MEMORY_FIX, UsbError};
+use crate::latest::{FrameSink, TakenFrame};
 use crate::params::{ColorParams, DepthParams, P0Tables};
 use crate::protocol::{
     self, ColorSettingCode, ColorSettingResponse, Command, Exposure, ExposureMode, LedSetting,
     MIN_BYTES_PER_INTERVAL, MODE_OFF, MODE_ON, MODE_ON_100, STATUS_REGISTER, ValueKind, ep,
 };
-use crate::stream::{ColorAssembler, ColorMeta, DepthAssembler, RawDepthFrame};
+use crate::stream::{ColorMeta, RawDepthFrame};
 
 /// Timeout of every control and command transfer (protocol §2.1, §3.2).
 pub const COMMAND_TIMEOUT: Duration = Duration::from_millis(1000);
@@ -148,6 +150,19 @@ pub struct StreamCounters {
     /// Transfers retired because their submission or resubmission failed (the stream goes on
     /// with the others, as libfreenect2's; it ends when none is left).
     pub transfers_retired: u64,
+    /// Depth frames assembled but replaced by a newer one before the application took them
+    /// (it read slower than the sensor's 30 Hz; libfreenect2's "packets were lost"). With
+    /// the frame still waiting, `depth_frames = depth_taken + depth_overwritten (+ 1)`.
+    pub depth_overwritten: u64,
+    /// Colour frames replaced before the application took them.
+    pub color_overwritten: u64,
+    /// Depth frames the application took ([`KinectDevice::next_frame`]).
+    pub depth_taken: u64,
+    /// Colour frames the application took.
+    pub color_taken: u64,
+    /// Raw events a recorder did not get because it fell behind by more than
+    /// [`crate::latest::TAP_QUEUE_BYTES`].
+    pub tap_dropped: u64,
 }
 
 /// An opened Kinect v2 session over a backend.
@@ -156,12 +171,13 @@ pub struct KinectDevice<B: UsbBackend> {
     seq: u32,
     state: State,
     info: Option<DeviceInfo>,
-    depth: DepthAssembler,
-    color: ColorAssembler,
+    /// Frame assembly on the completion side and the newest-wins slots.
+    sink: Arc<FrameSink>,
+    /// The frame last handed out (borrowed by [`Frame`] until the next call).
+    held: Option<TakenFrame>,
     depth_h: Option<StreamHandle>,
     color_h: Option<StreamHandle>,
     depth_packet_size: usize,
-    iso_errors: u64,
     color_setting_nonzero_status: u64,
     led_nonzero_status: u64,
     transfers_retired: u64,
@@ -243,12 +259,11 @@ impl<B: UsbBackend> KinectDevice<B> {
             seq: 0,
             state: State::Open,
             info: None,
-            depth: DepthAssembler::new(),
-            color: ColorAssembler::new(),
+            sink: Arc::new(FrameSink::new()),
+            held: None,
             depth_h: None,
             color_h: None,
             depth_packet_size: bpi as usize,
-            iso_errors: 0,
             color_setting_nonzero_status: 0,
             led_nonzero_status: 0,
             transfers_retired: 0,
@@ -624,20 +639,27 @@ impl<B: UsbBackend> KinectDevice<B> {
             raw_p0,
             raw_color_params,
         });
+        self.sink.set_strict_header(self.strict_checks);
         if color {
-            self.color_h = Some(
-                self.usb(ep::COLOR_IN, "start colour stream", |b| b.start_stream(COLOR_STREAM))?,
-            );
+            let sink = self.sink.stream(StreamKind::Color);
+            self.color_h = Some(self.usb(ep::COLOR_IN, "start colour stream", |b| {
+                b.start_stream(COLOR_STREAM, sink)
+            })?);
         }
         if depth {
             let spec = depth_stream(self.depth_packet_size);
+            let sink = self.sink.stream(StreamKind::Depth);
             self.depth_h =
-                Some(self.usb(ep::DEPTH_IN, "start depth stream", |b| b.start_stream(spec))?);
+                Some(self.usb(ep::DEPTH_IN, "start depth stream", |b| b.start_stream(spec, sink))?);
         }
         Ok(())
     }
 
-    /// Waits for the next complete frame, at most `timeout`. `tap` sees every raw stream event
+    /// Waits at most `timeout` for a frame not handed out yet: the earliest-arrived of the
+    /// newest depth and the newest colour frame (each stream keeps only its newest, protocol
+    /// §5.5: frames the application did not take in time are counted in
+    /// [`StreamCounters::depth_overwritten`] / [`StreamCounters::color_overwritten`]). `tap`
+    /// sees the raw stream events queued since the last call while [`Self::set_raw_tap`] is on
     /// (for recordings). Returns `Ok(None)` on timeout; `Err(Disconnected)` when the device
     /// went away.
     pub fn next_frame(
@@ -645,99 +667,130 @@ impl<B: UsbBackend> KinectDevice<B> {
         timeout: Duration,
         tap: &mut dyn FnMut(StreamKind, &StreamEvent),
     ) -> Result<Option<Frame<'_>>> {
+        Ok(self.next_frame_at(timeout, tap)?.map(|(f, _)| f))
+    }
+
+    /// [`Self::next_frame`] with the host time at which the frame's last packet completed
+    /// (to tell frames that arrived after a moment from older ones).
+    pub fn next_frame_at(
+        &mut self,
+        timeout: Duration,
+        tap: &mut dyn FnMut(StreamKind, &StreamEvent),
+    ) -> Result<Option<(Frame<'_>, Instant)>> {
         if self.state != State::Streaming {
             return Err(KinectError::State {
                 op: "next_frame".into(),
                 state: format!("{:?}", self.state),
             });
         }
+        if let Some(TakenFrame::Depth(d)) = self.held.take() {
+            self.sink.recycle_depth(d.data);
+        }
+        self.sink.set_strict_header(self.strict_checks);
         let deadline = Instant::now() + timeout;
         loop {
+            let taken = self.sink.take();
+            for (kind, ev) in &taken.tap {
+                tap(*kind, ev);
+            }
+            for (kind, ev) in taken.control {
+                match ev {
+                    StreamEvent::Retired { error, in_flight } => {
+                        self.transfers_retired += 1;
+                        let mut w = format!(
+                            "{kind:?} stream: a transfer was retired ({error}); {in_flight} still \
+                             in flight"
+                        );
+                        if error == UsbError::NoMem {
+                            w.push_str(". ");
+                            w.push_str(USBFS_MEMORY_FIX);
+                        }
+                        self.warnings.push(w);
+                    }
+                    StreamEvent::Stopped { reason: StopReason::Disconnected } => {
+                        return Err(KinectError::Disconnected { what: "streaming".into() });
+                    }
+                    StreamEvent::Stopped { reason: StopReason::Requested } => {
+                        return Err(KinectError::EndOfStream);
+                    }
+                    StreamEvent::Stopped { reason } => {
+                        return Err(KinectError::Protocol {
+                            what: format!("{kind:?} stream"),
+                            detail: format!("stream stopped: {reason:?}"),
+                        });
+                    }
+                    StreamEvent::IsoPacket { .. } | StreamEvent::Bulk { .. } => {}
+                }
+            }
+            if let Some(f) = taken.frame {
+                let at = f.arrived();
+                self.held = Some(f);
+                return Ok(self.held_frame().map(|f| (f, at)));
+            }
             let left = deadline.saturating_duration_since(Instant::now());
-            let ev = match self.backend.next_event(left) {
-                Ok(Some(ev)) => ev,
-                Ok(None) => return Ok(None),
+            if left.is_zero() {
+                return Ok(None);
+            }
+            match self.backend.service(left) {
+                Ok(Serviced::Delivered) => {}
+                Ok(Serviced::Idle) => {
+                    if !self.sink.has_pending() {
+                        return Ok(None);
+                    }
+                }
+                Ok(Serviced::Background) => self.sink.wait(left),
                 Err(UsbError::NoDevice) => {
                     return Err(KinectError::Disconnected { what: "streaming".into() });
                 }
                 Err(e) => return Err(KinectError::usb("streaming", e)),
-            };
-            let (h, ev) = ev;
-            let kind = if Some(h) == self.depth_h { StreamKind::Depth } else { StreamKind::Color };
-            tap(kind, &ev);
-            match ev {
-                StreamEvent::Stopped { reason: StopReason::Disconnected } => {
-                    return Err(KinectError::Disconnected { what: "streaming".into() });
-                }
-                StreamEvent::Stopped { reason: StopReason::Requested } => {
-                    return Err(KinectError::EndOfStream);
-                }
-                StreamEvent::Retired { error, in_flight } => {
-                    self.transfers_retired += 1;
-                    let mut w = format!(
-                        "{kind:?} stream: a transfer was retired ({error}); {in_flight} still in \
-                         flight"
-                    );
-                    if error == UsbError::NoMem {
-                        w.push_str(". ");
-                        w.push_str(USBFS_MEMORY_FIX);
-                    }
-                    self.warnings.push(w);
-                    continue;
-                }
-                StreamEvent::Stopped { reason } => {
-                    return Err(KinectError::Protocol {
-                        what: format!("{kind:?} stream"),
-                        detail: format!("stream stopped: {reason:?}"),
-                    });
-                }
-                StreamEvent::IsoPacket { status, data } => {
-                    if status != XferStatus::Completed {
-                        self.iso_errors += 1;
-                        continue;
-                    }
-                    // Re-borrow dance: check completion first, then return the borrowed frame.
-                    if self.depth.push(&data).is_some() {
-                        return Ok(self.depth_last());
-                    }
-                }
-                StreamEvent::Bulk { status, data } => {
-                    if status != XferStatus::Completed {
-                        continue;
-                    }
-                    self.color.strict_header = self.strict_checks;
-                    if self.color.push(&data).is_some() {
-                        return Ok(self.color_last());
-                    }
-                }
-            }
-            if Instant::now() >= deadline {
-                return Ok(None);
             }
         }
     }
 
-    fn depth_last(&self) -> Option<Frame<'_>> {
-        self.depth.last_frame().map(Frame::Depth)
+    fn held_frame(&self) -> Option<Frame<'_>> {
+        Some(match self.held.as_ref()? {
+            TakenFrame::Depth(d) => Frame::Depth(RawDepthFrame {
+                sequence: d.sequence,
+                timestamp: d.timestamp,
+                data: &d.data,
+            }),
+            TakenFrame::Color(c) => Frame::Color(&c.jpeg, c.meta),
+        })
     }
 
-    fn color_last(&self) -> Option<Frame<'_>> {
-        self.color.last_frame().map(|(j, m)| Frame::Color(j, m))
+    /// Queues every raw stream event for [`Self::next_frame`]'s `tap` (a recorder) while on,
+    /// at most [`crate::latest::TAP_QUEUE_BYTES`] between two calls; off by default, so that
+    /// an application that reads slowly holds no packets.
+    pub fn set_raw_tap(&mut self, on: bool) {
+        self.sink.set_tap(on);
+    }
+
+    /// Bytes held for the application between the completion side and [`Self::next_frame`]:
+    /// at most one depth frame and one colour JPEG in their slots, one recycled depth buffer,
+    /// and the recorder's queue when [`Self::set_raw_tap`] is on. It does not grow with time.
+    pub fn buffered_bytes(&self) -> usize {
+        self.sink.buffered_bytes()
     }
 
     /// Stream counters so far.
     pub fn counters(&self) -> StreamCounters {
+        let st = self.sink.stats();
         StreamCounters {
-            depth_frames: self.depth.stats.frames,
-            depth_dropped: self.depth.stats.skipped_frames,
-            depth_incomplete: self.depth.stats.incomplete_frames,
-            iso_errors: self.iso_errors,
-            color_frames: self.color.stats.frames,
-            color_dropped: self.color.stats.dropped,
-            color_bad_header_magic: self.color.stats.bad_header_magic,
+            depth_frames: st.depth.frames,
+            depth_dropped: st.depth.skipped_frames,
+            depth_incomplete: st.depth.incomplete_frames,
+            iso_errors: st.iso_errors,
+            color_frames: st.color.frames,
+            color_dropped: st.color.dropped,
+            color_bad_header_magic: st.color.bad_header_magic,
             color_setting_nonzero_status: self.color_setting_nonzero_status,
             led_nonzero_status: self.led_nonzero_status,
             transfers_retired: self.transfers_retired,
+            depth_overwritten: st.depth_overwritten,
+            color_overwritten: st.color_overwritten,
+            depth_taken: st.depth_taken,
+            color_taken: st.color_taken,
+            tap_dropped: st.tap_dropped,
         }
     }
 

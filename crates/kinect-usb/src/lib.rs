@@ -39,6 +39,7 @@ pub mod decoder;
 pub mod device;
 pub mod error;
 pub mod forward;
+pub mod latest;
 pub mod orientation;
 pub mod params;
 mod pool;

@@ -11,9 +11,8 @@
 #![allow(unsafe_code)]
 
 use std::os::raw::{c_int, c_uint, c_void};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::mpsc::Sender;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rusb::ffi;
@@ -22,16 +21,14 @@ use rusb::ffi::constants::{
     LIBUSB_TRANSFER_TIMED_OUT, LIBUSB_TRANSFER_TYPE_ISOCHRONOUS,
 };
 
-use crate::backend::{StopReason, StreamEvent, StreamHandle, XferStatus};
+use crate::backend::{EventSink, StopReason, StreamEvent, XferStatus};
 use crate::error::UsbError;
 use crate::pool::{resubmit_failed, submit_pool};
 
-/// Event sender shared by every transfer of a backend.
-pub(crate) type EventTx = Sender<(StreamHandle, StreamEvent)>;
-
 struct Shared {
-    tx: Mutex<EventTx>,
-    handle: StreamHandle,
+    /// Where the pool's events go: the device's frame sink, which assembles frames here, on
+    /// the event thread (protocol §5.5), instead of queueing packets for the consumer.
+    sink: Arc<dyn EventSink>,
     iso: bool,
     packet_size: usize,
     stopping: AtomicBool,
@@ -40,9 +37,7 @@ struct Shared {
 
 impl Shared {
     fn send(&self, ev: StreamEvent) {
-        if let Ok(tx) = self.tx.lock() {
-            let _ = tx.send((self.handle, ev));
-        }
+        self.sink.deliver(ev);
     }
 }
 
@@ -236,13 +231,11 @@ impl TransferPool {
         count: usize,
         packets: usize,
         packet_size: usize,
-        handle: StreamHandle,
-        tx: EventTx,
+        sink: Arc<dyn EventSink>,
         timeout: Duration,
     ) -> Result<Self, UsbError> {
         let shared = Arc::new(Shared {
-            tx: Mutex::new(tx),
-            handle,
+            sink,
             iso: packets > 0,
             packet_size,
             stopping: AtomicBool::new(false),

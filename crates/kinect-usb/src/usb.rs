@@ -5,13 +5,12 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use rusb::UsbContext;
 
-use crate::backend::{ResetOutcome, StreamEvent, StreamHandle, StreamSpec, UsbBackend};
+use crate::backend::{EventSink, ResetOutcome, Serviced, StreamHandle, StreamSpec, UsbBackend};
 use crate::error::{KinectError, Result, UsbError};
 use crate::protocol::{PRODUCT_IDS, VENDOR_ID};
 use crate::transfer::TransferPool;
@@ -138,8 +137,6 @@ pub struct RusbBackend {
     handle: Option<rusb::DeviceHandle<rusb::Context>>,
     /// The sensor's serial, read at open, to find it again after a re-enumeration.
     serial: Option<String>,
-    tx: Sender<(StreamHandle, StreamEvent)>,
-    rx: Receiver<(StreamHandle, StreamEvent)>,
     pools: HashMap<StreamHandle, TransferPool>,
     next_handle: u32,
     events: Option<(Arc<AtomicBool>, JoinHandle<()>)>,
@@ -151,15 +148,12 @@ impl RusbBackend {
         device: rusb::Device<rusb::Context>,
         handle: rusb::DeviceHandle<rusb::Context>,
     ) -> Self {
-        let (tx, rx) = mpsc::channel();
         let serial = serial_of(&device, &handle);
         RusbBackend {
             ctx,
             device,
             handle: Some(handle),
             serial,
-            tx,
-            rx,
             pools: HashMap::new(),
             next_handle: 1,
             events: None,
@@ -306,7 +300,11 @@ impl UsbBackend for RusbBackend {
         }
         Err(UsbError::NotSupported)
     }
-    fn start_stream(&mut self, spec: StreamSpec) -> std::result::Result<StreamHandle, UsbError> {
+    fn start_stream(
+        &mut self,
+        spec: StreamSpec,
+        sink: Arc<dyn EventSink>,
+    ) -> std::result::Result<StreamHandle, UsbError> {
         let raw = self.h()?.as_raw();
         self.ensure_event_thread();
         let h = StreamHandle(self.next_handle);
@@ -318,33 +316,19 @@ impl UsbBackend for RusbBackend {
                 transfers,
                 packets.max(1),
                 packet_size,
-                h,
-                self.tx.clone(),
+                sink,
                 STREAM_TIMEOUT,
             )?,
-            StreamSpec::Bulk { ep, transfers, size } => TransferPool::start(
-                raw,
-                ep,
-                transfers,
-                0,
-                size,
-                h,
-                self.tx.clone(),
-                STREAM_TIMEOUT,
-            )?,
+            StreamSpec::Bulk { ep, transfers, size } => {
+                TransferPool::start(raw, ep, transfers, 0, size, sink, STREAM_TIMEOUT)?
+            }
         };
         self.pools.insert(h, pool);
         Ok(h)
     }
-    fn next_event(
-        &mut self,
-        timeout: Duration,
-    ) -> std::result::Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
-        match self.rx.recv_timeout(timeout) {
-            Ok(ev) => Ok(Some(ev)),
-            Err(RecvTimeoutError::Timeout) => Ok(None),
-            Err(RecvTimeoutError::Disconnected) => Err(UsbError::Io),
-        }
+    fn service(&mut self, _timeout: Duration) -> std::result::Result<Serviced, UsbError> {
+        // The event thread completes the transfers and assembles frames in the sink.
+        Ok(Serviced::Background)
     }
     fn stop_stream(
         &mut self,

@@ -10,7 +10,9 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use kinect_usb::backend::{ResetOutcome, StreamEvent, StreamHandle, StreamSpec, UsbBackend};
+use kinect_usb::backend::{
+    EventSink, ResetOutcome, Serviced, StreamHandle, StreamSpec, UsbBackend,
+};
 use kinect_usb::device::KinectDevice;
 use kinect_usb::error::UsbError;
 use kinect_usb::params::DepthParams;
@@ -72,14 +74,15 @@ impl UsbBackend for Spy {
     fn iso_bytes_per_interval(&mut self, ep: u8, alt: u8) -> Result<u32, UsbError> {
         self.inner.iso_bytes_per_interval(ep, alt)
     }
-    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
-        self.inner.start_stream(spec)
-    }
-    fn next_event(
+    fn start_stream(
         &mut self,
-        timeout: Duration,
-    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
-        self.inner.next_event(timeout)
+        spec: StreamSpec,
+        sink: Arc<dyn EventSink>,
+    ) -> Result<StreamHandle, UsbError> {
+        self.inner.start_stream(spec, sink)
+    }
+    fn service(&mut self, timeout: Duration) -> Result<Serviced, UsbError> {
+        self.inner.service(timeout)
     }
     fn stop_stream(&mut self, h: StreamHandle, max_wait: Duration) -> Result<(), UsbError> {
         self.inner.stop_stream(h, max_wait)

@@ -376,6 +376,8 @@ fn record_then_replay_gives_identical_frames() {
         SimFaults { seed: 9, iso_drop_rate: 0.002, ..SimFaults::default() },
     ))
     .unwrap();
+    // The recorder's tap: every raw event, not only the newest frames.
+    dev.set_raw_tap(true);
     let info = dev.start(true, true).unwrap().clone();
     let mut w = RecordingWriter::new(Vec::new(), &RecordingMeta::from_info(&info)).unwrap();
     let mut live = Vec::new();

@@ -2,10 +2,11 @@
 //! endpoints' OUT/data/completion phases with the protocol's sequence rules and the injected
 //! command faults, and the start, events and stop of the streams.
 
-use std::time::Duration;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
-use super::{Phase, SimDevice};
-use crate::backend::{ResetOutcome, StreamEvent, StreamHandle, StreamSpec, UsbBackend};
+use super::{Phase, SIM_FRAME_RATE, SimDevice, SimPacing};
+use crate::backend::{EventSink, ResetOutcome, Serviced, StreamHandle, StreamSpec, UsbBackend};
 use crate::error::UsbError;
 use crate::pool::submit_pool;
 use crate::protocol::{self, COLOR_SETTING_ID, COLOR_SETTING_RESPONSE_LEN, SET_MODE_ID, ep};
@@ -13,6 +14,12 @@ use crate::protocol::{self, COLOR_SETTING_ID, COLOR_SETTING_RESPONSE_LEN, SET_MO
 impl SimDevice {
     fn check(&mut self) -> Result<(), UsbError> {
         if self.gone || self.stale_handle { Err(UsbError::NoDevice) } else { Ok(()) }
+    }
+}
+
+impl SimDevice {
+    fn serviced_since(&self, emitted_before: u64) -> Serviced {
+        if self.emitted.get() > emitted_before { Serviced::Delivered } else { Serviced::Idle }
     }
 }
 
@@ -255,8 +262,15 @@ impl UsbBackend for SimDevice {
         Ok(self.profile.bytes_per_interval)
     }
 
-    fn start_stream(&mut self, spec: StreamSpec) -> Result<StreamHandle, UsbError> {
+    fn start_stream(
+        &mut self,
+        spec: StreamSpec,
+        sink: Arc<dyn EventSink>,
+    ) -> Result<StreamHandle, UsbError> {
         self.check()?;
+        if self.paced_since.is_none() {
+            self.paced_since = Some((Instant::now(), 0));
+        }
         let h = StreamHandle(self.next_handle);
         self.next_handle += 1;
         match spec {
@@ -274,8 +288,9 @@ impl UsbBackend for SimDevice {
                 })?;
                 self.iso_in_flight = submitted.in_flight;
                 for ev in submitted.retired_events() {
-                    self.queue.push_back((h, ev));
+                    sink.deliver(ev);
                 }
+                self.iso_sink = Some(sink);
                 // Build the forward-modelled frames now, not inside a frame wait.
                 self.raw_frames();
                 self.iso = Some((h, packet_size));
@@ -283,34 +298,65 @@ impl UsbBackend for SimDevice {
             StreamSpec::Bulk { size, .. } => {
                 self.transcript.push("start_stream bulk".into());
                 self.bulk = Some((h, size));
+                self.bulk_sink = Some(sink);
             }
         }
         Ok(h)
     }
 
-    fn next_event(
-        &mut self,
-        _timeout: Duration,
-    ) -> Result<Option<(StreamHandle, StreamEvent)>, UsbError> {
-        if self.queue.is_empty() {
-            self.check()?;
-            if self.iso.is_none() && self.bulk.is_none() {
-                return Ok(None);
-            }
-            self.generate_frame_period();
+    fn service(&mut self, timeout: Duration) -> Result<Serviced, UsbError> {
+        self.check()?;
+        if self.iso.is_none() && self.bulk.is_none() {
+            return Ok(Serviced::Idle);
         }
-        Ok(self.queue.pop_front())
+        let before = self.emitted.get();
+        if self.replay.is_some() {
+            self.replay_next();
+            return Ok(self.serviced_since(before));
+        }
+        match self.pacing {
+            SimPacing::Lockstep => {
+                self.generate_frame_period();
+                Ok(self.serviced_since(before))
+            }
+            SimPacing::RealTime => {
+                let (t0, done) = self.paced_since.unwrap_or((Instant::now(), 0));
+                let period = Duration::from_secs(1) / SIM_FRAME_RATE;
+                // Period k is due at t0 + k × period (the first at the start).
+                let due_at = |k: u64| t0 + period * k as u32;
+                let now = Instant::now();
+                if due_at(done) > now {
+                    let wait = due_at(done) - now;
+                    if wait > timeout {
+                        std::thread::sleep(timeout);
+                        return Ok(Serviced::Idle);
+                    }
+                    std::thread::sleep(wait);
+                }
+                let elapsed = Instant::now().saturating_duration_since(t0);
+                let due = (elapsed.as_nanos() / period.as_nanos()) as u64 + 1;
+                for _ in done..due {
+                    self.generate_frame_period();
+                }
+                self.paced_since = Some((t0, due.max(done)));
+                Ok(self.serviced_since(before))
+            }
+        }
     }
 
     fn stop_stream(&mut self, h: StreamHandle, _max_wait: Duration) -> Result<(), UsbError> {
         self.transcript.push("stop_stream".into());
         if self.iso.map(|s| s.0) == Some(h) {
             self.iso = None;
+            self.iso_sink = None;
         }
         if self.bulk.map(|s| s.0) == Some(h) {
             self.bulk = None;
+            self.bulk_sink = None;
         }
-        self.queue.retain(|(hh, _)| *hh != h);
+        if self.iso.is_none() && self.bulk.is_none() {
+            self.paced_since = None;
+        }
         self.check()
     }
 }

@@ -6,7 +6,7 @@ use rand::Rng;
 
 use super::SimDevice;
 use crate::UsbError;
-use crate::backend::{StopReason, StreamEvent, XferStatus};
+use crate::backend::{StopReason, StreamEvent, StreamHandle, XferStatus};
 use crate::decoder::DecoderParams;
 use crate::forward::forward_frame;
 use crate::params::XzTables;
@@ -16,12 +16,6 @@ use crate::stream::{ColorMeta, build_color_packet, packetize_depth_frame};
 
 /// Timestamp increment per frame (0.125 ms units, 30 Hz).
 const TICKS_PER_FRAME: u32 = 267;
-
-/// Recorded events queued per simulated frame period during replay: about one depth frame's
-/// worth of isochronous packets (9 per sub-packet × 10 plus empty ones) or more, while the
-/// queue stays bounded by this many records (each ≤ `recording::MAX_RECORD`) whatever the
-/// recording's size.
-const REPLAY_EVENTS_PER_PERIOD: usize = 128;
 
 impl SimDevice {
     /// The raw depth frames the device streams (forward model of the scene), built on demand.
@@ -46,35 +40,60 @@ impl SimDevice {
         }
         &self.raw_frames
     }
+    /// Delivers `ev` of stream `h` to that stream's sink (the completion path).
+    fn emit(&self, h: StreamHandle, ev: StreamEvent) {
+        let sink = if self.iso.map(|s| s.0) == Some(h) {
+            self.iso_sink.as_ref()
+        } else if self.bulk.map(|s| s.0) == Some(h) {
+            self.bulk_sink.as_ref()
+        } else {
+            None
+        };
+        if let Some(sink) = sink {
+            self.emitted.set(self.emitted.get() + 1);
+            sink.deliver(ev);
+        }
+    }
+
+    /// During a replay: reads and delivers the next recorded event, or ends the streams
+    /// (`Requested` at the end of the recording, `Stalled` on a read error).
+    pub(super) fn replay_next(&mut self) {
+        let Some(it) = self.replay.as_mut() else { return };
+        use crate::device::StreamKind;
+        let (iso, bulk) = (self.iso.map(|s| s.0), self.bulk.map(|s| s.0));
+        let next = it.next_event();
+        let end = match next {
+            Ok(Some(e)) => {
+                let h = if e.kind == StreamKind::Depth { iso } else { bulk };
+                if let Some(h) = h {
+                    self.emit(h, e.into_event());
+                }
+                return;
+            }
+            Ok(None) => StopReason::Requested,
+            Err(e) => {
+                self.replay_error = Some(e);
+                StopReason::Stalled
+            }
+        };
+        for h in [iso, bulk].into_iter().flatten() {
+            self.emit(h, StreamEvent::Stopped { reason: end });
+        }
+        self.iso = None;
+        self.bulk = None;
+    }
+
+    /// Produces `periods` frame periods at once, delivered through the streams' sinks as a
+    /// sensor's transfers complete, whether anyone reads them or not (a test's simulated
+    /// time; [`SimPacing`](super::SimPacing) is not consulted).
+    pub fn advance(&mut self, periods: u64) {
+        for _ in 0..periods {
+            self.generate_frame_period();
+        }
+    }
+
     pub(super) fn generate_frame_period(&mut self) {
-        if let Some(it) = self.replay.as_mut() {
-            use crate::device::StreamKind;
-            let (iso, bulk) = (self.iso.map(|s| s.0), self.bulk.map(|s| s.0));
-            let mut end = None;
-            for _ in 0..REPLAY_EVENTS_PER_PERIOD {
-                match it.next_event() {
-                    Ok(Some(e)) => {
-                        let h = if e.kind == StreamKind::Depth { iso } else { bulk };
-                        if let Some(h) = h {
-                            self.queue.push_back((h, e.into_event()));
-                        }
-                    }
-                    Ok(None) => {
-                        end = Some(StopReason::Requested);
-                        break;
-                    }
-                    Err(e) => {
-                        self.replay_error = Some(e);
-                        end = Some(StopReason::Stalled);
-                        break;
-                    }
-                }
-            }
-            if let Some(reason) = end {
-                for h in [iso, bulk].into_iter().flatten() {
-                    self.queue.push_back((h, StreamEvent::Stopped { reason }));
-                }
-            }
+        if self.gone || (self.iso.is_none() && self.bulk.is_none()) {
             return;
         }
         if let Some(n) = self.faults.unplug_after_frames
@@ -82,8 +101,7 @@ impl SimDevice {
         {
             self.gone = true;
             for h in [self.iso.map(|s| s.0), self.bulk.map(|s| s.0)].into_iter().flatten() {
-                self.queue
-                    .push_back((h, StreamEvent::Stopped { reason: StopReason::Disconnected }));
+                self.emit(h, StreamEvent::Stopped { reason: StopReason::Disconnected });
             }
             return;
         }
@@ -133,9 +151,6 @@ impl SimDevice {
                 self.iso_in_flight -= 1;
                 for ev in resubmit_failed(UsbError::Io, self.iso_in_flight) {
                     depth_events.push((h, ev));
-                }
-                if self.iso_in_flight == 0 {
-                    self.iso = None;
                 }
             }
         }
@@ -189,17 +204,22 @@ impl SimDevice {
             // Keep both streams proportionally advanced.
             let take_depth = nc == 0 || (nd > 0 && sent_d * nc <= sent_c * nd);
             if take_depth && let Some(e) = di.next() {
-                self.queue.push_back(e);
+                self.emit(e.0, e.1);
                 sent_d += 1;
                 continue;
             }
             if let Some(e) = ci.next() {
-                self.queue.push_back(e);
+                self.emit(e.0, e.1);
                 sent_c += 1;
             } else if let Some(e) = di.next() {
-                self.queue.push_back(e);
+                self.emit(e.0, e.1);
                 sent_d += 1;
             }
+        }
+        if self.iso_in_flight == 0 && self.iso.is_some() && self.replay.is_none() {
+            // Every depth transfer retired: the stream ended (after its last events went out).
+            self.iso = None;
+            self.iso_sink = None;
         }
         self.frame_index += 1;
         self.depth_sequence = (self.depth_sequence + 1) % (1 << 16);

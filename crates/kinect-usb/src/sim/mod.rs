@@ -33,12 +33,13 @@ pub use color::{SIM_AUTO_EXPOSURE_MS, SimColorSettings};
 pub use commands::{SIM_STATUS_BAD_REQUEST, SIM_STATUS_INVALID_VALUE, SIM_STATUS_UNKNOWN_CODE};
 pub use profile::SimProfile;
 
-use std::collections::VecDeque;
+use std::sync::Arc;
+use std::time::Instant;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::backend::{StreamEvent, StreamHandle};
+use crate::backend::{EventSink, StreamHandle};
 use crate::protocol::{CommandMessage, LedSetting};
 
 /// What the simulated sensor sees. Frames cycle.
@@ -97,6 +98,24 @@ pub struct SimFaults {
     pub depth_resubmit_failures: usize,
 }
 
+/// When the simulated sensor produces its frame periods (each: one depth frame's isochronous
+/// packets and one colour frame's bulk transfers, through the streams' sinks, i.e. the same
+/// completion code as the libusb backend's event thread).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum SimPacing {
+    /// One period each time the host services the device with nothing waiting for it
+    /// (deterministic: every frame reaches a reader, whatever its speed; for tests).
+    #[default]
+    Lockstep,
+    /// At the sensor's 30 Hz of host time since the streams started, whether anyone reads or
+    /// not: the periods due are produced when the device is next serviced, a slow reader
+    /// loses frames (newest wins) as with a real sensor.
+    RealTime,
+}
+
+/// Frame periods per second of the sensor (depth and colour at 30 Hz, protocol §7).
+pub const SIM_FRAME_RATE: u32 = 30;
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Phase {
     Data,
@@ -137,8 +156,18 @@ pub struct SimDevice {
     /// Depth transfers in flight (the pool's size less the retired ones).
     iso_in_flight: usize,
     bulk: Option<(StreamHandle, usize)>,
+    /// Events delivered to the sinks so far.
+    emitted: std::cell::Cell<u64>,
+    /// Where the depth stream's events go (given at its start).
+    iso_sink: Option<Arc<dyn EventSink>>,
+    /// Where the colour stream's events go.
+    bulk_sink: Option<Arc<dyn EventSink>>,
+    /// When frame periods are produced.
+    pub pacing: SimPacing,
+    /// [`SimPacing::RealTime`]: when the first stream started, and the periods produced on that
+    /// clock since.
+    paced_since: Option<(Instant, u64)>,
     next_handle: u32,
-    queue: VecDeque<(StreamHandle, StreamEvent)>,
     raw_frames: Vec<Vec<u8>>,
     /// Frame periods generated so far.
     pub frame_index: u64,
@@ -180,8 +209,12 @@ impl SimDevice {
             iso: None,
             iso_in_flight: 0,
             bulk: None,
+            emitted: std::cell::Cell::new(0),
+            iso_sink: None,
+            bulk_sink: None,
+            pacing: SimPacing::Lockstep,
+            paced_since: None,
             next_handle: 1,
-            queue: VecDeque::new(),
             raw_frames: Vec::new(),
             frame_index: 0,
             depth_sequence: 0,

@@ -14,8 +14,9 @@ impl SimDevice {
     }
 
     /// [`SimDevice::replay`] streaming from `source` (e.g. a
-    /// [`RecordingReader`](crate::recording::RecordingReader)): at most
-    /// `REPLAY_EVENTS_PER_PERIOD` events are held at a time. A read error ends the streams with
+    /// [`RecordingReader`](crate::recording::RecordingReader)): one recorded event is read and
+    /// delivered each time the host services the device with nothing waiting (a file is
+    /// replayed at the reader's pace, losing nothing), so none is held besides the reader's. A read error ends the streams with
     /// `Stopped { Stalled }` and is kept for [`SimDevice::take_replay_error`].
     pub fn replay_from(
         m: &crate::recording::RecordingMeta,
@@ -51,10 +52,5 @@ impl SimDevice {
     /// What the replay source skipped or found cut so far.
     pub fn replay_report(&self) -> crate::recording::ReadReport {
         self.replay.as_ref().map(|r| r.report()).unwrap_or_default()
-    }
-
-    /// Events waiting in the device's queue (what a replay holds in memory besides the reader).
-    pub fn queued_events(&self) -> usize {
-        self.queue.len()
     }
 }
