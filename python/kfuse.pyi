@@ -189,7 +189,11 @@ class RecordingFrame:
         """The partner decoded as the scene is, uint8 (1080, 1920, 3)."""
 
 class Recording:
-    """The frames of a .kfrec recording, streamed; Ctrl-C between frames is KeyboardInterrupt."""
+    """The frames of a .kfrec recording, streamed; Ctrl-C between frames is KeyboardInterrupt.
+
+    Usable from any thread (e.g. a ThreadPoolExecutor worker), one call at a time: a call
+    while another thread's call on the same Recording runs is a RuntimeError. Dropped in any
+    thread, it closes the file."""
 
     def __init__(
         self, path: _Path, allow_truncated: bool = False, skip_corrupt: bool = False
@@ -232,7 +236,11 @@ def devices(backend: str = "usb", sim_sensors: int = 1) -> List[Dict[str, Option
 
 class Device:
     """A Kinect v2 opened and streaming ("usb", or "sim": the simulated sensor); no sensor is
-    an OSError with the CLI's message. A context manager; iterating yields DeviceFrames."""
+    an OSError with the CLI's message. A context manager; iterating yields DeviceFrames.
+
+    Usable from any thread (e.g. a ThreadPoolExecutor worker), one call at a time: a call
+    while another thread's call on the same Device runs (a record() say) is a RuntimeError.
+    Dropped in any thread, it releases the sensor."""
 
     def __init__(
         self, backend: str = "usb", serial: Optional[str] = None, sim_sensors: int = 1
@@ -245,12 +253,15 @@ class Device:
         """A fresh depth + colour pair; waits at most timeout s (0 < timeout <= 60)."""
     def __iter__(self) -> "Device": ...
     def __next__(self) -> DeviceFrame: ...
-    def record(self, path: _Path, frames: int) -> Dict[str, Any]:
+    def record(self, path: _Path, frames: int, overwrite: bool = False) -> Dict[str, Any]:
         """A .kfrec of `frames` depth frames (1..=108000), written atomically: frames, path,
-        stopped_by. Ctrl-C writes the frames so far, then raises KeyboardInterrupt."""
+        stopped_by. An existing path is a FileExistsError (nothing recorded, the file left as
+        it was) unless overwrite; a folder a ValueError. Ctrl-C writes the frames so far, then
+        raises KeyboardInterrupt."""
     def write_params(self, folder: _Path) -> pathlib.Path:
         """folder/kinect_params.json, the factory parameters (Rig.from_kinect_params)."""
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Releases the sensor (again: nothing)."""
     def __enter__(self) -> "Device": ...
     def __exit__(self, *args: Any) -> bool: ...
 
@@ -329,7 +340,8 @@ class Calibration:
     def warnings(self) -> List[str]:
         """The run's warnings (also issued as UserWarning)."""
     def save(self, path: _Path, overwrite: bool = False) -> None:
-        """`text` written atomically; FileExistsError unless overwrite."""
+        """`text` written atomically; FileExistsError unless overwrite. One of the image files
+        calibrated from (through any path to it) is a ValueError even with overwrite."""
 
 def calibrate(
     ir: Optional[_Images] = None,

@@ -319,6 +319,8 @@ pub(crate) struct PyCalibration {
     text: String,
     report: String,
     warnings: Vec<String>,
+    /// The image files calibrated from (none for arrays): `save` never writes over one.
+    inputs: Vec<PathBuf>,
 }
 
 impl PyCalibration {
@@ -389,7 +391,13 @@ impl PyCalibration {
             }
             Fit::DepthOnly => (vec![], f64::NAN, None),
         };
+        let inputs = [&outcome.ir, &outcome.color]
+            .into_iter()
+            .filter(|run| !run.in_memory)
+            .flat_map(|run| run.files.iter().cloned())
+            .collect();
         Ok(Self {
+            inputs,
             rig: outcome.rig,
             cameras,
             rms_px,
@@ -494,10 +502,12 @@ impl PyCalibration {
     }
 
     /// Writes `text` to `path` atomically (what `kfuse calibrate --out path` writes). An
-    /// existing file is refused (FileExistsError) unless `overwrite`.
+    /// existing file is refused (FileExistsError) unless `overwrite`; one of the image files
+    /// calibrated from (through any path to it) is refused even with `overwrite`
+    /// (ValueError), as `kfuse calibrate --out` refuses it.
     #[pyo3(signature = (path, overwrite = false))]
     fn save(&self, path: PathBuf, overwrite: bool) -> PyResult<()> {
-        crate::save_text(&path, &self.text, overwrite)
+        crate::save_text(&path, &self.text, overwrite, &self.inputs)
     }
 
     fn __repr__(&self) -> String {

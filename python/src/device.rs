@@ -4,6 +4,7 @@
 //! newest colour JPEG, `record::record` writes a `.kfrec` recording. No algorithm of its own.
 
 use std::path::PathBuf;
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use kfuse_capture::{
@@ -140,9 +141,18 @@ impl PyDeviceFrame {
 /// (or call close()) to release the sensor. next_frame() waits for a fresh depth + colour
 /// pair; iterating yields them one after another; record(path, frames) writes a .kfrec
 /// recording that kfuse.Recording and `kfuse fuse --recording` read. Waits release the GIL;
-/// Ctrl-C interrupts them with KeyboardInterrupt.
-#[pyclass(name = "Device", module = "kfuse", unsendable)]
+/// Ctrl-C interrupts them with KeyboardInterrupt. Usable from any thread (a
+/// ThreadPoolExecutor worker), one call at a time: a call while another thread's call on the
+/// same Device runs is a RuntimeError saying so. Dropped in any thread, it releases the sensor.
+#[pyclass(name = "Device", module = "kfuse", frozen)]
 pub(crate) struct PyDevice {
+    /// The sensor, behind [`crate::one_call_at_a_time`]: a `Session` is `Send` but not `Sync`,
+    /// and the lock makes the class shareable between Python threads.
+    state: Mutex<DeviceState>,
+}
+
+/// What a `Device` holds: the session (None once closed) and the pump of its frames.
+struct DeviceState {
     session: Option<Session>,
     pump: FramePump,
 }
@@ -212,9 +222,16 @@ pub(crate) fn devices<'py>(
         .collect()
 }
 
-impl PyDevice {
+impl DeviceState {
     fn session(&mut self) -> PyResult<&mut Session> {
         self.session.as_mut().ok_or_else(|| PyValueError::new_err("the device is closed"))
+    }
+}
+
+impl PyDevice {
+    /// The state for this call, or a RuntimeError while another thread's call runs.
+    fn state(&self) -> PyResult<MutexGuard<'_, DeviceState>> {
+        crate::one_call_at_a_time(&self.state, "Device")
     }
 }
 
@@ -232,13 +249,15 @@ impl PyDevice {
         let source = source_of(backend, serial, sim_sensors)?;
         let session = py.detach(|| Session::open(&source)).map_err(capture_err)?;
         let decoder = session.decoder(&DecoderOptions::default()).map_err(capture_err)?;
-        Ok(Self { session: Some(session), pump: FramePump::new(decoder) })
+        let state = DeviceState { session: Some(session), pump: FramePump::new(decoder) };
+        Ok(Self { state: Mutex::new(state) })
     }
 
     /// The sensor's serial number and firmware version, as it reported them.
     #[getter]
-    fn info<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let i = self.session()?.info();
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let mut state = self.state()?;
+        let i = state.session()?.info();
         let d = PyDict::new(py);
         d.set_item("serial", i.serial.clone())?;
         d.set_item("firmware", i.firmware.clone())?;
@@ -249,7 +268,7 @@ impl PyDevice {
     /// `timeout` seconds, 0 < timeout <= 60) and returns them as a DeviceFrame. Errors: a
     /// stream that stops (RuntimeError), Ctrl-C (KeyboardInterrupt), a closed device.
     #[pyo3(signature = (timeout = 3.0))]
-    fn next_frame(&mut self, py: Python<'_>, timeout: f64) -> PyResult<PyDeviceFrame> {
+    fn next_frame(&self, py: Python<'_>, timeout: f64) -> PyResult<PyDeviceFrame> {
         if !(timeout > 0.0 && timeout <= MAX_TIMEOUT_S) {
             return Err(PyValueError::new_err(format!(
                 "timeout: expected seconds in (0, {MAX_TIMEOUT_S}], got {timeout}"
@@ -257,9 +276,10 @@ impl PyDevice {
         }
         let since = Instant::now();
         let deadline = since + Duration::from_secs_f64(timeout);
+        let mut state = self.state()?;
+        let DeviceState { session, pump } = &mut *state;
         let session =
-            self.session.as_mut().ok_or_else(|| PyValueError::new_err("the device is closed"))?;
-        let pump = &mut self.pump;
+            session.as_mut().ok_or_else(|| PyValueError::new_err("the device is closed"))?;
         // One frame at a time without the GIL, Ctrl-C checked between frames.
         loop {
             let fresh = py
@@ -279,12 +299,12 @@ impl PyDevice {
             }
         }
         Ok(PyDeviceFrame {
-            number: self.pump.depth_frames(),
-            depth_mm: self.pump.depth_mm().to_vec(),
-            ir: self.pump.ir().to_vec(),
-            color_jpeg: self.pump.color_jpeg().to_vec(),
-            depth_timestamp: self.pump.depth_timestamp(),
-            color_timestamp: self.pump.color_timestamp(),
+            number: pump.depth_frames(),
+            depth_mm: pump.depth_mm().to_vec(),
+            ir: pump.ir().to_vec(),
+            color_jpeg: pump.color_jpeg().to_vec(),
+            depth_timestamp: pump.depth_timestamp(),
+            color_timestamp: pump.color_timestamp(),
         })
     }
 
@@ -292,29 +312,36 @@ impl PyDevice {
         slf
     }
 
-    fn __next__(&mut self, py: Python<'_>) -> PyResult<PyDeviceFrame> {
+    fn __next__(&self, py: Python<'_>) -> PyResult<PyDeviceFrame> {
         self.next_frame(py, 3.0)
     }
 
     /// Records `frames` depth frames (1..=108000, an hour) and the colour frames between them
     /// into the .kfrec file `path`, as `kfuse capture record` does: written to a temporary
     /// file and moved into place, so `path` is a complete, replayable recording or is left
-    /// as it was. Returns the frames recorded. A stream that stops early still leaves a
-    /// complete file of the frames so far (`stopped_by` in the result says why); Ctrl-C stops
-    /// at the next frame, writes the frames so far and then raises KeyboardInterrupt
-    /// (nothing is written when it comes before the first frame). Releases the GIL.
+    /// as it was. An existing `path` is refused before anything is recorded (FileExistsError
+    /// naming it; a folder is a ValueError) unless `overwrite`, as Rig.save and
+    /// Calibration.save refuse it. Returns the frames recorded. A stream that stops early
+    /// still leaves a complete file of the frames so far (`stopped_by` in the result says
+    /// why); Ctrl-C stops at the next frame, writes the frames so far and then raises
+    /// KeyboardInterrupt (nothing is written when it comes before the first frame). Releases
+    /// the GIL.
+    #[pyo3(signature = (path, frames, overwrite = false))]
     fn record<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         path: PathBuf,
         frames: u64,
+        overwrite: bool,
     ) -> PyResult<Bound<'py, PyDict>> {
         if !(1..=MAX_RECORD_FRAMES).contains(&frames) {
             return Err(PyValueError::new_err(format!(
                 "frames: expected 1..={MAX_RECORD_FRAMES}, got {frames}"
             )));
         }
-        let session = self.session()?;
+        let mut state = self.state()?;
+        let session = state.session()?;
+        crate::check_output_file(&path, overwrite, "session.kfrec", &[])?;
         let interrupted = std::sync::atomic::AtomicBool::new(false);
         let stop = || {
             // Signals are only seen with the GIL: take it for the check, once per frame.
@@ -345,17 +372,19 @@ impl PyDevice {
     /// Writes `folder/kinect_params.json`, the sensor's factory parameters of the images as
     /// the scene is (what `kfuse capture` writes beside its shots; kfuse.Rig.from_kinect_params
     /// reads it). Returns the file's path.
-    fn write_params(&mut self, folder: PathBuf) -> PyResult<PathBuf> {
-        let info = self.session()?.info().clone();
+    fn write_params(&self, folder: PathBuf) -> PyResult<PathBuf> {
+        let info = self.state()?.session()?.info().clone();
         write_params_json(&folder, &info).map_err(capture_err)?;
         Ok(folder.join("kinect_params.json"))
     }
 
-    /// Stops the streams and releases the sensor (again: nothing).
-    fn close(&mut self) {
-        if let Some(mut s) = self.session.take() {
+    /// Stops the streams and releases the sensor (again: nothing). A RuntimeError while
+    /// another thread's call on this Device runs.
+    fn close(&self) -> PyResult<()> {
+        if let Some(mut s) = self.state()?.session.take() {
             s.close();
         }
+        Ok(())
     }
 
     fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
@@ -363,13 +392,14 @@ impl PyDevice {
     }
 
     #[pyo3(signature = (*_args))]
-    fn __exit__(&mut self, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
-        self.close();
-        false
+    fn __exit__(&self, _args: &Bound<'_, pyo3::types::PyTuple>) -> PyResult<bool> {
+        self.close()?;
+        Ok(false)
     }
 
-    fn __repr__(&mut self) -> String {
-        match &self.session {
+    fn __repr__(&self) -> String {
+        let Ok(state) = self.state.try_lock() else { return "Device(in use)".into() };
+        match &state.session {
             Some(s) => {
                 format!("Device(serial={:?}, source={:?})", s.info().serial, s.source().name())
             }

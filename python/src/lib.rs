@@ -41,22 +41,74 @@ fn calib_err(e: CalibError) -> PyErr {
     }
 }
 
-/// Writes `text` to the file `path` atomically, as the CLI's `--out`: a folder is a
-/// ValueError, an existing file a FileExistsError unless `overwrite`.
-fn save_text(path: &Path, text: &str, overwrite: bool) -> PyResult<()> {
+/// The one overwrite rule of the package's file writers (`Rig.save`, `Calibration.save`,
+/// `Device.record`; `FusedFrame.save` has the same for its folder), checked before anything is
+/// written: a folder is a ValueError (`example` is a file name to suggest, e.g. rig.json), one
+/// of the `inputs` the object was made from a ValueError even with `overwrite` (as `kfuse
+/// calibrate --out` refuses an input image), and an existing file (or link) a FileExistsError
+/// naming it unless `overwrite`.
+pub(crate) fn check_output_file(
+    path: &Path,
+    overwrite: bool,
+    example: &str,
+    inputs: &[PathBuf],
+) -> PyResult<()> {
     if path.is_dir() {
         return Err(PyValueError::new_err(format!(
-            "{}: is a folder; give a file name such as rig.json",
+            "{}: is a folder; give a file name such as {example}",
             path.display()
         )));
     }
-    if path.exists() && !overwrite {
+    if let Some(input) = inputs.iter().find(|i| same_file(i, path)) {
+        return Err(PyValueError::new_err(format!(
+            "{}: is one of the input images ({}); overwrite=True does not replace an input: give a new file name such as {example}",
+            path.display(),
+            input.display()
+        )));
+    }
+    // `symlink_metadata`: a link whose target is missing is a file of the user's too.
+    if path.symlink_metadata().is_ok() && !overwrite {
         return Err(PyFileExistsError::new_err(format!(
             "{}: exists; pass overwrite=True to replace it, or give another file name",
             path.display()
         )));
     }
+    Ok(())
+}
+
+/// Whether `a` and `b` name one existing file (links and `..` resolved), the CLI's test of an
+/// output against its inputs (`src/cmd_calibrate/outputs.rs`).
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
+}
+
+/// Writes `text` to the file `path` atomically, as the CLI's `--out`, after
+/// [`check_output_file`] (`inputs`: the files `text` was computed from).
+fn save_text(path: &Path, text: &str, overwrite: bool, inputs: &[PathBuf]) -> PyResult<()> {
+    check_output_file(path, overwrite, "rig.json", inputs)?;
     kfuse_io::atomic::write_bytes_atomic(path, text.as_bytes()).map_err(geometry_err)
+}
+
+/// The state of a class that holds a file or a device (`Device`, `Recording`) for one call:
+/// such a class is usable from any thread, and dropping it in any thread closes what it
+/// holds, but two threads cannot use one object at once. The lock is taken without waiting
+/// (a call waiting here with the GIL could deadlock with the call it waits for, which takes
+/// the GIL back to check for Ctrl-C); a second caller gets a RuntimeError naming the rule.
+pub(crate) fn one_call_at_a_time<'a, T>(
+    state: &'a std::sync::Mutex<T>,
+    class: &str,
+) -> PyResult<std::sync::MutexGuard<'a, T>> {
+    state.try_lock().map_err(|e| match e {
+        std::sync::TryLockError::WouldBlock => pyo3::exceptions::PyRuntimeError::new_err(format!(
+            "kfuse.{class}: another thread's call on this {class} is running (one call at a time, from any thread); wait for that call to return, or give each thread its own {class}"
+        )),
+        std::sync::TryLockError::Poisoned(_) => pyo3::exceptions::PyRuntimeError::new_err(format!(
+            "kfuse.{class}: an earlier call failed inside kfuse and left it unusable; open a new {class}"
+        )),
+    })
 }
 
 fn geometry_err(e: GeometryError) -> PyErr {
@@ -259,7 +311,7 @@ impl PyRig {
     /// An existing file is refused (FileExistsError) unless `overwrite`.
     #[pyo3(signature = (path, overwrite = false))]
     fn save(&self, path: PathBuf, overwrite: bool) -> PyResult<()> {
-        save_text(&path, &self.rig.to_json(), overwrite)
+        save_text(&path, &self.rig.to_json(), overwrite, &[])
     }
 
     /// The depth (IR) camera, the rig's reference frame.

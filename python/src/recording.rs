@@ -3,6 +3,7 @@
 //! `process::recording_decoder`), the stages `kfuse fuse --recording` runs.
 
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
 
 use kfuse_sequence::SequenceError;
 use kfuse_sequence::color::ColorJpeg;
@@ -142,10 +143,19 @@ fn missing_dict<'py>(py: Python<'py>, m: &Missing) -> PyResult<Bound<'py, PyDict
 /// Recording(path, allow_truncated=False, skip_corrupt=False) reads, pairs and decodes as
 /// `kfuse fuse --recording` does (--allow-truncated, --skip-corrupt). The depth frames that
 /// never arrived complete are in `lost` (complete once the iteration ends). Ctrl-C between
-/// frames raises KeyboardInterrupt.
-#[pyclass(name = "Recording", module = "kfuse", unsendable)]
+/// frames raises KeyboardInterrupt. Usable from any thread (a ThreadPoolExecutor worker), one
+/// call at a time: a call while another thread's call on the same Recording runs is a
+/// RuntimeError saying so. Dropped in any thread, it closes the file.
+#[pyclass(name = "Recording", module = "kfuse", frozen)]
 pub(crate) struct PyRecording {
     path: PathBuf,
+    /// The reader, behind [`crate::one_call_at_a_time`]: the lock makes the class shareable
+    /// between Python threads.
+    state: Mutex<RecordingState>,
+}
+
+/// What a `Recording` reads with: the file, the matcher and the decoder, and the frames so far.
+struct RecordingState {
     source: RecordingSource,
     matcher: Matcher,
     decoder: DepthDecoder,
@@ -157,6 +167,13 @@ pub(crate) struct PyRecording {
 }
 
 impl PyRecording {
+    /// The state for this call, or a RuntimeError while another thread's call runs.
+    fn state(&self) -> PyResult<MutexGuard<'_, RecordingState>> {
+        crate::one_call_at_a_time(&self.state, "Recording")
+    }
+}
+
+impl RecordingState {
     /// The next matched item: from the matcher, else after feeding it the source's events.
     fn next_matched(&mut self, py: Python<'_>) -> PyResult<Option<Matched>> {
         loop {
@@ -197,30 +214,31 @@ impl PyRecording {
         let options = ReadOptions { keep_prefix: allow_truncated, skip_corrupt };
         let source = RecordingSource::open(&path, options).map_err(sequence_err)?;
         let decoder = recording_decoder(source.info()).map_err(sequence_err)?;
-        Ok(Self {
-            path,
+        let state = RecordingState {
             source,
             matcher: Matcher::new(DEFAULT_MAX_SKEW_TICKS),
             decoder,
             lost: Vec::new(),
             ended: false,
             pending: None,
-        })
+        };
+        Ok(Self { path, state: Mutex::new(state) })
     }
 
     fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
         slf
     }
 
-    fn __next__(&mut self, py: Python<'_>) -> PyResult<Option<PyRecordingFrame>> {
-        if let Some(frame) = self.pending.take() {
+    fn __next__(&self, py: Python<'_>) -> PyResult<Option<PyRecordingFrame>> {
+        let mut state = self.state()?;
+        if let Some(frame) = state.pending.take() {
             return Ok(Some(frame));
         }
-        while let Some(m) = self.next_matched(py)? {
+        while let Some(m) = state.next_matched(py)? {
             match m {
-                Matched::Missing(missing) => self.lost.push(missing),
+                Matched::Missing(missing) => state.lost.push(missing),
                 Matched::Frame(pair) => {
-                    let decoder = &mut self.decoder;
+                    let decoder = &mut state.decoder;
                     let depth_mm = py
                         .detach(|| {
                             let mut depth = vec![0f32; PIXELS];
@@ -237,7 +255,7 @@ impl PyRecording {
                     let frame = PyRecordingFrame { pair, depth_mm, path: self.path.clone() };
                     // Ctrl-C during the decode: raised here, the frame kept for the next call.
                     if let Err(e) = py.check_signals() {
-                        self.pending = Some(frame);
+                        state.pending = Some(frame);
                         return Err(e);
                     }
                     return Ok(Some(frame));
@@ -252,13 +270,14 @@ impl PyRecording {
     /// "dropped_or_incomplete", "repeated", "out_of_order", "discontinuity"), in frame order.
     #[getter]
     fn lost<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
-        self.lost.iter().map(|m| missing_dict(py, m)).collect()
+        self.state()?.lost.iter().map(|m| missing_dict(py, m)).collect()
     }
 
     /// The sensor's serial number and firmware, as recorded.
     #[getter]
     fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let i = self.source.info();
+        let state = self.state()?;
+        let i = state.source.info();
         let d = PyDict::new(py);
         d.set_item("serial", i.serial.clone())?;
         d.set_item("firmware", i.firmware.clone())?;

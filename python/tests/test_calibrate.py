@@ -197,3 +197,33 @@ def test_help_teaches_the_arguments():
     for want in ("glob pattern", "uint8 (H, W)", '"auto"', "metres (0.04)", "held_out", "ValueError"):
         assert want in doc, want
     assert "kinect_params.json" in kfuse.Rig.from_kinect_params.__doc__
+
+
+def test_save_refuses_an_input_image_even_with_overwrite(tmp_path):
+    """Calibration.save over one of the images it was calibrated from is refused, with
+    overwrite=True too and through another spelling of the path (`..`, a link), as `kfuse
+    calibrate --out` refuses it: ValueError naming the path and the input, the image left
+    byte for byte. (Copies of the rendered IR images: a broken save must not damage the
+    shared data.)"""
+    images = tmp_path / "ir"
+    images.mkdir()
+    for f in sorted((synthetic_dir() / "ir").glob("ir_*.png")):
+        (images / f.name).write_bytes(f.read_bytes())
+    cal = kfuse.calibrate(ir=str(images / "ir_*.png"))
+    target = images / "ir_03.png"
+    before = target.read_bytes()
+    link = tmp_path / "link.png"
+    link.symlink_to(target)
+    for spelling in (target, tmp_path / "ir" / ".." / "ir" / "ir_03.png", link):
+        with pytest.raises(ValueError) as e:
+            cal.save(spelling, overwrite=True)
+        msg = str(e.value)
+        assert str(spelling) in msg and "is one of the input images" in msg and "ir_03.png" in msg, msg
+        assert target.read_bytes() == before
+        assert link.is_symlink()
+    assert sorted(p.name for p in images.iterdir()) == sorted(p.name for p in (synthetic_dir() / "ir").glob("ir_*.png"))
+    # Another existing file is replaced with overwrite=True, as before.
+    other = tmp_path / "old.json"
+    other.write_text("{}")
+    cal.save(other, overwrite=True)
+    assert other.read_text() == cal.text

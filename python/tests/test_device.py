@@ -4,9 +4,14 @@ scene PNGs exactly, its colour is the sensor's JPEG unmirrored (checked with Pil
 serial is the one kinect_params.json records, a recording made from Python replays through
 kfuse.Recording with the same depth, and no sensor is an OSError with the CLI's message."""
 
+import concurrent.futures
+import gc
 import json
+import os
 import subprocess
+import sys
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -87,27 +92,160 @@ def test_a_python_recording_replays_with_the_same_depth(tmp_path, frame):
         np.testing.assert_array_equal(r.depth, f.depth)
 
 
+# The interpreter's thread switch interval during the GIL test, seconds: longer than the test,
+# so this thread never gives the GIL up on a timer (test_recording.py's rule). The counter
+# thread can then run only where this thread blocks: inside record() if kfuse releases the GIL
+# there, else only before and after the call. (With a short interval the GIL is passed on a
+# timer at the call's edges: a record() holding the GIL still let the counter tick 75 068
+# times during the call, measured, so no tick threshold separates the two reliably.)
+GIL_SWITCH_INTERVAL_S = 100.0
+# The counter's sleep between ticks, s: it gives the GIL back each time, so that record()
+# takes it back at once for its Ctrl-C check per frame.
+TICK_S = 0.0005
+# Ticks the counter must make during record(): a record() holding the GIL left it at 0 or 1
+# (measured, 8 runs: the one tick comes as the call returns), one releasing it lets it tick
+# for most of the call (30 frames of the simulated sensor, 0.2 s or more: hundreds of ticks).
+MIN_TICKS_DURING_RECORD = 10
+
+
 def test_record_releases_the_gil(tmp_path):
-    """While record() streams 30 frames, another Python thread runs: with the GIL held it
-    would not run at all until record() returned."""
+    """While record() streams 30 frames, another Python thread runs. Only the ticks made
+    while this thread is inside the call count (`in_call`), and this thread keeps the GIL
+    except where it blocks (a switch interval longer than the test): with the GIL held in
+    record() the count stays at 0 or 1."""
     ticks = 0
+    in_call = False
     stop = threading.Event()
 
     def count():
         nonlocal ticks
         while not stop.is_set():
-            ticks += 1
+            if in_call:
+                ticks += 1
+            time.sleep(TICK_S)
 
+    old_interval = sys.getswitchinterval()
     with kfuse.Device("sim") as dev:
         t = threading.Thread(target=count)
-        t.start()
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         try:
+            t.start()
+            in_call = True
             dev.record(tmp_path / "g.kfrec", 30)
-            during = ticks
+            in_call = False
         finally:
+            in_call = False
             stop.set()
             t.join()
-    assert during > 1000, during
+            sys.setswitchinterval(old_interval)
+    assert ticks >= MIN_TICKS_DURING_RECORD, ticks
+
+
+def test_record_refuses_an_existing_file_unless_overwrite(tmp_path):
+    """record() over an existing file (a text file, a PNG, an earlier recording) is a
+    FileExistsError naming the path, as Rig.save and Calibration.save refuse, and the old
+    file is left byte for byte (no temporary file is left beside it either); with
+    overwrite=True it is replaced by a recording."""
+    text = tmp_path / "notes.txt"
+    text.write_bytes(b"my notes\n")
+    png = tmp_path / "photo.png"
+    Image.fromarray(np.arange(64, dtype=np.uint8).reshape(8, 8)).save(png)
+    with kfuse.Device("sim") as dev:
+        earlier = tmp_path / "earlier.kfrec"
+        dev.record(earlier, 2)
+        for path in (text, png, earlier):
+            before = path.read_bytes()
+            listing = sorted(tmp_path.iterdir())
+            with pytest.raises(FileExistsError) as e:
+                dev.record(path, 3)
+            assert str(path) in str(e.value) and "overwrite=True" in str(e.value)
+            assert path.read_bytes() == before
+            assert sorted(tmp_path.iterdir()) == listing
+        done = dev.record(text, 3, overwrite=True)
+    assert done["frames"] == 3
+    assert len(list(kfuse.Recording(text))) == 3
+    with kfuse.Device("sim") as dev:
+        with pytest.raises(ValueError, match="is a folder"):
+            dev.record(tmp_path, 1, overwrite=True)
+
+
+def _fds_open_on(path):
+    """The file descriptors of this process open on `path` (Linux: /proc/self/fd)."""
+    fd_dir = "/proc/self/fd"
+    if not os.path.isdir(fd_dir):
+        pytest.skip("no /proc/self/fd: cannot count open files here")
+    found = []
+    for fd in os.listdir(fd_dir):
+        try:
+            if os.readlink(os.path.join(fd_dir, fd)) == str(path):
+                found.append(fd)
+        except OSError:
+            pass
+    return found
+
+
+def test_device_and_recording_work_from_another_thread_and_drop_there(tmp_path):
+    """A Device and a Recording made in this thread are used from a ThreadPoolExecutor worker
+    (the results equal this thread's), and the last reference dropped in the worker closes
+    them: no PanicException, no unraisable error, the recording's file descriptor closed."""
+    path = (tmp_path / "t.kfrec").resolve()
+    unraisable = []
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = unraisable.append
+    try:
+        with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
+            dev = kfuse.Device("sim")
+            here = dev.next_frame().depth
+            there = pool.submit(lambda: dev.next_frame().depth).result()
+            np.testing.assert_array_equal(there, here)
+            assert pool.submit(dev.record, path, 2).result()["frames"] == 2
+            # The last reference, to a device still open, dropped in the worker.
+            holder = [dev]
+            del dev
+            pool.submit(holder.clear).result()
+
+            rec = kfuse.Recording(path)
+            first = next(rec)
+            rest = pool.submit(lambda: [f.number for f in rec]).result()
+            assert [first.number] + rest == [f.number for f in kfuse.Recording(path)]
+            assert len(rest) >= 1
+            del rec
+            gc.collect()
+            # A recording dropped in the worker while its file is open (nothing read yet).
+            holder = [kfuse.Recording(path)]
+            assert len(_fds_open_on(path)) == 1, "the recording's file is not open once"
+            pool.submit(holder.clear).result()
+            gc.collect()
+            assert _fds_open_on(path) == []
+    finally:
+        sys.unraisablehook = old_hook
+    assert unraisable == [], [str(u.exc_value) for u in unraisable]
+
+
+# How often the main thread looks whether another thread's record() holds the Device, s.
+POLL_S = 0.005
+
+
+def test_a_call_while_another_thread_records_is_a_runtime_error(tmp_path):
+    """One call at a time: while a worker's record() of 30 frames (about a second at 30 Hz)
+    holds the Device, a call from this thread is a RuntimeError naming the class and the rule
+    (not a hang, not a panic), and the recording is not disturbed by it."""
+    with kfuse.Device("sim") as dev, concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
+        job = pool.submit(dev.record, tmp_path / "busy.kfrec", 30)
+        refused = None
+        while not job.done():
+            try:
+                dev.info
+            except RuntimeError as e:
+                refused = e
+                break
+            time.sleep(POLL_S)
+        assert job.result()["frames"] == 30
+        assert dev.info["serial"]  # usable again once the other call returned
+    assert refused is not None, "the record() ended before this thread saw it running"
+    msg = str(refused)
+    assert "kfuse.Device" in msg and "another thread" in msg and "one call at a time" in msg, msg
+    assert "\n" not in msg
 
 
 def test_no_sensor_is_an_oserror_with_the_cli_message(tmp_path):
