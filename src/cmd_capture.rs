@@ -180,7 +180,10 @@ pub const MAX_INTERVAL_S: f64 = 86_400.0;
 pub fn parse_interval(s: &str) -> std::result::Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of seconds"))?;
     if !(0.0..=MAX_INTERVAL_S).contains(&v) {
-        return Err(format!("{v} s is outside [0, {MAX_INTERVAL_S}] seconds"));
+        return Err(format!(
+            "{} s is outside [0, {MAX_INTERVAL_S}] seconds",
+            geometry::num_fmt::num(v)
+        ));
     }
     Ok(v)
 }
@@ -189,7 +192,7 @@ pub fn parse_interval(s: &str) -> std::result::Result<f64, String> {
 pub fn parse_fraction(s: &str) -> std::result::Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number"))?;
     if !(0.0..=1.0).contains(&v) {
-        return Err(format!("{v} is outside [0, 1]"));
+        return Err(format!("{} is outside [0, 1]", geometry::num_fmt::num(v)));
     }
     Ok(v)
 }

@@ -1125,3 +1125,76 @@ fn timings_of_a_single_camera_run_are_in_the_report_and_on_stderr() {
     assert!(ok, "{text}");
     assert!(!text.lines().any(|l| l.starts_with("timings: ")), "{text}");
 }
+
+/// The bundled calibration set (`data/calib`: four IR + colour shots of the simulated Kinect).
+fn bundled_calib() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib")
+}
+
+/// Joint calibration (issue 51): a 1920x1080 colour shot among a camera's 512x424 IR images is
+/// refused before any detection, in one line naming the camera, the file, both sizes and the
+/// fix, and no rig is written. Before, its corners were fitted into the 512x424 camera and a
+/// rig was written with exit 0 (checked by reverting the size check in
+/// `calib::pipeline::joint`).
+#[test]
+fn joint_calibration_refuses_an_image_of_another_size() {
+    let data = bundled_calib();
+    let tmp = tempfile::tempdir().unwrap();
+    let mixed = tmp.path().join("mixed");
+    std::fs::create_dir(&mixed).unwrap();
+    for i in 1..=3 {
+        let f = format!("ir_000{i}.png");
+        std::fs::copy(data.join(&f), mixed.join(&f)).unwrap();
+    }
+    std::fs::copy(data.join("color_0004.jpg"), mixed.join("color_0004.jpg")).unwrap();
+    let out = tmp.path().join("rig.json");
+    let out_s = out.to_str().unwrap();
+    let depth = format!("0001.depth={}/*", mixed.display());
+    let color = format!("0001.color={}/color_*.jpg", data.display());
+    let out_run = Command::new(env!("CARGO_BIN_EXE_kfuse"))
+        .args(["calibrate", "--camera", &depth, "--camera", &color, "--out", out_s])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out_run.stderr);
+    assert!(!out_run.status.success(), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("camera 0001.depth")
+            && err.contains("color_0004.jpg is 1920x1080")
+            && err.contains("a colour image among the IR ones")
+            && err.contains("ir_0001.png is 512x424")
+            && err.contains("give each camera only its own images"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}
+
+/// Joint calibration (issue 51) runs the plausibility check of `rig import`, `rig show` and
+/// `fuse` (`MultiRig::plausibility_problems`): the same IR images given as a Kinect's depth and
+/// colour cameras calibrate to two cameras at one place (baseline 0 against the 5 mm minimum),
+/// which is refused in one line naming the sensor, the baseline and the fix, with no rig
+/// written. Before, the rig was written with exit 0 (checked by reverting the check).
+#[test]
+fn joint_calibration_refuses_a_rig_that_fuse_would_refuse() {
+    let data = bundled_calib();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("rig.json");
+    let ir = format!("{}/ir_*.png", data.display());
+    let (depth, color) = (format!("0001.depth={ir}"), format!("0001.color={ir}"));
+    let out_run = Command::new(env!("CARGO_BIN_EXE_kfuse"))
+        .args(["calibrate", "--camera", &depth, "--camera", &color])
+        .args(["--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out_run.stderr);
+    assert!(!out_run.status.success(), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("sensor \"0001\": the baseline |T|")
+            && err.contains("is under 5 mm")
+            && err.contains("each camera's images are its own")
+            && err.contains("nothing was written"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

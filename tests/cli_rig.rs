@@ -987,3 +987,83 @@ fn huge_and_tiny_numbers_are_printed_in_scientific_notation() {
     assert!(!good && err.contains("fx = 1e300 px is over"), "{err}");
     assert!(longest_digits(&err).unwrap() <= 17, "{err}");
 }
+
+/// The simulated ring's own rig (`true_rig.json` of `capture scene --backend sim
+/// --sim-sensors 3 --device all`): `rig show` printed "ok    sensor 000000000003: rotation
+/// between the cameras NaN°" (issue 51): that pair's R, composed from the ring's poses, has
+/// cos θ one ulp above 1, and nalgebra's `acos` gives NaN. Checked failing on the code before
+/// `geometry::pose::rotation_angle` (the NaN line above). The sim's depth and colour cameras
+/// are parallel: every pair is now 0.000°, and the angle itself under 1e-6° (f64 round-off
+/// of composing poses 3.2 m away is ~1e-14 rad).
+#[test]
+fn show_of_the_simulated_rings_rig_prints_its_rotations() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cap = tmp.path().join("ring");
+    let args = ["capture", "scene", "--backend", "sim", "--sim-sensors", "3", "--device", "all"];
+    ok(&[&args[..], &["--interval", "0", "--out", s(&cap)]].concat());
+    let rig_path = cap.join("true_rig.json");
+    let shown = ok(&["rig", "show", s(&rig_path)]);
+    assert!(!shown.contains("NaN"), "{shown}");
+    let rig =
+        geometry::MultiRig::from_json(&std::fs::read_to_string(&rig_path).unwrap(), &rig_path)
+            .unwrap();
+    for serial in ["000000000001", "000000000002", "000000000003"] {
+        let line = format!("ok    sensor {serial}: rotation between the cameras 0.000°");
+        assert!(shown.contains(&line), "{line}\n{shown}");
+        let angle = rig.sensor_rig(serial).unwrap().0.color_from_depth.angle_deg();
+        assert!(angle.abs() < 1e-6, "{serial}: {angle}");
+    }
+}
+
+/// `rig export --format iai-kinect2` of a rig of mirrored images (colour camera at −52 mm,
+/// where kinect2_bridge's images have it at +52 mm) is refused in one line with the
+/// conversion, and nothing is written; the rig it converts to exports (issue 51; checked
+/// failing by removing the orientation check in `calib::rig_io::iai::export`).
+#[test]
+fn iai_kinect2_export_of_a_mirrored_rig_is_refused_with_the_conversion() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/kinect/rig.json");
+    let mirrored = tmp.path().join("mirrored.json");
+    ok(&["rig", "import", s(&rig), "--mirror", "--out", s(&mirrored)]);
+    let out = tmp.path().join("iai");
+    let (good, _, err) =
+        kfuse(&["rig", "export", s(&mirrored), "--format", "iai-kinect2", "--out", s(&out)]);
+    assert!(!good, "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("mirrored.json")
+            && err.contains("mirrored left-right")
+            && err.contains("x = -52.0 mm")
+            && err.contains("--mirror --out RIG.json"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let back = tmp.path().join("back.json");
+    ok(&["rig", "import", s(&mirrored), "--mirror", "--out", s(&back)]);
+    ok(&["rig", "export", s(&back), "--format", "iai-kinect2", "--out", s(&out)]);
+    assert!(out.join("calib_pose.yaml").is_file());
+}
+
+/// Numbers a user or a file gives are echoed bounded (issue 51): `--interval 1e300` and an
+/// iai_kinect2 depthShift of 1e308 mm were printed with 301 and 309 digits; now as 1e300 and
+/// 1e308 (checked failing by reverting the `num` calls).
+#[test]
+fn huge_interval_and_depth_shift_are_echoed_in_scientific_notation() {
+    let tmp = tempfile::tempdir().unwrap();
+    let longest_digits =
+        |t: &str| t.split(|c: char| !c.is_ascii_digit()).map(str::len).max().unwrap_or(0);
+    let out = tmp.path().join("cap");
+    let (good, _, err) =
+        kfuse(&["capture", "calib", "--backend", "sim", "--interval", "1e300", "--out", s(&out)]);
+    assert!(!good && err.contains("1e300 s is outside [0, 86400] seconds"), "{err}");
+    assert!(longest_digits(&err) <= 17, "{err}");
+    assert!(!out.exists());
+    let dir = tmp.path().join("iai");
+    write_iai_folder(&dir, &geometry::synth::kinect_rig(), 1e308);
+    let rig = tmp.path().join("rig.json");
+    let (good, _, err) = kfuse(&["rig", "import", s(&dir), "--out", s(&rig)]);
+    assert!(!good && err.contains("'depthShift' 1e308 mm"), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(longest_digits(&err) <= 17, "{err}");
+    assert!(!rig.exists());
+}

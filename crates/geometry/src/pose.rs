@@ -9,6 +9,18 @@ use crate::GeometryError;
 /// 6-9 significant digits, so 1e-5 accepts them and rejects anything that is not a rotation.
 const ROTATION_TOLERANCE: f64 = 1e-5;
 
+/// The angle of the rotation `r`, radians, in [0, π]: `atan2(sin θ, cos θ)` with
+/// `sin θ = |vee(R − Rᵀ)| / 2` and `cos θ = (trace R − 1) / 2`. nalgebra's `Rotation3::angle`
+/// is `acos(cos θ)`: NaN when rounding puts `cos θ` an ulp above 1, as in a near-identity
+/// rotation read from a file and re-orthonormalised (`kfuse rig show` printed "rotation NaN°"
+/// for the simulated sensor's own rig), and only half the digits near 0. Every angle of a
+/// rotation in the workspace goes through this.
+pub fn rotation_angle(r: &Rotation3<f64>) -> f64 {
+    let m = r.matrix();
+    let vee = Vector3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)]);
+    (vee.norm() / 2.0).atan2((m.trace() - 1.0) / 2.0)
+}
+
 /// A rigid transform `X_a = rotation · X_b + translation`. Name variables after the frames
 /// they connect (`color_from_depth`), never a bare `pose`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -65,14 +77,16 @@ impl RigidTransform {
         Ok(Self { rotation: Rotation3::from_matrix(&r), translation })
     }
 
-    /// The Rodrigues vector (axis × angle, radians).
+    /// The Rodrigues vector (axis × angle, radians); zero for the identity.
     pub fn axis_angle(&self) -> Vector3<f64> {
-        self.rotation.scaled_axis()
+        self.rotation
+            .axis()
+            .map_or_else(Vector3::zeros, |a| a.into_inner() * rotation_angle(&self.rotation))
     }
 
-    /// Rotation angle in degrees.
+    /// Rotation angle in degrees, in [0, 180] ([`rotation_angle`]).
     pub fn angle_deg(&self) -> f64 {
-        self.rotation.angle().to_degrees()
+        rotation_angle(&self.rotation).to_degrees()
     }
 
     /// Applies the transform to a point.
@@ -160,6 +174,24 @@ mod tests {
         let id = a_from_b.compose(&a_from_b.inverse());
         assert_relative_eq!(id.matrix(), Matrix4::identity(), epsilon = 1e-14);
         assert_relative_eq!(a_from_b.axis_angle(), Vector3::new(0.1, -0.2, 0.3), epsilon = 1e-14);
+    }
+
+    /// A near-identity rotation whose trace rounds to 3 + 4.4e-16 (cos θ one ulp above 1):
+    /// nalgebra's acos gives NaN, [`rotation_angle`] 0; and small and large angles against
+    /// the angle they were built from (1e-12 rad: f64 round-off of a few operations).
+    #[test]
+    fn rotation_angle_is_finite_next_to_the_identity() {
+        let m = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 1.0 + 4.0 * f64::EPSILON));
+        let r = Rotation3::from_matrix_unchecked(m);
+        assert!(r.angle().is_nan(), "nalgebra's angle of this matrix is NaN");
+        assert_eq!(rotation_angle(&r), 0.0);
+        let t = RigidTransform::new(r, Vector3::zeros());
+        assert_eq!(t.angle_deg(), 0.0);
+        assert_eq!(t.axis_angle(), Vector3::zeros());
+        for angle in [1e-9, 1e-4, 0.5, 3.0] {
+            let r = Rotation3::new(Vector3::new(0.6, -0.8, 0.0) * angle);
+            assert!((rotation_angle(&r) - angle).abs() < 1e-12, "{angle}: {}", rotation_angle(&r));
+        }
     }
 
     #[test]

@@ -109,7 +109,8 @@ pub struct MultiCalibration {
 /// metres + rotation angle × 1 m) to the others.
 fn medoid(ts: &[RigidTransform]) -> RigidTransform {
     let dist = |a: &RigidTransform, b: &RigidTransform| {
-        (a.translation - b.translation).norm() + (a.rotation.inverse() * b.rotation).angle()
+        (a.translation - b.translation).norm()
+            + geometry::pose::rotation_angle(&(a.rotation.inverse() * b.rotation))
     };
     *ts.iter()
         .min_by(|a, b| {
@@ -151,7 +152,9 @@ fn check_edge_agrees(
         .iter()
         .filter(|c| {
             (c.translation - medoid.translation).norm() <= EDGE_AGREE_M
-                && (c.rotation.inverse() * medoid.rotation).angle().to_degrees() <= EDGE_AGREE_DEG
+                && geometry::pose::rotation_angle(&(c.rotation.inverse() * medoid.rotation))
+                    .to_degrees()
+                    <= EDGE_AGREE_DEG
         })
         .count();
     if 2 * agreeing < candidates.len() {

@@ -8,6 +8,7 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+use geometry::CameraRole;
 use geometry::multi_rig::MultiRig;
 use geometry::timing::Timings;
 use serde_json::Value;
@@ -17,6 +18,7 @@ use crate::detect::Refinement;
 use crate::multi::input::{CameraFiles, align_labels};
 use crate::multi::report::report_json;
 use crate::multi::{CameraViews, MultiCalibration, calibrate_multi};
+use crate::rig_io::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
 use crate::{Board, CalibError, CalibFlags};
 
 /// What a joint calibration runs on.
@@ -66,6 +68,9 @@ pub fn run_joint(req: &JointRequest, obs: &dyn Observer) -> Result<JointOutcome,
     let mut timings = Timings::new();
     let mut inputs = Vec::with_capacity(req.cameras.len());
     let mut colouring = super::detect::Colouring::default();
+    for cam in &req.cameras {
+        check_image_sizes(cam)?;
+    }
     for (i, cam) in req.cameras.iter().enumerate() {
         let asked =
             Board { top_left_black: board.top_left_black.filter(|_| req.top_left_given), ..board };
@@ -120,5 +125,82 @@ pub fn run_joint(req: &JointRequest, obs: &dyn Observer) -> Result<JointOutcome,
             "the calibration gives a rig that kfuse cannot use ({e}); nothing was written"
         ))
     })?;
+    check_plausible(&rig)?;
     Ok(JointOutcome { calibration, inputs, board, report, rig, timings })
+}
+
+/// Fails, before any image is decoded, when one of `cam`'s images (read from its header) is
+/// not the size of its first readable one: the fit then took the first image's size for the
+/// camera and fitted the others' corners into it (1920x1080 colour shots in a 512x424 IR
+/// camera gave a Kinect whose two cameras were 2.8 m and 120° apart, exit 0). Unreadable
+/// headers are left to the reader, which lists them.
+fn check_image_sizes(cam: &CameraFiles) -> Result<(), CalibError> {
+    let mut first: Option<(&PathBuf, (usize, usize))> = None;
+    for path in cam.files.values() {
+        let Ok(size) = kfuse_io::image_header::image_size(path) else { continue };
+        let Some((first_path, first_size)) = first else {
+            first = Some((path, size));
+            continue;
+        };
+        if size == first_size {
+            continue;
+        }
+        let kinect = match (cam.role, size) {
+            (CameraRole::Depth, KINECT_COLOR_SIZE) => {
+                " (the Kinect v2's colour size: a colour image among the IR ones?)"
+            }
+            (CameraRole::Color, KINECT_DEPTH_SIZE) => {
+                " (the Kinect v2's IR size: an IR image among the colour ones?)"
+            }
+            _ => "",
+        };
+        return Err(CalibError::Input(format!(
+            "camera {}: {} is {}x{}{kinect}, its first image {} is {}x{}: one camera's images are all of that camera; give each camera only its own images (SERIAL.depth the ir_* files, SERIAL.color the color_* files); nothing was written",
+            cam.name,
+            path.display(),
+            size.0,
+            size.1,
+            first_path.display(),
+            first_size.0,
+            first_size.1
+        )));
+    }
+    Ok(())
+}
+
+/// The plausibility check every reader and writer of rigs runs
+/// ([`MultiRig::plausibility_problems`]: `kfuse rig import`, `rig show`, `fuse`), as a refusal:
+/// a joint calibration has no `--force`, and a rig that `fuse` refuses is not a result.
+fn check_plausible(rig: &MultiRig) -> Result<(), CalibError> {
+    let problems = rig.plausibility_problems();
+    if problems.is_empty() {
+        return Ok(());
+    }
+    Err(CalibError::Input(format!(
+        "the calibration gives a rig that `kfuse fuse` would refuse: {}; check that each camera's images are its own and that one shot number is one board pose in every camera (SERIAL.depth the ir_* files, SERIAL.color the color_* files); nothing was written",
+        problems.join("; ")
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A Kinect whose colour camera sits 2.8 m from its IR camera (the rig) is
+    /// refused, naming the sensor and the baseline; the Kinect's own 52 mm passes.
+    #[test]
+    fn an_implausible_joint_rig_is_refused() {
+        let mut pair = geometry::synth::kinect_rig();
+        let good = MultiRig::from_pair(&pair, Some("0001"));
+        assert!(check_plausible(&good).is_ok());
+        pair.color_from_depth.translation = nalgebra::Vector3::new(-2.8, 0.0, 0.0);
+        let e = check_plausible(&MultiRig::from_pair(&pair, Some("0001"))).unwrap_err();
+        let e = e.to_string();
+        assert!(
+            e.contains("sensor \"0001\"")
+                && e.contains("|T| = 2.8 m is over 0.5 m")
+                && !e.contains('\n'),
+            "{e}"
+        );
+    }
 }

@@ -34,6 +34,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use geometry::depth_correction::{DepthCorrection, DepthTerm, DepthTermKind};
+use geometry::num_fmt::{fixed, num};
 use geometry::{CameraModel, Rig, RigidTransform};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
@@ -283,7 +284,7 @@ fn read_depth(doc: &Doc, (w, h): (usize, usize)) -> Result<Option<DepthCorrectio
     c.validate().map_err(|e| {
         fmt_err(
             doc.path(),
-            format!("'depthShift' {shift_mm} mm: {e}; depthShift is in millimetres"),
+            format!("'depthShift' {} mm: {e}; depthShift is in millimetres", num(shift_mm)),
         )
     })?;
     Ok(Some(c))
@@ -464,6 +465,18 @@ pub fn export(
             format!(
                 "the cameras are {}x{} (depth) and {}x{} (colour); iai_kinect2's files store no image size and kinect2_bridge assumes the Kinect v2's 512x424 and 1920x1080",
                 sizes.0.0, sizes.0.1, sizes.1.0, sizes.1.1
+            ),
+        ));
+    }
+    // kinect2_bridge publishes the images as the scene is: a rig of mirrored images would be
+    // written with its colour camera on the wrong side (104 mm off) without a word.
+    if let Some((true, _)) = super::show::kinect_orientation(rig) {
+        return Err(fmt_err(
+            source,
+            format!(
+                "is a rig of images mirrored left-right (its colour camera at x = {} mm of the IR camera; kinect2_bridge's images put it at about +52 mm): convert it first with `kfuse rig import {} --mirror --out RIG.json`, then export RIG.json",
+                fixed(rig.color_centre_in_depth().x * 1000.0, 1),
+                source.display()
             ),
         ));
     }

@@ -179,7 +179,8 @@ pub fn rig_checks(rig: &Rig) -> Vec<Finding> {
     out.extend(camera_checks(&rig.color, Some(Role::Color)));
     let angle = rig.color_from_depth.angle_deg();
     out.push(finding(
-        angle > MAX_RIG_ANGLE_DEG,
+        // A NaN angle is not "ok" (it was, printed as "rotation NaN°").
+        !(angle <= MAX_RIG_ANGLE_DEG),
         format!(
             "rotation between the cameras {angle:.3}° (RGB-D rigs: below {MAX_RIG_ANGLE_DEG}°)"
         ),
