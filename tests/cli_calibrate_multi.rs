@@ -4,11 +4,12 @@
 //! its own poses and factory parameters, not by the calibration); and the inputs a joint
 //! calibration refuses, each with one line and nothing written.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
-use std::sync::OnceLock;
+mod common;
 
-use kinect_usb::sim::ring::{OWN_POSES, SHARED_POSES, board_poses};
+use std::path::Path;
+use std::process::Command;
+
+use kinect_usb::sim::ring::OWN_POSES;
 use serde_json::Value;
 
 const SERIALS: [&str; 3] = ["000000000001", "000000000002", "000000000003"];
@@ -74,24 +75,10 @@ impl Pose {
     }
 }
 
-/// The simulated ring's calibration capture, made once for every test of this file.
+/// The simulated ring's calibration capture, shared with `cli_capture_multi` (made once per
+/// build of the binary: `common::ring_calibration_capture`).
 fn ring_capture() -> &'static Path {
-    static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
-    let (_, out) = DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("ring");
-        let n = board_poses(3).len();
-        assert_eq!(n, 3 * OWN_POSES.len() + 3 * SHARED_POSES.len());
-        let st = kfuse()
-            .args(["capture", "calib", "--backend", "sim", "--sim-sensors", "3"])
-            .args(["--device", "all", "--count", &n.to_string(), "--interval", "0", "--out"])
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
-        (dir, out)
-    });
-    out
+    common::ring_calibration_capture()
 }
 
 /// `--shots DIR`: every camera within 3σ of the truth and within the bars above, the rig a

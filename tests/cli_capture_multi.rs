@@ -4,6 +4,8 @@
 //! or on its plain back), a sensor lost mid-run, two sensors with the same serial, an unknown
 //! serial, and recordings of each sensor.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -153,15 +155,11 @@ fn three_kinect_ring_calibration_capture() {
 
     let n_poses = board_poses(3).len();
     assert_eq!(n_poses, 3 * OWN_POSES.len() + 3 * SHARED_POSES.len());
+    // `kfuse capture calib --backend sim --sim-sensors 3 --device all --count n_poses`, made
+    // once per build of the binary and shared with cli_calibrate_multi (the slowest step of
+    // the suite): common::ring_calibration_capture.
+    let out = common::ring_calibration_capture();
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("ring");
-    let st = kfuse()
-        .args(["capture", "calib", "--backend", "sim", "--sim-sensors", "3", "--device", "all"])
-        .args(["--count", &n_poses.to_string(), "--interval", "0", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
 
     // The same shot numbers in every sensor's folder, each with its own parameters.
     let names: Vec<String> = (1..=n_poses).map(|k| format!("{k:04}")).collect();

@@ -162,3 +162,65 @@ pub fn rig_diff(a: &Rig, b: &Rig) -> f64 {
     let t = (a.color_from_depth.translation - b.color_from_depth.translation).abs().max();
     d.max(r).max(t)
 }
+
+/// Sensors of the simulated ring that [`ring_calibration_capture`] captures.
+pub const RING_SENSORS: usize = 3;
+
+/// Prefix of the shared ring captures' folders in cargo's `CARGO_TARGET_TMPDIR`.
+const RING_CAPTURE_PREFIX: &str = "ring-calibration-capture-";
+
+/// The folder `kfuse capture calib --backend sim --sim-sensors 3 --device all --count COUNT
+/// --interval 0` wrote, for every board pose of the simulated ring (`COUNT` =
+/// `kinect_usb::sim::ring::board_poses(3).len()`), made once per build of the binary and shared
+/// by the test files that read it (`cli_capture_multi` checks the capture, `cli_calibrate_multi`
+/// calibrates from it): rendering and capturing its 270 frames is the slowest step of the
+/// suite (80 s on 2 cores), and was done once by each of them.
+///
+/// It lives in cargo's `CARGO_TARGET_TMPDIR`, in a folder named after the binary's size and
+/// modification time, so a rebuilt binary captures anew (older captures are removed then). The
+/// capture is written into a staging folder and renamed when it succeeded, so a test never reads
+/// a half-written one; a process that loses the rename to another uses the other's. Panics with
+/// the binary's stderr when the capture fails.
+pub fn ring_calibration_capture() -> &'static std::path::Path {
+    static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let bin = std::path::Path::new(env!("CARGO_BIN_EXE_kfuse"));
+        let meta = std::fs::metadata(bin).expect("the kfuse binary");
+        let modified = meta
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map_or(0, |d| d.as_nanos());
+        let name = format!("{RING_CAPTURE_PREFIX}{}-{modified}", meta.len());
+        let root = PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
+        let done = root.join(&name);
+        if done.join("index.json").is_file() {
+            return done;
+        }
+        std::fs::create_dir_all(&root).unwrap();
+        // Captures of earlier builds: no test reads them again.
+        for entry in std::fs::read_dir(&root).unwrap().flatten() {
+            let n = entry.file_name().to_string_lossy().into_owned();
+            if n.starts_with(RING_CAPTURE_PREFIX) && !n.starts_with(&name) {
+                let _ = std::fs::remove_dir_all(entry.path());
+            }
+        }
+        let staging = root.join(format!("{name}.staging-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&staging);
+        let count = kinect_usb::sim::ring::board_poses(RING_SENSORS).len();
+        let out = kfuse_command()
+            .args(["capture", "calib", "--backend", "sim", "--sim-sensors"])
+            .arg(RING_SENSORS.to_string())
+            .args(["--device", "all", "--count", &count.to_string(), "--interval", "0", "--out"])
+            .arg(&staging)
+            .output()
+            .expect("run kfuse capture");
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        if std::fs::rename(&staging, &done).is_err() {
+            // Another process finished first: its capture is the same binary's.
+            let _ = std::fs::remove_dir_all(&staging);
+            assert!(done.join("index.json").is_file(), "no ring capture at {}", done.display());
+        }
+        done
+    })
+}
