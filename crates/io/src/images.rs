@@ -92,12 +92,21 @@ fn decode_picture_bytes(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage
     let format = picture_format(path, bytes)?;
     let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
     reader.limits(decoder_limits());
-    let img = reader.decode().map_err(|e| {
-        format_err(
-            path,
-            format!("corrupt or unsupported {format:?} image: {e}; use {COLOR_FORMATS}"),
-        )
-    })?;
+    let img = match reader.decode() {
+        Ok(img) => img,
+        // The image crate's JPEG decoder has no default Huffman tables; a motion-JPEG frame
+        // (no DHT segment: decoders take ITU-T T.81 Annex K's standard tables, as libjpeg and
+        // libfreenect2 do) is decoded by libjpeg-turbo instead.
+        Err(_) if format == image::ImageFormat::Jpeg && !jpeg_has_huffman_tables(bytes) => {
+            decode_motion_jpeg(path, bytes)?
+        }
+        Err(e) => {
+            return Err(format_err(
+                path,
+                format!("corrupt or unsupported {format:?} image: {e}; use {COLOR_FORMATS}"),
+            ));
+        }
+    };
     if matches!(img, image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)) {
         return Err(format_err(
             path,
@@ -105,6 +114,45 @@ fn decode_picture_bytes(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage
         ));
     }
     Ok(img)
+}
+
+/// True when a JPEG defines a Huffman table (a DHT segment, marker `FF C4`) before its first
+/// scan. The segments are walked by their lengths from SOI up to SOS; a stream that ends or
+/// breaks the marker syntax first counts as having tables (the decoder's own error is the
+/// one to report then).
+fn jpeg_has_huffman_tables(bytes: &[u8]) -> bool {
+    const DHT: u8 = 0xC4;
+    const SOS: u8 = 0xDA;
+    let mut i = 2; // after SOI (FF D8), checked by the caller's sniffing
+    while i + 4 <= bytes.len() {
+        if bytes[i] != 0xFF {
+            return true;
+        }
+        match bytes[i + 1] {
+            DHT => return true,
+            SOS => return false,
+            // Fill bytes before a marker.
+            0xFF => i += 1,
+            _ => i += 2 + usize::from(u16::from_be_bytes([bytes[i + 2], bytes[i + 3]])),
+        }
+    }
+    true
+}
+
+/// A JPEG without Huffman tables decoded by libjpeg-turbo (which falls back on the standard
+/// tables), after its declared size is checked against the image limits.
+fn decode_motion_jpeg(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage, GeometryError> {
+    let broken = |e: turbojpeg::Error| {
+        format_err(path, format!("corrupt JPEG without Huffman tables (motion-JPEG): {e}"))
+    };
+    let header = turbojpeg::read_header(bytes).map_err(broken)?;
+    crate::image_header::check_image_size(path, header.width as u64, header.height as u64)?;
+    let rgb = turbojpeg::decompress(bytes, turbojpeg::PixelFormat::RGB).map_err(broken)?;
+    let (w, h) = (rgb.width as u32, rgb.height as u32);
+    let buffer = image::RgbImage::from_raw(w, h, rgb.pixels).ok_or_else(|| {
+        format_err(path, "libjpeg-turbo returned fewer pixels than the JPEG declares")
+    })?;
+    Ok(image::DynamicImage::ImageRgb8(buffer))
 }
 
 /// An image's pixel type in words, for messages ("an 8-bit grey", not the decoder's `L8`).
