@@ -386,6 +386,14 @@ def test_color_on_depth_of_a_colour_ramp_is_the_ramp_at_the_projected_point(plan
     expect = np.stack([ref.u * 255 / (CW - 1), ref.v * 255 / (CH - 1), np.full_like(ref.u, 128)], 1)
     got = rgb.reshape(-1, 3).astype(np.float64)
     assert np.abs(got[vf] - expect[vf]).max() <= 1.0
+    # kfuse.fuse's colour on depth and its cloud's colours pass the same bar.
+    frame = kfuse.fuse(kfuse.Rig.load(KINECT / "rig.json"), color, plane)
+    fv = frame.color_on_depth_valid.reshape(-1)
+    assert np.array_equal(fv[~border], inside[~border])
+    fused_rgb = frame.color_on_depth.reshape(-1, 3).astype(np.float64)
+    assert np.abs(fused_rgb[fv] - expect[fv]).max() <= 1.0
+    cloud_rgb = frame.cloud[1].astype(np.float64)  # one point per depth pixel here
+    assert np.abs(cloud_rgb[fv] - expect[fv]).max() <= 1.0 and not cloud_rgb[~fv].any()
     # The wrong-sign translation moves the colour pixel by 2 x 52 mm x fx / z ~ 60-90 px:
     # 8-12 levels of red.
     bad = Reference(plane.astype(np.float64) / 1000.0, translation=-T)
