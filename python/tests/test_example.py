@@ -1,6 +1,7 @@
 """examples/python/register_and_view.py runs and reports what the API computes."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -25,5 +26,10 @@ def test_register_and_view_example(tmp_path):
     assert got["registered_pixels"] == np.count_nonzero(~np.isnan(z)) > 100_000
     assert got["hole_pixels"] == reg.hole_mask().sum()
     assert got["cloud_points"] == np.count_nonzero(depth)
-    assert got["open3d_points"] in (None, got["cloud_points"])
+    # Open3D's cloud holds every point; without Open3D the example says None (a failure where
+    # KFUSE_REQUIRE_OPEN3D=1: .ci/run installs it).
+    if os.environ.get("KFUSE_REQUIRE_OPEN3D") == "1":
+        assert got["open3d_points"] == got["cloud_points"], run.stderr
+    else:
+        assert got["open3d_points"] in (None, got["cloud_points"])
     assert Image.open(out).size == (1920, 1080)
