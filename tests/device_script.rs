@@ -1,8 +1,10 @@
 //! `benches/device.sh` (issue 33): a bundle made from this test build's kfuse binary, run in
 //! `--quick` mode on whatever adapter wgpu finds (lavapipe in CI), gives a results file with the
-//! adapter's name and the GPU sequence's figures, finite and positive. The GPU criterion benches
-//! need the bench build that `device.sh --prepare` makes; this test builds nothing, so the
-//! bundle has no bench executable and that part is a visible skip.
+//! adapter's name and the GPU sequence's figures, finite and positive, every stage of its
+//! table present. The GPU criterion benches need the bench build that `device.sh --prepare`
+//! makes; this test builds nothing, so they run only when [`BENCH_EXES_ENV`] names their
+//! executables (as `device.sh --bench-exe` takes them) and are then asserted to have run and
+//! measured; without it, or without a GPU adapter, a visible skip that says which.
 
 use geometry::testdata::shared_data_or_skip;
 use std::path::Path;
@@ -12,6 +14,17 @@ use std::process::Command;
 const FRAMES: &str = "4";
 /// The device tool's limit on what it carries (its README): the bundle must fit.
 const BUNDLE_LIMIT_BYTES: u64 = 64 << 20;
+
+/// The GPU criterion benches of `device.sh` (its `GPU_BENCHES`), as `PACKAGE/BENCH`.
+const GPU_BENCHES: [&str; 2] = ["fusion-gpu/decode", "kfuse/fusion_gpu"];
+/// Names the GPU benches' executables, `PACKAGE/BENCH=EXE` separated by spaces (what
+/// `device.sh --bench-exe` takes; `cargo bench --workspace --bench decode --bench fusion_gpu
+/// --no-run` prints their paths). Unset: the benches are a visible skip.
+const BENCH_EXES_ENV: &str = "KFUSE_GPU_BENCH_EXES";
+/// The stages of the sequence's table, as `sequence_e2e.sh` prints them and
+/// `render_tables.py` names them: an empty or partial `stage_ms` is a failure.
+const STAGES: [&str; 5] = ["read", "decode", "register", "encode", "write"];
+const TEST: &str = "device_script_quick_run_on_a_bundle_of_the_test_build";
 
 fn dir_size(p: &Path) -> u64 {
     std::fs::read_dir(p)
@@ -26,10 +39,22 @@ fn dir_size(p: &Path) -> u64 {
 
 #[test]
 fn device_script_quick_run_on_a_bundle_of_the_test_build() {
-    let Some(data) = shared_data_or_skip("device_script_quick_run_on_a_bundle_of_the_test_build")
-    else {
+    let Some(data) = shared_data_or_skip(TEST) else {
         return;
     };
+    let bench_exes: Vec<String> = std::env::var(BENCH_EXES_ENV)
+        .map(|v| v.split_whitespace().map(str::to_string).collect())
+        .unwrap_or_default();
+    for spec in &bench_exes {
+        let (bench, exe) = spec
+            .split_once('=')
+            .unwrap_or_else(|| panic!("{BENCH_EXES_ENV}: {spec} is not PACKAGE/BENCH=EXE"));
+        assert!(
+            GPU_BENCHES.contains(&bench),
+            "{BENCH_EXES_ENV}: {bench} is not one of {GPU_BENCHES:?}"
+        );
+        assert!(Path::new(exe).is_file(), "{BENCH_EXES_ENV}: {exe} is not a file");
+    }
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let tmp = Path::new(env!("CARGO_TARGET_TMPDIR")).join("device-script");
     let _ = std::fs::remove_dir_all(&tmp);
@@ -41,6 +66,7 @@ fn device_script_quick_run_on_a_bundle_of_the_test_build() {
         .arg(&bundle)
         .arg("--kfuse")
         .arg(env!("CARGO_BIN_EXE_kfuse"))
+        .args(bench_exes.iter().flat_map(|spec| ["--bench-exe", spec.as_str()]))
         .env("KFUSE_SHARED_DATA", &data)
         .output()
         .unwrap();
@@ -56,10 +82,10 @@ fn device_script_quick_run_on_a_bundle_of_the_test_build() {
     ] {
         assert!(bundle.join(f).is_file(), "bundle lacks {f}");
     }
-    test_skip::skip(
-        "device_script_quick_run_on_a_bundle_of_the_test_build",
-        "the GPU criterion benches need the bench build of device.sh --prepare; only the GPU sequence runs here",
-    );
+    for spec in &bench_exes {
+        let bench = spec.split_once('=').unwrap().0;
+        assert!(bundle.join("bin/benches").join(bench).is_file(), "bundle lacks {bench}");
+    }
     let results = tmp.join("device-run.json");
     let out = Command::new("bash")
         .arg(bundle.join("device.sh"))
@@ -73,7 +99,7 @@ fn device_script_quick_run_on_a_bundle_of_the_test_build() {
         && stderr.contains("no GPU adapter")
         && std::env::var("KFUSE_REQUIRE_GPU").as_deref() != Ok("1")
     {
-        test_skip::skip("device_script_quick_run_on_a_bundle_of_the_test_build", "no GPU adapter");
+        test_skip::skip(TEST, "no GPU adapter: neither the GPU sequence nor the GPU benches ran");
         return;
     }
     assert!(out.status.success(), "run: {stderr}\n{}", String::from_utf8_lossy(&out.stdout));
@@ -94,9 +120,41 @@ fn device_script_quick_run_on_a_bundle_of_the_test_build() {
         let v = runs[0][k].as_f64().unwrap();
         assert!(v.is_finite() && v > 0.0, "{k} = {v}");
     }
-    for (stage, ms) in runs[0]["stage_ms"].as_object().unwrap() {
+    let stage_ms = runs[0]["stage_ms"].as_object().unwrap();
+    let mut names: Vec<&str> = stage_ms.keys().map(String::as_str).collect();
+    names.sort_unstable();
+    let mut want = STAGES.to_vec();
+    want.sort_unstable();
+    assert_eq!(names, want, "the sequence's stage table: {seq}");
+    for (stage, ms) in stage_ms {
         let v = ms.as_f64().unwrap();
         assert!(v.is_finite() && v >= 0.0, "{stage} = {v}");
+    }
+    // Four frames went through every stage: the stages' times together are not all zero.
+    let total: f64 = stage_ms.values().map(|v| v.as_f64().unwrap()).sum();
+    assert!(total > 0.0, "no stage took any time: {seq}");
+    let benches = r["benches"].as_object().unwrap();
+    if bench_exes.is_empty() {
+        assert!(benches.is_empty(), "{benches:?}");
+        test_skip::skip(
+            TEST,
+            &format!(
+                "the GPU criterion benches ({}): {BENCH_EXES_ENV} does not name their executables (the bench build of device.sh --prepare); the GPU sequence ran",
+                GPU_BENCHES.join(", ")
+            ),
+        );
+    } else {
+        assert_eq!(benches.len(), bench_exes.len(), "{benches:?}");
+        for (bench, b) in benches {
+            assert_eq!(b["status"], "ok", "{bench}: {b}");
+            let results = b["results"].as_object().unwrap();
+            assert!(!results.is_empty(), "{bench} measured nothing: {b}");
+            println!("{bench}: {} benchmarks measured", results.len());
+            for (name, x) in results {
+                let ns = x["median_ns"].as_f64().unwrap();
+                assert!(ns.is_finite() && ns > 0.0, "{bench} {name}: median {ns} ns");
+            }
+        }
     }
     let _ = std::fs::remove_dir_all(&tmp);
 }

@@ -162,10 +162,20 @@ fn boards_on_a_table_are_found_up_to_the_claimed_obliquity() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
+/// Corners the detector must still report in each 80° view, for the mislabelling check
+/// beyond the limit to check something (a detector that found no board there would pass it
+/// vacuously): measured 67 and 68 of the 70 (the board incomplete: the thinnest far squares
+/// lost). 60 leaves room for a few more far corners lost to a detector change, while a missed
+/// board or a fragment of it fails. Not a claim of detection beyond the limit for users (the
+/// doc of [`MAX_CLAIMED_OBLIQUITY_DEG`]), a floor on what this test exercises.
+const MIN_CORNERS_AT_80_DEG: usize = 60;
+
 /// Source of the expectations: the rendered corners. Beyond [`MAX_CLAIMED_OBLIQUITY_DEG`]
-/// (80° and 85°, both turns of the board) nothing is claimed about finding the board, but a
-/// board that is reported carries the right ids: every corner within [`SAME_CORNER_PX`] of
-/// the true corner with its id.
+/// (80° and 85°, both turns of the board) no complete board is claimed, but a board that is
+/// reported carries the right ids: every corner within [`SAME_CORNER_PX`] of the true corner
+/// with its id. So that this checks corners at all, each 80° view reports at least
+/// [`MIN_CORNERS_AT_80_DEG`] of them; at 85° the detector finds nothing (measured), and those
+/// two views check only that no board with wrong ids is reported.
 #[test]
 fn beyond_the_claimed_obliquity_no_corner_is_mislabelled() {
     for (k, &(obliquity, azimuth)) in
@@ -173,7 +183,15 @@ fn beyond_the_claimed_obliquity_no_corner_is_mislabelled() {
     {
         assert!(obliquity > MAX_CLAIMED_OBLIQUITY_DEG);
         let s = scene(obliquity, azimuth, 0.9);
-        let Some(d) = render_and_detect(&s, 2950 + k as u64) else {
+        let detection = render_and_detect(&s, 2950 + k as u64);
+        let found = detection.as_ref().map_or(0, |d| d.corners.len());
+        if obliquity <= 80.0 {
+            assert!(
+                found >= MIN_CORNERS_AT_80_DEG,
+                "{obliquity}°/{azimuth}°: {found} corners reported, at least {MIN_CORNERS_AT_80_DEG} expected"
+            );
+        }
+        let Some(d) = detection else {
             println!("obliquity {obliquity}°, azimuth {azimuth}°: no board");
             continue;
         };
