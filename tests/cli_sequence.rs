@@ -470,6 +470,99 @@ fn frame_folder_equals_single_frame_fuse_per_shot() {
     }
 }
 
+/// The coverage radius this test fuses with (`--hole-radius`, in depth-sample spacings): not
+/// the default 1.2, so that the hole mask differs from the default's.
+const HOLE_RADIUS: &str = "2";
+
+/// `--hole-radius` reaches every frame of a sequence (issue 46 item 2): a `--frames` shot's
+/// hole mask and registered depth with `--hole-radius 2` equal, byte for byte, the single-frame
+/// `kfuse fuse --hole-radius 2` of that shot's images, and the mask differs from the one of
+/// the default radius (so the flag is not silently ignored).
+#[test]
+fn hole_radius_changes_a_sequence_frame_as_it_changes_one_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let shots = dir.path().join("shots");
+    let out = kfuse()
+        .args(["capture", "scene", "--backend", "sim", "--interval", "0", "--name", "a"])
+        .arg("--out")
+        .arg(&shots)
+        .output()
+        .unwrap();
+    ok(&out);
+    let rig = dir.path().join("rig.json");
+    ok(&kfuse()
+        .args(["rig", "import"])
+        .arg(shots.join("kinect_params.json"))
+        .arg("--out")
+        .arg(&rig)
+        .output()
+        .unwrap());
+    let seq = dir.path().join("seq");
+    ok(&kfuse()
+        .args(["fuse", "--frames"])
+        .arg(&shots)
+        .args(["--hole-radius", HOLE_RADIUS, "--write", "holes", "--out"])
+        .arg(&seq)
+        .output()
+        .unwrap());
+    let single = |name: &str, radius: Option<&str>| {
+        let out = dir.path().join(name);
+        let mut cmd = kfuse();
+        cmd.args(["fuse", "--rig"])
+            .arg(&rig)
+            .arg("--color")
+            .arg(shots.join("a_color.jpg"))
+            .arg("--depth")
+            .arg(shots.join("a_depth.png"))
+            .args(["--resample", "nearest", "--no-figures"]);
+        if let Some(r) = radius {
+            cmd.args(["--hole-radius", r]);
+        }
+        ok(&cmd.arg("--out").arg(&out).output().unwrap());
+        out
+    };
+    let wide = single("single-wide", Some(HOLE_RADIUS));
+    let default = single("single-default", None);
+    let gray = |p: PathBuf| image::open(&p).unwrap().into_luma8().into_raw();
+    let seq_holes = gray(seq.join("holes/000000.png"));
+    assert_ne!(
+        gray(default.join("hole_mask.png")),
+        gray(wide.join("hole_mask.png")),
+        "--hole-radius {HOLE_RADIUS} must change this frame's hole mask for the test to mean anything"
+    );
+    assert!(
+        seq_holes == gray(wide.join("hole_mask.png")),
+        "the sequence's hole mask with --hole-radius {HOLE_RADIUS} differs from kfuse fuse's of the same frame"
+    );
+    assert_eq!(
+        read_png16(&seq.join("depth/000000.png")),
+        read_png16(&wide.join("depth_zbuffer.png"))
+    );
+}
+
+/// The flags of single-frame `kfuse fuse` that cannot apply to a sequence are refused before
+/// any work: one line naming the flag, a non-zero exit, no output folder.
+#[test]
+fn single_frame_only_flags_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o");
+    let cases: [(&[&str], &str); 5] = [
+        (&["--recording", "x.kfrec", "--depth-kind", "range"], "--depth-kind range:"),
+        (&["--frames", "shots", "--depth-scale", "0.0001"], "--depth-scale:"),
+        (&["--recording", "x.kfrec", "--rectified"], "--rectified:"),
+        (&["--recording", "x.kfrec", "--no-figures", "--figures", "every:5"], "--no-figures"),
+        (&["--frames", "shots", "--hole-radius", "0"], "--hole-radius must be a positive number"),
+    ];
+    for (args, want) in cases {
+        let run = kfuse().arg("fuse").args(args).arg("--out").arg(&out).output().unwrap();
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{args:?}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(!out.exists());
+    }
+}
+
 /// Bad sequence flags: one line naming the flag and the fix, non-zero exit, no output folder.
 #[test]
 fn bad_sequence_flags_are_refused_before_any_work() {

@@ -187,11 +187,52 @@ fn sequence_rig(args: &FuseArgs, opened: &Opened) -> Result<Rig> {
     }
 }
 
-/// The sequence options of the command line.
-fn options(args: &FuseArgs) -> SequenceOptions {
+/// Why `--depth-kind range` cannot apply to a sequence.
+const REFUSE_DEPTH_KIND: &str = "--depth-kind range: a sequence's depth is the Kinect's z depth \
+     (a recording's decoder, a capture folder's PNGs); drop --depth-kind";
+/// Why `--depth-scale` cannot apply to a sequence.
+const REFUSE_DEPTH_SCALE: &str = "--depth-scale: a sequence's depth is the sensor's millimetres \
+     (a recording's decoder, a capture folder's 16-bit PNGs); drop --depth-scale";
+/// Why `--rectified` cannot apply to a sequence.
+const REFUSE_RECTIFIED: &str = "--rectified: a sequence's frames are the sensor's raw \
+     (distorted) images; drop --rectified, or fuse undistorted images one at a time with --color/--depth";
+/// Why `--no-figures` and `--figures every:N` cannot go together.
+const REFUSE_NO_FIGURES: &str =
+    "--no-figures contradicts --figures every:N; drop one (a sequence draws no figures by default)";
+
+/// The flags of single-frame `kfuse fuse` that cannot apply to a sequence: the first one
+/// given, as one line naming it and the fix. `--no-figures` alone is accepted (a sequence
+/// draws figures only with `--figures`); the options of several Kinects (`--sensor`, `--view`,
+/// `--shot`, `--virtual-view`) are refused by that fusion (`multi::run`).
+fn refuse_single_frame_flags(args: &FuseArgs) -> Result<()> {
+    if args.depth_kind != super::DepthKindArg::Z {
+        bail!("{REFUSE_DEPTH_KIND}");
+    }
+    if args.depth_scale != kfuse_io::images::MILLIMETRES {
+        bail!("{REFUSE_DEPTH_SCALE}");
+    }
+    if args.rectified {
+        bail!("{REFUSE_RECTIFIED}");
+    }
+    if args.no_figures && args.sequence.figures.is_some() {
+        bail!("{REFUSE_NO_FIGURES}");
+    }
+    Ok(())
+}
+
+/// The sequence options of the command line, with the fusion options of `kfuse fuse`
+/// (`--hole-radius`, `--resample`, `--mesh-from`, `--h5`, `--stretch-ratio`, checked as for one
+/// frame): every frame is fused with them, as `kfuse fuse` fuses one frame.
+fn options(args: &FuseArgs) -> Result<SequenceOptions> {
+    refuse_single_frame_flags(args)?;
+    let fusion = geometry::fusion::FusionOptions {
+        // Per-stage timings of a single-frame fusion (the figures') are not reported.
+        record_timings: false,
+        ..super::options(args)?
+    };
     let seq = &args.sequence;
     let has = |w: WriteArg| seq.write.contains(&w);
-    SequenceOptions {
+    Ok(SequenceOptions {
         layout: match seq.layout {
             LayoutArg::Kfuse => Layout::Kfuse,
             LayoutArg::Tum => Layout::Tum,
@@ -206,7 +247,8 @@ fn options(args: &FuseArgs) -> SequenceOptions {
         threads: seq.threads,
         max_skew_ms: seq.max_skew_ms,
         engine: args.engine(),
-    }
+        fusion,
+    })
 }
 
 fn bar_for(len: u64, unit: &str) -> ProgressBar {
@@ -232,12 +274,12 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         (None, Some(frames)) => SequenceInput::Frames(frames.clone()),
         (None, None) => bail!("give --recording SESSION.kfrec or --frames DIR"),
     };
-    let options = options(args);
+    let options = options(args)?;
     options.check(&input)?;
     crate::interrupt::install()?;
     let opened = command::open(&input, &args.out, &options)?;
     let rig = sequence_rig(args, &opened)?;
-    let mut shown = Shown::new(opened.progress().clone(), &rig);
+    let mut shown = Shown::new(opened.progress().clone(), &rig, options.fusion);
     let finished = command::run(opened, &rig, &options, &mut shown, &crate::interrupt::requested)?;
     shown.finish();
     print_summary(&finished, seq.threads, args.timings)
@@ -256,13 +298,16 @@ struct Shown<'a> {
 }
 
 impl<'a> Shown<'a> {
-    fn new(progress: Progress, rig: &'a Rig) -> Self {
+    fn new(
+        progress: Progress,
+        rig: &'a Rig,
+        fusion_options: geometry::fusion::FusionOptions,
+    ) -> Self {
         let bar = match &progress {
             Progress::Bytes(_, len) => bar_for(*len, "of the recording"),
             Progress::Shots(n) => bar_for(*n, "of the shots"),
         };
         let started = std::time::Instant::now();
-        let fusion_options = geometry::fusion::FusionOptions::default();
         Self { bar, progress, rig, fusion_options, started, frames: 0, listed: 0 }
     }
 

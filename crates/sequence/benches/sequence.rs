@@ -60,8 +60,16 @@ fn benches(c: &mut Criterion) {
     let src = RecordingSource::open(&path, ReadOptions::default()).unwrap();
     let decoder = process::recording_decoder(src.info()).unwrap();
     let (cpu, _) = fusion_gpu::Engine::Cpu.open().unwrap();
-    let mut p =
-        Processor::new(&rig, Some(decoder), Extras::default(), KFUSE_UNITS_PER_METRE, cpu).unwrap();
+    let options = geometry::fusion::FusionOptions::default();
+    let mut p = Processor::new(
+        &rig,
+        Some(decoder),
+        Extras::default(),
+        KFUSE_UNITS_PER_METRE,
+        &options,
+        cpu,
+    )
+    .unwrap();
 
     let mut g = c.benchmark_group("stage");
     g.sample_size(20);

@@ -12,6 +12,7 @@ use std::time::Instant;
 
 use fusion_gpu::{Engine, EngineUsed};
 use geometry::Rig;
+use geometry::fusion::FusionOptions;
 use kfuse_io::atomic::StagedDir;
 use kinect_usb::decoder::DepthDecoder;
 use kinect_usb::device::DeviceInfo;
@@ -71,6 +72,9 @@ pub struct SequenceOptions {
     pub max_skew_ms: f64,
     /// Where the per-pixel stages run.
     pub engine: Engine,
+    /// The fusion options of every frame (`kfuse fuse`'s `--hole-radius` and the rest): the
+    /// per-pixel stages run with them, as the single-frame `kfuse fuse` does.
+    pub fusion: FusionOptions,
 }
 
 impl SequenceOptions {
@@ -272,8 +276,9 @@ pub fn run(
     }
     let gpu = matches!(engine.1, EngineUsed::Gpu { .. });
     let units = options.layout.units_per_metre();
-    let mut processor = Processor::new(rig, decoder, options.extras(), units, engine.0)
-        .map_err(|e| e.context(format!("setting up registration for {}", source.display())))?;
+    let mut processor =
+        Processor::new(rig, decoder, options.extras(), units, &options.fusion, engine.0)
+            .map_err(|e| e.context(format!("setting up registration for {}", source.display())))?;
     // On the GPU, a recording's depth is decoded there too (the frame never leaves the GPU)
     // unless the depth is needed on the CPU: figures, the cloud, a depth correction.
     if let (Some(info), None) = (&info, options.keep_every)

@@ -124,7 +124,8 @@ pub fn recording_decoder(info: &DeviceInfo) -> Result<DepthDecoder> {
 impl Processor {
     /// A processor for frames of `rig` (a Kinect v2's depth camera: 512 × 424, z depth),
     /// decoding raw frames with `decoder` when given, writing depth at `units_per_metre`,
-    /// running the per-pixel stages on `engine` (opened by [`fusion_gpu::Engine::open`]).
+    /// running the per-pixel stages with `options` (those of `kfuse fuse`: the hole radius of
+    /// H8 and the rest) on `engine` (opened by [`fusion_gpu::Engine::open`]).
     ///
     /// Errors: [`SequenceError::Geometry`] for a rig that is invalid, not of a Kinect v2's
     /// depth size, or whose coverage radius is out of bounds; [`SequenceError::Gpu`] for
@@ -134,6 +135,7 @@ impl Processor {
         decoder: Option<DepthDecoder>,
         extras: Extras,
         units_per_metre: f64,
+        options: &FusionOptions,
         mut engine: PixelEngine,
     ) -> Result<Self> {
         if decoder.is_some() && (rig.depth.width, rig.depth.height) != (WIDTH, HEIGHT) {
@@ -144,7 +146,7 @@ impl Processor {
             ))));
         }
         rig.validate()?;
-        let options = FusionOptions::default();
+        let options = *options;
         fusion::checked_coverage_radius_px(rig, &options)?;
         if let Some(ctx) = engine.gpu() {
             ctx.check_frame_size(

@@ -45,8 +45,9 @@ fn single_frame(frame: &synth::SynthFrame, rig: &geometry::Rig, engine: Engine) 
 fn sequence(frame: &synth::SynthFrame, rig: &geometry::Rig, engine: Engine) -> Outputs {
     let extras = Extras { holes: true, color_on_depth: true, cloud: false };
     let (opened, _) = engine.open().expect("engine");
-    let mut p =
-        Processor::new(rig, None, extras, KFUSE_UNITS_PER_METRE, opened).expect("processor");
+    let options = FusionOptions::default();
+    let mut p = Processor::new(rig, None, extras, KFUSE_UNITS_PER_METRE, &options, opened)
+        .expect("processor");
     // NaN (no sample) as 0, the decoder's and the frame folder reader's convention.
     let depth = frame.depth.map(|&z| if z > 0.0 { z } else { 0.0 });
     let decoded = Decoded { depth, raw: None, color: Some(frame.color.clone()) };
