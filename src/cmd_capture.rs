@@ -138,6 +138,10 @@ pub struct CommonArgs {
     /// Set by `capture calib`: the simulated sensor shows its calibration scene.
     #[arg(skip)]
     sim_calib_scene: bool,
+    /// Set by `capture calib`: the frames of the calibration scene its shots reach
+    /// (`SimOptions::calib_frames`; `None`: every one).
+    #[arg(skip)]
+    sim_calib_frames: Option<usize>,
     /// The one sensor `--device SERIAL` chose (its source opens exactly it).
     #[arg(skip)]
     chosen_source: Option<SensorSource>,
@@ -347,6 +351,7 @@ impl CommonArgs {
                 busy: self.sim_busy,
                 iso_drop: self.sim_iso_drop,
                 calib_scene: self.sim_calib_scene,
+                calib_frames: self.sim_calib_frames,
                 depth_error: self.sim_depth_error,
                 ring: ring(self.sim_sensors),
                 fault_sensor: self.sim_fault_sensor.clone(),
@@ -388,7 +393,13 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
     crate::interrupt::install()?;
     match args.mode {
         CaptureMode::Calib { out, count, interval, overwrite, common } => {
-            let common = CommonArgs { sim_calib_scene: true, ..common };
+            // Without a pause (`--interval 0`, or Enter against the simulator, which makes a
+            // frame only when one is asked for) shot k is frame k: only the first `count`
+            // frames are rendered. An interval streams on between shots, so a shot may show any
+            // frame: every pose is rendered, as before.
+            let one_frame_per_shot = interval.is_none_or(|s| s == 0.0);
+            let frames = one_frame_per_shot.then_some(count);
+            let common = CommonArgs { sim_calib_scene: true, sim_calib_frames: frames, ..common };
             let names = (1..=count).map(|i| format!("{i:04}")).collect::<Vec<_>>();
             match common.chosen()? {
                 Some(s) if s.len() > 1 => {

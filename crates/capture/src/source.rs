@@ -52,6 +52,14 @@ pub struct SimOptions {
     /// Show the calibration scene (`kinect_usb::sim::calib_scene`: a 7x5-corner board of
     /// 40 mm squares in 17 tilted poses at 0.6–2.5 m, one per frame) instead of the Kinect preset.
     pub calib_scene: bool,
+    /// With `calib_scene`: render only the first this many frames of the calibration scene
+    /// (`kinect_usb::sim::calib_scene::calibration_scene_first`, `sim::ring`'s for a ring): the
+    /// shots of a capture that takes one shot per frame (`kfuse capture calib --count N` without
+    /// a pause between shots). Rendering is most of the start-up (a 1920x1080 supersampled
+    /// colour render per pose and sensor), so the poses no shot reaches are not rendered. The
+    /// frames are those of the whole scene; the sensor cycles through the ones it has, so frame
+    /// `N` shows the first pose again. `None`: every pose of the scene.
+    pub calib_frames: Option<usize>,
     /// A depth error the sensor makes on purpose (issue 16), applied to every depth frame of
     /// either scene; `None`: the depth is exact.
     pub depth_error: Option<kinect_usb::sim::depth_error::DepthError>,
@@ -213,11 +221,13 @@ pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
     let (mut scene, profile) =
         if options.calib_scene { (SimScene::default(), sim_scene_profile()) } else { sim_scene() };
     if options.calib_scene {
-        scene = kinect_usb::sim::calib_scene::calibration_scene(&profile).ok_or_else(|| {
-            CaptureError::Config(
-                "the simulated sensor's colour parameters are not a pinhole camera".into(),
-            )
-        })?;
+        let frames = options.calib_frames.unwrap_or(usize::MAX);
+        scene = kinect_usb::sim::calib_scene::calibration_scene_first(&profile, frames)
+            .ok_or_else(|| {
+                CaptureError::Config(
+                    "the simulated sensor's colour parameters are not a pinhole camera".into(),
+                )
+            })?;
     }
     add_depth_error(&mut scene, options);
     Ok(SimDevice::new(profile, scene, sim_faults(options)))
@@ -256,7 +266,8 @@ fn ring_device(options: &SimOptions, r: &SimRing) -> Result<SimDevice, CaptureEr
     }
     let mut profile = ring::sensor_profile(&sim_scene_profile(), r.index);
     let scene = if options.calib_scene {
-        ring::calibration_scene(&profile, r.sensors, r.index)
+        let frames = options.calib_frames.unwrap_or(usize::MAX);
+        ring::calibration_scene_first(&profile, r.sensors, r.index, frames)
     } else {
         ring::view_scene(&profile, r.sensors, r.index)
     };
@@ -346,4 +357,40 @@ pub fn sim_true_rig(sensors: usize) -> Result<geometry::multi_rig::MultiRig, Cap
     };
     rig.validate()?;
     Ok(rig)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The calibration scene of `kfuse capture calib --count n --interval 0`: sensor `index`
+    /// of a ring of `sensors` (`None`: the single sensor) with only `n` frames rendered.
+    fn calib_device(ring: Option<(usize, usize)>, n: usize) -> SimDevice {
+        let ring = ring.map(|(sensors, index)| SimRing {
+            sensors,
+            index,
+            serial: kinect_usb::sim::ring::serial(index),
+        });
+        let options =
+            SimOptions { calib_scene: true, calib_frames: Some(n), ring, ..SimOptions::default() };
+        sim_device(&options).unwrap()
+    }
+
+    /// `--sim-sensors 3 --count 6`: every sensor of the ring holds exactly 6 depth and 6
+    /// colour frames (the poses its 6 shots take), not the 90 of the whole ring scene.
+    #[test]
+    fn a_ring_capture_of_6_shots_renders_6_frames_per_sensor() {
+        for index in 0..3 {
+            let mut dev = calib_device(Some((3, index)), 6);
+            assert_eq!(dev.color_frames(), 6, "sensor {index}: colour frames");
+            assert_eq!(dev.raw_frames().len(), 6, "sensor {index}: depth frames");
+        }
+    }
+
+    /// The single sensor with `--count 2`: 2 frames, not the scene's 17.
+    #[test]
+    fn a_single_sensor_capture_of_2_shots_renders_2_frames() {
+        let mut dev = calib_device(None, 2);
+        assert_eq!((dev.color_frames(), dev.raw_frames().len()), (2, 2));
+    }
 }

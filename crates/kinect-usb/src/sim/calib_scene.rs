@@ -470,9 +470,18 @@ fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
 /// then mirrored left–right: what a real sensor streams (`crate::orientation`), so a capture,
 /// which mirrors back, shows [`render_pose`] of that rig exactly.
 pub fn calibration_scene(profile: &SimProfile) -> Option<SimScene> {
+    calibration_scene_first(profile, BOARD_POSES.len())
+}
+
+/// The first `poses` frames of [`calibration_scene`] (`poses` clamped to
+/// 1..=[`BOARD_POSES`]`.len()`), byte for byte the same (each pose keeps its own noise seed):
+/// what a capture of `poses` shots takes at one shot per frame, without rendering the poses
+/// it never reaches (each pose is a 1920 × 1080 supersampled render and JPEG). The sensor
+/// cycles through the frames it has, so shots past the last one show pose 0 again.
+pub fn calibration_scene_first(profile: &SimProfile, poses: usize) -> Option<SimScene> {
     let rig = FactoryRig::of_scene(profile)?;
     let rays = depth_rays(&rig);
-    let frames: Vec<Option<_>> = (0..BOARD_POSES.len())
+    let frames: Vec<Option<_>> = (0..poses.clamp(1, BOARD_POSES.len()))
         .into_par_iter()
         .map(|k| {
             let (depth, ir, rgb) = render_pose_with(&rig, &rays, k);
@@ -564,6 +573,21 @@ mod tests {
             let [pu, pv] = rig.project_depth([x * 2.0, y * 2.0, 2.0]);
             assert!((pu - u).abs() < 1e-6 && (pv - v).abs() < 1e-6, "{u} {v} -> {pu} {pv}");
         }
+    }
+
+    /// A scene of the first 2 poses holds 2 frames, byte-identical to the full scene's first
+    /// 2 (depth, IR and the colour JPEG); a request for 0 poses renders 1.
+    #[test]
+    fn the_first_poses_are_the_full_scenes_frames() {
+        let full = calibration_scene(&profile()).unwrap();
+        assert_eq!(full.depth_frames.len(), BOARD_POSES.len());
+        let first = calibration_scene_first(&profile(), 2).unwrap();
+        assert_eq!((first.depth_frames.len(), first.color_jpegs.len()), (2, 2));
+        for k in 0..2 {
+            assert!(first.depth_frames[k] == full.depth_frames[k], "pose {k}: depth or IR differ");
+            assert!(first.color_jpegs[k] == full.color_jpegs[k], "pose {k}: colour JPEG differs");
+        }
+        assert_eq!(calibration_scene_first(&profile(), 0).unwrap().depth_frames.len(), 1);
     }
 
     /// Every pose is tilted 10–40°, at 0.6–2.6 m, with every inner corner at least 15 px

@@ -223,4 +223,9 @@ impl SimDevice {
             replay_error: None,
         }
     }
+
+    /// Colour frames of the scene: the device cycles through them, one per frame period.
+    pub fn color_frames(&self) -> usize {
+        self.scene.color_jpegs.len()
+    }
 }

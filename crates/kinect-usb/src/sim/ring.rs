@@ -203,8 +203,23 @@ pub fn board_poses(sensors: usize) -> Vec<BoardPose> {
 /// from its pose with its [`FactoryRig::of_scene`] and mirrored as the sensor streams them.
 /// `None` where the profile's colour mapping is not a pinhole camera.
 pub fn calibration_scene(profile: &SimProfile, sensors: usize, index: usize) -> Option<SimScene> {
-    let poses = board_poses(sensors);
-    scene_of(profile, sensors, index, &poses, 0x5EED_1000 * (index as u64 + 1))
+    calibration_scene_first(profile, sensors, index, usize::MAX)
+}
+
+/// The first `poses` frames of [`calibration_scene`] (`poses` clamped to 1..=[`board_poses`]
+/// `.len()`), byte for byte the same (frame `k` keeps its noise seed): what a capture of
+/// `poses` shots takes at one shot per frame, without rendering the poses it never reaches
+/// (every pose is a colour render and JPEG per sensor: 90 of them for three sensors). The
+/// sensor cycles through the frames it has, so shots past the last one show frame 0 again.
+pub fn calibration_scene_first(
+    profile: &SimProfile,
+    sensors: usize,
+    index: usize,
+    poses: usize,
+) -> Option<SimScene> {
+    let mut all = board_poses(sensors);
+    all.truncate(poses.max(1));
+    scene_of(profile, sensors, index, &all, 0x5EED_1000 * (index as u64 + 1))
 }
 
 /// The scene sensor `index` shows for `kfuse capture scene`: the ring's room with the board
@@ -300,6 +315,21 @@ mod tests {
                 assert_ne!(p[i].depth_params, p[j].depth_params);
                 assert_ne!(FactoryRig::of_scene(&p[i]), FactoryRig::of_scene(&p[j]));
             }
+        }
+    }
+
+    /// A ring scene of the first 2 poses holds 2 frames, byte-identical to the full scene's
+    /// first 2 (depth, IR, colour JPEG): the second sensor of two (its own seeds and pose).
+    #[test]
+    fn the_first_poses_are_the_full_ring_scenes_frames() {
+        let p = sensor_profile(&base(), 1);
+        let full = calibration_scene(&p, 2, 1).unwrap();
+        assert_eq!(full.depth_frames.len(), board_poses(2).len());
+        let first = calibration_scene_first(&p, 2, 1, 2).unwrap();
+        assert_eq!((first.depth_frames.len(), first.color_jpegs.len()), (2, 2));
+        for k in 0..2 {
+            assert!(first.depth_frames[k] == full.depth_frames[k], "frame {k}: depth or IR differ");
+            assert!(first.color_jpegs[k] == full.color_jpegs[k], "frame {k}: colour JPEG differs");
         }
     }
 
