@@ -7,6 +7,8 @@
 //! they are captured from the backend before the simulated device sees them, so this test does
 //! not depend on the simulator's (or the crate's) own idea of the codes.
 
+mod common;
+
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -15,9 +17,8 @@ use kinect_usb::backend::{
 };
 use kinect_usb::device::KinectDevice;
 use kinect_usb::error::UsbError;
-use kinect_usb::params::DepthParams;
 use kinect_usb::protocol::ColorSettingCode;
-use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
+use kinect_usb::sim::{SimDevice, SimFaults, SimScene};
 
 /// Forwards everything to the simulated device and keeps a copy of every command message
 /// written to endpoint 0x02.
@@ -108,19 +109,8 @@ fn color_message(code: u8, value: [u8; 4]) -> Vec<u8> {
 
 #[test]
 fn color_setting_methods_send_the_documented_codes_and_bytes() {
-    let depth = DepthParams {
-        fx: 365.0,
-        fy: 365.0,
-        cx: 255.5,
-        cy: 211.5,
-        k1: 0.0,
-        k2: 0.0,
-        k3: 0.0,
-        p1: 0.0,
-        p2: 0.0,
-    };
     let sim = SimDevice::new(
-        SimProfile::synthetic(depth, 1060.0),
+        common::synthetic_profile(),
         SimScene::default(),
         SimFaults::default(),
     );

@@ -2,13 +2,14 @@
 //! the simulated device: sequence rules (protocol §3.3), round trips, device-side rejection, fault
 //! injection. Needs no shared data (synthetic profile).
 
+mod common;
+
 use std::time::Duration;
 
 use kinect_usb::KinectError;
 use kinect_usb::backend::UsbBackend;
 use kinect_usb::device::{Frame, KinectDevice, State};
 use kinect_usb::error::UsbError;
-use kinect_usb::params::DepthParams;
 use kinect_usb::protocol::{
     self, ColorSettingCode, Command, Exposure, ExposureMode, LedMode, LedSetting, ep,
 };
@@ -19,18 +20,7 @@ use kinect_usb::sim::{
 const T: Duration = Duration::from_secs(1);
 
 fn profile() -> SimProfile {
-    let depth = DepthParams {
-        fx: 365.0,
-        fy: 365.0,
-        cx: 255.5,
-        cy: 211.5,
-        k1: 0.0,
-        k2: 0.0,
-        k3: 0.0,
-        p1: 0.0,
-        p2: 0.0,
-    };
-    SimProfile::synthetic(depth, 1060.0)
+    common::synthetic_profile()
 }
 
 fn fake_jpeg(n: usize) -> Vec<u8> {

@@ -2,10 +2,11 @@
 //! descriptor, a port reset that re-enumerates, partial transfer failures. Needs no shared data
 //! (synthetic profile and scene).
 
+mod common;
+
 use std::time::Duration;
 
 use kinect_usb::device::{Frame, KinectDevice, MAX_BYTES_PER_INTERVAL, OpenOptions, State};
-use kinect_usb::params::DepthParams;
 use kinect_usb::raw::PIXELS;
 use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
 use kinect_usb::{KinectError, UsbError};
@@ -13,18 +14,7 @@ use kinect_usb::{KinectError, UsbError};
 const T: Duration = Duration::from_secs(1);
 
 fn profile() -> SimProfile {
-    let depth = DepthParams {
-        fx: 365.0,
-        fy: 365.0,
-        cx: 255.5,
-        cy: 211.5,
-        k1: 0.0,
-        k2: 0.0,
-        k3: 0.0,
-        p1: 0.0,
-        p2: 0.0,
-    };
-    SimProfile::synthetic(depth, 1060.0)
+    common::synthetic_profile()
 }
 
 /// One flat wall at 1.5 m.

@@ -1,5 +1,7 @@
 //! Property tests of the bit layout and the stream parsers (protocol §14.3).
 
+mod common;
+
 use std::path::Path;
 
 use kinect_usb::KinectError;
@@ -146,20 +148,8 @@ proptest! {
 
 /// A simulated device with a synthetic profile (no shared data needed).
 fn settings_sim() -> kinect_usb::sim::SimDevice {
-    use kinect_usb::params::DepthParams;
-    use kinect_usb::sim::{SimDevice, SimFaults, SimProfile, SimScene};
-    let depth = DepthParams {
-        fx: 365.0,
-        fy: 365.0,
-        cx: 255.5,
-        cy: 211.5,
-        k1: 0.0,
-        k2: 0.0,
-        k3: 0.0,
-        p1: 0.0,
-        p2: 0.0,
-    };
-    SimDevice::new(SimProfile::synthetic(depth, 1060.0), SimScene::default(), SimFaults::default())
+    use kinect_usb::sim::{SimDevice, SimFaults, SimScene};
+    SimDevice::new(common::synthetic_profile(), SimScene::default(), SimFaults::default())
 }
 
 proptest! {

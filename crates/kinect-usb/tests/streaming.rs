@@ -4,12 +4,13 @@
 //! are counted exactly, and the next frame asked for after the pause is the sensor's current
 //! one. Needs no shared data (synthetic profile and scene).
 
+mod common;
+
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use kinect_usb::backend::UsbBackend;
 use kinect_usb::device::{Frame, KinectDevice, StreamCounters};
-use kinect_usb::params::DepthParams;
 use kinect_usb::raw::{PIXELS, RAW_FRAME_BYTES};
 use kinect_usb::sim::{SIM_FRAME_RATE, SimDevice, SimFaults, SimPacing, SimProfile, SimScene};
 
@@ -26,18 +27,7 @@ const RSS_GROWTH_BOUND: usize = 20 << 20;
 static SERIAL: Mutex<()> = Mutex::new(());
 
 fn profile() -> SimProfile {
-    let depth = DepthParams {
-        fx: 365.0,
-        fy: 365.0,
-        cx: 255.5,
-        cy: 211.5,
-        k1: 0.0,
-        k2: 0.0,
-        k3: 0.0,
-        p1: 0.0,
-        p2: 0.0,
-    };
-    SimProfile::synthetic(depth, 1060.0)
+    common::synthetic_profile()
 }
 
 fn fake_jpeg(n: usize, tag: u8) -> Vec<u8> {
