@@ -109,11 +109,8 @@ fn color_message(code: u8, value: [u8; 4]) -> Vec<u8> {
 
 #[test]
 fn color_setting_methods_send_the_documented_codes_and_bytes() {
-    let sim = SimDevice::new(
-        common::synthetic_profile(),
-        SimScene::default(),
-        SimFaults::default(),
-    );
+    let sim =
+        SimDevice::new(common::synthetic_profile(), SimScene::default(), SimFaults::default());
     let sent = Arc::new(Mutex::new(Vec::new()));
     let mut dev = KinectDevice::open(Spy { inner: sim, sent: sent.clone() }).unwrap();
     dev.start(false, false).unwrap();
