@@ -170,7 +170,7 @@ fn check_not_input(out: &Path, inputs: &[PathBuf]) -> Result<()> {
         );
     }
     let mut head = [0u8; 6];
-    let is_mat = std::fs::File::open(out)
+    let is_mat = bounded_read::open_without_blocking(out)
         .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
         .is_ok()
         && &head == b"MATLAB";

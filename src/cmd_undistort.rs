@@ -184,7 +184,7 @@ const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
 fn is_exr(path: &Path) -> Result<bool> {
     use std::io::Read;
     let mut head = [0u8; 4];
-    let mut file = std::fs::File::open(path)
+    let mut file = bounded_read::open_without_blocking(path)
         .map_err(|e| anyhow::anyhow!("{}: cannot open: {e}", path.display()))?;
     Ok(file.read_exact(&mut head).is_ok() && head == EXR_MAGIC)
 }

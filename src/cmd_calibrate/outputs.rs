@@ -157,7 +157,7 @@ const KFUSE_YAML_KEYS: [&[&str]; 2] = [
 /// kept unless `--overwrite` says otherwise. `depth_run`: this run fits a depth correction.
 fn foreign_output(path: &Path, yaml: bool, rig: bool, depth_run: bool) -> Option<String> {
     use std::io::Read;
-    let file = std::fs::File::open(path).ok()?;
+    let file = bounded_read::open_without_blocking(path).ok()?;
     if !file.metadata().is_ok_and(|m| m.is_file()) {
         return None;
     }

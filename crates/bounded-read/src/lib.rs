@@ -51,7 +51,7 @@ pub fn open_bounded(
     limit: u64,
     expected: Expected<'_>,
 ) -> std::io::Result<std::fs::File> {
-    let file = std::fs::File::open(path)?;
+    let file = open_without_blocking(path)?;
     let meta = file.metadata()?;
     if meta.is_dir() {
         return Err(std::io::Error::new(
@@ -62,6 +62,25 @@ pub fn open_bounded(
     if meta.is_file() && meta.len() > limit {
         return Err(too_large(limit, Some(meta.len()), expected));
     }
+    Ok(file)
+}
+
+/// Opens `path` for reading without waiting for a writer: a named pipe (FIFO) that nobody
+/// writes to blocks `open(2)` for ever, beyond the reach of Ctrl-C's flag and of Python's
+/// signal handling. A FIFO is opened with `O_NONBLOCK` (which returns at once) and then set back
+/// to blocking reads, so a writer that is there is read as any pipe, and a FIFO without one
+/// reads as empty (end of file) instead of hanging. `stat(2)` of the path, which tells a FIFO,
+/// never blocks.
+pub fn open_without_blocking(path: &Path) -> std::io::Result<std::fs::File> {
+    use nix::fcntl::{FcntlArg, OFlag, fcntl};
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    if !std::fs::metadata(path)?.file_type().is_fifo() {
+        return std::fs::File::open(path);
+    }
+    let file =
+        std::fs::OpenOptions::new().read(true).custom_flags(OFlag::O_NONBLOCK.bits()).open(path)?;
+    let flags = OFlag::from_bits_truncate(fcntl(&file, FcntlArg::F_GETFL)?);
+    fcntl(&file, FcntlArg::F_SETFL(flags - OFlag::O_NONBLOCK))?;
     Ok(file)
 }
 
@@ -124,6 +143,32 @@ mod tests {
         assert!(e.to_string().starts_with("is 100 bytes, over the 99-byte limit"), "{e}");
         let e = read_bounded(&dir, 99, EXPECTED).unwrap_err();
         assert_eq!(e.kind(), ErrorKind::IsADirectory);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A FIFO nobody writes to: opening it must not wait for a writer (it blocked `open(2)` for
+    /// ever, and Ctrl-C could not stop it). It reads as empty, at once; with a writer, the
+    /// writer's bytes come through as from any pipe.
+    #[test]
+    fn a_fifo_without_a_writer_does_not_block() {
+        let dir = std::env::temp_dir().join(format!("kfuse-bounded-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("rig.json");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+        assert!(made.success(), "mkfifo failed");
+        let (tx, rx) = std::sync::mpsc::channel();
+        let path = fifo.clone();
+        std::thread::spawn(move || tx.send(read_bounded(&path, 1000, EXPECTED).map(|b| b.len())));
+        let got = rx.recv_timeout(std::time::Duration::from_secs(10));
+        assert_eq!(got.expect("read_bounded blocked on a FIFO without a writer").unwrap(), 0);
+
+        // With a writer: its bytes, bounded as any pipe's.
+        let path = fifo.clone();
+        let writer = std::thread::spawn(move || std::fs::write(&path, [5u8; 300]).unwrap());
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        let bytes = read_bounded(&fifo, 1000, EXPECTED).unwrap();
+        writer.join().unwrap();
+        assert_eq!(bytes, vec![5u8; 300]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -150,7 +150,7 @@ pub(crate) fn header_size<R: BufRead + Seek>(
 /// against the limits: call it to compare with a rig before reading a large file.
 pub fn image_size(path: &Path) -> Result<(usize, usize), GeometryError> {
     let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
-    let file = std::fs::File::open(path).map_err(io)?;
+    let file = bounded_read::open_without_blocking(path).map_err(io)?;
     let mut reader = std::io::BufReader::new(file);
     let container = sniff(reader.fill_buf().map_err(io)?);
     let (w, h) = header_size(path, container, reader)?;

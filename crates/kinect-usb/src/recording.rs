@@ -315,11 +315,11 @@ impl RecordingReader<BufReader<std::fs::File>> {
     pub fn open(path: &Path, opts: ReadOptions) -> Result<Self> {
         use std::io::{Seek, SeekFrom};
         let io = |source| KinectError::File { path: path.to_path_buf(), source };
-        let f = std::fs::File::open(path).map_err(io)?;
+        let f = bounded_read::open_without_blocking(path).map_err(io)?;
         let rd = RecordingReader::new(BufReader::with_capacity(1 << 20, f), path, opts)?;
         if !opts.keep_prefix {
             // A second, independent handle (a cloned one would share the reader's offset).
-            let mut f = std::fs::File::open(path).map_err(io)?;
+            let mut f = bounded_read::open_without_blocking(path).map_err(io)?;
             let len = f.seek(SeekFrom::End(0)).map_err(io)?;
             let at = len.saturating_sub(END_RECORD_BYTES as u64);
             let mut end = [0u8; END_RECORD_BYTES];

@@ -124,7 +124,7 @@ impl RecordingSource {
         // then read through a second handle that counts bytes for the progress bar.
         let m = RecordingReader::open(path, options)?.meta().clone();
         let io = |source| kinect_usb::KinectError::File { path: path.to_path_buf(), source };
-        let file = std::fs::File::open(path).map_err(io)?;
+        let file = bounded_read::open_without_blocking(path).map_err(io)?;
         let file_len = file.metadata().map_err(io)?.len();
         let bytes_read = Arc::new(AtomicU64::new(0));
         let counting = Counting { file, count: bytes_read.clone() };

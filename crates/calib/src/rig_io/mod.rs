@@ -293,7 +293,7 @@ pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
     let head = {
         use std::io::Read;
         let mut buf = [0u8; 128];
-        let n = std::fs::File::open(first)
+        let n = bounded_read::open_without_blocking(first)
             .and_then(|mut f| f.read(&mut buf))
             .map_err(|source| CalibError::Io { path: first.clone(), source })?;
         buf[..n].to_vec()
