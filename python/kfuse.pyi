@@ -51,7 +51,9 @@ class Rig:
 class Registration:
     """Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask, as `kfuse fuse`."""
 
-    def __init__(self, rig: Rig) -> None: ...
+    def __init__(self, rig: Rig, force: bool = False) -> None:
+        """Every frame's depth unit is checked as `kfuse fuse` checks it: a median depth outside
+        0.2-15 m raises ValueError (metres, 0.1 mm, a 65535 fill); force=True lets it through."""
     def register(
         self, depth: _Depth, out: Optional[npt.NDArray[np.float32]] = None
     ) -> npt.NDArray[np.float32]:
@@ -126,8 +128,10 @@ def fuse(
     depth: _Depth,
     engine: Union[Engine, str, None] = None,
     linear: bool = True,
+    force: bool = False,
 ) -> FusedFrame:
-    """One frame through `kfuse fuse`'s pipeline with its defaults (linear=False: --resample nearest)."""
+    """One frame through `kfuse fuse`'s pipeline with its defaults (linear=False: --resample nearest).
+    Depth whose median is outside 0.2-15 m (another unit) raises ValueError unless force."""
 
 def read_depth(path: _Path) -> npt.NDArray[np.float32]:
     """A depth file read as `kfuse fuse --depth` reads it: float32 metres, NaN = no sample."""

@@ -146,8 +146,10 @@ fn fuse_three_kinects_into_one_cloud_against_the_truth() {
     args.extend(["--out", out.to_str().unwrap()]);
     let run = kfuse(&args);
     let stdout = String::from_utf8_lossy(&run.stdout);
-    assert!(run.status.success(), "{}{stdout}", String::from_utf8_lossy(&run.stderr));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}{stdout}");
     println!("{stdout}");
+    assert!(!stderr.contains("warning"), "the true rig gives no warning: {stderr}");
     check_virtual_view(&ring, &out, &spec);
 
     let cloud = kfuse_io::ply::read_cloud_ply(&out.join("cloud.ply"), None).unwrap();
@@ -229,6 +231,23 @@ fn fuse_three_kinects_into_one_cloud_against_the_truth() {
         e.contains("colour image") && e.contains("512x424") && e.contains("RING1.color"),
         "{e}"
     );
+
+    // Two sensors' images swapped (issue 51: printed 10-20 mm consistency and no word): fused,
+    // with a warning naming the pairs whose colours disagree.
+    let mut swapped = sensors.clone();
+    swapped[0] = sensors[1].replacen("RING1=", "RING0=", 1);
+    swapped[1] = sensors[0].replacen("RING0=", "RING1=", 1);
+    let mut a = vec!["fuse".to_string(), "--rig".into(), rig.display().to_string()];
+    for s in &swapped {
+        a.extend(["--sensor".into(), s.clone()]);
+    }
+    a.extend(["--out".into(), dir.join("swapped").display().to_string()]);
+    let r = kfuse(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(r.status.success(), "{err}");
+    let warned = err.lines().filter(|l| l.contains("do not match")).count();
+    assert_eq!(warned, 3, "every pair has a swapped sensor: {err}");
+    assert!(err.contains("serials or poses swapped"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

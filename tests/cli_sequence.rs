@@ -351,35 +351,39 @@ fn sigint_keeps_every_complete_frame_and_a_valid_index() {
     let dir = tempfile::tempdir().unwrap();
     let rec = record(dir.path(), 40, 0.0);
     let out = dir.path().join("seq");
-    let child = kfuse()
-        .args(["fuse", "--recording"])
-        .arg(&rec)
-        .args(["--threads", "1", "--write", "holes,color-on-depth", "--out"])
-        .arg(&out)
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Interrupt once three depth frames are in the staging folder.
-    let staged_frames = || -> usize {
-        std::fs::read_dir(dir.path())
-            .unwrap()
-            .filter_map(|e| e.ok())
-            .filter(|e| e.file_name().to_string_lossy().starts_with(".seq"))
-            .filter_map(|e| std::fs::read_dir(e.path().join("depth")).ok())
-            .map(|d| d.count())
-            .sum()
+    // Starts `fuse --recording` into `out` and interrupts it (SIGINT) once three depth frames
+    // are in its staging folder; returns exit code and stderr.
+    let interrupted_run = || -> (Option<i32>, String) {
+        let child = kfuse()
+            .args(["fuse", "--recording"])
+            .arg(&rec)
+            .args(["--threads", "1", "--write", "holes,color-on-depth", "--out"])
+            .arg(&out)
+            .stderr(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let staged_frames = || -> usize {
+            std::fs::read_dir(dir.path())
+                .unwrap()
+                .filter_map(|e| e.ok())
+                .filter(|e| e.file_name().to_string_lossy().starts_with(".seq"))
+                .filter_map(|e| std::fs::read_dir(e.path().join("depth")).ok())
+                .map(|d| d.count())
+                .sum()
+        };
+        let t0 = std::time::Instant::now();
+        while staged_frames() < 3 {
+            assert!(t0.elapsed().as_secs() < 180, "no frames written within 180 s");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let st = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+        assert!(st.success());
+        let res = child.wait_with_output().unwrap();
+        (res.status.code(), String::from_utf8_lossy(&res.stderr).into_owned())
     };
-    let t0 = std::time::Instant::now();
-    while staged_frames() < 3 {
-        assert!(t0.elapsed().as_secs() < 180, "no frames written within 180 s");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    let st = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
-    assert!(st.success());
-    let res = child.wait_with_output().unwrap();
-    let err = String::from_utf8_lossy(&res.stderr);
-    assert_eq!(res.status.code(), Some(130), "{err}");
+    let (code, err) = interrupted_run();
+    assert_eq!(code, Some(130), "{err}");
     assert!(err.contains("complete frames and their index were kept"), "{err}");
     let ix = index(&out);
     assert_eq!(ix["interrupted"], true);
@@ -395,11 +399,34 @@ fn sigint_keeps_every_complete_frame_and_a_valid_index() {
     // Nothing but the listed frames: no half-written or unlisted file.
     let on_disk = std::fs::read_dir(out.join("depth")).unwrap().count();
     assert_eq!(on_disk, listed.len());
-    assert!(
+    let no_staging = || {
         !std::fs::read_dir(dir.path())
             .unwrap()
-            .any(|e| { e.unwrap().file_name().to_string_lossy().contains("staging") })
-    );
+            .any(|e| e.unwrap().file_name().to_string_lossy().contains("staging"))
+    };
+    assert!(no_staging());
+
+    // A complete run into the same folder replaces the partial one; a run stopped after it
+    // must not replace the complete output with its partial one (issue 51: it did, with
+    // --overwrite or a plain re-run): the earlier output stays byte for byte, exit 130.
+    let res = kfuse()
+        .args(["fuse", "--recording"])
+        .arg(&rec)
+        .args(["--threads", "1", "--write", "holes,color-on-depth", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    ok(&res);
+    let complete = std::fs::read(out.join("index.json")).unwrap();
+    assert_eq!(index(&out)["interrupted"], false);
+    let frames = index(&out)["frames"].as_array().unwrap().len();
+    assert!(frames > listed.len(), "{frames} frames in the complete run");
+    let (code, err) = interrupted_run();
+    assert_eq!(code, Some(130), "{err}");
+    assert!(err.contains("holds an earlier output, kept as it was"), "{err}");
+    assert_eq!(std::fs::read(out.join("index.json")).unwrap(), complete);
+    assert_eq!(std::fs::read_dir(out.join("depth")).unwrap().count(), frames);
+    assert!(no_staging());
 }
 
 /// A `kfuse capture` folder through `--frames`: every shot's registered depth, hole mask and

@@ -280,16 +280,17 @@ fn cli_options(linear: bool) -> FusionOptions {
     FusionOptions { linear, record_timings: true, ..FusionOptions::default() }
 }
 
-/// fuse(rig, color, depth, engine="cpu", linear=True) -> FusedFrame: one frame through
+/// fuse(rig, color, depth, engine="cpu", linear=True, force=False) -> FusedFrame: one frame through
 /// `kfuse fuse`'s pipeline (H1-H8) with its default options, on `engine` (an Engine or
 /// "cpu", "gpu", "auto", as --engine).
 ///
 /// `color`: C-contiguous uint8 (colour H, colour W, 3) RGB, as captured (or rectified when
 /// the rig says so); `depth`: uint16 (depth H, depth W) z in millimetres, 0 = no sample (the
 /// rig's depth correction is applied first, as fuse does). `linear=False` is
-/// `--resample nearest`. Releases the GIL.
+/// `--resample nearest`. Depth in another unit (a median depth outside 0.2-15 m, fuse's rule)
+/// raises ValueError unless `force` (fuse's `--force`). Releases the GIL.
 #[pyfunction]
-#[pyo3(signature = (rig, color, depth, engine = None, linear = true))]
+#[pyo3(signature = (rig, color, depth, engine = None, linear = true, force = false))]
 pub(crate) fn fuse(
     py: Python<'_>,
     rig: &PyRig,
@@ -297,12 +298,13 @@ pub(crate) fn fuse(
     depth: &Bound<'_, PyAny>,
     engine: Option<&Bound<'_, PyAny>>,
     linear: bool,
+    force: bool,
 ) -> PyResult<PyFusedFrame> {
     let engine = engine.map(engine_arg).transpose()?.unwrap_or(Engine::Cpu);
     let rectified = rig.rig.rectified;
     let rig: Rig = if rectified { rig.rig.as_rectified() } else { rig.rig.clone() };
     let color = color_image(py, &rig, color)?;
-    let depth = depth_metres(py, &rig, depth)?;
+    let depth = depth_metres(py, &rig, depth, force)?;
     let options = cli_options(linear);
     let (out, used) = py
         .detach(|| -> Result<_, GpuError> {

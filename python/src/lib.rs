@@ -386,6 +386,8 @@ struct PyRegistration {
     radius_px: f32,
     depth_jump: f32,
     occlusion_tolerance: f32,
+    /// Depth in a unit the fusion does not read is accepted (`force=True`).
+    force: bool,
     frame: Option<Frame>,
 }
 
@@ -421,8 +423,11 @@ impl PyRegistration {
 #[pymethods]
 impl PyRegistration {
     /// Buffers and per-pixel constants for `rig` (kfuse fuse's defaults: z depth, its hole radii).
+    /// Every frame's depth unit is checked as fuse checks it (a median depth outside 0.2-15 m
+    /// raises ValueError); `force=True` registers such frames anyway.
     #[new]
-    fn new(rig: &PyRig) -> PyResult<Self> {
+    #[pyo3(signature = (rig, force = false))]
+    fn new(rig: &PyRig, force: bool) -> PyResult<Self> {
         let rig = if rig.rig.rectified { rig.rig.as_rectified() } else { rig.rig.clone() };
         let options = FusionOptions::default();
         let reg = fusion::Registration::new(&rig, DepthKind::Z, &options).map_err(geometry_err)?;
@@ -432,6 +437,7 @@ impl PyRegistration {
             radius_px: fusion::coverage_radius_px(&rig, &options),
             depth_jump: options.depth_jump,
             occlusion_tolerance: options.color_occlusion_tolerance,
+            force,
             rig,
             reg,
             frame: None,
@@ -453,7 +459,7 @@ impl PyRegistration {
         depth: &Bound<'py, PyAny>,
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let image = depth_metres(py, &self.rig, depth)?;
+        let image = depth_metres(py, &self.rig, depth, self.force)?;
         let (cw, ch) = (self.rig.color.width, self.rig.color.height);
         let reg = &mut self.reg;
         let Some(out) = out else {
@@ -554,7 +560,7 @@ impl PyRegistration {
         color: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<CloudArrays<'py>> {
         let color_img = color.map(|c| color_image(py, &self.rig, c)).transpose()?;
-        let image = depth_metres(py, &self.rig, depth)?;
+        let image = depth_metres(py, &self.rig, depth, self.force)?;
         let (points, pixels) = py.detach(|| fusion::backproject_cloud(&image, &self.rays));
         let colors = match color_img {
             None => None,
@@ -579,7 +585,12 @@ type CloudArrays<'py> = (Bound<'py, PyArray2<f32>>, Option<Bound<'py, PyArray2<u
 /// a 16-bit PNG, or a float32 (H, W) array of millimetres (the decoder's and `Recording`'s
 /// output) as `kfuse fuse --recording` converts it (`kfuse_sequence::process::depth_in_metres`);
 /// (H, W) is the rig's depth camera's size.
-fn depth_metres(py: Python<'_>, rig: &Rig, depth: &Bound<'_, PyAny>) -> PyResult<Image<f32>> {
+fn depth_metres(
+    py: Python<'_>,
+    rig: &Rig,
+    depth: &Bound<'_, PyAny>,
+    force: bool,
+) -> PyResult<Image<f32>> {
     let (dw, dh) = (rig.depth.width, rig.depth.height);
     let correction = rig.depth_correction.clone();
     let correct = |mut image: Image<f32>| -> Result<Image<f32>, GeometryError> {
@@ -588,56 +599,64 @@ fn depth_metres(py: Python<'_>, rig: &Rig, depth: &Bound<'_, PyAny>) -> PyResult
         }
         Ok(image)
     };
-    if depth.cast::<PyArray2<f32>>().is_ok() {
+    let image = if depth.cast::<PyArray2<f32>>().is_ok() {
         let arr = array2::<f32>(depth, "depth", "float32", dh, dw)?;
         let mm = arr.as_slice().map_err(|_| bad_array("depth", "float32", depth, ""))?;
-        warn_if_metres(py, mm)?;
-        return py
-            .detach(|| {
-                let image = kfuse_sequence::process::depth_in_metres(mm, dw, dh)
-                    .map_err(|e| GeometryError::InvalidInput(e.to_string()))?;
-                correct(image)
-            })
-            .map_err(geometry_err);
+        py.detach(|| {
+            let image = kfuse_sequence::process::depth_in_metres(mm, dw, dh)
+                .map_err(|e| GeometryError::InvalidInput(e.to_string()))?;
+            correct(image)
+        })
+        .map_err(geometry_err)?
+    } else {
+        let arr = array2::<u16>(depth, "depth", "uint16", dh, dw)?;
+        let units = arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
+        py.detach(|| correct(kfuse_io::images::depth_from_units(dw, dh, units, METRES_PER_MM)?))
+            .map_err(geometry_err)?
+    };
+    if !force {
+        check_depth_unit(py, rig, &image)?;
     }
-    let arr = array2::<u16>(depth, "depth", "uint16", dh, dw)?;
-    let units = arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
-    py.detach(|| correct(kfuse_io::images::depth_from_units(dw, dh, units, METRES_PER_MM)?))
-        .map_err(geometry_err)
+    Ok(image)
 }
 
-/// A float32 depth map whose largest sample is below this many millimetres is almost surely
-/// in metres: the Kinect v2 measures from 500 mm (its nearest range) to about 8 000 mm, so a
-/// map in millimetres has no sample under 500 while one in metres has none above 8 (20 leaves
-/// room for other sensors' ranges in metres and still flags no real millimetre map).
-const METRES_SUSPECT_MAX_MM: f32 = 20.0;
-/// The stride of the first look for metres: every 97th pixel (about 2 200 of a Kinect frame,
-/// a few microseconds), so that a frame in millimetres pays almost nothing; only a frame whose
-/// sampled pixels all look like metres is scanned in full.
-const METRES_PROBE_STRIDE: usize = 97;
+/// The stride of the depth-unit check's median: every 7th pixel (about 31 000 of a Kinect
+/// frame, ~0.2 ms), so a stream of frames pays little; the median of a sample that size is
+/// within a few millimetres of the whole frame's, and the band it is compared with is
+/// 0.2-15 m.
+const UNIT_CHECK_STRIDE: usize = 7;
 
-/// Warns (a Python `UserWarning`) when every sample of a float32 depth map is positive-or-zero
-/// and below [`METRES_SUSPECT_MAX_MM`] with at least one sample: depth in metres given where
-/// millimetres are expected, which would otherwise register to an all-NaN z-buffer silently.
-fn warn_if_metres(py: Python<'_>, mm: &[f32]) -> PyResult<()> {
-    let max_of = |it: &mut dyn Iterator<Item = &f32>| {
-        it.filter(|v| v.is_finite() && **v > 0.0)
-            .fold(None, |m: Option<f32>, &v| Some(m.map_or(v, |m| m.max(v))))
+/// `kfuse fuse`'s depth-unit rule (`geometry::fusion::units`): a frame whose median depth is
+/// outside 0.2-15 m is in another unit (metres, 0.1 mm, a 65 535 fill): ValueError naming
+/// `depth`, the median and the fix.
+fn check_depth_unit(py: Python<'_>, rig: &Rig, image: &Image<f32>) -> PyResult<()> {
+    use geometry::fusion::units::{
+        DepthUnitProblem, KINECT_MIN_DEPTH_M, median_depth, unit_problem_of_median,
     };
-    let looks_metres = |m: Option<f32>| m.is_some_and(|m| m < METRES_SUSPECT_MAX_MM);
-    if !looks_metres(max_of(&mut mm.iter().step_by(METRES_PROBE_STRIDE))) {
-        return Ok(());
-    }
-    let Some(max) = max_of(&mut mm.iter()).filter(|m| *m < METRES_SUSPECT_MAX_MM) else {
+    let Some(median) = py.detach(|| median_depth(image, UNIT_CHECK_STRIDE)) else {
         return Ok(());
     };
-    let message = std::ffi::CString::new(format!(
-        "depth: every sample is below {METRES_SUSPECT_MAX_MM} (the largest is {max}): this looks like \
-         metres, but float32 depth is read in millimetres (as kfuse.Decoder gives it), so \
-         nothing will land on the colour grid; pass depth * 1000"
-    ))
-    .map_err(|e| PyValueError::new_err(e.to_string()))?;
-    PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &message, 1)
+    const READ_AS: &str =
+        "depth is read as millimetres (uint16, or float32 as kfuse.Decoder gives it)";
+    let Some(problem) = unit_problem_of_median(median) else {
+        // fuse's warning for a Kinect (512 x 424 depth camera) nearer than it measures.
+        if (rig.depth.width, rig.depth.height) == (512, 424) && median < KINECT_MIN_DEPTH_M {
+            let message = std::ffi::CString::new(format!(
+                "depth: median depth {} m is nearer than the Kinect v2 measures ({KINECT_MIN_DEPTH_M} m): centimetres? {READ_AS}",
+                median as f32
+            ))
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &message, 1)?;
+        }
+        return Ok(());
+    };
+    let hint = match problem {
+        DepthUnitProblem::TooNear(_) => "metres? pass depth * 1000",
+        DepthUnitProblem::TooFar(_) => "0.1 mm units, or a 65535 fill? convert to millimetres",
+    };
+    Err(PyValueError::new_err(format!(
+        "depth: {problem}, no scene a depth camera sees: {READ_AS}; {hint} (force=True fuses it anyway)"
+    )))
 }
 
 /// `color` (C-contiguous uint8 (colour H, colour W, 3), RGB) as an image.

@@ -160,16 +160,38 @@ def test_register_out_refuses_a_read_only_array(fused, reg):
         reg.hole_mask(out=m)
 
 
-def test_depth_in_metres_warns_and_millimetres_do_not(fused, reg):
-    """float32 metres passed where millimetres are read: every sample under 20, so nothing
-    lands on the colour grid; kfuse says so with a UserWarning naming `depth` and the fix.
-    The same frame in millimetres registers without any warning."""
+def test_depth_in_another_unit_is_refused_as_fuse_refuses_it(fused, reg):
+    """kfuse fuse's unit rule (a median depth outside 0.2-15 m) for Python too: metres given
+    as millimetres (even with flying pixels of 25 "mm", which fooled the earlier test of the
+    largest sample) and a 65535 fill raise ValueError naming depth, the median and the fix;
+    nothing is registered (the last frame stays); centimetres get fuse's Kinect warning.
+    force=True registers them."""
+    mm = fused["depth_mm"]
+    metres = mm.astype(np.float32) / 1000.0
+    metres.ravel()[::200] = 25.0  # flying pixels at 25 "mm"
+    reg.register(mm)
+    mask_before = reg.hole_mask()
+    with pytest.raises(ValueError, match=r"^depth: median depth 0\.00288\d* m is under 0\.2 m.*pass depth \* 1000"):
+        reg.register(metres)
+    # Nothing registered: the last frame is still the millimetre one.
+    assert np.array_equal(reg.hole_mask(), mask_before) and mask_before.any()
+    # Centimetres: the desk's median 2.887 m reads 0.289 m, inside the 0.2-15 m band of every
+    # depth camera but nearer than a Kinect measures: fuse's warning, as the CLI gives it.
+    centimetres = (mm // 10).astype(np.uint16)
+    with pytest.warns(UserWarning, match=r"^depth: median depth 0\.28\d* m is nearer than the Kinect v2 measures \(0\.5 m\): centimetres\?"):
+        reg.register(centimetres)
     import warnings
-    metres = fused["depth_mm"].astype(np.float32) / 1000.0
-    with pytest.warns(UserWarning, match=r"^depth: every sample is below 20 .*pass depth \* 1000"):
-        z = reg.register(metres)
-    assert np.isnan(z).all()  # why the warning matters: the result is empty
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        z = reg.register(fused["depth_mm"].astype(np.float32))
-    assert (~np.isnan(z)).sum() > 100_000
+        reg.register(mm)
+    fill = np.full_like(mm, 65535)
+    with pytest.raises(ValueError, match=r"median depth 65\.535 m is over 15 m.*65535 fill"):
+        reg.register(fill)
+    rig = kfuse.Rig.load(KINECT / "rig.json")
+    with pytest.raises(ValueError, match="median depth 65.535 m"):
+        kfuse.fuse(rig, fused["color"], fill)
+    forced = kfuse.Registration(rig, force=True)
+    assert np.isnan(forced.register(metres)).all()  # why the check matters: nothing lands
+    # Forced, the fill fuses as the 65.5 m wall the check stood in front of.
+    far = kfuse.fuse(rig, fused["color"], fill, force=True).zbuffer
+    assert np.count_nonzero(~np.isnan(far)) > 100_000 and abs(np.nanmedian(far) - 65.535) < 0.1

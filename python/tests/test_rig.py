@@ -130,3 +130,22 @@ def test_error_message_equals_cli(tmp_path):
     with pytest.raises(ValueError) as e:
         kfuse.Rig.load(p)
     assert str(e.value) in err, (str(e.value), err)
+
+
+def test_a_camera_past_the_50_mpx_limit_is_refused_even_with_force(tmp_path):
+    """A colour camera of 16384 x 16384 (each side within the 16384-px limit, 268 Mpx) made
+    Registration/fuse abort the interpreter on allocation. geometry's camera limit (50 Mpx, the
+    largest image kfuse reads) is a hard one: ValueError even with force=True, naming the size;
+    a camera of exactly 50 Mpx still loads."""
+    doc = json.loads((KINECT / "rig.json").read_text())
+    for w, h in [(16384, 16384), (8000, 6251)]:
+        doc["color_camera"]["width"], doc["color_camera"]["height"] = w, h
+        p = tmp_path / f"huge-{w}.json"
+        p.write_text(json.dumps(doc))
+        with pytest.raises(ValueError, match=rf"{w}x{h} is over kfuse's camera limit \(16384 px per side, 50 Mpx\)"):
+            kfuse.Rig.load(p, force=True)
+    doc["color_camera"]["width"], doc["color_camera"]["height"] = 8000, 6250
+    p = tmp_path / "limit.json"
+    p.write_text(json.dumps(doc))
+    c = kfuse.Rig.load(p, force=True).color
+    assert (c.width, c.height) == (8000, 6250)

@@ -7,16 +7,9 @@ use anyhow::{Result, bail};
 use geometry::{DepthKind, Image, Rig, RigidTransform};
 use kfuse_io::images::DepthEncoding;
 
-// Plausible depth: a median outside this band is a unit mistake, not a scene.
-
-/// Shortest plausible median depth, metres: 0.2. The Kinect v2 measures from 0.5 m, the
-/// closest depth cameras from about 0.1-0.2 m; a whole frame whose median is nearer is metres
-/// read as kilometres, or micrometre-scaled millimetres (`--depth-scale 0.000001`).
-pub const MIN_MEDIAN_DEPTH_M: f64 = 0.2;
-/// Longest plausible median depth, metres: 15. The Kinect v2 ends at 4.5 m (8 m at most),
-/// ToF and stereo depth cameras at about 10 m; millimetres read as metres (`--depth-scale 1`)
-/// give medians of hundreds to thousands of "metres".
-pub const MAX_MEDIAN_DEPTH_M: f64 = 15.0;
+// Plausible depth: a median outside this band is a unit mistake, not a scene (the one rule,
+// `geometry::fusion::units`, that the Python package applies too).
+pub use geometry::fusion::units::{MAX_MEDIAN_DEPTH_M, MIN_MEDIAN_DEPTH_M};
 /// Smallest fraction of the valid depth samples that must land inside the colour image: 1 %.
 /// A real rig's cameras look the same way and overlap over most of the frame (the Kinect v2's
 /// over 80 %); under 1 % means the rig does not describe these images (T in millimetres, R, T
@@ -80,15 +73,9 @@ impl DepthSource {
     }
 }
 
-/// The median of the valid (finite) samples; `None` when there is none.
+/// The median of the valid samples; `None` when there is none.
 pub fn median_depth(depth: &Image<f32>) -> Option<f64> {
-    let mut v: Vec<f32> = depth.data().iter().copied().filter(|d| d.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
-    Some(*m as f64)
+    geometry::fusion::units::median_depth(depth, 1)
 }
 
 /// The number of distinct finite depth values (at most the 65 536 a 16-bit image holds).
@@ -134,7 +121,7 @@ pub fn check_depth_units(depth: &Image<f32>, source: &DepthSource) -> Result<(),
             if *scale >= 1.0 { "whole metres".to_string() } else { format!("{scale} m") },
         ));
     }
-    if (MIN_MEDIAN_DEPTH_M..=MAX_MEDIAN_DEPTH_M).contains(&median) {
+    if geometry::fusion::units::depth_unit_problem(depth, 1).is_none() {
         return Ok(());
     }
     let side = if median > MAX_MEDIAN_DEPTH_M {
@@ -177,12 +164,8 @@ pub fn check_depth_units(depth: &Image<f32>, source: &DepthSource) -> Result<(),
 /// along z in the lab's calibration); a rig whose offset is mostly along y or z has no side.
 pub const MIN_SIDE_OFFSET_M: f64 = 0.01;
 
-/// Nearest depth the Kinect v2 measures, metres: 0.5 (its specification; its depth images
-/// hold no sample nearer). A Kinect frame whose median is nearer is most likely depth in
-/// centimetres read as millimetres (a 1.5 m wall reads 0.15 m; 2.9 m reads 0.29 m, which the
-/// general [`MIN_MEDIAN_DEPTH_M`] lets through). Only warned about: a hand in front of the
-/// sensor makes such a frame too.
-pub const KINECT_MIN_DEPTH_M: f64 = 0.5;
+/// Nearest depth the Kinect v2 measures (the one rule of `geometry::fusion::units`).
+pub use geometry::fusion::units::KINECT_MIN_DEPTH_M;
 
 /// A warning when a Kinect v2 rig's 16-bit depth file has its median nearer than the sensor
 /// measures ([`KINECT_MIN_DEPTH_M`]).

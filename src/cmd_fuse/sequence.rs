@@ -351,9 +351,16 @@ impl Observer for Shown<'_> {
 
 /// The lines printed after a run (and its Ctrl-C error).
 fn print_summary(finished: &Finished, threads: usize, timings: bool) -> Result<()> {
-    let Finished { out, index, outcome, setup_s } = finished;
+    let Finished { out, index, outcome, setup_s, discarded } = finished;
     let n = index.frames.len();
     let fps = n as f64 / outcome.wall_s.max(1e-9);
+    if *discarded {
+        return Err(crate::interrupt::Interrupted(format!(
+            ": {} holds an earlier output, kept as it was; the {n} frames of this stopped run were discarded (run it to the end to replace it, or into a new --out to keep a partial run)",
+            out.display()
+        ))
+        .into());
+    }
     if outcome.interrupted {
         return Err(crate::interrupt::Interrupted(format!(
             ": the {n} complete frames and their index were kept in {}",

@@ -21,6 +21,14 @@ use crate::GeometryError;
 /// Newton iterations allowed when undistorting one point. Kinect-like distortion converges
 /// in 4-6; 30 leaves room for strong distortion near the fold.
 const UNDISTORT_MAX_ITERATIONS: usize = 30;
+
+/// Most pixels of any camera kfuse works with: 50 Mpx (25 Kinect colour frames, above the 45 Mpx
+/// DSLRs kfuse calibrates). No image larger can be read (`kfuse_io::image_header` refuses it),
+/// and the per-pixel tables of a larger colour camera run to several GiB before any image is
+/// looked at: a 16 384² camera (each side within [`crate::rig::MAX_IMAGE_SIDE`]) aborted the
+/// Python interpreter on allocation. A hard limit of [`CameraModel::validate`]: `force` does not
+/// lift it.
+pub const MAX_CAMERA_PIXELS: u64 = 50_000_000;
 /// Convergence threshold on the distorted-coordinate residual (normalised units). 1e-14 is
 /// ~1e-11 px at f = 1000 px, far below the 1e-6 px round-trip budget.
 const UNDISTORT_TOLERANCE: f64 = 1e-14;
@@ -325,6 +333,16 @@ impl CameraModel {
             return Err(GeometryError::InvalidParameter(format!(
                 "image size {}x{} is empty",
                 self.width, self.height
+            )));
+        }
+        let side = crate::rig::MAX_IMAGE_SIDE;
+        let pixels = (self.width as u64).saturating_mul(self.height as u64);
+        if self.width > side || self.height > side || pixels > MAX_CAMERA_PIXELS {
+            return Err(GeometryError::InvalidParameter(format!(
+                "image size {}x{} is over kfuse's camera limit ({side} px per side, {} Mpx): no image that large can be read; is this the camera's size in pixels?",
+                self.width,
+                self.height,
+                MAX_CAMERA_PIXELS / 1_000_000
             )));
         }
         if k.fx <= 0.0 || k.fy <= 0.0 {

@@ -522,6 +522,13 @@ impl StagedDir {
         &self.destination
     }
 
+    /// Whether the destination existed when staging started, so that a commit replaces (or
+    /// adds to) an earlier output. A run stopped early (Ctrl-C) should then not commit: its
+    /// partial result would replace the earlier complete one.
+    pub fn replaces_existing(&self) -> bool {
+        self.mode != Mode::New
+    }
+
     fn staged_names(&self) -> Result<Vec<String>, GeometryError> {
         let mut names = Vec::new();
         for entry in fs::read_dir(&self.staging).map_err(io_err(&self.staging))? {

@@ -16,7 +16,7 @@ use geometry::GeometryError;
 /// Largest width or height of an image read, pixels (the rig's own limit).
 pub const MAX_IMAGE_SIDE: u32 = geometry::rig::MAX_IMAGE_SIDE as u32;
 /// Most pixels of an image read.
-pub const MAX_IMAGE_PIXELS: u64 = 50_000_000;
+pub const MAX_IMAGE_PIXELS: u64 = geometry::camera::MAX_CAMERA_PIXELS;
 /// Largest image file read into memory, bytes.
 pub const MAX_IMAGE_FILE_BYTES: u64 = 512 << 20;
 /// Most memory an image decoder may allocate, bytes.

@@ -254,11 +254,17 @@ pub struct Finished {
     pub outcome: Outcome,
     /// Seconds from [`open`] to the first frame (setup: rig, decoder tables, GPU).
     pub setup_s: f64,
+    /// The run was stopped early into a folder that held an earlier output: its frames were
+    /// discarded and the earlier output kept as it was (`out` is that folder), because a
+    /// partial run must not replace a complete one.
+    pub discarded: bool,
 }
 
 /// Runs the opened input through the pipeline with `rig`, writes `index.json` (and the TUM
 /// lists) and commits the output folder. `stop` is polled before each frame: a stopped run
-/// keeps its complete frames and a valid index (`Finished::outcome.interrupted`).
+/// keeps its complete frames and a valid index (`Finished::outcome.interrupted`), unless the
+/// output folder held an earlier output: that one is then kept as it was and this run's frames
+/// are discarded (`Finished::discarded`).
 ///
 /// Errors: a stage's first error; a run that fused no frame (nothing is written).
 pub fn run(
@@ -387,8 +393,14 @@ pub fn run(
     if options.layout == Layout::Tum {
         tum::write_lists(staged.path(), &index.frames, &source_text, options.max_skew_ms)?;
     }
+    if outcome.interrupted && staged.replaces_existing() {
+        // Dropped, the staging folder is deleted: the earlier output stays untouched.
+        let out = staged.destination().to_path_buf();
+        drop(staged);
+        return Ok(Finished { out, index, outcome, setup_s, discarded: true });
+    }
     let out = staged.commit()?;
-    Ok(Finished { out, index, outcome, setup_s })
+    Ok(Finished { out, index, outcome, setup_s, discarded: false })
 }
 
 /// The folder of a glob pattern: its components before the first one with a wildcard.

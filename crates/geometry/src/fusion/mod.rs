@@ -49,6 +49,7 @@ pub mod pixel;
 mod register;
 mod resample;
 mod stream;
+pub mod units;
 #[cfg(feature = "bench-variants")]
 mod variants;
 
