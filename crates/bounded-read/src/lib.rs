@@ -65,20 +65,44 @@ pub fn open_bounded(
     Ok(file)
 }
 
-/// Opens `path` for reading without waiting for a writer: a named pipe (FIFO) that nobody
-/// writes to blocks `open(2)` for ever, beyond the reach of Ctrl-C's flag and of Python's
-/// signal handling. A FIFO is opened with `O_NONBLOCK` (which returns at once) and then set back
-/// to blocking reads, so a writer that is there is read as any pipe, and a FIFO without one
-/// reads as empty (end of file) instead of hanging. `stat(2)` of the path, which tells a FIFO,
-/// never blocks.
+/// Longest wait for a program to write to a named pipe (FIFO) given as a file: 10 s. A FIFO
+/// nobody writes to blocked `open(2)` for ever, beyond the reach of Ctrl-C's flag and of
+/// Python's signal handling; a program that feeds a FIFO is started with the command or
+/// before it, and writes within moments.
+pub const FIFO_WRITER_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Opens `path` for reading without blocking for ever on a named pipe (FIFO) that nobody
+/// writes to: a FIFO is opened with `O_NONBLOCK` (which returns at once), then waited on with
+/// `poll(2)` for at most [`FIFO_WRITER_WAIT`] until its writer has written (an error of kind
+/// [`ErrorKind::TimedOut`] otherwise), and set back to blocking reads. Any other file is opened
+/// as [`std::fs::File::open`] does. `stat(2)` of the path, which tells a FIFO, never blocks.
 pub fn open_without_blocking(path: &Path) -> std::io::Result<std::fs::File> {
+    open_waiting(path, FIFO_WRITER_WAIT)
+}
+
+fn open_waiting(path: &Path, wait: std::time::Duration) -> std::io::Result<std::fs::File> {
     use nix::fcntl::{FcntlArg, OFlag, fcntl};
+    use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+    use std::os::fd::AsFd;
     use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
     if !std::fs::metadata(path)?.file_type().is_fifo() {
         return std::fs::File::open(path);
     }
     let file =
         std::fs::OpenOptions::new().read(true).custom_flags(OFlag::O_NONBLOCK.bits()).open(path)?;
+    // Until a writer has come, Linux reports neither POLLIN nor POLLHUP for a reader opened
+    // without blocking: poll waits for the writer's first bytes (or its close).
+    let timeout = PollTimeout::try_from(wait).unwrap_or(PollTimeout::MAX);
+    let mut fds = [PollFd::new(file.as_fd(), PollFlags::POLLIN)];
+    if poll(&mut fds, timeout)? == 0 {
+        return Err(std::io::Error::new(
+            ErrorKind::TimedOut,
+            format!(
+                "is a named pipe (FIFO) that no program wrote to within {} s; give a regular file, or start the program that writes to it first",
+                wait.as_secs_f64()
+            ),
+        ));
+    }
     let flags = OFlag::from_bits_truncate(fcntl(&file, FcntlArg::F_GETFL)?);
     fcntl(&file, FcntlArg::F_SETFL(flags - OFlag::O_NONBLOCK))?;
     Ok(file)
@@ -146,9 +170,10 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    /// A FIFO nobody writes to: opening it must not wait for a writer (it blocked `open(2)` for
-    /// ever, and Ctrl-C could not stop it). It reads as empty, at once; with a writer, the
-    /// writer's bytes come through as from any pipe.
+    /// A FIFO nobody writes to: opening it must not wait for a writer for ever (it blocked
+    /// `open(2)`, and Ctrl-C could not stop it): an error of kind TimedOut after the wait. A
+    /// writer that comes after the reader (the race of a feeding program started alongside)
+    /// and one that is there first are both read, bounded as any pipe.
     #[test]
     fn a_fifo_without_a_writer_does_not_block() {
         let dir = std::env::temp_dir().join(format!("kfuse-bounded-fifo-{}", std::process::id()));
@@ -156,19 +181,30 @@ mod tests {
         let fifo = dir.join("rig.json");
         let made = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
         assert!(made.success(), "mkfifo failed");
+        let wait = std::time::Duration::from_millis(300);
         let (tx, rx) = std::sync::mpsc::channel();
         let path = fifo.clone();
-        std::thread::spawn(move || tx.send(read_bounded(&path, 1000, EXPECTED).map(|b| b.len())));
+        std::thread::spawn(move || tx.send(open_waiting(&path, wait).map(|_| ())));
         let got = rx.recv_timeout(std::time::Duration::from_secs(10));
-        assert_eq!(got.expect("read_bounded blocked on a FIFO without a writer").unwrap(), 0);
+        let err = got.expect("blocked on a FIFO without a writer").unwrap_err();
+        assert_eq!(err.kind(), ErrorKind::TimedOut);
+        assert!(err.to_string().contains("no program wrote to within 0.3 s"), "{err}");
 
-        // With a writer: its bytes, bounded as any pipe's.
-        let path = fifo.clone();
-        let writer = std::thread::spawn(move || std::fs::write(&path, [5u8; 300]).unwrap());
-        std::thread::sleep(std::time::Duration::from_millis(200));
-        let bytes = read_bounded(&fifo, 1000, EXPECTED).unwrap();
-        writer.join().unwrap();
-        assert_eq!(bytes, vec![5u8; 300]);
+        for writer_first in [false, true] {
+            let path = fifo.clone();
+            let writer = std::thread::spawn(move || {
+                if !writer_first {
+                    std::thread::sleep(std::time::Duration::from_millis(200));
+                }
+                std::fs::write(&path, [5u8; 300]).unwrap()
+            });
+            if writer_first {
+                std::thread::sleep(std::time::Duration::from_millis(200));
+            }
+            let bytes = read_bounded(&fifo, 1000, EXPECTED).unwrap();
+            writer.join().unwrap();
+            assert_eq!(bytes, vec![5u8; 300], "writer first: {writer_first}");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
