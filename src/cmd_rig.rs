@@ -139,6 +139,39 @@ pub struct ExportArgs {
 
 /// Refuses, before anything is written, an output file that exists when `--overwrite` was not
 /// given: `rig import`/`export` once replaced a user's file of the same name without a word.
+/// Writes the files of one export into `folder` (created if missing) together or not at all:
+/// every file goes to its temporary sibling first and all are renamed in at the end, so a full
+/// disk or any failure midway leaves none of them (and no folder this call created), never
+/// one of iai_kinect2's four files beside stale others.
+fn write_together<'a>(
+    folder: &Path,
+    files: impl Iterator<Item = (&'a PathBuf, &'a String)>,
+    what: &str,
+) -> Result<()> {
+    let created = !folder.exists();
+    std::fs::create_dir_all(folder).with_context(|| format!("creating {}", folder.display()))?;
+    let mut staged = kfuse_io::atomic::StagedFiles::new();
+    let mut written = Vec::new();
+    let result = files
+        .map(|(p, text)| {
+            written.push(p.clone());
+            staged.add(p, text.as_bytes())
+        })
+        .collect::<Result<Vec<()>, _>>()
+        .and_then(|_| staged.commit());
+    if let Err(e) = result {
+        if created {
+            // Only this call's own (now empty) folder: remove_dir refuses anything else.
+            let _ = std::fs::remove_dir(folder);
+        }
+        return Err(e.into());
+    }
+    for p in written {
+        println!("wrote {} ({what})", p.display());
+    }
+    Ok(())
+}
+
 fn check_new(path: &Path, overwrite: bool) -> Result<()> {
     if path.is_dir() {
         bail!("{}: is a folder; give a file name such as rig.json", path.display());
@@ -334,12 +367,7 @@ fn export(a: ExportArgs) -> Result<()> {
             for p in &paths {
                 check_new(p, a.overwrite)?;
             }
-            std::fs::create_dir_all(&a.out)
-                .with_context(|| format!("creating {}", a.out.display()))?;
-            for (p, (_, text)) in paths.iter().zip(&files) {
-                write_bytes_atomic(p, text.as_bytes())?;
-                println!("wrote {} (iai_kinect2)", p.display());
-            }
+            write_together(&a.out, paths.iter().zip(files.iter().map(|(_, t)| t)), "iai_kinect2")?;
         }
         ("ros", cal) => {
             if a.out.is_file() {
@@ -348,8 +376,6 @@ fn export(a: ExportArgs) -> Result<()> {
                     a.out.display()
                 );
             }
-            std::fs::create_dir_all(&a.out)
-                .with_context(|| format!("creating {}", a.out.display()))?;
             let files: Vec<(PathBuf, String)> = match cal {
                 Calibration::Rig(rig) => {
                     let (d, c) = rig_io::ros::rig_yaml(rig);
@@ -369,10 +395,7 @@ fn export(a: ExportArgs) -> Result<()> {
             for (p, _) in &files {
                 check_new(p, a.overwrite)?;
             }
-            for (p, t) in &files {
-                write_bytes_atomic(p, t.as_bytes())?;
-                println!("wrote {} (ROS camera_info)", p.display());
-            }
+            write_together(&a.out, files.iter().map(|(p, t)| (p, t)), "ROS camera_info")?;
         }
         (f, _) => bail!("unknown format '{f}'"),
     }
@@ -451,7 +474,7 @@ fn export_multi(a: &ExportArgs, rig: &geometry::MultiRig) -> Result<()> {
         check_new(p, a.overwrite)?;
     }
     if a.format != "kfuse" {
-        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+        return write_together(&a.out, files.iter().map(|(p, t)| (p, t)), what);
     }
     for (p, t) in &files {
         write_bytes_atomic(p, t.as_bytes())?;

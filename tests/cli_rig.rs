@@ -1067,3 +1067,57 @@ fn huge_interval_and_depth_shift_are_echoed_in_scientific_notation() {
     assert!(longest_digits(&err) <= 17, "{err}");
     assert!(!rig.exists());
 }
+
+/// `rig export --format iai-kinect2` writes its four files together or not at all (issue 51: a
+/// full disk left 1 of the 4). A write that fails midway is made with a file-size limit
+/// (`ulimit -f`, SIGXFSZ ignored, so write(2) fails with EFBIG as on a full disk) between the
+/// smallest and the largest file's size: no file of the set appears in a new folder (nor the
+/// folder), and an earlier complete set in an existing folder stays byte for byte.
+#[test]
+fn iai_export_writes_its_four_files_together_or_none() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/kinect/rig.json");
+    let good = tmp.path().join("good");
+    ok(&["rig", "export", s(&rig), "--format", "iai-kinect2", "--out", s(&good)]);
+    let mut sizes: Vec<(String, u64)> = std::fs::read_dir(&good)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (e.file_name().to_string_lossy().into_owned(), e.metadata().unwrap().len())
+        })
+        .collect();
+    sizes.sort_by_key(|(_, n)| *n);
+    assert_eq!(sizes.len(), 4, "{sizes:?}");
+    // bash's ulimit -f counts 1024-byte blocks: a limit the smallest file fits under and the
+    // largest does not.
+    let blocks = sizes[0].1.div_ceil(1024);
+    assert!(blocks * 1024 < sizes[3].1, "no limit between the file sizes {sizes:?}");
+    let limited = |out: &Path, overwrite: bool| {
+        let mut args = vec!["rig", "export", s(&rig), "--format", "iai-kinect2", "--out", s(out)];
+        if overwrite {
+            args.push("--overwrite");
+        }
+        let script = format!("ulimit -f {blocks}; trap '' XFSZ; exec \"$0\" \"$@\"");
+        let r = Command::new("bash")
+            .args(["-c", &script, env!("CARGO_BIN_EXE_kfuse")])
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(!r.status.success(), "the limited export succeeded");
+        let err = String::from_utf8_lossy(&r.stderr).into_owned();
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        err
+    };
+    let fresh = tmp.path().join("fresh");
+    let err = limited(&fresh, false);
+    assert!(err.contains("too large") || err.contains("File too large"), "{err}");
+    assert!(!fresh.exists(), "the failed export left {}", fresh.display());
+    // Into the folder of the earlier set: nothing changes, and no temporary is left.
+    let before: Vec<Vec<u8>> =
+        sizes.iter().map(|(n, _)| std::fs::read(good.join(n)).unwrap()).collect();
+    limited(&good, true);
+    let after: Vec<Vec<u8>> =
+        sizes.iter().map(|(n, _)| std::fs::read(good.join(n)).unwrap()).collect();
+    assert_eq!(before, after);
+    assert_eq!(std::fs::read_dir(&good).unwrap().count(), 4, "a temporary was left");
+}
