@@ -407,9 +407,15 @@ pub fn run(
         version: 1,
         source: source_text.clone(),
         layout: options.layout,
-        depth_png: format!(
-            "16-bit, registered on the colour grid (colour camera z), {units} units per metre, 0 = no sample"
-        ),
+        depth_png: match options.layout {
+            // No PNGs: the registered depth is the bag's hd/image_depth_rect topic.
+            Layout::Rosbag2 => format!(
+                "none: the registered depth (colour camera z on the colour grid, {units} units per metre, 0 = no sample) is the bag's hd/image_depth_rect topic"
+            ),
+            Layout::Kfuse | Layout::Tum => format!(
+                "16-bit, registered on the colour grid (colour camera z), {units} units per metre, 0 = no sample"
+            ),
+        },
         depth_units_per_metre: units,
         max_skew_ms: recording.then_some(options.max_skew_ms),
         interrupted: outcome.interrupted,

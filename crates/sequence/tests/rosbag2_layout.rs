@@ -105,6 +105,12 @@ fn every_message_decodes_and_matches_the_kfuse_layout() {
     let frames = &kfuse.index.frames;
     assert!(frames.len() >= FRAMES as usize - 1, "{} frames", frames.len());
     assert_eq!(finished.index.frames.len(), frames.len());
+    assert_eq!(finished.index.layout, Layout::Rosbag2);
+    assert!(
+        finished.index.depth_png.contains("hd/image_depth_rect"),
+        "{}",
+        finished.index.depth_png
+    );
 
     let (messages, summary) = read_mcap(&bag.join("bag_0.mcap"));
     assert!(!summary.chunk_indexes.is_empty(), "no chunk index: readers cannot seek");
