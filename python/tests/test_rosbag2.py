@@ -241,6 +241,7 @@ def test_mcap_reader_schemas_summary_and_decoded_values(bag, messages):
         assert reader.get_header().profile == "ros2"
         summary = reader.get_summary()
         assert summary is not None and summary.chunk_indexes, "no summary / chunk index"
+        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
         assert summary.statistics.message_count == len(messages)
         for schema in summary.schemas.values():
             assert schema.encoding == "ros2msg"

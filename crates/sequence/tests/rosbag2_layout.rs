@@ -114,6 +114,7 @@ fn every_message_decodes_and_matches_the_kfuse_layout() {
 
     let (messages, summary) = read_mcap(&bag.join("bag_0.mcap"));
     assert!(!summary.chunk_indexes.is_empty(), "no chunk index: readers cannot seek");
+    assert!(summary.chunk_indexes.iter().all(|c| c.compression == "zstd"));
     assert_eq!(summary.stats.as_ref().unwrap().message_count, messages.len() as u64);
     assert_eq!(summary.channels.len(), 7);
     for ch in summary.channels.values() {
