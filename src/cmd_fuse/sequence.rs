@@ -40,8 +40,10 @@ pub struct SequenceArgs {
     /// the folder's kinect_params.json.
     #[arg(long, value_name = "DIR|GLOB", conflicts_with_all = ["color", "depth", "mat"])]
     pub frames: Option<PathBuf>,
-    /// Output layout: kfuse (depth/NNNNNN.png in mm, by frame number) or tum (TUM RGB-D:
-    /// rgb/, depth/ at 5000 per metre, rgb.txt, depth.txt, associations.txt; recordings only).
+    /// Output layout: kfuse (depth/NNNNNN.png in mm, by frame number), tum (TUM RGB-D:
+    /// rgb/, depth/ at 5000 per metre, rgb.txt, depth.txt, associations.txt; recordings only)
+    /// or rosbag2 (a ROS 2 bag: metadata.yaml + OUT_0.mcap, topics /kinect2/sn_SERIAL/...;
+    /// recordings only).
     #[arg(long, value_enum, default_value_t = LayoutArg::Kfuse)]
     pub layout: LayoutArg,
     /// Per-frame outputs besides the registered depth, comma-separated: holes (H8 mask),
@@ -75,6 +77,8 @@ pub enum LayoutArg {
     Kfuse,
     /// The TUM RGB-D benchmark's layout.
     Tum,
+    /// A rosbag2 folder (MCAP) that `ros2 bag play` and Foxglove open.
+    Rosbag2,
 }
 
 /// `--write`.
@@ -236,6 +240,7 @@ fn options(args: &FuseArgs) -> Result<SequenceOptions> {
         layout: match seq.layout {
             LayoutArg::Kfuse => Layout::Kfuse,
             LayoutArg::Tum => Layout::Tum,
+            LayoutArg::Rosbag2 => Layout::Rosbag2,
         },
         files: FileSet {
             holes: has(WriteArg::Holes),

@@ -84,7 +84,7 @@ fn benches(c: &mut Criterion) {
     });
     g.bench_function("decode", |b| b.iter(|| black_box(p.decoding.decode_raw(&raws[0]).unwrap())));
     let depth = p.decoding.decode_raw(&raws[0]).unwrap();
-    let frame = [Decoded { depth, raw: None, color: None }];
+    let frame = [Decoded { depth, raw: None, color: None, sensor: None }];
     g.bench_function("register", |b| b.iter(|| black_box(p.registering.register(&frame).unwrap())));
     let registered = p.registering.register(&frame).unwrap().remove(0);
     let (w, h) = (rig.color.width, rig.color.height);

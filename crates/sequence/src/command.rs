@@ -20,6 +20,7 @@ use kinect_usb::recording::ReadOptions;
 
 use crate::pipeline::{self, Config, Input, Kept, Outcome, Report};
 use crate::process::{self, Extras, Processor};
+use crate::rosbag2::{self, Bag};
 use crate::source::{FolderSource, RecordingSource, TICKS_PER_SECOND};
 use crate::write::{self, FileSet, FrameWriter, Index, IndexEntry, Layout};
 use crate::{Result, SequenceError, tum};
@@ -88,6 +89,23 @@ impl SequenceOptions {
         if !(skew.is_finite() && skew > 0.0 && skew <= MAX_SKEW_LIMIT_MS) {
             return bad(format!("--max-skew-ms must be in (0, {MAX_SKEW_LIMIT_MS}], got {skew}"));
         }
+        if self.layout == Layout::Rosbag2 {
+            if matches!(input, SequenceInput::Frames(_)) {
+                return Err(SequenceError::input(
+                    input.path(),
+                    "a frame folder has no sensor timestamps or serial, which the rosbag2 layout \
+                     stamps and names its topics with; export a recording (`kfuse capture record`) \
+                     with --layout rosbag2, or use --layout kfuse",
+                ));
+            }
+            if self.files != FileSet::default() {
+                return bad(
+                    "--write: the rosbag2 layout writes topics, not per-frame files (its colour \
+                     JPEGs are on hd/image_color/compressed); drop --write"
+                        .into(),
+                );
+            }
+        }
         if self.layout == Layout::Tum && matches!(input, SequenceInput::Frames(_)) {
             return Err(SequenceError::input(
                 input.path(),
@@ -107,7 +125,16 @@ impl SequenceOptions {
     }
 }
 
-/// Every name a sequence run may write into its output folder.
+/// Every name a sequence run into `out` may write there.
+pub fn output_names_for(out: &Path) -> Vec<String> {
+    let mut names = output_names();
+    names.push("metadata.yaml".into());
+    names.push(rosbag2::mcap_name(out));
+    names
+}
+
+/// Every name a sequence run may write into its output folder, besides the rosbag2 layout's
+/// ([`output_names_for`]).
 pub fn output_names() -> Vec<String> {
     [
         "index.json",
@@ -202,7 +229,7 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
     let started = Instant::now();
     options.check(input)?;
     let staged = StagedDir::new(out)?;
-    staged.refuse_foreign(&output_names())?;
+    staged.refuse_foreign(&output_names_for(out))?;
     let (input_, decoder, info, progress) = match input {
         SequenceInput::Recording(path, read) => {
             let src = RecordingSource::open(path, *read)?;
@@ -285,8 +312,14 @@ pub fn run(
     let mut processor =
         Processor::new(rig, decoder, options.extras(), units, &options.fusion, engine.0)
             .map_err(|e| e.context(format!("setting up registration for {}", source.display())))?;
+    // The rosbag2 layout publishes the decoder's depth and IR (`sd/` topics): decoded on the
+    // CPU, kept per frame.
+    if options.layout == Layout::Rosbag2 {
+        processor.decoding.keep_sensor_images();
+    }
     // On the GPU, a recording's depth is decoded there too (the frame never leaves the GPU)
-    // unless the depth is needed on the CPU: figures, the cloud, a depth correction.
+    // unless the depth is needed on the CPU: figures, the cloud, a depth correction, the
+    // rosbag2 layout's sd/ topics.
     if let (Some(info), None) = (&info, options.keep_every)
         && processor
             .decode_on_gpu(info)
@@ -298,13 +331,23 @@ pub fn run(
     if gpu {
         observer.note(&format!("GPU adapter: {engine}"));
     }
-    let writer = FrameWriter::new(
+    let mut writer = FrameWriter::new(
         staged.path(),
         options.layout,
         options.files,
         (rig.color.width, rig.color.height),
         (rig.depth.width, rig.depth.height),
     )?;
+    if options.layout == Layout::Rosbag2 {
+        let info = info.as_ref().ok_or_else(|| {
+            SequenceError::input(
+                &source,
+                "the rosbag2 layout needs a recording (its sensor's serial and times)",
+            )
+        })?;
+        let file = rosbag2::mcap_name(staged.destination());
+        writer = writer.with_bag(Bag::create(staged.path(), &file, &info.serial, rig)?);
+    }
     let (mut frames, mut missing, mut skipped) = (Vec::new(), Vec::new(), Vec::new());
     let mut on_report = |r: Report| -> Result<()> {
         match r {
@@ -370,9 +413,15 @@ pub fn run(
         version: 1,
         source: source_text.clone(),
         layout: options.layout,
-        depth_png: format!(
-            "16-bit, registered on the colour grid (colour camera z), {units} units per metre, 0 = no sample"
-        ),
+        depth_png: match options.layout {
+            // No PNGs: the registered depth is the bag's hd/image_depth_rect topic.
+            Layout::Rosbag2 => format!(
+                "none: the registered depth (colour camera z on the colour grid, {units} units per metre, 0 = no sample) is the bag's hd/image_depth_rect topic"
+            ),
+            Layout::Kfuse | Layout::Tum => format!(
+                "16-bit, registered on the colour grid (colour camera z), {units} units per metre, 0 = no sample"
+            ),
+        },
         depth_units_per_metre: units,
         max_skew_ms: recording.then_some(options.max_skew_ms),
         interrupted: outcome.interrupted,
@@ -389,6 +438,9 @@ pub fn run(
         wall_s: outcome.wall_s,
         stage_s: outcome.stage_s,
     };
+    if let Some(bag) = writer.bag() {
+        bag.finish()?;
+    }
     write::write_index(staged.path(), &index)?;
     if options.layout == Layout::Tum {
         tum::write_lists(staged.path(), &index.frames, &source_text, options.max_skew_ms)?;

@@ -12,6 +12,7 @@
 //! | 3–4 decode, register | [`process`] | the `Fast` depth decoder, `geometry::fusion::Registration` (or `fusion_gpu::FusionContext::stream`), the hole mask, colour on the depth grid, the cloud |
 //! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the colour JPEG as the scene is ([`color`]: a capture's copied unchanged, a recording's flipped without loss in the DCT domain), `index.json` |
 //! | export | [`tum`] | `rgb.txt`, `depth.txt`, `associations.txt`, README of the TUM layout |
+//! | export | [`rosbag2`] | the rosbag2 layout: ROS 2 topics (depth, IR, registered depth, the sensor's JPEG, camera_info, `/tf_static`) in one MCAP file + `metadata.yaml` |
 //! | pipeline | [`pipeline`] | the stages on one or two worker threads joined by bounded queues; Ctrl-C finishes the frames in flight |
 //! | the run | [`command`] | the whole `kfuse fuse --recording/--frames`: options checked, input and staged output opened ([`command::open`]), the pipeline, `index.json` and the TUM lists, the folder committed ([`command::run`]); the caller sees progress through [`command::Observer`] |
 //!
@@ -22,7 +23,7 @@
 //! ([`color::ColorJpeg`]). Sensor timestamps in ticks of 0.125 ms ([`source::TICKS_PER_SECOND`]), written as seconds
 //! with six decimals (exact). Registered depth is the colour camera's `z` on the colour pixel
 //! grid (H7's z-buffer: the nearest sample per colour pixel), 0 = no sample, in millimetres
-//! (kfuse layout) or 1/5000 m (TUM layout). Frame numbers count depth frame periods from the
+//! (kfuse and rosbag2 layouts) or 1/5000 m (TUM layout). Frame numbers count depth frame periods from the
 //! first frame of the recording, so a lost frame leaves a gap in the numbers.
 #![deny(missing_docs)]
 
@@ -32,6 +33,7 @@ pub mod error;
 pub mod matching;
 pub mod pipeline;
 pub mod process;
+pub mod rosbag2;
 pub mod source;
 pub mod tum;
 pub mod write;

@@ -237,12 +237,17 @@ fn produce(
             Some(Ok(mut job)) => {
                 let t = Instant::now();
                 let mut raw_for_gpu = None;
+                let mut sensor = None;
                 let depth = match (&job.raw, &job.depth_png) {
                     (Some(_), _) if decoding.decodes_on_gpu() => {
                         raw_for_gpu = job.raw.take();
                         Image::filled(0, 0, 0.0)
                     }
-                    (Some(raw), _) => decoding.decode_raw(raw)?,
+                    (Some(raw), _) => {
+                        let depth = decoding.decode_raw(raw)?;
+                        sensor = decoding.sensor_images();
+                        depth
+                    }
                     (None, Some(p)) => decoding.read_depth_png(p)?,
                     (None, None) => {
                         return Err(SequenceError::Pipeline("a frame without depth".into()));
@@ -261,7 +266,7 @@ fn produce(
                 };
                 times.decode_color += secs(t_color);
                 times.decode += secs(t);
-                let decoded = Decoded { depth, raw: raw_for_gpu, color };
+                let decoded = Decoded { depth, raw: raw_for_gpu, color, sensor };
                 Stage2::Frame(Box::new(Item { job, decoded }))
             }
         };
@@ -324,7 +329,7 @@ impl<'a> Backend<'a> {
                 Box::new(Kept { number: job.meta.number, depth: d.depth, jpeg: job.jpeg.clone() })
             });
             let t = Instant::now();
-            let encoded = self.writer.encode(job.meta, &r, job.jpeg.as_ref())?;
+            let encoded = self.writer.encode(job.meta, &r, job.jpeg.as_ref(), d.sensor.as_ref())?;
             drop(r);
             self.times.encode += secs(t);
             let t = Instant::now();
@@ -343,6 +348,7 @@ fn take_decoded(d: &mut Decoded) -> Decoded {
         depth: std::mem::replace(&mut d.depth, Image::filled(0, 0, 0.0)),
         raw: d.raw.take(),
         color: d.color.take(),
+        sensor: d.sensor.take(),
     }
 }
 

@@ -51,6 +51,9 @@ pub struct Decoded {
     pub raw: Option<Vec<u8>>,
     /// The colour image, decoded only when H6 or the cloud needs it and the frame has colour.
     pub color: Option<Image<[u8; 3]>>,
+    /// The decoder's own depth and IR, kept for the rosbag2 layout
+    /// ([`FrameDecoder::keep_sensor_images`]).
+    pub sensor: Option<crate::rosbag2::SensorImages>,
 }
 
 /// What registration produced for one frame.
@@ -89,6 +92,8 @@ pub struct FrameDecoder {
     needs_color: bool,
     /// Raw frames go to the registrar undecoded ([`Processor::decode_on_gpu`]).
     raw_to_gpu: bool,
+    /// Keep the decoder's depth and IR of each frame ([`FrameDecoder::sensor_images`]).
+    keep_sensor: bool,
 }
 
 /// Worker B's half of [`Processor`]: the engine of the per-pixel stages and the constants of
@@ -162,6 +167,7 @@ impl Processor {
                 rig: rig.clone(),
                 needs_color: extras.color_on_depth || extras.cloud,
                 raw_to_gpu: false,
+                keep_sensor: false,
             },
             registering: FrameRegistrar {
                 gpu_decoder: None,
@@ -192,7 +198,11 @@ impl Processor {
     pub fn decode_on_gpu(&mut self, info: &DeviceInfo) -> Result<bool> {
         let r = &mut self.registering;
         let PixelEngine::Gpu(ctx) = &r.engine else { return Ok(false) };
-        if self.decoding.decoder.is_none() || r.rig.depth_correction.is_some() || r.extras.cloud {
+        if self.decoding.decoder.is_none()
+            || self.decoding.keep_sensor
+            || r.rig.depth_correction.is_some()
+            || r.extras.cloud
+        {
             return Ok(false);
         }
         let xz = XzTables::from_params(&info.depth_params);
@@ -213,6 +223,21 @@ impl FrameDecoder {
     /// [`Processor::decode_on_gpu`]).
     pub fn decodes_on_gpu(&self) -> bool {
         self.raw_to_gpu
+    }
+
+    /// Keeps each frame's decoder depth and IR (the rosbag2 layout's `sd/` topics): frames are
+    /// then decoded on the CPU.
+    pub fn keep_sensor_images(&mut self) {
+        self.keep_sensor = true;
+    }
+
+    /// The decoder's depth (millimetres) and IR of the frame [`FrameDecoder::decode_raw`] decoded
+    /// last, as 16-bit images, when [`FrameDecoder::keep_sensor_images`] asked for them.
+    pub fn sensor_images(&self) -> Option<crate::rosbag2::SensorImages> {
+        self.keep_sensor.then(|| crate::rosbag2::SensorImages {
+            depth_mm: crate::rosbag2::depth_mm_u16(&self.depth_mm),
+            ir: crate::rosbag2::ir_u16(&self.ir),
+        })
     }
 
     /// Whether a frame's colour must be decoded for the extras asked for.

@@ -14,6 +14,7 @@ use serde::Serialize;
 
 use crate::color::ColorJpeg;
 use crate::matching::Missing;
+use crate::rosbag2::{Bag, BagMessage, SensorImages};
 use crate::source::TICKS_PER_SECOND;
 use crate::{Result, SequenceError};
 
@@ -39,6 +40,9 @@ pub enum Layout {
     /// TUM RGB-D: `rgb/`, `depth/` named by timestamp (seconds), `rgb.txt`, `depth.txt`,
     /// `associations.txt`, depth at [`TUM_UNITS_PER_METRE`].
     Tum,
+    /// A rosbag2 folder (`metadata.yaml`, `<name>_0.mcap`) of ROS 2 topics
+    /// ([`crate::rosbag2`]), depth in millimetres; recordings only.
+    Rosbag2,
 }
 
 /// Depth units per metre of the TUM RGB-D benchmark's PNGs (its `depth_scale` 5000: 0.2 mm
@@ -52,7 +56,7 @@ impl Layout {
     /// Units per metre of the depth PNGs.
     pub fn units_per_metre(self) -> f64 {
         match self {
-            Layout::Kfuse => KFUSE_UNITS_PER_METRE,
+            Layout::Kfuse | Layout::Rosbag2 => KFUSE_UNITS_PER_METRE,
             Layout::Tum => TUM_UNITS_PER_METRE,
         }
     }
@@ -140,16 +144,20 @@ pub struct Encoded {
     pub landed: usize,
     /// (relative path, bytes) of every file.
     pub files: Vec<(String, Vec<u8>)>,
+    /// The frame's messages (the rosbag2 layout).
+    pub messages: Vec<BagMessage>,
 }
 
 /// The per-frame outputs of one run.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct FrameWriter {
     root: PathBuf,
     layout: Layout,
     set: FileSet,
     color_size: (usize, usize),
     depth_size: (usize, usize),
+    /// The bag of the rosbag2 layout.
+    bag: Option<Bag>,
 }
 
 /// Encodes `data` (rows of `width` samples, 8-bit or big-endian 16-bit) as a PNG with
@@ -225,7 +233,7 @@ impl FrameWriter {
         color_size: (usize, usize),
         depth_size: (usize, usize),
     ) -> Result<Self> {
-        let w = Self { root: root.to_path_buf(), layout, set, color_size, depth_size };
+        let w = Self { root: root.to_path_buf(), layout, set, color_size, depth_size, bag: None };
         for dir in w.folders() {
             let p = root.join(dir);
             std::fs::create_dir_all(&p)
@@ -239,13 +247,27 @@ impl FrameWriter {
         self.layout
     }
 
+    /// Writes the frames into `bag` (the rosbag2 layout).
+    pub fn with_bag(mut self, bag: Bag) -> Self {
+        self.bag = Some(bag);
+        self
+    }
+
+    /// The bag of the rosbag2 layout.
+    pub fn bag(&self) -> Option<&Bag> {
+        self.bag.as_ref()
+    }
+
     /// The folders this writer fills.
     pub fn folders(&self) -> Vec<&'static str> {
+        if self.layout == Layout::Rosbag2 {
+            return Vec::new();
+        }
         let mut v = vec!["depth"];
         match self.layout {
             Layout::Tum => v.push("rgb"),
             Layout::Kfuse if self.set.color => v.push("color"),
-            Layout::Kfuse => {}
+            Layout::Kfuse | Layout::Rosbag2 => {}
         }
         for (on, dir) in [
             (self.set.holes, "holes"),
@@ -267,14 +289,22 @@ impl FrameWriter {
         }
     }
 
-    /// Encodes a frame's files (nothing is written yet). `jpeg` is the frame's colour JPEG,
-    /// written as the scene is ([`ColorJpeg::scene_jpeg`]).
+    /// Encodes a frame's files, or its messages in the rosbag2 layout (nothing is written
+    /// yet). `jpeg` is the frame's colour JPEG, written as the scene is
+    /// ([`ColorJpeg::scene_jpeg`]); `sensor` the decoder's depth and IR (rosbag2 layout).
     pub fn encode(
         &self,
         meta: FrameMeta,
         r: &crate::process::Registered,
         jpeg: Option<&ColorJpeg>,
+        sensor: Option<&SensorImages>,
     ) -> Result<Encoded> {
+        if self.layout == Layout::Rosbag2 {
+            let bag = self.bag.as_ref().ok_or_else(|| {
+                SequenceError::Pipeline("the rosbag2 layout's writer has no bag".into())
+            })?;
+            return self.encode_messages(bag, meta, r, jpeg, sensor);
+        }
         let stem = self.stem(&meta);
         let err = |name: &str, message: String| SequenceError::Encode {
             path: self.root.join(name),
@@ -291,7 +321,7 @@ impl FrameWriter {
                 match (self.layout, meta.color.as_ref().and_then(|c| c.time_ticks)) {
                     (Layout::Tum, Some(t)) => ("rgb", seconds_text(t)),
                     (Layout::Tum, None) => ("rgb", stem.clone()),
-                    (Layout::Kfuse, _) => ("color", stem.clone()),
+                    (Layout::Kfuse | Layout::Rosbag2, _) => ("color", stem.clone()),
                 };
             let name = format!("{dir}/{color_stem}.jpg");
             let source = PathBuf::from(format!("frame {}", meta.number));
@@ -319,7 +349,41 @@ impl FrameWriter {
         if let (true, Some(cloud)) = (self.set.cloud, &r.cloud) {
             files.push((format!("cloud/{stem}.ply"), ply_bytes(cloud)));
         }
-        Ok(Encoded { meta, landed: r.landed, files })
+        Ok(Encoded { meta, landed: r.landed, files, messages: Vec::new() })
+    }
+
+    fn encode_messages(
+        &self,
+        bag: &Bag,
+        meta: FrameMeta,
+        r: &crate::process::Registered,
+        jpeg: Option<&ColorJpeg>,
+        sensor: Option<&SensorImages>,
+    ) -> Result<Encoded> {
+        let source = PathBuf::from(format!("frame {}", meta.number));
+        let depth_ticks = meta.depth_time.ok_or_else(|| {
+            SequenceError::input(
+                &source,
+                "has no sensor time, which the rosbag2 layout stamps messages with",
+            )
+        })?;
+        let scene;
+        let color = match (jpeg, meta.color.as_ref().and_then(|c| c.time_ticks)) {
+            (Some(j), Some(t)) => {
+                scene = j.scene_jpeg(&source)?;
+                Some((scene.as_ref(), t, meta.color.as_ref().and_then(|c| c.sequence)))
+            }
+            _ => None,
+        };
+        let messages = bag.frame_messages(
+            depth_ticks,
+            sensor,
+            self.depth_size,
+            &r.depth_units,
+            self.color_size,
+            color,
+        )?;
+        Ok(Encoded { meta, landed: r.landed, files: Vec::new(), messages })
     }
 
     fn rgb_png(&self, c: &Image<[u8; 3]>) -> Result<Vec<u8>, String> {
@@ -339,6 +403,9 @@ impl FrameWriter {
 
     /// Writes an encoded frame's files (each atomically) and returns its index entry.
     pub fn write(&self, e: Encoded) -> Result<IndexEntry> {
+        if let Some(bag) = &self.bag {
+            bag.write(e.messages)?;
+        }
         let mut names = Vec::with_capacity(e.files.len());
         for (name, bytes) in e.files {
             write_bytes_atomic(&self.root.join(&name), &bytes)?;

@@ -50,7 +50,7 @@ fn sequence(frame: &synth::SynthFrame, rig: &geometry::Rig, engine: Engine) -> O
         .expect("processor");
     // NaN (no sample) as 0, the decoder's and the frame folder reader's convention.
     let depth = frame.depth.map(|&z| if z > 0.0 { z } else { 0.0 });
-    let decoded = Decoded { depth, raw: None, color: Some(frame.color.clone()) };
+    let decoded = Decoded { depth, raw: None, color: Some(frame.color.clone()), sensor: None };
     let mut r = p.registering.register(std::slice::from_ref(&decoded)).expect("sequence register");
     let r = r.pop().expect("one frame");
     Outputs {

@@ -189,6 +189,49 @@ fn mat_yaml(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]
         writeln!(out, "{name}:\n  rows: {rows}\n  cols: {cols}\n  data: [{}]", values.join(", "));
 }
 
+/// One camera's `camera_info` values: the calibrated image's size, `K`, `D` (plumb_bob: k1,
+/// k2, p1, p2, k3), `R` and `P`, row-major, as the YAML file and `sensor_msgs/CameraInfo`
+/// hold them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraInfoValues {
+    /// Image columns.
+    pub width: usize,
+    /// Image rows.
+    pub height: usize,
+    /// Intrinsic matrix.
+    pub k: [f64; 9],
+    /// Distortion, plumb_bob.
+    pub d: [f64; 5],
+    /// Rectification rotation.
+    pub r: [f64; 9],
+    /// Projection matrix, 3 × 4: `K [I | t]`.
+    pub p: [f64; 12],
+}
+
+/// The `camera_info` values of camera `c` with rectification `rect` and translation `t`
+/// (module docs).
+pub fn camera_info_values(
+    c: &CameraModel,
+    rect: &Matrix3<f64>,
+    t: &Vector3<f64>,
+) -> CameraInfoValues {
+    let k = c.intrinsics.matrix();
+    let kt = k * t;
+    let row = |m: &Matrix3<f64>| std::array::from_fn(|n| m[(n / 3, n % 3)]);
+    let p = std::array::from_fn(|n| {
+        let (i, j) = (n / 4, n % 4);
+        if j == 3 { kt[i] } else { k[(i, j)] }
+    });
+    CameraInfoValues {
+        width: c.width,
+        height: c.height,
+        k: row(&k),
+        d: c.distortion.to_array(),
+        r: row(rect),
+        p,
+    }
+}
+
 /// One `camera_info` file.
 pub fn camera_info_yaml(
     name: &str,
@@ -196,24 +239,20 @@ pub fn camera_info_yaml(
     rect: &Matrix3<f64>,
     t: &Vector3<f64>,
 ) -> String {
-    let k = c.intrinsics.matrix();
-    let kt = k * t;
+    let v = camera_info_values(c, rect, t);
     let mut s = String::new();
     let _ =
-        writeln!(s, "image_width: {}\nimage_height: {}\ncamera_name: {name}", c.width, c.height);
-    let row =
-        |m: &Matrix3<f64>| (0..3).flat_map(|i| (0..3).map(move |j| m[(i, j)])).collect::<Vec<_>>();
-    mat_yaml(&mut s, "camera_matrix", 3, 3, &row(&k));
+        writeln!(s, "image_width: {}\nimage_height: {}\ncamera_name: {name}", v.width, v.height);
+    mat_yaml(&mut s, "camera_matrix", 3, 3, &v.k);
     let _ = writeln!(s, "distortion_model: plumb_bob");
-    mat_yaml(&mut s, "distortion_coefficients", 1, 5, &c.distortion.to_array());
-    mat_yaml(&mut s, "rectification_matrix", 3, 3, &row(rect));
-    let p: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| k[(i, j)]).chain([kt[i]])).collect();
-    mat_yaml(&mut s, "projection_matrix", 3, 4, &p);
+    mat_yaml(&mut s, "distortion_coefficients", 1, 5, &v.d);
+    mat_yaml(&mut s, "rectification_matrix", 3, 3, &v.r);
+    mat_yaml(&mut s, "projection_matrix", 3, 4, &v.p);
     s
 }
 
-/// The `camera_info` pair of a rig: `(depth file text, colour file text)` (module docs).
-pub fn rig_yaml(rig: &Rig) -> (String, String) {
+/// The rectification of a rig's pair (module docs): `(R_1, R_2, t_2)`, `t_1 = 0`.
+fn rig_rectification(rig: &Rig) -> (Matrix3<f64>, Matrix3<f64>, Vector3<f64>) {
     let cfd = &rig.color_from_depth;
     let r = *cfd.rotation.matrix();
     let centre = -(r.transpose() * cfd.translation);
@@ -231,7 +270,22 @@ pub fn rig_yaml(rig: &Rig) -> (String, String) {
             Vector3::new(-sign * b, 0.0, 0.0),
         )
     };
-    let r2 = r1 * r.transpose();
+    (r1, r1 * r.transpose(), t2)
+}
+
+/// The `camera_info` values of a rig's pair: `(depth, colour)` (module docs); what
+/// [`rig_yaml`] writes and what a rosbag2 export publishes as `sd/` and `hd/camera_info`.
+pub fn rig_camera_infos(rig: &Rig) -> (CameraInfoValues, CameraInfoValues) {
+    let (r1, r2, t2) = rig_rectification(rig);
+    (
+        camera_info_values(&rig.depth, &r1, &Vector3::zeros()),
+        camera_info_values(&rig.color, &r2, &t2),
+    )
+}
+
+/// The `camera_info` pair of a rig: `(depth file text, colour file text)` (module docs).
+pub fn rig_yaml(rig: &Rig) -> (String, String) {
+    let (r1, r2, t2) = rig_rectification(rig);
     (
         camera_info_yaml("depth", &rig.depth, &r1, &Vector3::zeros()),
         camera_info_yaml("color", &rig.color, &r2, &t2),
