@@ -409,16 +409,22 @@ impl UpdateContext<'_> {
         let mu = o.truncation_m;
         let (w, h) = (self.camera.width, self.camera.height);
         let mut updated = 0;
+        // Voxel centres in the camera frame, stepped from the block's first voxel: the
+        // rotation's columns times the voxel size are the steps along x, y and z.
+        let side = BLOCK_SIDE as f64;
+        let first = Vector3::new(
+            (key[0] as f64 * side + 0.5) * v,
+            (key[1] as f64 * side + 0.5) * v,
+            (key[2] as f64 * side + 0.5) * v,
+        );
+        let origin = self.r * first + self.t;
+        let (sx, sy, sz) = (self.r.column(0) * v, self.r.column(1) * v, self.r.column(2) * v);
         for z in 0..BLOCK_SIDE {
+            let pz = origin + sz * z as f64;
             for y in 0..BLOCK_SIDE {
+                let py = pz + sy * y as f64;
                 for x in 0..BLOCK_SIDE {
-                    let g = [
-                        key[0] as f64 * BLOCK_SIDE as f64 + x as f64,
-                        key[1] as f64 * BLOCK_SIDE as f64 + y as f64,
-                        key[2] as f64 * BLOCK_SIDE as f64 + z as f64,
-                    ];
-                    let p = Vector3::new((g[0] + 0.5) * v, (g[1] + 0.5) * v, (g[2] + 0.5) * v);
-                    let pc = self.r * p + self.t;
+                    let pc = py + sx * x as f64;
                     if !(pc.z > 0.0) {
                         continue;
                     }
@@ -478,21 +484,22 @@ fn sample_depth(
     if w < 2 || h < 2 || !(u >= 0.0 && v >= 0.0 && u <= (w - 1) as f64 && v <= (h - 1) as f64) {
         return None;
     }
-    let nearest = (v + 0.5).floor() as usize * w + (u + 0.5).floor() as usize;
+    // u, v ≥ 0 here: the casts are floors.
+    let nearest = (v + 0.5) as usize * w + (u + 0.5) as usize;
     let zn = depth[nearest] as f64;
     let ok = |z: f64| z >= min && z <= max;
     if !ok(zn) {
         return None;
     }
     // The pixel up and left of the position (the last but one on the far edges).
-    let (u0, v0) = (u.floor().min((w - 2) as f64), v.floor().min((h - 2) as f64));
-    let i = v0 as usize * w + u0 as usize;
+    let (u0, v0) = ((u as usize).min(w - 2), (v as usize).min(h - 2));
+    let i = v0 * w + u0;
     let q = [depth[i] as f64, depth[i + 1] as f64, depth[i + w] as f64, depth[i + w + 1] as f64];
     if q.iter().all(|&z| ok(z)) {
         let lo = q.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = q.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         if hi - lo <= INTERPOLATION_MAX_STEP * zn {
-            let (fu, fv) = (u - u0, v - v0);
+            let (fu, fv) = (u - u0 as f64, v - v0 as f64);
             let top = q[0] + (q[1] - q[0]) * fu;
             let bottom = q[2] + (q[3] - q[2]) * fu;
             return Some((top + (bottom - top) * fv, nearest));
