@@ -134,5 +134,8 @@ fn fuse_tsdf_of_three_kinects_against_the_truth() {
     }
     let e = run_bad(&["--voxel-size", "0.01"]);
     assert!(e.contains("add --tsdf"), "{e}");
+    // 1 mm voxels: the ring's band needs more blocks than the default 2 GiB bound.
+    let e = run_bad(&["--tsdf", "--voxel-size", "0.001"]);
+    assert!(e.contains("GiB bound") && e.contains("larger --voxel-size"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -28,6 +28,9 @@ const OUTPUTS: [&str; 4] = ["rig.json", "cloud.ply", "depth_zbuffer.png", "summa
 /// What `--tsdf` writes: the mesh (vertex colours and normals) and the surface points.
 const TSDF_OUTPUTS: [&str; 2] = ["tsdf_mesh.ply", "tsdf_cloud.ply"];
 
+/// Bytes in a GiB, for the memory bound's message.
+const GIB: f64 = (1u64 << 30) as f64;
+
 /// What `--virtual-view` writes.
 const VIRTUAL_OUTPUTS: [&str; 2] = ["virtual_depth.png", "virtual_color.png"];
 
@@ -603,6 +606,15 @@ fn write_tsdf(
     let stats = kfuse_tsdf::integrate_multi(&mut volume, fused, |k| bar.set_position(k as u64));
     let stats = match stats {
         Ok(s) => s,
+        Err(kfuse_tsdf::TsdfError::MemoryBound { blocks, needed_bytes, limit_bytes }) => {
+            bar.finish_and_clear();
+            bail!(
+                "--voxel-size {}: the TSDF volume would need {:.2} GiB ({blocks} voxel blocks), over its {:.2} GiB bound: use a larger --voxel-size (memory grows with 1/size²)",
+                options.voxel_size_m,
+                needed_bytes as f64 / GIB,
+                limit_bytes as f64 / GIB
+            );
+        }
         Err(e) => {
             bar.finish_and_clear();
             return Err(e).context("--tsdf");
