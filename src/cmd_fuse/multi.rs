@@ -609,7 +609,7 @@ fn write_tsdf(
         Err(kfuse_tsdf::TsdfError::MemoryBound { blocks, needed_bytes, limit_bytes }) => {
             bar.finish_and_clear();
             bail!(
-                "--voxel-size {}: the TSDF volume would need {:.2} GiB ({blocks} voxel blocks), over its {:.2} GiB bound: use a larger --voxel-size (memory grows with 1/size²)",
+                "--voxel-size {}: the TSDF volume would need at least {:.2} GiB ({blocks} voxel blocks), over its {:.2} GiB bound: use a larger --voxel-size (memory grows with 1/size²)",
                 options.voxel_size_m,
                 needed_bytes as f64 / GIB,
                 limit_bytes as f64 / GIB

@@ -11,11 +11,12 @@ pub enum TsdfError {
     InvalidOption(String),
     /// Integrating a frame would allocate more voxel blocks than the memory bound allows.
     #[error(
-        "the TSDF volume would need {needed_bytes} bytes ({blocks} voxel blocks), more than the \
-         memory bound of {limit_bytes} bytes: use a larger voxel size or raise the bound"
+        "the TSDF volume would need at least {needed_bytes} bytes ({blocks} voxel blocks), more \
+         than the memory bound of {limit_bytes} bytes: use a larger voxel size or raise the bound"
     )]
     MemoryBound {
-        /// Blocks the volume would hold after the frame.
+        /// Blocks the volume would hold after the frame (at least: the frame is refused as
+        /// soon as its blocks seen so far exceed the bound).
         blocks: usize,
         /// Bytes those blocks take.
         needed_bytes: u64,

@@ -30,6 +30,11 @@ pub const BLOCK_BYTES: u64 =
 /// invent a surface between the two.
 pub const INTERPOLATION_MAX_STEP: f64 = 0.03;
 
+/// Image rows whose blocks are gathered (in parallel) before they are merged into the frame's
+/// list and checked against the memory bound: 32, enough rows for every core, few enough
+/// that one band's keys stay small next to the bound (32 rows of a 512-pixel-wide image).
+const ROWS_PER_MERGE: usize = 32;
+
 /// Cameras whose undistorted ray tables a volume keeps between frames: 16, more than the
 /// sensors of any rig kfuse fuses (a table of a 512×424 camera is 1.7 MB).
 const MAX_CACHED_CAMERAS: usize = 16;
@@ -230,52 +235,65 @@ impl TsdfVolume {
         let block_m = o.voxel_size_m * BLOCK_SIDE as f64;
         let depth = frame.z.data();
 
-        // 1. The blocks the band of every sample passes through.
-        let per_row: Vec<(usize, Vec<[i32; 3]>)> = (0..h)
-            .into_par_iter()
-            .map(|y| {
-                let mut keys = Vec::new();
-                let mut pixels = 0;
-                for x in 0..w {
-                    let i = y * w + x;
-                    let z = depth[i] as f64;
-                    if !(z >= o.min_depth_m && z <= o.max_depth_m) {
-                        continue;
-                    }
-                    let [rx, ry] = rays[i];
-                    if !(rx.is_finite() && ry.is_finite()) {
-                        continue;
-                    }
-                    pixels += 1;
-                    let dir = Vector3::new(rx as f64, ry as f64, 1.0);
-                    let len = dir.norm();
-                    let range = z * len;
-                    let t0 = (range - o.truncation_m).max(0.0) / len;
-                    let t1 = (range + o.truncation_m) / len;
-                    let a = volume_from_camera.apply(&(dir * t0));
-                    let b = volume_from_camera.apply(&(dir * t1));
-                    blocks_on_segment(&a, &b, block_m, &mut keys);
+        // 1. The blocks the band of every sample passes through, gathered in bands of rows
+        //    and merged after each, so that the key list never holds more than the blocks
+        //    the memory bound allows plus one band's: a frame past the bound is refused
+        //    before the list outgrows it.
+        let limit_blocks = (o.max_memory_bytes / BLOCK_BYTES) as usize;
+        let row_keys = |y: usize| {
+            let mut keys = Vec::new();
+            let mut pixels = 0;
+            for x in 0..w {
+                let i = y * w + x;
+                let z = depth[i] as f64;
+                if !(z >= o.min_depth_m && z <= o.max_depth_m) {
+                    continue;
                 }
-                keys.sort_unstable();
-                keys.dedup();
-                (pixels, keys)
-            })
-            .collect();
-        let pixels = per_row.iter().map(|(p, _)| p).sum();
-        let mut needed: Vec<[i32; 3]> = per_row.into_iter().flat_map(|(_, k)| k).collect();
-        needed.par_sort_unstable();
-        needed.dedup();
+                let [rx, ry] = rays[i];
+                if !(rx.is_finite() && ry.is_finite()) {
+                    continue;
+                }
+                pixels += 1;
+                let dir = Vector3::new(rx as f64, ry as f64, 1.0);
+                let len = dir.norm();
+                let range = z * len;
+                let t0 = (range - o.truncation_m).max(0.0) / len;
+                let t1 = (range + o.truncation_m) / len;
+                let a = volume_from_camera.apply(&(dir * t0));
+                let b = volume_from_camera.apply(&(dir * t1));
+                blocks_on_segment(&a, &b, block_m, &mut keys);
+            }
+            keys.sort_unstable();
+            keys.dedup();
+            (pixels, keys)
+        };
+        let mut pixels = 0;
+        let mut needed: Vec<[i32; 3]> = Vec::new();
+        let over_bound = |blocks: usize| TsdfError::MemoryBound {
+            blocks,
+            needed_bytes: blocks as u64 * BLOCK_BYTES,
+            limit_bytes: o.max_memory_bytes,
+        };
+        for start in (0..h).step_by(ROWS_PER_MERGE) {
+            let band: Vec<(usize, Vec<[i32; 3]>)> =
+                (start..h.min(start + ROWS_PER_MERGE)).into_par_iter().map(row_keys).collect();
+            for (p, keys) in band {
+                pixels += p;
+                needed.extend(keys);
+            }
+            needed.par_sort_unstable();
+            needed.dedup();
+            // The new blocks are at most all of them; count them exactly only when that
+            // bound is over the limit.
+            if self.blocks.len() + needed.len() > limit_blocks {
+                let new = needed.iter().filter(|k| !self.index.contains_key(*k)).count();
+                if self.blocks.len() + new > limit_blocks {
+                    return Err(over_bound(self.blocks.len() + new));
+                }
+            }
+        }
         let new: Vec<[i32; 3]> =
             needed.iter().copied().filter(|k| !self.index.contains_key(k)).collect();
-        let blocks = self.blocks.len() + new.len();
-        let needed_bytes = blocks as u64 * BLOCK_BYTES;
-        if needed_bytes > o.max_memory_bytes {
-            return Err(TsdfError::MemoryBound {
-                blocks,
-                needed_bytes,
-                limit_bytes: o.max_memory_bytes,
-            });
-        }
         for k in &new {
             self.index.insert(*k, self.blocks.len() as u32);
             self.keys.push(*k);
