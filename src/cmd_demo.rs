@@ -99,6 +99,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         view: None,
         shot: None,
         virtual_view: None,
+        tsdf: false,
+        voxel_size: None,
+        truncation: None,
         sequence: Default::default(),
     };
     let result =

@@ -41,6 +41,8 @@ Examples:
              --sensor C=c_color.jpg,c_depth.png --out merged   (a rig of several Kinects)
   kfuse fuse --rig ring_scene/true_rig.json --frames ring_scene --out merged
              (a capture of several sensors: DIR/index.json; --shot NAME|K when it holds several)
+  kfuse fuse --rig ring_scene/true_rig.json --frames ring_scene --tsdf --voxel-size 0.005 --out vol
+             (volumetric fusion: tsdf_mesh.ply, tsdf_cloud.ply beside the merged cloud)
   kfuse fuse --rig rig3.json --frames room --virtual-view 'from=0.5,-0.8,0.4;look-at=0,0.2,1.6' --out v
              (also virtual_depth.png, virtual_color.png: the merged cloud seen from that pose)
 
@@ -68,6 +70,8 @@ Outputs of several Kinects (--sensor or --frames of a capture of several sensors
   mesh_SERIAL.ply, mesh_SERIAL.obj/.mtl/_texture.png   per sensor: H4 on its depth grid, H5,
                                  in the reference frame, textured by its own colour image
   virtual_depth.png, virtual_color.png   with --virtual-view (16-bit mm z; RGB)
+  tsdf_mesh.ply, tsdf_cloud.ply  with --tsdf: the volumetric fusion's mesh (vertex colours,
+                                 normals) and its surface points (reference frame)
   summary.json                   points per sensor, mesh faces, consistency per pair")]
 pub struct FuseArgs {
     /// Rig file (JSON from `kfuse calibrate` or `kfuse rig import`) describing both cameras
@@ -166,6 +170,19 @@ pub struct FuseArgs {
     /// camera; up defaults to 0,-1,0).
     #[arg(long, value_name = "from=X,Y,Z;look-at=X,Y,Z", allow_hyphen_values = true)]
     pub virtual_view: Option<String>,
+    /// With several Kinects: also fuse every sensor's depth into one truncated signed distance
+    /// field (volumetric fusion, `kfuse-tsdf`) and write its marching-cubes mesh as
+    /// tsdf_mesh.ply (vertex colours and normals) and its surface points as tsdf_cloud.ply,
+    /// in the rig's reference frame.
+    #[arg(long)]
+    pub tsdf: bool,
+    /// With --tsdf: the voxel size, metres (default 0.005; 0.001–0.5).
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
+    pub voxel_size: Option<f64>,
+    /// With --tsdf: the truncation distance, metres (default 0.03, or 3 voxels when that is
+    /// more; at least 2 voxels, at most 1 m).
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
+    pub truncation: Option<f64>,
     /// A whole recording or frame folder instead of one frame.
     #[command(flatten)]
     pub sequence: sequence::SequenceArgs,

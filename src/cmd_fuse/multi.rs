@@ -3,7 +3,9 @@
 //! coloured cloud in the rig's reference frame, z-buffered into one camera of the rig
 //! ([`fusion_gpu::fuse_multi`]: the per-pixel stages and the z-buffer across the sensors on
 //! `--engine`) and optionally into a virtual camera, meshed per sensor with H5's edge rule,
-//! with the rig's overlap consistency per pair of sensors.
+//! with the rig's overlap consistency per pair of sensors. With `--tsdf`, every sensor's depth
+//! is also integrated into one truncated signed distance field (`kfuse_tsdf`), meshed by
+//! marching cubes into [`TSDF_OUTPUTS`].
 
 use std::path::{Path, PathBuf};
 
@@ -22,6 +24,12 @@ use super::{DepthKindArg, FuseArgs, options};
 /// The names this command always writes into `--out`; beside them `mesh_SERIAL.*` per
 /// sensor ([`mesh_names`]) and, with `--virtual-view`, [`VIRTUAL_OUTPUTS`].
 const OUTPUTS: [&str; 4] = ["rig.json", "cloud.ply", "depth_zbuffer.png", "summary.json"];
+
+/// What `--tsdf` writes: the mesh (vertex colours and normals) and the surface points.
+const TSDF_OUTPUTS: [&str; 2] = ["tsdf_mesh.ply", "tsdf_cloud.ply"];
+
+/// Bytes in a GiB, for the memory bound's message.
+const GIB: f64 = (1u64 << 30) as f64;
 
 /// What `--virtual-view` writes.
 const VIRTUAL_OUTPUTS: [&str; 2] = ["virtual_depth.png", "virtual_color.png"];
@@ -50,6 +58,34 @@ pub fn is_multi(args: &FuseArgs) -> bool {
         || args.shot.is_some()
         || args.virtual_view.is_some()
         || args.view.is_some()
+        || args.tsdf
+        || args.voxel_size.is_some()
+        || args.truncation.is_some()
+}
+
+/// The volume `--tsdf`, `--voxel-size` and `--truncation` ask for, checked before any work;
+/// `None` without `--tsdf`. Errors, one line each: a value out of its range (naming the flag,
+/// the value and the range), `--voxel-size`/`--truncation` without `--tsdf`.
+fn tsdf_options(args: &FuseArgs) -> Result<Option<kfuse_tsdf::TsdfOptions>> {
+    if !args.tsdf {
+        if args.voxel_size.is_some() || args.truncation.is_some() {
+            bail!("--voxel-size and --truncation size the volume of --tsdf: add --tsdf");
+        }
+        return Ok(None);
+    }
+    let mut o = match args.voxel_size {
+        Some(v) => kfuse_tsdf::TsdfOptions::with_voxel_size(v),
+        None => kfuse_tsdf::TsdfOptions::default(),
+    };
+    if let Some(t) = args.truncation {
+        o.truncation_m = t;
+    }
+    o.validate().map_err(|e| {
+        let flag =
+            if e.to_string().contains("truncation") { "--truncation" } else { "--voxel-size" };
+        anyhow::anyhow!("{flag}: {e}")
+    })?;
+    Ok(Some(o))
 }
 
 /// The per-sensor mesh files of sensor `serial`: the H5-clean mesh as PLY and OBJ (with its
@@ -291,6 +327,8 @@ struct Summary<'a> {
     shot: Option<ShotChoice>,
     #[serde(skip_serializing_if = "Option::is_none")]
     virtual_view: Option<VirtualSummary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tsdf: Option<TsdfSummary>,
     consistency: &'a [geometry::fusion::multi::PairConsistency],
     consistency_gate_mm: f64,
     engine: String,
@@ -309,6 +347,22 @@ struct SensorSummary {
     mesh_faces_before_h5: usize,
     mesh_faces: usize,
     mesh_vertices: usize,
+}
+
+/// summary.json's `tsdf`.
+#[derive(Serialize)]
+struct TsdfSummary {
+    voxel_size_m: f64,
+    truncation_m: f64,
+    blocks: usize,
+    memory_bytes: u64,
+    memory_bound_bytes: u64,
+    /// Per sensor, in the order of `sensors`: voxels updated.
+    voxels_updated: Vec<usize>,
+    mesh_vertices: usize,
+    mesh_faces: usize,
+    integrate_ms: f64,
+    mesh_ms: f64,
 }
 
 #[derive(Serialize)]
@@ -346,11 +400,11 @@ fn check_flags(args: &FuseArgs) -> Result<Option<&Path>> {
     if args.sensor.is_empty() && frames_dir.is_none() {
         match &args.sequence.frames {
             Some(f) => bail!(
-                "{}: no index.json, so not a capture of several sensors: --view/--shot/--virtual-view fuse several Kinects (give `kfuse capture --device ...`'s folder, or --sensor SERIAL=COLOR,DEPTH per sensor)",
+                "{}: no index.json, so not a capture of several sensors: --view/--shot/--virtual-view/--tsdf fuse several Kinects (give `kfuse capture --device ...`'s folder, or --sensor SERIAL=COLOR,DEPTH per sensor)",
                 f.display()
             ),
             None => bail!(
-                "--view/--shot/--virtual-view fuse several Kinects: give --sensor SERIAL=COLOR,DEPTH per sensor or --frames DIR of a capture of several sensors"
+                "--view/--shot/--virtual-view/--tsdf fuse several Kinects: give --sensor SERIAL=COLOR,DEPTH per sensor or --frames DIR of a capture of several sensors"
             ),
         }
     }
@@ -538,6 +592,62 @@ fn write_virtual(
     })
 }
 
+/// `--tsdf`: every sensor integrated into one volume (a progress bar per sensor and for the
+/// mesh), the mesh and its surface points written as [`TSDF_OUTPUTS`].
+fn write_tsdf(
+    staged: &StagedDir,
+    fused: &MultiFusion,
+    options: kfuse_tsdf::TsdfOptions,
+) -> Result<TsdfSummary> {
+    let bar = super::progress(fused.sensors.len() as u64 + 1);
+    bar.set_message("TSDF: integrating");
+    let t0 = std::time::Instant::now();
+    let mut volume = kfuse_tsdf::TsdfVolume::new(options)?;
+    let stats = kfuse_tsdf::integrate_multi(&mut volume, fused, |k| bar.set_position(k as u64));
+    let stats = match stats {
+        Ok(s) => s,
+        Err(kfuse_tsdf::TsdfError::MemoryBound { blocks, needed_bytes, limit_bytes }) => {
+            bar.finish_and_clear();
+            bail!(
+                "--voxel-size {}: the TSDF volume would need at least {:.2} GiB ({blocks} voxel blocks), over its {:.2} GiB bound: use a larger --voxel-size (memory grows with 1/size²)",
+                options.voxel_size_m,
+                needed_bytes as f64 / GIB,
+                limit_bytes as f64 / GIB
+            );
+        }
+        Err(e) => {
+            bar.finish_and_clear();
+            return Err(e).context("--tsdf");
+        }
+    };
+    let integrate_ms = t0.elapsed().as_secs_f64() * 1e3;
+    bar.set_message("TSDF: marching cubes");
+    let t1 = std::time::Instant::now();
+    let mesh = volume.extract_mesh();
+    let mesh_ms = t1.elapsed().as_secs_f64() * 1e3;
+    bar.finish_and_clear();
+    let frame = "rig reference camera";
+    ply::write_mesh_ply_normals(
+        &staged.join(TSDF_OUTPUTS[0]),
+        &mesh.to_mesh(),
+        &mesh.normals,
+        frame,
+    )?;
+    ply::write_cloud_ply(&staged.join(TSDF_OUTPUTS[1]), &mesh.to_point_cloud(), frame)?;
+    Ok(TsdfSummary {
+        voxel_size_m: options.voxel_size_m,
+        truncation_m: options.truncation_m,
+        blocks: volume.block_count(),
+        memory_bytes: volume.memory_bytes(),
+        memory_bound_bytes: options.max_memory_bytes,
+        voxels_updated: stats.iter().map(|s| s.voxels_updated).collect(),
+        mesh_vertices: mesh.vertices.len(),
+        mesh_faces: mesh.faces.len(),
+        integrate_ms,
+        mesh_ms,
+    })
+}
+
 /// Each sensor's line of summary.json.
 fn sensor_summaries(
     fused: &MultiFusion,
@@ -646,6 +756,7 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     let started = std::time::Instant::now();
     let options = options(args)?;
     let frames_dir = check_flags(args)?;
+    let tsdf = tsdf_options(args)?;
     let Some(rig_path) = &args.rig else {
         bail!(
             "several Kinects need --rig RIG.json (a rig of several cameras; a simulated capture writes true_rig.json beside its frames)"
@@ -673,6 +784,9 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     if virtual_pose.is_some() {
         outputs.extend(VIRTUAL_OUTPUTS.map(String::from));
     }
+    if tsdf.is_some() {
+        outputs.extend(TSDF_OUTPUTS.map(String::from));
+    }
     let staged = StagedDir::new(&args.out)?;
     staged.refuse_foreign(&outputs)?;
 
@@ -695,6 +809,10 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
         Some((spec, pose)) => Some(write_virtual(&staged, &rig, &fused, spec, pose)?),
         None => None,
     };
+    let tsdf = match tsdf {
+        Some(o) => Some(write_tsdf(&staged, &fused, o)?),
+        None => None,
+    };
     let summary = Summary {
         rig: rig_path.display().to_string(),
         reference: &rig.reference,
@@ -704,6 +822,7 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
         view_pixels: zbuffer.data().iter().filter(|z| z.is_finite()).count(),
         shot: shot.clone(),
         virtual_view,
+        tsdf,
         consistency: &fused.consistency,
         consistency_gate_mm: geometry::fusion::multi::OVERLAP_GATE_M as f64 * 1e3,
         engine: engine_name(&used),
@@ -714,11 +833,22 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
             "meshes": mesh_ms,
             "total": started.elapsed().as_secs_f64() * 1e3,
         }),
-        frames: "cloud.ply, mesh_SERIAL.*: the rig's reference camera; depth_zbuffer.png: --view camera, z in mm; virtual_depth.png: the --virtual-view camera, z in mm",
+        frames: "cloud.ply, mesh_SERIAL.*: the rig's reference camera; depth_zbuffer.png: --view camera, z in mm; virtual_depth.png: the --virtual-view camera, z in mm; tsdf_mesh.ply, tsdf_cloud.ply: the rig's reference camera",
     };
     let json = serde_json::to_string_pretty(&summary).context("serialising summary.json")?;
     write_bytes_atomic(&staged.join("summary.json"), json.as_bytes())?;
     let out = staged.commit()?;
     print_result(&out, &fused, shot.as_ref(), &meshes);
+    if let Some(t) = &summary.tsdf {
+        println!(
+            "tsdf: {} vertices, {} faces at {} mm voxels ({}; {} blocks, {:.0} MB)",
+            t.mesh_vertices,
+            t.mesh_faces,
+            t.voxel_size_m * 1e3,
+            TSDF_OUTPUTS[0],
+            t.blocks,
+            t.memory_bytes as f64 / 1e6
+        );
+    }
     Ok(out)
 }

@@ -207,7 +207,7 @@ const REFUSE_NO_FIGURES: &str =
 /// The flags of single-frame `kfuse fuse` that cannot apply to a sequence: the first one
 /// given, as one line naming it and the fix. `--no-figures` alone is accepted (a sequence
 /// draws figures only with `--figures`); the options of several Kinects (`--sensor`, `--view`,
-/// `--shot`, `--virtual-view`) are refused by that fusion (`multi::run`).
+/// `--shot`, `--virtual-view`, `--tsdf`) are refused by that fusion (`multi::run`).
 fn refuse_single_frame_flags(args: &FuseArgs) -> Result<()> {
     if args.depth_kind != super::DepthKindArg::Z {
         bail!("{REFUSE_DEPTH_KIND}");

@@ -20,6 +20,7 @@ fn header(
     vertices: usize,
     color: bool,
     uv: bool,
+    normals: bool,
     faces: Option<usize>,
 ) -> std::io::Result<()> {
     writeln!(out, "ply")?;
@@ -30,6 +31,11 @@ fn header(
     writeln!(out, "element vertex {vertices}")?;
     for axis in ["x", "y", "z"] {
         writeln!(out, "property float {axis}")?;
+    }
+    if normals {
+        for axis in ["nx", "ny", "nz"] {
+            writeln!(out, "property float {axis}")?;
+        }
     }
     if color {
         for c in ["red", "green", "blue"] {
@@ -67,7 +73,7 @@ pub fn write_cloud_ply(path: &Path, cloud: &PointCloud, frame: &str) -> Result<(
         format!("frame: {frame} (x right, y down, z forward)"),
     ];
     write_atomic(path, |out| {
-        header(out, &comments, cloud.points.len(), color, false, None)?;
+        header(out, &comments, cloud.points.len(), color, false, false, None)?;
         let mut buf = Vec::with_capacity(cloud.points.len() * 15);
         for (i, p) in cloud.points.iter().enumerate() {
             for v in p {
@@ -89,9 +95,40 @@ pub fn write_mesh_ply(
     frame: &str,
     texture_file: Option<&str>,
 ) -> Result<(), GeometryError> {
+    write_mesh(path, mesh, &[], frame, texture_file)
+}
+
+/// Writes a mesh with a unit normal per vertex as binary PLY (`float nx, ny, nz` after the
+/// position, the names MeshLab, Open3D and Blender read), e.g. the TSDF mesh whose normals are
+/// the distance field's gradient. `normals` has one entry per vertex.
+pub fn write_mesh_ply_normals(
+    path: &Path,
+    mesh: &Mesh,
+    normals: &[[f32; 3]],
+    frame: &str,
+) -> Result<(), GeometryError> {
+    if normals.len() != mesh.vertices.len() {
+        return Err(GeometryError::InvalidInput(format!(
+            "{}: normals has {} entries for {} vertices (must be equal)",
+            path.display(),
+            normals.len(),
+            mesh.vertices.len()
+        )));
+    }
+    write_mesh(path, mesh, normals, frame, None)
+}
+
+fn write_mesh(
+    path: &Path,
+    mesh: &Mesh,
+    normals: &[[f32; 3]],
+    frame: &str,
+    texture_file: Option<&str>,
+) -> Result<(), GeometryError> {
     let n = mesh.vertices.len();
     check_len(path, "colors", mesh.colors.len(), n)?;
     check_len(path, "uvs", mesh.uvs.len(), n)?;
+    check_len(path, "normals", normals.len(), n)?;
     if let Some(bad) = mesh.faces.iter().flatten().find(|&&i| i as usize >= n) {
         return Err(GeometryError::InvalidInput(format!(
             "{}: face index {bad} out of range for {n} vertices",
@@ -106,6 +143,7 @@ pub fn write_mesh_ply(
     }
     let color = !mesh.colors.is_empty() && n > 0;
     let uv = !mesh.uvs.is_empty() && n > 0;
+    let has_normals = !normals.is_empty() && n > 0;
     let mut comments = vec![
         "kfuse mesh, units: metres".to_string(),
         format!("frame: {frame} (x right, y down, z forward)"),
@@ -114,11 +152,16 @@ pub fn write_mesh_ply(
         comments.push(format!("TextureFile {t}"));
     }
     write_atomic(path, |out| {
-        header(out, &comments, n, color, uv, Some(mesh.faces.len()))?;
-        let mut buf = Vec::with_capacity(n * 23 + mesh.faces.len() * 13);
-        for i in 0..n {
-            for v in mesh.vertices[i] {
+        header(out, &comments, n, color, uv, has_normals, Some(mesh.faces.len()))?;
+        let mut buf = Vec::with_capacity(n * 35 + mesh.faces.len() * 13);
+        for (i, p) in mesh.vertices.iter().enumerate() {
+            for v in p {
                 buf.extend_from_slice(&v.to_le_bytes());
+            }
+            if has_normals {
+                for v in normals[i] {
+                    buf.extend_from_slice(&v.to_le_bytes());
+                }
             }
             if color {
                 buf.extend_from_slice(&mesh.colors[i]);
@@ -405,5 +448,30 @@ mod tests {
             .to_string();
         assert!(err.contains("bad.ply") && err.contains("face index 9"), "{err}");
         assert!(!dir.join("bad.ply").exists());
+    }
+
+    #[test]
+    fn mesh_with_normals_reads_back_with_ply_rs() {
+        let dir = scratch("normals");
+        let mesh = Mesh {
+            vertices: vec![[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]],
+            uvs: Vec::new(),
+            colors: vec![[9, 8, 7], [6, 5, 4], [3, 2, 1]],
+            faces: vec![[0, 2, 1]],
+        };
+        let normals = [[0.0, 0.0, -1.0], [0.6, 0.0, -0.8], [0.0, 0.6, -0.8]];
+        let path = dir.join("n.ply");
+        write_mesh_ply_normals(&path, &mesh, &normals, "reference").unwrap();
+        let ply = parse(&path);
+        let v = &ply.payload["vertex"];
+        for (e, (n, c)) in v.iter().zip(normals.iter().zip(&mesh.colors)) {
+            assert_eq!([float(e, "nx"), float(e, "ny"), float(e, "nz")], *n);
+            assert_eq!([uchar(e, "red"), uchar(e, "green"), uchar(e, "blue")], *c);
+        }
+        assert_eq!(read_cloud_ply(&path, None).unwrap().colors, mesh.colors);
+        let e = write_mesh_ply_normals(&dir.join("bad.ply"), &mesh, &normals[..2], "reference")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("normals has 2 entries for 3 vertices"), "{e}");
     }
 }
