@@ -262,8 +262,9 @@ class Device:
         stopped_by. An existing path is a FileExistsError (nothing recorded, the file left as
         it was) unless overwrite; a folder a ValueError. Ctrl-C writes the frames so far, then
         raises KeyboardInterrupt."""
-    def write_params(self, folder: _Path) -> pathlib.Path:
-        """folder/kinect_params.json, the factory parameters (Rig.from_kinect_params)."""
+    def write_params(self, folder: _Path, overwrite: bool = False) -> pathlib.Path:
+        """folder/kinect_params.json, the factory parameters (Rig.from_kinect_params);
+        FileExistsError when that file exists, unless overwrite."""
     def close(self) -> None:
         """Releases the sensor (again: nothing)."""
     def __enter__(self) -> "Device": ...

@@ -371,11 +371,16 @@ impl PyDevice {
 
     /// Writes `folder/kinect_params.json`, the sensor's factory parameters of the images as
     /// the scene is (what `kfuse capture` writes beside its shots; kfuse.Rig.from_kinect_params
-    /// reads it). Returns the file's path.
-    fn write_params(&self, folder: PathBuf) -> PyResult<PathBuf> {
+    /// reads it). Returns the file's path. An existing kinect_params.json (another sensor's,
+    /// or any file of that name) raises FileExistsError unless `overwrite=True`, as every
+    /// writer of the package.
+    #[pyo3(signature = (folder, overwrite = false))]
+    fn write_params(&self, folder: PathBuf, overwrite: bool) -> PyResult<PathBuf> {
+        let path = folder.join("kinect_params.json");
+        crate::check_output_file(&path, overwrite, "kinect_params.json", &[])?;
         let info = self.state()?.session()?.info().clone();
         write_params_json(&folder, &info).map_err(capture_err)?;
-        Ok(folder.join("kinect_params.json"))
+        Ok(path)
     }
 
     /// Stops the streams and releases the sensor (again: nothing). A RuntimeError while

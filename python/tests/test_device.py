@@ -75,6 +75,13 @@ def test_serial_and_params_are_the_cli_ones(cli_scene, frame, tmp_path):
     assert info["serial"] == cli["serial"] and info["firmware"] == cli["firmware"]
     with kfuse.Device("sim") as dev:
         written = dev.write_params(tmp_path)
+        assert json.loads(written.read_text()) == cli
+        # An existing kinect_params.json (here the user's own text) is not replaced silently.
+        written.write_text("my notes")
+        with pytest.raises(FileExistsError, match="kinect_params.json: exists; pass overwrite=True"):
+            dev.write_params(tmp_path)
+        assert written.read_text() == "my notes"
+        assert dev.write_params(tmp_path, overwrite=True) == written
     assert json.loads(written.read_text()) == cli
     rig = kfuse.Rig.from_kinect_params(written)
     assert rig.depth.width == 512 and rig.color.width == 1920
