@@ -67,6 +67,9 @@ fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
     let (Some(w), Some(h)) = (w, h) else {
         return Err(fmt_err(doc.path(), "no 'image_width' / 'image_height'"));
     };
+    // The model first: a file of another model is named as such, whatever else it lacks.
+    let distortion_model = doc.string("distortion_model");
+    check_model(distortion_model.as_deref(), doc.path())?;
     let k = doc.values("camera_matrix", 9)?;
     let d = doc.matrix("distortion_coefficients")?.map(|m| m.2).unwrap_or_default();
     let rect = match doc.matrix("rectification_matrix")? {
@@ -89,15 +92,7 @@ fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
             ));
         }
     };
-    let fields = CameraInfoFields {
-        width: w,
-        height: h,
-        distortion_model: doc.string("distortion_model"),
-        k,
-        d,
-        r: rect,
-        p,
-    };
+    let fields = CameraInfoFields { width: w, height: h, distortion_model, k, d, r: rect, p };
     info_of(&fields, doc.path(), what)
 }
 
@@ -123,9 +118,9 @@ pub struct CameraInfoFields {
 
 /// The camera, rectification and `t_i` of one `camera_info`'s fields (module docs); `path`
 /// and `what` are named in errors.
-fn info_of(f: &CameraInfoFields, path: &Path, what: &str) -> Result<Info, CalibError> {
-    if let Some(model) = &f.distortion_model
-        && !matches!(model.as_str(), "plumb_bob" | "rational_polynomial")
+fn check_model(model: Option<&str>, path: &Path) -> Result<(), CalibError> {
+    if let Some(model) = model
+        && !matches!(model, "plumb_bob" | "rational_polynomial")
     {
         return Err(fmt_err(
             path,
@@ -134,6 +129,11 @@ fn info_of(f: &CameraInfoFields, path: &Path, what: &str) -> Result<Info, CalibE
             ),
         ));
     }
+    Ok(())
+}
+
+fn info_of(f: &CameraInfoFields, path: &Path, what: &str) -> Result<Info, CalibError> {
+    check_model(f.distortion_model.as_deref(), path)?;
     let camera = camera_from_values(&f.k, &f.d, (f.width, f.height), path, what)?;
     let rect = match &f.r {
         None => Matrix3::identity(),
