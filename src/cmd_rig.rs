@@ -243,7 +243,7 @@ fn import(a: ImportArgs) -> Result<()> {
     };
     check_not_input(&a.out, &a.sources)?;
     check_new(&a.out, a.overwrite)?;
-    let is_bag = matches!(a.sources.as_slice(), [one] if kfuse_sequence::bag::is_ros2_bag(one));
+    let is_bag = matches!(a.sources.as_slice(), [one] if kfuse_sequence::bag::is_bag(one));
     if !is_bag && (a.depth_topic.is_some() || a.color_topic.is_some()) {
         bail!(
             "--depth-topic / --color-topic: the source is not a bag (a rosbag2 folder or .mcap file)"

@@ -79,11 +79,18 @@ def source(tmp_path_factory):
     return {"tmp": tmp, "seq": tmp / "seq", "ix": ix, "rig": rig, "frames": frames}
 
 
-def write_bag(source, path, depth_encoding):
-    """The recording as iai_kinect2 would publish it, written by rosbags."""
+def write_bag(source, path, depth_encoding, ros1=False):
+    """The recording as iai_kinect2 would publish it, written by rosbags: a rosbag2 folder
+    (MCAP, Humble typestore), or with `ros1` a ROS 1 bag (`rosbags.rosbag1.Writer`, Noetic
+    typestore, uncompressed chunks)."""
     rosbag2 = need("rosbags.rosbag2")
+    rosbag1 = need("rosbags.rosbag1")
     typesys = need("rosbags.typesys")
-    ts = typesys.get_typestore(typesys.Stores.ROS2_HUMBLE)
+    ts = typesys.get_typestore(typesys.Stores.ROS1_NOETIC if ros1 else typesys.Stores.ROS2_HUMBLE)
+    if "tf2_msgs/msg/TFMessage" not in ts.types:
+        # Noetic's store lacks tf2_msgs; its one-line definition, as ROS 1 ships it.
+        ts.register(typesys.get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
+                                               "tf2_msgs/msg/TFMessage"))
     T = ts.types
     Time = T["builtin_interfaces/msg/Time"]
     Header = T["std_msgs/msg/Header"]
@@ -101,15 +108,21 @@ def write_bag(source, path, depth_encoding):
 
     def header(ticks, frame):
         ns = ticks * NS_PER_TICK
-        return Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=frame)
+        stamp = Time(sec=ns // 10**9, nanosec=ns % 10**9)
+        if ros1:
+            return Header(seq=ticks % 2**32, stamp=stamp, frame_id=frame)
+        return Header(stamp=stamp, frame_id=frame)
 
     def info(cam, ticks, frame):
         K = np.asarray(cam.K, dtype=np.float64)
         P = np.hstack([K, np.zeros((3, 1))])
+        mats = {"d": np.asarray(cam.dist, dtype=np.float64).ravel(), "k": K.ravel(),
+                "r": np.eye(3).ravel(), "p": P.ravel()}
+        if ros1:  # ROS 1 names them D, K, R, P
+            mats = {k.upper(): v for k, v in mats.items()}
         return Info(header=header(ticks, frame), height=cam.height, width=cam.width,
-                    distortion_model="plumb_bob", d=np.asarray(cam.dist, dtype=np.float64).ravel(),
-                    k=K.ravel(), r=np.eye(3).ravel(), p=P.ravel(), binning_x=0, binning_y=0,
-                    roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+                    distortion_model="plumb_bob", binning_x=0, binning_y=0,
+                    roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False), **mats)
 
     def transform(parent, child, R, t, ticks):
         x, y, z, w = quaternion(np.asarray(R))
@@ -120,7 +133,10 @@ def write_bag(source, path, depth_encoding):
 
     frames = source["frames"]
     first = frames[0].depth_time_ticks
-    with rosbag2.Writer(path, version=8, storage_plugin=rosbag2.StoragePlugin.MCAP) as w:
+    writer = (rosbag1.Writer(path) if ros1 else
+              rosbag2.Writer(path, version=8, storage_plugin=rosbag2.StoragePlugin.MCAP))
+    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    with writer as w:
         c = {}
         for topic, typ in (("/tf_static", "tf2_msgs/msg/TFMessage"),
                            ("/kinect2/sd/camera_info", "sensor_msgs/msg/CameraInfo"),
@@ -130,7 +146,7 @@ def write_bag(source, path, depth_encoding):
             c[topic] = w.add_connection(topic, typ, typestore=ts)
 
         def put(topic, msg, ticks):
-            w.write(c[topic], ticks * NS_PER_TICK, ts.serialize_cdr(msg, msg.__msgtype__))
+            w.write(c[topic], ticks * NS_PER_TICK, serialize(msg, msg.__msgtype__))
 
         # iai_kinect2's tree: kinect2_link -> rgb optical (identity) -> ir optical
         # (X_rgb = R X_ir + T: the rig's color_from_depth).
@@ -167,10 +183,12 @@ def depth_pngs(folder, ix):
     return [np.asarray(Image.open(folder / e["files"][0]), dtype=np.int64) for e in ix["frames"]]
 
 
+@pytest.mark.parametrize("ros1", [False, True], ids=["rosbag2", "ros1"])
 @pytest.mark.parametrize("encoding", ["32FC1", "16UC1"])
-def test_a_rosbags_bag_fuses_to_the_recordings_registered_depth(source, encoding):
-    bag = write_bag(source, source["tmp"] / f"bag_{encoding}", encoding)
-    out = source["tmp"] / f"fused_{encoding}"
+def test_a_rosbags_bag_fuses_to_the_recordings_registered_depth(source, encoding, ros1):
+    name = f"{encoding}_{'ros1' if ros1 else 'rosbag2'}"
+    bag = write_bag(source, source["tmp"] / (f"{name}.bag" if ros1 else name), encoding, ros1)
+    out = source["tmp"] / f"fused_{name}"
     r = run("fuse", "--recording", bag, "--engine", "cpu", "--out", out, check=False)
     assert r.returncode == 0, r.stderr
     assert "camera_infos and /tf_static" in r.stderr, r.stderr
@@ -194,9 +212,10 @@ def test_a_rosbags_bag_fuses_to_the_recordings_registered_depth(source, encoding
         assert ((x > 0) != (y > 0)).sum() / (y > 0).sum() <= MAX_COVERAGE_CHANGE
 
 
-def test_rig_import_of_a_rosbags_bag_is_the_rig(source):
-    bag = write_bag(source, source["tmp"] / "bag_rig", "16UC1")
-    out = source["tmp"] / "bag_rig.json"
+@pytest.mark.parametrize("ros1", [False, True], ids=["rosbag2", "ros1"])
+def test_rig_import_of_a_rosbags_bag_is_the_rig(source, ros1):
+    bag = write_bag(source, source["tmp"] / ("rig.bag" if ros1 else "bag_rig"), "16UC1", ros1)
+    out = source["tmp"] / f"bag_rig_{ros1}.json"
     run("rig", "import", bag, "--out", out)
     got, rig = kfuse.Rig.load(out), source["rig"]
     for a, b in ((got.depth, rig.depth), (got.color, rig.color)):
@@ -234,3 +253,34 @@ def test_two_depth_topics_are_a_clear_error_listing_them(source, tmp_path):
     r = run("fuse", "--recording", two, "--depth-topic", "/kinect2/sd/image_depth", "--engine",
             "cpu", "--out", out, check=False)
     assert r.returncode == 0, r.stderr
+
+
+def test_a_compressed_ros1_bag_is_one_clear_line(source, tmp_path):
+    rosbag1 = need("rosbags.rosbag1")
+    bag = tmp_path / "bz2.bag"
+    w = rosbag1.Writer(bag)
+    w.set_compression(rosbag1.Writer.CompressionFormat.BZ2)
+    with w:
+        conn = w.add_connection("/kinect2/sd/image_depth", "sensor_msgs/msg/Image",
+                                typestore=need("rosbags.typesys").get_typestore(
+                                    need("rosbags.typesys").Stores.ROS1_NOETIC))
+        w.write(conn, 1, b"\0" * 40)
+    out = tmp_path / "out"
+    r = run("fuse", "--recording", bag, "--engine", "cpu", "--out", out, check=False)
+    assert r.returncode != 0
+    line = r.stderr.strip().splitlines()[-1]
+    assert "bz2.bag" in line and "bz2" in line and "rosbag decompress" in line, r.stderr
+    assert not out.exists()
+
+
+def test_a_truncated_ros1_bag_is_one_clear_line(source, tmp_path):
+    bag = write_bag(source, tmp_path / "full.bag", "16UC1", ros1=True)
+    cut = tmp_path / "cut.bag"
+    data = bag.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "out"
+    r = run("fuse", "--recording", cut, "--engine", "cpu", "--out", out, check=False)
+    assert r.returncode != 0
+    line = r.stderr.strip().splitlines()[-1]
+    assert "cut.bag" in line and "truncated" in line, r.stderr
+    assert not out.exists()

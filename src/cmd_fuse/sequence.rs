@@ -297,7 +297,7 @@ fn bar_for(len: u64, unit: &str) -> ProgressBar {
 pub fn run(args: &FuseArgs) -> Result<()> {
     let seq = &args.sequence;
     let input = match (&seq.recording, &seq.frames) {
-        (Some(path), _) if kfuse_sequence::bag::is_ros2_bag(path) => SequenceInput::Bag(
+        (Some(path), _) if kfuse_sequence::bag::is_bag(path) => SequenceInput::Bag(
             path.clone(),
             TopicChoice { depth: seq.depth_topic.clone(), color: seq.color_topic.clone() },
         ),

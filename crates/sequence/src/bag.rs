@@ -23,7 +23,9 @@ use std::sync::atomic::AtomicU64;
 
 use calib::rig_io::ros::{CameraInfoFields, cameras_from_infos};
 use geometry::{Rig, RigidTransform};
-use kfuse_ros_msgs::{CameraInfo, CompressedImage, Image, Message, TFMessage, TransformStamped};
+use kfuse_ros_msgs::{
+    CameraInfo, CompressedImage, Image, Message, TFMessage, TransformStamped, ros1,
+};
 use mcap::records::Record;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion};
@@ -127,8 +129,14 @@ pub fn mcap_file(input: &Path) -> Result<PathBuf> {
     }
 }
 
-/// Whether `path` looks like a ROS 2 bag: a folder with `metadata.yaml` or a `.mcap` file,
-/// or a file that starts with MCAP's magic.
+/// Whether `path` looks like a bag: a ROS 2 bag (a folder with `metadata.yaml`, a `.mcap`
+/// file or a file that starts with MCAP's magic) or a ROS 1 bag (a file that starts with
+/// `#ROSBAG V2.0`).
+pub fn is_bag(path: &Path) -> bool {
+    is_ros2_bag(path) || crate::bag1::is_ros1_bag(path)
+}
+
+/// Whether `path` looks like a ROS 2 bag (see [`is_bag`]).
 pub fn is_ros2_bag(path: &Path) -> bool {
     if path.is_dir() {
         return path.join("metadata.yaml").is_file();
@@ -140,11 +148,35 @@ pub fn is_ros2_bag(path: &Path) -> bool {
     File::open(path).and_then(|mut f| f.read_exact(&mut magic)).is_ok() && magic == *mcap::MAGIC
 }
 
-/// One record of the MCAP stream, owned.
+/// How a channel's messages are serialised.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Wire {
+    /// ROS 2's CDR (an MCAP channel with message encoding `cdr`).
+    Cdr,
+    /// ROS 1's serialisation (a ROS 1 bag).
+    Ros1,
+    /// Anything else (refused when a topic kfuse reads has it).
+    Other(String),
+}
+
+/// One record of a bag's stream, owned.
 enum Rec {
-    Schema { id: u16, name: String, encoding: String },
-    Channel(mcap::records::Channel),
-    Message { channel: u16, data: Vec<u8> },
+    Schema {
+        id: u16,
+        name: String,
+    },
+    /// A channel; `msg_type` given directly by a ROS 1 connection, else its schema's name.
+    Channel {
+        id: u16,
+        schema_id: u16,
+        topic: String,
+        msg_type: Option<String>,
+        wire: Wire,
+    },
+    Message {
+        channel: u16,
+        data: Vec<u8>,
+    },
 }
 
 /// The MCAP file streamed record by record (chunks decompressed, their CRCs checked first).
@@ -210,13 +242,21 @@ impl McapStream {
                     };
                     match rec {
                         Record::Schema { header, .. } => {
-                            return Ok(Some(Rec::Schema {
-                                id: header.id,
-                                name: header.name,
-                                encoding: header.encoding,
+                            return Ok(Some(Rec::Schema { id: header.id, name: header.name }));
+                        }
+                        Record::Channel(c) => {
+                            let wire = match c.message_encoding.as_str() {
+                                "cdr" => Wire::Cdr,
+                                other => Wire::Other(other.to_string()),
+                            };
+                            return Ok(Some(Rec::Channel {
+                                id: c.id,
+                                schema_id: c.schema_id,
+                                topic: c.topic,
+                                msg_type: None,
+                                wire,
                             }));
                         }
-                        Record::Channel(c) => return Ok(Some(Rec::Channel(c))),
                         Record::Message { header, data } => {
                             return Ok(Some(Rec::Message {
                                 channel: header.channel_id,
@@ -235,8 +275,9 @@ impl McapStream {
 /// as [`SourceEvent`]s stamped by their header stamps in sensor ticks (0.125 ms).
 pub struct BagSource {
     input: PathBuf,
-    stream: McapStream,
+    stream: Stream,
     meta: BagMeta,
+    wires: HashMap<u16, Wire>,
     depth_channels: Vec<u16>,
     color_channels: Vec<u16>,
     channel_topics: HashMap<u16, String>,
@@ -248,10 +289,72 @@ pub struct BagSource {
     pending: VecDeque<SourceEvent>,
 }
 
-/// A message's type from its channel's schema: `pkg/msg/Type` (ROS 2 names `ros2msg` and
-/// `ros2idl` schemas so).
-fn type_name(schemas: &HashMap<u16, (String, String)>, c: &mcap::records::Channel) -> String {
-    schemas.get(&c.schema_id).map(|s| s.0.clone()).unwrap_or_default()
+/// A bag's records: an MCAP file's, or a ROS 1 bag's ([`crate::bag1`]).
+enum Stream {
+    Mcap(McapStream),
+    Ros1(crate::bag1::Ros1Stream),
+}
+
+impl Stream {
+    fn open(path: &Path, count: Arc<AtomicU64>) -> Result<(Self, u64)> {
+        if crate::bag1::is_ros1_bag(path) {
+            let (s, len) = crate::bag1::Ros1Stream::open(path, count)?;
+            return Ok((Stream::Ros1(s), len));
+        }
+        let (s, len) = McapStream::open(path, count)?;
+        Ok((Stream::Mcap(s), len))
+    }
+
+    fn path(&self) -> &Path {
+        match self {
+            Stream::Mcap(s) => &s.path,
+            Stream::Ros1(s) => s.path(),
+        }
+    }
+
+    fn next(&mut self) -> Result<Option<Rec>> {
+        match self {
+            Stream::Mcap(s) => s.next(),
+            Stream::Ros1(s) => Ok(s.next_record()?.map(|r| match r {
+                crate::bag1::Ros1Rec::Connection { id, topic, msg_type } => Rec::Channel {
+                    id,
+                    schema_id: 0,
+                    topic,
+                    msg_type: Some(msg_type),
+                    wire: Wire::Ros1,
+                },
+                crate::bag1::Ros1Rec::Message { conn, data } => {
+                    Rec::Message { channel: conn, data }
+                }
+            })),
+        }
+    }
+}
+
+/// A message of a channel kfuse reads, decoded from its wire format.
+fn decode<T>(
+    path: &Path,
+    topic: &str,
+    wire: Option<&Wire>,
+    data: &[u8],
+    ros1: fn(&[u8]) -> std::result::Result<T, kfuse_ros_msgs::ros1::Ros1Error>,
+) -> Result<T>
+where
+    T: Message,
+{
+    let r = match wire {
+        Some(Wire::Cdr) => T::from_cdr(data).map_err(|e| e.to_string()),
+        Some(Wire::Ros1) => ros1(data).map_err(|e| e.to_string()),
+        Some(Wire::Other(e)) => {
+            return Err(topic_err(
+                path,
+                topic,
+                format!("message encoding '{e}': only ROS 2's cdr and ROS 1 bags are read"),
+            ));
+        }
+        None => return Err(topic_err(path, topic, "no channel record declares it")),
+    };
+    r.map_err(|e| topic_err(path, topic, format!("a message does not decode: {e}")))
 }
 
 /// The `camera_info` topic beside an image topic: `<ns>/camera_info` of `<ns>/image_x`
@@ -330,25 +433,23 @@ impl BagSource {
     pub fn open(input: &Path, topics: &TopicChoice) -> Result<Self> {
         let file = mcap_file(input)?;
         let bytes_read = Arc::new(AtomicU64::new(0));
-        let (mut scan, _) = McapStream::open(&file, Arc::new(AtomicU64::new(0)))?;
-        let mut schemas: HashMap<u16, (String, String)> = HashMap::new();
+        let (mut scan, _) = Stream::open(&file, Arc::new(AtomicU64::new(0)))?;
+        let mut schemas: HashMap<u16, String> = HashMap::new();
         let mut channels: BTreeMap<u16, ChannelInfo> = BTreeMap::new();
-        let mut raw_channels: HashMap<u16, mcap::records::Channel> = HashMap::new();
+        let mut wires: HashMap<u16, Wire> = HashMap::new();
         let mut infos: HashMap<String, CameraInfo> = HashMap::new();
         let mut transforms: Vec<TransformStamped> = Vec::new();
         while let Some(rec) = scan.next()? {
             match rec {
-                Rec::Schema { id, name, encoding } => {
-                    schemas.insert(id, (name, encoding));
+                Rec::Schema { id, name } => {
+                    schemas.insert(id, name);
                 }
-                Rec::Channel(c) => {
-                    let msg_type = type_name(&schemas, &c);
-                    channels.entry(c.id).or_insert(ChannelInfo {
-                        topic: c.topic.clone(),
-                        msg_type,
-                        count: 0,
-                    });
-                    raw_channels.insert(c.id, c);
+                Rec::Channel { id, schema_id, topic, msg_type, wire } => {
+                    // ROS 2 names `ros2msg` and `ros2idl` schemas `pkg/msg/Type`.
+                    let msg_type = msg_type
+                        .unwrap_or_else(|| schemas.get(&schema_id).cloned().unwrap_or_default());
+                    channels.entry(id).or_insert(ChannelInfo { topic, msg_type, count: 0 });
+                    wires.entry(id).or_insert(wire);
                 }
                 Rec::Message { channel, data } => {
                     let Some(ch) = channels.get_mut(&channel) else {
@@ -360,19 +461,17 @@ impl BagSource {
                         ));
                     };
                     ch.count += 1;
-                    let encoding = raw_channels.get(&channel).map(|c| c.message_encoding.as_str());
+                    let wire = wires.get(&channel);
+                    let path = scan.path();
                     if ch.msg_type == CameraInfo::TYPE && !infos.contains_key(&ch.topic) {
-                        check_cdr(&file, &ch.topic, encoding)?;
-                        let info = CameraInfo::from_cdr(&data)
-                            .map_err(|e| msg_err(&file, &ch.topic, e))?;
+                        let info: CameraInfo =
+                            decode(path, &ch.topic, wire, &data, ros1::camera_info)?;
                         infos.insert(ch.topic.clone(), info);
                     } else if ch.msg_type == TFMessage::TYPE && ch.topic == TF_STATIC {
-                        check_cdr(&file, &ch.topic, encoding)?;
-                        let tf =
-                            TFMessage::from_cdr(&data).map_err(|e| msg_err(&file, &ch.topic, e))?;
+                        let tf: TFMessage = decode(path, &ch.topic, wire, &data, ros1::tf_message)?;
                         if transforms.len() + tf.transforms.len() > MAX_TRANSFORMS {
                             return Err(SequenceError::input(
-                                &file,
+                                path,
                                 format!("topic {TF_STATIC}: more than {MAX_TRANSFORMS} transforms"),
                             ));
                         }
@@ -417,10 +516,15 @@ impl BagSource {
             &color_candidates,
             &[CompressedImage::TYPE, Image::TYPE],
         )?;
-        for (id, c) in &raw_channels {
-            let topic = &channels[id].topic;
-            if *topic == depth_topic || *topic == color_topic {
-                check_cdr(&file, topic, Some(c.message_encoding.as_str()))?;
+        for (id, c) in &channels {
+            if (c.topic == depth_topic || c.topic == color_topic)
+                && let Some(Wire::Other(e)) = wires.get(id)
+            {
+                return Err(topic_err(
+                    &file,
+                    &c.topic,
+                    format!("message encoding '{e}': only ROS 2's cdr and ROS 1 bags are read"),
+                ));
             }
         }
         let info_of = |topic: &str| {
@@ -441,11 +545,12 @@ impl BagSource {
         let depth_channels = ids(&meta.depth_topic);
         let color_channels = ids(&meta.color_topic);
         let channel_topics = meta.channels.iter().map(|(id, c)| (*id, c.topic.clone())).collect();
-        let (stream, file_len) = McapStream::open(&file, bytes_read.clone())?;
+        let (stream, file_len) = Stream::open(&file, bytes_read.clone())?;
         Ok(Self {
             input: input.to_path_buf(),
             stream,
             meta,
+            wires,
             depth_channels,
             color_channels,
             channel_topics,
@@ -480,7 +585,7 @@ impl BagSource {
 
     /// The rig of the bag's camera_infos and `/tf_static` ([`rig_from_meta`]).
     pub fn rig(&self) -> Result<Rig> {
-        rig_from_meta(&self.stream.path, &self.meta)
+        rig_from_meta(self.stream.path(), &self.meta)
     }
 
     /// The next depth frame (its `data`: the depth in metres as little-endian `f32`, row-major,
@@ -492,10 +597,11 @@ impl BagSource {
         }
         while let Some(rec) = self.stream.next()? {
             let Rec::Message { channel, data } = rec else { continue };
-            let path = &self.stream.path;
+            let path = self.stream.path();
+            let wire = self.wires.get(&channel);
             if self.depth_channels.contains(&channel) {
                 let topic = &self.channel_topics[&channel];
-                let img = Image::from_cdr(&data).map_err(|e| msg_err(path, topic, e))?;
+                let img: Image = decode(path, topic, wire, &data, ros1::image)?;
                 let timestamp = stamp_ticks(path, topic, &img.header)?;
                 let (w, h, metres) = depth_metres(&img).map_err(|m| topic_err(path, topic, m))?;
                 match self.depth_size {
@@ -518,12 +624,12 @@ impl BagSource {
             if self.color_channels.contains(&channel) {
                 let topic = &self.channel_topics[&channel];
                 let (header, picture) = if self.meta.channels[&channel].msg_type == Image::TYPE {
-                    let img = Image::from_cdr(&data).map_err(|e| msg_err(path, topic, e))?;
+                    let img: Image = decode(path, topic, wire, &data, ros1::image)?;
                     let png = color_picture(&img).map_err(|m| topic_err(path, topic, m))?;
                     (img.header, png)
                 } else {
-                    let c =
-                        CompressedImage::from_cdr(&data).map_err(|e| msg_err(path, topic, e))?;
+                    let c: CompressedImage =
+                        decode(path, topic, wire, &data, ros1::compressed_image)?;
                     let f = c.format.to_ascii_lowercase();
                     if !(f.contains("jpeg") || f.contains("jpg") || f.contains("png")) {
                         return Err(topic_err(
@@ -551,26 +657,8 @@ impl BagSource {
     }
 }
 
-fn check_cdr(path: &Path, topic: &str, encoding: Option<&str>) -> Result<()> {
-    match encoding {
-        Some("cdr") => Ok(()),
-        other => Err(topic_err(
-            path,
-            topic,
-            format!(
-                "message encoding '{}': only ROS 2's cdr is read",
-                other.unwrap_or("(no channel)")
-            ),
-        )),
-    }
-}
-
 fn topic_err(path: &Path, topic: &str, m: impl std::fmt::Display) -> SequenceError {
     SequenceError::input(path, format!("topic {topic}: {m}"))
-}
-
-fn msg_err(path: &Path, topic: &str, e: kfuse_ros_msgs::CdrError) -> SequenceError {
-    topic_err(path, topic, format!("a message does not decode: {e}"))
 }
 
 /// A header stamp in sensor ticks (0.125 ms, rounded to the nearest). Error: a negative time.

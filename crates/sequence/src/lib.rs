@@ -29,6 +29,7 @@
 #![deny(missing_docs)]
 
 pub mod bag;
+pub mod bag1;
 pub mod color;
 pub mod command;
 pub mod error;
