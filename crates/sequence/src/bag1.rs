@@ -335,6 +335,101 @@ impl Ros1Stream {
 mod tests {
     use super::*;
 
+    fn record(fields: &[&[u8]], data: &[u8]) -> Vec<u8> {
+        let mut h = Vec::new();
+        for f in fields {
+            h.extend_from_slice(&(f.len() as u32).to_le_bytes());
+            h.extend_from_slice(f);
+        }
+        let mut r = (h.len() as u32).to_le_bytes().to_vec();
+        r.extend_from_slice(&h);
+        r.extend_from_slice(&(data.len() as u32).to_le_bytes());
+        r.extend_from_slice(data);
+        r
+    }
+
+    /// A bag of one uncompressed chunk: a connection of `md5` and one message.
+    fn bag(compression: &str, md5: &str) -> Vec<u8> {
+        let conn_data = record(
+            &[
+                b"topic=/k/sd/image_depth",
+                b"type=sensor_msgs/Image",
+                format!("md5sum={md5}").as_bytes(),
+            ],
+            b"",
+        );
+        // A connection record's data is a header of fields, without the lengths around it.
+        let conn_fields = &conn_data[4..conn_data.len() - 4];
+        let mut chunk =
+            record(&[b"op=\x07", b"conn=\x05\0\0\0", b"topic=/k/sd/image_depth"], conn_fields);
+        chunk.extend(record(&[b"op=\x02", b"conn=\x05\0\0\0", b"time=\0\0\0\0\0\0\0\0"], b"msg"));
+        let mut b = MAGIC.to_vec();
+        b.extend(record(&[b"op=\x03"], &[b' '; 16]));
+        let mut size = b"size=".to_vec();
+        size.extend_from_slice(&(chunk.len() as u32).to_le_bytes());
+        let comp = format!("compression={compression}");
+        b.extend(record(&[b"op=\x05", comp.as_bytes(), &size], &chunk));
+        b
+    }
+
+    fn read_all(bytes: &[u8]) -> Result<Vec<Ros1Rec>> {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.bag");
+        std::fs::write(&p, bytes).unwrap();
+        assert!(is_ros1_bag(&p));
+        let (mut s, _) = Ros1Stream::open(&p, Arc::default())?;
+        let mut out = Vec::new();
+        while let Some(r) = s.next_record()? {
+            out.push(r);
+        }
+        Ok(out)
+    }
+
+    const IMAGE_MD5: &str = "060021388200f6f0f447d0fcd9c64743";
+
+    #[test]
+    fn a_chunked_bag_gives_its_connection_and_message() {
+        let recs = read_all(&bag("none", IMAGE_MD5)).unwrap();
+        assert_eq!(recs.len(), 2);
+        match &recs[0] {
+            Ros1Rec::Connection { id, topic, msg_type } => {
+                assert_eq!((*id, topic.as_str()), (0, "/k/sd/image_depth"));
+                assert_eq!(msg_type, "sensor_msgs/msg/Image");
+            }
+            Ros1Rec::Message { .. } => panic!("a connection first"),
+        }
+        match &recs[1] {
+            Ros1Rec::Message { conn, data } => {
+                assert_eq!((*conn, data.as_slice()), (0, &b"msg"[..]))
+            }
+            Ros1Rec::Connection { .. } => panic!("then the message"),
+        }
+    }
+
+    #[test]
+    fn damaged_bags_are_one_error_each() {
+        let text = |b: &[u8]| read_all(b).err().map(|e| e.to_string()).unwrap_or_default();
+        let good = bag("none", IMAGE_MD5);
+        assert!(text(&good[..good.len() - 2]).contains("truncated"));
+        assert!(text(&bag("bz2", IMAGE_MD5)).contains("rosbag decompress"));
+        let e = text(&bag("none", "0123456789abcdef0123456789abcdef"));
+        assert!(e.contains("/k/sd/image_depth") && e.contains("another definition"), "{e}");
+        // The chunk record's data length (after magic, the bag header record and the chunk's
+        // header) claims 4 GiB.
+        let mut huge = good.clone();
+        let bag_header = 4 + u32_at(&good, MAGIC.len()).unwrap() as usize + 4 + 16;
+        let chunk_at = MAGIC.len() + bag_header;
+        let hlen = u32_at(&good, chunk_at).unwrap() as usize;
+        let dlen_at = chunk_at + 4 + hlen;
+        huge[dlen_at..dlen_at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        let e = text(&huge);
+        assert!(e.contains("claims 4294967295 bytes"), "{e}");
+        // A header field longer than its header.
+        let mut field = good.clone();
+        field[chunk_at + 4..chunk_at + 8].copy_from_slice(&1000u32.to_le_bytes());
+        assert!(text(&field).contains("claims 1000 bytes"), "{}", text(&field));
+    }
+
     #[test]
     fn header_fields_are_bounded_and_types_renamed() {
         let mut b = Vec::new();
