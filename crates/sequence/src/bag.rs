@@ -368,6 +368,39 @@ pub fn camera_info_topic(image_topic: &str) -> String {
     }
 }
 
+/// The depth and colour topics a bag offers, by type and name (see [`BagSource::open`]).
+fn candidates(channels: &BTreeMap<u16, ChannelInfo>) -> (Vec<&ChannelInfo>, Vec<&ChannelInfo>) {
+    let images = |want: &dyn Fn(&ChannelInfo) -> bool| -> Vec<&ChannelInfo> {
+        channels.values().filter(|c| c.count > 0 && want(c)).collect()
+    };
+    let seg = |c: &ChannelInfo| last_segment(&c.topic).to_ascii_lowercase();
+    let is_depth = |c: &ChannelInfo| c.msg_type == Image::TYPE && seg(c).contains("depth");
+    let depth_candidates = unrect(images(&is_depth));
+    let color_named = |c: &ChannelInfo| {
+        let s = seg(c);
+        s.contains("color") || s.contains("colour") || s.contains("rgb")
+    };
+    let is_picture =
+        |c: &ChannelInfo| c.msg_type == CompressedImage::TYPE || c.msg_type == Image::TYPE;
+    // Colour-named pictures; else any CompressedImage that is no depth (`compressedDepth`)
+    // or IR image.
+    let mut color_candidates = unrect(images(&|c| is_picture(c) && color_named(c)));
+    if color_candidates.is_empty() {
+        color_candidates = images(&|c| {
+            let s = seg(c);
+            c.msg_type == CompressedImage::TYPE && !s.contains("depth") && !s.contains("ir")
+        });
+    }
+    (depth_candidates, color_candidates)
+}
+
+/// The sensor's images over rectified or registered ones (`*_rect`), where both are there.
+fn unrect(v: Vec<&ChannelInfo>) -> Vec<&ChannelInfo> {
+    let rect = |c: &ChannelInfo| last_segment(&c.topic).to_ascii_lowercase().contains("rect");
+    let plain: Vec<_> = v.iter().copied().filter(|c| !rect(c)).collect();
+    if plain.is_empty() { v } else { plain }
+}
+
 fn last_segment(topic: &str) -> &str {
     let base = topic.strip_suffix("/compressed").unwrap_or(topic);
     base.rsplit('/').next().unwrap_or(base)
@@ -480,24 +513,7 @@ impl BagSource {
                 }
             }
         }
-        let images = |want: &dyn Fn(&ChannelInfo) -> bool| -> Vec<&ChannelInfo> {
-            channels.values().filter(|c| c.count > 0 && want(c)).collect()
-        };
-        let is_depth =
-            |c: &ChannelInfo| c.msg_type == Image::TYPE && last_segment(&c.topic).contains("depth");
-        let mut depth_candidates =
-            images(&|c| is_depth(c) && !last_segment(&c.topic).contains("rect"));
-        if depth_candidates.is_empty() {
-            depth_candidates = images(&is_depth);
-        }
-        let color_named = |t: &str| {
-            let s = last_segment(t).to_ascii_lowercase();
-            s.contains("color") || s.contains("colour") || s.contains("rgb")
-        };
-        let color_candidates = images(&|c| {
-            c.msg_type == CompressedImage::TYPE && !last_segment(&c.topic).contains("depth")
-                || c.msg_type == Image::TYPE && color_named(&c.topic)
-        });
+        let (depth_candidates, color_candidates) = candidates(&channels);
         let depth_topic = choose(
             &file,
             "depth",
@@ -896,6 +912,57 @@ mod tests {
         );
         assert_eq!(camera_info_topic("/kinect2/sd/image_depth"), "/kinect2/sd/camera_info");
         assert_eq!(camera_info_topic("/a/b/sd/image_depth"), "/a/b/sd/camera_info");
+    }
+
+    fn topics(list: &[(&str, &str)]) -> BTreeMap<u16, ChannelInfo> {
+        list.iter()
+            .enumerate()
+            .map(|(i, (t, ty))| {
+                let c = ChannelInfo { topic: t.to_string(), msg_type: ty.to_string(), count: 3 };
+                (i as u16, c)
+            })
+            .collect()
+    }
+
+    fn names(v: Vec<&ChannelInfo>) -> Vec<&str> {
+        v.into_iter().map(|c| c.topic.as_str()).collect()
+    }
+
+    #[test]
+    fn topics_are_found_by_type_and_name() {
+        let (img, comp) = (Image::TYPE, CompressedImage::TYPE);
+        // kfuse's rosbag2 layout: one of each.
+        let k = topics(&[
+            ("/kinect2/sn_1/sd/image_depth", img),
+            ("/kinect2/sn_1/sd/image_ir", img),
+            ("/kinect2/sn_1/hd/image_depth_rect", img),
+            ("/kinect2/sn_1/hd/image_color/compressed", comp),
+            ("/kinect2/sn_1/sd/camera_info", CameraInfo::TYPE),
+        ]);
+        let (d, c) = candidates(&k);
+        assert_eq!(names(d), ["/kinect2/sn_1/sd/image_depth"]);
+        assert_eq!(names(c), ["/kinect2/sn_1/hd/image_color/compressed"]);
+        // iai_kinect2's: the sensor's depth; colour in two resolutions (the caller chooses), no
+        // compressed depth or IR among the colour candidates.
+        let iai = topics(&[
+            ("/kinect2/sd/image_depth", img),
+            ("/kinect2/sd/image_depth_rect", img),
+            ("/kinect2/qhd/image_depth_rect", img),
+            ("/kinect2/sd/image_depth_rect/compressedDepth", comp),
+            ("/kinect2/sd/image_ir/compressed", comp),
+            ("/kinect2/hd/image_color/compressed", comp),
+            ("/kinect2/hd/image_color_rect/compressed", comp),
+            ("/kinect2/qhd/image_color/compressed", comp),
+        ]);
+        let (d, c) = candidates(&iai);
+        assert_eq!(names(d), ["/kinect2/sd/image_depth"]);
+        assert_eq!(
+            names(c),
+            ["/kinect2/hd/image_color/compressed", "/kinect2/qhd/image_color/compressed"]
+        );
+        // Only rectified depth: taken.
+        let only = topics(&[("/cam/image_depth_rect", img)]);
+        assert_eq!(names(candidates(&only).0), ["/cam/image_depth_rect"]);
     }
 
     fn image(encoding: &str, w: u32, h: u32, step: u32, len: usize) -> Image {
