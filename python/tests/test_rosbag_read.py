@@ -84,10 +84,11 @@ def source(tmp_path_factory):
     return {"tmp": tmp, "seq": tmp / "seq", "ix": ix, "rig": rig, "frames": frames}
 
 
-def write_bag(source, path, depth_encoding, ros1=False):
+def write_bag(source, path, depth_encoding, ros1=False, rgb8=False):
     """The recording as iai_kinect2 would publish it, written by rosbags: a rosbag2 folder
     (MCAP, Humble typestore), or with `ros1` a ROS 1 bag (`rosbags.rosbag1.Writer`, Noetic
-    typestore, uncompressed chunks)."""
+    typestore, uncompressed chunks). With `rgb8` the colour is a raw `Image` on
+    /kinect2/hd/image_color (the recording's decoded colour)."""
     rosbag2 = need("rosbags.rosbag2")
     rosbag1 = need("rosbags.rosbag1")
     typesys = need("rosbags.typesys")
@@ -147,6 +148,8 @@ def write_bag(source, path, depth_encoding, ros1=False):
                            ("/kinect2/sd/camera_info", "sensor_msgs/msg/CameraInfo"),
                            ("/kinect2/hd/camera_info", "sensor_msgs/msg/CameraInfo"),
                            ("/kinect2/sd/image_depth", "sensor_msgs/msg/Image"),
+                           ("/kinect2/hd/image_color", "sensor_msgs/msg/Image")
+                           if rgb8 else
                            ("/kinect2/hd/image_color/compressed", "sensor_msgs/msg/CompressedImage")):
             c[topic] = w.add_connection(topic, typ, typestore=ts)
 
@@ -176,7 +179,14 @@ def write_bag(source, path, depth_encoding, ros1=False):
             put("/kinect2/sd/image_depth",
                 Img(header=header(t, ir_frame), height=h, width=wd, encoding=depth_encoding,
                     is_bigendian=0, step=step, data=np.frombuffer(data.tobytes(), np.uint8)), t)
-            if f.color_time_ticks is not None:
+            if f.color_time_ticks is not None and rgb8:
+                rgb = np.ascontiguousarray(f.color())
+                ch, cw, _ = rgb.shape
+                put("/kinect2/hd/image_color",
+                    Img(header=header(f.color_time_ticks, rgb_frame), height=ch, width=cw,
+                        encoding="rgb8", is_bigendian=0, step=cw * 3,
+                        data=np.frombuffer(rgb.tobytes(), np.uint8)), f.color_time_ticks)
+            elif f.color_time_ticks is not None:
                 jpeg = (source["seq"] / "color" / f"{f.number:06d}.jpg").read_bytes()
                 put("/kinect2/hd/image_color/compressed",
                     Comp(header=header(f.color_time_ticks, rgb_frame), format="jpeg",
@@ -313,3 +323,22 @@ def test_kfuse_recording_reads_a_bag_as_the_kfrec(source, ros1):
         assert d.max() <= JPEG_FLIP_LEVELS and (d > 0).mean() < JPEG_FLIP_SHARE
         with pytest.raises(ValueError, match="no raw frame"):
             a.raw_depth
+
+
+def test_a_raw_rgb8_colour_topic_fuses_and_refuses_jpeg_outputs(source, tmp_path):
+    bag = write_bag(source, tmp_path / "rgb", "32FC1", rgb8=True)
+    out = tmp_path / "out"
+    r = run("fuse", "--recording", bag, "--engine", "cpu", "--write", "color-on-depth", "--out",
+            out, check=False)
+    assert r.returncode == 0, r.stderr
+    ix = json.loads((out / "index.json").read_text())
+    assert all(e.get("color") for e in ix["frames"])
+    for x, y in zip(depth_pngs(out, ix), depth_pngs(source["seq"], source["ix"])):
+        np.testing.assert_array_equal(x, y)
+    tum = tmp_path / "tum"
+    r = run("fuse", "--recording", bag, "--engine", "cpu", "--layout", "tum", "--out", tum,
+            check=False)
+    assert r.returncode != 0
+    line = r.stderr.strip().splitlines()[-1]
+    assert "/kinect2/hd/image_color" in line and "raw sensor_msgs/Image" in line, r.stderr
+    assert not tum.exists()

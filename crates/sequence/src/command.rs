@@ -14,6 +14,7 @@ use fusion_gpu::{Engine, EngineUsed};
 use geometry::Rig;
 use geometry::fusion::FusionOptions;
 use kfuse_io::atomic::StagedDir;
+use kfuse_ros_msgs::Message as _;
 use kinect_usb::decoder::DepthDecoder;
 use kinect_usb::device::DeviceInfo;
 use kinect_usb::recording::ReadOptions;
@@ -273,6 +274,22 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
         }
         SequenceInput::Bag(path, topics) => {
             let src = BagSource::open(path, topics)?;
+            let m = src.meta();
+            let raw_color = m
+                .channels
+                .values()
+                .any(|c| c.topic == m.color_topic && c.msg_type == kfuse_ros_msgs::Image::TYPE);
+            if raw_color && (options.files.color || options.layout == Layout::Tum) {
+                // Those outputs are the colour JPEGs as recorded; a raw Image has none (the
+                // bag source hands its pixels on as a PNG).
+                return Err(SequenceError::input(
+                    path,
+                    format!(
+                        "topic {}: a raw sensor_msgs/Image, no JPEG to copy into color/ or the TUM layout's rgb/; use --layout kfuse without --write color",
+                        m.color_topic
+                    ),
+                ));
+            }
             bag_rig = Some(src.rig());
             let (count, len) = src.progress();
             let max_skew = (options.max_skew_ms * TICKS_PER_SECOND as f64 / 1e3).round() as u64;
