@@ -51,6 +51,7 @@ EXAMPLES:
   kfuse rig import caps/kinect_params.json --out rig.json
   kfuse rig import old-caps/kinect_params.json --mirror --out rig.json   # version 1: mirrored images
   kfuse rig import ~/catkin_ws/src/iai_kinect2/kinect2_bridge/data/012526541941 --out rig.json
+  kfuse rig import kinect.bag2/ --out rig.json      (a ROS 2 bag: its camera_infos + /tf_static)
   kfuse rig import intrinsics.yml extrinsics.yml --t-units mm --depth-size 512x424 --color-size 1920x1080 --out rig.json")]
 pub struct ImportArgs {
     /// The calibration file(s), or iai_kinect2's calibration folder.
@@ -85,6 +86,29 @@ pub struct ImportArgs {
     /// negated, R → M·R·M and T → M·T with M = diag(−1, 1, 1)). Accepts a kfuse rig too.
     #[arg(long)]
     mirror: bool,
+    /// A bag's depth topic, whose camera_info is the depth camera (by default the one depth
+    /// Image topic, as `kfuse fuse --recording BAG` chooses it).
+    #[arg(long, value_name = "TOPIC")]
+    depth_topic: Option<String>,
+    /// A bag's colour topic, whose camera_info is the colour camera.
+    #[arg(long, value_name = "TOPIC")]
+    color_topic: Option<String>,
+}
+
+/// `kfuse rig import BAG`: the rig of a ROS 2 bag's camera_infos and `/tf_static`.
+fn import_bag(a: &ImportArgs) -> Result<rig_io::Imported> {
+    let topics = kfuse_sequence::bag::TopicChoice {
+        depth: a.depth_topic.clone(),
+        color: a.color_topic.clone(),
+    };
+    let rig = kfuse_sequence::bag::read_rig(&a.sources[0], &topics)?;
+    Ok(rig_io::Imported {
+        calibration: Calibration::Rig(rig),
+        source: "ROS 2 bag (camera_info + /tf_static)".into(),
+        notes: vec![
+            "the depth and colour topics' camera_info (K, D; R and P as a pair), the pose from /tf_static (metres)".into(),
+        ],
+    })
 }
 
 /// `kfuse rig export`.
@@ -252,7 +276,13 @@ fn import(a: ImportArgs) -> Result<()> {
     };
     check_not_input(&a.out, &a.sources)?;
     check_new(&a.out, a.overwrite)?;
-    let mut imported = rig_io::import(&a.sources, &opts)?;
+    let is_bag = matches!(a.sources.as_slice(), [one] if kfuse_sequence::bag::is_bag(one));
+    if !is_bag && (a.depth_topic.is_some() || a.color_topic.is_some()) {
+        bail!(
+            "--depth-topic / --color-topic: the source is not a bag (a rosbag2 folder or .mcap file)"
+        );
+    }
+    let mut imported = if is_bag { import_bag(&a)? } else { rig_io::import(&a.sources, &opts)? };
     if a.mirror {
         imported.calibration = mirrored(imported.calibration, &a.sources[0]);
         imported.notes.push("mirrored left-right (--mirror)".into());

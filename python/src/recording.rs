@@ -1,11 +1,13 @@
 //! `kfuse.Recording(path)`: the frames of a `.kfrec` recording, read, matched and decoded by
 //! `kfuse-sequence` (`source::RecordingSource`, `matching::Matcher`,
-//! `process::recording_decoder`), the stages `kfuse fuse --recording` runs.
+//! `process::recording_decoder`), the stages `kfuse fuse --recording` runs; or of a ROS bag
+//! (`bag::BagSource`: rosbag2/MCAP or ROS 1, depth already decoded), as `fuse` reads one.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
 
 use kfuse_sequence::SequenceError;
+use kfuse_sequence::bag::{BagSource, TopicChoice};
 use kfuse_sequence::color::ColorJpeg;
 use kfuse_sequence::matching::{DEFAULT_MAX_SKEW_TICKS, Matched, Matcher, Missing, Pair};
 use kfuse_sequence::process::recording_decoder;
@@ -35,6 +37,10 @@ pub(crate) struct PyRecordingFrame {
     pair: Pair,
     depth_mm: Vec<f32>,
     path: PathBuf,
+    /// The depth frame's size (columns, rows).
+    size: (usize, usize),
+    /// From a bag: no raw frame, colour as the scene is.
+    from_bag: bool,
 }
 
 #[pymethods]
@@ -69,19 +75,27 @@ impl PyRecordingFrame {
     /// and kfuse.fuse take it as it is.
     #[getter]
     fn depth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let a = Array2::from_shape_vec((raw::HEIGHT, raw::WIDTH), self.depth_mm.clone())
+        let a = Array2::from_shape_vec((self.size.1, self.size.0), self.depth_mm.clone())
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok(a.into_pyarray(py))
     }
 
     /// The raw depth frame as the sensor sent it (2 984 960 bytes; kfuse.Decoder's input).
+    /// A bag holds decoded depth only: ValueError.
     #[getter]
-    fn raw_depth<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
-        PyBytes::new(py, &self.pair.depth.data)
+    fn raw_depth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        if self.from_bag {
+            return Err(PyValueError::new_err(format!(
+                "{}: a bag holds decoded depth, no raw frame (use .depth)",
+                self.path.display()
+            )));
+        }
+        Ok(PyBytes::new(py, &self.pair.depth.data))
     }
 
     /// The colour partner's JPEG as the sensor streamed it (mirrored left-right), or None
-    /// when no colour frame was close enough in time.
+    /// when no colour frame was close enough in time. From a bag: its picture as the bag
+    /// holds it (as the scene is; an rgb8/bgr8 Image as a PNG).
     #[getter]
     fn color_jpeg<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyBytes>> {
         self.pair.color.as_ref().map(|c| PyBytes::new(py, &c.jpeg))
@@ -103,7 +117,7 @@ impl PyRecordingFrame {
     /// as fuse decodes it; None without a partner. Releases the GIL.
     fn color<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray3<u8>>>> {
         let Some(c) = &self.pair.color else { return Ok(None) };
-        let jpeg = ColorJpeg { bytes: c.jpeg.clone(), mirrored: true };
+        let jpeg = ColorJpeg { bytes: c.jpeg.clone(), mirrored: !self.from_bag };
         let name = self.path.join(format!("colour of frame {}", self.pair.number));
         let img = py.detach(|| jpeg.decode(&name)).map_err(sequence_err)?;
         let (w, h) = img.size();
@@ -141,7 +155,10 @@ fn missing_dict<'py>(py: Python<'py>, m: &Missing) -> PyResult<Bound<'py, PyDict
 /// kfuse.Recording(path): frame.depth, frame.color_jpeg, frame.depth_time, ...
 ///
 /// Recording(path, allow_truncated=False, skip_corrupt=False) reads, pairs and decodes as
-/// `kfuse fuse --recording` does (--allow-truncated, --skip-corrupt). The depth frames that
+/// `kfuse fuse --recording` does (--allow-truncated, --skip-corrupt).
+/// A ROS bag (a rosbag2 folder, an .mcap file, a ROS 1 .bag with uncompressed chunks) is read
+/// as `kfuse fuse --recording BAG` reads it: its depth topic (in millimetres here) paired with
+/// its colour topic by header stamp; `info` then names the topics. The depth frames that
 /// never arrived complete are in `lost` (complete once the iteration ends). Ctrl-C between
 /// frames raises KeyboardInterrupt. Usable from any thread (a ThreadPoolExecutor worker), one
 /// call at a time: a call while another thread's call on the same Recording runs is a
@@ -154,11 +171,18 @@ pub(crate) struct PyRecording {
     state: Mutex<RecordingState>,
 }
 
+/// Where a `Recording`'s frames come from.
+enum Source {
+    /// A `.kfrec` and its depth decoder.
+    Kfrec(Box<RecordingSource>, Box<DepthDecoder>),
+    /// A bag (depth decoded already).
+    Bag(Box<BagSource>),
+}
+
 /// What a `Recording` reads with: the file, the matcher and the decoder, and the frames so far.
 struct RecordingState {
-    source: RecordingSource,
+    source: Source,
     matcher: Matcher,
-    decoder: DepthDecoder,
     lost: Vec<Missing>,
     ended: bool,
     /// A frame decoded when Ctrl-C came: returned by the next `__next__`, so that the
@@ -188,7 +212,11 @@ impl RecordingState {
             let (source, matcher) = (&mut self.source, &mut self.matcher);
             let ended = py
                 .detach(|| -> Result<bool, SequenceError> {
-                    match source.next_event()? {
+                    let next = match source {
+                        Source::Kfrec(s, _) => s.next_event()?,
+                        Source::Bag(b) => b.next_event()?,
+                    };
+                    match next {
                         Some(ev) => {
                             matcher.push(ev);
                             Ok(false)
@@ -211,13 +239,18 @@ impl PyRecording {
     #[new]
     #[pyo3(signature = (path, allow_truncated = false, skip_corrupt = false))]
     fn new(path: PathBuf, allow_truncated: bool, skip_corrupt: bool) -> PyResult<Self> {
-        let options = ReadOptions { keep_prefix: allow_truncated, skip_corrupt };
-        let source = RecordingSource::open(&path, options).map_err(sequence_err)?;
-        let decoder = recording_decoder(source.info()).map_err(sequence_err)?;
+        let source = if kfuse_sequence::bag::is_bag(&path) {
+            let bag = BagSource::open(&path, &TopicChoice::default()).map_err(sequence_err)?;
+            Source::Bag(Box::new(bag))
+        } else {
+            let options = ReadOptions { keep_prefix: allow_truncated, skip_corrupt };
+            let source = RecordingSource::open(&path, options).map_err(sequence_err)?;
+            let decoder = recording_decoder(source.info()).map_err(sequence_err)?;
+            Source::Kfrec(Box::new(source), Box::new(decoder))
+        };
         let state = RecordingState {
             source,
             matcher: Matcher::new(DEFAULT_MAX_SKEW_TICKS),
-            decoder,
             lost: Vec::new(),
             ended: false,
             pending: None,
@@ -238,21 +271,50 @@ impl PyRecording {
             match m {
                 Matched::Missing(missing) => state.lost.push(missing),
                 Matched::Frame(pair) => {
-                    let decoder = &mut state.decoder;
-                    let depth_mm = py
-                        .detach(|| {
-                            let mut depth = vec![0f32; PIXELS];
-                            let mut ir = vec![0f32; PIXELS];
-                            decoder.decode(&pair.depth.data, &mut depth, &mut ir).map(|()| depth)
-                        })
-                        .map_err(|e| {
-                            PyValueError::new_err(format!(
-                                "{}: frame {}: {e}",
-                                self.path.display(),
-                                pair.number
-                            ))
-                        })?;
-                    let frame = PyRecordingFrame { pair, depth_mm, path: self.path.clone() };
+                    let frame = match &mut state.source {
+                        Source::Kfrec(_, decoder) => {
+                            let depth_mm = py
+                                .detach(|| {
+                                    let mut depth = vec![0f32; PIXELS];
+                                    let mut ir = vec![0f32; PIXELS];
+                                    decoder
+                                        .decode(&pair.depth.data, &mut depth, &mut ir)
+                                        .map(|()| depth)
+                                })
+                                .map_err(|e| {
+                                    PyValueError::new_err(format!(
+                                        "{}: frame {}: {e}",
+                                        self.path.display(),
+                                        pair.number
+                                    ))
+                                })?;
+                            let size = (raw::WIDTH, raw::HEIGHT);
+                            PyRecordingFrame {
+                                pair,
+                                depth_mm,
+                                path: self.path.clone(),
+                                size,
+                                from_bag: false,
+                            }
+                        }
+                        Source::Bag(b) => {
+                            let size = b.depth_size().unwrap_or((0, 0));
+                            // The bag's metres (little-endian f32) in millimetres.
+                            let depth_mm = pair
+                                .depth
+                                .data
+                                .chunks_exact(4)
+                                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) * 1000.0)
+                                .collect();
+                            PyRecordingFrame {
+                                pair,
+                                depth_mm,
+                                path: self.path.clone(),
+                                size,
+                                from_bag: true,
+                            }
+                        }
+                    };
                     // Ctrl-C during the decode: raised here, the frame kept for the next call.
                     if let Err(e) = py.check_signals() {
                         state.pending = Some(frame);
@@ -277,10 +339,21 @@ impl PyRecording {
     #[getter]
     fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let state = self.state()?;
-        let i = state.source.info();
         let d = PyDict::new(py);
-        d.set_item("serial", i.serial.clone())?;
-        d.set_item("firmware", i.firmware.clone())?;
+        match &state.source {
+            Source::Kfrec(s, _) => {
+                let i = s.info();
+                d.set_item("serial", i.serial.clone())?;
+                d.set_item("firmware", i.firmware.clone())?;
+            }
+            Source::Bag(b) => {
+                // A bag names no sensor; its topics instead.
+                d.set_item("serial", None::<String>)?;
+                d.set_item("firmware", None::<String>)?;
+                d.set_item("depth_topic", b.meta().depth_topic.clone())?;
+                d.set_item("color_topic", b.meta().color_topic.clone())?;
+            }
+        }
         Ok(d)
     }
 

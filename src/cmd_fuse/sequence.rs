@@ -11,6 +11,7 @@ use clap::{Args, ValueEnum};
 use geometry::{DepthKind, Rig};
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
+use kfuse_sequence::bag::TopicChoice;
 use kfuse_sequence::command::{
     self, Finished, Observer, Opened, Progress, SequenceInput, SequenceOptions,
 };
@@ -32,9 +33,20 @@ const MAX_LISTED: usize = 20;
 pub struct SequenceArgs {
     /// A raw recording (`kfuse capture record`): every depth frame is decoded, matched with
     /// the colour frame nearest in time, registered and written. Without --rig, the rig is
-    /// fitted to the sensor's factory parameters stored in the recording.
-    #[arg(long, value_name = "SESSION.kfrec", conflicts_with_all = ["color", "depth", "mat", "frames"])]
+    /// fitted to the sensor's factory parameters stored in the recording. Also a ROS 2 bag (a
+    /// rosbag2 folder with metadata.yaml, or an .mcap file): its depth Image (16UC1 mm or
+    /// 32FC1 m) and colour (CompressedImage, or Image rgb8/bgr8) matched by header stamp;
+    /// without --rig, the rig of its camera_infos and /tf_static.
+    #[arg(long, value_name = "SESSION.kfrec|BAG", conflicts_with_all = ["color", "depth", "mat", "frames"])]
     pub recording: Option<PathBuf>,
+    /// A bag's depth topic (sensor_msgs/Image); by default the one Image topic named *depth*
+    /// (not *rect* where another is there).
+    #[arg(long, value_name = "TOPIC", requires = "recording")]
+    pub depth_topic: Option<String>,
+    /// A bag's colour topic (sensor_msgs/CompressedImage or Image); by default the one such
+    /// topic (a CompressedImage, or an Image named *color*/*rgb*).
+    #[arg(long, value_name = "TOPIC", requires = "recording")]
+    pub color_topic: Option<String>,
     /// A folder of `kfuse capture` shots (NAME_depth.png with NAME_color.jpg, or
     /// depth_NNNN.png with color_NNNN.jpg), or a quoted glob of their files. Without --rig,
     /// the folder's kinect_params.json.
@@ -152,6 +164,19 @@ fn load_rig(path: &Path, force: bool) -> Result<Rig> {
 /// they are known), or the rig fitted to those parameters. A recording's parameters are first
 /// written into the output folder.
 fn sequence_rig(args: &FuseArgs, opened: &Opened) -> Result<Rig> {
+    if let Some(bag_rig) = opened.bag_rig() {
+        return match (&args.rig, bag_rig) {
+            (Some(r), _) => load_rig(r, args.force),
+            (None, Ok(rig)) => {
+                eprintln!(
+                    "rig: the camera_infos and /tf_static of {} (pass --rig for another)",
+                    opened.source().display()
+                );
+                Ok(rig.clone())
+            }
+            (None, Err(e)) => bail!("{e}"),
+        };
+    }
     if let Some(info) = opened.device_info() {
         kfuse_capture::write_params_json(opened.staged().path(), info)?;
     }
@@ -272,6 +297,15 @@ fn bar_for(len: u64, unit: &str) -> ProgressBar {
 pub fn run(args: &FuseArgs) -> Result<()> {
     let seq = &args.sequence;
     let input = match (&seq.recording, &seq.frames) {
+        (Some(path), _) if kfuse_sequence::bag::is_bag(path) => SequenceInput::Bag(
+            path.clone(),
+            TopicChoice { depth: seq.depth_topic.clone(), color: seq.color_topic.clone() },
+        ),
+        (Some(_), _) if seq.depth_topic.is_some() || seq.color_topic.is_some() => {
+            bail!(
+                "--depth-topic / --color-topic: the input is not a bag (a rosbag2 folder or .mcap file)"
+            )
+        }
         (Some(path), _) => SequenceInput::Recording(
             path.clone(),
             ReadOptions { keep_prefix: seq.allow_truncated, skip_corrupt: seq.skip_corrupt },

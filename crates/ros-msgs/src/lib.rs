@@ -22,6 +22,7 @@
 
 pub mod cdr;
 mod msgs;
+pub mod ros1;
 pub mod schema;
 
 pub use msgs::*;

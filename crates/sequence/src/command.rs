@@ -14,10 +14,12 @@ use fusion_gpu::{Engine, EngineUsed};
 use geometry::Rig;
 use geometry::fusion::FusionOptions;
 use kfuse_io::atomic::StagedDir;
+use kfuse_ros_msgs::Message as _;
 use kinect_usb::decoder::DepthDecoder;
 use kinect_usb::device::DeviceInfo;
 use kinect_usb::recording::ReadOptions;
 
+use crate::bag::{BagSource, TopicChoice};
 use crate::pipeline::{self, Config, Input, Kept, Outcome, Report};
 use crate::process::{self, Extras, Processor};
 use crate::rosbag2::{self, Bag};
@@ -47,13 +49,17 @@ pub enum SequenceInput {
     Recording(PathBuf, ReadOptions),
     /// A folder of `kfuse capture` shots, or a glob of their files.
     Frames(PathBuf),
+    /// A ROS 2 bag (rosbag2 folder or `.mcap` file) and its depth and colour topics.
+    Bag(PathBuf, TopicChoice),
 }
 
 impl SequenceInput {
     /// The recording, folder or pattern as given.
     pub fn path(&self) -> &Path {
         match self {
-            SequenceInput::Recording(p, _) | SequenceInput::Frames(p) => p,
+            SequenceInput::Recording(p, _)
+            | SequenceInput::Frames(p)
+            | SequenceInput::Bag(p, _) => p,
         }
     }
 }
@@ -96,6 +102,12 @@ impl SequenceOptions {
                     "a frame folder has no sensor timestamps or serial, which the rosbag2 layout \
                      stamps and names its topics with; export a recording (`kfuse capture record`) \
                      with --layout rosbag2, or use --layout kfuse",
+                ));
+            }
+            if matches!(input, SequenceInput::Bag(..)) {
+                return Err(SequenceError::input(
+                    input.path(),
+                    "is a bag already: the rosbag2 layout writes the decoder's depth and IR of a                      recording, which a bag does not hold; use --layout kfuse or tum",
                 ));
             }
             if self.files != FileSet::default() {
@@ -184,9 +196,23 @@ pub struct Opened {
     staged: StagedDir,
     source: PathBuf,
     started: Instant,
+    /// A bag's own rig (its camera_infos and `/tf_static`), or why there is none.
+    bag_rig: Option<Result<Rig>>,
 }
 
 impl Opened {
+    /// A bag's rig, built from its camera_infos and `/tf_static` ([`crate::bag::rig_from_meta`]),
+    /// or why it cannot be (no camera_info: the caller's `--rig` is needed); `None` for a
+    /// recording or a frame folder.
+    pub fn bag_rig(&self) -> Option<std::result::Result<&Rig, &SequenceError>> {
+        self.bag_rig.as_ref().map(|r| r.as_ref())
+    }
+
+    /// Whether the input is a bag.
+    pub fn is_bag(&self) -> bool {
+        self.bag_rig.is_some()
+    }
+
     /// The staged output folder (files written there appear in `--out` with the run).
     pub fn staged(&self) -> &StagedDir {
         &self.staged
@@ -230,6 +256,7 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
     options.check(input)?;
     let staged = StagedDir::new(out)?;
     staged.refuse_foreign(&output_names_for(out))?;
+    let mut bag_rig = None;
     let (input_, decoder, info, progress) = match input {
         SequenceInput::Recording(path, read) => {
             let src = RecordingSource::open(path, *read)?;
@@ -245,6 +272,29 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
             let progress = Progress::Shots(folder.shots.len() as u64);
             (Input::Folder(folder), None, None, progress)
         }
+        SequenceInput::Bag(path, topics) => {
+            let src = BagSource::open(path, topics)?;
+            let m = src.meta();
+            let raw_color = m
+                .channels
+                .values()
+                .any(|c| c.topic == m.color_topic && c.msg_type == kfuse_ros_msgs::Image::TYPE);
+            if raw_color && (options.files.color || options.layout == Layout::Tum) {
+                // Those outputs are the colour JPEGs as recorded; a raw Image has none (the
+                // bag source hands its pixels on as a PNG).
+                return Err(SequenceError::input(
+                    path,
+                    format!(
+                        "topic {}: a raw sensor_msgs/Image, no JPEG to copy into color/ or the TUM layout's rgb/; use --layout kfuse without --write color",
+                        m.color_topic
+                    ),
+                ));
+            }
+            bag_rig = Some(src.rig());
+            let (count, len) = src.progress();
+            let max_skew = (options.max_skew_ms * TICKS_PER_SECOND as f64 / 1e3).round() as u64;
+            (Input::Bag(Box::new(src), max_skew), None, None, Progress::Bytes(count, len))
+        }
     };
     Ok(Opened {
         input: input_,
@@ -254,6 +304,7 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
         staged,
         source: input.path().to_path_buf(),
         started,
+        bag_rig,
     })
 }
 
@@ -301,8 +352,9 @@ pub fn run(
     observer: &mut dyn Observer,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<Finished> {
-    let Opened { input, decoder, info, progress: _, staged, source, started } = opened;
-    let recording = info.is_some();
+    let Opened { input, decoder, info, progress: _, staged, source, started, bag_rig } = opened;
+    // Frames with sensor times: a recording's, or a bag's header stamps.
+    let recording = info.is_some() || bag_rig.is_some();
     let engine = options.engine.open()?;
     if let EngineUsed::CpuFallback { reason } = &engine.1 {
         observer.note(&format!("no GPU, registering on the CPU: {reason}"));

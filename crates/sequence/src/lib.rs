@@ -8,6 +8,7 @@
 //! | stage | module | what it does |
 //! | --- | --- | --- |
 //! | 1 read | [`source`] | [`source::RecordingSource`]: the recording's packets assembled into depth frames and colour JPEGs (`kinect_usb::stream`), one record in memory at a time; [`source::FolderSource`]: the shots of a capture folder or glob |
+//! | 1 read (bags) | [`bag`] | [`bag::BagSource`]: a ROS 2 bag's (rosbag2 folder or `.mcap`) depth `Image`s, already in metres, and colour pictures, stamped by their headers; its camera_infos and `/tf_static` as a rig |
 //! | 2 match | [`matching`] | depth and colour paired by the sensor's timestamps, frame numbers from the depth sequence numbers, every lost depth frame listed |
 //! | 3–4 decode, register | [`process`] | the `Fast` depth decoder, `geometry::fusion::Registration` (or `fusion_gpu::FusionContext::stream`), the hole mask, colour on the depth grid, the cloud |
 //! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the colour JPEG as the scene is ([`color`]: a capture's copied unchanged, a recording's flipped without loss in the DCT domain), `index.json` |
@@ -27,6 +28,8 @@
 //! first frame of the recording, so a lost frame leaves a gap in the numbers.
 #![deny(missing_docs)]
 
+pub mod bag;
+pub mod bag1;
 pub mod color;
 pub mod command;
 pub mod error;

@@ -17,6 +17,7 @@ use std::time::Instant;
 use geometry::Image;
 use kinect_usb::recording::ReadReport;
 
+use crate::bag::BagSource;
 use crate::color::ColorJpeg;
 use crate::matching::{Matched, Matcher, Missing};
 use crate::process::{Decoded, FrameDecoder, FrameRegistrar, GPU_BATCH, Processor};
@@ -40,6 +41,8 @@ pub enum Input {
     Recording(Box<RecordingSource>, u64),
     /// A frame folder's shots.
     Folder(FolderSource),
+    /// A ROS 2 bag, with the matcher's skew limit in ticks.
+    Bag(Box<BagSource>, u64),
 }
 
 /// A frame's depth (metres) and colour JPEG, handed to the caller for figures.
@@ -107,6 +110,8 @@ struct Job {
     jpeg: Option<ColorJpeg>,
     /// The file the colour JPEG was read from (a frame folder's), for messages.
     color_file: Option<std::path::PathBuf>,
+    /// `raw` is depth already decoded (a bag's): metres as little-endian `f32`, this size.
+    predecoded: Option<(usize, usize)>,
 }
 
 /// The reading end: recording + matcher, or the folder's shots.
@@ -120,7 +125,7 @@ struct Reader {
 impl Reader {
     fn new(input: Input) -> Self {
         let matcher = match &input {
-            Input::Recording(_, skew) => Some(Matcher::new(*skew)),
+            Input::Recording(_, skew) | Input::Bag(_, skew) => Some(Matcher::new(*skew)),
             Input::Folder(_) => None,
         };
         Self { input, matcher, finished: false, next_shot: 0 }
@@ -131,26 +136,24 @@ impl Reader {
         match (&mut self.input, &mut self.matcher) {
             (Input::Recording(src, _), Some(m)) => loop {
                 if let Some(r) = m.pop() {
-                    return Ok(Some(match r {
-                        Matched::Missing(x) => Err(Stage2::Missing(x)),
-                        Matched::Frame(p) => Ok(Job {
-                            meta: FrameMeta {
-                                number: p.number,
-                                name: None,
-                                depth_sequence: Some(p.depth.sequence),
-                                depth_time: Some(p.depth.timestamp),
-                                color: p.color.as_ref().map(|c| ColorRef {
-                                    sequence: Some(c.sequence),
-                                    time_s: Some(seconds_text(c.timestamp)),
-                                    time_ticks: Some(c.timestamp),
-                                }),
-                            },
-                            raw: Some(p.depth.data),
-                            depth_png: None,
-                            jpeg: p.color.map(|c| ColorJpeg { bytes: c.jpeg, mirrored: true }),
-                            color_file: None,
-                        }),
-                    }));
+                    return Ok(Some(paired_job(r, None, true)));
+                }
+                if self.finished {
+                    return Ok(None);
+                }
+                match src.next_event()? {
+                    Some(ev) => m.push(ev),
+                    None => {
+                        m.finish();
+                        self.finished = true;
+                    }
+                }
+            },
+            (Input::Bag(src, _), Some(m)) => loop {
+                if let Some(r) = m.pop() {
+                    // A bag's colour is as the scene is (kfuse's rosbag2 layout writes the
+                    // sensor's JPEG flipped; ROS drivers publish it unmirrored).
+                    return Ok(Some(paired_job(r, src.depth_size(), false)));
                 }
                 if self.finished {
                     return Ok(None);
@@ -197,9 +200,10 @@ impl Reader {
                     depth_png: Some(depth),
                     jpeg: jpeg.map(|bytes| ColorJpeg { bytes, mirrored: false }),
                     color_file: shot.color.clone(),
+                    predecoded: None,
                 })))
             }
-            (Input::Recording(..), None) => Ok(None),
+            (Input::Recording(..) | Input::Bag(..), None) => Ok(None),
         }
     }
 
@@ -207,8 +211,38 @@ impl Reader {
         let unmatched = self.matcher.as_ref().map_or(0, Matcher::unmatched_colors);
         match self.input {
             Input::Recording(src, _) => (unmatched, src.report()),
-            Input::Folder(_) => (unmatched, ReadReport::default()),
+            Input::Folder(_) | Input::Bag(..) => (unmatched, ReadReport::default()),
         }
+    }
+}
+
+/// The job of a matched pair (or the gap of a missing frame): `predecoded` is the size of a
+/// bag's depth (already in metres), `mirrored` whether the colour is the sensor's mirrored JPEG.
+fn paired_job(
+    r: Matched,
+    predecoded: Option<(usize, usize)>,
+    mirrored: bool,
+) -> Result<Job, Stage2> {
+    match r {
+        Matched::Missing(x) => Err(Stage2::Missing(x)),
+        Matched::Frame(p) => Ok(Job {
+            meta: FrameMeta {
+                number: p.number,
+                name: None,
+                depth_sequence: Some(p.depth.sequence),
+                depth_time: Some(p.depth.timestamp),
+                color: p.color.as_ref().map(|c| ColorRef {
+                    sequence: Some(c.sequence),
+                    time_s: Some(seconds_text(c.timestamp)),
+                    time_ticks: Some(c.timestamp),
+                }),
+            },
+            raw: Some(p.depth.data),
+            depth_png: None,
+            jpeg: p.color.map(|c| ColorJpeg { bytes: c.jpeg, mirrored }),
+            color_file: None,
+            predecoded,
+        }),
     }
 }
 
@@ -238,18 +272,19 @@ fn produce(
                 let t = Instant::now();
                 let mut raw_for_gpu = None;
                 let mut sensor = None;
-                let depth = match (&job.raw, &job.depth_png) {
-                    (Some(_), _) if decoding.decodes_on_gpu() => {
+                let depth = match (&job.raw, &job.depth_png, job.predecoded) {
+                    (Some(metres), _, Some((w, h))) => decoding.take_decoded(metres, w, h)?,
+                    (Some(_), _, None) if decoding.decodes_on_gpu() => {
                         raw_for_gpu = job.raw.take();
                         Image::filled(0, 0, 0.0)
                     }
-                    (Some(raw), _) => {
+                    (Some(raw), _, None) => {
                         let depth = decoding.decode_raw(raw)?;
                         sensor = decoding.sensor_images();
                         depth
                     }
-                    (None, Some(p)) => decoding.read_depth_png(p)?,
-                    (None, None) => {
+                    (None, Some(p), _) => decoding.read_depth_png(p)?,
+                    (None, None, _) => {
                         return Err(SequenceError::Pipeline("a frame without depth".into()));
                     }
                 };

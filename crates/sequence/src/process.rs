@@ -257,6 +257,23 @@ impl FrameDecoder {
         Ok(depth)
     }
 
+    /// A depth frame decoded already (a bag's: metres as little-endian `f32`, `w × h`, 0 = no
+    /// sample), checked against the rig's depth size, with the rig's depth correction applied
+    /// as to a decoded frame.
+    pub fn take_decoded(&self, metres: &[u8], w: usize, h: usize) -> Result<Image<f32>> {
+        let (rw, rh) = (self.rig.depth.width, self.rig.depth.height);
+        if (w, h) != (rw, rh) {
+            return Err(SequenceError::Pipeline(format!(
+                "the bag's depth images are {w}x{h}, the rig's depth camera is {rw}x{rh}; give the rig of the camera that took them"
+            )));
+        }
+        let data: Vec<f32> =
+            metres.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+        let mut depth = Image::from_vec(w, h, data)?;
+        self.correct(&mut depth)?;
+        Ok(depth)
+    }
+
     /// The rig's `depth_correction` (`kfuse calibrate --depth`) applied to a frame's depth in
     /// metres, as `kfuse fuse` applies it to one frame (`DepthCorrection::correct_image`).
     fn correct(&self, depth: &mut Image<f32>) -> Result<()> {

@@ -81,9 +81,9 @@ impl Unwrap {
 }
 
 /// A file that counts the bytes read from it (for the progress bar).
-struct Counting {
-    file: std::fs::File,
-    count: Arc<AtomicU64>,
+pub(crate) struct Counting {
+    pub(crate) file: std::fs::File,
+    pub(crate) count: Arc<AtomicU64>,
 }
 
 impl Read for Counting {

@@ -45,11 +45,22 @@ fn nums(v: &[f64]) -> String {
 pub fn camera_from(
     k: &[f64],
     d: &[f64],
-    (w, h): (usize, usize),
+    size: (usize, usize),
     doc: &Doc,
     what: &str,
 ) -> Result<CameraModel, CalibError> {
-    let err = |m: String| fmt_err(doc.path(), format!("{what}: {m}"));
+    camera_from_values(k, d, size, doc.path(), what)
+}
+
+/// [`camera_from`] of values that come from `path` (a file that is no YAML document: a bag).
+pub fn camera_from_values(
+    k: &[f64],
+    d: &[f64],
+    (w, h): (usize, usize),
+    path: &std::path::Path,
+    what: &str,
+) -> Result<CameraModel, CalibError> {
+    let err = |m: String| fmt_err(path, format!("{what}: {m}"));
     if k.len() != 9 {
         return Err(err(format!("camera matrix has {} values, expected 9", k.len())));
     }

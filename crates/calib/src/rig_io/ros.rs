@@ -18,12 +18,13 @@
 //! Distortion model `plumb_bob` (k1, k2, p1, p2, k3: OpenCV's order, as kfuse's).
 
 use std::fmt::Write as _;
+use std::path::Path;
 
 use geometry::{CameraModel, Rig, RigidTransform};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
 
-use super::opencv::camera_from;
+use super::opencv::camera_from_values;
 use super::yaml::{Doc, fmt_err};
 use super::{Calibration, ImportOptions, Imported, Role};
 use crate::CalibError;
@@ -66,22 +67,14 @@ fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
     let (Some(w), Some(h)) = (w, h) else {
         return Err(fmt_err(doc.path(), "no 'image_width' / 'image_height'"));
     };
-    if let Some(model) = doc.string("distortion_model")
-        && !matches!(model.as_str(), "plumb_bob" | "rational_polynomial")
-    {
-        return Err(fmt_err(
-            doc.path(),
-            format!(
-                "distortion_model '{model}' is not supported (kfuse uses plumb_bob: k1, k2, p1, p2, k3)"
-            ),
-        ));
-    }
+    // The model first: a file of another model is named as such, whatever else it lacks.
+    let distortion_model = doc.string("distortion_model");
+    check_model(distortion_model.as_deref(), doc.path())?;
     let k = doc.values("camera_matrix", 9)?;
     let d = doc.matrix("distortion_coefficients")?.map(|m| m.2).unwrap_or_default();
-    let camera = camera_from(&k, &d, (w, h), doc, what)?;
     let rect = match doc.matrix("rectification_matrix")? {
-        None => Matrix3::identity(),
-        Some((_, _, r)) if r.len() == 9 => Matrix3::from_row_slice(&r),
+        None => None,
+        Some((_, _, r)) if r.len() == 9 => Some(r),
         Some((r, c, _)) => {
             return Err(fmt_err(
                 doc.path(),
@@ -89,17 +82,9 @@ fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
             ));
         }
     };
-    RigidTransform::from_matrix(rect, Vector3::zeros())
-        .map_err(|e| fmt_err(doc.path(), format!("'rectification_matrix': {e}")))?;
-    let t = match doc.matrix("projection_matrix")? {
-        None => Vector3::zeros(),
-        Some((3, 4, p)) => {
-            let kp = Matrix3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]);
-            let inv = kp.try_inverse().ok_or_else(|| {
-                fmt_err(doc.path(), "'projection_matrix': its left 3×3 part is singular")
-            })?;
-            inv * Vector3::new(p[3], p[7], p[11])
-        }
+    let p = match doc.matrix("projection_matrix")? {
+        None => None,
+        Some((3, 4, p)) => Some(p),
         Some((r, c, _)) => {
             return Err(fmt_err(
                 doc.path(),
@@ -107,7 +92,97 @@ fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
             ));
         }
     };
+    let fields = CameraInfoFields { width: w, height: h, distortion_model, k, d, r: rect, p };
+    info_of(&fields, doc.path(), what)
+}
+
+/// The fields of one `camera_info` (a YAML file's or a `sensor_msgs/CameraInfo` message's),
+/// before they are checked: `r` and `p` absent (`None`) read as the identity and `K [I | 0]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraInfoFields {
+    /// Image columns.
+    pub width: usize,
+    /// Image rows.
+    pub height: usize,
+    /// `distortion_model`, if given.
+    pub distortion_model: Option<String>,
+    /// K, row-major (9 values).
+    pub k: Vec<f64>,
+    /// D.
+    pub d: Vec<f64>,
+    /// R, row-major (9 values).
+    pub r: Option<Vec<f64>>,
+    /// P, row-major (12 values).
+    pub p: Option<Vec<f64>>,
+}
+
+/// The camera, rectification and `t_i` of one `camera_info`'s fields (module docs); `path`
+/// and `what` are named in errors.
+fn check_model(model: Option<&str>, path: &Path) -> Result<(), CalibError> {
+    if let Some(model) = model
+        && !matches!(model, "plumb_bob" | "rational_polynomial")
+    {
+        return Err(fmt_err(
+            path,
+            format!(
+                "distortion_model '{model}' is not supported (kfuse uses plumb_bob: k1, k2, p1, p2, k3)"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn info_of(f: &CameraInfoFields, path: &Path, what: &str) -> Result<Info, CalibError> {
+    check_model(f.distortion_model.as_deref(), path)?;
+    let camera = camera_from_values(&f.k, &f.d, (f.width, f.height), path, what)?;
+    let rect = match &f.r {
+        None => Matrix3::identity(),
+        Some(r) if r.len() == 9 => Matrix3::from_row_slice(r),
+        Some(r) => return Err(fmt_err(path, format!("R has {} values, expected 9", r.len()))),
+    };
+    RigidTransform::from_matrix(rect, Vector3::zeros())
+        .map_err(|e| fmt_err(path, format!("{what}: rectification matrix R: {e}")))?;
+    let t = match &f.p {
+        None => Vector3::zeros(),
+        Some(p) if p.len() == 12 => {
+            let kp = Matrix3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]);
+            let inv = kp.try_inverse().ok_or_else(|| {
+                fmt_err(path, format!("{what}: projection matrix P: its left 3×3 part is singular"))
+            })?;
+            inv * Vector3::new(p[3], p[7], p[11])
+        }
+        Some(p) => return Err(fmt_err(path, format!("P has {} values, expected 12", p.len()))),
+    };
     Ok(Info { camera, rect, t })
+}
+
+/// The cameras of a depth and a colour `camera_info` (a bag's `sensor_msgs/CameraInfo`
+/// messages; `path` and `what_*` are named in errors) and the pair's `color_from_depth` as
+/// their R and P carry it (module docs), `None` when they carry none (R = I and no Tx, Ty: two
+/// single cameras, whose extrinsics must come from elsewhere, a bag's `/tf_static`). The same
+/// math as the YAML import.
+pub fn cameras_from_infos(
+    depth: &CameraInfoFields,
+    color: &CameraInfoFields,
+    path: &Path,
+    (what_depth, what_color): (&str, &str),
+) -> Result<(CameraModel, CameraModel, Option<RigidTransform>), CalibError> {
+    let a = info_of(depth, path, what_depth)?;
+    let b = info_of(color, path, what_color)?;
+    let cfd = pair_extrinsics(&a, &b, path)?;
+    Ok((a.camera, b.camera, cfd))
+}
+
+/// `color_from_depth` of a pair (module docs); `None` when R = I and t = 0 in both.
+fn pair_extrinsics(a: &Info, b: &Info, path: &Path) -> Result<Option<RigidTransform>, CalibError> {
+    let rot = b.rect.transpose() * a.rect;
+    let t = b.rect.transpose() * (b.t - a.t);
+    if (rot - Matrix3::identity()).abs().max() < ZERO_TRANSLATION && t.norm() < ZERO_TRANSLATION {
+        return Ok(None);
+    }
+    RigidTransform::from_matrix(rot, t)
+        .map(Some)
+        .map_err(|e| fmt_err(path, format!("extrinsics: {e}")))
 }
 
 /// Imports one `camera_info` file (one camera; `opts.role` says which) or a pair
@@ -152,18 +227,12 @@ pub fn import(docs: &[Doc], opts: &ImportOptions) -> Result<Imported, CalibError
             }
             let a = read_info(d, "depth camera")?;
             let b = read_info(c, "colour camera")?;
-            let rot = b.rect.transpose() * a.rect;
-            let t = b.rect.transpose() * (b.t - a.t);
-            if (rot - Matrix3::identity()).abs().max() < ZERO_TRANSLATION
-                && t.norm() < ZERO_TRANSLATION
-            {
+            let Some(cfd) = pair_extrinsics(&a, &b, c.path())? else {
                 return Err(fmt_err(
                     c.path(),
                     "the two camera_info files carry no extrinsics (R = I and no Tx, Ty in either projection_matrix): they are two single cameras, not a calibrated pair",
                 ));
-            }
-            let cfd = RigidTransform::from_matrix(rot, t)
-                .map_err(|e| fmt_err(c.path(), format!("extrinsics: {e}")))?;
+            };
             let mut rig = Rig::new(a.camera, b.camera, cfd);
             rig.calibration = Some(json!({"source": "ROS camera_info pair",
                 "files": [d.path().display().to_string(), c.path().display().to_string()]}));
