@@ -65,7 +65,8 @@ pub struct SequenceArgs {
     /// Leave out records of the recording whose checksum does not match.
     #[arg(long)]
     pub skip_corrupt: bool,
-    /// With --recording and --tsdf: integrate only the first N frames (default: every frame).
+    /// With --recording and --tsdf: integrate only the first N frames (default: every frame;
+    /// the later frames are still decoded and written as frames).
     #[arg(long, value_name = "N")]
     pub frames_max: Option<u64>,
 }
