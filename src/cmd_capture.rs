@@ -160,6 +160,10 @@ pub struct CommonArgs {
     /// `kfuse calibrate --depth` measures it back.
     #[arg(long, value_name = "OFFSET_MM,SCALE,RADIAL_MM", value_parser = parse_depth_error)]
     sim_depth_error: Option<DepthError>,
+    /// Simulated device: give the depth the Kinect noise (σ = 1.5 mm·z², flying pixels),
+    /// independent in each of 16 frames it cycles through.
+    #[arg(long, hide = true)]
+    sim_depth_noise: bool,
     /// Simulated device: write its colour settings, LED state and protocol violations as JSON
     /// to this file when the capture ends.
     #[arg(long, hide = true, value_name = "FILE")]
@@ -353,6 +357,7 @@ impl CommonArgs {
                 calib_scene: self.sim_calib_scene,
                 calib_frames: self.sim_calib_frames,
                 depth_error: self.sim_depth_error,
+                depth_noise: self.sim_depth_noise,
                 ring: ring(self.sim_sensors),
                 fault_sensor: self.sim_fault_sensor.clone(),
                 same_serial: self.sim_same_serial,

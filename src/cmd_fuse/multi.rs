@@ -58,15 +58,15 @@ pub fn is_multi(args: &FuseArgs) -> bool {
         || args.shot.is_some()
         || args.virtual_view.is_some()
         || args.view.is_some()
-        || args.tsdf
-        || args.voxel_size.is_some()
-        || args.truncation.is_some()
+        // --tsdf of a recording (one fixed sensor) is the sequence path's.
+        || ((args.tsdf || args.voxel_size.is_some() || args.truncation.is_some())
+            && args.sequence.recording.is_none())
 }
 
 /// The volume `--tsdf`, `--voxel-size` and `--truncation` ask for, checked before any work;
 /// `None` without `--tsdf`. Errors, one line each: a value out of its range (naming the flag,
 /// the value and the range), `--voxel-size`/`--truncation` without `--tsdf`.
-fn tsdf_options(args: &FuseArgs) -> Result<Option<kfuse_tsdf::TsdfOptions>> {
+pub(super) fn tsdf_options(args: &FuseArgs) -> Result<Option<kfuse_tsdf::TsdfOptions>> {
     if !args.tsdf {
         if args.voxel_size.is_some() || args.truncation.is_some() {
             bail!("--voxel-size and --truncation size the volume of --tsdf: add --tsdf");
@@ -606,14 +606,9 @@ fn write_tsdf(
     let stats = kfuse_tsdf::integrate_multi(&mut volume, fused, |k| bar.set_position(k as u64));
     let stats = match stats {
         Ok(s) => s,
-        Err(kfuse_tsdf::TsdfError::MemoryBound { blocks, needed_bytes, limit_bytes }) => {
+        Err(e @ kfuse_tsdf::TsdfError::MemoryBound { .. }) => {
             bar.finish_and_clear();
-            bail!(
-                "--voxel-size {}: the TSDF volume would need at least {:.2} GiB ({blocks} voxel blocks), over its {:.2} GiB bound: use a larger --voxel-size (memory grows with 1/size²)",
-                options.voxel_size_m,
-                needed_bytes as f64 / GIB,
-                limit_bytes as f64 / GIB
-            );
+            bail!("{}", memory_bound_line(&e, &options));
         }
         Err(e) => {
             bar.finish_and_clear();
@@ -646,6 +641,23 @@ fn write_tsdf(
         integrate_ms,
         mesh_ms,
     })
+}
+
+/// The one line of a volume over its memory bound, naming `--voxel-size`; `e`'s own text for
+/// any other error.
+pub(super) fn memory_bound_line(
+    e: &kfuse_tsdf::TsdfError,
+    options: &kfuse_tsdf::TsdfOptions,
+) -> String {
+    match e {
+        kfuse_tsdf::TsdfError::MemoryBound { blocks, needed_bytes, limit_bytes } => format!(
+            "--voxel-size {}: the TSDF volume would need at least {:.2} GiB ({blocks} voxel blocks), over its {:.2} GiB bound: use a larger --voxel-size (memory grows with 1/size²)",
+            options.voxel_size_m,
+            *needed_bytes as f64 / GIB,
+            *limit_bytes as f64 / GIB
+        ),
+        e => format!("--tsdf: {e}"),
+    }
 }
 
 /// Each sensor's line of summary.json.

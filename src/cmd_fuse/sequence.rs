@@ -79,6 +79,10 @@ pub struct SequenceArgs {
     /// Leave out records of the recording whose checksum does not match.
     #[arg(long)]
     pub skip_corrupt: bool,
+    /// With --recording and --tsdf: integrate only the first N frames (default: every frame;
+    /// the later frames are still decoded and written as frames).
+    #[arg(long, value_name = "N")]
+    pub frames_max: Option<u64>,
 }
 
 /// `--layout`.
@@ -313,15 +317,165 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         (None, Some(frames)) => SequenceInput::Frames(frames.clone()),
         (None, None) => bail!("give --recording SESSION.kfrec or --frames DIR"),
     };
-    let options = options(args)?;
+    let mut options = options(args)?;
+    let tsdf = tsdf_request(args)?;
+    if tsdf.is_some() {
+        // Every frame's decoded depth handed over (`Observer::kept`) to be integrated.
+        options.keep_every = Some(1);
+    }
     options.check(&input)?;
     crate::interrupt::install()?;
     let opened = command::open(&input, &args.out, &options)?;
     let rig = sequence_rig(args, &opened)?;
-    let mut shown = Shown::new(opened.progress().clone(), &rig, options.fusion);
-    let finished = command::run(opened, &rig, &options, &mut shown, &crate::interrupt::requested)?;
-    shown.finish();
-    print_summary(&finished, seq.threads, args.timings)
+    let shown = Shown::new(opened.progress().clone(), &rig, options.fusion);
+    let Some((tsdf_options, frames_max)) = tsdf else {
+        let mut shown = shown;
+        let finished =
+            command::run(opened, &rig, &options, &mut shown, &crate::interrupt::requested)?;
+        shown.finish();
+        return print_summary(&finished, seq.threads, args.timings);
+    };
+    let mut fused = TsdfShown {
+        shown,
+        volume: kfuse_tsdf::TsdfVolume::new(tsdf_options)?,
+        options: tsdf_options,
+        camera: rig.depth,
+        frames_max,
+        integrated: 0,
+        integrate_s: 0.0,
+        error: None,
+        written: None,
+    };
+    let finished = command::run(opened, &rig, &options, &mut fused, &crate::interrupt::requested)?;
+    fused.shown.finish();
+    print_summary(&finished, seq.threads, args.timings)?;
+    if let Some((vertices, faces, mesh_s)) = fused.written {
+        let out = finished.out.display();
+        println!(
+            "  TSDF: {} frames integrated ({:.1} ms per frame), {} voxel blocks of {} m voxels; mesh {vertices} vertices, {faces} faces ({:.0} ms)",
+            fused.integrated,
+            fused.integrate_s * 1e3 / fused.integrated.max(1) as f64,
+            fused.volume.block_count(),
+            tsdf_options.voxel_size_m,
+            mesh_s * 1e3
+        );
+        println!("  TSDF mesh     {out}/tsdf_mesh.ply, surface points {out}/tsdf_cloud.ply");
+    }
+    Ok(())
+}
+
+/// `--tsdf` (with `--voxel-size`, `--truncation`, `--frames-max`) of a recording: the volume's
+/// options and the frame limit, checked before any work; `None` without `--tsdf`. One line
+/// each: `--frames-max` without `--tsdf` or of 0, `--figures` with `--tsdf`, a value of the
+/// volume out of its range.
+fn tsdf_request(args: &FuseArgs) -> Result<Option<(kfuse_tsdf::TsdfOptions, u64)>> {
+    let seq = &args.sequence;
+    let Some(options) = super::multi::tsdf_options(args)? else {
+        if seq.frames_max.is_some() {
+            bail!("--frames-max limits the frames of --tsdf: add --tsdf");
+        }
+        return Ok(None);
+    };
+    if seq.figures.is_some() {
+        bail!("--figures every:N draws single-frame figures; drop it with --tsdf");
+    }
+    let frames_max = match seq.frames_max {
+        Some(0) => {
+            bail!("--frames-max 0: integrate at least 1 frame (or drop --frames-max for all)")
+        }
+        Some(n) => n,
+        None => u64::MAX,
+    };
+    Ok(Some((options, frames_max)))
+}
+
+/// [`Shown`] that also integrates every frame's depth into one TSDF volume (`--tsdf` of a
+/// recording of one fixed sensor: the volume is the depth camera's frame) and writes its
+/// mesh and surface points before the folder is committed.
+struct TsdfShown<'a> {
+    shown: Shown<'a>,
+    volume: kfuse_tsdf::TsdfVolume,
+    options: kfuse_tsdf::TsdfOptions,
+    camera: geometry::CameraModel,
+    frames_max: u64,
+    integrated: u64,
+    integrate_s: f64,
+    /// The first integration error (the run stops at its end with it).
+    error: Option<String>,
+    /// Vertices, faces and marching-cubes seconds of the written mesh.
+    written: Option<(usize, usize, f64)>,
+}
+
+impl Observer for TsdfShown<'_> {
+    fn note(&mut self, line: &str) {
+        self.shown.note(line);
+    }
+
+    fn frame(&mut self, entry: &IndexEntry, shots_done: u64) {
+        self.shown.frame(entry, shots_done);
+    }
+
+    fn warn(&mut self, line: String) {
+        self.shown.warn(line);
+    }
+
+    fn kept(&mut self, _staged: &StagedDir, k: &Kept) {
+        if self.error.is_some() || self.integrated >= self.frames_max {
+            return;
+        }
+        let t = std::time::Instant::now();
+        // The volume is the depth camera's frame; the decoded depth is z, 0 = no sample
+        // (below the volume's minimum depth, so ignored).
+        let frame = kfuse_tsdf::DepthFrame {
+            camera: &self.camera,
+            camera_from_volume: geometry::RigidTransform::identity(),
+            z: &k.depth,
+            color: None,
+        };
+        match self.volume.integrate(&frame) {
+            Ok(_) => self.integrated += 1,
+            Err(e) => {
+                self.error = Some(format!(
+                    "frame {}: {}",
+                    k.number,
+                    super::multi::memory_bound_line(&e, &self.options)
+                ))
+            }
+        }
+        self.integrate_s += t.elapsed().as_secs_f64();
+    }
+
+    fn finish(&mut self, staged: &StagedDir) -> std::result::Result<(), String> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        self.shown.bar.set_message("TSDF: marching cubes");
+        let t = std::time::Instant::now();
+        let mesh = self.volume.extract_mesh();
+        let mesh_s = t.elapsed().as_secs_f64();
+        if mesh.faces.is_empty() {
+            return Err(format!(
+                "--tsdf: the {} integrated frame(s) left no surface in the volume (no depth within {}–{} m?)",
+                self.integrated, self.options.min_depth_m, self.options.max_depth_m
+            ));
+        }
+        let frame = "depth camera";
+        kfuse_io::ply::write_mesh_ply_normals(
+            &staged.join("tsdf_mesh.ply"),
+            &mesh.to_mesh(),
+            &mesh.normals,
+            frame,
+        )
+        .map_err(|e| e.to_string())?;
+        kfuse_io::ply::write_cloud_ply(
+            &staged.join("tsdf_cloud.ply"),
+            &mesh.to_point_cloud(),
+            frame,
+        )
+        .map_err(|e| e.to_string())?;
+        self.written = Some((mesh.vertices.len(), mesh.faces.len(), mesh_s));
+        Ok(())
+    }
 }
 
 /// The progress bar, the lines about frames (the first [`MAX_LISTED`], then a count) and the

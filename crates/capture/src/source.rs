@@ -63,6 +63,12 @@ pub struct SimOptions {
     /// A depth error the sensor makes on purpose (issue 16), applied to every depth frame of
     /// either scene; `None`: the depth is exact.
     pub depth_error: Option<kinect_usb::sim::depth_error::DepthError>,
+    /// Give the default scene's depth the Kinect noise (`geometry::synth::apply_kinect_noise`:
+    /// σ = 1.5 mm·z², flying pixels at depth edges), independent in each of
+    /// [`SIM_NOISY_FRAMES`] frames that the sensor cycles through (`--sim-depth-noise`: a
+    /// recording of one fixed sensor whose frames average out, issue 50). Not with the
+    /// calibration scene (it has its own noise).
+    pub depth_noise: bool,
     /// Which sensor of a simulated ring this is (`kinect_usb::sim::ring`); `None`: the single
     /// simulated sensor (as a ring of one).
     pub ring: Option<SimRing>,
@@ -123,6 +129,17 @@ impl SensorSource {
 /// image is then mirrored left–right. A capture (which mirrors back) shows the rendered scene
 /// exactly, and its `kinect_params.json` describes the rendering rig.
 pub fn sim_scene() -> (SimScene, SimProfile) {
+    sim_scene_frames(None)
+}
+
+/// Distinct noisy depth frames of `--sim-depth-noise`: 16 (the sensor cycles through them, so
+/// a recording of up to 16 frames has independent noise in each; each costs 1.7 MB of depth
+/// and IR).
+pub const SIM_NOISY_FRAMES: usize = 16;
+
+/// [`sim_scene`], with `noisy` frames of the Kinect noise (frame `k` seeded with
+/// `KinectNoise::default().seed + k`) instead of the one noise-free frame.
+pub fn sim_scene_frames(noisy: Option<usize>) -> (SimScene, SimProfile) {
     let mut setup = geometry::synth::kinect_preset(false);
     let sensor_depth = setup.rig.depth.mirrored();
     let profile = sim_scene_profile();
@@ -149,18 +166,35 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
     }
     let frame = geometry::synth::render(&setup);
     let (dw, _) = frame.depth.size();
-    let mut depth_mm: Vec<f32> = frame
-        .depth
-        .data()
-        .iter()
-        .map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 })
-        .collect();
-    let mut ir: Vec<f32> = frame.amplitude.data().iter().map(|&a| a * SIM_IR_SCALE).collect();
+    let depth_and_ir = |frame: &geometry::synth::SynthFrame| {
+        let mut depth_mm: Vec<f32> = frame
+            .depth
+            .data()
+            .iter()
+            .map(|&m| if m.is_finite() && m > 0.0 { m * 1000.0 } else { 0.0 })
+            .collect();
+        let mut ir: Vec<f32> = frame.amplitude.data().iter().map(|&a| a * SIM_IR_SCALE).collect();
+        // What the sensor streams: the scene mirrored.
+        mirror_rows(&mut depth_mm, dw);
+        mirror_rows(&mut ir, dw);
+        (depth_mm, ir)
+    };
+    let depth_frames = match noisy {
+        None => vec![depth_and_ir(&frame)],
+        Some(n) => (0..n as u64)
+            .map(|k| {
+                let mut f = frame.clone();
+                let base = geometry::synth::KinectNoise::default();
+                let noise =
+                    geometry::synth::KinectNoise { seed: base.seed.wrapping_add(k), ..base };
+                geometry::synth::apply_kinect_noise(&mut f, &noise);
+                depth_and_ir(&f)
+            })
+            .collect(),
+    };
     let (cw, ch) = frame.color.size();
     let mut color = frame.color.data().to_vec();
     // What the sensor streams: the scene mirrored.
-    mirror_rows(&mut depth_mm, dw);
-    mirror_rows(&mut ir, dw);
     mirror_rows(&mut color, cw);
     let rgb: Vec<u8> = color.iter().flat_map(|p| p.iter().copied()).collect();
     let mut jpeg = Vec::new();
@@ -173,10 +207,7 @@ pub fn sim_scene() -> (SimScene, SimProfile) {
         image::ExtendedColorType::Rgb8,
     )
     .is_ok();
-    let scene = SimScene {
-        depth_frames: vec![(depth_mm, ir)],
-        color_jpegs: if ok { vec![jpeg] } else { vec![] },
-    };
+    let scene = SimScene { depth_frames, color_jpegs: if ok { vec![jpeg] } else { vec![] } };
     (scene, profile)
 }
 
@@ -218,8 +249,11 @@ pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
     }
     // The calibration scene needs only the profile: the default scene is not rendered for it
     // (a 1920x1080 render and JPEG that start-up threw away).
-    let (mut scene, profile) =
-        if options.calib_scene { (SimScene::default(), sim_scene_profile()) } else { sim_scene() };
+    let (mut scene, profile) = if options.calib_scene {
+        (SimScene::default(), sim_scene_profile())
+    } else {
+        sim_scene_frames(options.depth_noise.then_some(SIM_NOISY_FRAMES))
+    };
     if options.calib_scene {
         let frames = options.calib_frames.unwrap_or(usize::MAX);
         scene = kinect_usb::sim::calib_scene::calibration_scene_first(&profile, frames)

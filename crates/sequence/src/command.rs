@@ -162,6 +162,9 @@ pub fn output_names() -> Vec<String> {
         "depth.txt",
         "associations.txt",
         "README.txt",
+        // `kfuse fuse --recording … --tsdf`: the volume's mesh and surface points.
+        "tsdf_mesh.ply",
+        "tsdf_cloud.ply",
     ]
     .map(String::from)
     .into()
@@ -319,6 +322,14 @@ pub trait Observer {
     fn warn(&mut self, line: String);
     /// A frame handed over by [`SequenceOptions::keep_every`] (figures), with the output folder.
     fn kept(&mut self, staged: &StagedDir, kept: &Kept);
+    /// The last frame is through, before `index.json` is written and the folder committed:
+    /// outputs made from all frames (`kfuse fuse --tsdf`'s volume) go into `staged` here. An
+    /// error (one line) stops the run and nothing is committed. Not called on an interrupted
+    /// run.
+    fn finish(&mut self, staged: &StagedDir) -> std::result::Result<(), String> {
+        let _ = staged;
+        Ok(())
+    }
 }
 
 /// A finished run.
@@ -458,6 +469,9 @@ pub fn run(
                 missing.len()
             ),
         ));
+    }
+    if !outcome.interrupted {
+        observer.finish(&staged).map_err(|m| SequenceError::input(&source, m))?;
     }
     let source_text = source.display().to_string();
     let index = Index {
