@@ -410,6 +410,21 @@ fn same_file_system(_: &Path, _: &Path) -> bool {
     false
 }
 
+/// Swaps two folders in one step (`renameat2(2)` with `RENAME_EXCHANGE`, Linux 3.15 and
+/// the common file systems: ext4, XFS, Btrfs, tmpfs, overlayfs): there is no moment at which
+/// either name is missing. An error where the kernel or file system has no such exchange.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
+    use nix::fcntl::{AT_FDCWD, RenameFlags, renameat2};
+    renameat2(AT_FDCWD, a, AT_FDCWD, b, RenameFlags::RENAME_EXCHANGE).map_err(std::io::Error::from)
+}
+
+/// Without `renameat2`, no exchange: the caller renames twice.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn exchange(_: &Path, _: &Path) -> std::io::Result<()> {
+    Err(std::io::Error::new(std::io::ErrorKind::Unsupported, "no atomic exchange of folders"))
+}
+
 /// Makes `to` a copy of the entry `from` that shares its data: a hard link of a file (or link,
 /// pipe, socket: linked as it is, not followed), a new folder with its permissions holding such
 /// copies of its entries. Nothing at `from` changes.
@@ -423,7 +438,30 @@ fn link_tree(from: &Path, to: &Path) -> std::io::Result<()> {
         let entry = entry?;
         link_tree(&entry.path(), &to.join(entry.file_name()))?;
     }
+    keep_owner(&meta, to)?;
     fs::set_permissions(to, meta.permissions())
+}
+
+/// Gives the new folder `to` the owner and group of the folder it copies (`meta`): a re-run
+/// as root made the user's own subfolders root-owned. Changing the owner needs the rights to
+/// (root, or the owner itself keeping its own uid); without them the folder is this user's,
+/// as any file it creates. (ACLs and extended attributes are not copied.)
+#[cfg(unix)]
+fn keep_owner(meta: &fs::Metadata, to: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    let created = fs::symlink_metadata(to)?;
+    if (created.uid(), created.gid()) == (meta.uid(), meta.gid()) {
+        return Ok(());
+    }
+    match std::os::unix::fs::chown(to, Some(meta.uid()), Some(meta.gid())) {
+        Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => Ok(()),
+        other => other,
+    }
+}
+
+#[cfg(not(unix))]
+fn keep_owner(_: &fs::Metadata, _: &Path) -> std::io::Result<()> {
+    Ok(())
 }
 
 impl StagedDir {
@@ -659,17 +697,34 @@ impl StagedDir {
         };
         write_bytes_atomic(&self.staging.join(MANIFEST), manifest_json(&listed).as_bytes())?;
         if let Ok(m) = fs::metadata(real) {
+            let _ = keep_owner(&m, &self.staging);
             let _ = fs::set_permissions(&self.staging, m.permissions());
         }
         kill_point("carried");
         let aside = sibling(real, REPLACED_PREFIX, std::process::id());
-        fs::rename(real, &aside).map_err(io_err(real))?;
-        kill_point("aside");
-        if let Err(e) = fs::rename(&self.staging, real) {
-            let _ = fs::rename(&aside, real);
-            return Err(io_err(real)(e));
+        if exchange(&self.staging, real).is_ok() {
+            // One atomic step: the new folder is at `real`, the old one where the staging
+            // folder was (a run killed now leaves the new folder complete, and the old one
+            // under a staging name that the next run removes).
+            self.committed = true;
+            kill_point("exchanged");
+            if fs::rename(&self.staging, &aside).is_err() {
+                // The new folder is in: the old one goes, wherever it is (a staging name is
+                // removed by the next run if this fails too).
+                let _ = fs::remove_dir_all(&self.staging);
+                return Ok(self.destination.clone());
+            }
+        } else {
+            // No atomic exchange on this file system: two renames, between which `real` is
+            // missing until the next run puts the old folder back (`recover_replaced`).
+            fs::rename(real, &aside).map_err(io_err(real))?;
+            kill_point("aside");
+            if let Err(e) = fs::rename(&self.staging, real) {
+                let _ = fs::rename(&aside, real);
+                return Err(io_err(real)(e));
+            }
+            self.committed = true;
         }
-        self.committed = true;
         kill_point("swapped");
         // An entry created in the old folder while this ran (by another program) is moved over.
         if let Ok(entries) = fs::read_dir(&aside) {
