@@ -395,33 +395,34 @@ fn a_reused_out_killed_during_its_commit_is_old_or_new_never_mixed() {
     // Run as root into a user's folder: the folder and the user's subfolders keep their owner
     // and mode (issue 51: the staging copy made them root-owned).
     #[cfg(unix)]
-    if {
-        use std::os::unix::fs::MetadataExt;
-        std::fs::metadata(&case.dir).unwrap().uid() == 0 // this test's own folder: run as root
-    } {
+    {
         use std::os::unix::fs::{MetadataExt, PermissionsExt};
-        first_run();
-        let sub = out.join("my-notes");
-        std::fs::create_dir(&sub).unwrap();
-        std::fs::write(sub.join("a.txt"), "mine").unwrap();
-        std::fs::set_permissions(&sub, std::fs::Permissions::from_mode(0o750)).unwrap();
-        let (uid, gid) = (4321, 4322);
-        for p in [&out, &sub] {
-            std::os::unix::fs::chown(p, Some(uid), Some(gid)).unwrap();
+        // This test's own folder is root's when the test runs as root.
+        let as_root = std::fs::metadata(&case.dir).unwrap().uid() == 0;
+        if as_root {
+            first_run();
+            let sub = out.join("my-notes");
+            std::fs::create_dir(&sub).unwrap();
+            std::fs::write(sub.join("a.txt"), "mine").unwrap();
+            std::fs::set_permissions(&sub, std::fs::Permissions::from_mode(0o750)).unwrap();
+            let (uid, gid) = (4321, 4322);
+            for p in [&out, &sub] {
+                std::os::unix::fs::chown(p, Some(uid), Some(gid)).unwrap();
+            }
+            let o = fuse(&case, &case.rig, &case.color, &out, &["--no-figures"]);
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            for p in [&out, &sub] {
+                let m = std::fs::metadata(p).unwrap();
+                assert_eq!((m.uid(), m.gid()), (uid, gid), "{}", p.display());
+            }
+            assert_eq!(std::fs::metadata(&sub).unwrap().permissions().mode() & 0o777, 0o750);
+            assert_eq!(std::fs::read_to_string(sub.join("a.txt")).unwrap(), "mine");
+        } else {
+            test_skip::skip(
+                "a_reused_out_killed_during_its_commit_is_old_or_new_never_mixed (owner half)",
+                "not run as root: cannot give a folder another owner",
+            );
         }
-        let o = fuse(&case, &case.rig, &case.color, &out, &["--no-figures"]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        for p in [&out, &sub] {
-            let m = std::fs::metadata(p).unwrap();
-            assert_eq!((m.uid(), m.gid()), (uid, gid), "{}", p.display());
-        }
-        assert_eq!(std::fs::metadata(&sub).unwrap().permissions().mode() & 0o777, 0o750);
-        assert_eq!(std::fs::read_to_string(sub.join("a.txt")).unwrap(), "mine");
-    } else {
-        test_skip::skip(
-            "a_reused_out_killed_during_its_commit_is_old_or_new_never_mixed (owner half)",
-            "not run as root: cannot give a folder another owner",
-        );
     }
     let _ = std::fs::remove_dir_all(&case.dir);
 }
