@@ -353,16 +353,16 @@ fn mirrored(calibration: Calibration, source: &Path) -> Calibration {
 
 fn export(a: ExportArgs) -> Result<()> {
     check_not_input(&a.out, std::slice::from_ref(&a.rig))?;
-    let cal = match (rig_io::load_multi(&a.rig)?, &a.sensor) {
-        (Some(multi), None) => return export_multi(&a, &multi),
-        (Some(multi), Some(sensor)) => Calibration::Rig(
+    let cal = match (rig_io::load_any(&a.rig)?, &a.sensor) {
+        (rig_io::AnyRig::Multi(multi), None) => return export_multi(&a, &multi),
+        (rig_io::AnyRig::Multi(multi), Some(sensor)) => Calibration::Rig(
             multi.sensor_rig(sensor).map_err(|e| anyhow::anyhow!("{}: {e}", a.rig.display()))?.0,
         ),
-        (None, Some(_)) => bail!(
+        (rig_io::AnyRig::Single(_), Some(_)) => bail!(
             "{}: is not a rig of several cameras; --sensor picks one sensor's pair from one (leave it out)",
             a.rig.display()
         ),
-        (None, None) => rig_io::load(&a.rig)?,
+        (rig_io::AnyRig::Single(cal), None) => cal,
     };
     match (a.format.as_str(), &cal) {
         ("kfuse", cal) => {
@@ -515,9 +515,9 @@ fn export_multi(a: &ExportArgs, rig: &geometry::MultiRig) -> Result<()> {
 
 fn show(path: &Path) -> Result<()> {
     let name = path.display().to_string();
-    let (text, warnings) = match rig_io::load_multi(path)? {
-        Some(multi) => rig_io::show::describe_multi(&name, &multi),
-        None => rig_io::show::describe(&name, &rig_io::load(path)?),
+    let (text, warnings) = match rig_io::load_any(path)? {
+        rig_io::AnyRig::Multi(multi) => rig_io::show::describe_multi(&name, &multi),
+        rig_io::AnyRig::Single(cal) => rig_io::show::describe(&name, &cal),
     };
     print!("{text}");
     if warnings > 0 {

@@ -1065,3 +1065,115 @@ fn a_closed_stdout_stops_kfuse_quietly_with_141() {
     assert_eq!(o.status.code(), Some(141), "{err}");
     assert!(err.is_empty(), "{err}");
 }
+
+/// Starts `cat SRC > FIFO` in the background: a writer that opens the FIFO whenever a reader
+/// comes (or never, when kfuse refuses without opening it); killed by the caller.
+fn fifo_writer(src: &Path, fifo: &Path) -> std::process::Child {
+    Command::new("sh")
+        .arg("-c")
+        .arg(format!("exec cat '{}' > '{}'", src.display(), fifo.display()))
+        .spawn()
+        .unwrap()
+}
+
+/// Streams and damaged bags as `fuse --recording`, and a piped rig file, as users gave them
+/// (new-user trial 2026-12-07): a FIFO named `x.mcap` hung past SIGTERM (the bag reader opened
+/// it blocking); a bag or a recording from a FIFO with a writer failed half-way ("ends inside
+/// a record", "Illegal seek") because both are read twice; `rig show <(cat rig.json)` said "is
+/// empty" (read once to sniff, then again); a rosbag2 folder without its metadata.yaml said
+/// "Is a directory (os error 21)", a file of random bytes "Bad magic number", an empty file
+/// "truncated". Each is now one line naming the file and what to do, or works.
+#[test]
+fn pipes_and_damaged_bags_get_one_line_and_a_piped_rig_reads() {
+    let dir = scratch("pipes-bags");
+    let rec = dir.join("s.kfrec");
+    let o = kfuse(&["capture", "record", "--backend", "sim", "--frames", "3", "--out", s(&rec)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bag = dir.join("bag");
+    let o = kfuse(&["fuse", "--recording", s(&rec), "--layout", "rosbag2", "--out", s(&bag)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mcap = bag.join("bag_0.mcap");
+    assert!(mcap.is_file());
+
+    let out = dir.join("out");
+    let started = std::time::Instant::now();
+    // A FIFO without a writer, and FIFOs with one: refused before any read (at once, not after
+    // the 10 s writer wait), for bags and for recordings.
+    for (name, src) in
+        [("nowriter.mcap", None), ("piped.mcap", Some(&mcap)), ("piped.kfrec", Some(&rec))]
+    {
+        let fifo = dir.join(name);
+        assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+        let mut writer = src.map(|src| fifo_writer(src, &fifo));
+        let o = kfuse(&["fuse", "--recording", s(&fifo), "--out", s(&out)]);
+        if let Some(w) = writer.as_mut() {
+            let _ = w.kill();
+            let _ = w.wait();
+        }
+        assert_one_line_failure(&o, name, "save it to a file first");
+        assert!(!out.exists(), "{name}: an output was left");
+    }
+    // Generous bound (three refusals that read nothing); the old reader blocked forever.
+    assert!(started.elapsed() < Duration::from_secs(60), "pipes took {:?}", started.elapsed());
+
+    // Damaged bag files: one line each, naming the file and the fix.
+    let junk = dir.join("junk.mcap");
+    std::fs::write(&junk, (0..1000u32).map(|i| (i * 7919 % 251) as u8).collect::<Vec<_>>())
+        .unwrap();
+    assert_one_line_failure(
+        &kfuse(&["fuse", "--recording", s(&junk), "--out", s(&out)]),
+        "junk.mcap",
+        "not an MCAP file",
+    );
+    let empty = dir.join("empty.mcap");
+    std::fs::write(&empty, b"").unwrap();
+    assert_one_line_failure(
+        &kfuse(&["fuse", "--recording", s(&empty), "--out", s(&out)]),
+        "empty.mcap",
+        "is empty (0 bytes)",
+    );
+    assert!(!out.exists());
+
+    // A rosbag2 folder that lost its metadata.yaml is read from its one .mcap file: the same
+    // frames as the whole bag.
+    let bare = dir.join("bare");
+    std::fs::create_dir(&bare).unwrap();
+    std::fs::copy(&mcap, bare.join("bag_0.mcap")).unwrap();
+    let (full, part) = (dir.join("full"), dir.join("part"));
+    for (input, to) in [(&bag, &full), (&bare, &part)] {
+        let o = kfuse(&["fuse", "--recording", s(input), "--out", s(to)]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let frames = |d: &Path| {
+        let mut v: Vec<_> = std::fs::read_dir(d.join("depth"))
+            .unwrap()
+            .map(|e| std::fs::read(e.unwrap().path()).unwrap())
+            .collect();
+        v.sort();
+        v
+    };
+    let whole = frames(&full);
+    assert_eq!(whole.len(), 3, "frames of the bag");
+    assert_eq!(frames(&part), whole);
+    // A folder that is neither a bag nor a recording, as --recording: named as a folder.
+    let plain = dir.join("plain");
+    std::fs::create_dir(&plain).unwrap();
+    assert_one_line_failure(
+        &kfuse(&["fuse", "--recording", s(&plain), "--out", s(&out)]),
+        "plain",
+        "is a folder",
+    );
+
+    // A rig file through a FIFO (as `<(cat rig.json)` gives it) is read once and shown.
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/kinect/rig.json");
+    let fifo = dir.join("rig-fifo");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let mut writer = fifo_writer(&rig, &fifo);
+    let o = kfuse(&["rig", "show", s(&fifo)]);
+    let _ = writer.kill();
+    let _ = writer.wait();
+    let shown = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(shown.contains("depth camera: 512 x 424 px"), "{shown}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -15,7 +15,6 @@
 //! topic), and since the first pass reads the whole file, nothing is written for it.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
-use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -139,13 +138,46 @@ pub fn is_bag(path: &Path) -> bool {
 /// Whether `path` looks like a ROS 2 bag (see [`is_bag`]).
 pub fn is_ros2_bag(path: &Path) -> bool {
     if path.is_dir() {
-        return path.join("metadata.yaml").is_file();
+        // rosbag2 writes metadata.yaml beside its storage file; a folder that lost it (or was
+        // assembled by hand) is still read from its one .mcap file ([`mcap_file`]), and a
+        // folder of SQLite storage is a bag too, refused with the conversion command.
+        return path.join("metadata.yaml").is_file() || folder_has_bag_storage(path);
     }
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
         return true;
     }
-    let mut magic = [0u8; 8];
-    File::open(path).and_then(|mut f| f.read_exact(&mut magic)).is_ok() && magic == *mcap::MAGIC
+    crate::bag1::file_starts_with(path, mcap::MAGIC)
+}
+
+/// Whether folder `dir` holds a `.mcap` or `.db3` file (at most [`MAX_FOLDER_ENTRIES_SNIFFED`]
+/// entries are looked at).
+fn folder_has_bag_storage(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|rd| {
+        rd.flatten()
+            .take(MAX_FOLDER_ENTRIES_SNIFFED)
+            .any(|e| matches!(e.path().extension().and_then(|x| x.to_str()), Some("mcap" | "db3")))
+    })
+}
+
+/// Entries of a folder looked at to tell whether it is a bag without `metadata.yaml`: a
+/// rosbag2 folder holds 2–3 files; a frame folder of 10 000 shots is not listed whole twice.
+const MAX_FOLDER_ENTRIES_SNIFFED: usize = 64;
+
+/// Refuses `path` when it is a pipe, a FIFO or a device: a bag is read twice (its
+/// camera_infos and `/tf_static` first, then its frames), which a stream cannot give.
+pub(crate) fn require_rereadable(path: &Path, what: &str) -> Result<()> {
+    use std::os::unix::fs::FileTypeExt;
+    let Ok(meta) = std::fs::metadata(path) else { return Ok(()) };
+    let t = meta.file_type();
+    if t.is_fifo() || t.is_char_device() || t.is_socket() {
+        return Err(SequenceError::input(
+            path,
+            format!(
+                "is a pipe or a device, not a file: {what}, which a stream cannot give; save it to a file first (`cat … > FILE`) and give that"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// How a channel's messages are serialised.
@@ -189,8 +221,14 @@ struct McapStream {
 impl McapStream {
     fn open(path: &Path, count: Arc<AtomicU64>) -> Result<(Self, u64)> {
         let io = |e: std::io::Error| SequenceError::input(path, format!("cannot read: {e}"));
-        let file = File::open(path).map_err(io)?;
+        let file = bounded_read::open_without_blocking(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
+        if len == 0 {
+            return Err(SequenceError::input(
+                path,
+                "is empty (0 bytes): no bag in it; was the recording saved completely? Record or copy it again",
+            ));
+        }
         let options = LinearReaderOptions::default()
             .with_prevalidate_chunk_crcs(true)
             .with_validate_summary_section_crc(true)
@@ -212,6 +250,12 @@ impl McapStream {
                 Ok(e) => e,
                 Err(mcap::McapError::UnexpectedEof) => {
                     return Err(self.bad("it ends inside a record (a truncated file)"));
+                }
+                Err(mcap::McapError::BadMagic) => {
+                    return Err(SequenceError::input(
+                        &self.path,
+                        "not an MCAP file (it does not start or end with MCAP's magic bytes): give a rosbag2 folder, an .mcap file (`ros2 bag record -s mcap`, `kfuse fuse --layout rosbag2`) or a ROS 1 .bag",
+                    ));
                 }
                 Err(e) => {
                     let m = e.to_string();
@@ -465,6 +509,10 @@ impl BagSource {
     /// candidate topics.
     pub fn open(input: &Path, topics: &TopicChoice) -> Result<Self> {
         let file = mcap_file(input)?;
+        require_rereadable(
+            &file,
+            "a bag is read twice (its camera_infos and /tf_static first, then its frames)",
+        )?;
         let bytes_read = Arc::new(AtomicU64::new(0));
         let (mut scan, _) = Stream::open(&file, Arc::new(AtomicU64::new(0)))?;
         let mut schemas: HashMap<u16, String> = HashMap::new();

@@ -13,7 +13,6 @@
 //! message types are those of [`kfuse_ros_msgs::ros1`].
 
 use std::collections::{HashMap, VecDeque};
-use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -53,8 +52,22 @@ pub fn is_ros1_bag(path: &Path) -> bool {
     if path.is_dir() {
         return false;
     }
-    let mut magic = [0u8; 13];
-    File::open(path).and_then(|mut f| f.read_exact(&mut magic)).is_ok() && magic == MAGIC
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        // A pipe or a FIFO gives its bytes once and a sniff would steal them from the reader:
+        // only the name tells.
+        return path.extension().is_some_and(|e| e == "bag");
+    }
+    file_starts_with(path, &MAGIC)
+}
+
+/// Whether the regular file `path` starts with `magic` (false for anything else: a pipe or a
+/// FIFO is never opened here, its first bytes belong to the reader that follows).
+pub(crate) fn file_starts_with(path: &Path, magic: &[u8]) -> bool {
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return false;
+    }
+    let mut head = vec![0u8; magic.len()];
+    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok() && head == magic
 }
 
 /// A record of the bag kfuse uses.
@@ -140,7 +153,7 @@ impl Ros1Stream {
     /// Opens `path` and checks its first line. Returns the stream and the file's size.
     pub fn open(path: &Path, count: Arc<AtomicU64>) -> Result<(Self, u64)> {
         let io = |e: std::io::Error| SequenceError::input(path, format!("cannot read: {e}"));
-        let file = File::open(path).map_err(io)?;
+        let file = bounded_read::open_without_blocking(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         let mut file = BufReader::with_capacity(READ_BUFFER, Counting { file, count });
         let mut magic = [0u8; 13];

@@ -122,6 +122,16 @@ impl RecordingSource {
     pub fn open(path: &Path, options: ReadOptions) -> Result<Self> {
         // `open` checks the end record (unless a truncated prefix is accepted); the events are
         // then read through a second handle that counts bytes for the progress bar.
+        crate::bag::require_rereadable(
+            path,
+            "a recording is read twice (checked to its end record, then frame by frame)",
+        )?;
+        if path.is_dir() {
+            return Err(SequenceError::input(
+                path,
+                "is a folder: --recording takes a .kfrec file, a rosbag2 folder (with metadata.yaml and an .mcap file), an .mcap or a ROS 1 .bag; a folder of shots is read with --frames",
+            ));
+        }
         let m = RecordingReader::open(path, options)?.meta().clone();
         let io = |source| kinect_usb::KinectError::File { path: path.to_path_buf(), source };
         let file = bounded_read::open_without_blocking(path).map_err(io)?;

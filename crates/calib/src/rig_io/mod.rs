@@ -160,11 +160,35 @@ pub fn load(path: &Path) -> Result<Calibration, CalibError> {
 /// those with [`load`] or [`import`]).
 pub fn load_multi(path: &Path) -> Result<Option<geometry::MultiRig>, CalibError> {
     let text = read_text(path)?;
-    let Ok(v) = serde_json::from_str::<Value>(&text) else { return Ok(None) };
+    multi_from_text(&text, path)
+}
+
+/// A kfuse rig file of either kind, told apart by its content.
+#[derive(Debug, Clone)]
+pub enum AnyRig {
+    /// A rig of several cameras (version 2).
+    Multi(geometry::MultiRig),
+    /// A two-camera rig or a camera file.
+    Single(Calibration),
+}
+
+/// Reads a kfuse rig file of either kind with one read of `path`, so a pipe or a FIFO (which
+/// a second open would find empty) works as a regular file does: [`load_multi`] then [`load`]
+/// in one.
+pub fn load_any(path: &Path) -> Result<AnyRig, CalibError> {
+    let text = read_text(path)?;
+    match multi_from_text(&text, path)? {
+        Some(multi) => Ok(AnyRig::Multi(multi)),
+        None => Ok(AnyRig::Single(from_kfuse_json(&text, path)?)),
+    }
+}
+
+fn multi_from_text(text: &str, path: &Path) -> Result<Option<geometry::MultiRig>, CalibError> {
+    let Ok(v) = serde_json::from_str::<Value>(text) else { return Ok(None) };
     if !geometry::multi_rig::is_multi_rig_json(&v) {
         return Ok(None);
     }
-    Ok(Some(geometry::MultiRig::from_json(&text, path)?))
+    Ok(Some(geometry::MultiRig::from_json(text, path)?))
 }
 
 fn from_kfuse_json(text: &str, path: &Path) -> Result<Calibration, CalibError> {
@@ -290,18 +314,28 @@ pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
         }
         return iai::import_dir(first, opts);
     }
-    let head = {
-        use std::io::Read;
-        let mut buf = [0u8; 128];
-        let n = bounded_read::open_without_blocking(first)
-            .and_then(|mut f| f.read(&mut buf))
-            .map_err(|source| CalibError::Io { path: first.clone(), source })?;
-        buf[..n].to_vec()
+    // A pipe or a FIFO gives its bytes once: read it whole (a text format; a MATLAB file is
+    // binary and refused by read_text) instead of sniffing its head and opening it again.
+    let piped = std::fs::metadata(first).is_ok_and(|m| !m.is_file());
+    let text_once = if piped { Some(read_text(first)?) } else { None };
+    let head = match &text_once {
+        Some(text) => text.as_bytes()[..text.len().min(128)].to_vec(),
+        None => {
+            use std::io::Read;
+            let mut buf = [0u8; 128];
+            let n = bounded_read::open_without_blocking(first)
+                .and_then(|mut f| f.read(&mut buf))
+                .map_err(|source| CalibError::Io { path: first.clone(), source })?;
+            buf[..n].to_vec()
+        }
     };
     if head.starts_with(b"MATLAB") {
         return import_mat(sources, opts);
     }
-    let text = read_text(first)?;
+    let text = match text_once {
+        Some(text) => text,
+        None => read_text(first)?,
+    };
     let trimmed = text.trim_start_matches('\u{feff}').trim_start();
     // Bouguet's toolbox saves its results twice: Calib_Results*.mat (read here) and a MATLAB
     // script of the same name, .m, whose lines start with '%' comments and `fc = [ … ];`.
