@@ -389,7 +389,12 @@ fn fuse_a_simulated_three_kinect_capture_from_its_folder() {
     let out_f = dir.join("from_frames");
     let run = kfuse(&["fuse", "--rig", rig_s, "--frames", cap_s, "--out", out_f.to_str().unwrap()]);
     let stdout = String::from_utf8_lossy(&run.stdout);
-    assert!(run.status.success(), "{}{stdout}", String::from_utf8_lossy(&run.stderr));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}{stdout}");
+    // The true rig: no pair is called mismatched. The third sensor sees the plain back of the
+    // board the other two see printed (new-user trial: "colours do not match", correlation
+    // -0.02, on the simulator's own rig); the two faces are not compared by colour.
+    assert!(!stderr.contains("do not match") && !stdout.contains("do not match"), "{stderr}");
     println!("{stdout}");
     let out_s = dir.join("from_sensors");
     let mut args: Vec<String> = vec!["fuse".into(), "--rig".into(), rig_s.into()];

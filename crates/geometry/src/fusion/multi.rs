@@ -132,7 +132,8 @@ pub struct PairConsistency {
     pub tiles: usize,
     /// Median over those tiles of the tile's absolute median difference, millimetres.
     pub tile_median_mm: f64,
-    /// Samples compared by colour: both A's and B's colour cameras see the sample.
+    /// Samples compared by colour: both A's and B's colour cameras see the sample, and both
+    /// sensors see its surface from the same side (not the two faces of a thin board).
     pub color_pixels: usize,
     /// Pearson correlation of the grey values (Rec. 601 luma) that A's and B's colour cameras
     /// see at the compared samples: near 1 where the rig puts B's samples on the surfaces A
@@ -462,8 +463,78 @@ fn median(values: &mut [f64]) -> f64 {
     if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) }
 }
 
+/// Pixels between the neighbours whose points give a sample's surface normal in
+/// [`SideTest`]: 2 on each side, so the normal spans 4 depth pixels (about 3 cm at 3 m), where
+/// the time-of-flight noise of a few millimetres tilts it by a few degrees only.
+const NORMAL_STEP_PX: usize = 2;
+
+/// Which side of its surface a sample is seen from: a thin object (a calibration board, a
+/// sheet, a door) seen from both sides by two sensors has its two faces within the overlap
+/// gate of each other, and their colours are unrelated however good the rig is (the
+/// simulated ring's board: printed front, plain back; correlation −0.02 on the true rig). The
+/// colour comparison takes only samples that both sensors see from the same side.
+struct SideTest {
+    /// Index + 1 into A's points of every depth pixel of A, 0 for none.
+    point_of_pixel: Vec<u32>,
+    width: usize,
+    height: usize,
+    /// B's depth camera centre in A's depth frame.
+    b_centre: [f64; 3],
+}
+
+impl SideTest {
+    fn new(a: &SensorCloud, b: &SensorCloud) -> Self {
+        let (width, height) = a.z.size();
+        let mut point_of_pixel = vec![0u32; width * height];
+        for (i, &px) in a.pixels.iter().enumerate() {
+            if let Some(slot) = point_of_pixel.get_mut(px as usize) {
+                *slot = i as u32 + 1;
+            }
+        }
+        let a_from_b = a.depth_from_reference.compose(&b.depth_from_reference.inverse());
+        let c = a_from_b.apply(&nalgebra::Vector3::zeros());
+        Self { point_of_pixel, width, height, b_centre: [c.x, c.y, c.z] }
+    }
+
+    /// A's point at pixel (x, y), if A has a sample there.
+    fn point(&self, a: &SensorCloud, x: usize, y: usize) -> Option<[f64; 3]> {
+        if x >= self.width || y >= self.height {
+            return None;
+        }
+        let k = self.point_of_pixel[y * self.width + x].checked_sub(1)?;
+        let p = a.points[k as usize];
+        Some([p[0] as f64, p[1] as f64, p[2] as f64])
+    }
+
+    /// Whether A (at its origin) and B see A's sample at pixel (x, y) from the same side of
+    /// the surface through its neighbours; false where a neighbour is missing (an edge,
+    /// where the side cannot be told).
+    fn same_side(&self, a: &SensorCloud, x: usize, y: usize) -> bool {
+        let s = NORMAL_STEP_PX;
+        let (Some(p), Some(l), Some(r), Some(u), Some(d)) = (
+            self.point(a, x, y),
+            x.checked_sub(s).and_then(|xl| self.point(a, xl, y)),
+            self.point(a, x + s, y),
+            y.checked_sub(s).and_then(|yu| self.point(a, x, yu)),
+            self.point(a, x, y + s),
+        ) else {
+            return false;
+        };
+        let sub = |p: [f64; 3], q: [f64; 3]| [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+        let (e1, e2) = (sub(r, l), sub(d, u));
+        let n = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let dot = |v: [f64; 3]| n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+        dot(sub([0.0; 3], p)) * dot(sub(self.b_centre, p)) > 0.0
+    }
+}
+
 fn consistency(a: &SensorCloud, b: &SensorCloud) -> PairConsistency {
     let proj = depth_into(a, b);
+    let sides = SideTest::new(a, b);
     let (w, h) = a.z.size();
     let za = a.z.data();
     let (tw, th) = (w.div_ceil(CONSISTENCY_TILE_PX), h.div_ceil(CONSISTENCY_TILE_PX));
@@ -478,7 +549,10 @@ fn consistency(a: &SensorCloud, b: &SensorCloud) -> PairConsistency {
             abs.push(d.abs() as f64);
             tiles[(y / CONSISTENCY_TILE_PX) * tw + x / CONSISTENCY_TILE_PX].push(d as f64);
             let pixel = b.pixels[i] as usize;
-            if a.color_valid.data()[y * w + x] && b.color_valid.data()[pixel] {
+            if a.color_valid.data()[y * w + x]
+                && b.color_valid.data()[pixel]
+                && sides.same_side(a, x, y)
+            {
                 let seen_by_b = b.color_on_depth.data()[pixel];
                 greys.push((luma(a.color_on_depth.data()[y * w + x]), luma(seen_by_b)));
             }
