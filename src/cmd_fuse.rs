@@ -170,10 +170,12 @@ pub struct FuseArgs {
     /// camera; up defaults to 0,-1,0).
     #[arg(long, value_name = "from=X,Y,Z;look-at=X,Y,Z", allow_hyphen_values = true)]
     pub virtual_view: Option<String>,
-    /// With several Kinects: also fuse every sensor's depth into one truncated signed distance
-    /// field (volumetric fusion, `kfuse-tsdf`) and write its marching-cubes mesh as
-    /// tsdf_mesh.ply (vertex colours and normals) and its surface points as tsdf_cloud.ply,
-    /// in the rig's reference frame.
+    /// Volumetric fusion (`kfuse-tsdf`): integrate depth into one truncated signed distance
+    /// field and write its marching-cubes mesh as tsdf_mesh.ply (vertex colours and normals)
+    /// and its surface points as tsdf_cloud.ply. With several Kinects: every sensor's depth, in
+    /// the rig's reference frame. With --recording (one fixed sensor): every frame's depth (or
+    /// the first --frames-max N), in its depth camera's frame, coloured by the frames' colour
+    /// images; index.json's `tsdf` lists the files and the volume.
     #[arg(long)]
     pub tsdf: bool,
     /// With --tsdf: the voxel size, metres (default 0.005; 0.001–0.5).

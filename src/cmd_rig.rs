@@ -362,7 +362,7 @@ fn export(a: ExportArgs) -> Result<()> {
             "{}: is not a rig of several cameras; --sensor picks one sensor's pair from one (leave it out)",
             a.rig.display()
         ),
-        (rig_io::AnyRig::Single(cal), None) => cal,
+        (rig_io::AnyRig::Single(cal), None) => *cal,
     };
     match (a.format.as_str(), &cal) {
         ("kfuse", cal) => {

@@ -134,6 +134,10 @@ fn fuse_tsdf_of_three_kinects_against_the_truth() {
     }
     let e = run_bad(&["--voxel-size", "0.01"]);
     assert!(e.contains("add --tsdf"), "{e}");
+    // --frames-max limits a recording's frames; several Kinects fuse one shot (it was
+    // accepted and ignored).
+    let e = run_bad(&["--tsdf", "--frames-max", "2"]);
+    assert!(e.contains("--frames-max") && e.contains("--shot"), "{e}");
     // 1 mm voxels: the ring's band needs more blocks than the default 2 GiB bound.
     let e = run_bad(&["--tsdf", "--voxel-size", "0.001"]);
     assert!(e.contains("GiB bound") && e.contains("larger --voxel-size"), "{e}");

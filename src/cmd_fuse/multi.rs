@@ -769,6 +769,12 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
     let options = options(args)?;
     let frames_dir = check_flags(args)?;
     let tsdf = tsdf_options(args)?;
+    if args.sequence.frames_max.is_some() {
+        // It was accepted and ignored (new-user trial): several Kinects fuse one shot.
+        bail!(
+            "--frames-max limits the frames of a recording (--recording) that --tsdf integrates; several Kinects fuse one shot each (pick it with --shot): drop --frames-max"
+        );
+    }
     let Some(rig_path) = &args.rig else {
         bail!(
             "several Kinects need --rig RIG.json (a rig of several cameras; a simulated capture writes true_rig.json beside its frames)"

@@ -282,6 +282,7 @@ fn options(args: &FuseArgs) -> Result<SequenceOptions> {
         max_skew_ms: seq.max_skew_ms,
         engine: args.engine(),
         fusion,
+        kept_color: false,
     })
 }
 
@@ -320,8 +321,10 @@ pub fn run(args: &FuseArgs) -> Result<()> {
     let mut options = options(args)?;
     let tsdf = tsdf_request(args)?;
     if tsdf.is_some() {
-        // Every frame's decoded depth handed over (`Observer::kept`) to be integrated.
+        // Every frame's decoded depth and its colour on the depth grid (H6) handed over
+        // (`Observer::kept`) to be integrated.
         options.keep_every = Some(1);
+        options.kept_color = true;
     }
     options.check(&input)?;
     crate::interrupt::install()?;
@@ -342,6 +345,7 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         camera: rig.depth,
         frames_max,
         integrated: 0,
+        colored: 0,
         integrate_s: 0.0,
         error: None,
         written: None,
@@ -399,6 +403,8 @@ struct TsdfShown<'a> {
     camera: geometry::CameraModel,
     frames_max: u64,
     integrated: u64,
+    /// Frames integrated with their colour.
+    colored: u64,
     integrate_s: f64,
     /// The first integration error (the run stops at its end with it).
     error: Option<String>,
@@ -430,10 +436,18 @@ impl Observer for TsdfShown<'_> {
             camera: &self.camera,
             camera_from_volume: geometry::RigidTransform::identity(),
             z: &k.depth,
-            color: None,
+            // H6's colour of the frame (none for a depth frame without its colour partner:
+            // the volume's colour is then the frames' that have one).
+            color: k
+                .color_on_depth
+                .as_ref()
+                .map(|(rgb, valid)| kfuse_tsdf::RegisteredColor { rgb, valid }),
         };
         match self.volume.integrate(&frame) {
-            Ok(_) => self.integrated += 1,
+            Ok(_) => {
+                self.integrated += 1;
+                self.colored += u64::from(k.color_on_depth.is_some());
+            }
             Err(e) => {
                 self.error = Some(format!(
                     "frame {}: {}",
@@ -445,7 +459,10 @@ impl Observer for TsdfShown<'_> {
         self.integrate_s += t.elapsed().as_secs_f64();
     }
 
-    fn finish(&mut self, staged: &StagedDir) -> std::result::Result<(), String> {
+    fn finish(
+        &mut self,
+        staged: &StagedDir,
+    ) -> std::result::Result<Option<serde_json::Value>, String> {
         if let Some(e) = self.error.take() {
             return Err(e);
         }
@@ -474,7 +491,20 @@ impl Observer for TsdfShown<'_> {
         )
         .map_err(|e| e.to_string())?;
         self.written = Some((mesh.vertices.len(), mesh.faces.len(), mesh_s));
-        Ok(())
+        Ok(Some(serde_json::json!({
+            "mesh": "tsdf_mesh.ply",
+            "cloud": "tsdf_cloud.ply",
+            "frame": "the depth camera's (metres)",
+            "voxel_size_m": self.options.voxel_size_m,
+            "truncation_m": self.options.truncation_m,
+            "frames_integrated": self.integrated,
+            "frames_with_colour": self.colored,
+            "blocks": self.volume.block_count(),
+            "mesh_vertices": mesh.vertices.len(),
+            "mesh_faces": mesh.faces.len(),
+            "integrate_s": self.integrate_s,
+            "mesh_s": mesh_s,
+        })))
     }
 }
 

@@ -57,7 +57,7 @@ pub fn is_ros1_bag(path: &Path) -> bool {
         // only the name tells.
         return path.extension().is_some_and(|e| e == "bag");
     }
-    file_starts_with(path, &MAGIC)
+    file_starts_with(path, MAGIC)
 }
 
 /// Whether the regular file `path` starts with `magic` (false for anything else: a pipe or a

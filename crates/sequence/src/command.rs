@@ -82,6 +82,9 @@ pub struct SequenceOptions {
     /// The fusion options of every frame (`kfuse fuse`'s `--hole-radius` and the rest): the
     /// per-pixel stages run with them, as the single-frame `kfuse fuse` does.
     pub fusion: FusionOptions,
+    /// The frames handed to [`Observer::kept`] carry H6's colour on the depth grid
+    /// ([`crate::pipeline::Kept::color_on_depth`]; `kfuse fuse --recording --tsdf`).
+    pub kept_color: bool,
 }
 
 impl SequenceOptions {
@@ -131,8 +134,9 @@ impl SequenceOptions {
     fn extras(&self) -> Extras {
         Extras {
             holes: self.files.holes,
-            color_on_depth: self.files.color_on_depth || self.files.cloud,
+            color_on_depth: self.files.color_on_depth || self.files.cloud || self.kept_color,
             cloud: self.files.cloud,
+            color_valid: self.kept_color,
         }
     }
 }
@@ -323,12 +327,15 @@ pub trait Observer {
     /// A frame handed over by [`SequenceOptions::keep_every`] (figures), with the output folder.
     fn kept(&mut self, staged: &StagedDir, kept: &Kept);
     /// The last frame is through, before `index.json` is written and the folder committed:
-    /// outputs made from all frames (`kfuse fuse --tsdf`'s volume) go into `staged` here. An
-    /// error (one line) stops the run and nothing is committed. Not called on an interrupted
-    /// run.
-    fn finish(&mut self, staged: &StagedDir) -> std::result::Result<(), String> {
+    /// outputs made from all frames (`kfuse fuse --tsdf`'s volume) go into `staged` here, and
+    /// what they are (a JSON object) into `index.json`'s `tsdf`. An error (one line) stops the
+    /// run and nothing is committed. Not called on an interrupted run.
+    fn finish(
+        &mut self,
+        staged: &StagedDir,
+    ) -> std::result::Result<Option<serde_json::Value>, String> {
         let _ = staged;
-        Ok(())
+        Ok(None)
     }
 }
 
@@ -470,9 +477,11 @@ pub fn run(
             ),
         ));
     }
-    if !outcome.interrupted {
-        observer.finish(&staged).map_err(|m| SequenceError::input(&source, m))?;
-    }
+    let tsdf = if outcome.interrupted {
+        None
+    } else {
+        observer.finish(&staged).map_err(|m| SequenceError::input(&source, m))?
+    };
     let source_text = source.display().to_string();
     let index = Index {
         format: INDEX_FORMAT,
@@ -503,6 +512,7 @@ pub fn run(
         setup_s,
         wall_s: outcome.wall_s,
         stage_s: outcome.stage_s,
+        tsdf,
     };
     if let Some(bag) = writer.bag() {
         bag.finish()?;

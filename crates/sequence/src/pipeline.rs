@@ -53,6 +53,9 @@ pub struct Kept {
     pub depth: Image<f32>,
     /// The colour JPEG.
     pub jpeg: Option<ColorJpeg>,
+    /// H6 colour on the depth grid and where it is trusted, when the run asks for them
+    /// ([`crate::SequenceOptions::kept_color`]) and the frame has colour.
+    pub color_on_depth: Option<(Image<[u8; 3]>, Image<bool>)>,
 }
 
 /// What the pipeline reports, in frame order.
@@ -361,7 +364,12 @@ impl<'a> Backend<'a> {
         for ((item, d), r) in self.batch.drain(..).zip(decoded.drain(..)).zip(registered) {
             let job = item.job;
             let kept = self.keep_every.filter(|&n| n > 0 && job.meta.number % n == 0).map(|_| {
-                Box::new(Kept { number: job.meta.number, depth: d.depth, jpeg: job.jpeg.clone() })
+                Box::new(Kept {
+                    number: job.meta.number,
+                    depth: d.depth,
+                    jpeg: job.jpeg.clone(),
+                    color_on_depth: r.color_on_depth.clone().zip(r.color_valid.clone()),
+                })
             });
             let t = Instant::now();
             let encoded = self.writer.encode(job.meta, &r, job.jpeg.as_ref(), d.sensor.as_ref())?;

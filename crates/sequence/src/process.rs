@@ -40,6 +40,9 @@ pub struct Extras {
     pub color_on_depth: bool,
     /// H1 cloud in the depth camera frame, coloured by H6 where the frame has colour.
     pub cloud: bool,
+    /// Keep H6's validity mask beside its colour ([`Registered::color_valid`]): the frames
+    /// handed to the caller carry both (`kfuse fuse --recording --tsdf` colours its volume).
+    pub color_valid: bool,
 }
 
 /// A frame's depth in metres (0 = no sample) and, when an output needs it, its decoded colour.
@@ -68,6 +71,8 @@ pub struct Registered {
     pub holes: Option<Vec<u8>>,
     /// H6 colour on the depth grid (black where invalid).
     pub color_on_depth: Option<Image<[u8; 3]>>,
+    /// Where H6 trusts that colour ([`Extras::color_valid`]).
+    pub color_valid: Option<Image<bool>>,
     /// H1 cloud, depth camera frame, metres.
     pub cloud: Option<PointCloud>,
 }
@@ -344,6 +349,7 @@ impl FrameRegistrar {
         let needs_color = self.extras.color_on_depth || self.extras.cloud;
         let plan = StreamPlan { holes: self.extras.holes, color_on_depth: needs_color };
         let units = self.units_per_metre;
+        let keep_valid = self.extras.color_valid;
         let mut out = Vec::with_capacity(frames.len());
         let mut sink = |_: usize, r: StreamResult<'_>| {
             let (depth_units, landed) = to_units_counted(r.zbuffer, units);
@@ -352,6 +358,7 @@ impl FrameRegistrar {
                 landed,
                 holes: r.hole_mask.map(|m| m.iter().map(|&h| u8::from(h) * 255).collect()),
                 color_on_depth: r.color_on_depth.map(|(c, _)| c.clone()),
+                color_valid: r.color_on_depth.filter(|_| keep_valid).map(|(_, v)| v.clone()),
                 cloud: None,
             })
         };

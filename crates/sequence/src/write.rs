@@ -530,6 +530,10 @@ pub struct Index {
     pub wall_s: f64,
     /// Seconds per stage, summed over frames.
     pub stage_s: StageSeconds,
+    /// The volume made from the frames (`kfuse fuse --recording --tsdf`): its files, voxel
+    /// size, frames integrated, mesh size.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tsdf: Option<serde_json::Value>,
 }
 
 /// Writes `index` as `index.json` in `root`, atomically.

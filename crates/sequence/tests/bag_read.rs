@@ -66,6 +66,7 @@ fn options(layout: Layout) -> SequenceOptions {
         max_skew_ms: DEFAULT_MAX_SKEW_TICKS as f64 * 1e3 / TICKS_PER_SECOND as f64,
         engine: Engine::Cpu,
         fusion: FusionOptions::default(),
+        kept_color: false,
     }
 }
 

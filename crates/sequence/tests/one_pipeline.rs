@@ -43,7 +43,7 @@ fn single_frame(frame: &synth::SynthFrame, rig: &geometry::Rig, engine: Engine) 
 }
 
 fn sequence(frame: &synth::SynthFrame, rig: &geometry::Rig, engine: Engine) -> Outputs {
-    let extras = Extras { holes: true, color_on_depth: true, cloud: false };
+    let extras = Extras { holes: true, color_on_depth: true, cloud: false, color_valid: false };
     let (opened, _) = engine.open().expect("engine");
     let options = FusionOptions::default();
     let mut p = Processor::new(rig, None, extras, KFUSE_UNITS_PER_METRE, &options, opened)

@@ -58,6 +58,7 @@ fn options(layout: Layout, files: FileSet) -> SequenceOptions {
         max_skew_ms: DEFAULT_MAX_SKEW_TICKS as f64 * 1e3 / TICKS_PER_SECOND as f64,
         engine: Engine::Cpu,
         fusion: FusionOptions::default(),
+        kept_color: false,
     }
 }
 

@@ -300,6 +300,10 @@ impl TsdfVolume {
         };
         let mut pixels = 0;
         let mut needed: Vec<[i32; 3]> = Vec::new();
+        // Set once the bound is passed: the rest of the frame is still counted (not
+        // allocated), so the error states the frame's whole need, not the part counted
+        // before the bound (which made 1 mm voxels report less memory than 2 mm ones).
+        let mut over = false;
         let over_bound = |blocks: usize| TsdfError::MemoryBound {
             blocks,
             needed_bytes: blocks as u64 * BLOCK_BYTES,
@@ -316,12 +320,14 @@ impl TsdfVolume {
             needed.dedup();
             // The new blocks are at most all of them; count them exactly only when that
             // bound is over the limit.
-            if self.blocks.len() + needed.len() > limit_blocks {
+            if !over && self.blocks.len() + needed.len() > limit_blocks {
                 let new = needed.iter().filter(|k| !self.index.contains_key(*k)).count();
-                if self.blocks.len() + new > limit_blocks {
-                    return Err(over_bound(self.blocks.len() + new));
-                }
+                over = self.blocks.len() + new > limit_blocks;
             }
+        }
+        if over {
+            let new = needed.iter().filter(|k| !self.index.contains_key(*k)).count();
+            return Err(over_bound(self.blocks.len() + new));
         }
         let new: Vec<[i32; 3]> =
             needed.iter().copied().filter(|k| !self.index.contains_key(k)).collect();

@@ -217,11 +217,19 @@ fn memory_bound_and_nan_pose_are_clear_errors() {
     let e = volume
         .integrate(&DepthFrame { camera: &camera, camera_from_volume: pose, z: &z, color: None })
         .unwrap_err();
-    assert!(matches!(e, TsdfError::MemoryBound { .. }), "{e}");
+    let TsdfError::MemoryBound { blocks, .. } = e else { panic!("{e}") };
     let msg = e.to_string();
     assert!(msg.contains("memory bound") && !msg.contains('\n'), "{msg}");
     // Nothing was allocated by the refused frame.
     assert_eq!(volume.block_count(), 0);
+    // The need reported is the frame's whole need: the blocks the same frame allocates in a
+    // volume without that bound (it once stopped counting at the bound).
+    let mut unbounded = TsdfVolume::new(TsdfOptions::default()).unwrap();
+    unbounded
+        .integrate(&DepthFrame { camera: &camera, camera_from_volume: pose, z: &z, color: None })
+        .unwrap();
+    assert!(unbounded.block_count() > 1000, "{}", unbounded.block_count());
+    assert_eq!(blocks, unbounded.block_count());
 
     let mut bad = pose;
     bad.translation.x = f64::NAN;

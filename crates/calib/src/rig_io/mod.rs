@@ -169,7 +169,7 @@ pub enum AnyRig {
     /// A rig of several cameras (version 2).
     Multi(geometry::MultiRig),
     /// A two-camera rig or a camera file.
-    Single(Calibration),
+    Single(Box<Calibration>),
 }
 
 /// Reads a kfuse rig file of either kind with one read of `path`, so a pipe or a FIFO (which
@@ -179,7 +179,7 @@ pub fn load_any(path: &Path) -> Result<AnyRig, CalibError> {
     let text = read_text(path)?;
     match multi_from_text(&text, path)? {
         Some(multi) => Ok(AnyRig::Multi(multi)),
-        None => Ok(AnyRig::Single(from_kfuse_json(&text, path)?)),
+        None => Ok(AnyRig::Single(Box::new(from_kfuse_json(&text, path)?))),
     }
 }
 
