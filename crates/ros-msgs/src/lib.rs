@@ -14,6 +14,8 @@
 //! | `geometry_msgs/{TransformStamped, Transform, Vector3, Quaternion}` | [`TransformStamped`], [`Transform`], [`Vector3`], [`Quaternion`] |
 //! | `tf2_msgs/TFMessage` | [`TFMessage`] |
 //!
+//! Topic and frame names, one rule for the rosbag2 layout and the live topics: [`names`].
+//!
 //! Every type implements [`Message`]: `to_cdr`, `from_cdr`, `schema`, and its rosbag2 type name.
 //! Decoding checks every length against the bytes left before allocating: a message claiming
 //! gigabytes fails with [`CdrError::LengthTooLarge`], one cut short with
@@ -22,6 +24,7 @@
 
 pub mod cdr;
 mod msgs;
+pub mod names;
 pub mod ros1;
 pub mod schema;
 

@@ -114,14 +114,15 @@ impl Topic {
 
     /// The topic's name under the sensor's namespace `ns` ([`namespace`]).
     pub fn name(self, ns: &str) -> String {
+        use kfuse_ros_msgs::names::topic;
         let rel = match self {
-            Topic::Depth => "sd/image_depth",
-            Topic::Ir => "sd/image_ir",
-            Topic::DepthRect => "hd/image_depth_rect",
-            Topic::Color => "hd/image_color/compressed",
-            Topic::DepthInfo => "sd/camera_info",
-            Topic::ColorInfo => "hd/camera_info",
-            Topic::TfStatic => return "/tf_static".into(),
+            Topic::Depth => topic::DEPTH,
+            Topic::Ir => topic::IR,
+            Topic::DepthRect => topic::DEPTH_RECT,
+            Topic::Color => topic::COLOR,
+            Topic::DepthInfo => topic::DEPTH_INFO,
+            Topic::ColorInfo => topic::COLOR_INFO,
+            Topic::TfStatic => return topic::TF_STATIC.into(),
         };
         format!("{ns}/{rel}")
     }
@@ -163,21 +164,7 @@ impl Topic {
     }
 }
 
-/// The sensor's namespace: `/kinect2/sn_<serial>`, every character of the serial that is not
-/// `[A-Za-z0-9_]` replaced by `_` (ROS names allow no other).
-pub fn namespace(serial: &str) -> String {
-    format!("/kinect2/sn_{}", name_token(serial))
-}
-
-fn name_token(serial: &str) -> String {
-    serial.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' }).collect()
-}
-
-/// The sensor's optical frames: `(IR/depth, colour)`, `kinect2_<serial>_{ir,rgb}_optical_frame`.
-pub fn optical_frames(serial: &str) -> (String, String) {
-    let s = name_token(serial);
-    (format!("kinect2_{s}_ir_optical_frame"), format!("kinect2_{s}_rgb_optical_frame"))
-}
+pub use kfuse_ros_msgs::names::{namespace, optical_frames};
 
 /// The bag's MCAP file name for an output folder `out`: `<folder name>_0.mcap`, as
 /// `ros2 bag record -o NAME` names its first file.
