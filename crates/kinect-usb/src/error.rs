@@ -149,6 +149,20 @@ pub enum KinectError {
         /// What is wrong.
         detail: String,
     },
+    /// A USB trace (`.kftrace`) is damaged, or its calls differ from what this kfuse's protocol
+    /// code asks.
+    #[error(
+        "USB trace {path}: {detail} (at byte {offset}); a trace is whole only once its capture \
+         ended: record it again with `kfuse capture record --usb-trace FILE`"
+    )]
+    Trace {
+        /// The file.
+        path: PathBuf,
+        /// Byte offset where the problem was found.
+        offset: u64,
+        /// What is wrong.
+        detail: String,
+    },
     /// The stream ended normally (end of a replayed recording).
     #[error("end of stream (recording exhausted)")]
     EndOfStream,

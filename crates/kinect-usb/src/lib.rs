@@ -52,6 +52,7 @@ pub mod sim;
 pub mod stream;
 #[cfg(any(test, feature = "testdata"))]
 pub mod testdata;
+pub mod trace;
 mod transfer;
 pub mod usb;
 
