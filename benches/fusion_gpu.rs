@@ -107,6 +107,7 @@ fn bench(c: &mut Criterion) {
         depth_jump: 0.05,
         occlusion_tolerance: Some(0.02),
         zbuffer: true,
+        depth_range: geometry::fusion::DepthRange::ALL,
     };
     let all = FramePlan { stages: Some(stages), read_intermediates: false };
     let mut g = c.benchmark_group("gpu");

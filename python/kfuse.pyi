@@ -129,9 +129,11 @@ def fuse(
     engine: Union[Engine, str, None] = None,
     linear: bool = True,
     force: bool = False,
+    depth_range: Union[str, Tuple[float, float], None] = None,
 ) -> FusedFrame:
     """One frame through `kfuse fuse`'s pipeline with its defaults (linear=False: --resample nearest).
-    Depth whose median is outside 0.2-15 m (another unit) raises ValueError unless force."""
+    Depth whose median is outside 0.2-15 m (another unit) raises ValueError unless force.
+    depth_range: --depth-range ("0.5m..2.5m") or (min, max) metres; samples outside are none."""
 
 def read_depth(path: _Path) -> npt.NDArray[np.float32]:
     """A depth file read as `kfuse fuse --depth` reads it: float32 metres, NaN = no sample."""

@@ -1,5 +1,6 @@
 // H1 back-projection: depth pixel -> 3D point in the depth camera's frame (metres).
-// CPU twin: geometry::fusion::backproject_pixel (+ the finiteness filter of backproject_cloud).
+// CPU twin: geometry::fusion::backproject_pixel (+ the finiteness filter of backproject_cloud)
+// on depth clipped to the depth range (geometry::fusion::is_sample_in).
 // Mirrors it operation by operation: z = value * s; X = x * z; Y = y * z.
 
 struct Params {
@@ -7,8 +8,9 @@ struct Params {
     count: u32,
     // Invocations per dispatch row (workgroups along x times the workgroup size).
     row_stride: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // The depth range's ends (metres) as f32 bits: a sample is within near..=far.
+    near_bits: u32,
+    far_bits: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -40,7 +42,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let value = depth[i];
     var out = vec4<f32>(0.0, 0.0, 0.0, 0.0);
-    if is_sample(value) {
+    if is_sample(value) && value >= bitcast<f32>(params.near_bits)
+        && value <= bitcast<f32>(params.far_bits) {
         let rx = rays[3u * i];
         let ry = rays[3u * i + 1u];
         let s = rays[3u * i + 2u];

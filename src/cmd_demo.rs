@@ -90,6 +90,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         h5: H5Arg::SampleScale,
         stretch_ratio: geometry::fusion::FusionOptions::default().stretch_ratio,
         hole_radius: geometry::fusion::FusionOptions::default().hole_radius_factor,
+        depth_range: None,
         no_figures: args.no_figures,
         engine: fusion_gpu::Engine::Cpu,
         gpu: None,

@@ -126,6 +126,11 @@ pub struct FuseArgs {
     /// the nearest fill's work grows with the square of the radius.
     #[arg(long, value_name = "FACTOR", default_value_t = FusionOptions::default().hole_radius_factor, allow_negative_numbers = true)]
     pub hole_radius: f32,
+    /// Depth samples outside MIN..MAX are not samples (H1's rule, on every engine; one frame,
+    /// several Kinects and sequences alike): metres or millimetres with the unit written,
+    /// e.g. 0.5m..2.5m, 500mm..2500mm or 0.5..2.5m.
+    #[arg(long, value_name = "MIN..MAX", value_parser = parse_depth_range)]
+    pub depth_range: Option<fusion::DepthRange>,
     /// Do not draw the Task 1-8 figures.
     #[arg(long)]
     pub no_figures: bool,
@@ -193,6 +198,14 @@ pub struct FuseArgs {
 /// `--engine cpu|gpu|auto` (the CLI of `fuse` and `view`).
 pub fn parse_engine(s: &str) -> Result<Engine, String> {
     s.parse()
+}
+
+/// `--depth-range MIN..MAX` ([`fusion::DepthRange::parse`]).
+fn parse_depth_range(s: &str) -> Result<fusion::DepthRange, String> {
+    fusion::DepthRange::parse(s).map_err(|e| match e {
+        geometry::GeometryError::InvalidInput(m) => m,
+        e => e.to_string(),
+    })
 }
 
 /// The old `--gpu [auto]`: bare `--gpu` is `gpu`, `--gpu auto` is `auto`.
@@ -281,6 +294,7 @@ pub fn options(args: &FuseArgs) -> Result<FusionOptions> {
         },
         stretch_ratio: args.stretch_ratio,
         hole_radius_factor: args.hole_radius,
+        depth_range: args.depth_range.unwrap_or_default(),
         record_timings: true,
         ..FusionOptions::default()
     })
@@ -317,7 +331,7 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     let staged = StagedDir::new(&args.out)?;
     staged.refuse_foreign(&output_names())?;
     crate::interrupt::install()?;
-    let inputs = load_inputs(args)?;
+    let (inputs, request) = load_inputs(args, &options)?;
     // Before any work: the coverage radius this rig and --hole-radius give, and the rig's
     // sample spacing, within the stages' limits (the stages check again; this names the files).
     fusion::checked_coverage_radius_px(&inputs.rig, &options).with_context(|| {
@@ -328,9 +342,8 @@ pub fn run(args: &FuseArgs) -> Result<FuseResult> {
     bar.set_message("fusing (H1-H8)");
     let engine = args.engine();
     let on = if engine == Engine::Cpu { "" } else { " on the GPU" };
-    let (output, used) =
-        fusion_gpu::fuse(engine, &inputs.rig, &inputs.depth, inputs.kind, &inputs.color, &options)
-            .with_context(|| format!("fusing {}{on}", input_names(args)))?;
+    let (output, used) = fusion_gpu::fuse_request(engine, &request, &inputs.depth, &inputs.color)
+        .with_context(|| format!("fusing {}{on}", input_names(args)))?;
     if let Some(note) = engine_note(&used) {
         // Printed beside the progress bar (which is hidden when stderr is not a terminal).
         bar.suspend(|| eprintln!("{note}"));

@@ -275,12 +275,28 @@ impl PyFusedFrame {
 }
 
 /// The fusion options of `kfuse fuse`'s defaults (its `options()`), with `linear` for
-/// `--resample both` (True) or `nearest` (False).
-fn cli_options(linear: bool) -> FusionOptions {
-    FusionOptions { linear, record_timings: true, ..FusionOptions::default() }
+/// `--resample both` (True) or `nearest` (False) and `depth_range` for `--depth-range`.
+fn cli_options(linear: bool, depth_range: fusion::DepthRange) -> FusionOptions {
+    FusionOptions { linear, depth_range, record_timings: true, ..FusionOptions::default() }
 }
 
-/// fuse(rig, color, depth, engine="cpu", linear=True, force=False) -> FusedFrame: one frame through
+/// The `depth_range=` keyword: `--depth-range`'s text ("0.5m..2.5m", "500mm..2500mm") or a
+/// `(min, max)` pair in metres; None keeps every sample. ValueError naming the keyword.
+fn depth_range_arg(arg: Option<&Bound<'_, PyAny>>) -> PyResult<fusion::DepthRange> {
+    let Some(arg) = arg.filter(|a| !a.is_none()) else { return Ok(fusion::DepthRange::ALL) };
+    let bad = |e: geometry::GeometryError| PyValueError::new_err(format!("depth_range: {e}"));
+    if let Ok(text) = arg.extract::<String>() {
+        return fusion::DepthRange::parse(&text).map_err(bad);
+    }
+    let (min, max): (f32, f32) = arg.extract().map_err(|_| {
+        PyValueError::new_err(
+            "depth_range: give \"0.5m..2.5m\" (a unit on the ends) or a (min, max) pair in metres",
+        )
+    })?;
+    fusion::DepthRange::new(min, max).map_err(bad)
+}
+
+/// fuse(rig, color, depth, engine="cpu", linear=True, force=False, depth_range=None) -> FusedFrame: one frame through
 /// `kfuse fuse`'s pipeline (H1-H8) with its default options, on `engine` (an Engine or
 /// "cpu", "gpu", "auto", as --engine).
 ///
@@ -288,9 +304,12 @@ fn cli_options(linear: bool) -> FusionOptions {
 /// the rig says so); `depth`: uint16 (depth H, depth W) z in millimetres, 0 = no sample (the
 /// rig's depth correction is applied first, as fuse does). `linear=False` is
 /// `--resample nearest`. Depth in another unit (a median depth outside 0.2-15 m, fuse's rule)
-/// raises ValueError unless `force` (fuse's `--force`). Releases the GIL.
+/// raises ValueError unless `force` (fuse's `--force`). `depth_range` is `--depth-range`:
+/// "0.5m..2.5m" or a (min, max) pair in metres; samples outside are not samples. Releases
+/// the GIL.
 #[pyfunction]
-#[pyo3(signature = (rig, color, depth, engine = None, linear = true, force = false))]
+#[pyo3(signature = (rig, color, depth, engine = None, linear = true, force = false, depth_range = None))]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn fuse(
     py: Python<'_>,
     rig: &PyRig,
@@ -299,17 +318,19 @@ pub(crate) fn fuse(
     engine: Option<&Bound<'_, PyAny>>,
     linear: bool,
     force: bool,
+    depth_range: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PyFusedFrame> {
     let engine = engine.map(engine_arg).transpose()?.unwrap_or(Engine::Cpu);
     let rectified = rig.rig.rectified;
-    let rig: Rig = if rectified { rig.rig.as_rectified() } else { rig.rig.clone() };
-    let color = color_image(py, &rig, color)?;
-    let depth = depth_metres(py, &rig, depth, force)?;
-    let options = cli_options(linear);
+    let options = cli_options(linear, depth_range_arg(depth_range)?);
+    let request = fusion::Request::new(&rig.rig, DepthKind::Z, options).map_err(geometry_err)?;
+    let rig: &Rig = request.rig();
+    let color = color_image(py, rig, color)?;
+    let depth = depth_metres(py, &request, depth, force)?;
     let (out, used) = py
         .detach(|| -> Result<_, GpuError> {
-            fusion::checked_coverage_radius_px(&rig, &options)?;
-            fusion_gpu::fuse(engine, &rig, &depth, DepthKind::Z, &color, &options)
+            fusion::checked_coverage_radius_px(rig, &options)?;
+            fusion_gpu::fuse_request(engine, &request, &depth, &color)
         })
         .map_err(gpu_err)?;
     if let EngineUsed::CpuFallback { reason } = &used {

@@ -379,6 +379,8 @@ struct Frame {
 struct PyRegistration {
     /// The rig as fuse uses it (no distortion when rectified).
     rig: Rig,
+    /// The fusion request (its depth preparation is every frame's).
+    request: fusion::Request,
     reg: fusion::Registration,
     /// H1's ray per depth pixel and H2's projection, for `color_on_depth` (fixed by the rig).
     rays: Vec<[f32; 3]>,
@@ -428,8 +430,10 @@ impl PyRegistration {
     #[new]
     #[pyo3(signature = (rig, force = false))]
     fn new(rig: &PyRig, force: bool) -> PyResult<Self> {
-        let rig = if rig.rig.rectified { rig.rig.as_rectified() } else { rig.rig.clone() };
         let options = FusionOptions::default();
+        let request =
+            fusion::Request::new(&rig.rig, DepthKind::Z, options).map_err(geometry_err)?;
+        let rig = request.rig().clone();
         let reg = fusion::Registration::new(&rig, DepthKind::Z, &options).map_err(geometry_err)?;
         Ok(Self {
             rays: fusion::depth_ray_table(&rig.depth, DepthKind::Z),
@@ -439,6 +443,7 @@ impl PyRegistration {
             occlusion_tolerance: options.color_occlusion_tolerance,
             force,
             rig,
+            request,
             reg,
             frame: None,
         })
@@ -459,7 +464,7 @@ impl PyRegistration {
         depth: &Bound<'py, PyAny>,
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let image = depth_metres(py, &self.rig, depth, self.force)?;
+        let image = depth_metres(py, &self.request, depth, self.force)?;
         let (cw, ch) = (self.rig.color.width, self.rig.color.height);
         let reg = &mut self.reg;
         let Some(out) = out else {
@@ -560,7 +565,7 @@ impl PyRegistration {
         color: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<CloudArrays<'py>> {
         let color_img = color.map(|c| color_image(py, &self.rig, c)).transpose()?;
-        let image = depth_metres(py, &self.rig, depth, self.force)?;
+        let image = depth_metres(py, &self.request, depth, self.force)?;
         let (points, pixels) = py.detach(|| fusion::backproject_cloud(&image, &self.rays));
         let colors = match color_img {
             None => None,
@@ -587,16 +592,15 @@ type CloudArrays<'py> = (Bound<'py, PyArray2<f32>>, Option<Bound<'py, PyArray2<u
 /// (H, W) is the rig's depth camera's size.
 fn depth_metres(
     py: Python<'_>,
-    rig: &Rig,
+    request: &fusion::Request,
     depth: &Bound<'_, PyAny>,
     force: bool,
 ) -> PyResult<Image<f32>> {
+    let rig = request.rig();
     let (dw, dh) = (rig.depth.width, rig.depth.height);
-    let correction = rig.depth_correction.clone();
+    // The request's depth preparation (the rig's depth correction), as fuse applies it.
     let correct = |mut image: Image<f32>| -> Result<Image<f32>, GeometryError> {
-        if let Some(c) = &correction {
-            c.correct_image(&mut image, 1.0)?;
-        }
+        request.prepare_depth(&mut image)?;
         Ok(image)
     };
     let image = if depth.cast::<PyArray2<f32>>().is_ok() {

@@ -112,3 +112,25 @@ def test_fuse_rejects_wrong_arrays(fused, arg):
     args[arg] = args[arg].astype(np.float64)
     with pytest.raises(ValueError, match=f"^{arg}: expected a C-contiguous"):
         kfuse.fuse(rig, args["color"], args["depth"])
+
+
+def test_depth_range_keeps_exactly_the_samples_inside(fused):
+    """depth_range= is `kfuse fuse --depth-range`: the samples outside are not samples. The
+    kept samples are counted here from the millimetre image itself (ends half a millimetre off
+    the integer values, so no sample sits on an end), against the fusion's count and cloud."""
+    rig = kfuse.Rig.load(KINECT / "rig.json")
+    d = fused["depth_mm"]
+    inside = int(np.count_nonzero((d >= 801) & (d <= 1500)))
+    outside = int(np.count_nonzero(d > 0)) - inside
+    assert inside > 10_000 and outside > 10_000, (inside, outside)
+    for arg in ((0.8005, 1.5005), "800.5mm..1500.5mm", "0.8005..1.5005m"):
+        f = kfuse.fuse(rig, fused["color"], d, linear=False, depth_range=arg)
+        assert f.summary["valid_depth_pixels"] == inside, arg
+        points, _ = f.cloud
+        assert points.shape[0] <= inside
+        assert points[:, 2].min() >= 0.8005 - 1e-6 and points[:, 2].max() <= 1.5005 + 1e-6, arg
+    whole = kfuse.fuse(rig, fused["color"], d, linear=False)
+    assert whole.summary["valid_depth_pixels"] == inside + outside
+    for bad in ("0.8..1.5", "2m..1m", (1.5, 0.8), 3):
+        with pytest.raises(ValueError, match="depth_range"):
+            kfuse.fuse(rig, fused["color"], d, depth_range=bad)

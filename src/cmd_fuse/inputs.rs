@@ -6,6 +6,7 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 use calib::rig_io::{self, Calibration};
+use geometry::fusion::{FusionOptions, Request};
 use geometry::{DepthKind, Image, Rig};
 use kfuse_io::kinect_data::{self, KinectDepth};
 use kfuse_io::mat::MatFile;
@@ -211,8 +212,9 @@ fn read_depth(
     Ok((depth, DepthSource::File { name: path.display().to_string(), encoding, scale }))
 }
 
-/// Loads and checks the inputs named by `args` (nothing is written).
-pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
+/// Loads and checks the inputs named by `args` (nothing is written), and the fusion
+/// [`Request`] of their rig (rectified once) and `options`; the depth is prepared by it.
+pub fn load_inputs(args: &FuseArgs, options: &FusionOptions) -> Result<(Inputs, Request)> {
     // Problems found while reading (an error unless --force, below).
     let mut problems = Vec::new();
     let (mut inputs, depth_source, rig_name) = match &args.mat {
@@ -220,11 +222,11 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
         None => load_files(args, &mut problems)?,
     };
     let rectified = args.rectified || inputs.rig.rectified;
-    if rectified {
-        inputs.rig = inputs.rig.as_rectified();
-    }
+    inputs.rig.rectified = rectified;
+    let request = Request::new(&inputs.rig, inputs.kind, *options)?;
+    inputs.rig = request.rig().clone();
     inputs.description["rectified"] = serde_json::json!(rectified);
-    apply_depth_correction(&mut inputs)?;
+    prepare_depth(&mut inputs, &request)?;
     // Units and emptiness (see `checks`), before any work.
     if let Some(source) = &depth_source {
         match checks::check_depth_units(&inputs.depth, source) {
@@ -249,21 +251,17 @@ pub fn load_inputs(args: &FuseArgs) -> Result<Inputs> {
         }
         eprintln!("warning: {problem} (--force)");
     }
-    Ok(inputs)
+    Ok((inputs, request))
 }
 
-/// The rig's `depth_correction` (`kfuse calibrate --depth`), applied to the depth before it
-/// becomes 3D (`DepthCorrection::correct_image`); z depth only (the model is of the Kinect's z).
-fn apply_depth_correction(inputs: &mut Inputs) -> Result<()> {
-    let Some(c) = &inputs.rig.depth_correction else { return Ok(()) };
-    if inputs.kind != DepthKind::Z {
-        bail!(
-            "the rig has a depth_correction (of z depth) but the depth is --depth-kind range; fuse z depth, or remove the rig's depth_correction"
-        );
+/// The request's depth preparation (the rig's `depth_correction`, `kfuse calibrate --depth`,
+/// applied before the depth becomes 3D), described in summary.json when it corrects.
+fn prepare_depth(inputs: &mut Inputs, request: &Request) -> Result<()> {
+    let n = request.prepare_depth(&mut inputs.depth)?;
+    if let Some(c) = &request.rig().depth_correction {
+        inputs.description["depth_correction"] =
+            serde_json::json!({ "applied": true, "samples": n, "terms": c.describe() });
     }
-    let n = c.correct_image(&mut inputs.depth, 1.0)?;
-    inputs.description["depth_correction"] =
-        serde_json::json!({ "applied": true, "samples": n, "terms": c.describe() });
     Ok(())
 }
 

@@ -636,7 +636,15 @@ fn draw_figures(
 ) -> Result<()> {
     let Some(jpeg) = &k.jpeg else { bail!("the frame has no colour") };
     let color = jpeg.decode(Path::new(&format!("frame {}", k.number)))?;
-    let output = geometry::fusion::run(rig, &k.depth, DepthKind::Z, &color, options)?;
+    // The frame's depth is prepared already (the sequence's decoder applies the request's
+    // preparation): run the request on it as it is.
+    let request = geometry::fusion::Request::new(rig, DepthKind::Z, *options)?;
+    let output = geometry::fusion::run_on(
+        &mut geometry::fusion::CpuPixels::new(),
+        &request,
+        &k.depth,
+        &color,
+    )?;
     let dir = staged.join(format!("figures/{:06}", k.number));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let lab = crate::figures::LabInputs {

@@ -7,7 +7,7 @@
 use std::collections::VecDeque;
 use std::sync::mpsc;
 
-use geometry::fusion::{ColorProjection, DepthView, ZBUFFER_EMPTY};
+use geometry::fusion::{ColorProjection, DepthRange, DepthView, ZBUFFER_EMPTY};
 use geometry::{CameraModel, DepthKind, Image, Rig};
 
 use crate::error::GpuError;
@@ -193,16 +193,18 @@ impl FusionContext {
         F: FnMut(usize, GpuFrame),
     {
         let frames = frames.into_iter().map(|(d, c)| (DepthInput::Metres(d), c));
-        self.stream_inputs(rig, kind, frames, plan, sink)
+        self.stream_inputs(rig, kind, frames, plan, plan.depth_range(), sink)
     }
 
-    /// [`FusionContext::stream`] on any [`DepthInput`].
+    /// [`FusionContext::stream`] on any [`DepthInput`], H1 keeping the samples in
+    /// `depth_range` (the request's, [`geometry::fusion::PixelParams::depth_range`]).
     pub(crate) fn stream_inputs<'a, I, F>(
         &mut self,
         rig: &Rig,
         kind: DepthKind,
         frames: I,
         plan: FramePlan,
+        depth_range: DepthRange,
         mut sink: F,
     ) -> Result<usize, GpuError>
     where
@@ -251,7 +253,7 @@ impl FusionContext {
                 }
             }
             self.ensure_slot(slot, depth_size, color_size)?;
-            let p = self.submit(slot, k, depth, color, &proj, &plan, false)?;
+            let p = self.submit(slot, k, depth, color, &proj, &plan, depth_range, false)?;
             pending.push_back(p);
             count += 1;
         }
@@ -313,6 +315,7 @@ impl FusionContext {
         color: Option<&Image<[u8; 3]>>,
         proj: &ColorProjection,
         plan: &FramePlan,
+        depth_range: DepthRange,
         accumulate_zbuffer: bool,
     ) -> Result<Pending, GpuError> {
         let gpu = &self.gpu;
@@ -329,6 +332,7 @@ impl FusionContext {
             color_size: (proj.width, proj.height),
             proj,
             stages: plan.stages,
+            depth_range,
             color: upload_color,
             tables,
             accumulate_zbuffer,
@@ -438,7 +442,9 @@ impl FusionContext {
             self.tables.ensure(&self.gpu, &rig, kind, None);
             self.ensure_slot(0, depth_size, color_size)?;
             let proj = ColorProjection::from_rig(&rig);
-            let p = self.submit(0, k, DepthInput::Metres(v.depth), None, &proj, &plan, k > 0)?;
+            let all = DepthRange::ALL;
+            let p =
+                self.submit(0, k, DepthInput::Metres(v.depth), None, &proj, &plan, all, k > 0)?;
             // One read-back buffer per slot: each submission is read before the next maps it.
             last = Some(self.finish(p)?.1.zbuffer);
         }

@@ -126,6 +126,23 @@ impl FusionContext {
         I: IntoIterator<Item = (&'a [u8], Option<&'a Image<[u8; 3]>>)>,
         F: FnMut(usize, GpuFrame),
     {
+        self.stream_raw_in(decoder, rig, frames, plan, plan.depth_range(), sink)
+    }
+
+    /// [`FusionContext::stream_raw`] with H1 keeping the samples in `depth_range`.
+    pub(crate) fn stream_raw_in<'a, I, F>(
+        &mut self,
+        decoder: &GpuDecoder,
+        rig: &Rig,
+        frames: I,
+        plan: FramePlan,
+        depth_range: geometry::fusion::DepthRange,
+        sink: F,
+    ) -> Result<usize, GpuError>
+    where
+        I: IntoIterator<Item = (&'a [u8], Option<&'a Image<[u8; 3]>>)>,
+        F: FnMut(usize, GpuFrame),
+    {
         decoder.check_context(self)?;
         if (rig.depth.width, rig.depth.height) != (WIDTH, HEIGHT) {
             return Err(input(format!(
@@ -136,6 +153,6 @@ impl FusionContext {
         let frames = frames
             .into_iter()
             .map(|(raw, color)| (DepthInput::Raw { decoder: &decoder.stage, raw }, color));
-        self.stream_inputs(rig, DepthKind::Z, frames, plan, sink)
+        self.stream_inputs(rig, DepthKind::Z, frames, plan, depth_range, sink)
     }
 }

@@ -208,6 +208,8 @@ pub(crate) struct Work<'a> {
     pub(crate) proj: &'a ColorProjection,
     /// H3, H8 and H6 when given.
     pub(crate) stages: Option<PixelParams>,
+    /// H1's sample rule: the depth range ([`PixelParams::depth_range`]), always given.
+    pub(crate) depth_range: geometry::fusion::DepthRange,
     /// Whether the colour image was uploaded (H6 runs with `stages` only).
     pub(crate) color: bool,
     /// The lookup tables (their lengths are in the uniforms).

@@ -73,4 +73,4 @@ pub use decode::{GpuDecoder, METRES_PER_MM};
 pub use engine::Engine;
 pub use error::GpuError;
 pub use plan::{FramePlan, GpuFrame};
-pub use run::{EngineUsed, PixelEngine, RawStreamFrame, fuse, fuse_multi};
+pub use run::{EngineUsed, PixelEngine, RawStreamFrame, fuse, fuse_multi, fuse_request};

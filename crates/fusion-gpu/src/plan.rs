@@ -16,6 +16,14 @@ pub struct FramePlan {
     pub read_intermediates: bool,
 }
 
+impl FramePlan {
+    /// H1's depth range: that of `stages`, every sample without them (the per-pixel engine,
+    /// `PerPixel for FusionContext`, always passes its request's own).
+    pub fn depth_range(&self) -> geometry::fusion::DepthRange {
+        self.stages.map_or(geometry::fusion::DepthRange::ALL, |p| p.depth_range)
+    }
+}
+
 /// One frame's results read back from the GPU.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GpuFrame {

@@ -9,8 +9,8 @@ use std::time::Instant;
 use geometry::fusion::multi::{MultiFusion, SensorImages, fuse_multi_on};
 use geometry::fusion::{
     ColorSample, CpuPixels, DepthView, FusionOptions, FusionOutput, PerPixel, PerPixelOutput,
-    PixelFrame, PixelParams, PlaneFit, StageTimings, StreamFrame, StreamPlan, StreamResult, run_on,
-    zbuffer_index,
+    PixelFrame, PixelParams, PlaneFit, Request, StageTimings, StreamFrame, StreamPlan,
+    StreamResult, run_on, zbuffer_index,
 };
 use geometry::{CameraModel, DepthKind, Image, MultiRig, Rig, RigCamera};
 
@@ -115,8 +115,11 @@ impl PerPixel for FusionContext {
             stages: (plan.holes || plan.color_on_depth).then_some(*params),
             read_intermediates: false,
         };
-        let inputs = frames.iter().map(|f| (f.depth, f.color.filter(|_| plan.color_on_depth)));
-        self.stream(rig, kind, inputs, gpu_plan, |i, r| lend(i, &r, plan, sink))?;
+        let inputs = frames.iter().map(|f| {
+            (crate::context::DepthInput::Metres(f.depth), f.color.filter(|_| plan.color_on_depth))
+        });
+        let range = params.depth_range;
+        self.stream_inputs(rig, kind, inputs, gpu_plan, range, |i, r| lend(i, &r, plan, sink))?;
         Ok(())
     }
 }
@@ -267,7 +270,8 @@ impl FusionContext {
     /// output equals the CPU pipeline's except for `summary.timings_ms`: there the GPU
     /// submission's wall time (upload + H1, H2, H7, H3 nearest, H8 mask, H6 + read-back) is
     /// reported as `h1_ms`, with `h2_ms`, `h7_ms`, `h3_nearest_ms` and `h6_ms` zero, and
-    /// `h8_ms` covers the CPU plane fit plus the GPU fill.
+    /// `h8_ms` covers the CPU plane fit plus the GPU fill. `depth` is prepared for `rig`
+    /// here ([`Request::prepare_depth`]).
     pub fn run(
         &mut self,
         rig: &Rig,
@@ -276,7 +280,9 @@ impl FusionContext {
         color: &Image<[u8; 3]>,
         options: &FusionOptions,
     ) -> Result<FusionOutput, GpuError> {
-        run_on(self, rig, depth, kind, color, options)
+        let request = Request::new(rig, kind, *options)?;
+        let depth = request.prepared(depth)?;
+        run_on(self, &request, &depth, color)
     }
 
     /// [`PerPixel::per_pixel_stream`] on raw Kinect v2 depth frames that `decoder` decodes
@@ -299,7 +305,8 @@ impl FusionContext {
             read_intermediates: false,
         };
         let inputs = frames.iter().map(|&(raw, c)| (raw, c.filter(|_| plan.color_on_depth)));
-        self.stream_raw(decoder, rig, inputs, gpu_plan, |i, r| lend(i, &r, plan, sink))?;
+        let range = params.depth_range;
+        self.stream_raw_in(decoder, rig, inputs, gpu_plan, range, |i, r| lend(i, &r, plan, sink))?;
         Ok(())
     }
 }
@@ -324,10 +331,23 @@ pub enum EngineUsed {
     },
 }
 
-/// The CLI's `--engine` in one call: [`run_on`] the engine [`Engine::open`] gives (the CPU
-/// for [`Engine::Cpu`], else a new [`FusionContext`], or, under [`Engine::Auto`] when there
-/// is no adapter, the CPU). Under [`Engine::Gpu`] no adapter is [`GpuError::NoAdapter`].
+/// The CLI's `--engine` in one call: [`run_on`] of `request` on the engine [`Engine::open`]
+/// gives (the CPU for [`Engine::Cpu`], else a new [`FusionContext`], or, under
+/// [`Engine::Auto`] when there is no adapter, the CPU). `depth` is prepared
+/// ([`Request::prepare_depth`]). Under [`Engine::Gpu`] no adapter is [`GpuError::NoAdapter`].
 /// For many frames keep the opened engine instead.
+pub fn fuse_request(
+    engine: Engine,
+    request: &Request,
+    depth: &Image<f32>,
+    color: &Image<[u8; 3]>,
+) -> Result<(FusionOutput, EngineUsed), GpuError> {
+    let (mut pixels, used) = engine.open()?;
+    Ok((run_on(&mut pixels, request, depth, color)?, used))
+}
+
+/// [`fuse_request`] of the [`Request`] of `rig`, `kind` and `options`, on `depth` as it
+/// prepares it.
 pub fn fuse(
     engine: Engine,
     rig: &Rig,
@@ -336,8 +356,9 @@ pub fn fuse(
     color: &Image<[u8; 3]>,
     options: &FusionOptions,
 ) -> Result<(FusionOutput, EngineUsed), GpuError> {
-    let (mut pixels, used) = engine.open()?;
-    Ok((run_on(&mut pixels, rig, depth, kind, color, options)?, used))
+    let request = Request::new(rig, kind, *options)?;
+    let depth = request.prepared(depth)?;
+    fuse_request(engine, &request, &depth, color)
 }
 
 /// [`fuse`] for several Kinects: [`geometry::fusion::multi::fuse_multi_on`] and the z-buffer

@@ -28,6 +28,7 @@ fn streamed_frames_equal_single_frames_in_order() {
             depth_jump: 0.05,
             occlusion_tolerance: Some(0.02),
             zbuffer: true,
+            depth_range: geometry::fusion::DepthRange::ALL,
         }),
         read_intermediates: false,
     };

@@ -14,8 +14,8 @@ use std::path::Path;
 use crate::color::ColorJpeg;
 use fusion_gpu::{GpuDecoder, PixelEngine};
 use geometry::fusion::{
-    self, FusionOptions, PixelParams, StreamFrame, StreamPlan, StreamResult, backproject_cloud,
-    depth_ray_table, stream_on,
+    self, FusionOptions, PixelParams, Request, StreamFrame, StreamPlan, StreamResult,
+    backproject_cloud, depth_ray_table, stream_on,
 };
 use geometry::{DepthKind, Image, PointCloud, Rig};
 use kfuse_io::images::png16_values;
@@ -94,6 +94,8 @@ pub struct FrameDecoder {
     depth_mm: Vec<f32>,
     ir: Vec<f32>,
     rig: Rig,
+    /// The fusion request: its depth preparation is applied to every decoded frame.
+    request: Request,
     needs_color: bool,
     /// Raw frames go to the registrar undecoded ([`Processor::decode_on_gpu`]).
     raw_to_gpu: bool,
@@ -112,7 +114,7 @@ pub struct FrameRegistrar {
     rays: Vec<[f32; 3]>,
     extras: Extras,
     units_per_metre: f64,
-    options: FusionOptions,
+    request: Request,
     params: PixelParams,
 }
 
@@ -156,8 +158,8 @@ impl Processor {
             ))));
         }
         rig.validate()?;
-        let options = *options;
-        fusion::checked_coverage_radius_px(rig, &options)?;
+        fusion::checked_coverage_radius_px(rig, options)?;
+        let request = Request::new(rig, DepthKind::Z, *options)?;
         if let Some(ctx) = engine.gpu() {
             ctx.check_frame_size(
                 (rig.depth.width, rig.depth.height),
@@ -170,6 +172,7 @@ impl Processor {
                 depth_mm: vec![0.0; PIXELS],
                 ir: vec![0.0; PIXELS],
                 rig: rig.clone(),
+                request: request.clone(),
                 needs_color: extras.color_on_depth || extras.cloud,
                 raw_to_gpu: false,
                 keep_sensor: false,
@@ -177,12 +180,12 @@ impl Processor {
             registering: FrameRegistrar {
                 gpu_decoder: None,
                 engine,
-                rig: rig.clone(),
+                rig: request.rig().clone(),
                 rays: depth_ray_table(&rig.depth, DepthKind::Z),
                 extras,
                 units_per_metre,
-                params: PixelParams::new(rig, &options),
-                options,
+                params: request.params(),
+                request,
             },
         })
     }
@@ -205,7 +208,7 @@ impl Processor {
         let PixelEngine::Gpu(ctx) = &r.engine else { return Ok(false) };
         if self.decoding.decoder.is_none()
             || self.decoding.keep_sensor
-            || r.rig.depth_correction.is_some()
+            || r.request.prepares_depth()
             || r.extras.cloud
         {
             return Ok(false);
@@ -279,12 +282,11 @@ impl FrameDecoder {
         Ok(depth)
     }
 
-    /// The rig's `depth_correction` (`kfuse calibrate --depth`) applied to a frame's depth in
-    /// metres, as `kfuse fuse` applies it to one frame (`DepthCorrection::correct_image`).
+    /// The request's depth preparation (the rig's `depth_correction`, `kfuse calibrate
+    /// --depth`) applied to a frame's depth in metres, as `kfuse fuse` applies it to one frame
+    /// ([`Request::prepare_depth`]).
     fn correct(&self, depth: &mut Image<f32>) -> Result<()> {
-        if let Some(c) = &self.rig.depth_correction {
-            c.correct_image(depth, 1.0)?;
-        }
+        self.request.prepare_depth(depth)?;
         Ok(())
     }
 
@@ -380,20 +382,13 @@ impl FrameRegistrar {
                     .iter()
                     .map(|f| StreamFrame { depth: &f.depth, color: f.color.as_ref() })
                     .collect();
-                stream_on(
-                    &mut self.engine,
-                    &self.rig,
-                    DepthKind::Z,
-                    &inputs,
-                    &self.options,
-                    plan,
-                    &mut sink,
-                )?;
+                stream_on(&mut self.engine, &self.request, &inputs, plan, &mut sink)?;
             }
         }
         if self.extras.cloud {
             for (f, r) in frames.iter().zip(&mut out) {
-                let (mut cloud, pixels) = backproject_cloud(&f.depth, &self.rays);
+                let depth = self.params.depth_range.clip(&f.depth);
+                let (mut cloud, pixels) = backproject_cloud(&depth, &self.rays);
                 if let Some(c) = &r.color_on_depth {
                     cloud.colors = pixels.iter().map(|&i| c.data()[i as usize]).collect();
                 }

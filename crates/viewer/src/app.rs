@@ -483,6 +483,7 @@ impl ViewerApp {
                     .text("edge threshold"),
             );
             ui.checkbox(&mut t.fill_holes, "Fill holes (H8)");
+            depth_range_controls(ui, &mut t.depth_range);
             ui.separator();
             ui.heading("Show");
             ui.checkbox(&mut self.show_mesh, "Textured mesh");
@@ -507,8 +508,9 @@ impl ViewerApp {
             }
         });
         // The slider is applied when released, so dragging it does not re-run the fusion per frame.
-        let slider_busy =
-            ui.ctx().dragged_id().is_some() && t.stretch_ratio != self.toggles.stretch_ratio;
+        let slider_busy = ui.ctx().dragged_id().is_some()
+            && (t.stretch_ratio != self.toggles.stretch_ratio
+                || t.depth_range != self.toggles.depth_range);
         if t != self.toggles && !slider_busy {
             self.set_toggles(t);
         } else if slider_busy {
@@ -630,4 +632,28 @@ impl eframe::App for ViewerApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         ViewerApp::ui(self, ui);
     }
+}
+
+/// The depth range sliders' span, metres: the Kinect v2 measures 0.5-4.5 m (8 m at most).
+const DEPTH_SLIDER_M: std::ops::RangeInclusive<f32> = 0.0..=8.0;
+
+/// The range a freshly switched-on clip starts with: the Kinect v2's specified 0.5-4.5 m.
+const DEPTH_CLIP_START_M: (f32, f32) = (0.5, 4.5);
+
+/// H1's depth range (`kfuse fuse --depth-range`): a switch and the near and far sliders.
+fn depth_range_controls(ui: &mut egui::Ui, range: &mut geometry::fusion::DepthRange) {
+    use geometry::fusion::DepthRange;
+    let mut on = !range.is_all();
+    ui.checkbox(&mut on, "Depth range (H1)");
+    if !on {
+        *range = DepthRange::ALL;
+        return;
+    }
+    if range.is_all() {
+        (range.min_m, range.max_m) = DEPTH_CLIP_START_M;
+    }
+    ui.add(egui::Slider::new(&mut range.min_m, DEPTH_SLIDER_M).text("near (m)"));
+    ui.add(egui::Slider::new(&mut range.max_m, DEPTH_SLIDER_M).text("far (m)"));
+    // The far end follows the near one past it (a range is MIN..MAX).
+    range.max_m = range.max_m.max(range.min_m);
 }

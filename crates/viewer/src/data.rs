@@ -180,12 +180,10 @@ fn load(
     }
     let color = images::read_color(color_path).map_err(|e| bad(color_path, e))?;
     check_size(color_path, "colour", color.size(), (rig.color.width, rig.color.height))?;
-    let mut depth = images::read_depth(depth_path, scale).map_err(|e| bad(depth_path, e))?;
+    // As read: the rig's depth correction is the fusion request's depth preparation
+    // (`geometry::fusion::Request`, applied by the pipeline as `kfuse fuse` applies it).
+    let depth = images::read_depth(depth_path, scale).map_err(|e| bad(depth_path, e))?;
     check_size(depth_path, "depth", depth.size(), (rig.depth.width, rig.depth.height))?;
-    // The rig's depth correction (`kfuse calibrate --depth`; z depth), as `kfuse fuse` applies it.
-    if let Some(c) = rig.depth_correction.as_ref().filter(|_| kind == DepthKind::Z) {
-        c.correct_image(&mut depth, 1.0).map_err(|e| bad(depth_path, e))?;
-    }
     let ir = match ir_path {
         Some(p) => {
             let ir = images::read_depth(p, 1.0).map_err(|e| bad(p, e))?;

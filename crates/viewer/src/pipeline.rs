@@ -17,7 +17,7 @@
 //! unfilled Delaunay depth there.
 
 use fusion_gpu::Engine;
-use geometry::fusion::{self, FusionOptions, FusionOutput, MeshSource};
+use geometry::fusion::{self, DepthRange, FusionOptions, FusionOutput, MeshSource};
 use geometry::{Image, Mesh};
 
 use crate::ViewerError;
@@ -58,6 +58,8 @@ pub struct Toggles {
     pub fill_holes: bool,
     /// H4's grid.
     pub mesh_grid: MeshGrid,
+    /// H1's depth range (`kfuse fuse --depth-range`): depth outside is not a sample.
+    pub depth_range: DepthRange,
 }
 
 impl Default for Toggles {
@@ -70,6 +72,7 @@ impl Default for Toggles {
             stretch_ratio: d.stretch_ratio,
             fill_holes: true,
             mesh_grid: MeshGrid::Depth,
+            depth_range: DepthRange::ALL,
         }
     }
 }
@@ -86,6 +89,7 @@ impl Toggles {
             fill_holes: self.fill_holes,
             stretch_ratio: self.stretch_ratio,
             zbuffer: self.zbuffer,
+            depth_range: self.depth_range,
             ..FusionOptions::default()
         }
     }

@@ -22,7 +22,8 @@ pub(crate) const SHADER: Shader = Shader {
     bindings: &[("params", PARAMS), ("depth", DEPTH), ("rays", RAYS), ("points", POINTS)],
 };
 
-/// `size = [depth pixels, row stride, 0, 0]`.
+/// `size = [depth pixels, row stride, near end bits, far end bits]` (the depth range's `f32`
+/// ends as bits, [`geometry::fusion::DepthRange`]).
 pub(crate) type Params = SizeParams;
 
 /// H1: its pipeline, uniform and a bind group per frame slot.
@@ -62,7 +63,9 @@ impl Stage for Backproject {
 
     fn encode(&self, gpu: &Gpu, pass: &mut wgpu::ComputePass<'_>, slot: usize, work: &Work<'_>) {
         let grid = gpu.grid(work.depth_pixels);
-        write_uniform(gpu, &self.params, &Params { size: [work.depth_pixels, grid.stride, 0, 0] });
+        let r = work.depth_range;
+        let size = [work.depth_pixels, grid.stride, r.min_m.to_bits(), r.max_m.to_bits()];
+        write_uniform(gpu, &self.params, &Params { size });
         dispatch(pass, &self.pipeline, self.groups.get(slot), grid);
     }
 }

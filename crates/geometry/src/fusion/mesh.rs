@@ -43,7 +43,7 @@ pub fn mesh_from_depth(
         for gx in 0..gw {
             let (x, y) = (gx * step, gy * step);
             let z = *depth.get(x, y);
-            if !(z > 0.0 && z < f32::INFINITY) {
+            if !super::pixel::is_sample(z) {
                 continue;
             }
             let d = camera.intrinsics.from_pixel(x as f64, y as f64);

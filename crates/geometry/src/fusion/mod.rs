@@ -46,7 +46,9 @@ mod mesh;
 pub mod multi;
 mod pipeline;
 pub mod pixel;
+mod range;
 mod register;
+mod request;
 mod resample;
 mod stream;
 pub mod units;
@@ -72,11 +74,13 @@ pub use pipeline::{
     StreamPlan, StreamResult, cloud_colors, run, run_on, stream_on, stretch_test,
 };
 pub use pixel::{
-    ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32,
-    project_color_point, project_point, register_pixel, transform_point, zbuffer_index,
-    zbuffer_min, zbuffer_pixel, zbuffer_points,
+    ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32, is_sample,
+    is_sample_in, project_color_point, project_point, register_pixel, transform_point,
+    zbuffer_index, zbuffer_min, zbuffer_pixel, zbuffer_points,
 };
+pub use range::{DepthRange, MAX_RANGE_M};
 pub use register::{ColorSample, backproject_cloud, first_write_wins, project_cloud};
+pub use request::{DEPTH_CORRECTION_NEEDS_Z, Request};
 pub use resample::{LinearStats, disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel};
 pub use stream::Registration;
 /// The z-buffer variants that benchmarks and comparison tests measure [`Registration`] against
@@ -183,6 +187,10 @@ pub struct FusionOptions {
     /// the CPU whatever the engine. Written to summary.json only when off.
     #[serde(skip_serializing_if = "is_true")]
     pub zbuffer: bool,
+    /// H1: depth values outside this range are not samples (`--depth-range`). Written to
+    /// summary.json only when it clips.
+    #[serde(skip_serializing_if = "DepthRange::is_all")]
+    pub depth_range: DepthRange,
 }
 
 fn is_true(b: &bool) -> bool {
@@ -206,6 +214,7 @@ impl Default for FusionOptions {
             fill_holes: true,
             record_timings: false,
             zbuffer: true,
+            depth_range: DepthRange::ALL,
         }
     }
 }
@@ -427,7 +436,8 @@ pub fn hole_grow_px(rig: &Rig, options: &FusionOptions) -> f32 {
 }
 
 /// Checks a frame against its rig before any stage runs (the CPU pipeline and `fusion-gpu`
-/// share it) and returns the number of valid depth samples.
+/// share it) and returns the number of valid depth samples (within
+/// [`FusionOptions::depth_range`]).
 ///
 /// Errors: [`GeometryError::InvalidParameter`] for an invalid rig or a coverage radius out of
 /// bounds ([`checked_coverage_radius_px`]), [`GeometryError::SizeMismatch`] when an image does
@@ -442,7 +452,15 @@ pub fn check_inputs(
     checked_coverage_radius_px(rig, options)?;
     depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
     color.expect_size("colour image", rig.color.width, rig.color.height)?;
-    let valid_depth_pixels = depth.data().iter().filter(|&&z| z > 0.0 && z < f32::INFINITY).count();
+    let range = options.depth_range;
+    let valid_depth_pixels = depth.data().iter().filter(|&&z| range.contains(z)).count();
+    if valid_depth_pixels == 0 && !range.is_all() {
+        return Err(GeometryError::InvalidInput(format!(
+            "the {}x{} depth image has no sample within the depth range {range}; widen the range",
+            depth.width(),
+            depth.height()
+        )));
+    }
     if valid_depth_pixels == 0 {
         return Err(GeometryError::InvalidInput(format!(
             "the {}x{} depth image has no valid sample (all NaN, zero, negative or infinite); \

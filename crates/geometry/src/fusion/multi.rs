@@ -48,7 +48,7 @@ use super::pixel::{
     ColorProjection, ZBUFFER_EMPTY, project_point, zbuffer_index, zbuffer_pixel, zbuffer_points,
 };
 use super::{
-    CpuPixels, DepthView, FusionOptions, PerPixel, PerPixelOutput, PixelFrame, PixelParams,
+    CpuPixels, DepthView, FusionOptions, PerPixel, PerPixelOutput, PixelFrame, Request,
     StageTimings, cloud_colors, mesh_on_depth_grid, project_cloud, remove_edge_faces, stretch_test,
 };
 use crate::{
@@ -270,8 +270,10 @@ pub fn fuse_multi_on<E: PerPixel>(
                 "sensor \"{s}\" of the rig has no depth and colour images"
             ))
         })?;
-        let (pair, depth_from_reference) = rig.sensor_rig(s)?;
-        let pair = if rig.rectified { pair.as_rectified() } else { pair };
+        let (mut pair, depth_from_reference) = rig.sensor_rig(s)?;
+        pair.rectified |= rig.rectified;
+        let request = Request::new(&pair, kind, FusionOptions { zbuffer: true, ..*options })?;
+        let pair = request.rig();
         input.depth.expect_size(
             &format!("depth image of sensor {s}"),
             pair.depth.width,
@@ -282,22 +284,22 @@ pub fn fuse_multi_on<E: PerPixel>(
             pair.color.width,
             pair.color.height,
         )?;
-        pairs.push((input, pair, depth_from_reference));
+        pairs.push((input, request, depth_from_reference));
     }
 
     let t0 = Instant::now();
     let depths = pairs
         .par_iter()
-        .map(|(input, pair, _)| corrected_depth(input, pair))
+        .map(|(input, request, _)| prepared_depth(input, request))
         .collect::<Result<Vec<_>, _>>()?;
     let frames: Vec<PixelFrame<'_>> = pairs
         .iter()
         .zip(&depths)
-        .map(|((input, pair, _), depth)| PixelFrame {
-            rig: pair,
+        .map(|((input, request, _), depth)| PixelFrame {
+            rig: request.rig(),
             depth,
             color: &input.color,
-            params: PixelParams::new(pair, &FusionOptions { zbuffer: true, ..*options }),
+            params: request.params(),
         })
         .collect();
     let outputs = engine.per_pixel_batch(&frames, kind, &mut StageTimings::default())?;
@@ -305,8 +307,8 @@ pub fn fuse_multi_on<E: PerPixel>(
         .into_iter()
         .zip(depths)
         .zip(outputs)
-        .map(|(((input, pair, depth_from_reference), depth), out)| {
-            sensor_cloud(&input.sensor, pair, depth_from_reference, depth, out)
+        .map(|(((input, request, depth_from_reference), depth), out)| {
+            sensor_cloud(&input.sensor, request.rig().clone(), depth_from_reference, depth, out)
         })
         .collect();
     let sensors_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -349,13 +351,13 @@ pub fn fuse_multi_on<E: PerPixel>(
     })
 }
 
-/// Sensor `input`'s depth, corrected with its depth camera's correction where the rig has one.
-fn corrected_depth(input: &SensorImages, rig: &Rig) -> Result<Image<f32>, GeometryError> {
+/// Sensor `input`'s depth as its request prepares it ([`Request::prepare_depth`]), clipped to
+/// the depth range (the depth its samples and later z-buffers come from).
+fn prepared_depth(input: &SensorImages, request: &Request) -> Result<Image<f32>, GeometryError> {
     let mut depth = input.depth.clone();
-    if let Some(correction) = &rig.depth_correction {
-        correction.correct_image(&mut depth, 1.0)?;
-    }
-    Ok(depth)
+    request.prepare_depth(&mut depth)?;
+    let range = request.params().depth_range;
+    Ok(if range.is_all() { depth } else { range.clip(&depth).into_owned() })
 }
 
 /// A sensor's samples from its per-pixel stages' output.

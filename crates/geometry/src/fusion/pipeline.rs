@@ -31,6 +31,7 @@ use super::{
     hole_grow_px, hole_mask, linear_resample, mesh_from_depth, mesh_on_depth_grid, nearest_fill,
     project_cloud, remove_edge_faces, sample_spacing_px, zbuffer_points,
 };
+use super::{DepthRange, Request};
 use crate::fusion::ZBUFFER_EMPTY;
 use crate::{CameraModel, DepthKind, GeometryError, Image, PointCloud, Rig, RigidTransform};
 
@@ -48,6 +49,9 @@ pub struct PixelParams {
     pub occlusion_tolerance: Option<f32>,
     /// H7 z-buffer (`false`: first write wins, [`first_write_wins`]).
     pub zbuffer: bool,
+    /// H1's sample rule: depth values outside this range are not samples
+    /// ([`FusionOptions::depth_range`]; [`DepthRange::ALL`] keeps every sample).
+    pub depth_range: DepthRange,
 }
 
 impl PixelParams {
@@ -82,20 +86,33 @@ impl PixelParams {
             depth_jump: options.depth_jump,
             occlusion_tolerance: options.zbuffer.then_some(options.color_occlusion_tolerance),
             zbuffer: options.zbuffer,
+            depth_range: options.depth_range,
         }
     }
 }
 
-/// A fault in the pipeline's wiring for tests (feature `fault-injection`): while set,
+/// Faults in the pipeline's wiring for tests (feature `fault-injection`): while set,
 /// [`PixelParams::new`] gives H8 no growth radius, so every path that takes its parameters from
 /// it (a single frame, several Kinects, a sequence; on every engine) computes another hole
-/// mask. Off unless a test sets it; a process-wide switch, so a test that sets it runs alone
-/// in its test binary.
+/// mask; [`super::Request::prepare_depth`] makes every sample 2 % farther, so every door that
+/// prepares its depth through the request fuses another depth. Off unless a test sets them;
+/// process-wide switches, so a test that sets one runs alone in its test binary.
 #[cfg(feature = "fault-injection")]
 pub mod fault {
     use std::sync::atomic::{AtomicBool, Ordering};
 
     static HOLE_GROWTH_BROKEN: AtomicBool = AtomicBool::new(false);
+    static DEPTH_PREPARATION_BROKEN: AtomicBool = AtomicBool::new(false);
+
+    /// Breaks (`true`) or mends (`false`) the depth preparation of
+    /// [`super::super::Request::prepare_depth`].
+    pub fn break_depth_preparation(broken: bool) {
+        DEPTH_PREPARATION_BROKEN.store(broken, Ordering::SeqCst);
+    }
+
+    pub(in crate::fusion) fn depth_preparation_broken() -> bool {
+        DEPTH_PREPARATION_BROKEN.load(Ordering::SeqCst)
+    }
 
     /// Breaks (`true`) or mends (`false`) H8's growth radius in [`super::PixelParams::new`].
     pub fn break_hole_growth(broken: bool) {
@@ -345,6 +362,7 @@ impl PerPixel for CpuPixels {
         params: &PixelParams,
         timings: &mut StageTimings,
     ) -> Result<PerPixelOutput, GeometryError> {
+        let depth = &*params.depth_range.clip(depth);
         let proj = ColorProjection::from_rig(rig);
         let (cw, ch) = (rig.color.width, rig.color.height);
 
@@ -489,7 +507,8 @@ impl PerPixel for CpuPixels {
         }
         let s = self.stream_state(rig, kind, params)?;
         for (i, f) in frames.iter().enumerate() {
-            s.reg.register(f.depth)?;
+            let depth = &*params.depth_range.clip(f.depth);
+            s.reg.register(depth)?;
             if plan.holes {
                 s.reg.hole_mask(&mut s.mask);
             }
@@ -497,7 +516,7 @@ impl PerPixel for CpuPixels {
                 Some(color) if plan.color_on_depth => {
                     let zbuffer = s.reg.zbuffer_image();
                     let nearest = nearest_fill(&zbuffer, params.radius_px, params.depth_jump);
-                    Some(h6(f.depth, &s.rays, &s.proj, color, &nearest, params))
+                    Some(h6(depth, &s.rays, &s.proj, color, &nearest, params))
                 }
                 _ => None,
             };
@@ -540,22 +559,22 @@ pub fn stretch_test(rig: &Rig, options: &FusionOptions) -> StretchTest {
     }
 }
 
-/// Runs H1–H8 on one frame with the per-pixel stages on `engine` (see the module docs).
-/// With [`FusionOptions::zbuffer`] off the per-pixel stages run on [`CpuPixels`] whatever
-/// the engine.
+/// Runs H1–H8 on one frame of `request` with the per-pixel stages on `engine` (see the
+/// module docs). `depth` is prepared ([`Request::prepare_depth`]). With
+/// [`FusionOptions::zbuffer`] off the per-pixel stages run on [`CpuPixels`] whatever the
+/// engine.
 ///
 /// Errors: those of [`check_inputs`] (before any work), and the engine's.
 pub fn run_on<E: PerPixel>(
     engine: &mut E,
-    rig: &Rig,
+    request: &Request,
     depth: &Image<f32>,
-    kind: DepthKind,
     color: &Image<[u8; 3]>,
-    options: &FusionOptions,
 ) -> Result<FusionOutput, E::Error> {
+    let (rig, kind, options) = (request.rig(), request.kind(), request.options());
     let valid_depth_pixels = check_inputs(rig, depth, color, options)?;
     let mut timings = StageTimings::default();
-    let params = PixelParams::new(rig, options);
+    let params = request.params();
     let px = if options.zbuffer {
         engine.per_pixel(rig, depth, kind, color, &params, &mut timings)?
     } else {
@@ -677,10 +696,11 @@ pub fn run_on<E: PerPixel>(
     })
 }
 
-/// The per-pixel stages of [`run_on`] on a stream of frames of one rig, on `engine`: what
-/// `kfuse fuse --recording/--frames` runs per frame ([`PerPixel::per_pixel_stream`]; each
-/// frame's results lent to `sink` in order). With [`FusionOptions::zbuffer`] off the stages
-/// run on [`CpuPixels`] whatever the engine, as in [`run_on`].
+/// The per-pixel stages of [`run_on`] on a stream of frames of `request` (their depth
+/// prepared, [`Request::prepare_depth`]), on `engine`: what `kfuse fuse --recording/--frames`
+/// runs per frame ([`PerPixel::per_pixel_stream`]; each frame's results lent to `sink` in
+/// order). With [`FusionOptions::zbuffer`] off the stages run on [`CpuPixels`] whatever the
+/// engine, as in [`run_on`].
 ///
 /// Errors, before any work: an invalid rig, a coverage radius out of bounds
 /// ([`super::checked_coverage_radius_px`]), a frame whose depth or colour image is not of its
@@ -688,13 +708,12 @@ pub fn run_on<E: PerPixel>(
 /// (a stream goes on; [`run_on`] refuses such a frame).
 pub fn stream_on<E: PerPixel>(
     engine: &mut E,
-    rig: &Rig,
-    kind: DepthKind,
+    request: &Request,
     frames: &[StreamFrame<'_>],
-    options: &FusionOptions,
     plan: StreamPlan,
     sink: &mut dyn FnMut(usize, StreamResult<'_>),
 ) -> Result<(), E::Error> {
+    let (rig, kind, options) = (request.rig(), request.kind(), request.options());
     rig.validate()?;
     super::checked_coverage_radius_px(rig, options)?;
     for f in frames {
@@ -703,7 +722,7 @@ pub fn stream_on<E: PerPixel>(
             c.expect_size("colour image", rig.color.width, rig.color.height)?;
         }
     }
-    let params = PixelParams::new(rig, options);
+    let params = request.params();
     if options.zbuffer {
         engine.per_pixel_stream(rig, kind, frames, &params, plan, sink)
     } else {
@@ -711,7 +730,8 @@ pub fn stream_on<E: PerPixel>(
     }
 }
 
-/// Runs H1–H8 on one frame on the CPU ([`run_on`] with [`CpuPixels`]). `depth` is
+/// Runs H1–H8 on one frame on the CPU: the [`Request`] of `rig`, `kind` and `options`, its
+/// depth preparation on a copy of `depth`, and [`run_on`] with [`CpuPixels`]. `depth` is
 /// depth-camera-sized (metres, kind `kind`, NaN / 0 = no sample), `color` colour-camera-sized.
 ///
 /// Errors: [`GeometryError::SizeMismatch`] when an image does not match its camera in
@@ -725,5 +745,7 @@ pub fn run(
     color: &Image<[u8; 3]>,
     options: &FusionOptions,
 ) -> Result<FusionOutput, GeometryError> {
-    run_on(&mut CpuPixels::new(), rig, depth, kind, color, options)
+    let request = Request::new(rig, kind, *options)?;
+    let depth = request.prepared(depth)?;
+    run_on(&mut CpuPixels::new(), &request, &depth, color)
 }

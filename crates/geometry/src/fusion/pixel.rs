@@ -100,6 +100,20 @@ pub fn depth_ray_table(camera: &crate::CameraModel, kind: crate::DepthKind) -> V
         .collect()
 }
 
+/// The one "is this a depth sample" rule: `value > 0` and `value < +inf` (so NaN, 0, negative
+/// and infinite values are not). Every CPU stage that reads a depth value asks this;
+/// `backproject.wgsl`'s `is_sample` is its GPU twin.
+#[inline(always)]
+pub fn is_sample(value: f32) -> bool {
+    value > 0.0 && value < f32::INFINITY
+}
+
+/// [`is_sample`] within a depth range ([`super::DepthRange`]): also `min_m <= value <= max_m`.
+#[inline(always)]
+pub fn is_sample_in(value: f32, range: super::DepthRange) -> bool {
+    is_sample(value) && value >= range.min_m && value <= range.max_m
+}
+
 /// H1 for one pixel: the depth-camera point of depth `value` seen along `ray` (an entry of
 /// [`depth_ray_table`]). `None` when `value` is not a sample.
 ///
@@ -107,7 +121,7 @@ pub fn depth_ray_table(camera: &crate::CameraModel, kind: crate::DepthKind) -> V
 /// [`project_point`] rejects.
 #[inline]
 pub fn backproject_pixel(ray: [f32; 3], value: f32) -> Option<[f32; 3]> {
-    if !(value > 0.0 && value < f32::INFINITY) {
+    if !is_sample(value) {
         return None;
     }
     let z = value * ray[2];

@@ -131,7 +131,7 @@ fn project_block<const FLOAT_INDEX: bool, const SAME_STRIDE: bool>(
     let bprf = bits_per_row as f32;
     for i in 0..n {
         let value = depth[i];
-        let valid = value > 0.0 && value < f32::INFINITY;
+        let valid = super::pixel::is_sample(value);
         // backproject_pixel
         let zd = value * rs[i];
         let xd = [rx[i] * zd, ry[i] * zd, zd];

@@ -45,7 +45,7 @@ fn project_block(
     for i in 0..depth.len().min(BLOCK) {
         let value = depth[i];
         let ray = rays[i];
-        let valid = value > 0.0 && value < f32::INFINITY;
+        let valid = super::pixel::is_sample(value);
         let zd = value * ray[2];
         let xc = transform_point(p, [ray[0] * zd, ray[1] * zd, zd]);
         let zc = xc[2];
