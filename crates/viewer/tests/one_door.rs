@@ -57,7 +57,7 @@ fn multi(ring: &synth::KinectRing, depths: &[Image<f32>], colors: &[Image<[u8; 3
 }
 
 fn sequence(rig: &geometry::Rig, depth: &Image<f32>, color: &Image<[u8; 3]>) -> Vec<u16> {
-    let extras = Extras { holes: true, color_on_depth: false, cloud: false };
+    let extras = Extras { holes: true, color_on_depth: false, cloud: false, color_valid: false };
     let (engine, _) = Engine::Cpu.open().expect("engine");
     let options = FusionOptions::default();
     let mut p = Processor::new(rig, None, extras, KFUSE_UNITS_PER_METRE, &options, engine)
