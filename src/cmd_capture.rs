@@ -326,7 +326,7 @@ fn ring(sensors: u8) -> Option<SimRing> {
 impl CommonArgs {
     /// The sensors `--device` chooses; `None` without `--device` and a ring (the one sensor
     /// of today's capture).
-    fn chosen(&self) -> Result<Option<Vec<Connected>>> {
+    pub(crate) fn chosen(&self) -> Result<Option<Vec<Connected>>> {
         if self.devices.is_empty() {
             return Ok(None);
         }
@@ -335,12 +335,12 @@ impl CommonArgs {
     }
 
     /// `self` capturing from the one sensor of `chosen` (from [`CommonArgs::chosen`]), if any.
-    fn with_chosen(&self, chosen: Option<Vec<Connected>>) -> CommonArgs {
+    pub(crate) fn with_chosen(&self, chosen: Option<Vec<Connected>>) -> CommonArgs {
         let chosen_source = chosen.and_then(|c| c.into_iter().next()).map(|c| c.source);
         CommonArgs { chosen_source, ..self.clone() }
     }
 
-    fn source(&self) -> SensorSource {
+    pub(crate) fn source(&self) -> SensorSource {
         if let Some(s) = &self.chosen_source {
             return s.clone();
         }
@@ -361,15 +361,16 @@ impl CommonArgs {
                 ring: ring(self.sim_sensors),
                 fault_sensor: self.sim_fault_sensor.clone(),
                 same_serial: self.sim_same_serial,
+                real_time: false,
             }),
         }
     }
 
-    fn settings(&self) -> ColorSettings {
+    pub(crate) fn settings(&self) -> ColorSettings {
         ColorSettings { exposure: self.exposure, led: self.led.map(|l| l.setting(self.led_id)) }
     }
 
-    fn decoder(&self) -> DecoderOptions {
+    pub(crate) fn decoder(&self) -> DecoderOptions {
         let precision =
             if self.exact_decoder { DecoderPrecision::Exact } else { DecoderPrecision::Fast };
         DecoderOptions { no_filters: self.no_filters, precision }
@@ -448,8 +449,13 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
 
 /// Opens the sensor and applies `--exposure` / `--led`, printing what the sensor reads back. A
 /// refused setting is an error (the user asked for it); the simulator's report is still written.
-fn start(common: &CommonArgs) -> Result<Session> {
-    let source = common.source();
+pub(crate) fn start(common: &CommonArgs) -> Result<Session> {
+    start_source(common, common.source())
+}
+
+/// [`start`] of `source` (the one `common` gives, changed by the caller: `kfuse serve` runs
+/// the simulator in real time).
+pub(crate) fn start_source(common: &CommonArgs, source: SensorSource) -> Result<Session> {
     eprintln!("starting the {}…", source.name());
     // Opening renders the simulator's scene (seconds for the calibration scene's 17 poses) or
     // starts a real sensor: on a worker thread, so that Ctrl-C is answered within
@@ -470,7 +476,7 @@ fn start(common: &CommonArgs) -> Result<Session> {
 }
 
 /// Writes `--sim-report` (the simulated device's colour settings, LEDs and protocol violations).
-fn write_sim_report(common: &CommonArgs, session: &Session) -> Result<()> {
+pub(crate) fn write_sim_report(common: &CommonArgs, session: &Session) -> Result<()> {
     if let Some(path) = &common.sim_report {
         session.write_sim_report(path)?;
     }

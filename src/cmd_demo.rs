@@ -104,6 +104,12 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         voxel_size: None,
         truncation: None,
         sequence: Default::default(),
+        live: false,
+        sets: None,
+        tolerance_ms: None,
+        stale_after: None,
+        wait: None,
+        net: Default::default(),
     };
     let result =
         cmd_fuse::run(&fuse).map_err(|e| match e.downcast::<crate::interrupt::Interrupted>() {

@@ -16,6 +16,7 @@ use crate::figures;
 
 mod checks;
 mod inputs;
+pub mod live;
 pub mod multi;
 pub mod sequence;
 
@@ -81,11 +82,11 @@ pub struct FuseArgs {
     pub rig: Option<PathBuf>,
     /// Colour image (PNG, JPEG, TIFF or BMP), as captured (distorted) or rectified (then
     /// --rectified). With --mat it replaces the file's image.
-    #[arg(long, value_name = "C.png", required_unless_present_any = ["mat", "recording", "frames", "sensor"])]
+    #[arg(long, value_name = "C.png", required_unless_present_any = ["mat", "recording", "frames", "sensor", "live"])]
     pub color: Option<PathBuf>,
     /// Depth image of the depth camera, as captured or rectified. With --mat it replaces the
     /// file's depth (e.g. the handout's Depth_rect.tif).
-    #[arg(long, value_name = "D.png", required_unless_present_any = ["mat", "recording", "frames", "sensor"])]
+    #[arg(long, value_name = "D.png", required_unless_present_any = ["mat", "recording", "frames", "sensor", "live"])]
     pub depth: Option<PathBuf>,
     /// What the depth values measure: z (along the optical axis, Kinect) or range (distance to
     /// the optical centre).
@@ -193,6 +194,31 @@ pub struct FuseArgs {
     /// A whole recording or frame folder instead of one frame.
     #[command(flatten)]
     pub sequence: sequence::SequenceArgs,
+    /// Fuse live: subscribe to the sensors of --rig (a rig of several sensors), each published
+    /// by `kfuse serve` on its own PC over Zenoh, match one frame per sensor in time and fuse
+    /// each matched set as `--sensor` images are fused, into OUT/sets/NNNNNN/ (what arrived:
+    /// OUT/frames/NNNNNN/; OUT/live.json: every set, its spread and latency, each sensor's
+    /// counters). A sensor that stops is reported and the others go on.
+    #[arg(long, requires = "rig", conflicts_with_all = ["color", "depth", "mat", "sensor", "shot"])]
+    pub live: bool,
+    /// With --live: stop after this many fused sets (default: until Ctrl-C or SIGTERM).
+    #[arg(long, value_name = "N", requires = "live", value_parser = clap::value_parser!(u64).range(1..))]
+    pub sets: Option<u64>,
+    /// With --live: the largest spread of a set's frames (newest minus oldest arrival on the
+    /// sensors' PCs), milliseconds (default 25: free-running sensors at 30 Hz are always
+    /// within 25 ms for up to 4 sensors).
+    #[arg(long, value_name = "MS", requires = "live", value_parser = live::parse_tolerance_ms)]
+    pub tolerance_ms: Option<f64>,
+    /// With --live: a sensor whose newest frame is older than this many seconds is reported
+    /// as stopped and left out of the sets until it sends again (default 1).
+    #[arg(long, value_name = "S", requires = "live", value_parser = live::parse_stale_s)]
+    pub stale_after: Option<f64>,
+    /// With --live: give up when no set could be fused for this many seconds (default 30).
+    #[arg(long, value_name = "S", requires = "live", value_parser = crate::cmd_capture::parse_interval)]
+    pub wait: Option<f64>,
+    /// The network of --live (Zenoh endpoints, ROS domain).
+    #[command(flatten)]
+    pub net: crate::cmd_serve::NetArgs,
 }
 
 /// `--engine cpu|gpu|auto` (the CLI of `fuse` and `view`).

@@ -12,6 +12,7 @@ mod calibrate_report;
 mod cmd_calibrate;
 mod cmd_capture;
 mod cmd_rig;
+mod cmd_serve;
 mod cmd_undistort;
 mod interrupt;
 
@@ -44,6 +45,8 @@ enum Command {
     Devices(cmd_capture::DevicesArgs),
     /// Capture from a Kinect v2: calibration shots, scenes, raw recordings.
     Capture(cmd_capture::CaptureArgs),
+    /// Publish one Kinect v2 over Zenoh (ROS 2 topics via rmw_zenoh's keys) for `kfuse fuse --live`.
+    Serve(cmd_serve::ServeArgs),
 }
 
 /// Exit status when standard output is closed before kfuse is done writing to it (`kfuse
@@ -99,6 +102,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!("frames: x right, y down, z forward; the depth camera is the reference");
             println!("poses: color_from_depth maps X_depth to X_color = R X_depth + T (metres)");
         }
+        Command::Fuse(args) if args.live => cmd_fuse::live::run(&args)?,
         Command::Fuse(args) if cmd_fuse::multi::is_multi(&args) => {
             cmd_fuse::multi::run(&args)?;
         }
@@ -111,6 +115,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::View(args) => cmd_view::run(&args)?,
         Command::Devices(a) => cmd_capture::run_devices(a)?,
         Command::Capture(a) => cmd_capture::run_capture(a)?,
+        Command::Serve(a) => cmd_serve::run(a)?,
     }
     Ok(())
 }

@@ -95,7 +95,7 @@ fn mesh_names(serial: &str) -> [String; 4] {
 }
 
 /// Refuses a sensor name that cannot name a file.
-fn check_serial_for_files(serial: &str, rig: &Path) -> Result<()> {
+pub(super) fn check_serial_for_files(serial: &str, rig: &Path) -> Result<()> {
     let ok = !serial.is_empty()
         && serial.chars().count() <= MAX_SERIAL_CHARS
         && !serial.starts_with('.')
@@ -112,7 +112,7 @@ fn check_serial_for_files(serial: &str, rig: &Path) -> Result<()> {
 
 /// Reads `--rig` as a rig of several cameras (version 2), its plausibility checked unless
 /// `force` (then the problems are printed as warnings).
-fn read_rig(path: &Path, force: bool) -> Result<MultiRig> {
+pub(super) fn read_rig(path: &Path, force: bool) -> Result<MultiRig> {
     let Some(rig) = calib::rig_io::load_multi(path)? else {
         bail!(
             "{}: not a rig of several cameras (version 2): --sensor/--frames of several Kinects need one; make it with `kfuse calibrate --camera NAME=GLOB ...` (a two-camera rig fuses one Kinect: --color/--depth)",

@@ -89,6 +89,16 @@ impl FramePump {
         self.color_timestamp
     }
 
+    /// When the newest decoded depth frame arrived (its last packet completed, host time).
+    pub fn depth_arrived(&self) -> Option<Instant> {
+        self.depth_at
+    }
+
+    /// When the newest colour frame arrived (host time).
+    pub fn color_arrived(&self) -> Option<Instant> {
+        self.color_at
+    }
+
     /// Depth frames decoded so far.
     pub fn depth_frames(&self) -> u64 {
         self.depth_frames

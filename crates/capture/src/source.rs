@@ -77,6 +77,11 @@ pub struct SimOptions {
     /// With a ring: the second sensor reports the first one's serial (tests of two Kinects
     /// with the same serial number).
     pub same_serial: bool,
+    /// Produce frames at the sensor's 30 Hz of host time whether anyone reads or not
+    /// (`kinect_usb::sim::SimPacing::RealTime`: a slow reader loses frames, newest wins, as
+    /// with a real sensor; `kfuse serve`). Off: one frame each time one is asked for
+    /// (lockstep, deterministic; captures and tests).
+    pub real_time: bool,
 }
 
 /// One sensor of a ring of simulated Kinects (`kfuse --backend sim --sim-sensors N`).
@@ -264,7 +269,16 @@ pub fn sim_device(options: &SimOptions) -> Result<SimDevice, CaptureError> {
             })?;
     }
     add_depth_error(&mut scene, options);
-    Ok(SimDevice::new(profile, scene, sim_faults(options)))
+    let mut dev = SimDevice::new(profile, scene, sim_faults(options));
+    set_pacing(&mut dev, options);
+    Ok(dev)
+}
+
+/// [`SimOptions::real_time`]'s pacing.
+fn set_pacing(dev: &mut SimDevice, options: &SimOptions) {
+    if options.real_time {
+        dev.pacing = kinect_usb::sim::SimPacing::RealTime;
+    }
 }
 
 /// The depth error `--sim-depth-error` injects, applied to every depth frame of `scene`.
@@ -314,6 +328,7 @@ fn ring_device(options: &SimOptions, r: &SimRing) -> Result<SimDevice, CaptureEr
     profile.serial = r.serial.clone();
     let mut dev = SimDevice::new(profile, scene, sim_faults(options));
     dev.set_timestamp(ring_clock_origin(r.index));
+    set_pacing(&mut dev, options);
     Ok(dev)
 }
 

@@ -141,6 +141,8 @@ pub struct SensorCounters {
     pub replaced: u64,
     /// Frames the sensor's publisher did not publish (newest wins there too), from its status.
     pub publisher_dropped: u64,
+    /// Payload bytes received (every message kept or not, over its limit or not).
+    pub bytes: u64,
 }
 
 /// One sensor's state in the receiver.
@@ -192,6 +194,7 @@ impl SensorHold {
 
     /// Takes one message of `topic`.
     fn take(&mut self, topic: LiveTopic, payload: &[u8], attachment: Option<&[u8]>) {
+        self.counters.bytes += payload.len() as u64;
         if payload.len() > topic.max_bytes() {
             let why = format!("{} bytes, over its {}-byte limit", payload.len(), topic.max_bytes());
             return self.refuse(garbage("a message", format!("{topic:?}: {why}")));
@@ -295,6 +298,7 @@ impl Receiver {
                     let mut sensors = sh.sensors.lock().unwrap_or_else(|p| p.into_inner());
                     let hold = &mut sensors[k];
                     if payload.len() > topic.max_bytes() {
+                        hold.counters.bytes += payload.len() as u64;
                         hold.refuse(garbage(
                             "a message",
                             format!(
