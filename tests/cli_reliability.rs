@@ -453,6 +453,84 @@ fn a_reused_out_holding_the_working_folder_is_updated_in_place() {
     let _ = std::fs::remove_dir_all(&case.dir);
 }
 
+/// `fuse --out .` (the working folder: it cannot be replaced as a whole, so the entries move
+/// in one by one) killed in the middle of its publication (issue 51: the old and new outputs
+/// stayed mixed): the killed run leaves its journal; the next kfuse run into the folder
+/// finishes the publication before anything else, even a run that then fails on its input,
+/// and the folder is exactly the uninterrupted run's output with the user's file kept.
+#[cfg(unix)]
+#[test]
+fn out_dot_killed_in_the_middle_of_its_publication_is_finished_by_the_next_run() {
+    let case = small_case("out-dot-killed");
+    let out = case.dir.join("here");
+    let in_here = |point: Option<&str>, color: &Path, extra: &[&str]| {
+        let mut c = common::kfuse_command();
+        c.current_dir(&out)
+            .args(["fuse", "--rig", s(&case.rig), "--color", s(color)])
+            .args(["--depth", s(&case.depth), "--out", "."])
+            .args(extra);
+        if let Some(p) = point {
+            c.env(kfuse_io::atomic::KILL_AT_ENV, p);
+        }
+        c.output().unwrap()
+    };
+    let first_run = || {
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir(&out).unwrap();
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        let o = in_here(None, &case.color, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        names(&out)
+    };
+    let contents = |dir: &Path| -> Vec<(String, Vec<u8>)> {
+        names(dir)
+            .into_iter()
+            .filter(|n| std::fs::metadata(dir.join(n)).unwrap().is_file())
+            .map(|n| (n.clone(), std::fs::read(dir.join(&n)).unwrap()))
+            .collect()
+    };
+    // The uninterrupted second run (without figures: fewer entries than the first).
+    let old = first_run();
+    let o = in_here(None, &case.color, &["--no-figures"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let new = names(&out);
+    // summary.json without its timings (which differ run to run).
+    let summary = || {
+        let text = std::fs::read_to_string(out.join("summary.json")).unwrap();
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v["summary"].as_object_mut().unwrap().remove("timings_ms");
+        v
+    };
+    let new_summary = summary();
+    assert!(old.len() > new.len() + 2 && new.contains(&"notes.txt".to_string()), "{new:?}");
+    assert!(new.iter().all(|n| !n.contains("kfuse-") || n == ".kfuse-manifest.json"), "{new:?}");
+    let missing = case.dir.join("no-such-colour.png");
+    for point in ["journaled", "moving", "published"] {
+        first_run();
+        let o = in_here(Some(point), &case.color, &["--no-figures"]);
+        assert_eq!(o.status.code(), Some(137), "{point}: {}", String::from_utf8_lossy(&o.stderr));
+        if point == "moving" {
+            // The moment the journal exists for: some old entries gone, one new one in.
+            let now = names(&out);
+            assert!(now.contains(&".kfuse-publishing.json".to_string()), "{point}: {now:?}");
+            assert!(now != old && now != new, "{point}: {now:?}");
+        }
+        // The next run fails on its missing colour image, after --out was opened.
+        let o = in_here(None, &missing, &[]);
+        assert_eq!(o.status.code(), Some(1), "{point}: {}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(names(&out), new, "{point}: not the new output");
+        assert_eq!(summary(), new_summary, "{point}");
+        assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine", "{point}");
+    }
+    // Run after run, the same folder: nothing accumulates.
+    let before = contents(&out);
+    let o = in_here(None, &case.color, &["--no-figures"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(names(&out), new);
+    assert_eq!(contents(&out).len(), before.len());
+    let _ = std::fs::remove_dir_all(&case.dir);
+}
+
 #[test]
 fn undistort_checks_everything_before_writing_anything() {
     let case = small_case("undistort");
