@@ -109,6 +109,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         tolerance_ms: None,
         stale_after: None,
         wait: None,
+        live_match_only: false,
         net: Default::default(),
     };
     let result =

@@ -216,6 +216,10 @@ pub struct FuseArgs {
     /// With --live: give up when no set could be fused for this many seconds (default 30).
     #[arg(long, value_name = "S", requires = "live", value_parser = crate::cmd_capture::parse_interval)]
     pub wait: Option<f64>,
+    /// With --live: match sets and record them in live.json without writing or fusing them
+    /// (the transport's and the matching's own rate, for `benches/live.sh`).
+    #[arg(long, requires = "live", hide = true)]
+    pub live_match_only: bool,
     /// The network of --live (Zenoh endpoints, ROS domain).
     #[command(flatten)]
     pub net: crate::cmd_serve::NetArgs,

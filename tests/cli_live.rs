@@ -400,3 +400,37 @@ fn garbage_on_the_keys_is_refused_and_counted() {
     drop(pubs);
     let _ = z.close().wait();
 }
+
+/// A `serve` given a rig that does not name its sensor is refused by name before it publishes:
+/// its frames would be fused with another sensor's pose.
+#[test]
+fn a_rig_without_the_sensor_is_refused_by_name() {
+    let dir = scratch("live-wrong-rig");
+    let rig = dir.join("ring3.json");
+    kfuse_io::rig::write_multi_rig(&rig, &kfuse_capture::source::sim_true_rig(3).unwrap()).unwrap();
+    let port = free_port();
+    let run = kfuse(&[
+        "serve",
+        "--backend",
+        "sim",
+        "--sim-sensors",
+        "4",
+        "--device",
+        "000000000004",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--listen",
+        &endpoint(port),
+        "--no-multicast",
+        "--frames",
+        "1",
+    ]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{err}");
+    assert!(
+        err.contains("has no sensor 000000000004")
+            && err.contains("000000000001, 000000000002, 000000000003"),
+        "{err}"
+    );
+    assert_eq!(err.matches("error:").count(), 1, "one error line: {err}");
+}

@@ -139,9 +139,6 @@ fn check_flags(args: &FuseArgs) -> Result<()> {
     if args.sequence.recording.is_some() || args.sequence.frames.is_some() {
         bail!("--live fuses the sensors as they publish: drop --recording/--frames");
     }
-    if args.virtual_view.is_some() {
-        // Allowed: it is a flag of the fusion of several sensors, passed on per set.
-    }
     Ok(())
 }
 
@@ -379,17 +376,19 @@ pub fn run(args: &FuseArgs) -> Result<()> {
         let missing: Vec<String> =
             sensors.iter().filter(|s| !parts.iter().any(|p| &p.0 == *s)).cloned().collect();
         let t0 = Instant::now();
-        let (sensor_args, rig_for_set) = write_frames(out, k, &rig, rig_path, &parts, &record)?;
         let set_out = out.join("sets").join(format!("{k:06}"));
-        let fuse_args = FuseArgs {
-            live: false,
-            sets: None,
-            rig: Some(rig_for_set),
-            sensor: sensor_args,
-            out: set_out.clone(),
-            ..args.clone()
-        };
-        super::multi::run(&fuse_args).with_context(|| format!("fusing set {k}"))?;
+        if !args.live_match_only {
+            let (sensor_args, rig_for_set) = write_frames(out, k, &rig, rig_path, &parts, &record)?;
+            let fuse_args = FuseArgs {
+                live: false,
+                sets: None,
+                rig: Some(rig_for_set),
+                sensor: sensor_args,
+                out: set_out.clone(),
+                ..args.clone()
+            };
+            super::multi::run(&fuse_args).with_context(|| format!("fusing set {k}"))?;
+        }
         let newest = set.iter().map(|c| c.depth_ns).max().unwrap_or(0);
         let rec = SetRecord {
             set: k,
@@ -398,8 +397,13 @@ pub fn run(args: &FuseArgs) -> Result<()> {
             spread_ms: spread_ns(&set) as f64 / 1e6,
             latency_ms: unix_now_ns().saturating_sub(newest) as f64 / 1e6,
             fuse_ms: t0.elapsed().as_secs_f64() * 1e3,
-            out: set_out.display().to_string(),
+            out: if args.live_match_only { String::new() } else { set_out.display().to_string() },
         };
+        if args.live_match_only {
+            records.push(rec);
+            last_set = Instant::now();
+            continue;
+        }
         eprintln!(
             "set {k}: {} sensors{}, spread {:.1} ms, latency {:.0} ms -> {}",
             rec.frames.len(),
@@ -418,6 +422,9 @@ pub fn run(args: &FuseArgs) -> Result<()> {
     };
     let holds = receiver.snapshot();
     summary(&records, &holds, &live)?;
+    if args.live_match_only {
+        println!("matched {} set(s) (not fused: --live-match-only)", records.len());
+    }
     for h in &holds {
         let c = &h.counters;
         if c.garbage > 0 {
@@ -438,7 +445,9 @@ pub fn run(args: &FuseArgs) -> Result<()> {
     drop(receiver);
     let _ = zenoh::Wait::wait(zenoh.close());
     result?;
-    println!("fused {} set(s) into {}", records.len(), out.join("sets").display());
+    if !args.live_match_only {
+        println!("fused {} set(s) into {}", records.len(), out.join("sets").display());
+    }
     if crate::interrupt::requested() {
         crate::interrupt::check(&format!(
             ": {} set(s) fused into {}",

@@ -39,7 +39,8 @@ pub struct Status {
     pub depth_dropped: u64,
     /// Colour frames not published, likewise.
     pub color_dropped: u64,
-    /// Bytes of this frame's messages (depth, IR, colour when new, camera infos).
+    /// Bytes of this depth frame's messages (depth, IR, both camera infos; the colour is
+    /// published on its own when it arrives).
     pub frame_bytes: u64,
 }
 
