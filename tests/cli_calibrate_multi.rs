@@ -21,7 +21,8 @@ const MAX_SIGMAS: f64 = 3.0;
 /// poses per neighbouring pair (`SHARED_POSES`: sideways, near and far, tilted), 10–65° off
 /// each camera's axis at 1.6–2.6 m; the fit's own σ of a centre between sensors is 1.0–2.1 mm
 /// per axis (three shared poses left 3–5 mm and 1.99 mm errors). Measured on this capture: at
-/// most 0.76 mm (0.45 σ; the test prints the table). A wrong pose graph is off by decimetres.
+/// most 0.76 mm (0.45 σ of the centre σ before issue 52 fixed its sign error, which made σ
+/// 2.5× too large; the test prints the table). A wrong pose graph is off by decimetres.
 const MAX_CENTER_ERROR_MM: f64 = 1.0;
 /// Bound on each camera rotation's error, degrees: issue 32's 0.05°; measured at most
 /// 0.037°.
@@ -120,9 +121,14 @@ fn joint_calibration_of_a_three_kinect_ring_against_its_true_rig() {
                 (0..3).map(|a| entry["center_std_1sigma_mm"][a].as_f64().unwrap()).collect();
             let err_mm: Vec<f64> = (0..3).map(|a| (g[a] - w[a]) * 1e3).collect();
             let norm = err_mm.iter().map(|e| e * e).sum::<f64>().sqrt();
-            let sigmas = (0..3)
-                .map(|a| if sd[a] > 0.0 { err_mm[a].abs() / sd[a] } else { 0.0 })
-                .fold(0.0, f64::max);
+            // σ = 0 only for the reference (fixed at the identity); elsewhere it would make
+            // every error "infinitely many σ" or, skipped, hide a broken uncertainty.
+            let sigmas = if name == "000000000001.depth" {
+                0.0
+            } else {
+                assert!(sd.iter().all(|s| *s > 0.0), "{name}: centre σ {sd:?} mm");
+                (0..3).map(|a| err_mm[a].abs() / sd[a]).fold(0.0, f64::max)
+            };
             let rot = got.angle_to(&want);
             eprintln!(
                 "{name:<20} centre error {norm:6.2} mm ({:.2}, {:.2}, {:.2}; σ {:.2}, {:.2}, {:.2}; {sigmas:.2} σ), rotation {rot:.3}°",

@@ -311,12 +311,16 @@ pub fn calibrate_multi(
                 rot[j] = block[(j, j)].max(0.0).sqrt();
                 tr[j] = block[(3 + j, 3 + j)].max(0.0).sqrt();
             }
-            // Centre C = −Rᵀt; with R ← exp(δ)R, t ← t + τ: ∂C/∂δ = Rᵀ[t]×, ∂C/∂τ = −Rᵀ.
+            // Centre C = −Rᵀt; with R ← exp(δ)R, t ← t + τ: C ← −Rᵀ(I − [δ]×)(t + τ) =
+            // C − Rᵀτ + Rᵀ(δ × t) = C − Rᵀτ − Rᵀ[t]×δ, so ∂C/∂τ = −Rᵀ, ∂C/∂δ = −Rᵀ[t]×. The
+            // sign matters: δ and τ are strongly correlated (a camera turned about its centre
+            // moves t), and their cross terms cancel most of the two blocks' variance (with
+            // +Rᵀ[t]× they added: σ of the centres 2.5× too large, issue 52).
             let rt = pose.rotation.matrix().transpose();
             let t = pose.translation;
             let skew = nalgebra::Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
             let mut j = nalgebra::Matrix3x6::zeros();
-            j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(rt * skew));
+            j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-(rt * skew)));
             j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-rt));
             let cc = j * block * j.transpose();
             for k in 0..3 {

@@ -34,6 +34,13 @@ const VIEWS_PER_SENSOR: usize = 6;
 /// Board poses between two sensors (seen by both pairs): they carry the sensor-to-sensor
 /// poses, so there are more of them.
 const VIEWS_PER_PAIR: usize = 26;
+/// Views between k0 and k1 kept in the smaller ring of the shuffled-ids test: all of them
+/// (the k0–k1 pose rests on them alone; its fit takes under a second).
+const SMALL_RING_PAIR_VIEWS: u64 = 26;
+/// Rotation bar of that smaller ring with its true ids, degrees: twice the full ring's
+/// [`MAX_ROTATION_ERROR_DEG`] (one pair's views carry the k0–k1 pose; measured 0.051°); a view
+/// id naming another board pose puts a camera tens of degrees off.
+const SMALL_RING_MAX_ROTATION_DEG: f64 = 0.1;
 
 struct Truth {
     models: Vec<CameraModel>,
@@ -211,12 +218,99 @@ fn errors(truth: &Truth, r: &super::MultiCalibration) -> Vec<(String, f64, f64, 
             let e = ce - ct;
             let rot = (t.rotation.inverse() * est.rotation).angle().to_degrees();
             let sig = rep.center_std_m;
-            let in_sigma = (0..3)
-                .map(|k| if sig[k] > 0.0 { e[k].abs() / sig[k] } else { 0.0 })
-                .fold(0.0, f64::max);
+            let in_sigma = if c.name == r.rig.reference {
+                0.0
+            } else {
+                assert!(sig.iter().all(|s| *s > 0.0), "{}: centre σ {sig:?}", c.name);
+                (0..3).map(|k| e[k].abs() / sig[k]).fold(0.0, f64::max)
+            };
             (c.name.clone(), e.norm(), sig.norm(), rot, in_sigma)
         })
         .collect()
+}
+
+/// Per non-reference camera: its pose's six errors (fit − truth) over their σ: the rotation's
+/// left perturbation δ (R_fit = exp(δ)·R_true, the solver's parameters) over
+/// `rotation_std_rad`, then the centre in the reference frame over `center_std_m`.
+fn pose_z(truth: &Truth, r: &super::MultiCalibration) -> Vec<(String, [f64; 6])> {
+    let ref_from_world = truth.cam_from_world[0];
+    r.rig
+        .cameras
+        .iter()
+        .zip(&r.cameras)
+        .enumerate()
+        .filter(|(_, (c, _))| c.name != r.rig.reference)
+        .map(|(ci, (c, rep))| {
+            let (rs, cs) = (rep.rotation_std_rad, rep.center_std_m);
+            assert!(rs.iter().chain(cs.iter()).all(|s| *s > 0.0), "{}: σ {rs:?} {cs:?}", c.name);
+            let t = truth.cam_from_world[ci].compose(&ref_from_world.inverse());
+            let est = c.camera_from_reference;
+            let delta = (est.rotation * t.rotation.inverse()).scaled_axis();
+            let dc = est.inverse().translation - t.inverse().translation;
+            let z =
+                std::array::from_fn(
+                    |k| if k < 3 { delta[k] / rs[k] } else { dc[k - 3] / cs[k - 3] },
+                );
+            (c.name.clone(), z)
+        })
+        .collect()
+}
+
+/// Seeds of the σ check: six independent rings of noise and board poses.
+const SIGMA_SEEDS: std::ops::RangeInclusive<u64> = 1..=6;
+/// Independent values per seed among the 15 rotation errors over σ (5 cameras × 3), and
+/// likewise among the 15 centre errors: a sensor's colour camera moves with its IR camera
+/// (their centres differ by the fixed baseline), so the 15 carry about 9 (k0.color's 3, k1's
+/// 3, k2's 3), and the two sensors' poses are correlated through the shared board poses: 4
+/// is a conservative count.
+const SIGMA_EFFECTIVE_PER_SEED: f64 = 4.0;
+/// The normal quantile of the band's two tails (0.5 % each).
+const SIGMA_BAND_Z: f64 = 2.576;
+
+/// The (0.5 %, 99.5 %) quantiles of sqrt(χ²_k / k), the RMS of k independent standard normal
+/// values, by the Wilson–Hilferty approximation (χ²_k/k ≈ (1 − 2/(9k) + z·sqrt(2/(9k)))³,
+/// within 0.3 % of the exact quantile for k ≥ 30).
+fn rms_band(k: f64) -> (f64, f64) {
+    let a = 2.0 / (9.0 * k);
+    let q = |z: f64| (1.0 - a + z * a.sqrt()).powi(3).sqrt();
+    (q(-SIGMA_BAND_Z), q(SIGMA_BAND_Z))
+}
+
+/// σ is honest from both sides: over [`SIGMA_SEEDS`] rings, the errors of every camera's
+/// rotation against the truth divided by their σ, and those of its centre, each have an RMS
+/// within the 99 % band of [`rms_band`] for the effective count of values. An inflated σ (×3:
+/// RMS 0.32) or a deflated one fails, and so does σ = 0 (asserted in `pose_z`). The centres'
+/// σ with the sign of ∂C/∂δ flipped (the bug this caught) gave 0.576, below the band's 0.640.
+#[test]
+fn multi_ring_sigma_matches_the_errors() {
+    let truth = ring();
+    let b = board();
+    let (mut rot, mut centre) = (Vec::new(), Vec::new());
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    for seed in SIGMA_SEEDS {
+        let r = calibrate_multi(&b, &views(&truth, &b, seed), None).expect("joint calibration");
+        let z = pose_z(&truth, &r);
+        let (r0, c0) = (rot.len(), centre.len());
+        for (_, v) in &z {
+            rot.extend_from_slice(&v[..3]);
+            centre.extend_from_slice(&v[3..]);
+        }
+        println!(
+            "seed {seed}: RMS of error/σ, rotations {:.3}, centres {:.3}",
+            rms(&rot[r0..]),
+            rms(&centre[c0..])
+        );
+    }
+    let k = SIGMA_EFFECTIVE_PER_SEED * SIGMA_SEEDS.count() as f64;
+    let (lo, hi) = rms_band(k);
+    for (what, v) in [("rotations", &rot), ("centres", &centre)] {
+        let x = rms(v);
+        println!(
+            "{what}: RMS of error/σ {x:.3} over {} values; band {lo:.3}..{hi:.3} ({k} effective)",
+            v.len()
+        );
+        assert!((lo..=hi).contains(&x), "{what}: RMS of error/σ {x:.3} outside {lo:.3}..{hi:.3}");
+    }
 }
 
 #[test]
@@ -294,6 +388,70 @@ fn multi_shuffled_view_ids_are_visible() {
             assert!(msg.contains("k1.ir") && msg.contains("shot number"), "{msg}");
         }
     }
+}
+
+/// The shipped settings (`CalibFlags::default()`: outlier rejection on) on a smaller ring:
+/// sensors k0 and k1 only (four cameras), their own views and the first
+/// [`SMALL_RING_PAIR_VIEWS`] of the views between them. With camera k1.ir's view ids rotated
+/// among its own views, the outcome is the refusal `ViewsDisagree` naming k1.ir: the spanning
+/// tree's edge to or from k1.ir has at least `EDGE_CHECK_MIN_VIEWS` shared views, and with
+/// every id naming another board pose fewer than half of them agree with the edge's medoid,
+/// so the check refuses before any joint fit (and its outlier rounds) runs. The same small
+/// ring with its true ids calibrates (every camera within 3σ and 5 mm), so the refusal is the
+/// shuffle's.
+#[test]
+fn multi_shuffled_view_ids_refused_with_the_shipped_settings() {
+    let truth = ring();
+    let b = board();
+    let mut cams = views(&truth, &b, 32);
+    cams.truncate(4);
+    // View ids: VIEWS_PER_SENSOR per sensor (k0's, k1's, k2's), then VIEWS_PER_PAIR per pair
+    // (k0–k1 first).
+    let pair01 = 3 * VIEWS_PER_SENSOR as u64;
+    for c in &mut cams {
+        assert!(c.flags.reject_outliers, "the shipped settings");
+        c.views.retain(|&id, _| {
+            id < 2 * VIEWS_PER_SENSOR as u64
+                || (pair01..pair01 + SMALL_RING_PAIR_VIEWS).contains(&id)
+        });
+    }
+    let r = calibrate_multi(&b, &cams, None).expect("the small ring with its true ids");
+    // The fit's cameras are the ring's first four, in order (`errors` pairs them by index).
+    // Two sensors only: the k0–k1 pose rests on one pair's views (1.35 mm and 0.051° off,
+    // 1.3σ), not within the full ring's 1 mm and 0.05°; far below the shuffled case's
+    // visibly-wrong bar.
+    for (name, e, _, rot, ns) in &errors(&truth, &r) {
+        println!(
+            "true ids: {name}: centre error {:.3} mm ({ns:.2} σ), rotation {rot:.4}°",
+            e * 1e3
+        );
+        assert!(*e < BROKEN_MIN_ERROR_M, "{name}: centre error {:.3} mm", e * 1e3);
+        assert!(*ns < MAX_SIGMAS, "{name}: centre error {ns:.2} σ");
+        assert!(*rot < SMALL_RING_MAX_ROTATION_DEG, "{name}: rotation error {rot:.4}°");
+    }
+    // Camera k1.ir: its view ids rotated among its own views.
+    let c = &mut cams[2];
+    assert_eq!(c.name, "k1.ir");
+    let keys: Vec<u64> = c.views.keys().copied().collect();
+    let vals: Vec<ViewCorners> = c.views.values().cloned().collect();
+    c.views = keys.iter().copied().zip(vals.into_iter().cycle().skip(1)).collect();
+    let e = match calibrate_multi(&b, &cams, None) {
+        Ok(r) => panic!(
+            "shuffled ids not refused: RMS {:.2} px, {} corners rejected",
+            r.rms_px, r.rejected_corners
+        ),
+        Err(e) => e,
+    };
+    let msg = e.to_string();
+    println!("shuffled, shipped settings: {msg}");
+    match &e {
+        CalibError::ViewsDisagree { camera, parent, shared, agreeing } => {
+            assert!(camera == "k1.ir" || parent == "k1.ir", "{msg}");
+            assert!(2 * agreeing < *shared, "{msg}");
+        }
+        _ => panic!("not ViewsDisagree: {msg}"),
+    }
+    assert!(msg.contains("k1.ir") && msg.contains("shot number"), "{msg}");
 }
 
 #[test]
