@@ -1,4 +1,6 @@
 //! The WGSL sources of every stage, compiled into the crate from the workspace's `shaders/`.
+//! The three decode shaders share one preamble, `shaders/include/decode_params.wgsl` (their
+//! `Params` and the frame's size), put before each of them here.
 
 /// H1 back-projection (`main`).
 pub const BACKPROJECT: &str = include_str!("../../../shaders/backproject.wgsl");
@@ -17,11 +19,20 @@ pub const PLANE_FILL: &str = include_str!("../../../shaders/plane_fill.wgsl");
 pub const COLOR_ON_DEPTH: &str = include_str!("../../../shaders/color_on_depth.wgsl");
 
 /// Kinect v2 depth decoding, stage 1: unpacking, phasors, IR (`main`).
-pub const DECODE_STAGE1: &str = include_str!("../../../shaders/decode_stage1.wgsl");
+pub const DECODE_STAGE1: &str = concat!(
+    include_str!("../../../shaders/include/decode_params.wgsl"),
+    include_str!("../../../shaders/decode_stage1.wgsl")
+);
 /// Kinect v2 depth decoding: bilateral filter, stage 2, unwrapping, depth (`main`).
-pub const DECODE_FILTER: &str = include_str!("../../../shaders/decode_filter.wgsl");
+pub const DECODE_FILTER: &str = concat!(
+    include_str!("../../../shaders/include/decode_params.wgsl"),
+    include_str!("../../../shaders/decode_filter.wgsl")
+);
 /// Kinect v2 depth decoding: edge-aware filter and flip to upright rows (`main`).
-pub const DECODE_EDGE: &str = include_str!("../../../shaders/decode_edge.wgsl");
+pub const DECODE_EDGE: &str = concat!(
+    include_str!("../../../shaders/include/decode_params.wgsl"),
+    include_str!("../../../shaders/decode_edge.wgsl")
+);
 
 /// Every shader as `(file name, source)`, for validation and tooling.
 pub const ALL: &[(&str, &str)] = &[

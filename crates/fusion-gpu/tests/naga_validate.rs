@@ -1,5 +1,6 @@
-//! Every `.wgsl` in `shaders/` parses and validates with naga (no GPU needed), and the crate
-//! compiles all of them.
+//! Every `.wgsl` in `shaders/` parses and validates with naga (no GPU needed) as the crate
+//! compiles it (the decode shaders with their shared preamble), and the crate compiles all
+//! of them.
 
 use std::path::Path;
 
@@ -34,10 +35,14 @@ fn every_shader_file_validates_with_naga() {
         .collect();
     files.sort();
     assert!(!files.is_empty(), "no .wgsl in {}", dir.display());
-    for path in &files {
-        let source =
-            std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        validate(&path.display().to_string(), &source);
+    // What the crate compiles: each file, with the decode shaders' shared preamble
+    // (`shaders/include/`) put before them.
+    for (name, source) in fusion_gpu::shaders::ALL {
+        let path = dir.join(name);
+        let on_disk =
+            std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert!(source.ends_with(&on_disk), "{name}: the compiled source is not the file's");
+        validate(&path.display().to_string(), source);
     }
     // Every file on disk is one the crate compiles in, and vice versa.
     let compiled: Vec<&str> = fusion_gpu::shaders::ALL.iter().map(|(n, _)| *n).collect();
