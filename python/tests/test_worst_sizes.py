@@ -674,7 +674,8 @@ def results(bad_files, rig_files, tmp_path_factory):
     with concurrent.futures.ThreadPoolExecutor(PARALLEL_CHILDREN) as pool:
         futures = {n: pool.submit(run_child, s, env, root / n) for n, s in todo.items()}
         done = {n: f.result() for n, f in futures.items()}
-    print("seconds per case:", {n: r["seconds"] for n, r in done.items()})
+    print(f"{sum(len(r['reports']) for r in done.values())} calls;",
+          "seconds per case:", {n: r["seconds"] for n, r in done.items()})
     return done
 
 
