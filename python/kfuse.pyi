@@ -1,4 +1,9 @@
-"""kfuse from Python: rig files and the exact z-buffered registration of kfuse, NumPy in and out."""
+"""kfuse from Python: rig files and the exact z-buffered registration of kfuse, NumPy in and out.
+
+No call aborts the interpreter: bad input raises ValueError / TypeError / OSError (or a
+subclass), arrays that do not fit in memory MemoryError, text arguments that take a name
+(engine, board, backend, ...) longer than 256 characters ValueError
+(tests/test_worst_sizes.py)."""
 
 import os
 import pathlib

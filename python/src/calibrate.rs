@@ -109,6 +109,8 @@ fn board_of(
     square: Option<&Bound<'_, PyAny>>,
     top_left: Option<&str>,
 ) -> PyResult<(Board, bool)> {
+    let board = crate::short_text("board", board)?;
+    let top_left = top_left.map(|t| crate::short_text("top_left", t)).transpose()?;
     if let Some(t) = top_left
         && t != "black"
         && t != "white"
@@ -128,7 +130,9 @@ fn board_of(
         })?),
     };
     let text = match square {
-        Some(s) if metres.is_none() => s.extract::<String>()?,
+        Some(s) if metres.is_none() => {
+            crate::short_text("square", &s.extract::<String>()?)?.to_string()
+        }
         _ => DEFAULT_SQUARE.to_string(),
     };
     let (mut b, auto) = parse_board(board, &text, top_left).map_err(calib_err)?;

@@ -160,6 +160,8 @@ struct DeviceState {
 /// The source of `backend` (and `serial`, `sim_sensors`): the CLI's `--backend`,
 /// `--device SERIAL` and `--sim-sensors N`.
 fn source_of(backend: &str, serial: Option<&str>, sim_sensors: usize) -> PyResult<SensorSource> {
+    let backend = crate::short_text("backend", backend)?;
+    let serial = serial.map(|s| crate::short_text("serial", s)).transpose()?;
     let max = kinect_usb::sim::ring::MAX_SIM_SENSORS;
     if !(1..=max).contains(&sim_sensors) || (sim_sensors > 1 && backend != "sim") {
         return Err(PyValueError::new_err(format!(

@@ -13,7 +13,9 @@ use numpy::{IntoPyArray, PyArray2, PyArray3};
 use pyo3::exceptions::{PyFileExistsError, PyRuntimeError, PyRuntimeWarning, PyValueError};
 use pyo3::prelude::*;
 
-use crate::{METRES_PER_MM, PyRig, color_image, depth_metres, geometry_err, rows};
+use crate::{
+    METRES_PER_MM, PyRig, color_image, depth_metres, geometry_err, rows, try_copy, try_flat,
+};
 
 /// Where the per-pixel stages run, as `kfuse fuse --engine`: Engine("cpu"), Engine("gpu")
 /// (wgpu, Vulkan; no adapter is a RuntimeError with the CLI's message) or Engine("auto")
@@ -45,7 +47,9 @@ impl PyEngine {
 }
 
 fn parse_engine(name: &str) -> PyResult<Engine> {
-    name.parse().map_err(|e: String| PyValueError::new_err(format!("engine: {e}")))
+    crate::short_text("engine", name)?
+        .parse()
+        .map_err(|e: String| PyValueError::new_err(format!("engine: {e}")))
 }
 
 /// An `engine` argument: an Engine or its name.
@@ -73,7 +77,7 @@ fn gpu_err(e: GpuError) -> PyErr {
 /// A colour-frame depth image as float32 (H, W) metres, NaN = none.
 fn depth_array<'py>(py: Python<'py>, img: &Image<f32>) -> PyResult<Bound<'py, PyArray2<f32>>> {
     let (w, h) = img.size();
-    let a = Array2::from_shape_vec((h, w), img.data().to_vec())
+    let a = Array2::from_shape_vec((h, w), try_copy(img.data(), "FusedFrame")?)
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(a.into_pyarray(py))
 }
@@ -81,7 +85,7 @@ fn depth_array<'py>(py: Python<'py>, img: &Image<f32>) -> PyResult<Bound<'py, Py
 /// A mask as bool (H, W).
 fn mask_array<'py>(py: Python<'py>, img: &Image<bool>) -> PyResult<Bound<'py, PyArray2<bool>>> {
     let (w, h) = img.size();
-    let a = Array2::from_shape_vec((h, w), img.data().to_vec())
+    let a = Array2::from_shape_vec((h, w), try_copy(img.data(), "FusedFrame")?)
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(a.into_pyarray(py))
 }
@@ -160,8 +164,7 @@ impl PyFusedFrame {
     fn color_on_depth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<u8>>> {
         let img = &self.out.color_on_depth;
         let (w, h) = img.size();
-        let flat: Vec<u8> = img.data().iter().flatten().copied().collect();
-        let a = Array3::from_shape_vec((h, w, 3), flat)
+        let a = Array3::from_shape_vec((h, w, 3), try_flat(img.data(), "color_on_depth")?)
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok(a.into_pyarray(py))
     }
@@ -286,7 +289,7 @@ fn depth_range_arg(arg: Option<&Bound<'_, PyAny>>) -> PyResult<fusion::DepthRang
     let Some(arg) = arg.filter(|a| !a.is_none()) else { return Ok(fusion::DepthRange::ALL) };
     let bad = |e: geometry::GeometryError| PyValueError::new_err(format!("depth_range: {e}"));
     if let Ok(text) = arg.extract::<String>() {
-        return fusion::DepthRange::parse(&text).map_err(bad);
+        return fusion::DepthRange::parse(crate::short_text("depth_range", &text)?).map_err(bad);
     }
     let (min, max): (f32, f32) = arg.extract().map_err(|_| {
         PyValueError::new_err(

@@ -118,6 +118,51 @@ fn geometry_err(e: GeometryError) -> PyErr {
     }
 }
 
+/// The error of an allocation a call's sizes make too large for this process: MemoryError
+/// naming what and how much (Rust aborts the interpreter on a failed allocation; the
+/// allocations sized by the caller's arrays and cameras are made fallibly here instead).
+fn no_memory(what: &str, bytes: usize) -> PyErr {
+    pyo3::exceptions::PyMemoryError::new_err(format!(
+        "{what}: needs {} MiB more than this process can allocate; use smaller images or free memory",
+        bytes >> 20
+    ))
+}
+
+/// `values` copied into a new Vec, or MemoryError: the copies handed to NumPy are the largest
+/// allocations at the boundary (a 50 Mpx camera's z-buffer is 200 MB).
+pub(crate) fn try_copy<T: Clone>(values: &[T], what: &str) -> PyResult<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(values.len())
+        .map_err(|_| no_memory(what, std::mem::size_of_val(values)))?;
+    v.extend_from_slice(values);
+    Ok(v)
+}
+
+/// Longest text a name-like argument (an engine, a board, a backend, a serial...) may have:
+/// 256 characters, far above any valid one ("0.5m..2.5m", "11x8", a 12-digit serial); longer
+/// text is refused here without being echoed, so a message stays one readable line.
+const MAX_NAME_CHARS: usize = 256;
+
+/// `text` for an argument `name` that takes a short name: a ValueError (without the text)
+/// when it is longer than [`MAX_NAME_CHARS`].
+pub(crate) fn short_text<'a>(name: &str, text: &'a str) -> PyResult<&'a str> {
+    let n = text.chars().count();
+    if n > MAX_NAME_CHARS {
+        return Err(PyValueError::new_err(format!(
+            "{name}: {n} characters of text, longer than any valid value ({MAX_NAME_CHARS} at most); see help(kfuse) for the values it takes"
+        )));
+    }
+    Ok(text)
+}
+
+/// MemoryError, before any work, when this process cannot get `bytes` more memory: the peak a
+/// library call on the caller's sizes allocates inside (where its growing buffers cannot
+/// fail softly), reserved fallibly and released.
+fn ensure_memory(what: &str, bytes: usize) -> PyResult<()> {
+    let mut probe: Vec<u8> = Vec::new();
+    probe.try_reserve_exact(bytes).map_err(|_| no_memory(what, bytes))
+}
+
 /// `dtype` and `shape` of any object, for messages ("uint8 (1080, 1920)"; "list" for a
 /// non-array).
 fn describe(obj: &Bound<'_, PyAny>) -> String {
@@ -287,8 +332,9 @@ impl PyRig {
     #[staticmethod]
     #[pyo3(signature = (path, force = false))]
     fn from_kinect_params(py: Python<'_>, path: PathBuf, force: bool) -> PyResult<Self> {
-        let bytes = std::fs::read(&path)
-            .map_err(|e| PyOSError::new_err(format!("{}: {e}", path.display())))?;
+        // Bounded as every rig file is read (a /dev/zero or a FIFO given here was read to
+        // the end: the interpreter aborted at the address-space limit).
+        let bytes = kfuse_io::rig::read_rig_bytes(&path).map_err(geometry_err)?;
         let format = serde_json::from_slice::<serde_json::Value>(&bytes)
             .ok()
             .map(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
@@ -468,12 +514,13 @@ impl PyRegistration {
         let (cw, ch) = (self.rig.color.width, self.rig.color.height);
         let reg = &mut self.reg;
         let Some(out) = out else {
-            let (image, zbuffer) = py
+            let image = py
                 .detach(|| -> Result<_, GeometryError> {
                     reg.register_parallel(&image)?;
-                    Ok((image, reg.zbuffer().to_vec()))
+                    Ok(image)
                 })
                 .map_err(geometry_err)?;
+            let zbuffer = try_copy(reg.zbuffer(), "register")?;
             self.frame = Some(Frame { depth: image, nearest: None });
             let z = Array2::from_shape_vec((ch, cw), zbuffer)
                 .map_err(|e| PyValueError::new_err(e.to_string()))?;
@@ -541,10 +588,9 @@ impl PyRegistration {
         self.frame("color_on_depth")?;
         let (rgb, valid) = py.detach(|| self.color_of_frame(&color_img)).map_err(geometry_err)?;
         let (dw, dh) = (self.rig.depth.width, self.rig.depth.height);
-        let flat: Vec<u8> = rgb.data().iter().flatten().copied().collect();
-        let rgb = Array3::from_shape_vec((dh, dw, 3), flat)
+        let rgb = Array3::from_shape_vec((dh, dw, 3), try_flat(rgb.data(), "color_on_depth")?)
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        let valid = Array2::from_shape_vec((dh, dw), valid.data().to_vec())
+        let valid = Array2::from_shape_vec((dh, dw), try_copy(valid.data(), "color_on_depth")?)
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok((rgb.into_pyarray(py), valid.into_pyarray(py)))
     }
@@ -566,6 +612,10 @@ impl PyRegistration {
     ) -> PyResult<CloudArrays<'py>> {
         let color_img = color.map(|c| color_image(py, &self.rig, c)).transpose()?;
         let image = depth_metres(py, &self.request, depth, self.force)?;
+        // H1's cloud grows to one point (12 bytes) and one pixel index (4) per depth pixel,
+        // its buffers up to twice that while they grow; then the (N, 3) arrays.
+        let (w, h) = image.size();
+        ensure_memory("cloud", (w * h).saturating_mul(2 * 16 + 12 + 6))?;
         let (points, pixels) = py.detach(|| fusion::backproject_cloud(&image, &self.rays));
         let colors = match color_img {
             None => None,
@@ -729,13 +779,20 @@ fn to_open3d<'py>(
     open3d_cloud(py, points, colors)
 }
 
+/// `v`'s values in order, one Vec, or MemoryError (`what` names the call).
+pub(crate) fn try_flat<T: Copy, const N: usize>(v: &[[T; N]], what: &str) -> PyResult<Vec<T>> {
+    let mut flat = Vec::new();
+    flat.try_reserve_exact(v.len() * N).map_err(|_| no_memory(what, std::mem::size_of_val(v)))?;
+    flat.extend(v.iter().flatten().copied());
+    Ok(flat)
+}
+
 /// Rows of `N` values as an (len, N) array.
 fn rows<'py, T: numpy::Element + Copy, const N: usize>(
     py: Python<'py>,
     v: &[[T; N]],
 ) -> PyResult<Bound<'py, PyArray2<T>>> {
-    let flat: Vec<T> = v.iter().flatten().copied().collect();
-    let a = Array2::from_shape_vec((v.len(), N), flat)
+    let a = Array2::from_shape_vec((v.len(), N), try_flat(v, "rows")?)
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(a.into_pyarray(py))
 }
@@ -745,7 +802,7 @@ fn rows<'py, T: numpy::Element + Copy, const N: usize>(
 fn read_depth_file<'py>(py: Python<'py>, path: &Path) -> PyResult<Bound<'py, PyArray2<f32>>> {
     let img = kfuse_io::images::read_depth(path, METRES_PER_MM).map_err(geometry_err)?;
     let (w, h) = img.size();
-    let a = Array2::from_shape_vec((h, w), img.data().to_vec())
+    let a = Array2::from_shape_vec((h, w), try_copy(img.data(), "read_depth")?)
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(a.into_pyarray(py))
 }
@@ -801,7 +858,7 @@ impl PyDecoder {
         orientation: &str,
         precision: &str,
     ) -> PyResult<Self> {
-        let orientation = match orientation {
+        let orientation = match short_text("orientation", orientation)? {
             "scene" => Orientation::Scene,
             "sensor" => Orientation::Sensor,
             o => {
@@ -810,7 +867,7 @@ impl PyDecoder {
                 )));
             }
         };
-        let precision = match precision {
+        let precision = match short_text("precision", precision)? {
             "fast" => DecoderPrecision::Fast,
             "exact" => DecoderPrecision::Exact,
             p => {

@@ -70,7 +70,9 @@ impl RigidTransform {
         if !translation.iter().all(|v| v.is_finite()) {
             return Err(GeometryError::InvalidParameter(format!(
                 "translation is not finite: [{}, {}, {}]",
-                translation.x, translation.y, translation.z
+                short(translation.x),
+                short(translation.y),
+                short(translation.z)
             )));
         }
         // Re-orthonormalise so later compositions stay exact.
@@ -150,9 +152,21 @@ impl<'de> Deserialize<'de> for RigidTransform {
 
 /// A 3x3 matrix on one line, rows in brackets (for error messages).
 fn one_line(m: &Matrix3<f64>) -> String {
-    let rows: Vec<String> =
-        m.row_iter().map(|r| format!("[{}, {}, {}]", r[0], r[1], r[2])).collect();
+    let rows: Vec<String> = m
+        .row_iter()
+        .map(|r| format!("[{}, {}, {}]", short(r[0]), short(r[1]), short(r[2])))
+        .collect();
     format!("[{}]", rows.join(", "))
+}
+
+/// `v` for a message: as written when it is of a size a pose has, in exponent form otherwise
+/// (`{}` wrote 1e300 as 301 digits, a message of 1 200 characters for one bad matrix).
+fn short(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
 }
 
 #[cfg(test)]
