@@ -24,6 +24,15 @@ const MAX_SIGMAS: f64 = 3.0;
 /// most 0.76 mm (0.45 σ of the centre σ before issue 52 fixed its sign error, which made σ
 /// 2.5× too large; the test prints the table). A wrong pose graph is off by decimetres.
 const MAX_CENTER_ERROR_MM: f64 = 1.0;
+/// Band of the RMS of the centres' errors over their σ (15 values: 5 free cameras × 3 axes),
+/// 99 % of a χ² with 6 degrees of freedom, sqrt(0.676/6)..sqrt(18.55/6): a sensor's colour
+/// camera moves with its depth camera, so the two free sensors give about 6 independent values,
+/// not 15. Measured on this capture: 0.48 (0.19 with the σ that issue 52 found 2.5× too large).
+/// The calibration crate's `multi_ring_sigma_matches_the_errors` checks the same over six
+/// seeded rings (0.97).
+const MIN_RMS_SIGMAS: f64 = 0.336;
+/// Upper end of that band.
+const MAX_RMS_SIGMAS: f64 = 1.758;
 /// Bound on each camera rotation's error, degrees: issue 32's 0.05°; measured at most
 /// 0.037°.
 const MAX_ROTATION_ERROR_DEG: f64 = 0.05;
@@ -111,6 +120,8 @@ fn joint_calibration_of_a_three_kinect_ring_against_its_true_rig() {
     let cams = rep["cameras"].as_array().unwrap();
     assert_eq!(cams.len(), 6);
     let mut worst = (0.0f64, 0.0f64, 0.0f64);
+    // Every non-reference centre error over its σ, per axis: their RMS must be near 1.
+    let mut normalised = Vec::new();
     for s in SERIALS {
         for role in ["depth", "color"] {
             let name = format!("{s}.{role}");
@@ -127,6 +138,7 @@ fn joint_calibration_of_a_three_kinect_ring_against_its_true_rig() {
                 0.0
             } else {
                 assert!(sd.iter().all(|s| *s > 0.0), "{name}: centre σ {sd:?} mm");
+                normalised.extend((0..3).map(|a| err_mm[a] / sd[a]));
                 (0..3).map(|a| err_mm[a].abs() / sd[a]).fold(0.0, f64::max)
             };
             let rot = got.angle_to(&want);
@@ -144,6 +156,16 @@ fn joint_calibration_of_a_three_kinect_ring_against_its_true_rig() {
             worst = (worst.0.max(norm), worst.1.max(sigmas), worst.2.max(rot));
         }
     }
+    // σ from both sides (issue 52): an inflated σ (2.5× before issue 52's sign fix: RMS 0.19)
+    // fails the lower bound, a too small one the upper.
+    let rms_sigmas =
+        (normalised.iter().map(|v| v * v).sum::<f64>() / normalised.len() as f64).sqrt();
+    eprintln!("centre errors over their σ: RMS {rms_sigmas:.2} over {} values", normalised.len());
+    assert_eq!(normalised.len(), 15, "five free cameras, three axes each");
+    assert!(
+        (MIN_RMS_SIGMAS..=MAX_RMS_SIGMAS).contains(&rms_sigmas),
+        "centre errors over their σ: RMS {rms_sigmas:.2}, outside [{MIN_RMS_SIGMAS}, {MAX_RMS_SIGMAS}]"
+    );
     eprintln!(
         "worst: {:.2} mm, {:.2} σ, {:.3}°; joint RMS {:.3} px",
         worst.0,

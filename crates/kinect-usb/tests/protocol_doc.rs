@@ -6,8 +6,14 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 /// Workspace root (this crate lives in `crates/kinect-usb`).
+/// The repository: from the crate folder cargo names when it runs the test (a test binary
+/// reused from a checkout at another path would otherwise look there), else the one it was
+/// compiled in.
 fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+    let crate_dir = std::env::var_os("CARGO_MANIFEST_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")));
+    crate_dir.join("../..")
 }
 
 /// Section numbers ("4", "4.10") of the document's `##`/`###` headings.
