@@ -35,7 +35,9 @@ class Rig:
 
     @staticmethod
     def load(path: _Path, *more: _Path, force: bool = False) -> "Rig":
-        """Every format `kfuse rig import` reads; OSError (unreadable) or ValueError (content)."""
+        """Every format `kfuse rig import` reads; OSError (unreadable) or ValueError (content).
+        A rig of mirrored images (a version-1 kinect_params.json, a Kinect rig with its colour
+        camera on the mirrored side) loads with a UserWarning saying how to convert it."""
     @staticmethod
     def from_kinect_params(path: _Path, force: bool = False) -> "Rig":
         """A sensor's kinect_params.json (`kfuse capture`) as `kfuse rig import` reads it;

@@ -301,7 +301,12 @@ impl PyRig {
     /// Raises OSError when a file cannot be read, ValueError for its content.
     #[staticmethod]
     #[pyo3(signature = (path, *more, force = false))]
-    fn load(path: PathBuf, more: &Bound<'_, PyTuple>, force: bool) -> PyResult<Self> {
+    fn load(
+        py: Python<'_>,
+        path: PathBuf,
+        more: &Bound<'_, PyTuple>,
+        force: bool,
+    ) -> PyResult<Self> {
         let mut sources = vec![path];
         for m in more.iter() {
             sources.push(m.extract::<PathBuf>()?);
@@ -320,6 +325,30 @@ impl PyRig {
                 sources[0].display(),
                 problems.join("; ")
             )));
+        }
+        // A rig of mirrored images fits only images mirrored the same way; said as `rig
+        // import` and `rig show` say it (issue 51: Python gave no notice): a version-1
+        // kinect_params.json (`kfuse capture` before it wrote images as the scene is), or a
+        // Kinect rig whose colour camera sits on the mirrored side (raw libfreenect2 output).
+        let mut notices = Vec::new();
+        if sources.len() == 1
+            && let Ok(bytes) = kfuse_io::rig::read_rig_bytes(&sources[0])
+            && let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes)
+            && v.get("format").and_then(|f| f.as_str()) == Some(rig_io::KINECT_PARAMS_FORMAT)
+            && let Ok(params) = rig_io::kinect::FactoryParams::from_json(&v, &sources[0])
+            && !params.scene_orientation
+        {
+            notices.push(
+                "the parameters of mirrored images (kinect_params.json version 1: `kfuse capture` before it wrote images as the scene is), and so is this rig: it fits that capture's images; `kfuse rig import FILE --mirror` gives the rig of images as the scene is".to_string(),
+            );
+        }
+        if let Some((true, text)) = rig_io::show::kinect_orientation(&rig) {
+            notices.push(text);
+        }
+        for text in notices {
+            let message = std::ffi::CString::new(format!("{}: {text}", sources[0].display()))
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &message, 1)?;
         }
         Ok(Self { rig })
     }
@@ -350,7 +379,7 @@ impl PyRig {
                 rig_io::KINECT_PARAMS_FORMAT
             )));
         }
-        Self::load(path, &PyTuple::empty(py), force)
+        Self::load(py, path, &PyTuple::empty(py), force)
     }
 
     /// Writes the rig as kfuse rig JSON (what `kfuse rig import --out` writes), atomically.

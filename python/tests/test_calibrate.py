@@ -191,6 +191,31 @@ def test_from_kinect_params_is_rig_load_of_it_and_refuses_other_formats():
         kfuse.Rig.from_kinect_params(KINECT / "nope.json")
 
 
+def test_a_mirrored_kinect_params_is_loaded_with_a_warning(tmp_path):
+    """A version-1 kinect_params.json (images mirrored as the sensor streams them) loads with a
+    UserWarning saying so and how to convert it, as `kfuse rig import` notes it (issue 51: no
+    word); the version-2 file (images as the scene is) loads silently."""
+    import warnings
+
+    params = json.loads((KINECT / "kinect_params.json").read_text())
+    assert params["version"] == 2 and params["image_orientation"] == "scene"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = kfuse.Rig.load(KINECT / "kinect_params.json")
+    v1 = dict(params, version=1)
+    del v1["image_orientation"]
+    path = tmp_path / "kinect_params.json"
+    path.write_text(json.dumps(v1))
+    for load in (kfuse.Rig.load, kfuse.Rig.from_kinect_params):
+        with pytest.warns(UserWarning, match=r"kinect_params.json: the parameters of mirrored images.*--mirror"):
+            mirrored = load(path)
+        # The same factory numbers make the same rig (as `kfuse rig import` of either file):
+        # the notice is what tells them apart.
+        for cam in ("depth", "color"):
+            assert np.array_equal(getattr(mirrored, cam).K, getattr(scene, cam).K)
+        assert np.array_equal(mirrored.T, scene.T)
+
+
 def test_help_teaches_the_arguments():
     """help(kfuse.calibrate) says what --help says: the image forms, the board and the unit."""
     doc = kfuse.calibrate.__doc__
