@@ -751,6 +751,11 @@ def test_every_public_callable_is_fed_worst_sizes(results):
     skipped = {label.split(":")[0] for case in CASES if case not in results
                for label in __import__("re").findall(r'call\(f?"([^"]+)"', CASES[case])}
     missing = sorted(surface - called - skipped - set(NOT_SIZED))
+    not_run = [case for case in NEEDS_SHARED if case not in results]
+    if missing and not_run:
+        # The cases that read the shared data did not run (results() skipped them visibly, or
+        # failed under KFUSE_REQUIRE_SHARED_DATA=1): the surface cannot be checked whole.
+        pytest.skip(f"cases {not_run} did not run (no shared data): not checked: {missing}")
     assert not missing, (
         f"public names no case calls: {missing}; add a case to {Path(__file__).name} "
         "(or list it in NOT_SIZED with the reason it takes no size)")
