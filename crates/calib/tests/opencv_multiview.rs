@@ -303,8 +303,12 @@ fn kfuse_beats_opencv_calibrate_multiview_on_the_same_corners() {
         "detections": detections_json(&board, &cams, &[]),
     });
     std::fs::write(&detections, serde_json::to_vec(&report).unwrap()).unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../benches/peers/opencv_calibrate_multiview.py");
+    // The crate folder cargo names at run time (a test binary reused from a checkout at
+    // another path would look there), else the one it was compiled in.
+    let crate_dir = std::env::var_os("CARGO_MANIFEST_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf());
+    let script = crate_dir.join("../../benches/peers/opencv_calibrate_multiview.py");
     let cv_out = dir.path().join("opencv.json");
     let st = Command::new(&python).arg(&script).arg(&detections).arg(&cv_out).output().unwrap();
     assert!(st.status.success(), "the OpenCV peer: {}", String::from_utf8_lossy(&st.stderr));
