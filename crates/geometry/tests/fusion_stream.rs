@@ -97,15 +97,27 @@ fn assert_matches(
     let brute = hole_mask_brute(&want_z, proj.width as usize, proj.height as usize, radius, grow);
     assert!(brute == want_mask, "{what}: HoleMasker differs from the mask's definition");
     let mut mask = vec![true; want_mask.len()];
-    for parallel in [false, true] {
-        let n = if parallel { reg.register_parallel(depth) } else { reg.register(depth) }
-            .expect("sizes match");
-        assert_eq!(n, want_n, "{what} (parallel: {parallel}): samples on the image");
-        let got: Vec<u32> = reg.zbuffer().iter().map(|z| z.to_bits()).collect();
+    // The workspace's own z-buffer, then a caller's (filled with a z nearer than any sample,
+    // which would win H7's minimum wherever a row were not cleared whole), on one thread and
+    // on all; the caller's last, so that the next frame (the caller registers two) checks
+    // that the own z-buffer is cleared whole after a frame went elsewhere.
+    let mut lent = vec![-3.5f32; want_z.len()];
+    for (parallel, into) in [(false, false), (true, false), (false, true), (true, true)] {
+        lent.fill(-3.5);
+        let n = match (parallel, into) {
+            (false, false) => reg.register(depth),
+            (true, false) => reg.register_parallel(depth),
+            (false, true) => reg.register_into(depth, &mut lent),
+            (true, true) => reg.register_parallel_into(depth, &mut lent),
+        }
+        .expect("sizes match");
+        assert_eq!(n, want_n, "{what} (parallel: {parallel}, into: {into}): samples on the image");
+        let zbuffer = if into { &lent[..] } else { reg.zbuffer() };
+        let got: Vec<u32> = zbuffer.iter().map(|z| z.to_bits()).collect();
         let diff = got.iter().zip(&want_z).filter(|(a, b)| a != b).count();
         assert_eq!(
             diff, 0,
-            "{what} (parallel: {parallel}): z-buffer pixels differing from the reference"
+            "{what} (parallel: {parallel}, into: {into}): z-buffer pixels differing from the reference"
         );
         let holes =
             if parallel { reg.hole_mask_parallel(&mut mask) } else { reg.hole_mask(&mut mask) };
@@ -253,4 +265,75 @@ fn registration_rejects_a_depth_image_of_the_wrong_size() {
         reg.register_parallel(&wrong),
         Err(geometry::GeometryError::SizeMismatch { .. })
     ));
+}
+
+#[test]
+fn registration_rejects_a_lent_zbuffer_of_the_wrong_length() {
+    let setup = synth::course_preset();
+    let rig = &setup.rig;
+    let mut reg = Registration::new(rig, geometry::DepthKind::Z, &FusionOptions::default())
+        .expect("the preset rig is valid");
+    let depth = Image::filled(rig.depth.width, rig.depth.height, 1.0f32);
+    let mut short = vec![0.0f32; rig.color.width * rig.color.height - 1];
+    for parallel in [false, true] {
+        let r = if parallel {
+            reg.register_parallel_into(&depth, &mut short)
+        } else {
+            reg.register_into(&depth, &mut short)
+        };
+        assert!(matches!(r, Err(geometry::GeometryError::InvalidInput(_))), "{r:?}");
+    }
+}
+
+/// `register_on` (the caller's buffers, no copy on the CPU) gives what `stream_on` lends for
+/// the same frame, bit for bit, with and without a depth range, over several frames into
+/// buffers holding anything; a buffer of another length is refused.
+#[test]
+fn register_on_writes_what_stream_on_lends() {
+    use geometry::fusion::{CpuPixels, DepthRange, Request, StreamFrame, StreamPlan};
+    let setup = synth::kinect_preset(true);
+    let frame = synth::render(&setup);
+    let shifted = Image::from_fn(frame.depth.width(), frame.depth.height(), |x, y| {
+        if (x / 32 + y / 32) % 3 == 0 { f32::NAN } else { *frame.depth.get(x, y) * 1.3 }
+    });
+    let pixels = setup.rig.color.width * setup.rig.color.height;
+    for range in [DepthRange::ALL, DepthRange::new(1.0, 2.5).expect("a valid range")] {
+        let options = FusionOptions { depth_range: range, ..FusionOptions::default() };
+        let request = Request::new(&setup.rig, frame.depth_kind, options).expect("request");
+        let (mut streamed, mut lent) = (CpuPixels::new(), CpuPixels::new());
+        let (mut zbuffer, mut mask) = (vec![-3.5f32; pixels], vec![true; pixels]);
+        let mut later_mask = vec![true; pixels];
+        for depth in [&frame.depth, &shifted, &frame.depth] {
+            let mut want = (Vec::new(), Vec::new());
+            let frames = [StreamFrame { depth, color: None }];
+            let plan = StreamPlan { holes: true, color_on_depth: false };
+            fusion::stream_on(&mut streamed, &request, &frames, plan, &mut |_, r| {
+                want = (
+                    r.zbuffer.iter().map(|z| z.to_bits()).collect::<Vec<u32>>(),
+                    r.hole_mask.expect("asked for").to_vec(),
+                )
+            })
+            .expect("stream");
+            fusion::register_on(&mut lent, &request, depth, &mut zbuffer, Some(&mut mask))
+                .expect("register_on");
+            let got: Vec<u32> = zbuffer.iter().map(|z| z.to_bits()).collect();
+            let diff = got.iter().zip(&want.0).filter(|(a, b)| a != b).count();
+            assert_eq!(diff, 0, "range {range}: z-buffer pixels differing from stream_on's");
+            assert!(mask == want.1, "range {range}: hole mask differs from stream_on's");
+            // The mask asked for afterwards, from the engine's kept state.
+            assert_eq!(
+                lent.last_hole_mask(&mut later_mask),
+                Some(want.1.iter().filter(|&&m| m).count())
+            );
+            assert!(later_mask == want.1, "range {range}: the later hole mask differs");
+            // Guard: the frames land (tolerance 0 above compares something).
+            let landed = got.iter().filter(|&&b| f32::from_bits(b).is_finite()).count();
+            assert!(landed > 10_000, "range {range}: only {landed} pixels landed");
+            zbuffer.fill(-3.5);
+            mask.fill(true);
+        }
+        let mut short = vec![0.0f32; pixels - 1];
+        let r = fusion::register_on(&mut lent, &request, &frame.depth, &mut short, None);
+        assert!(matches!(r, Err(geometry::GeometryError::InvalidInput(_))), "{r:?}");
+    }
 }

@@ -71,7 +71,7 @@ pub use mesh::{
 pub use pipeline::fault;
 pub use pipeline::{
     CpuPixels, DepthView, PerPixel, PerPixelOutput, PixelFrame, PixelParams, StreamFrame,
-    StreamPlan, StreamResult, cloud_colors, run, run_on, stream_on, stretch_test,
+    StreamPlan, StreamResult, cloud_colors, register_on, run, run_on, stream_on, stretch_test,
 };
 pub use pixel::{
     ColorProjection, ZBUFFER_EMPTY, backproject_pixel, depth_ray_table, floor_f32, is_sample,

@@ -274,6 +274,30 @@ pub trait PerPixel {
         plan: StreamPlan,
         sink: &mut dyn FnMut(usize, StreamResult<'_>),
     ) -> Result<(), Self::Error>;
+
+    /// One frame of a stream ([`register_on`], which checks it first) with its results
+    /// written into the caller's buffers: H1 + H2 + H7 into `zbuffer` (colour-sized) and, when
+    /// given, H8's mask into `hole_mask`. Equal to [`PerPixel::per_pixel_stream`] on the frame
+    /// (this default runs it and copies what it lends; [`CpuPixels`] registers straight into
+    /// `zbuffer`, with no copy).
+    fn per_pixel_into(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        depth: &Image<f32>,
+        params: &PixelParams,
+        zbuffer: &mut [f32],
+        mut hole_mask: Option<&mut [bool]>,
+    ) -> Result<(), Self::Error> {
+        let plan = StreamPlan { holes: hole_mask.is_some(), color_on_depth: false };
+        let frames = [StreamFrame { depth, color: None }];
+        self.per_pixel_stream(rig, kind, &frames, params, plan, &mut |_, r| {
+            zbuffer.copy_from_slice(r.zbuffer);
+            if let (Some(out), Some(mask)) = (hole_mask.as_deref_mut(), r.hole_mask) {
+                out.copy_from_slice(mask);
+            }
+        })
+    }
 }
 
 /// The CPU engine. H7 and H8's mask run on [`Registration`] (the fast path of the
@@ -297,6 +321,8 @@ struct CpuStream {
     rays: Vec<[f32; 3]>,
     proj: ColorProjection,
     mask: Vec<bool>,
+    /// The frame clipped to the depth range ([`CpuPixels::per_pixel_into`]), reused.
+    clipped: Image<f32>,
 }
 
 impl CpuPixels {
@@ -323,10 +349,27 @@ impl CpuPixels {
             let proj = ColorProjection::from_rig(rig);
             let reg = Registration::from_parts(proj, &rays, rig.depth.width, radii.0, radii.1)?;
             let mask = vec![false; rig.color.width * rig.color.height];
-            self.stream =
-                Some(Box::new(CpuStream { rig: rig.clone(), kind, radii, reg, rays, proj, mask }));
+            let clipped = Image::filled(0, 0, f32::NAN);
+            self.stream = Some(Box::new(CpuStream {
+                rig: rig.clone(),
+                kind,
+                radii,
+                reg,
+                rays,
+                proj,
+                mask,
+                clipped,
+            }));
         }
         Ok(self.stream.as_mut().expect("built above"))
+    }
+
+    /// H8's hole mask of the last frame of [`PerPixel::per_pixel_into`] (or of the last
+    /// streamed frame) into `mask` (colour-sized), on all rayon threads; the number of hole
+    /// pixels, `None` before any frame or for a `mask` of another length.
+    pub fn last_hole_mask(&mut self, mask: &mut [bool]) -> Option<usize> {
+        let s = self.stream.as_mut()?;
+        (mask.len() == s.mask.len()).then(|| s.reg.hole_mask_parallel(mask))
     }
 }
 
@@ -531,6 +574,43 @@ impl PerPixel for CpuPixels {
         }
         Ok(())
     }
+
+    /// On the kept [`Registration`] on all rayon threads (one frame: no caller stages run
+    /// beside it), straight into `zbuffer` ([`Registration::register_parallel_into`]); the
+    /// depth range clipped into a kept buffer. With [`PixelParams::zbuffer`] off, the
+    /// default (via [`PerPixel::per_pixel_stream`]).
+    fn per_pixel_into(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        depth: &Image<f32>,
+        params: &PixelParams,
+        zbuffer: &mut [f32],
+        hole_mask: Option<&mut [bool]>,
+    ) -> Result<(), GeometryError> {
+        if !params.zbuffer {
+            let plan = StreamPlan { holes: hole_mask.is_some(), color_on_depth: false };
+            let frames = [StreamFrame { depth, color: None }];
+            let mut hole_mask = hole_mask;
+            return self.per_pixel_stream(rig, kind, &frames, params, plan, &mut |_, r| {
+                zbuffer.copy_from_slice(r.zbuffer);
+                if let (Some(out), Some(mask)) = (hole_mask.as_deref_mut(), r.hole_mask) {
+                    out.copy_from_slice(mask);
+                }
+            });
+        }
+        let s = self.stream_state(rig, kind, params)?;
+        if params.depth_range.is_all() {
+            s.reg.register_parallel_into(depth, zbuffer)?;
+        } else {
+            params.depth_range.clip_into(depth, &mut s.clipped);
+            s.reg.register_parallel_into(&s.clipped, zbuffer)?;
+        }
+        if let Some(mask) = hole_mask {
+            s.reg.hole_mask_parallel(mask);
+        }
+        Ok(())
+    }
 }
 
 /// The colours of the cloud: H6's colour of each point's depth pixel, black where H6 does
@@ -727,6 +807,43 @@ pub fn stream_on<E: PerPixel>(
         engine.per_pixel_stream(rig, kind, frames, &params, plan, sink)
     } else {
         Ok(CpuPixels::new().per_pixel_stream(rig, kind, frames, &params, plan, sink)?)
+    }
+}
+
+/// One frame of a stream of `request` (its depth prepared, [`Request::prepare_depth`]) on
+/// `engine`, its results written into the caller's buffers: the H7 z-buffer into `zbuffer`
+/// and, when given, H8's hole mask into `hole_mask` (both colour-sized, row-major); what
+/// [`stream_on`] lends for the frame with [`StreamPlan::holes`] as `hole_mask` asks
+/// ([`PerPixel::per_pixel_into`]: on [`CpuPixels`] with no copy). With
+/// [`FusionOptions::zbuffer`] off the stages run on [`CpuPixels`] whatever the engine.
+///
+/// Errors, before any work: those of [`stream_on`], and a buffer of another length than the
+/// colour image's ([`GeometryError::InvalidInput`]); then the engine's.
+pub fn register_on<E: PerPixel>(
+    engine: &mut E,
+    request: &Request,
+    depth: &Image<f32>,
+    zbuffer: &mut [f32],
+    hole_mask: Option<&mut [bool]>,
+) -> Result<(), E::Error> {
+    let (rig, kind, options) = (request.rig(), request.kind(), request.options());
+    rig.validate()?;
+    super::checked_coverage_radius_px(rig, options)?;
+    depth.expect_size("depth image", rig.depth.width, rig.depth.height)?;
+    let pixels = rig.color.width * rig.color.height;
+    let lengths = [Some(zbuffer.len()), hole_mask.as_ref().map(|m| m.len())];
+    if let Some(n) = lengths.into_iter().flatten().find(|&n| n != pixels) {
+        return Err(GeometryError::InvalidInput(format!(
+            "an output buffer of {n} pixels for the {}x{} colour image ({pixels} pixels)",
+            rig.color.width, rig.color.height
+        ))
+        .into());
+    }
+    let params = request.params();
+    if options.zbuffer {
+        engine.per_pixel_into(rig, kind, depth, &params, zbuffer, hole_mask)
+    } else {
+        Ok(CpuPixels::new().per_pixel_into(rig, kind, depth, &params, zbuffer, hole_mask)?)
     }
 }
 

@@ -82,6 +82,18 @@ impl DepthRange {
         Cow::Owned(out)
     }
 
+    /// [`DepthRange::clip`] into `out` (reused, resized to `depth`'s size): no allocation
+    /// once `out` has that size.
+    pub fn clip_into(&self, depth: &Image<f32>, out: &mut Image<f32>) {
+        let (w, h) = depth.size();
+        if out.size() != (w, h) {
+            *out = Image::filled(w, h, f32::NAN);
+        }
+        for (o, &v) in out.data_mut().iter_mut().zip(depth.data()) {
+            *o = if self.contains(v) { v } else { f32::NAN };
+        }
+    }
+
     /// Parses `MIN..MAX` with a unit, `m` or `mm`, on each end or once at the end for both:
     /// `0.5m..2m`, `500mm..2000mm`, `0.5..2m`.
     ///

@@ -22,7 +22,10 @@
 //! * "clear" resets only what the previous frame wrote: the workspace keeps the invariant
 //!   "a z-buffer pixel is non-empty only where its occupancy bit is set" (the occupancy bits
 //!   are the hole mask's input anyway), so a row is cleared by resetting the 64-pixel runs
-//!   whose occupancy word is non-zero, then the word.
+//!   whose occupancy word is non-zero, then the word. A z-buffer the caller lends
+//!   ([`Registration::register_into`], [`Registration::register_parallel_into`]: a NumPy
+//!   array, say) holds anything, so there every row is cleared whole (still row by row, just
+//!   before its first sample): 8 MB written once instead of a copy's 8 MB read and written.
 //! * the projection loop is compiled for x86-64's baseline and for AVX2 and picked at run
 //!   time (`project_any`): the same operations in the same order, 8 lanes instead of 4;
 //! * [`Registration::register_parallel`] splits the *colour* image into horizontal bands,
@@ -91,6 +94,9 @@ pub struct Registration {
     /// Whether the occupancy rows are exactly `width` bits (`width % 64 == 0`), so that a
     /// pixel's bit index is its pixel index and needs no plane of its own.
     same_stride: bool,
+    /// Whether the last frame went into a caller's z-buffer, so that the occupancy bits no
+    /// longer say where `zbuffer` is non-empty (its next frame clears every row whole).
+    own_zbuffer_stale: bool,
 }
 
 impl std::fmt::Debug for Projected {
@@ -213,6 +219,7 @@ fn scatter_block<const SAME_STRIDE: bool>(
     words: usize,
     row0: usize,
     cleared: &mut usize,
+    full: bool,
 ) -> usize {
     let rows = occupancy.len() / words.max(1);
     let (j0, w0) = ((row0 * width) as u32, row0 * words);
@@ -235,7 +242,7 @@ fn scatter_block<const SAME_STRIDE: bool>(
         }
         if j >= limit {
             let y = j / width;
-            clear_rows(zbuffer, occupancy, width, words, *cleared, y + 1);
+            clear_rows(zbuffer, occupancy, width, words, *cleared, y + 1, full);
             *cleared = y + 1;
             limit = *cleared * width;
         }
@@ -309,11 +316,12 @@ fn scatter_any(
     words: usize,
     row0: usize,
     cleared: &mut usize,
+    full: bool,
 ) -> usize {
     if same_stride {
-        scatter_block::<true>(pj, po, pz, zbuffer, occupancy, width, words, row0, cleared)
+        scatter_block::<true>(pj, po, pz, zbuffer, occupancy, width, words, row0, cleared, full)
     } else {
-        scatter_block::<false>(pj, po, pz, zbuffer, occupancy, width, words, row0, cleared)
+        scatter_block::<false>(pj, po, pz, zbuffer, occupancy, width, words, row0, cleared, full)
     }
 }
 
@@ -321,6 +329,7 @@ fn scatter_any(
 /// that [`Registration`] keeps between frames: a z-buffer pixel is not empty only where its
 /// occupancy bit is set. So only the 64-pixel runs with a bit set are reset (about a third
 /// of the image for a Kinect frame: two colour rows in three receive no sample at all).
+/// `full`: every run is reset (a z-buffer the invariant does not hold for: a caller's).
 #[cold]
 #[inline(never)]
 fn clear_rows(
@@ -330,11 +339,12 @@ fn clear_rows(
     words: usize,
     from: usize,
     to: usize,
+    full: bool,
 ) {
     for y in from..to {
         let zrow = &mut zbuffer[y * width..(y + 1) * width];
         for (run, bits) in zrow.chunks_mut(64).zip(&mut occupancy[y * words..(y + 1) * words]) {
-            if *bits != 0 {
+            if full || *bits != 0 {
                 run.fill(ZBUFFER_EMPTY);
                 *bits = 0;
             }
@@ -395,6 +405,7 @@ impl Registration {
             task_rows: Vec::new(),
             float_index: fits_float_index(cw, ch, cw.div_ceil(64).max(1) * 64),
             same_stride: cw % 64 == 0,
+            own_zbuffer_stale: false,
         })
     }
 
@@ -414,6 +425,55 @@ impl Registration {
     /// image. Error: [`GeometryError::SizeMismatch`] for a depth image of another size.
     pub fn register(&mut self, depth: &Image<f32>) -> Result<usize, GeometryError> {
         self.check(depth)?;
+        let mut zbuffer = std::mem::take(&mut self.zbuffer);
+        let landed = self.register_to(depth, &mut zbuffer, self.own_zbuffer_stale);
+        (self.zbuffer, self.own_zbuffer_stale) = (zbuffer, false);
+        Ok(landed)
+    }
+
+    /// [`Registration::register`] straight into the caller's `zbuffer` (colour-sized,
+    /// row-major; any content: every row is cleared whole), leaving the workspace's own
+    /// z-buffer ([`Registration::zbuffer`]) as it was; [`Registration::hole_mask`] then gives
+    /// this frame's mask. No copy: a stream of frames into one array writes each z-buffer
+    /// once. Errors: [`GeometryError::SizeMismatch`] for a depth image of another size,
+    /// [`GeometryError::InvalidInput`] for a `zbuffer` of another length.
+    pub fn register_into(
+        &mut self,
+        depth: &Image<f32>,
+        zbuffer: &mut [f32],
+    ) -> Result<usize, GeometryError> {
+        self.check_into(depth, zbuffer)?;
+        self.own_zbuffer_stale = true;
+        Ok(self.register_to(depth, zbuffer, true))
+    }
+
+    /// [`Registration::register_parallel`] straight into the caller's `zbuffer`, as
+    /// [`Registration::register_into`]; bit-identical to both.
+    pub fn register_parallel_into(
+        &mut self,
+        depth: &Image<f32>,
+        zbuffer: &mut [f32],
+    ) -> Result<usize, GeometryError> {
+        self.check_into(depth, zbuffer)?;
+        self.own_zbuffer_stale = true;
+        Ok(self.register_parallel_to(depth, zbuffer, true))
+    }
+
+    fn check_into(&self, depth: &Image<f32>, zbuffer: &[f32]) -> Result<(), GeometryError> {
+        self.check(depth)?;
+        let (cw, ch) = (self.proj.width as usize, self.proj.height as usize);
+        if zbuffer.len() != cw * ch {
+            return Err(GeometryError::InvalidInput(format!(
+                "z-buffer of {} pixels for a {cw}x{ch} colour image ({} pixels)",
+                zbuffer.len(),
+                cw * ch
+            )));
+        }
+        Ok(())
+    }
+
+    /// One thread into `zbuffer` (checked); `full`: clear every row whole.
+    fn register_to(&mut self, depth: &Image<f32>, zbuffer: &mut [f32], full: bool) -> usize {
         let (cw, ch) = (self.proj.width as usize, self.proj.height as usize);
         let words = self.masker.words_per_row();
         let occupancy = self.masker.occupancy_mut();
@@ -447,18 +507,19 @@ impl Registration {
                 &bj[..n],
                 &bo[..n],
                 &bz[..n],
-                &mut self.zbuffer,
+                zbuffer,
                 occupancy,
                 cw,
                 words,
                 0,
                 &mut cleared,
+                full,
             );
         }
         if cleared < ch {
-            clear_rows(&mut self.zbuffer, occupancy, cw, words, cleared, ch);
+            clear_rows(zbuffer, occupancy, cw, words, cleared, ch, full);
         }
-        Ok(landed)
+        landed
     }
 
     /// [`Registration::register`] on all rayon threads, bit-identical to it. Pass 1 projects
@@ -467,6 +528,19 @@ impl Registration {
     /// that reach it, so that every pixel has one writer.
     pub fn register_parallel(&mut self, depth: &Image<f32>) -> Result<usize, GeometryError> {
         self.check(depth)?;
+        let mut zbuffer = std::mem::take(&mut self.zbuffer);
+        let landed = self.register_parallel_to(depth, &mut zbuffer, self.own_zbuffer_stale);
+        (self.zbuffer, self.own_zbuffer_stale) = (zbuffer, false);
+        Ok(landed)
+    }
+
+    /// All rayon threads into `zbuffer` (checked); `full`: clear every row whole.
+    fn register_parallel_to(
+        &mut self,
+        depth: &Image<f32>,
+        zbuffer: &mut [f32],
+        full: bool,
+    ) -> usize {
         let (cw, ch) = (self.proj.width as usize, self.proj.height as usize);
         let n = depth.data().len();
         let projected = self.projected.get_or_insert_with(|| Projected {
@@ -535,8 +609,7 @@ impl Registration {
         let band_rows = ch.div_ceil(bands).max(1);
         let projected = &*projected;
         let task_rows = &self.task_rows;
-        let landed = self
-            .zbuffer
+        zbuffer
             .par_chunks_mut(band_rows * cw)
             .zip(self.masker.occupancy_mut().par_chunks_mut(band_rows * words))
             .enumerate()
@@ -564,19 +637,20 @@ impl Registration {
                         words,
                         row0,
                         &mut cleared,
+                        full,
                     );
                 }
                 if cleared < rows {
-                    clear_rows(zb, occ, cw, words, cleared, rows);
+                    clear_rows(zb, occ, cw, words, cleared, rows, full);
                 }
                 landed
             })
-            .sum();
-        Ok(landed)
+            .sum()
     }
 
-    /// The z-buffer of the last registered frame (colour-sized, row-major, [`ZBUFFER_EMPTY`]
-    /// where no sample landed).
+    /// The z-buffer of the last frame registered into the workspace's own buffer
+    /// ([`Registration::register`], [`Registration::register_parallel`]; colour-sized,
+    /// row-major, [`ZBUFFER_EMPTY`] where no sample landed).
     pub fn zbuffer(&self) -> &[f32] {
         &self.zbuffer
     }

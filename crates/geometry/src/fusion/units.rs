@@ -37,6 +37,32 @@ pub fn median_depth(depth: &Image<f32>, stride: usize) -> Option<f64> {
     Some(*m as f64)
 }
 
+/// Whether [`median_depth`] (the same sample, the same element) is under `under` and over
+/// `over` metres, found by counting in one pass, without collecting or sorting the sample: a
+/// stream of frames checks each frame's unit for a few microseconds, and computes the median
+/// itself only for a frame outside the band (to say what it is). `None` when there is no
+/// valid sample.
+///
+/// The median is element `n / 2` of the `n` valid samples sorted, so it is under `under`
+/// exactly when more than `n / 2` samples are, and over `over` exactly when at least
+/// `n - n / 2` samples are.
+pub fn median_outside(
+    depth: &Image<f32>,
+    stride: usize,
+    under: f64,
+    over: f64,
+) -> Option<(bool, bool)> {
+    let (mut n, mut below, mut above) = (0usize, 0usize, 0usize);
+    for &d in depth.data().iter().step_by(stride.max(1)) {
+        if d.is_finite() && d > 0.0 {
+            n += 1;
+            below += usize::from(f64::from(d) < under);
+            above += usize::from(f64::from(d) > over);
+        }
+    }
+    (n > 0).then(|| (below > n / 2, above >= n - n / 2))
+}
+
 /// Nearest depth the Kinect v2 measures, metres: 0.5 (its specification; its depth images
 /// hold no sample nearer). A Kinect frame whose median is nearer is most likely depth in
 /// centimetres read as millimetres (a 1.5 m wall reads 0.15 m; 2.9 m reads 0.29 m, which
@@ -114,6 +140,40 @@ mod tests {
             }
         }
         Image::from_vec(512, 424, data).unwrap()
+    }
+
+    #[test]
+    fn median_outside_agrees_with_the_sorted_median() {
+        // Frames whose sample sizes are odd and even and whose medians sit exactly on, just
+        // under and just over the limits: the counted answer equals comparing the median
+        // that median_depth sorts out.
+        let limits = [0.2, 0.5, 15.0, 1.0];
+        for n in [1usize, 2, 3, 4, 7, 10, 101] {
+            for centre in [0.1f32, 0.2, 0.5, 0.7, 15.0, 15.5, 1.0] {
+                let frame = Image::from_fn(n, 3, |x, y| match (x + y) % 5 {
+                    0 => f32::NAN,
+                    1 => centre,
+                    2 => centre * 0.5,
+                    3 => centre * 2.0,
+                    _ => 0.0,
+                });
+                for stride in [1, 2, 3] {
+                    let Some(m) = median_depth(&frame, stride) else {
+                        assert_eq!(median_outside(&frame, stride, 0.2, 15.0), None);
+                        continue;
+                    };
+                    for &under in &limits {
+                        for &over in &limits {
+                            assert_eq!(
+                                median_outside(&frame, stride, under, over),
+                                Some((m < under, m > over)),
+                                "n {n} centre {centre} stride {stride} median {m}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
     }
 
     #[test]
