@@ -11,6 +11,9 @@
 //! * `register+holes/rayon`: `Registration::register_parallel` (projection in parallel, then
 //!   one band of colour rows per thread, no atomics) and `hole_mask_parallel` (bit mask on
 //!   one thread, the `bool` image written in parallel).
+//! * `register+holes/rayon_into`: the same registering into a z-buffer of the caller's
+//!   (`register_parallel_into`, what Python's `Registration.register(out=)` runs on the CPU):
+//!   every colour row is cleared whole, as a buffer holding anything needs.
 //! * `register+holes/legacy_*`: the previous entry points (`register_depth_marking` +
 //!   `HoleMasker`, and the atomic-min `register_depth_parallel` + a z-buffer scan), kept for
 //!   comparison.
@@ -162,6 +165,15 @@ fn benches(c: &mut Criterion) {
         b.iter(|| {
             let n = reg
                 .register_parallel(black_box(&frame.depth))
+                .expect("the preset's depth matches its rig");
+            black_box((n, reg.hole_mask_parallel(&mut mask)))
+        })
+    });
+    let mut lent = vec![0f32; cw * ch];
+    g.bench_function("rayon_into", |b| {
+        b.iter(|| {
+            let n = reg
+                .register_parallel_into(black_box(&frame.depth), &mut lent)
                 .expect("the preset's depth matches its rig");
             black_box((n, reg.hole_mask_parallel(&mut mask)))
         })

@@ -27,11 +27,12 @@ What is timed (median and minimum wall-clock and median process CPU time of repe
   `project_to_depth_image` into the colour camera (no distortion), reported separately and summed.
 * kfuse from Python (issue 31), when the venv has the package (`benches/run_all.sh` builds
   `python/` into it with the bench profile): `kfuse.Registration(rig).register(depth_mm)` then
-  `.hole_mask()`, the uint16 array in and both NumPy arrays out (all cores: it runs
-  `register_parallel` and `hole_mask_parallel`), and the same with `out=` arrays reused from
-  frame to frame. Compare with the Rust bench's `register+holes/rayon` of the same run: the
-  difference is what the call from Python costs (the millimetre-to-metre conversion, the
-  arrays handed to NumPy, the GIL).
+  `.hole_mask()` on the CPU engine, the uint16 array in and both NumPy arrays out (all cores:
+  `register_parallel_into` and `hole_mask_parallel` through `geometry::fusion::register_on`),
+  and the same with `out=` arrays reused from frame to frame (the z-buffer registered straight
+  into the array, no copy). Compare with the Rust bench's `register+holes/rayon` of the same
+  run: the difference is what the call from Python costs (the millimetre-to-metre conversion
+  and unit check, clearing the caller's array whole (`register+holes/rayon_into`), the GIL).
 
 Compare with kfuse's `register+holes/single` (registration + hole mask, with both lenses'
 distortion) in the criterion report.
@@ -135,7 +136,7 @@ def main():
         kfuse = None
         print("kfuse (Python) not installed in this venv: its rows are left out")
     if kfuse is not None:
-        reg = kfuse.Registration(kfuse.Rig.load(frame_dir / "rig.json"))
+        reg = kfuse.Registration(kfuse.Rig.load(frame_dir / "rig.json"), engine="cpu")
 
         def kfuse_register():
             return reg.register(depth_mm), reg.hole_mask()

@@ -53,7 +53,7 @@ fn parse_engine(name: &str) -> PyResult<Engine> {
 }
 
 /// An `engine` argument: an Engine or its name.
-fn engine_arg(obj: &Bound<'_, PyAny>) -> PyResult<Engine> {
+pub(crate) fn engine_arg(obj: &Bound<'_, PyAny>) -> PyResult<Engine> {
     if let Ok(e) = obj.cast::<PyEngine>() {
         return Ok(e.get().engine);
     }
@@ -65,9 +65,29 @@ fn engine_arg(obj: &Bound<'_, PyAny>) -> PyResult<Engine> {
     }
 }
 
+/// Where the stages ran, in words: "cpu", "gpu: ADAPTER" or "cpu (fallback: REASON)".
+pub(crate) fn engine_used_text(used: &EngineUsed) -> String {
+    match used {
+        EngineUsed::Cpu => "cpu".into(),
+        EngineUsed::Gpu { adapter, .. } => format!("gpu: {adapter}"),
+        EngineUsed::CpuFallback { reason } => format!("cpu (fallback: {reason})"),
+    }
+}
+
+/// engine="auto" without an adapter: the CLI's warning as a RuntimeWarning ("REASON; fusing
+/// on the CPU", `doing` for "fusing").
+pub(crate) fn warn_fallback(py: Python<'_>, used: &EngineUsed, doing: &str) -> PyResult<()> {
+    if let EngineUsed::CpuFallback { reason } = used {
+        let msg =
+            std::ffi::CString::new(format!("{reason}; {doing} on the CPU")).unwrap_or_default();
+        PyErr::warn(py, &py.get_type::<PyRuntimeWarning>(), &msg, 1)?;
+    }
+    Ok(())
+}
+
 /// A fusion error: no adapter (or another GPU failure) is a RuntimeError with the CLI's
 /// message, bad input a ValueError.
-fn gpu_err(e: GpuError) -> PyErr {
+pub(crate) fn gpu_err(e: GpuError) -> PyErr {
     match e {
         GpuError::Input(g) => geometry_err(g),
         other => PyRuntimeError::new_err(other.to_string()),
@@ -122,11 +142,7 @@ impl PyFusedFrame {
     /// without an adapter).
     #[getter]
     fn engine_used(&self) -> String {
-        match &self.used {
-            EngineUsed::Cpu => "cpu".into(),
-            EngineUsed::Gpu { adapter, .. } => format!("gpu: {adapter}"),
-            EngineUsed::CpuFallback { reason } => format!("cpu (fallback: {reason})"),
-        }
+        engine_used_text(&self.used)
     }
 
     /// H7 z-buffer: the colour camera's z (depth_zbuffer.exr).
@@ -279,13 +295,13 @@ impl PyFusedFrame {
 
 /// The fusion options of `kfuse fuse`'s defaults (its `options()`), with `linear` for
 /// `--resample both` (True) or `nearest` (False) and `depth_range` for `--depth-range`.
-fn cli_options(linear: bool, depth_range: fusion::DepthRange) -> FusionOptions {
+pub(crate) fn cli_options(linear: bool, depth_range: fusion::DepthRange) -> FusionOptions {
     FusionOptions { linear, depth_range, record_timings: true, ..FusionOptions::default() }
 }
 
 /// The `depth_range=` keyword: `--depth-range`'s text ("0.5m..2.5m", "500mm..2500mm") or a
 /// `(min, max)` pair in metres; None keeps every sample. ValueError naming the keyword.
-fn depth_range_arg(arg: Option<&Bound<'_, PyAny>>) -> PyResult<fusion::DepthRange> {
+pub(crate) fn depth_range_arg(arg: Option<&Bound<'_, PyAny>>) -> PyResult<fusion::DepthRange> {
     let Some(arg) = arg.filter(|a| !a.is_none()) else { return Ok(fusion::DepthRange::ALL) };
     let bad = |e: geometry::GeometryError| PyValueError::new_err(format!("depth_range: {e}"));
     if let Ok(text) = arg.extract::<String>() {
@@ -336,11 +352,7 @@ pub(crate) fn fuse(
             fusion_gpu::fuse_request(engine, &request, &depth, &color)
         })
         .map_err(gpu_err)?;
-    if let EngineUsed::CpuFallback { reason } = &used {
-        let msg =
-            std::ffi::CString::new(format!("{reason}; fusing on the CPU")).unwrap_or_default();
-        PyErr::warn(py, &py.get_type::<PyRuntimeWarning>(), &msg, 1)?;
-    }
+    warn_fallback(py, &used, "fusing")?;
     // summary.json's "inputs": where the frame came from (the CLI names its files here).
     let mut inputs = serde_json::json!({
         "source": "kfuse Python package (NumPy arrays)",

@@ -1,5 +1,5 @@
 //! The Python module `kfuse`: rig files and the exact z-buffered registration of
-//! `geometry::fusion::Registration`, NumPy in and out. A thin layer: every algorithm and
+//! `geometry::fusion` (`register_on`, on the CPU or the GPU), NumPy in and out. A thin layer: every algorithm and
 //! every file format is the workspace's (`calib::rig_io`, `geometry::fusion`); this crate only
 //! checks arrays, converts them and maps errors (`ValueError` for bad content, `OSError`
 //! for a file that cannot be read or written).
@@ -14,7 +14,8 @@ mod recording;
 
 use calib::CalibError;
 use calib::rig_io::{self, Calibration, ImportOptions};
-use geometry::fusion::{self, ColorProjection, FusionOptions};
+use fusion_gpu::{Engine, EngineUsed, GpuError, PixelEngine};
+use geometry::fusion::{self, ColorProjection};
 use geometry::{CameraModel, DepthKind, GeometryError, Image, Rig};
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
 use kinect_usb::orientation::Orientation;
@@ -439,99 +440,274 @@ impl PyRig {
 /// `color_on_depth`'s result: RGB on the depth grid and where it is valid.
 type ColorOnDepth<'py> = (Bound<'py, PyArray3<u8>>, Bound<'py, PyArray2<bool>>);
 
-/// The last registered frame: depth in metres (as fuse reads it) and H3's nearest fill (for
-/// the occlusion test of `color_on_depth`, computed on first use).
-struct Frame {
-    depth: Image<f32>,
-    nearest: Option<Image<f32>>,
-}
-
-/// Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask, frame after frame:
-/// `geometry::fusion::Registration` with `kfuse fuse`'s default options, z depth.
+/// Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask, frame after frame, on
+/// the CPU or the GPU: `kfuse fuse`'s request (its default options, `depth_range`, z depth)
+/// through `geometry::fusion::register_on`, one frame of `stream_on` written straight into
+/// the caller's arrays.
 ///
-/// reg = kfuse.Registration(rig); z = reg.register(depth_mm)  # (H, W) float32 metres, NaN = none
+/// reg = kfuse.Registration(rig, engine="cpu", force=False, depth_range=None)
+/// z = reg.register(depth_mm)  # (H, W) float32 metres, NaN = none
 #[pyclass(name = "Registration", module = "kfuse")]
 struct PyRegistration {
-    /// The rig as fuse uses it (no distortion when rectified).
-    rig: Rig,
-    /// The fusion request (its depth preparation is every frame's).
+    /// The fusion request (the rig as fused, the options; its depth preparation is every
+    /// frame's).
     request: fusion::Request,
-    reg: fusion::Registration,
+    /// Where the stages run.
+    engine: PixelEngine,
+    used: EngineUsed,
     /// H1's ray per depth pixel and H2's projection, for `color_on_depth` (fixed by the rig).
     rays: Vec<[f32; 3]>,
     projection: ColorProjection,
-    radius_px: f32,
-    depth_jump: f32,
-    occlusion_tolerance: f32,
     /// Depth in a unit the fusion does not read is accepted (`force=True`).
     force: bool,
-    frame: Option<Frame>,
+    /// The frame being read (metres, prepared), reused; it becomes `depth` once registered.
+    incoming: Image<f32>,
+    /// The last registered frame's depth (metres, prepared, not clipped to the range).
+    depth: Image<f32>,
+    registered: bool,
+    /// The GPU's hole mask of the last frame (the GPU computes it with the z-buffer; the CPU
+    /// keeps the occupancy bits it is made from instead). Empty on the CPU.
+    gpu_mask: Vec<bool>,
+    /// A z-buffer of the registration's own, for `color_on_depth` and `cloud` (empty until
+    /// one of them needs it).
+    zbuffer: Image<f32>,
+    /// H3's nearest fill of the last frame, for H6's occlusion test (made on first use).
+    nearest: Option<Image<f32>>,
+}
+
+/// A `depth` argument, borrowed: uint16 millimetres (a 16-bit PNG's) or float32 millimetres
+/// (the decoder's and `Recording`'s).
+enum DepthArg<'py> {
+    Units(PyReadonlyArray2<'py, u16>),
+    Millimetres(PyReadonlyArray2<'py, f32>),
+}
+
+impl<'py> DepthArg<'py> {
+    /// `depth` checked against the rig's depth size (ValueError naming `depth`).
+    fn new(rig: &Rig, depth: &Bound<'py, PyAny>) -> PyResult<Self> {
+        let (dw, dh) = (rig.depth.width, rig.depth.height);
+        Ok(if depth.cast::<PyArray2<f32>>().is_ok() {
+            let arr = array2::<f32>(depth, "depth", "float32", dh, dw)?;
+            arr.as_slice().map_err(|_| bad_array("depth", "float32", depth, ""))?;
+            DepthArg::Millimetres(arr)
+        } else {
+            let arr = array2::<u16>(depth, "depth", "uint16", dh, dw)?;
+            arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
+            DepthArg::Units(arr)
+        })
+    }
+
+    /// The borrowed values, to read without the GIL.
+    fn values(&self) -> PyResult<DepthValues<'_>> {
+        let bad = |e: numpy::AsSliceError| PyValueError::new_err(format!("depth: {e}"));
+        Ok(match self {
+            DepthArg::Units(a) => DepthValues::Units(a.as_slice().map_err(bad)?),
+            DepthArg::Millimetres(a) => DepthValues::Millimetres(a.as_slice().map_err(bad)?),
+        })
+    }
+}
+
+/// A [`DepthArg`]'s values.
+#[derive(Clone, Copy)]
+enum DepthValues<'a> {
+    Units(&'a [u16]),
+    Millimetres(&'a [f32]),
+}
+
+impl DepthValues<'_> {
+    /// The depth in metres into `out` (the rig's depth size) with the request's depth
+    /// preparation, as fuse reads and prepares it: uint16 as `kfuse_io::images::read_depth`
+    /// reads a 16-bit PNG, float32 as `kfuse fuse --recording` converts the decoder's.
+    fn metres_into(
+        self,
+        request: &fusion::Request,
+        out: &mut Image<f32>,
+    ) -> Result<(), GeometryError> {
+        match self {
+            DepthValues::Units(v) => {
+                kfuse_io::images::depth_from_units_into(v, METRES_PER_MM, out.data_mut())?
+            }
+            DepthValues::Millimetres(v) => kfuse_sequence::process::depth_in_metres_into(v, out)
+                .map_err(|e| GeometryError::InvalidInput(e.to_string()))?,
+        }
+        request.prepare_depth(out)?;
+        Ok(())
+    }
 }
 
 impl PyRegistration {
+    fn has_frame(&self, what: &str) -> PyResult<()> {
+        if self.registered {
+            return Ok(());
+        }
+        Err(PyValueError::new_err(format!(
+            "{what}: no frame registered yet; call register(depth) first"
+        )))
+    }
+
+    /// Registers `incoming` (read, prepared and unit-checked) on the engine into `zbuffer`
+    /// (the GPU's hole mask into `gpu_mask`); it becomes the last frame.
+    fn register_incoming(&mut self, zbuffer: &mut [f32]) -> Result<(), GpuError> {
+        let Self { engine, request, incoming, gpu_mask, .. } = self;
+        let mask = matches!(engine, PixelEngine::Gpu(_)).then_some(&mut gpu_mask[..]);
+        fusion::register_on(engine, request, incoming, zbuffer, mask)?;
+        std::mem::swap(&mut self.incoming, &mut self.depth);
+        self.registered = true;
+        self.nearest = None;
+        Ok(())
+    }
+
+    /// Reads `depth` into `incoming` and, unless it needs the unit check's words (a median
+    /// outside the band: raise, or warn and go on), registers it into `zbuffer`, all without
+    /// the GIL. A frame refused here leaves the last frame as it was.
+    fn read_and_register(
+        &mut self,
+        py: Python<'_>,
+        depth: DepthValues<'_>,
+        zbuffer: &mut [f32],
+    ) -> PyResult<()> {
+        let rig = self.request.rig();
+        let (dw, dh) = (rig.depth.width, rig.depth.height);
+        if self.incoming.size() != (dw, dh) {
+            // The two depth frames (being read, last registered), made on the first frame.
+            ensure_memory("register", (dw * dh).saturating_mul(2 * 4))?;
+            self.incoming = Image::filled(dw, dh, f32::NAN);
+            self.depth = Image::filled(dw, dh, f32::NAN);
+        }
+        let registered = py
+            .detach(|| -> Result<bool, GpuError> {
+                depth.metres_into(&self.request, &mut self.incoming)?;
+                if !self.force && unit_needs_words(self.request.rig(), &self.incoming) {
+                    return Ok(false);
+                }
+                self.register_incoming(zbuffer)?;
+                Ok(true)
+            })
+            .map_err(fuse::gpu_err)?;
+        if !registered {
+            check_depth_unit(py, self.request.rig(), &self.incoming)?;
+            py.detach(|| self.register_incoming(zbuffer)).map_err(fuse::gpu_err)?;
+        }
+        Ok(())
+    }
+
     /// H6 of the last registered frame (which must exist): fuse's colour on the depth grid
-    /// with its occlusion test against H3's nearest fill (computed on first use).
+    /// (the depth range applied, as H1 applies it) with its occlusion test against H3's
+    /// nearest fill of the frame's z-buffer (registered again into the registration's own
+    /// z-buffer on first use).
     fn color_of_frame(
         &mut self,
         color: &Image<[u8; 3]>,
-    ) -> Result<(Image<[u8; 3]>, Image<bool>), GeometryError> {
-        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
-        let (reg, rays, proj) = (&self.reg, &self.rays, &self.projection);
-        let (radius, jump, tol) = (self.radius_px, self.depth_jump, self.occlusion_tolerance);
-        let Some(frame) = self.frame.as_mut() else {
-            return Err(GeometryError::InvalidInput("no frame registered yet".into()));
-        };
-        if frame.nearest.is_none() {
-            let z = Image::from_vec(cw, ch, reg.zbuffer().to_vec())?;
-            frame.nearest = Some(fusion::nearest_fill(&z, radius, jump));
+    ) -> Result<(Image<[u8; 3]>, Image<bool>), GpuError> {
+        if !self.registered {
+            return Err(GeometryError::InvalidInput("no frame registered yet".into()).into());
         }
-        Ok(fusion::color_on_depth(&frame.depth, rays, proj, color, frame.nearest.as_ref(), tol))
-    }
-
-    fn frame(&self, what: &str) -> PyResult<&Frame> {
-        self.frame.as_ref().ok_or_else(|| {
-            PyValueError::new_err(format!(
-                "{what}: no frame registered yet; call register(depth) first"
-            ))
-        })
+        let params = self.request.params();
+        if self.nearest.is_none() {
+            let rig = self.request.rig();
+            if self.zbuffer.size() != (rig.color.width, rig.color.height) {
+                self.zbuffer = Image::filled(rig.color.width, rig.color.height, f32::NAN);
+            }
+            let Self { engine, request, depth, gpu_mask, zbuffer, .. } = self;
+            let mask = matches!(engine, PixelEngine::Gpu(_)).then_some(&mut gpu_mask[..]);
+            fusion::register_on(engine, request, depth, zbuffer.data_mut(), mask)?;
+            self.nearest =
+                Some(fusion::nearest_fill(&self.zbuffer, params.radius_px, params.depth_jump));
+        }
+        let depth = params.depth_range.clip(&self.depth);
+        let tol = params.occlusion_tolerance.unwrap_or(0.0);
+        Ok(fusion::color_on_depth(
+            &depth,
+            &self.rays,
+            &self.projection,
+            color,
+            self.nearest.as_ref(),
+            tol,
+        ))
     }
 }
 
 #[pymethods]
 impl PyRegistration {
-    /// Buffers and per-pixel constants for `rig` (kfuse fuse's defaults: z depth, its hole radii).
-    /// Every frame's depth unit is checked as fuse checks it (a median depth outside 0.2-15 m
-    /// raises ValueError); `force=True` registers such frames anyway.
+    /// Buffers and per-pixel constants for `rig`, with `kfuse fuse`'s request: its default
+    /// options (z depth, its hole radii) and the keywords of `kfuse.fuse` that apply to
+    /// registration:
+    ///
+    /// * `engine`: where the stages run, a kfuse.Engine or "cpu" (the default), "gpu" (wgpu,
+    ///   Vulkan; no adapter is a RuntimeError) or "auto" (the GPU if there is one, else the
+    ///   CPU with a RuntimeWarning); the `engine` attribute says which. Results are
+    ///   bit-identical on every engine.
+    /// * `force`: every frame's depth unit is checked as fuse checks it (a median depth
+    ///   outside 0.2-15 m raises ValueError); `force=True` registers such frames anyway.
+    /// * `depth_range`: fuse's `--depth-range`, "0.5m..2.5m" or a (min, max) pair in metres;
+    ///   samples outside are not samples. None keeps every sample.
+    ///
+    /// (`linear`, fuse's H3 resampling, has no part in registration.)
     #[new]
-    #[pyo3(signature = (rig, force = false))]
-    fn new(rig: &PyRig, force: bool) -> PyResult<Self> {
-        let options = FusionOptions::default();
+    #[pyo3(signature = (rig, engine = None, force = false, depth_range = None))]
+    fn new(
+        py: Python<'_>,
+        rig: &PyRig,
+        engine: Option<&Bound<'_, PyAny>>,
+        force: bool,
+        depth_range: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let engine = engine.map(fuse::engine_arg).transpose()?.unwrap_or(Engine::Cpu);
+        let options = fuse::cli_options(true, fuse::depth_range_arg(depth_range)?);
         let request =
             fusion::Request::new(&rig.rig, DepthKind::Z, options).map_err(geometry_err)?;
-        let rig = request.rig().clone();
-        let reg = fusion::Registration::new(&rig, DepthKind::Z, &options).map_err(geometry_err)?;
+        let fused = request.rig();
+        fused.validate().map_err(geometry_err)?;
+        fusion::checked_coverage_radius_px(fused, &options).map_err(geometry_err)?;
+        let (engine, used) = py.detach(|| engine.open()).map_err(fuse::gpu_err)?;
+        fuse::warn_fallback(py, &used, "registering")?;
+        let (cw, ch) = (fused.color.width, fused.color.height);
+        let gpu_mask = match engine {
+            PixelEngine::Gpu(_) => vec![false; cw * ch],
+            PixelEngine::Cpu(_) => Vec::new(),
+        };
         Ok(Self {
-            rays: fusion::depth_ray_table(&rig.depth, DepthKind::Z),
-            projection: ColorProjection::from_rig(&rig),
-            radius_px: fusion::coverage_radius_px(&rig, &options),
-            depth_jump: options.depth_jump,
-            occlusion_tolerance: options.color_occlusion_tolerance,
+            rays: fusion::depth_ray_table(&fused.depth, DepthKind::Z),
+            projection: ColorProjection::from_rig(fused),
+            incoming: Image::filled(0, 0, f32::NAN),
+            depth: Image::filled(0, 0, f32::NAN),
+            registered: false,
+            gpu_mask,
+            zbuffer: Image::filled(0, 0, f32::NAN),
+            nearest: None,
             force,
-            rig,
+            engine,
+            used,
             request,
-            reg,
-            frame: None,
         })
     }
 
+    /// Where the stages run: "cpu" or "gpu" (engine="auto" says which it picked).
+    #[getter]
+    fn engine(&self) -> &'static str {
+        match self.engine {
+            PixelEngine::Cpu(_) => "cpu",
+            PixelEngine::Gpu(_) => "gpu",
+        }
+    }
+
+    /// As FusedFrame.engine_used: "cpu", "gpu: ADAPTER" or "cpu (fallback: REASON)".
+    #[getter]
+    fn engine_used(&self) -> String {
+        fuse::engine_used_text(&self.used)
+    }
+
     /// Registers one depth frame: `depth` is a C-contiguous uint16 (H, W) array of z in
-    /// millimetres (0 = no sample), the depth camera's size. Returns the colour camera's z in
-    /// metres on the colour grid, float32 (colour H, colour W), NaN where no sample landed:
-    /// the z-buffer `kfuse fuse` writes as depth_zbuffer.exr. The rig's depth correction is
-    /// applied first, as fuse does. Releases the GIL.
+    /// millimetres (0 = no sample), or float32 millimetres as kfuse.Decoder gives them, the
+    /// depth camera's size. Returns the colour camera's z in metres on the colour grid,
+    /// float32 (colour H, colour W), NaN where no sample landed: the z-buffer `kfuse fuse`
+    /// writes as depth_zbuffer.exr, bit for bit, on every engine. The rig's depth correction
+    /// is applied first and the depth range by H1, as fuse does. Releases the GIL.
     ///
-    /// `out`: a writable C-contiguous float32 (colour H, colour W) array to fill and return
-    /// instead of a new one (a stream of frames then allocates nothing per frame).
+    /// `out`: a writable C-contiguous float32 (colour H, colour W) array to register into and
+    /// return instead of a new one (whatever it holds is overwritten). On the CPU the
+    /// z-buffer is written straight into it, with no copy; a stream of frames then allocates
+    /// nothing per frame.
     #[pyo3(signature = (depth, out = None))]
     fn register<'py>(
         &mut self,
@@ -539,67 +715,60 @@ impl PyRegistration {
         depth: &Bound<'py, PyAny>,
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let image = depth_metres(py, &self.request, depth, self.force)?;
-        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
-        let reg = &mut self.reg;
-        let Some(out) = out else {
-            let image = py
-                .detach(|| -> Result<_, GeometryError> {
-                    reg.register_parallel(&image)?;
-                    Ok(image)
-                })
-                .map_err(geometry_err)?;
-            let zbuffer = try_copy(reg.zbuffer(), "register")?;
-            self.frame = Some(Frame { depth: image, nearest: None });
-            let z = Array2::from_shape_vec((ch, cw), zbuffer)
-                .map_err(|e| PyValueError::new_err(e.to_string()))?;
-            return Ok(z.into_pyarray(py));
+        let depth = DepthArg::new(self.request.rig(), depth)?;
+        let (cw, ch) = (self.request.rig().color.width, self.request.rig().color.height);
+        let (array, obj) = match out {
+            Some(out) => (out_array2::<f32>(out, "out", "float32", ch, cw)?, out.clone()),
+            None => {
+                ensure_memory("register", cw * ch * 4)?;
+                let a = PyArray2::<f32>::zeros(py, [ch, cw], false);
+                let obj = a.as_any().clone();
+                (a, obj)
+            }
         };
-        let array = out_array2::<f32>(out, "out", "float32", ch, cw)?;
         {
-            let mut dst = writable(&array, out, "float32 (colour H, colour W)")?;
-            let dst = dst.as_slice_mut().map_err(|_| bad_array("out", "float32", out, ""))?;
-            let image = py
-                .detach(|| -> Result<_, GeometryError> {
-                    reg.register_parallel(&image)?;
-                    dst.copy_from_slice(reg.zbuffer());
-                    Ok(image)
-                })
-                .map_err(geometry_err)?;
-            self.frame = Some(Frame { depth: image, nearest: None });
+            let mut dst = writable(&array, &obj, "float32 (colour H, colour W)")?;
+            let dst = dst.as_slice_mut().map_err(|_| bad_array("out", "float32", &obj, ""))?;
+            self.read_and_register(py, depth.values()?, dst)?;
         }
         Ok(array)
     }
 
     /// H8's disocclusion hole mask of the last registered frame: bool (colour H, colour W),
-    /// True where the colour camera sees a surface the depth camera did not.
+    /// True where the colour camera sees a surface the depth camera did not (fuse's
+    /// hole_mask.png), the same on every engine.
     ///
     /// `out`: a writable C-contiguous bool (colour H, colour W) array to fill and return
-    /// instead of a new one.
+    /// instead of a new one (on the CPU written straight from the registration's bits).
     #[pyo3(signature = (out = None))]
     fn hole_mask<'py>(
         &mut self,
         py: Python<'py>,
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<bool>>> {
-        self.frame("hole_mask")?;
-        let (cw, ch) = (self.rig.color.width, self.rig.color.height);
-        let reg = &mut self.reg;
-        let Some(out) = out else {
-            let mask = py.detach(|| {
-                let mut mask = vec![false; cw * ch];
-                reg.hole_mask_parallel(&mut mask);
-                mask
-            });
-            let m = Array2::from_shape_vec((ch, cw), mask)
-                .map_err(|e| PyValueError::new_err(e.to_string()))?;
-            return Ok(m.into_pyarray(py));
+        self.has_frame("hole_mask")?;
+        let (cw, ch) = (self.request.rig().color.width, self.request.rig().color.height);
+        let (array, obj) = match out {
+            Some(out) => (out_array2::<bool>(out, "out", "bool", ch, cw)?, out.clone()),
+            None => {
+                ensure_memory("hole_mask", cw * ch)?;
+                let a = PyArray2::<bool>::zeros(py, [ch, cw], false);
+                let obj = a.as_any().clone();
+                (a, obj)
+            }
         };
-        let array = out_array2::<bool>(out, "out", "bool", ch, cw)?;
         {
-            let mut dst = writable(&array, out, "bool (colour H, colour W)")?;
-            let dst = dst.as_slice_mut().map_err(|_| bad_array("out", "bool", out, ""))?;
-            py.detach(|| reg.hole_mask_parallel(dst));
+            let mut dst = writable(&array, &obj, "bool (colour H, colour W)")?;
+            let dst = dst.as_slice_mut().map_err(|_| bad_array("out", "bool", &obj, ""))?;
+            let (engine, gpu_mask) = (&mut self.engine, &self.gpu_mask);
+            py.detach(|| match engine {
+                PixelEngine::Cpu(c) => c.last_hole_mask(dst).map(|_| ()),
+                PixelEngine::Gpu(_) => {
+                    dst.copy_from_slice(gpu_mask);
+                    Some(())
+                }
+            })
+            .ok_or_else(|| PyValueError::new_err("hole_mask: the engine kept no frame"))?;
         }
         Ok(array)
     }
@@ -613,10 +782,11 @@ impl PyRegistration {
         py: Python<'py>,
         color: &Bound<'py, PyAny>,
     ) -> PyResult<ColorOnDepth<'py>> {
-        let color_img = color_image(py, &self.rig, color)?;
-        self.frame("color_on_depth")?;
-        let (rgb, valid) = py.detach(|| self.color_of_frame(&color_img)).map_err(geometry_err)?;
-        let (dw, dh) = (self.rig.depth.width, self.rig.depth.height);
+        let color_img = color_image(py, self.request.rig(), color)?;
+        self.has_frame("color_on_depth")?;
+        let (rgb, valid) = py.detach(|| self.color_of_frame(&color_img)).map_err(fuse::gpu_err)?;
+        let rig = self.request.rig();
+        let (dw, dh) = (rig.depth.width, rig.depth.height);
         let rgb = Array3::from_shape_vec((dh, dw, 3), try_flat(rgb.data(), "color_on_depth")?)
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         let valid = Array2::from_shape_vec((dh, dw), try_copy(valid.data(), "color_on_depth")?)
@@ -625,13 +795,13 @@ impl PyRegistration {
     }
 
     /// H1 (and H6): the point cloud `kfuse fuse` writes as cloud.ply. `depth` is as for
-    /// `register` (uint16 (H, W) mm, the rig's depth correction applied); returns
-    /// (points float32 (N, 3) metres in the depth camera's frame, x right, y down, z forward,
-    /// one per valid depth pixel in row-major order; colors uint8 (N, 3) or None). With
-    /// `color` (uint8 (colour H, colour W, 3), RGB) the frame is registered as by `register`
-    /// (it becomes the last frame) and every point gets H6's colour, black where fuse does
-    /// not trust it (occluded or outside the colour image), as in cloud.ply. Without it
-    /// nothing is registered. Releases the GIL.
+    /// `register` (uint16 (H, W) mm, the rig's depth correction applied, samples outside the
+    /// depth range left out); returns (points float32 (N, 3) metres in the depth camera's
+    /// frame, x right, y down, z forward, one per valid depth pixel in row-major order; colors
+    /// uint8 (N, 3) or None). With `color` (uint8 (colour H, colour W, 3), RGB) the frame is
+    /// registered as by `register` (it becomes the last frame) and every point gets H6's
+    /// colour, black where fuse does not trust it (occluded or outside the colour image), as
+    /// in cloud.ply. Without it nothing is registered. Releases the GIL.
     #[pyo3(signature = (depth, color = None))]
     fn cloud<'py>(
         &mut self,
@@ -639,25 +809,57 @@ impl PyRegistration {
         depth: &Bound<'py, PyAny>,
         color: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<CloudArrays<'py>> {
-        let color_img = color.map(|c| color_image(py, &self.rig, c)).transpose()?;
+        let color_img = color.map(|c| color_image(py, self.request.rig(), c)).transpose()?;
         let image = depth_metres(py, &self.request, depth, self.force)?;
         // H1's cloud grows to one point (12 bytes) and one pixel index (4) per depth pixel,
         // its buffers up to twice that while they grow; then the (N, 3) arrays.
         let (w, h) = image.size();
         ensure_memory("cloud", (w * h).saturating_mul(2 * 16 + 12 + 6))?;
-        let (points, pixels) = py.detach(|| fusion::backproject_cloud(&image, &self.rays));
+        let range = self.request.params().depth_range;
+        let (points, pixels) =
+            py.detach(|| fusion::backproject_cloud(&range.clip(&image), &self.rays));
         let colors = match color_img {
             None => None,
             Some(color_img) => {
-                let reg = &mut self.reg;
-                py.detach(|| reg.register_parallel(&image)).map_err(geometry_err)?;
-                self.frame = Some(Frame { depth: image, nearest: None });
-                let (rgb, valid) =
-                    py.detach(|| self.color_of_frame(&color_img)).map_err(geometry_err)?;
+                let rig = self.request.rig();
+                let (cw, ch) = (rig.color.width, rig.color.height);
+                ensure_memory("cloud", cw * ch * 4)?;
+                let (rgb, valid) = py
+                    .detach(|| -> Result<_, GpuError> {
+                        self.incoming = image;
+                        if self.zbuffer.size() != (cw, ch) {
+                            self.zbuffer = Image::filled(cw, ch, f32::NAN);
+                        }
+                        let mut zbuffer =
+                            std::mem::replace(&mut self.zbuffer, Image::filled(0, 0, f32::NAN));
+                        let registered = self.register_incoming(zbuffer.data_mut());
+                        self.zbuffer = zbuffer;
+                        registered?;
+                        let params = self.request.params();
+                        self.nearest = Some(fusion::nearest_fill(
+                            &self.zbuffer,
+                            params.radius_px,
+                            params.depth_jump,
+                        ));
+                        self.color_of_frame(&color_img)
+                    })
+                    .map_err(fuse::gpu_err)?;
                 Some(rows(py, &fusion::cloud_colors(&pixels, &rgb, &valid))?)
             }
         };
         Ok((rows(py, &points.points)?, colors))
+    }
+
+    fn __repr__(&self) -> String {
+        let rig = self.request.rig();
+        format!(
+            "Registration(depth {}x{} -> colour {}x{}, engine {:?})",
+            rig.depth.width,
+            rig.depth.height,
+            rig.color.width,
+            rig.color.height,
+            self.engine()
+        )
     }
 }
 
@@ -668,7 +870,8 @@ type CloudArrays<'py> = (Bound<'py, PyArray2<f32>>, Option<Bound<'py, PyArray2<u
 /// applies it: a uint16 (H, W) array of millimetres as `kfuse_io::images::read_depth` reads
 /// a 16-bit PNG, or a float32 (H, W) array of millimetres (the decoder's and `Recording`'s
 /// output) as `kfuse fuse --recording` converts it (`kfuse_sequence::process::depth_in_metres`);
-/// (H, W) is the rig's depth camera's size.
+/// (H, W) is the rig's depth camera's size. Depth in another unit is refused (or warned
+/// about) as fuse refuses it, unless `force`.
 fn depth_metres(
     py: Python<'_>,
     request: &fusion::Request,
@@ -676,31 +879,31 @@ fn depth_metres(
     force: bool,
 ) -> PyResult<Image<f32>> {
     let rig = request.rig();
-    let (dw, dh) = (rig.depth.width, rig.depth.height);
-    // The request's depth preparation (the rig's depth correction), as fuse applies it.
-    let correct = |mut image: Image<f32>| -> Result<Image<f32>, GeometryError> {
-        request.prepare_depth(&mut image)?;
-        Ok(image)
-    };
-    let image = if depth.cast::<PyArray2<f32>>().is_ok() {
-        let arr = array2::<f32>(depth, "depth", "float32", dh, dw)?;
-        let mm = arr.as_slice().map_err(|_| bad_array("depth", "float32", depth, ""))?;
-        py.detach(|| {
-            let image = kfuse_sequence::process::depth_in_metres(mm, dw, dh)
-                .map_err(|e| GeometryError::InvalidInput(e.to_string()))?;
-            correct(image)
-        })
-        .map_err(geometry_err)?
-    } else {
-        let arr = array2::<u16>(depth, "depth", "uint16", dh, dw)?;
-        let units = arr.as_slice().map_err(|_| bad_array("depth", "uint16", depth, ""))?;
-        py.detach(|| correct(kfuse_io::images::depth_from_units(dw, dh, units, METRES_PER_MM)?))
-            .map_err(geometry_err)?
-    };
+    let arg = DepthArg::new(rig, depth)?;
+    let values = arg.values()?;
+    let mut image = Image::filled(rig.depth.width, rig.depth.height, f32::NAN);
+    py.detach(|| values.metres_into(request, &mut image)).map_err(geometry_err)?;
     if !force {
         check_depth_unit(py, rig, &image)?;
     }
     Ok(image)
+}
+
+/// Whether `image`'s unit check has something to say ([`check_depth_unit`]: a median outside
+/// 0.2-15 m, or under the Kinect's 0.5 m for a Kinect-size frame), found by counting
+/// (`median_outside`, a few microseconds) instead of sorting.
+fn unit_needs_words(rig: &Rig, image: &Image<f32>) -> bool {
+    use geometry::fusion::units::{
+        KINECT_MIN_DEPTH_M, MAX_MEDIAN_DEPTH_M, MIN_MEDIAN_DEPTH_M, median_outside,
+    };
+    let under = if is_kinect_depth(rig) { KINECT_MIN_DEPTH_M } else { MIN_MEDIAN_DEPTH_M };
+    median_outside(image, UNIT_CHECK_STRIDE, under, MAX_MEDIAN_DEPTH_M)
+        .is_some_and(|(below, above)| below || above)
+}
+
+/// A Kinect v2's depth camera (512 x 424), for fuse's warning of a median under 0.5 m.
+fn is_kinect_depth(rig: &Rig) -> bool {
+    (rig.depth.width, rig.depth.height) == (512, 424)
 }
 
 /// The stride of the depth-unit check's median: every 7th pixel (about 31 000 of a Kinect
@@ -723,7 +926,7 @@ fn check_depth_unit(py: Python<'_>, rig: &Rig, image: &Image<f32>) -> PyResult<(
         "depth is read as millimetres (uint16, or float32 as kfuse.Decoder gives it)";
     let Some(problem) = unit_problem_of_median(median) else {
         // fuse's warning for a Kinect (512 x 424 depth camera) nearer than it measures.
-        if (rig.depth.width, rig.depth.height) == (512, 424) && median < KINECT_MIN_DEPTH_M {
+        if is_kinect_depth(rig) && median < KINECT_MIN_DEPTH_M {
             let message = std::ffi::CString::new(format!(
                 "depth: median depth {} m is nearer than the Kinect v2 measures ({KINECT_MIN_DEPTH_M} m): centimetres? {READ_AS}",
                 median as f32

@@ -294,6 +294,16 @@ for force in (2**64, 1e300, None, "yes"):
 for arg in (None, 1, "rig"):
     call(f"Registration(): rig={arg!r}", kfuse.Registration, arg)
 reg = kfuse.Registration(rig)
+getters("Registration", reg)
+for engine in TEXTS + NUMBERS + [kfuse]:
+    call(f"Registration(): engine={str(engine)[:20]!r}", kfuse.Registration, rig, engine=engine)
+for r in TEXTS + NUMBERS + [(float("nan"), float("nan")), (float("-inf"), float("inf")), (1e300, 1e301),
+          (-1.0, 2.0), (2.0, 1.0), (0.0, 0.0), (10**400, 1), (1, 2, 3), "1e300m..1e301m", "nanm..1m",
+          "-1m..2m", "0.5m..", "..", "0.5m..2.5m" * 100000, (0.5, 2.5)]:
+    ranged = call(f"Registration(): depth_range={str(r)[:30]!r}", kfuse.Registration, rig, depth_range=r)
+    if ranged is not None:
+        call(f"Registration.register: depth_range={str(r)[:30]!r}", ranged.register,
+             np.full((424, 512), 1500, np.uint16))
 call("Registration.hole_mask: before any frame", reg.hole_mask)
 call("Registration.color_on_depth: before any frame", reg.color_on_depth, np.zeros((1080, 1920, 3), np.uint8))
 for dtype in (np.uint16, np.float32):

@@ -256,6 +256,23 @@ impl PerPixel for PixelEngine {
             PixelEngine::Gpu(g) => g.per_pixel_stream(rig, kind, frames, params, plan, sink),
         }
     }
+
+    fn per_pixel_into(
+        &mut self,
+        rig: &Rig,
+        kind: DepthKind,
+        depth: &Image<f32>,
+        params: &PixelParams,
+        zbuffer: &mut [f32],
+        hole_mask: Option<&mut [bool]>,
+    ) -> Result<(), GpuError> {
+        match self {
+            PixelEngine::Cpu(c) => {
+                Ok(c.per_pixel_into(rig, kind, depth, params, zbuffer, hole_mask)?)
+            }
+            PixelEngine::Gpu(g) => g.per_pixel_into(rig, kind, depth, params, zbuffer, hole_mask),
+        }
+    }
 }
 
 impl FusionContext {

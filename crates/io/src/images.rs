@@ -309,11 +309,34 @@ pub fn depth_from_units(
     units: &[u16],
     metres_per_unit: f64,
 ) -> Result<Image<f32>, GeometryError> {
-    let data = units
-        .iter()
-        .map(|&u| if u == 0 { f32::NAN } else { (u as f64 * metres_per_unit) as f32 })
-        .collect();
+    let data = units.iter().map(|&u| unit_to_metres(u, metres_per_unit)).collect();
     Image::from_vec(w, h, data)
+}
+
+/// [`depth_from_units`] into `out` (the same length as `units`): a stream of frames reuses
+/// one image. Error: [`GeometryError::InvalidInput`] for lengths that differ.
+pub fn depth_from_units_into(
+    units: &[u16],
+    metres_per_unit: f64,
+    out: &mut [f32],
+) -> Result<(), GeometryError> {
+    if units.len() != out.len() {
+        return Err(GeometryError::InvalidInput(format!(
+            "{} depth units for a depth image of {} pixels",
+            units.len(),
+            out.len()
+        )));
+    }
+    for (o, &u) in out.iter_mut().zip(units) {
+        *o = unit_to_metres(u, metres_per_unit);
+    }
+    Ok(())
+}
+
+/// One 16-bit depth value in metres, `0` = no sample (`NaN`).
+#[inline]
+fn unit_to_metres(u: u16, metres_per_unit: f64) -> f32 {
+    if u == 0 { f32::NAN } else { (u as f64 * metres_per_unit) as f32 }
 }
 
 fn from_metres(w: usize, h: usize, metres: Vec<f32>) -> Result<Image<f32>, GeometryError> {

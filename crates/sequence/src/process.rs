@@ -404,8 +404,31 @@ impl FrameRegistrar {
 /// fitted depth model) belongs, between decoding and registration.
 /// Error: `mm` is not `width × height`.
 pub fn depth_in_metres(mm: &[f32], width: usize, height: usize) -> Result<Image<f32>> {
-    let data = mm.iter().map(|&v| if v > 0.0 { v * 1e-3 } else { 0.0 }).collect();
+    let data = mm.iter().map(|&v| mm_to_metres(v)).collect();
     Ok(Image::from_vec(width, height, data)?)
+}
+
+/// [`depth_in_metres`] into `out` (reused from frame to frame; `mm` must have its size).
+/// Error: `mm` is not `out`'s size.
+pub fn depth_in_metres_into(mm: &[f32], out: &mut Image<f32>) -> Result<()> {
+    let (w, h) = out.size();
+    if mm.len() != w * h {
+        return Err(geometry::GeometryError::InvalidInput(format!(
+            "{} depth values for a {w}x{h} depth image",
+            mm.len()
+        ))
+        .into());
+    }
+    for (o, &v) in out.data_mut().iter_mut().zip(mm) {
+        *o = mm_to_metres(v);
+    }
+    Ok(())
+}
+
+/// One decoder depth value (mm, 0 = invalid) in metres.
+#[inline]
+fn mm_to_metres(v: f32) -> f32 {
+    if v > 0.0 { v * 1e-3 } else { 0.0 }
 }
 
 /// A z-buffer (metres, NaN = empty) in 16-bit units by `png16_value`'s rule.
