@@ -56,16 +56,33 @@ class Rig:
     def rectified(self) -> bool: ...
 
 class Registration:
-    """Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask, as `kfuse fuse`."""
+    """Exact z-buffered registration (H1 + H2 + H7) and the H8 hole mask, as `kfuse fuse`,
+    on the CPU or the GPU (bit-identical results)."""
 
-    def __init__(self, rig: Rig, force: bool = False) -> None:
-        """Every frame's depth unit is checked as `kfuse fuse` checks it: a median depth outside
-        0.2-15 m raises ValueError (metres, 0.1 mm, a 65535 fill); force=True lets it through."""
+    def __init__(
+        self,
+        rig: Rig,
+        engine: Union["Engine", str, None] = None,
+        force: bool = False,
+        depth_range: Union[str, Tuple[float, float], None] = None,
+    ) -> None:
+        """engine: "cpu" (default), "gpu" (RuntimeError without an adapter) or "auto" (GPU if
+        any, else CPU with a RuntimeWarning), as kfuse.fuse. Every frame's depth unit is
+        checked as `kfuse fuse` checks it: a median depth outside 0.2-15 m raises ValueError
+        (metres, 0.1 mm, a 65535 fill); force=True lets it through. depth_range: --depth-range
+        ("0.5m..2.5m") or (min, max) metres; samples outside are none."""
+    @property
+    def engine(self) -> str:
+        """"cpu" or "gpu": where the stages run (what engine="auto" picked)."""
+    @property
+    def engine_used(self) -> str:
+        """"cpu", "gpu: ADAPTER" or "cpu (fallback: REASON)"."""
     def register(
         self, depth: _Depth, out: Optional[npt.NDArray[np.float32]] = None
     ) -> npt.NDArray[np.float32]:
         """uint16 or float32 (depth H, W) mm -> float32 (colour H, W) metres, NaN = no sample;
-        into `out` (writable, C-contiguous, that shape) when given, which is returned."""
+        registered straight into `out` (writable, C-contiguous, that shape; any content) when
+        given, which is returned: no copy on the CPU, no allocation per frame."""
     def hole_mask(self, out: Optional[npt.NDArray[np.bool_]] = None) -> npt.NDArray[np.bool_]:
         """bool (colour H, W): disocclusion holes of the last registered frame; into `out`
         when given."""
