@@ -21,6 +21,11 @@
 //!   `staged_before` (z-buffer from H2's samples, then a mask scan; `run` before issue 11) and
 //!   `registration_now` (a fresh `Registration`, what `run` and `kfuse fuse` use now).
 //! * `stage/*`: every stage of `geometry::fusion::run` on its own, and `run` itself.
+//! * `memory/fill_outputs`: the memory floor of `register+holes/single` on this machine: one
+//!   thread fills a colour-sized `f32` z-buffer (8.3 MB) with the empty marker and a `bool`
+//!   mask (2.1 MB) with `false`, the bytes the registration must write per frame, as `memset`
+//!   writes them. `register+holes/single` over this is the ratio BENCHMARKS.md states (issue
+//!   47: registration <= 1 ms, or shown to be at the memory bandwidth).
 //!
 //! `KFUSE_WRITE_PEER_FRAME=1 cargo bench --bench fusion_cpu` also writes the frame for the
 //! peers script to `$CARGO_TARGET_DIR/peer-frame/` (default `target/peer-frame/`):
@@ -205,6 +210,17 @@ fn benches(c: &mut Criterion) {
             fusion::atomic_zbuffer_to_image(&atomic, &mut zbuffer);
             let holes = masker.compute(&zbuffer, &mut mask);
             black_box((n, holes))
+        })
+    });
+    g.finish();
+
+    // The memory floor: the registration's outputs written once, as memset writes them.
+    let mut g = c.benchmark_group("memory");
+    g.bench_function("fill_outputs", |b| {
+        b.iter(|| {
+            black_box(&mut zbuffer[..]).fill(fusion::ZBUFFER_EMPTY);
+            black_box(&mut mask[..]).fill(false);
+            black_box((&zbuffer, &mask));
         })
     });
     g.finish();

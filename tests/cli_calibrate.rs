@@ -159,7 +159,7 @@ fn bad_inputs_fail_clearly_and_write_nothing() {
     // Colour images of the bundled session paired with IR images of the rendered set (the
     // same 7x5 board, other poses): each camera alone fits, the stereo fit cannot (a user's
     // trial: RMS 39 px, T = 5.9 m, written with exit 0).
-    let bundled = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib");
+    let bundled = manifest_dir().join("data/calib");
     let (ok, text) = kfuse(&[
         "calibrate",
         "--color",
@@ -1128,7 +1128,7 @@ fn timings_of_a_single_camera_run_are_in_the_report_and_on_stderr() {
 
 /// The bundled calibration set (`data/calib`: four IR + colour shots of the simulated Kinect).
 fn bundled_calib() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib")
+    manifest_dir().join("data/calib")
 }
 
 /// Joint calibration (issue 51): a 1920x1080 colour shot among a camera's 512x424 IR images is
@@ -1197,4 +1197,11 @@ fn joint_calibration_refuses_a_rig_that_fuse_would_refuse() {
         "{err}"
     );
     assert!(!out.exists());
+}
+
+/// This package's folder from the `CARGO_MANIFEST_DIR` cargo sets when it runs the test, not
+/// the path compiled in: a test binary reused from a checkout at another path (a shared target
+/// directory) must read this checkout's files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map(std::path::PathBuf::from).expect("run by cargo test")
 }

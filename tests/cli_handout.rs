@@ -23,7 +23,9 @@ use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster};
 use serde_json::Value;
 
 /// The bundled sample set (data/README.md says which command made each file).
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/data");
+fn bundled_data() -> PathBuf {
+    common::repo_dir().join("data")
+}
 /// Shots of the bundled calibration set: the first four poses of the simulated calibration
 /// scene (`kinect_usb::sim::calib_scene::BOARD_POSES`), enough for a stereo calibration within
 /// a few tenths of a pixel (and small enough to bundle: ~0.57 MB a pair).
@@ -197,7 +199,7 @@ fn assert_export_round_trips(rig_path: &Path, dir: &Path) {
 #[test]
 fn handout_flow_on_the_simulated_sensor_and_the_bundled_data() {
     let dir = scratch("handout-sim");
-    let data = Path::new(DATA);
+    let data = &bundled_data();
 
     // L1: the calibration shots, equal to the bundled data/calib.
     let caps = dir.join("caps");
@@ -366,7 +368,7 @@ fn handout_flow_on_the_course_data() {
     let got = read_rig(&bouguet);
     let names = ["fc_left", "cc_left", "kc_left", "fc_right", "cc_right", "kc_right", "R", "T"];
     let read = std::process::Command::new("/usr/bin/python3")
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/mat5_values.py"))
+        .arg(common::repo_dir().join("tests/mat5_values.py"))
         .arg(&stereo)
         .args(names)
         .output()

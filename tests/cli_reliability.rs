@@ -616,7 +616,7 @@ fn undistort_checks_everything_before_writing_anything() {
 fn a_sequence_with_no_fusable_frame_is_an_error() {
     let dir = scratch("no-frames");
     let out = dir.join("out");
-    let shots = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib");
+    let shots = common::repo_dir().join("data/calib");
     let o = kfuse(&["fuse", "--frames", s(&shots), "--out", s(&out)]);
     assert_one_line_failure(&o, "calib", "no frame could be fused");
     let err = String::from_utf8_lossy(&o.stderr);
@@ -805,7 +805,7 @@ fn calibrate_refuses_bad_outputs_before_work_and_leaves_nothing() {
 #[test]
 fn calibrate_replaces_only_its_own_files_without_overwrite() {
     let dir = scratch("calibrate-own");
-    let shots = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/calib");
+    let shots = common::repo_dir().join("data/calib");
     let pattern = shots.join("ir_*.png");
     let (notes, yaml) = (dir.join("notes.json"), dir.join("cam.yaml"));
     std::fs::write(&notes, "{\"my\": \"notes\"}").unwrap();
@@ -1243,7 +1243,7 @@ fn pipes_and_damaged_bags_get_one_line_and_a_piped_rig_reads() {
     );
 
     // A rig file through a FIFO (as `<(cat rig.json)` gives it) is read once and shown.
-    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/kinect/rig.json");
+    let rig = common::repo_dir().join("data/kinect/rig.json");
     let fifo = dir.join("rig-fifo");
     assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
     let mut writer = fifo_writer(&rig, &fifo);

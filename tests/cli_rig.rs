@@ -1022,7 +1022,7 @@ fn show_of_the_simulated_rings_rig_prints_its_rotations() {
 #[test]
 fn iai_kinect2_export_of_a_mirrored_rig_is_refused_with_the_conversion() {
     let tmp = tempfile::tempdir().unwrap();
-    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/kinect/rig.json");
+    let rig = common::repo_dir().join("data/kinect/rig.json");
     let mirrored = tmp.path().join("mirrored.json");
     ok(&["rig", "import", s(&rig), "--mirror", "--out", s(&mirrored)]);
     let out = tmp.path().join("iai");
@@ -1076,7 +1076,7 @@ fn huge_interval_and_depth_shift_are_echoed_in_scientific_notation() {
 #[test]
 fn iai_export_writes_its_four_files_together_or_none() {
     let tmp = tempfile::tempdir().unwrap();
-    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/kinect/rig.json");
+    let rig = common::repo_dir().join("data/kinect/rig.json");
     let good = tmp.path().join("good");
     ok(&["rig", "export", s(&rig), "--format", "iai-kinect2", "--out", s(&good)]);
     let mut sizes: Vec<(String, u64)> = std::fs::read_dir(&good)

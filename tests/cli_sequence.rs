@@ -237,6 +237,79 @@ fn recording_writes_every_complete_frame_and_lists_exactly_the_lost_ones() {
 /// association pairs it with the colour frame of the same period, the rgb files are the
 /// sensor's JPEGs byte for byte, and every depth image's integer checksums equal those of the
 /// registration computed here at 5000 units per metre (the scale the README states).
+/// `jpegtran -flip horizontal` of `jpeg` (Debian's libjpeg-turbo-progs), `None` when jpegtran
+/// is not installed (CI requires it: KFUSE_REQUIRE_JPEGTRAN).
+fn jpegtran_flip(jpeg: &[u8], dir: &Path) -> Option<Vec<u8>> {
+    let input = dir.join("jpegtran-in.jpg");
+    std::fs::write(&input, jpeg).unwrap();
+    let run = Command::new("jpegtran").args(["-flip", "horizontal"]).arg(&input).output();
+    match run {
+        Ok(out) if out.status.success() => Some(out.stdout),
+        Ok(out) => panic!("jpegtran failed: {}", String::from_utf8_lossy(&out.stderr)),
+        Err(_) => {
+            assert!(
+                std::env::var_os("KFUSE_REQUIRE_JPEGTRAN").is_none(),
+                "jpegtran is required (apt-get install libjpeg-turbo-progs)"
+            );
+            None
+        }
+    }
+}
+
+#[test]
+fn tum_colour_files_are_the_lossless_flip_with_one_worker_or_two() {
+    // With two workers the flip of the sensor's JPEG is shared between them (every other
+    // frame on the decoding worker): the files must not depend on which worker flipped.
+    let dir = tempfile::tempdir().unwrap();
+    let rec = record(dir.path(), 8, 0.0);
+    let (_, colors, _) = truth(&rec);
+    let mut outputs = Vec::new();
+    for threads in ["1", "2"] {
+        let out = dir.path().join(format!("tum{threads}"));
+        let run = kfuse()
+            .args(["fuse", "--recording"])
+            .arg(&rec)
+            .args(["--layout", "tum", "--threads", threads, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        ok(&run);
+        let mut files: Vec<PathBuf> =
+            std::fs::read_dir(out.join("rgb")).unwrap().map(|e| e.unwrap().path()).collect();
+        files.sort();
+        outputs.push(files);
+    }
+    let (one, two) = (&outputs[0], &outputs[1]);
+    // 8 depth frames, each matched to a colour frame (nothing is dropped in this recording).
+    assert_eq!(one.len(), 8, "one rgb/ file per matched frame");
+    assert_eq!(one.len(), two.len());
+    let mut checked_by_jpegtran = 0;
+    for (a, b) in one.iter().zip(two) {
+        assert_eq!(a.file_name(), b.file_name());
+        let (a_bytes, b_bytes) = (std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
+        assert!(a_bytes == b_bytes, "{} differs between 1 and 2 threads", b.display());
+        // The file's name is the colour frame's time (seconds, 6 decimals; ticks of 0.125 ms).
+        let stem = a.file_stem().unwrap().to_str().unwrap().to_string();
+        let (_, sensor) = colors
+            .iter()
+            .find(|(t, _)| {
+                let us = u64::from(*t) * 125;
+                format!("{}.{:06}", us / 1_000_000, us % 1_000_000) == stem
+            })
+            .unwrap_or_else(|| panic!("no colour frame at {stem}"));
+        if let Some(want) = jpegtran_flip(sensor, dir.path()) {
+            assert!(b_bytes == want, "{}: not jpegtran -flip horizontal's bytes", b.display());
+            checked_by_jpegtran += 1;
+        }
+    }
+    if checked_by_jpegtran == 0 {
+        test_skip::skip(
+            "tum_colour_files_are_the_lossless_flip_with_one_worker_or_two",
+            "jpegtran is not installed: the files were compared between 1 and 2 threads only",
+        );
+    }
+}
+
 #[test]
 fn tum_export_reads_back_frame_for_frame_with_an_independent_reader() {
     let python = Path::new("/usr/bin/python3");
@@ -269,7 +342,7 @@ fn tum_export_reads_back_frame_for_frame_with_an_independent_reader() {
         .unwrap();
     ok(&run);
     let read = Command::new(python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/tum_reader.py"))
+        .arg(common::repo_dir().join("tests/tum_reader.py"))
         .arg(&out)
         .output()
         .unwrap();

@@ -66,7 +66,7 @@ fn device_script_quick_run_on_a_bundle_of_the_test_build() {
         );
         assert!(Path::new(exe).is_file(), "{BENCH_EXES_ENV}: {exe} is not a file");
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = &manifest_dir();
     let tmp = Path::new(env!("CARGO_TARGET_TMPDIR")).join("device-script");
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp).unwrap();
@@ -174,4 +174,11 @@ fn device_script_quick_run_on_a_bundle_of_the_test_build() {
         }
     }
     let _ = std::fs::remove_dir_all(&tmp);
+}
+
+/// This package's folder from the `CARGO_MANIFEST_DIR` cargo sets when it runs the test, not
+/// the path compiled in: a test binary reused from a checkout at another path (a shared target
+/// directory) must read this checkout's files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map(std::path::PathBuf::from).expect("run by cargo test")
 }

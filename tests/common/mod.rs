@@ -9,6 +9,13 @@ use geometry::{CameraModel, Distortion, Image, Intrinsics, Rig, RigidTransform};
 use kfuse_io::{images, rig as rigio};
 use nalgebra::Vector3;
 
+/// The repository (the `kfuse` package's folder) from the `CARGO_MANIFEST_DIR` cargo sets when it
+/// runs the test, not the path compiled in: a test binary reused from a checkout at another path
+/// (a shared target directory) must read this checkout's files.
+pub fn repo_dir() -> PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map(PathBuf::from).expect("run by cargo test")
+}
+
 /// Runs the built binary with `args` and waits for it.
 pub fn kfuse(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kfuse")).args(args).output().expect("run kfuse")

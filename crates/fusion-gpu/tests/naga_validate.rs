@@ -2,8 +2,6 @@
 //! compiles it (the decode shaders with their shared preamble), and the crate compiles all
 //! of them.
 
-use std::path::Path;
-
 fn validate(name: &str, source: &str) {
     let module = naga::front::wgsl::parse_str(source)
         .unwrap_or_else(|e| panic!("{name} does not parse:\n{}", e.emit_to_string(source)));
@@ -27,7 +25,7 @@ fn validate(name: &str, source: &str) {
 
 #[test]
 fn every_shader_file_validates_with_naga() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+    let dir = manifest_dir().join("../../shaders");
     let mut files: Vec<_> = std::fs::read_dir(&dir)
         .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -67,4 +65,11 @@ fn a_broken_shader_is_rejected() {
         .is_err(),
     };
     assert!(rejected);
+}
+
+/// This package's folder from the `CARGO_MANIFEST_DIR` cargo sets when it runs the test, not
+/// the path compiled in: a test binary reused from a checkout at another path (a shared target
+/// directory) must read this checkout's files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map(std::path::PathBuf::from).expect("run by cargo test")
 }

@@ -18,7 +18,7 @@ use rand_chacha::ChaCha8Rng;
 const MUTATIONS: usize = 400;
 
 fn corpus(kind: &str) -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus").join(kind);
+    let dir = manifest_dir().join("tests/corpus").join(kind);
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
     v.sort();
     v
@@ -160,7 +160,7 @@ fn mat_limits_name_what_was_declared() {
 }
 
 fn corpus_file(kind: &str, name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus").join(kind).join(name)
+    manifest_dir().join("tests/corpus").join(kind).join(name)
 }
 
 #[test]
@@ -325,4 +325,11 @@ fn image_corpus_and_mutations_never_panic_or_decode_past_the_limits() {
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// This package's folder from the `CARGO_MANIFEST_DIR` cargo sets when it runs the test, not
+/// the path compiled in: a test binary reused from a checkout at another path (a shared target
+/// directory) must read this checkout's files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map(std::path::PathBuf::from).expect("run by cargo test")
 }

@@ -6,6 +6,14 @@
 //! * `stage/decode`: the `Fast` depth decoder, one thread;
 //! * `stage/register`: `Registration` + the 16-bit conversion of the z-buffer, one thread;
 //! * `stage/write`: writing one encoded depth PNG (atomic rename) into a temporary folder;
+//! * `jpeg/*`: the recording's first colour frame (the simulator's 1920×1080 JPEG, as the
+//!   sensor streams it): `decode_image_crate` is `kfuse_io::images::decode_color_noting` as
+//!   every colour reader decodes today (the `image` crate's JPEG decoder, zune-jpeg, plus the
+//!   copy into kfuse's `Image`), `decode_turbojpeg` libjpeg-turbo's `tjDecompress` into RGB
+//!   (the same pixels within JPEG's rounding), `flip_lossless`
+//!   [`kfuse_io::sensor_color::flip_jpeg_lossless`] (what the TUM layout does per frame to
+//!   write `rgb/`), and `copy` a plain copy of the same bytes (what the kfuse layout's
+//!   `--write color` does with a frame that needs no flip) for scale;
 //! * `png16/<compression>_<filter>`: the registered depth frame (1920×1080, 16 bit) encoded
 //!   with each zlib level and row filter considered for [`kfuse_sequence::write::PNG_COMPRESSION`]
 //!   and [`kfuse_sequence::write::PNG_FILTER`]; each variant's size is printed once.
@@ -39,23 +47,24 @@ fn record(dir: &Path) -> (std::path::PathBuf, geometry::Rig) {
     (path, rig)
 }
 
-fn read_all(path: &Path) -> (Vec<Vec<u8>>, usize) {
+/// The recording's raw depth frames and colour JPEGs, in order.
+fn read_all(path: &Path) -> (Vec<Vec<u8>>, Vec<Vec<u8>>) {
     let mut src = RecordingSource::open(path, ReadOptions::default()).unwrap();
     let mut raws = Vec::new();
-    let mut colors = 0;
+    let mut jpegs = Vec::new();
     while let Some(ev) = src.next_event().unwrap() {
         match ev {
             SourceEvent::Depth { frame, .. } => raws.push(frame.data),
-            SourceEvent::Color(_) => colors += 1,
+            SourceEvent::Color(c) => jpegs.push(c.jpeg),
         }
     }
-    (raws, colors)
+    (raws, jpegs)
 }
 
 fn benches(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();
     let (path, rig) = record(dir.path());
-    let (raws, _) = read_all(&path);
+    let (raws, jpegs) = read_all(&path);
     let n = raws.len() as u32;
     let src = RecordingSource::open(&path, ReadOptions::default()).unwrap();
     let decoder = process::recording_decoder(src.info()).unwrap();
@@ -97,6 +106,25 @@ fn benches(c: &mut Criterion) {
     g.bench_function("write", |b| {
         b.iter(|| kfuse_io::atomic::write_bytes_atomic(&out, black_box(&chosen)).unwrap())
     });
+    g.finish();
+
+    let mut g = c.benchmark_group("jpeg");
+    g.sample_size(20);
+    let jpeg = &jpegs[0];
+    let name = Path::new("bench colour frame");
+    g.bench_function("decode_image_crate", |b| {
+        b.iter(|| black_box(kfuse_io::images::decode_color_noting(name, black_box(jpeg)).unwrap()))
+    });
+    g.bench_function("decode_turbojpeg", |b| {
+        b.iter(|| {
+            black_box(turbojpeg::decompress(black_box(jpeg), turbojpeg::PixelFormat::RGB).unwrap())
+        })
+    });
+    g.bench_function("flip_lossless", |b| {
+        b.iter(|| black_box(kfuse_io::sensor_color::flip_jpeg_lossless(black_box(jpeg)).unwrap()))
+    });
+    g.bench_function("copy", |b| b.iter(|| black_box(black_box(jpeg).clone())));
+    eprintln!("jpeg: the colour frame is {} bytes", jpeg.len());
     g.finish();
 
     let mut g = c.benchmark_group("png16");

@@ -8,6 +8,12 @@
 //! (BENCHMARKS.md, sequences: reading + decoding ~14 ms, registering + encoding + writing
 //! ~12 ms); with registration on worker A, worker A was the bottleneck at ~21 ms a frame.
 //!
+//! Where every frame's colour JPEG is written as the scene is (the TUM and rosbag2 layouts,
+//! `--write color`), the sensor's mirrored JPEG is flipped in the DCT domain per frame (about
+//! 8 ms at 1920×1080, as much as registering): with two threads, worker A flips every other
+//! frame's ([`SHARED_FLIP_EVERY`]) and worker B the rest, so that the flip does not all land
+//! on worker B (BENCHMARKS.md, sequences, has the figures before and after).
+//!
 //! A stop request (Ctrl-C) is polled before each frame is read: the frames already read are
 //! finished and reported, so the caller's index lists every complete frame.
 
@@ -31,6 +37,12 @@ use crate::{Result, SequenceError};
 /// ahead (each holds a 0.9 MB depth image, its colour JPEG, and its decoded colour image when
 /// an extra needs it).
 pub const QUEUE_FRAMES: usize = 2;
+
+/// With two threads and a layout that writes the scene's JPEG, worker A flips the colour JPEG of
+/// every frame whose number is a multiple of this, worker B the others: one in two, because
+/// without the flip the workers' shares of a frame are about equal (~13 ms each), so the
+/// flip's ~8 ms is best split in half.
+pub const SHARED_FLIP_EVERY: u64 = 2;
 
 /// Results that may wait for the caller (progress, index, figures).
 pub const REPORT_QUEUE: usize = 4;
@@ -260,6 +272,7 @@ fn produce(
     stop: &(dyn Fn() -> bool + Sync),
     emit: &mut dyn FnMut(Stage2) -> Result<bool>,
     times: &mut StageSeconds,
+    share_flip: bool,
 ) -> Result<bool> {
     loop {
         if stop() {
@@ -304,6 +317,9 @@ fn produce(
                 };
                 times.decode_color += secs(t_color);
                 times.decode += secs(t);
+                if share_flip && job.meta.number % SHARED_FLIP_EVERY == 0 {
+                    flip_here(&mut job.jpeg, &name, times)?;
+                }
                 let decoded = Decoded { depth, raw: raw_for_gpu, color, sensor };
                 Stage2::Frame(Box::new(Item { job, decoded }))
             }
@@ -312,6 +328,21 @@ fn produce(
             return Ok(false);
         }
     }
+}
+
+/// The sensor's mirrored JPEG replaced by the scene's (flipped without loss, as worker B's
+/// encoding would have written it), its time counted as encoding.
+fn flip_here(
+    jpeg: &mut Option<ColorJpeg>,
+    name: &std::path::Path,
+    times: &mut StageSeconds,
+) -> Result<()> {
+    if let Some(j) = jpeg.as_mut().filter(|j| j.mirrored) {
+        let t = Instant::now();
+        *j = ColorJpeg { bytes: j.scene_jpeg(name)?.into_owned(), mirrored: false };
+        times.encode += secs(t);
+    }
+    Ok(())
 }
 
 /// Worker B: registers the decoded frames (one at a time on the CPU, in batches of
@@ -417,6 +448,8 @@ pub fn run(
     let mut reader = Reader::new(input);
     let (report_tx, report_rx): (SyncSender<Report>, Receiver<Report>) = sync_channel(REPORT_QUEUE);
     let Processor { decoding, registering } = &mut processor;
+    // On the GPU worker B only waits for the device; the flip then stays where it is.
+    let share_flip = config.threads >= 2 && writer.writes_scene_jpeg() && !registering.on_gpu();
     let result = std::thread::scope(|s| -> Result<(bool, StageSeconds)> {
         let reader = &mut reader;
         let mut backend = Backend::new(registering, writer, &config);
@@ -445,7 +478,7 @@ pub fn run(
                 .spawn_scoped(s, move || -> Result<(bool, StageSeconds)> {
                     let mut times = StageSeconds::default();
                     let mut emit = |x: Stage2| Ok(send(&tx, x));
-                    let i = produce(reader, decoding, stop, &mut emit, &mut times)?;
+                    let i = produce(reader, decoding, stop, &mut emit, &mut times, share_flip)?;
                     Ok((i, times))
                 })
                 .map_err(|e| SequenceError::Pipeline(format!("cannot start a thread: {e}")))?;
@@ -457,7 +490,7 @@ pub fn run(
                     let mut times = StageSeconds::default();
                     let mut report = |r: Report| send(&report_tx, r);
                     let mut emit = |x: Stage2| backend.take(x, &mut report);
-                    let i = produce(reader, decoding, stop, &mut emit, &mut times)?;
+                    let i = produce(reader, decoding, stop, &mut emit, &mut times, false)?;
                     backend.flush(&mut report)?;
                     times.add_backend(&backend.times);
                     Ok((i, times))

@@ -289,6 +289,13 @@ impl FrameWriter {
         }
     }
 
+    /// Whether [`FrameWriter::encode`] writes each frame's colour JPEG as the scene is
+    /// ([`ColorJpeg::scene_jpeg`]: the TUM layout's `rgb/`, `--write color`, the rosbag2
+    /// layout's compressed colour), so that a sensor's mirrored JPEG is flipped per frame.
+    pub fn writes_scene_jpeg(&self) -> bool {
+        matches!(self.layout, Layout::Tum | Layout::Rosbag2) || self.set.color
+    }
+
     /// Encodes a frame's files, or its messages in the rosbag2 layout (nothing is written
     /// yet). `jpeg` is the frame's colour JPEG, written as the scene is
     /// ([`ColorJpeg::scene_jpeg`]); `sensor` the decoder's depth and IR (rosbag2 layout).
@@ -315,8 +322,7 @@ impl FrameWriter {
         let name = format!("depth/{stem}.png");
         let png = encode_png16(cw, ch, &r.depth_units).map_err(|m| err(&name, m))?;
         files.push((name, png));
-        let want_jpeg = self.layout == Layout::Tum || self.set.color;
-        if let (true, Some(j)) = (want_jpeg, jpeg) {
+        if let (true, Some(j)) = (self.writes_scene_jpeg(), jpeg) {
             let (dir, color_stem) =
                 match (self.layout, meta.color.as_ref().and_then(|c| c.time_ticks)) {
                     (Layout::Tum, Some(t)) => ("rgb", seconds_text(t)),
@@ -461,9 +467,10 @@ pub struct StageSeconds {
 impl StageSeconds {
     /// Takes worker B's stages (register, encode, write) from `b`.
     pub(crate) fn add_backend(&mut self, b: &StageSeconds) {
-        self.register = b.register;
-        self.encode = b.encode;
-        self.write = b.write;
+        self.register += b.register;
+        // Worker A may have flipped some frames' colour JPEGs (`pipeline`'s shared flip).
+        self.encode += b.encode;
+        self.write += b.write;
     }
 
     /// The stages as a [`geometry::timing::Timings`] in milliseconds (for the `--timings`

@@ -4,7 +4,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use geometry::fusion::{self, FusionOptions};
 use geometry::{DepthKind, Image, Mesh, Rig};
@@ -82,7 +82,7 @@ fn default_mesh_is_fuses_mesh_on_the_synthetic_scene() {
 }
 
 fn bundled_kinect() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kinect")
+    manifest_dir().join("../../data/kinect")
 }
 
 #[test]
@@ -98,4 +98,11 @@ fn default_mesh_is_fuses_mesh_on_the_bundled_capture() {
     let mut app = ViewerApp::open(&dir, Engine::Cpu);
     assert!(app.fused.is_some(), "the viewer opens {}: {:?}", dir.display(), app.error);
     check(&mut app, &rig, &depth, DepthKind::Z, &color, "data/kinect");
+}
+
+/// This package's folder from the `CARGO_MANIFEST_DIR` cargo sets when it runs the test, not
+/// the path compiled in: a test binary reused from a checkout at another path (a shared target
+/// directory) must read this checkout's files.
+fn manifest_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR").map(std::path::PathBuf::from).expect("run by cargo test")
 }
