@@ -14,7 +14,7 @@ use std::f64::consts::FRAC_PI_2;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use calib::rig_io::{Role, camera_file_json};
+use kfuse_io::rig_io::{Role, camera_file_json};
 use common::{
     depth_mm, kfuse, read_exr, scratch, small_case, small_rig, summary, zbuffer_vs_truth,
 };

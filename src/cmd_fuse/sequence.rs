@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use calib::rig_io::{self, Calibration};
+use kfuse_io::rig_io::{self, Calibration};
 use clap::{Args, ValueEnum};
 use geometry::{DepthKind, Rig};
 use indicatif::{ProgressBar, ProgressStyle};

@@ -18,7 +18,7 @@ use crate::detect::Refinement;
 use crate::multi::input::{CameraFiles, align_labels};
 use crate::multi::report::report_json;
 use crate::multi::{CameraViews, MultiCalibration, calibrate_multi};
-use crate::rig_io::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
+use kfuse_io::rig_io::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
 use crate::{Board, CalibError, CalibFlags};
 
 /// What a joint calibration runs on.
