@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use kfuse_io::rig_io::{self, Calibration, ImportOptions, LengthUnit, Role};
 use kfuse_io::atomic::write_bytes_atomic;
+use kfuse_io::rig_io::{self, Calibration, ImportOptions, LengthUnit, Role};
 
 /// Arguments of `kfuse rig`.
 #[derive(clap::Args, Debug)]
@@ -377,7 +377,10 @@ fn export(a: ExportArgs) -> Result<()> {
         }
         ("opencv", Calibration::Camera { camera, .. }) => {
             check_new(&a.out, a.overwrite)?;
-            write_bytes_atomic(&a.out, kfuse_io::rig_io::opencv::opencv_yaml_camera(camera).as_bytes())?;
+            write_bytes_atomic(
+                &a.out,
+                kfuse_io::rig_io::opencv::opencv_yaml_camera(camera).as_bytes(),
+            )?;
             println!("wrote {} (OpenCV FileStorage YAML, one camera)", a.out.display());
         }
         ("iai-kinect2", Calibration::Camera { .. }) => bail!(

@@ -4,13 +4,13 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
-use kfuse_io::rig_io::Role;
 use calib::undistort::UndistortMap;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
 use kfuse_io::image_header::image_size;
 use kfuse_io::images;
 use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster_marked};
+use kfuse_io::rig_io::Role;
 
 /// Arguments of `kfuse undistort`.
 #[derive(clap::Args, Debug)]

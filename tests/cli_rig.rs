@@ -517,9 +517,13 @@ fn show_prints_units_and_single_camera_files_are_accepted() {
         "--out",
         s(&p("ir_back.json")),
     ]);
-    let a = kfuse_io::rig_io::load(&ir).unwrap().camera(kfuse_io::rig_io::Role::Depth, &ir).unwrap();
+    let a =
+        kfuse_io::rig_io::load(&ir).unwrap().camera(kfuse_io::rig_io::Role::Depth, &ir).unwrap();
     let back = p("ir_back.json");
-    let b = kfuse_io::rig_io::load(&back).unwrap().camera(kfuse_io::rig_io::Role::Depth, &back).unwrap();
+    let b = kfuse_io::rig_io::load(&back)
+        .unwrap()
+        .camera(kfuse_io::rig_io::Role::Depth, &back)
+        .unwrap();
     let diff =
         cam_values(&a).iter().zip(cam_values(&b)).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
     // As for the OpenCV/ROS round trips above: f64 printed in full, 1e-9 is a loose ceiling.

@@ -12,10 +12,10 @@ mod device;
 mod fuse;
 mod recording;
 
-use kfuse_io::rig_io::{self, Calibration, ImportOptions};
-use geometry::fusion::{self, ColorProjection, FusionOptions};
 use calib::CalibError;
+use geometry::fusion::{self, ColorProjection, FusionOptions};
 use geometry::{CameraModel, DepthKind, GeometryError, Image, Rig};
+use kfuse_io::rig_io::{self, Calibration, ImportOptions};
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
 use kinect_usb::orientation::Orientation;
 use kinect_usb::params::{P0Tables, XzTables};

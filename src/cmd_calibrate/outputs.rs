@@ -181,7 +181,8 @@ fn foreign_output(path: &Path, yaml: bool, rig: bool, depth_run: bool) -> Option
     // Replaced by the same kind only: a single-camera run into a two-camera rig would lose
     // the other camera and the extrinsics (and the other way round a camera file).
     match (format.as_deref(), rig) {
-        (Some(geometry::rig::RIG_FORMAT), true) | (Some(kfuse_io::rig_io::CAMERA_FORMAT), false) => {
+        (Some(geometry::rig::RIG_FORMAT), true)
+        | (Some(kfuse_io::rig_io::CAMERA_FORMAT), false) => {
             value.as_ref().and_then(|v| not_calibrates(v, depth_run))
         }
         (Some(geometry::rig::RIG_FORMAT), false) => {

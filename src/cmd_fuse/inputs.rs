@@ -5,11 +5,11 @@
 use std::path::Path;
 
 use anyhow::{Result, bail};
-use kfuse_io::rig_io::{self, Calibration};
 use geometry::fusion::{FusionOptions, Request};
 use geometry::{DepthKind, Image, Rig};
 use kfuse_io::kinect_data::{self, KinectDepth};
 use kfuse_io::mat::MatFile;
+use kfuse_io::rig_io::{self, Calibration};
 use kfuse_io::{course, image_header, images};
 
 use super::checks::{self, DepthSource};

@@ -2,10 +2,9 @@
 //! single-camera JSON, and OpenCV FileStorage YAML export. Writing goes through
 //! `kfuse_io::atomic` (temporary file + rename), so a failed run leaves nothing half-written.
 
-use std::fmt::Write as _;
 use std::path::Path;
 
-use geometry::{CameraModel, Rig, RigidTransform};
+use geometry::Rig;
 use kfuse_io::atomic::write_bytes_atomic;
 use serde_json::{Value, json};
 

@@ -9,8 +9,8 @@
 
 use std::path::Path;
 
-use geometry::{CameraModel, Distortion, Intrinsics, Rig, RigidTransform};
 use crate::mat::MatFile;
+use geometry::{CameraModel, Distortion, Intrinsics, Rig, RigidTransform};
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use geometry::GeometryError;
@@ -137,7 +137,9 @@ pub fn import_mono(path: &Path) -> Result<BouguetCamera, GeometryError> {
         let big_x = m.matrix(&format!("X_{i}")).ok().filter(|x| x.rows == 3);
         match (x, big_x) {
             (Some(x), Some(bx)) if bx.cols == x.cols => {
-                views.push(Some((0..x.cols).map(|c| Vector2::new(x.at(0, c), x.at(1, c))).collect()));
+                views.push(Some(
+                    (0..x.cols).map(|c| Vector2::new(x.at(0, c), x.at(1, c))).collect(),
+                ));
                 board_points.push(Some(
                     (0..bx.cols)
                         .map(|c| Vector3::new(bx.at(0, c), bx.at(1, c), bx.at(2, c)) * MM)

@@ -20,8 +20,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 
-use kfuse_io::rig_io::ros::{CameraInfoFields, cameras_from_infos};
 use geometry::{Rig, RigidTransform};
+use kfuse_io::rig_io::ros::{CameraInfoFields, cameras_from_infos};
 use kfuse_ros_msgs::{
     CameraInfo, CompressedImage, Image, Message, TFMessage, TransformStamped, ros1,
 };

@@ -35,9 +35,9 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use kfuse_io::rig_io::ros::{CameraInfoValues, rig_camera_infos};
 use geometry::Rig;
 use kfuse_io::atomic::write_bytes_atomic;
+use kfuse_io::rig_io::ros::{CameraInfoValues, rig_camera_infos};
 use kfuse_ros_msgs::{
     CameraInfo, CompressedImage, Header, Image, Message, Quaternion, TFMessage, Time, Transform,
     TransformStamped, Vector3,

@@ -8,8 +8,8 @@ use geometry::{CameraModel, Image, Rig};
 
 use super::{Event, Observer};
 use crate::depth::{DepthFit, DepthShot, check_plausible, fit_depth_from_corners};
-use kfuse_io::rig_io::{self, Calibration};
 use crate::{Board, CalibError, ViewCorners};
+use kfuse_io::rig_io::{self, Calibration};
 
 fn input(message: &str) -> Result<(), CalibError> {
     Err(CalibError::Input(message.into()))

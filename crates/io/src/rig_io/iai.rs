@@ -45,7 +45,6 @@ use super::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
 use super::yaml::{Doc, fmt_err};
 use super::{Calibration, ImportOptions, Imported, Role};
 
-
 /// The colour camera's file (`K2_CALIB_COLOR`).
 pub const COLOR_FILE: &str = "calib_color.yaml";
 /// The IR (depth) camera's file (`K2_CALIB_IR`).

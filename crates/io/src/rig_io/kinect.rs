@@ -50,7 +50,6 @@ use std::path::Path;
 
 use super::yaml::{MAX_IMAGE_SIDE, fmt_err};
 
-
 /// Depth quantum of the factory polynomial (spec §11.1 `qd`).
 const QD: f64 = 0.01;
 /// Colour quantum of the factory polynomial (spec §11.1 `qc`).

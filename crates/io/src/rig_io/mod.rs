@@ -26,11 +26,10 @@ pub mod yaml;
 
 use std::path::{Path, PathBuf};
 
+use crate::mat::MatFile;
 use geometry::GeometryError;
 use geometry::{CameraModel, Rig};
-use crate::mat::MatFile;
 use serde_json::{Value, json};
-
 
 use yaml::{fmt_err, read_text};
 

@@ -28,7 +28,6 @@ use serde_json::json;
 use super::yaml::{Doc, fmt_err};
 use super::{Calibration, ImportOptions, Imported, LengthUnit};
 
-
 const K1_NAMES: &[&str] = &["M1", "K1", "cameraMatrix1", "camera_matrix_1", "cameraMatrixL"];
 const D1_NAMES: &[&str] = &["D1", "distCoeffs1", "dist_coeffs_1", "distCoeffsL"];
 const K2_NAMES: &[&str] = &["M2", "K2", "cameraMatrix2", "camera_matrix_2", "cameraMatrixR"];
@@ -206,7 +205,11 @@ fn rodrigues_to_matrix(r: Vec<f64>) -> Vec<f64> {
     (0..3).flat_map(|i| (0..3).map(move |j| m[(i, j)])).collect()
 }
 
-fn t_unit(doc: &Doc, t: &[f64], opts: &ImportOptions) -> Result<(LengthUnit, String), GeometryError> {
+fn t_unit(
+    doc: &Doc,
+    t: &[f64],
+    opts: &ImportOptions,
+) -> Result<(LengthUnit, String), GeometryError> {
     let norm = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
     if let Some(u) = doc.string("T_units") {
         let unit = LengthUnit::parse(&u).ok_or_else(|| {
@@ -300,4 +303,3 @@ pub fn opencv_yaml_rig_camera(c: &geometry::RigCamera, reference: &str) -> Strin
     let _ = writeln!(s, "T_units: m");
     s
 }
-

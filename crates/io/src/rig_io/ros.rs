@@ -29,7 +29,6 @@ use super::opencv::camera_from_values;
 use super::yaml::{Doc, fmt_err};
 use super::{Calibration, ImportOptions, Imported, Role};
 
-
 /// Below this baseline (metres) the export uses the identity rectification (no direction).
 const MIN_BASELINE_M: f64 = 1e-12;
 /// |P[2][3]| and |t| below this count as zero when telling a pair from two mono files.
@@ -175,7 +174,11 @@ pub fn cameras_from_infos(
 }
 
 /// `color_from_depth` of a pair (module docs); `None` when R = I and t = 0 in both.
-fn pair_extrinsics(a: &Info, b: &Info, path: &Path) -> Result<Option<RigidTransform>, GeometryError> {
+fn pair_extrinsics(
+    a: &Info,
+    b: &Info,
+    path: &Path,
+) -> Result<Option<RigidTransform>, GeometryError> {
     let rot = b.rect.transpose() * a.rect;
     let t = b.rect.transpose() * (b.t - a.t);
     if (rot - Matrix3::identity()).abs().max() < ZERO_TRANSLATION && t.norm() < ZERO_TRANSLATION {

@@ -25,8 +25,6 @@ use std::path::{Path, PathBuf};
 use geometry::GeometryError;
 use serde_yaml_ng::Value;
 
-
-
 /// Largest calibration text file read (a rig YAML is ~2 KB; this bounds a wrong file).
 pub const MAX_TEXT_BYTES: u64 = 4 << 20;
 /// Largest matrix read from a calibration file: OpenCV's `Q` is 4 × 4, distortion vectors
