@@ -1,5 +1,6 @@
 //! Calibration files: the rig JSON (`geometry::Rig` with its `calibration` report), a
-//! single-camera JSON, and OpenCV FileStorage YAML export. Writing goes through
+//! single-camera JSON, and OpenCV FileStorage YAML export (the writers are
+//! `kfuse_io::rig_io::opencv`'s, re-exported here). Writing goes through
 //! `kfuse_io::atomic` (temporary file + rename), so a failed run leaves nothing half-written.
 
 use std::path::Path;
