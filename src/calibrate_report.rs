@@ -22,7 +22,7 @@ use kfuse_figures::{FONT_NAME, register_font};
 /// calibration corpus, cameras calibrated as well as OpenCV does have RMS 0.15–0.86 px, and a
 /// warning on every view would be noise.
 fn handout_bar_applies(m: &MonoCalibration) -> bool {
-    use calib::rig_io::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
+    use kfuse_io::rig_io::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
     let size = (m.camera.width, m.camera.height);
     size == KINECT_COLOR_SIZE || size == KINECT_DEPTH_SIZE
 }

@@ -1,11 +1,11 @@
 //! `kfuse rig`: import a rig from other tools' files, export it to OpenCV and ROS, show it.
-//! A thin layer over `calib::rig_io`.
+//! A thin layer over `kfuse_io::rig_io`.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use calib::rig_io::{self, Calibration, ImportOptions, LengthUnit, Role};
 use kfuse_io::atomic::write_bytes_atomic;
+use kfuse_io::rig_io::{self, Calibration, ImportOptions, LengthUnit, Role};
 
 /// Arguments of `kfuse rig`.
 #[derive(clap::Args, Debug)]
@@ -101,7 +101,7 @@ fn import_bag(a: &ImportArgs) -> Result<rig_io::Imported> {
         depth: a.depth_topic.clone(),
         color: a.color_topic.clone(),
     };
-    let rig = kfuse_sequence::bag::read_rig(&a.sources[0], &topics)?;
+    let rig = kfuse_sequence::bag::rig_from_bag(&a.sources[0], &topics)?;
     Ok(rig_io::Imported {
         calibration: Calibration::Rig(rig),
         source: "ROS 2 bag (camera_info + /tf_static)".into(),
@@ -372,12 +372,15 @@ fn export(a: ExportArgs) -> Result<()> {
         }
         ("opencv", Calibration::Rig(rig)) => {
             check_new(&a.out, a.overwrite)?;
-            write_bytes_atomic(&a.out, calib::files::opencv_yaml_rig(rig).as_bytes())?;
+            write_bytes_atomic(&a.out, kfuse_io::rig_io::opencv::opencv_yaml_rig(rig).as_bytes())?;
             println!("wrote {} (OpenCV FileStorage YAML, T in metres)", a.out.display());
         }
         ("opencv", Calibration::Camera { camera, .. }) => {
             check_new(&a.out, a.overwrite)?;
-            write_bytes_atomic(&a.out, calib::files::opencv_yaml_camera(camera).as_bytes())?;
+            write_bytes_atomic(
+                &a.out,
+                kfuse_io::rig_io::opencv::opencv_yaml_camera(camera).as_bytes(),
+            )?;
             println!("wrote {} (OpenCV FileStorage YAML, one camera)", a.out.display());
         }
         ("iai-kinect2", Calibration::Camera { .. }) => bail!(
@@ -476,7 +479,7 @@ fn export_multi(a: &ExportArgs, rig: &geometry::MultiRig) -> Result<()> {
         }
         "opencv" => {
             into_folder(&mut files, "yml", &|c| {
-                calib::files::opencv_yaml_rig_camera(c, &rig.reference)
+                kfuse_io::rig_io::opencv::opencv_yaml_rig_camera(c, &rig.reference)
             })?;
             "OpenCV FileStorage YAML, R and T from the reference camera, metres"
         }

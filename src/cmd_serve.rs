@@ -119,11 +119,11 @@ struct SensorRig {
 /// name the sensor (refused by name: its frames would be fused with another sensor's pose).
 fn sensor_rig(args: &ServeArgs, serial: &str, source: &SensorSource) -> Result<SensorRig> {
     let multi = match (&args.rig, source) {
-        (Some(path), _) => match calib::rig_io::load_multi(path)? {
+        (Some(path), _) => match kfuse_io::rig_io::load_multi(path)? {
             Some(m) => Some((m, path.display().to_string())),
             None => {
-                let c = calib::rig_io::load(path)?;
-                let calib::rig_io::Calibration::Rig(pair) = c else {
+                let c = kfuse_io::rig_io::load(path)?;
+                let kfuse_io::rig_io::Calibration::Rig(pair) = c else {
                     bail!(
                         "{}: a single camera; --rig takes a rig of the sensor's depth and colour cameras",
                         path.display()
@@ -161,7 +161,7 @@ fn sensor_rig(args: &ServeArgs, serial: &str, source: &SensorSource) -> Result<S
     Ok(SensorRig { pair, in_reference })
 }
 
-fn camera_info(v: &calib::rig_io::ros::CameraInfoValues) -> Result<CameraInfo> {
+fn camera_info(v: &kfuse_io::rig_io::ros::CameraInfoValues) -> Result<CameraInfo> {
     Ok(CameraInfo {
         height: u32::try_from(v.height).context("camera height")?,
         width: u32::try_from(v.width).context("camera width")?,
@@ -184,12 +184,12 @@ fn transform(t: &geometry::RigidTransform) -> Transform {
 }
 
 /// Both `CameraInfo`s and the static transforms of sensor `serial` (the rosbag2 layout's
-/// rules: `calib::rig_io::ros::rig_camera_infos`, the IR optical frame's pose in the colour
+/// rules: `kfuse_io::rig_io::ros::rig_camera_infos`, the IR optical frame's pose in the colour
 /// optical frame; with a rig of several sensors also this depth camera's pose in the reference
 /// sensor's IR optical frame).
 fn latched(serial: &str, rig: &SensorRig, stamp_ns: u64) -> Result<kfuse_live::publish::Latched> {
     let (ir, rgb) = optical_frames(serial);
-    let (d, c) = calib::rig_io::ros::rig_camera_infos(&rig.pair);
+    let (d, c) = kfuse_io::rig_io::ros::rig_camera_infos(&rig.pair);
     let mut transforms = vec![TransformStamped {
         header: header(stamp_ns, &rgb)?,
         child_frame_id: ir.clone(),

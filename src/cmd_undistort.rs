@@ -4,13 +4,13 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
-use calib::rig_io::Role;
 use calib::undistort::UndistortMap;
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
 use kfuse_io::image_header::image_size;
 use kfuse_io::images;
 use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster_marked};
+use kfuse_io::rig_io::Role;
 
 /// Arguments of `kfuse undistort`.
 #[derive(clap::Args, Debug)]
@@ -214,7 +214,7 @@ fn check_read_size(
 fn load_camera(args: &UndistortArgs) -> Result<geometry::CameraModel> {
     // A rig or the single-camera JSON that `kfuse calibrate --ir/--color --out` writes.
     let role = if args.camera == "color" { Role::Color } else { Role::Depth };
-    let calibration = calib::rig_io::load(&args.rig)?;
+    let calibration = kfuse_io::rig_io::load(&args.rig)?;
     let cam = calibration.camera(role, &args.rig)?;
     let problems = calibration.plausibility_problems();
     if !problems.is_empty() {

@@ -14,7 +14,6 @@ use std::f64::consts::FRAC_PI_2;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use calib::rig_io::{Role, camera_file_json};
 use common::{
     depth_mm, kfuse, read_exr, scratch, small_case, small_rig, summary, zbuffer_vs_truth,
 };
@@ -23,6 +22,7 @@ use geometry::testdata::shared_data_or_skip as shared_data;
 use geometry::{Distortion, Image, Rig, RigidTransform};
 use kfuse_io::mat::{MatValue, NumericArray, NumericData, row_to_column_major, write_mat};
 use kfuse_io::raster::{Raster, RasterFormat, read_raster, write_raster};
+use kfuse_io::rig_io::{Role, camera_file_json};
 use kfuse_io::{images, rig as rigio};
 use nalgebra::Vector3;
 

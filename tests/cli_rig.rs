@@ -517,9 +517,13 @@ fn show_prints_units_and_single_camera_files_are_accepted() {
         "--out",
         s(&p("ir_back.json")),
     ]);
-    let a = calib::rig_io::load(&ir).unwrap().camera(calib::rig_io::Role::Depth, &ir).unwrap();
+    let a =
+        kfuse_io::rig_io::load(&ir).unwrap().camera(kfuse_io::rig_io::Role::Depth, &ir).unwrap();
     let back = p("ir_back.json");
-    let b = calib::rig_io::load(&back).unwrap().camera(calib::rig_io::Role::Depth, &back).unwrap();
+    let b = kfuse_io::rig_io::load(&back)
+        .unwrap()
+        .camera(kfuse_io::rig_io::Role::Depth, &back)
+        .unwrap();
     let diff =
         cam_values(&a).iter().zip(cam_values(&b)).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
     // As for the OpenCV/ROS round trips above: f64 printed in full, 1e-9 is a loose ceiling.
@@ -1018,7 +1022,7 @@ fn show_of_the_simulated_rings_rig_prints_its_rotations() {
 /// `rig export --format iai-kinect2` of a rig of mirrored images (colour camera at −52 mm,
 /// where kinect2_bridge's images have it at +52 mm) is refused in one line with the
 /// conversion, and nothing is written; the rig it converts to exports (issue 51; checked
-/// failing by removing the orientation check in `calib::rig_io::iai::export`).
+/// failing by removing the orientation check in `kfuse_io::rig_io::iai::export`).
 #[test]
 fn iai_kinect2_export_of_a_mirrored_rig_is_refused_with_the_conversion() {
     let tmp = tempfile::tempdir().unwrap();

@@ -92,9 +92,9 @@ fn truth(rec: &Path) -> (Vec<TruthFrame>, Vec<TruthColor>, DepthDecoder) {
 
 /// The rig of a rig file or of the sensor's kinect_params.json (fitted, as `kfuse rig import`).
 fn rig_of(path: &Path) -> geometry::Rig {
-    let opts = calib::rig_io::ImportOptions::default();
-    match calib::rig_io::import(&[path.to_path_buf()], &opts).unwrap().calibration {
-        calib::rig_io::Calibration::Rig(r) => r,
+    let opts = kfuse_io::rig_io::ImportOptions::default();
+    match kfuse_io::rig_io::import(&[path.to_path_buf()], &opts).unwrap().calibration {
+        kfuse_io::rig_io::Calibration::Rig(r) => r,
         _ => panic!("{} is not a rig", path.display()),
     }
 }

@@ -1,6 +1,6 @@
 //! The Python module `kfuse`: rig files and the exact z-buffered registration of
 //! `geometry::fusion` (`register_on`, on the CPU or the GPU), NumPy in and out. A thin layer: every algorithm and
-//! every file format is the workspace's (`calib::rig_io`, `geometry::fusion`); this crate only
+//! every file format is the workspace's (`kfuse_io::rig_io`, `geometry::fusion`); this crate only
 //! checks arrays, converts them and maps errors (`ValueError` for bad content, `OSError`
 //! for a file that cannot be read or written).
 #![deny(missing_docs)]
@@ -13,10 +13,10 @@ mod fuse;
 mod recording;
 
 use calib::CalibError;
-use calib::rig_io::{self, Calibration, ImportOptions};
 use fusion_gpu::{Engine, EngineUsed, GpuError, PixelEngine};
 use geometry::fusion::{self, ColorProjection};
 use geometry::{CameraModel, DepthKind, GeometryError, Image, Rig};
+use kfuse_io::rig_io::{self, Calibration, ImportOptions};
 use kinect_usb::decoder::{DecoderConfig, DecoderParams, DecoderPrecision, DepthDecoder};
 use kinect_usb::orientation::Orientation;
 use kinect_usb::params::{P0Tables, XzTables};
@@ -312,7 +312,7 @@ impl PyRig {
         for m in more.iter() {
             sources.push(m.extract::<PathBuf>()?);
         }
-        let imported = rig_io::import(&sources, &ImportOptions::default()).map_err(calib_err)?;
+        let imported = rig_io::import(&sources, &ImportOptions::default()).map_err(geometry_err)?;
         let Calibration::Rig(rig) = imported.calibration else {
             return Err(PyValueError::new_err(format!(
                 "{}: holds one camera, not a rig; a Registration needs both cameras and their pose (give a rig file, e.g. from `kfuse calibrate --ir ... --color ...`)",

@@ -181,13 +181,14 @@ fn foreign_output(path: &Path, yaml: bool, rig: bool, depth_run: bool) -> Option
     // Replaced by the same kind only: a single-camera run into a two-camera rig would lose
     // the other camera and the extrinsics (and the other way round a camera file).
     match (format.as_deref(), rig) {
-        (Some(geometry::rig::RIG_FORMAT), true) | (Some(calib::rig_io::CAMERA_FORMAT), false) => {
+        (Some(geometry::rig::RIG_FORMAT), true)
+        | (Some(kfuse_io::rig_io::CAMERA_FORMAT), false) => {
             value.as_ref().and_then(|v| not_calibrates(v, depth_run))
         }
         (Some(geometry::rig::RIG_FORMAT), false) => {
             Some("a two-camera rig, and this run writes a single-camera file".into())
         }
-        (Some(calib::rig_io::CAMERA_FORMAT), true) => {
+        (Some(kfuse_io::rig_io::CAMERA_FORMAT), true) => {
             Some("a single-camera file, and this run writes a two-camera rig".into())
         }
         (Some(other), _) => Some(format!("a JSON file of format \"{other}\"")),

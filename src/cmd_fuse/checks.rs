@@ -173,7 +173,7 @@ pub fn kinect_near_warning(rig: &Rig, depth: &Image<f32>, source: &DepthSource) 
     let DepthSource::File { name, encoding: DepthEncoding::Integer, scale } = source else {
         return None;
     };
-    let kinect = (rig.depth.width, rig.depth.height) == calib::rig_io::show::KINECT_DEPTH_SIZE;
+    let kinect = (rig.depth.width, rig.depth.height) == kfuse_io::rig_io::show::KINECT_DEPTH_SIZE;
     let median = median_depth(depth)?;
     (kinect && median < KINECT_MIN_DEPTH_M).then(|| {
         format!(

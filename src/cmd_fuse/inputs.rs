@@ -5,11 +5,11 @@
 use std::path::Path;
 
 use anyhow::{Result, bail};
-use calib::rig_io::{self, Calibration};
 use geometry::fusion::{FusionOptions, Request};
 use geometry::{DepthKind, Image, Rig};
 use kfuse_io::kinect_data::{self, KinectDepth};
 use kfuse_io::mat::MatFile;
+use kfuse_io::rig_io::{self, Calibration};
 use kfuse_io::{course, image_header, images};
 
 use super::checks::{self, DepthSource};
@@ -66,7 +66,7 @@ fn check_rig(rig: &Rig, source: &Path, force: bool) -> Result<()> {
 }
 
 /// Reads `--rig`: a kfuse rig; a single-camera file is refused with how to get a rig.
-fn read_rig(path: &Path, force: bool) -> Result<Rig> {
+fn load_rig_for_fuse(path: &Path, force: bool) -> Result<Rig> {
     let rig = match rig_io::load(path)? {
         Calibration::Rig(rig) => rig,
         Calibration::Camera { role, .. } => {
@@ -273,7 +273,7 @@ fn load_files(args: &FuseArgs, problems: &mut Vec<String>) -> Result<Loaded> {
     else {
         bail!("give --rig, --color and --depth, or --mat (see kfuse fuse --help)");
     };
-    let rig = read_rig(rig_path, args.force)?;
+    let rig = load_rig_for_fuse(rig_path, args.force)?;
     check_beside_capture(&rig, rig_path, depth_path, problems)?;
     if !args.rectified && !rig.rectified {
         problems.extend([color_path, depth_path].into_iter().filter_map(|p| undistorted_note(p)));

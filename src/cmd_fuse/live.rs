@@ -39,7 +39,7 @@ use kfuse_live::receive::{ColorFrame, DepthFrame, Receiver, SensorCounters, Sens
 use serde::Serialize;
 
 use super::FuseArgs;
-use super::multi::{SensorArg, check_serial_for_files, read_rig};
+use super::multi::{SensorArg, check_serial_for_files, load_multi_rig_for_fuse};
 
 /// Default of `--stale-after`: a sensor whose newest depth frame arrived longer ago than this is
 /// reported as stopped and left out of the sets: 1 s (30 frame periods; a `serve` whose network
@@ -256,7 +256,7 @@ pub fn run(args: &FuseArgs) -> Result<()> {
     crate::interrupt::install()?;
     check_flags(args)?;
     let rig_path = args.rig.as_deref().context("--live needs --rig")?;
-    let rig = read_rig(rig_path, args.force)?;
+    let rig = load_multi_rig_for_fuse(rig_path, args.force)?;
     let sensors: Vec<String> = rig.sensors().into_iter().map(String::from).collect();
     if sensors.is_empty() {
         bail!("{}: no camera belongs to a sensor: nothing to receive", rig_path.display());

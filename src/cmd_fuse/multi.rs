@@ -112,8 +112,8 @@ pub(super) fn check_serial_for_files(serial: &str, rig: &Path) -> Result<()> {
 
 /// Reads `--rig` as a rig of several cameras (version 2), its plausibility checked unless
 /// `force` (then the problems are printed as warnings).
-pub(super) fn read_rig(path: &Path, force: bool) -> Result<MultiRig> {
-    let Some(rig) = calib::rig_io::load_multi(path)? else {
+pub(super) fn load_multi_rig_for_fuse(path: &Path, force: bool) -> Result<MultiRig> {
+    let Some(rig) = kfuse_io::rig_io::load_multi(path)? else {
         bail!(
             "{}: not a rig of several cameras (version 2): --sensor/--frames of several Kinects need one; make it with `kfuse calibrate --camera NAME=GLOB ...` (a two-camera rig fuses one Kinect: --color/--depth)",
             path.display()
@@ -780,7 +780,7 @@ pub fn run(args: &FuseArgs) -> Result<PathBuf> {
             "several Kinects need --rig RIG.json (a rig of several cameras; a simulated capture writes true_rig.json beside its frames)"
         )
     };
-    let mut rig = read_rig(rig_path, args.force)?;
+    let mut rig = load_multi_rig_for_fuse(rig_path, args.force)?;
     rig.rectified |= args.rectified;
     let (sensor_args, shot) = match frames_dir {
         Some(dir) => frames_inputs(dir, args.shot.as_deref()).map(|(a, c)| (a, Some(c)))?,

@@ -6,11 +6,11 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use calib::rig_io::{self, Calibration};
 use clap::{Args, ValueEnum};
 use geometry::{DepthKind, Rig};
 use indicatif::{ProgressBar, ProgressStyle};
 use kfuse_io::atomic::StagedDir;
+use kfuse_io::rig_io::{self, Calibration};
 use kfuse_sequence::bag::TopicChoice;
 use kfuse_sequence::command::{
     self, Finished, Observer, Opened, Progress, SequenceInput, SequenceOptions,

@@ -1,21 +1,22 @@
 //! Calibration files: the rig JSON (`geometry::Rig` with its `calibration` report), a
-//! single-camera JSON, and OpenCV FileStorage YAML export. Writing goes through
+//! single-camera JSON, and OpenCV FileStorage YAML export (the writers are
+//! `kfuse_io::rig_io::opencv`'s, re-exported here). Writing goes through
 //! `kfuse_io::atomic` (temporary file + rename), so a failed run leaves nothing half-written.
 
-use std::fmt::Write as _;
 use std::path::Path;
 
-use geometry::{CameraModel, Rig, RigidTransform};
+use geometry::Rig;
 use kfuse_io::atomic::write_bytes_atomic;
 use serde_json::{Value, json};
 
 use crate::mono::{IntrinsicsStd, MonoCalibration};
 use crate::{Board, CalibError, StereoCalibration, ViewCorners};
 
-/// Handout thresholds (lab L2): colour RMS must stay below 0.2 px, IR below 0.4 px.
-pub const COLOR_RMS_LIMIT_PX: f64 = 0.2;
-/// See [`COLOR_RMS_LIMIT_PX`].
-pub const DEPTH_RMS_LIMIT_PX: f64 = 0.4;
+/// The OpenCV FileStorage writers live with the OpenCV reader in `kfuse_io::rig_io::opencv`.
+pub use kfuse_io::rig_io::opencv::{opencv_yaml_camera, opencv_yaml_rig, opencv_yaml_rig_camera};
+
+/// The report's RMS limits are defined with the rig files that carry the report.
+pub use kfuse_io::rig::{COLOR_RMS_LIMIT_PX, DEPTH_RMS_LIMIT_PX};
 
 fn std_json(s: &IntrinsicsStd) -> Value {
     json!({"fx": s.fx, "fy": s.fy, "cx": s.cx, "cy": s.cy, "skew": s.skew,
@@ -145,66 +146,6 @@ pub fn camera_json(m: &MonoCalibration, board: &Board, role: &str) -> String {
         "calibration": report,
     });
     serde_json::to_string_pretty(&v).unwrap_or_default()
-}
-
-pub(crate) fn yaml_matrix(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
-    let values: Vec<String> = data.iter().map(|v| format!("{v:.17e}")).collect();
-    let _ = writeln!(
-        out,
-        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]",
-        values.join(", ")
-    );
-}
-
-fn k_of(c: &CameraModel) -> [f64; 9] {
-    let k = c.intrinsics;
-    [k.fx, k.skew, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
-}
-
-/// OpenCV FileStorage YAML of one camera (`cv::FileStorage` reads it: `camera_matrix`,
-/// `distortion_coefficients`, `image_width`, `image_height`).
-pub fn opencv_yaml_camera(c: &CameraModel) -> String {
-    let mut s = String::from("%YAML:1.0\n---\n");
-    let _ = writeln!(s, "image_width: {}\nimage_height: {}", c.width, c.height);
-    yaml_matrix(&mut s, "camera_matrix", 3, 3, &k_of(c));
-    yaml_matrix(&mut s, "distortion_coefficients", 1, 5, &c.distortion.to_array());
-    s
-}
-
-/// OpenCV FileStorage YAML of a rig in `stereoCalibrate`'s naming: camera 1 = depth/IR
-/// (`M1`, `D1`), camera 2 = colour (`M2`, `D2`), `R`, `T` with `X_2 = R·X_1 + T`. `T` is in
-/// metres (`T_units: m`); multiply by 1000 for a board measured in millimetres.
-pub fn opencv_yaml_rig(rig: &Rig) -> String {
-    let mut s = String::from("%YAML:1.0\n---\n");
-    let _ = writeln!(s, "image_width_1: {}\nimage_height_1: {}", rig.depth.width, rig.depth.height);
-    let _ = writeln!(s, "image_width_2: {}\nimage_height_2: {}", rig.color.width, rig.color.height);
-    yaml_matrix(&mut s, "M1", 3, 3, &k_of(&rig.depth));
-    yaml_matrix(&mut s, "D1", 1, 5, &rig.depth.distortion.to_array());
-    yaml_matrix(&mut s, "M2", 3, 3, &k_of(&rig.color));
-    yaml_matrix(&mut s, "D2", 1, 5, &rig.color.distortion.to_array());
-    let cfd: &RigidTransform = &rig.color_from_depth;
-    let r = cfd.rotation.matrix();
-    let rd: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
-    yaml_matrix(&mut s, "R", 3, 3, &rd);
-    yaml_matrix(&mut s, "T", 3, 1, &[cfd.translation.x, cfd.translation.y, cfd.translation.z]);
-    let _ = writeln!(s, "T_units: m");
-    s
-}
-
-/// OpenCV FileStorage YAML of one camera of a rig of several cameras: [`opencv_yaml_camera`]'s
-/// keys, then its pose `R`, `T` (`X_camera = R·X_reference + T`, metres, `T_units: m`) and the
-/// reference camera's name (`reference`), so that `cv::FileStorage` reads every camera of the
-/// rig into one frame.
-pub fn opencv_yaml_rig_camera(c: &geometry::RigCamera, reference: &str) -> String {
-    let mut s = opencv_yaml_camera(&c.model);
-    let _ = writeln!(s, "camera_name: \"{}\"\nreference: \"{reference}\"", c.name.escape_default());
-    let pose = &c.camera_from_reference;
-    let r = pose.rotation.matrix();
-    let rd: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
-    yaml_matrix(&mut s, "R", 3, 3, &rd);
-    yaml_matrix(&mut s, "T", 3, 1, &[pose.translation.x, pose.translation.y, pose.translation.z]);
-    let _ = writeln!(s, "T_units: m");
-    s
 }
 
 /// Writes text atomically.

@@ -4,16 +4,13 @@
 //!
 //! * `io` (this module): the images to detect in (`kfuse_io::images::read_gray`,
 //!   `image::open` for the bit depth).
-//! * `bouguet`: Bouguet's `Calib_Results*.mat` (`kfuse_io::mat::MatFile::read`).
-//! * `rig_io` (`mod.rs`): a rig source's first 128 bytes (to tell `.mat` from text) and the
-//!   `.mat` sources (`MatFile::read`, `kfuse_io::course`); `rig_io/yaml.rs`: every text source
-//!   (`read_text`: OpenCV/ROS YAML, Bouguet's `.m`, JSON); `rig_io/iai.rs` only tests which of
-//!   its folder's files exist and reads them through `yaml.rs`.
+//! * `bouguet`: Bouguet's `Calib_Results*.mat` through `kfuse_io::bouguet` (rig and camera
+//!   files of every format are read in `kfuse_io::rig_io`).
 //! * `files`: writes calibration files (`write_text`, atomically through `kfuse_io::atomic`).
 //! * `pipeline`: a run's images through this module, `pipeline::inputs` the first image's
 //!   header (`kfuse_io::image_header`) and the patterns' matches (`glob`), `pipeline::depth`
 //!   the depth images (`kfuse_io::images::read_depth`, `image::open` for the 16-bit IR) and
-//!   `--rig` (`rig_io::load`).
+//!   `--rig` (`kfuse_io::rig_io::load`).
 
 use std::path::Path;
 

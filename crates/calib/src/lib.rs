@@ -30,7 +30,6 @@ pub mod io;
 pub mod mono;
 pub mod multi;
 pub mod pipeline;
-pub mod rig_io;
 pub mod stereo;
 pub mod timing;
 pub mod undistort;

@@ -5,6 +5,13 @@ use std::path::Path;
 use crate::atomic::write_bytes_atomic;
 use geometry::{GeometryError, MultiRig, Rig};
 
+/// Handout thresholds (lab L2) on the reprojection RMS in a rig file's calibration report
+/// (`kfuse calibrate` writes it, `kfuse rig show` and the viewer check it): colour RMS must
+/// stay below 0.2 px, IR below 0.4 px.
+pub const COLOR_RMS_LIMIT_PX: f64 = 0.2;
+/// See [`COLOR_RMS_LIMIT_PX`].
+pub const DEPTH_RMS_LIMIT_PX: f64 = 0.4;
+
 /// Reads and validates a rig file, and checks that it can be a rig of real cameras
 /// ([`Rig::check_plausible`]: focal lengths, image sizes, baseline); the error names the file
 /// and the likely unit mistake. Every command and the viewer read rigs through this.

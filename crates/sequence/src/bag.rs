@@ -20,8 +20,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 
-use calib::rig_io::ros::{CameraInfoFields, cameras_from_infos};
 use geometry::{Rig, RigidTransform};
+use kfuse_io::rig_io::ros::{CameraInfoFields, cameras_from_infos};
 use kfuse_ros_msgs::{
     CameraInfo, CompressedImage, Image, Message, TFMessage, TransformStamped, ros1,
 };
@@ -943,7 +943,7 @@ pub fn rig_from_meta(path: &Path, meta: &BagMeta) -> Result<Rig> {
 
 /// The rig of the bag `input` without reading its frames (`kfuse rig import BAG`): the first
 /// pass of [`BagSource::open`] and [`rig_from_meta`].
-pub fn read_rig(input: &Path, topics: &TopicChoice) -> Result<Rig> {
+pub fn rig_from_bag(input: &Path, topics: &TopicChoice) -> Result<Rig> {
     BagSource::open(input, topics)?.rig()
 }
 

@@ -18,7 +18,7 @@
 //! | `sd/image_ir` | `sensor_msgs/Image` 16UC1 | the decoder's IR amplitude (round half up, clamped to 65535) | depth time, IR optical frame |
 //! | `hd/image_depth_rect` | `sensor_msgs/Image` 16UC1 | depth registered on the colour grid (the kfuse layout's `depth/NNNNNN.png`, same values), millimetres | depth time, colour optical frame |
 //! | `hd/image_color/compressed` | `sensor_msgs/CompressedImage` `jpeg` | the sensor's JPEG as the kfuse layout writes it (`color/NNNNNN.jpg`: flipped without loss), not re-encoded; once per colour frame | colour time, colour optical frame |
-//! | `sd/camera_info`, `hd/camera_info` | `sensor_msgs/CameraInfo` | the rig's depth and colour cameras as `kfuse rig export --format ros` writes them ([`calib::rig_io::ros::rig_camera_infos`]) | depth time |
+//! | `sd/camera_info`, `hd/camera_info` | `sensor_msgs/CameraInfo` | the rig's depth and colour cameras as `kfuse rig export --format ros` writes them ([`kfuse_io::rig_io::ros::rig_camera_infos`]) | depth time |
 //! | `/tf_static` | `tf2_msgs/TFMessage`, transient local | the rig's `color_from_depth`: the IR optical frame's pose in the colour optical frame | first depth time |
 //!
 //! Times are the sensor's clock (0.125 ms ticks, as `index.json`'s `depth_time_ticks`) in
@@ -35,9 +35,9 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use calib::rig_io::ros::{CameraInfoValues, rig_camera_infos};
 use geometry::Rig;
 use kfuse_io::atomic::write_bytes_atomic;
+use kfuse_io::rig_io::ros::{CameraInfoValues, rig_camera_infos};
 use kfuse_ros_msgs::{
     CameraInfo, CompressedImage, Header, Image, Message, Quaternion, TFMessage, Time, Transform,
     TransformStamped, Vector3,

@@ -76,9 +76,9 @@ fn record(dir: &Path) -> (PathBuf, Rig) {
     kfuse_capture::record::record(&mut session, &path, FRAMES, &|| false, &mut |_| {}).unwrap();
     kfuse_capture::write_params_json(dir, session.info()).unwrap();
     let params = [dir.join("kinect_params.json")];
-    let opts = calib::rig_io::ImportOptions::default();
-    let rig = match calib::rig_io::import(&params, &opts).unwrap().calibration {
-        calib::rig_io::Calibration::Rig(r) => r,
+    let opts = kfuse_io::rig_io::ImportOptions::default();
+    let rig = match kfuse_io::rig_io::import(&params, &opts).unwrap().calibration {
+        kfuse_io::rig_io::Calibration::Rig(r) => r,
         _ => panic!("kinect_params.json is a rig"),
     };
     (path, rig)

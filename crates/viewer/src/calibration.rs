@@ -10,7 +10,7 @@
 //! The numbers are taken as written: per-image RMS, residual vectors and board poses come
 //! from the report (the calibration is never recomputed here). Per image the report holds
 //! `detected_corners` (`[id, x, y]` px), `residuals_px` (`[id, x, y, ex, ey]`, error =
-//! observed − projected), `camera_from_board` and the `image` path (see `calib::files`).
+//! observed − projected), `camera_from_board` and the `image` path (see `calib::files`, which writes it).
 //! Board poses in the 3D view are in the **depth camera's frame** for a stereo report (the
 //! joint fit's `depth_from_board`) and in the camera's own frame for a single camera.
 
@@ -286,7 +286,7 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
             report.get("depth_std_1sigma"),
             num(report, "depth_rms_px")?,
             depth_mono,
-            calib::files::DEPTH_RMS_LIMIT_PX,
+            kfuse_io::rig::DEPTH_RMS_LIMIT_PX,
         )?);
         cameras.push(camera(
             file,
@@ -295,7 +295,7 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
             report.get("color_std_1sigma"),
             num(report, "color_rms_px")?,
             color_mono,
-            calib::files::COLOR_RMS_LIMIT_PX,
+            kfuse_io::rig::COLOR_RMS_LIMIT_PX,
         )?);
         // Per pair (image order): the joint fit's weights (reports before they existed: none).
         if let Some(weights) = report.get("per_pair_weight").and_then(Value::as_array) {
@@ -337,9 +337,9 @@ pub fn parse_report(file: &Path, json: &Value) -> Result<CalibReport, ViewerErro
         let model = camera_of(single_camera, "camera")?;
         let role = json.get("role").and_then(Value::as_str).unwrap_or("depth");
         let (label, limit) = if role == "color" {
-            ("colour", calib::files::COLOR_RMS_LIMIT_PX)
+            ("colour", kfuse_io::rig::COLOR_RMS_LIMIT_PX)
         } else {
-            ("IR", calib::files::DEPTH_RMS_LIMIT_PX)
+            ("IR", kfuse_io::rig::DEPTH_RMS_LIMIT_PX)
         };
         cameras.push(camera(
             file,

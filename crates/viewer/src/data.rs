@@ -16,7 +16,7 @@
 //!   (`NAME_color.jpg`, `NAME_depth.png` (16-bit millimetres, z), optional `NAME_ir.png`),
 //!   else the last calibration shot (`color_NNNN.jpg`, `depth_NNNN.png`, `ir_NNNN.png`); the
 //!   rig is `rig.json` if the folder has one, else the one fitted to the sensor's factory
-//!   parameters (`calib::rig_io::kinect`, as `kfuse rig import kinect_params.json`).
+//!   parameters (`kfuse_io::rig_io::kinect`, as `kfuse rig import kinect_params.json`).
 
 use std::path::{Path, PathBuf};
 
@@ -109,7 +109,7 @@ pub fn open_folder_shot(
 
 /// Reads a rig file and applies [`Rig::check_plausible`], or with `force` returns its problems
 /// as warnings.
-fn read_rig_checked(path: &Path, force: bool) -> Result<(Rig, Vec<String>), ViewerError> {
+fn load_rig_for_view(path: &Path, force: bool) -> Result<(Rig, Vec<String>), ViewerError> {
     let rig = rigio::read_rig_unchecked(path).map_err(|e| bad(path, e))?;
     check_rig(rig, path, force)
 }
@@ -164,7 +164,7 @@ fn check_size(
     })
 }
 
-/// The frame of a rig (read by [`read_rig_checked`], with its warnings) and its image files.
+/// The frame of a rig (read by [`load_rig_for_view`], with its warnings) and its image files.
 fn load(
     name: String,
     (mut rig, warnings): (Rig, Vec<String>),
@@ -204,7 +204,7 @@ fn open_capture(dir: &Path, force: bool) -> Result<(Frame, Vec<String>), ViewerE
     let ir = ir.is_file().then_some(ir);
     load(
         dir.display().to_string(),
-        read_rig_checked(&rig, force)?,
+        load_rig_for_view(&rig, force)?,
         &color,
         &depth,
         images::MILLIMETRES,
@@ -285,7 +285,7 @@ fn open_kfuse_capture(
     };
     let rig_path = dir.join("rig.json");
     let rig = if rig_path.is_file() {
-        read_rig_checked(&rig_path, force)?
+        load_rig_for_view(&rig_path, force)?
     } else {
         let params = dir.join("kinect_params.json");
         check_rig(factory_rig(&params)?, &params, force)?
@@ -304,17 +304,17 @@ fn open_kfuse_capture(
 
 /// The rig fitted to the factory parameters in `kinect_params.json`.
 fn factory_rig(path: &Path) -> Result<Rig, ViewerError> {
-    use calib::rig_io::{kinect::FactoryParams, yaml::read_text};
-    let calib_err = |e: calib::CalibError| match e {
-        calib::CalibError::Format { path, message } => ViewerError::BadFile { path, message },
+    use kfuse_io::rig_io::{kinect::FactoryParams, yaml::read_text};
+    let file_err = |e: GeometryError| match e {
+        GeometryError::Format { path, message } => ViewerError::BadFile { path, message },
         e => ViewerError::BadFile { path: path.to_path_buf(), message: e.to_string() },
     };
-    let text = read_text(path).map_err(calib_err)?;
+    let text = read_text(path).map_err(file_err)?;
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| ViewerError::BadFile {
         path: path.into(),
         message: format!("not valid JSON ({e}); it is written by `kfuse capture`"),
     })?;
-    let fit = FactoryParams::from_json(&v, path).and_then(|p| p.to_rig()).map_err(calib_err)?;
+    let fit = FactoryParams::from_json(&v, path).and_then(|p| p.to_rig()).map_err(file_err)?;
     Ok(fit.rig)
 }
 
@@ -387,7 +387,7 @@ fn open_fuse_output(
     };
     let (rig, color, depth) =
         (resolve(dir, rig, summary)?, resolve(dir, color, summary)?, resolve(dir, depth, summary)?);
-    let (mut rig, warnings) = read_rig_checked(&rig, force)?;
+    let (mut rig, warnings) = load_rig_for_view(&rig, force)?;
     // `kfuse fuse --rectified` records it among the inputs.
     rig.rectified |= rectified;
     load(name, (rig, warnings), &color, &depth, scale, kind, None)

@@ -59,7 +59,7 @@ pub struct RigPage {
 /// True when `path` is a version-2 rig file, or a folder whose `rig.json` is one.
 pub fn is_multi_rig(path: &Path) -> bool {
     let file = if path.is_dir() { path.join("rig.json") } else { path.to_path_buf() };
-    calib::rig_io::load_multi(&file).is_ok_and(|r| r.is_some())
+    kfuse_io::rig_io::load_multi(&file).is_ok_and(|r| r.is_some())
 }
 
 impl RigPage {
@@ -71,7 +71,7 @@ impl RigPage {
         } else {
             (path.to_path_buf(), None)
         };
-        let rig = calib::rig_io::load_multi(&file)
+        let rig = kfuse_io::rig_io::load_multi(&file)
             .map_err(|e| ViewerError::Rig(e.to_string()))?
             .ok_or_else(|| {
                 ViewerError::Rig(format!(

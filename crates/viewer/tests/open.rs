@@ -253,7 +253,7 @@ fn kfuse_capture_folder_opens_its_newest_shot() {
     let params = tmp.path().join("kinect_params.json");
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&params).unwrap()).unwrap();
     let fit =
-        calib::rig_io::kinect::FactoryParams::from_json(&v, &params).unwrap().to_rig().unwrap();
+        kfuse_io::rig_io::kinect::FactoryParams::from_json(&v, &params).unwrap().to_rig().unwrap();
     assert_eq!(frame.rig, fit.rig);
     // The sim's colour camera is 1920 × 1080, the JPEG decoded at that size.
     assert_eq!(frame.color.size(), (1920, 1080));

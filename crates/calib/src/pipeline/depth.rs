@@ -8,8 +8,8 @@ use geometry::{CameraModel, Image, Rig};
 
 use super::{Event, Observer};
 use crate::depth::{DepthFit, DepthShot, check_plausible, fit_depth_from_corners};
-use crate::rig_io::{self, Calibration};
 use crate::{Board, CalibError, ViewCorners};
+use kfuse_io::rig_io::{self, Calibration};
 
 fn input(message: &str) -> Result<(), CalibError> {
     Err(CalibError::Input(message.into()))
@@ -56,7 +56,7 @@ pub fn check_args(
 }
 
 /// Reads `--rig` (a kfuse rig).
-pub fn read_rig(path: &Path) -> Result<Rig, CalibError> {
+pub fn load_base_rig(path: &Path) -> Result<Rig, CalibError> {
     match rig_io::load(path)? {
         Calibration::Rig(rig) => Ok(rig),
         Calibration::Camera { .. } => Err(CalibError::Input(format!(

@@ -243,7 +243,7 @@ pub(super) fn check_not_swapped(
     color: &CameraImages,
     obs: &dyn Observer,
 ) -> Result<(), CalibError> {
-    use crate::rig_io::show::{KINECT_COLOR_SIZE as COLOR, KINECT_DEPTH_SIZE as IR};
+    use kfuse_io::rig_io::show::{KINECT_COLOR_SIZE as COLOR, KINECT_DEPTH_SIZE as IR};
     match (first_size(ir), first_size(color)) {
         (Some(i), Some(c)) if (i, c) == (COLOR, IR) => Err(input(
             "the --ir images are 1920x1080 and the --color images 512x424: the Kinect v2's colour camera is the 1920x1080 one; are --ir and --color swapped?"

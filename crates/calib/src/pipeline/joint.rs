@@ -18,8 +18,8 @@ use crate::detect::Refinement;
 use crate::multi::input::{CameraFiles, align_labels};
 use crate::multi::report::report_json;
 use crate::multi::{CameraViews, MultiCalibration, calibrate_multi};
-use crate::rig_io::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
 use crate::{Board, CalibError, CalibFlags};
+use kfuse_io::rig_io::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
 
 /// What a joint calibration runs on.
 #[derive(Debug, Clone)]

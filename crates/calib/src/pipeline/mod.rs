@@ -223,7 +223,7 @@ pub fn prepare(req: Request, obs: &dyn Observer) -> Result<Prepared, CalibError>
             "--force only lets --depth write an implausible depth scale; without --depth there is nothing it applies to: leave it out".into(),
         ));
     }
-    let base_rig = req.rig.as_deref().map(depth::read_rig).transpose()?;
+    let base_rig = req.rig.as_deref().map(depth::load_base_rig).transpose()?;
     inputs::check_not_swapped(&req.ir, &req.color, obs)?;
     let (ir, color) = (req.ir.len(), req.color.len());
     if ir != 0 && color != 0 && ir != color {

@@ -26,11 +26,11 @@ pub mod yaml;
 
 use std::path::{Path, PathBuf};
 
+use crate::mat::MatFile;
+use geometry::GeometryError;
 use geometry::{CameraModel, Rig};
-use kfuse_io::mat::MatFile;
 use serde_json::{Value, json};
 
-use crate::CalibError;
 use yaml::{fmt_err, read_text};
 
 /// The value of the `format` field of a single-camera file (`kfuse calibrate --ir … --out`).
@@ -89,7 +89,7 @@ pub enum Calibration {
 impl Calibration {
     /// The camera `role` of a rig, or the single camera (an error names `source` when the
     /// file's camera is the other one).
-    pub fn camera(&self, role: Role, source: &Path) -> Result<CameraModel, CalibError> {
+    pub fn camera(&self, role: Role, source: &Path) -> Result<CameraModel, GeometryError> {
         match self {
             Calibration::Rig(rig) => Ok(if role == Role::Depth { rig.depth } else { rig.color }),
             Calibration::Camera { camera, role: Some(r), .. } if *r != role => Err(fmt_err(
@@ -150,7 +150,7 @@ pub fn camera_file_json(
 
 /// Reads a kfuse calibration file: a rig (`kfuse-rig`) or a single camera (`kfuse-camera`).
 /// Commands that need one camera (`undistort`) take either.
-pub fn load(path: &Path) -> Result<Calibration, CalibError> {
+pub fn load(path: &Path) -> Result<Calibration, GeometryError> {
     let text = read_text(path)?;
     from_kfuse_json(&text, path)
 }
@@ -158,7 +158,7 @@ pub fn load(path: &Path) -> Result<Calibration, CalibError> {
 /// A rig file of several cameras (version 2, `geometry::multi_rig`), validated; `None` when
 /// `path` holds anything else (a two-camera rig, a camera file, another tool's file: read
 /// those with [`load`] or [`import`]).
-pub fn load_multi(path: &Path) -> Result<Option<geometry::MultiRig>, CalibError> {
+pub fn load_multi(path: &Path) -> Result<Option<geometry::MultiRig>, GeometryError> {
     let text = read_text(path)?;
     multi_from_text(&text, path)
 }
@@ -175,7 +175,7 @@ pub enum AnyRig {
 /// Reads a kfuse rig file of either kind with one read of `path`, so a pipe or a FIFO (which
 /// a second open would find empty) works as a regular file does: [`load_multi`] then [`load`]
 /// in one.
-pub fn load_any(path: &Path) -> Result<AnyRig, CalibError> {
+pub fn load_any(path: &Path) -> Result<AnyRig, GeometryError> {
     let text = read_text(path)?;
     match multi_from_text(&text, path)? {
         Some(multi) => Ok(AnyRig::Multi(multi)),
@@ -183,7 +183,7 @@ pub fn load_any(path: &Path) -> Result<AnyRig, CalibError> {
     }
 }
 
-fn multi_from_text(text: &str, path: &Path) -> Result<Option<geometry::MultiRig>, CalibError> {
+fn multi_from_text(text: &str, path: &Path) -> Result<Option<geometry::MultiRig>, GeometryError> {
     let Ok(v) = serde_json::from_str::<Value>(text) else { return Ok(None) };
     if !geometry::multi_rig::is_multi_rig_json(&v) {
         return Ok(None);
@@ -191,7 +191,7 @@ fn multi_from_text(text: &str, path: &Path) -> Result<Option<geometry::MultiRig>
     Ok(Some(geometry::MultiRig::from_json(text, path)?))
 }
 
-fn from_kfuse_json(text: &str, path: &Path) -> Result<Calibration, CalibError> {
+fn from_kfuse_json(text: &str, path: &Path) -> Result<Calibration, GeometryError> {
     let v: Value = serde_json::from_str(text).map_err(|e| {
         fmt_err(
             path,
@@ -297,10 +297,10 @@ fn imported(calibration: Calibration, source: &str, notes: Vec<String>) -> Impor
 /// the files beside it), a ROS pair (`depth.yaml color.yaml`, in that order), an OpenCV
 /// calibration split over files (`intrinsics.yml extrinsics.yml`) and iai_kinect2's files
 /// given one by one (any order); a folder is iai_kinect2's calibration folder.
-pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, CalibError> {
+pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, GeometryError> {
     let first = sources
         .first()
-        .ok_or_else(|| CalibError::InvalidArgument("no calibration file given to import".into()))?;
+        .ok_or_else(|| GeometryError::InvalidInput("no calibration file given to import".into()))?;
     if first.is_dir() {
         expect_count(sources, 1, "a calibration folder")?;
         if !iai::is_iai_dir(first) {
@@ -325,7 +325,7 @@ pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
             let mut buf = [0u8; 128];
             let n = bounded_read::open_without_blocking(first)
                 .and_then(|mut f| f.read(&mut buf))
-                .map_err(|source| CalibError::Io { path: first.clone(), source })?;
+                .map_err(|source| GeometryError::Io { path: first.clone(), source })?;
             buf[..n].to_vec()
         }
     };
@@ -369,7 +369,7 @@ pub fn import(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
     opencv::import(docs, opts)
 }
 
-fn expect_count(sources: &[PathBuf], max: usize, what: &str) -> Result<(), CalibError> {
+fn expect_count(sources: &[PathBuf], max: usize, what: &str) -> Result<(), GeometryError> {
     if sources.len() > max {
         return Err(fmt_err(
             &sources[max],
@@ -383,7 +383,7 @@ fn expect_count(sources: &[PathBuf], max: usize, what: &str) -> Result<(), Calib
     Ok(())
 }
 
-fn import_json(text: &str, path: &Path) -> Result<Imported, CalibError> {
+fn import_json(text: &str, path: &Path) -> Result<Imported, GeometryError> {
     let v: Value =
         serde_json::from_str(text).map_err(|e| fmt_err(path, format!("not valid JSON ({e})")))?;
     if let Some(repeated) = geometry::rig::duplicate_key(text) {
@@ -409,21 +409,21 @@ fn import_json(text: &str, path: &Path) -> Result<Imported, CalibError> {
     Ok(imported(c, "kfuse calibration file", vec![]))
 }
 
-fn import_mat(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, CalibError> {
+fn import_mat(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, GeometryError> {
     let path = &sources[0];
     let m = MatFile::read(path)?;
     let has = |n: &str| m.get(n).is_some();
     if has("Dparam") && has("Cparam") {
         expect_count(sources, 1, "a course file")?;
         // synthdata.mat's Dparam has fx too (beside fp): fp decides.
-        if kfuse_io::kinect_data::is_kinect_data(&m) {
-            let kd = kfuse_io::course::read_kinect_data(path)?;
+        if crate::kinect_data::is_kinect_data(&m) {
+            let kd = crate::course::read_kinect_data(path)?;
             let (w, h) = (kd.rig.depth.width, kd.rig.depth.height);
             // The depth camera's size is its 'Depth' image's when that holds millimetres; a
             // broken 8-bit one is not trusted and the Kinect v2's size is used instead.
             let size_from = match kd.depth {
-                kfuse_io::kinect_data::KinectDepth::Millimetres(_) => "the size of its 'Depth'",
-                kfuse_io::kinect_data::KinectDepth::Unusable(_) => {
+                crate::kinect_data::KinectDepth::Millimetres(_) => "the size of its 'Depth'",
+                crate::kinect_data::KinectDepth::Unusable(_) => {
                     "the Kinect v2's size: its 'Depth' is not depth measurements"
                 }
             };
@@ -438,7 +438,7 @@ fn import_mat(sources: &[PathBuf], opts: &ImportOptions) -> Result<Imported, Cal
                 ],
             ));
         }
-        let cd = kfuse_io::course::read_course(path)?;
+        let cd = crate::course::read_course(path)?;
         return Ok(imported(
             Calibration::Rig(cd.rig),
             "the course's synthdata.mat",

@@ -20,6 +20,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use geometry::GeometryError;
 use geometry::{CameraModel, Rig, RigidTransform};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
@@ -27,7 +28,6 @@ use serde_json::json;
 use super::opencv::camera_from_values;
 use super::yaml::{Doc, fmt_err};
 use super::{Calibration, ImportOptions, Imported, Role};
-use crate::CalibError;
 
 /// Below this baseline (metres) the export uses the identity rectification (no direction).
 const MIN_BASELINE_M: f64 = 1e-12;
@@ -61,7 +61,7 @@ fn named_role(name: &str) -> Option<Role> {
     }
 }
 
-fn read_info(doc: &Doc, what: &str) -> Result<Info, CalibError> {
+fn read_info(doc: &Doc, what: &str) -> Result<Info, GeometryError> {
     let w = doc.size("image_width")?;
     let h = doc.size("image_height")?;
     let (Some(w), Some(h)) = (w, h) else {
@@ -118,7 +118,7 @@ pub struct CameraInfoFields {
 
 /// The camera, rectification and `t_i` of one `camera_info`'s fields (module docs); `path`
 /// and `what` are named in errors.
-fn check_model(model: Option<&str>, path: &Path) -> Result<(), CalibError> {
+fn check_model(model: Option<&str>, path: &Path) -> Result<(), GeometryError> {
     if let Some(model) = model
         && !matches!(model, "plumb_bob" | "rational_polynomial")
     {
@@ -132,7 +132,7 @@ fn check_model(model: Option<&str>, path: &Path) -> Result<(), CalibError> {
     Ok(())
 }
 
-fn info_of(f: &CameraInfoFields, path: &Path, what: &str) -> Result<Info, CalibError> {
+fn info_of(f: &CameraInfoFields, path: &Path, what: &str) -> Result<Info, GeometryError> {
     check_model(f.distortion_model.as_deref(), path)?;
     let camera = camera_from_values(&f.k, &f.d, (f.width, f.height), path, what)?;
     let rect = match &f.r {
@@ -166,7 +166,7 @@ pub fn cameras_from_infos(
     color: &CameraInfoFields,
     path: &Path,
     (what_depth, what_color): (&str, &str),
-) -> Result<(CameraModel, CameraModel, Option<RigidTransform>), CalibError> {
+) -> Result<(CameraModel, CameraModel, Option<RigidTransform>), GeometryError> {
     let a = info_of(depth, path, what_depth)?;
     let b = info_of(color, path, what_color)?;
     let cfd = pair_extrinsics(&a, &b, path)?;
@@ -174,7 +174,11 @@ pub fn cameras_from_infos(
 }
 
 /// `color_from_depth` of a pair (module docs); `None` when R = I and t = 0 in both.
-fn pair_extrinsics(a: &Info, b: &Info, path: &Path) -> Result<Option<RigidTransform>, CalibError> {
+fn pair_extrinsics(
+    a: &Info,
+    b: &Info,
+    path: &Path,
+) -> Result<Option<RigidTransform>, GeometryError> {
     let rot = b.rect.transpose() * a.rect;
     let t = b.rect.transpose() * (b.t - a.t);
     if (rot - Matrix3::identity()).abs().max() < ZERO_TRANSLATION && t.norm() < ZERO_TRANSLATION {
@@ -187,7 +191,7 @@ fn pair_extrinsics(a: &Info, b: &Info, path: &Path) -> Result<Option<RigidTransf
 
 /// Imports one `camera_info` file (one camera; `opts.role` says which) or a pair
 /// (depth first, colour second).
-pub fn import(docs: &[Doc], opts: &ImportOptions) -> Result<Imported, CalibError> {
+pub fn import(docs: &[Doc], opts: &ImportOptions) -> Result<Imported, GeometryError> {
     match docs {
         [one] => {
             let info = read_info(one, "camera")?;

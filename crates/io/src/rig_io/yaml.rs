@@ -22,9 +22,8 @@
 
 use std::path::{Path, PathBuf};
 
+use geometry::GeometryError;
 use serde_yaml_ng::Value;
-
-use crate::CalibError;
 
 /// Largest calibration text file read (a rig YAML is ~2 KB; this bounds a wrong file).
 pub const MAX_TEXT_BYTES: u64 = 4 << 20;
@@ -44,14 +43,14 @@ pub const MAX_YAML_BYTES: usize = 1 << 20;
 pub const MAX_YAML_DEPTH: usize = 16;
 
 /// A format error naming the file.
-pub fn fmt_err(path: &Path, message: impl Into<String>) -> CalibError {
-    CalibError::Format { path: path.to_path_buf(), message: message.into() }
+pub fn fmt_err(path: &Path, message: impl Into<String>) -> GeometryError {
+    GeometryError::Format { path: path.to_path_buf(), message: message.into() }
 }
 
 /// Reads a text file of at most [`MAX_TEXT_BYTES`], whatever the file is (a device or a pipe
 /// states no size; see [`bounded_read`]).
-pub fn read_text(path: &Path) -> Result<String, CalibError> {
-    let io = |source| CalibError::Io { path: path.to_path_buf(), source };
+pub fn read_text(path: &Path) -> Result<String, GeometryError> {
+    let io = |source| GeometryError::Io { path: path.to_path_buf(), source };
     let expected = bounded_read::Expected {
         what: "a calibration file",
         fix: "is this the right file? Give the calibration's YAML or JSON file",
@@ -174,7 +173,7 @@ pub fn nesting_depth(text: &str, limit: usize) -> usize {
 
 /// Refuses, before parsing, YAML text over [`MAX_YAML_BYTES`] or nested deeper than
 /// [`MAX_YAML_DEPTH`] (module docs), with one line naming the file.
-pub fn check_nesting(text: &str, path: &Path) -> Result<(), CalibError> {
+pub fn check_nesting(text: &str, path: &Path) -> Result<(), GeometryError> {
     if text.len() > MAX_YAML_BYTES {
         return Err(fmt_err(
             path,
@@ -198,7 +197,7 @@ pub fn check_nesting(text: &str, path: &Path) -> Result<(), CalibError> {
 
 impl Doc {
     /// Parses `text` (see the module docs for the OpenCV header and the bounds checked first).
-    pub fn parse(text: &str, path: &Path) -> Result<Self, CalibError> {
+    pub fn parse(text: &str, path: &Path) -> Result<Self, GeometryError> {
         check_nesting(text, path)?;
         let text = text.trim_start_matches('\u{feff}');
         let body = if has_opencv_header(text) {
@@ -215,7 +214,7 @@ impl Doc {
     }
 
     /// Reads and parses a file.
-    pub fn read(path: &Path) -> Result<Self, CalibError> {
+    pub fn read(path: &Path) -> Result<Self, GeometryError> {
         Self::parse(&read_text(path)?, path)
     }
 
@@ -227,7 +226,7 @@ impl Doc {
     /// Adds the entries of `other` (a second file of the same calibration, e.g. OpenCV's
     /// `intrinsics.yml` + `extrinsics.yml`). A name present in both with different values is
     /// an error naming both files.
-    pub fn merge(&mut self, other: Doc) -> Result<(), CalibError> {
+    pub fn merge(&mut self, other: Doc) -> Result<(), GeometryError> {
         for (k, v) in other.map {
             if let Some(mine) = self.map.get(&k) {
                 if *mine != v {
@@ -264,7 +263,7 @@ impl Doc {
 
     /// A plain number entry (`depthShift: -13.35`); `None` when absent, an error naming the
     /// key when it is not a finite number.
-    pub fn number(&self, key: &str) -> Result<Option<f64>, CalibError> {
+    pub fn number(&self, key: &str) -> Result<Option<f64>, GeometryError> {
         let Some(v) = self.map.get(key) else { return Ok(None) };
         match untagged(v).and_then(Value::as_f64).filter(|x| x.is_finite()) {
             Some(x) => Ok(Some(x)),
@@ -273,7 +272,7 @@ impl Doc {
     }
 
     /// An image side (`image_width`, ...), bounded by [`MAX_IMAGE_SIDE`].
-    pub fn size(&self, key: &str) -> Result<Option<usize>, CalibError> {
+    pub fn size(&self, key: &str) -> Result<Option<usize>, GeometryError> {
         let Some(v) = self.map.get(key) else { return Ok(None) };
         match untagged(v).and_then(Value::as_u64) {
             Some(n) if (1..=MAX_IMAGE_SIDE).contains(&n) => Ok(Some(n as usize)),
@@ -285,7 +284,7 @@ impl Doc {
     }
 
     /// Matrix entry `key` as `(rows, cols, row-major values)`; `None` when absent.
-    pub fn matrix(&self, key: &str) -> Result<Option<(usize, usize, Vec<f64>)>, CalibError> {
+    pub fn matrix(&self, key: &str) -> Result<Option<(usize, usize, Vec<f64>)>, GeometryError> {
         let Some(v) = self.map.get(key) else { return Ok(None) };
         let err = |m: String| fmt_err(&self.path, format!("'{key}': {m}"));
         let v = match v {
@@ -310,7 +309,7 @@ impl Doc {
         let Value::Mapping(m) = v else {
             return Err(err("expected a matrix (rows, cols, data)".into()));
         };
-        let dim = |name: &str| -> Result<usize, CalibError> {
+        let dim = |name: &str| -> Result<usize, GeometryError> {
             m.get(name)
                 .and_then(Value::as_u64)
                 .filter(|&n| (1..=MAX_MATRIX_VALUES as u64).contains(&n))
@@ -335,7 +334,7 @@ impl Doc {
 
     /// Matrix `key` that must exist and hold `n` values (any shape with `n` entries, so a
     /// 3×1 and a 1×3 `T` are both accepted).
-    pub fn values(&self, key: &str, n: usize) -> Result<Vec<f64>, CalibError> {
+    pub fn values(&self, key: &str, n: usize) -> Result<Vec<f64>, GeometryError> {
         match self.matrix(key)? {
             Some((_, _, d)) if d.len() == n => Ok(d),
             Some((r, c, _)) => {
@@ -489,7 +488,7 @@ mod tests {
             Path::new("bad.yaml"),
         )
         .unwrap();
-        let e = |r: Result<_, CalibError>| r.err().map(|e| e.to_string()).unwrap_or_default();
+        let e = |r: Result<_, GeometryError>| r.err().map(|e| e.to_string()).unwrap_or_default();
         let a = e(doc.matrix("A"));
         assert!(a.contains("bad.yaml: 'A': 2×2 but 'data' has 3 values"), "{a}");
         assert!(e(doc.matrix("B")).contains("not supported"), "{}", e(doc.matrix("B")));

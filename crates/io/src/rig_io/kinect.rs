@@ -42,13 +42,13 @@
 //! `+0.5`), as kfuse does, so `cx`, `cy` are taken as they are; the decoder's own point cloud
 //! (spec §11.4) adds `+0.5`, a half-pixel inconsistency of the reference kept there.
 
+use geometry::GeometryError;
 use geometry::{CameraModel, Distortion, Intrinsics, Rig, RigidTransform};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector3};
 use serde_json::{Value, json};
 use std::path::Path;
 
 use super::yaml::{MAX_IMAGE_SIDE, fmt_err};
-use crate::CalibError;
 
 /// Depth quantum of the factory polynomial (spec §11.1 `qd`).
 const QD: f64 = 0.01;
@@ -99,7 +99,14 @@ pub struct FactoryParams {
 /// The newest `kinect_params.json` version this kfuse reads (`kfuse_capture::shots::PARAMS_VERSION`).
 const NEWEST_PARAMS_VERSION: u64 = 2;
 
-fn num(v: &Value, path: &Path, key: &str) -> Result<f64, CalibError> {
+/// The fit of the factory registration failed; `message` says why.
+fn diverged(message: String) -> GeometryError {
+    GeometryError::InvalidInput(format!(
+        "Kinect factory registration: the optimisation diverged ({message})"
+    ))
+}
+
+fn num(v: &Value, path: &Path, key: &str) -> Result<f64, GeometryError> {
     v.as_f64()
         // The device stores f32; reading the printed value as f32 recovers it exactly.
         .map(|x| x as f32 as f64)
@@ -107,7 +114,7 @@ fn num(v: &Value, path: &Path, key: &str) -> Result<f64, CalibError> {
         .ok_or_else(|| fmt_err(path, format!("'{key}' must be a finite number")))
 }
 
-fn side(v: &Value, path: &Path, key: &str) -> Result<usize, CalibError> {
+fn side(v: &Value, path: &Path, key: &str) -> Result<usize, GeometryError> {
     v.as_u64().filter(|n| (1..=MAX_IMAGE_SIDE).contains(n)).map(|n| n as usize).ok_or_else(|| {
         fmt_err(path, format!("'{key}' must be a whole number in 1..={MAX_IMAGE_SIDE}"))
     })
@@ -115,7 +122,7 @@ fn side(v: &Value, path: &Path, key: &str) -> Result<usize, CalibError> {
 
 impl FactoryParams {
     /// Reads the parsed `kinect_params.json`.
-    pub fn from_json(v: &Value, path: &Path) -> Result<Self, CalibError> {
+    pub fn from_json(v: &Value, path: &Path) -> Result<Self, GeometryError> {
         let version = v.get("version").and_then(Value::as_u64).unwrap_or(0);
         if version > NEWEST_PARAMS_VERSION {
             return Err(fmt_err(
@@ -134,10 +141,10 @@ impl FactoryParams {
                 ));
             }
         };
-        let get = |obj: &str, key: &str| -> Result<f64, CalibError> {
+        let get = |obj: &str, key: &str| -> Result<f64, GeometryError> {
             num(&v[obj][key], path, &format!("{obj}.{key}"))
         };
-        let poly = |key: &str| -> Result<[f64; 10], CalibError> {
+        let poly = |key: &str| -> Result<[f64; 10], GeometryError> {
             let arr = v["color"][key].as_array().filter(|a| a.len() == 10).ok_or_else(|| {
                 fmt_err(path, format!("'color.{key}' must be a list of 10 numbers"))
             })?;
@@ -238,16 +245,13 @@ impl FactoryParams {
     }
 
     /// Fits the rig (module docs) and measures its error on every depth pixel.
-    pub fn to_rig(&self) -> Result<FactoryFit, CalibError> {
+    pub fn to_rig(&self) -> Result<FactoryFit, GeometryError> {
         let fit_samples = self.samples(FIT_STEP_PX);
         if fit_samples.len() < 100 {
-            return Err(CalibError::Diverged {
-                camera: "Kinect factory registration".into(),
-                message: format!(
-                    "only {} depth samples map into the colour image; the colour parameters are not a Kinect's",
-                    fit_samples.len()
-                ),
-            });
+            return Err(diverged(format!(
+                "only {} depth samples map into the colour image; the colour parameters are not a Kinect's",
+                fit_samples.len()
+            )));
         }
         // Start: the colour camera where the depth principal ray lands at infinity, the
         // factory focal length, no rotation, the parallax as an x baseline.
@@ -314,10 +318,7 @@ impl FactoryParams {
             }
         }
         let rig = rig_of(&theta, &self.depth, (cw, ch));
-        rig.validate().map_err(|e| CalibError::Diverged {
-            camera: "Kinect factory registration".into(),
-            message: e.to_string(),
-        })?;
+        rig.validate().map_err(|e| diverged(e.to_string()))?;
         // The error on every depth pixel.
         let all = self.samples(1);
         let errs: Vec<f64> = all

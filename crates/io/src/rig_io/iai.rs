@@ -33,6 +33,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use geometry::GeometryError;
 use geometry::depth_correction::{DepthCorrection, DepthTerm, DepthTermKind};
 use geometry::num_fmt::{fixed, num};
 use geometry::{CameraModel, Rig, RigidTransform};
@@ -43,7 +44,6 @@ use super::opencv::camera_from;
 use super::show::{KINECT_COLOR_SIZE, KINECT_DEPTH_SIZE};
 use super::yaml::{Doc, fmt_err};
 use super::{Calibration, ImportOptions, Imported, Role};
-use crate::CalibError;
 
 /// The colour camera's file (`K2_CALIB_COLOR`).
 pub const COLOR_FILE: &str = "calib_color.yaml";
@@ -105,7 +105,7 @@ pub fn is_iai_dir(dir: &Path) -> bool {
 
 /// Imports iai's calibration folder: `calib_color.yaml`, `calib_ir.yaml`, `calib_pose.yaml`
 /// (required) and `calib_depth.yaml` (optional).
-pub fn import_dir(dir: &Path, opts: &ImportOptions) -> Result<Imported, CalibError> {
+pub fn import_dir(dir: &Path, opts: &ImportOptions) -> Result<Imported, GeometryError> {
     let mut docs = Vec::new();
     for name in [COLOR_FILE, IR_FILE, POSE_FILE] {
         let p = dir.join(name);
@@ -132,7 +132,7 @@ fn file_name(doc: &Doc) -> String {
 }
 
 /// A camera file's camera at `size`.
-fn read_camera(doc: &Doc, size: (usize, usize), what: &str) -> Result<CameraModel, CalibError> {
+fn read_camera(doc: &Doc, size: (usize, usize), what: &str) -> Result<CameraModel, GeometryError> {
     let k = doc.values("cameraMatrix", 9)?;
     let Some((_, _, d)) = doc.matrix("distortionCoefficients")? else {
         return Err(fmt_err(
@@ -146,7 +146,7 @@ fn read_camera(doc: &Doc, size: (usize, usize), what: &str) -> Result<CameraMode
 /// Which camera each of the (one or two) camera files is: by iai's file name when it has one,
 /// else (two files) the larger focal length is the colour camera (Kinect v2: ~1060 px against
 /// ~365 px). A file named as one camera holding the other's focal length is refused.
-fn camera_roles(cams: &[&Doc], opts: &ImportOptions) -> Result<Vec<Role>, CalibError> {
+fn camera_roles(cams: &[&Doc], opts: &ImportOptions) -> Result<Vec<Role>, GeometryError> {
     let named = |d: &Doc| match file_name(d).as_str() {
         COLOR_FILE => Some(Role::Color),
         IR_FILE => Some(Role::Depth),
@@ -213,7 +213,7 @@ fn camera_roles(cams: &[&Doc], opts: &ImportOptions) -> Result<Vec<Role>, CalibE
 
 /// The principal point must lie inside the image the camera is taken at: a colour camera's
 /// matrix at the IR camera's 512×424 (or the reverse) would otherwise import silently.
-fn check_inside(camera: &CameraModel, doc: &Doc, role: Role) -> Result<(), CalibError> {
+fn check_inside(camera: &CameraModel, doc: &Doc, role: Role) -> Result<(), GeometryError> {
     let k = &camera.intrinsics;
     if !(0.0..camera.width as f64).contains(&k.cx) || !(0.0..camera.height as f64).contains(&k.cy) {
         return Err(fmt_err(
@@ -236,7 +236,7 @@ fn cross_matrix(t: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0)
 }
 
-fn read_pose(doc: &Doc) -> Result<RigidTransform, CalibError> {
+fn read_pose(doc: &Doc) -> Result<RigidTransform, GeometryError> {
     let r = Matrix3::from_row_slice(&doc.values("rotation", 9)?);
     let t = doc.values("translation", 3)?;
     let t = Vector3::new(t[0], t[1], t[2]);
@@ -264,7 +264,7 @@ fn read_pose(doc: &Doc) -> Result<RigidTransform, CalibError> {
 
 /// `calib_depth.yaml`'s `depthShift` (mm) as kfuse's depth correction of a `(w, h)` depth
 /// camera (module docs: `offset_m = −depthShift / 1000`); `None` for a shift of 0.
-fn read_depth(doc: &Doc, (w, h): (usize, usize)) -> Result<Option<DepthCorrection>, CalibError> {
+fn read_depth(doc: &Doc, (w, h): (usize, usize)) -> Result<Option<DepthCorrection>, GeometryError> {
     let shift_mm =
         doc.number("depthShift")?.ok_or_else(|| fmt_err(doc.path(), "no 'depthShift'"))?;
     if shift_mm == 0.0 {
@@ -293,7 +293,7 @@ fn read_depth(doc: &Doc, (w, h): (usize, usize)) -> Result<Option<DepthCorrectio
 /// Imports iai's files given one by one (any order; recognised by their keys): the colour and
 /// IR camera files and the pose give a rig, a depth file adds the depth correction; one camera
 /// file alone gives a single camera.
-pub fn import_docs(docs: Vec<Doc>, opts: &ImportOptions) -> Result<Imported, CalibError> {
+pub fn import_docs(docs: Vec<Doc>, opts: &ImportOptions) -> Result<Imported, GeometryError> {
     let (mut cams, mut pose, mut depth) = (Vec::new(), None, None);
     for doc in &docs {
         match kind_of(doc) {
@@ -434,9 +434,9 @@ fn matrix_rows(m: &Matrix3<f64>) -> Vec<f64> {
 fn camera_text(c: &CameraModel) -> String {
     let k = c.intrinsics.matrix();
     let mut s = String::from("%YAML:1.0\n---\n");
-    crate::files::yaml_matrix(&mut s, "cameraMatrix", 3, 3, &matrix_rows(&k));
-    crate::files::yaml_matrix(&mut s, "distortionCoefficients", 1, 5, &c.distortion.to_array());
-    crate::files::yaml_matrix(&mut s, "rotation", 3, 3, &matrix_rows(&Matrix3::identity()));
+    super::opencv::yaml_matrix(&mut s, "cameraMatrix", 3, 3, &matrix_rows(&k));
+    super::opencv::yaml_matrix(&mut s, "distortionCoefficients", 1, 5, &c.distortion.to_array());
+    super::opencv::yaml_matrix(&mut s, "rotation", 3, 3, &matrix_rows(&Matrix3::identity()));
     let mut p = [0.0; 16];
     for i in 0..3 {
         for j in 0..3 {
@@ -444,7 +444,7 @@ fn camera_text(c: &CameraModel) -> String {
         }
     }
     p[15] = 1.0;
-    crate::files::yaml_matrix(&mut s, "projection", 4, 4, &p);
+    super::opencv::yaml_matrix(&mut s, "projection", 4, 4, &p);
     s
 }
 
@@ -457,7 +457,7 @@ pub fn export(
     rig: &Rig,
     opts: ExportOptions,
     source: &Path,
-) -> Result<Vec<(&'static str, String)>, CalibError> {
+) -> Result<Vec<(&'static str, String)>, GeometryError> {
     let sizes = ((rig.depth.width, rig.depth.height), (rig.color.width, rig.color.height));
     if sizes != (KINECT_DEPTH_SIZE, KINECT_COLOR_SIZE) {
         return Err(fmt_err(
@@ -522,10 +522,10 @@ pub fn export(
         f /= f[(2, 2)];
     }
     let mut pose = String::from("%YAML:1.0\n---\n");
-    crate::files::yaml_matrix(&mut pose, "rotation", 3, 3, &matrix_rows(&r));
-    crate::files::yaml_matrix(&mut pose, "translation", 3, 1, &[t.x, t.y, t.z]);
-    crate::files::yaml_matrix(&mut pose, "essential", 3, 3, &matrix_rows(&e));
-    crate::files::yaml_matrix(&mut pose, "fundamental", 3, 3, &matrix_rows(&f));
+    super::opencv::yaml_matrix(&mut pose, "rotation", 3, 3, &matrix_rows(&r));
+    super::opencv::yaml_matrix(&mut pose, "translation", 3, 1, &[t.x, t.y, t.z]);
+    super::opencv::yaml_matrix(&mut pose, "essential", 3, 3, &matrix_rows(&e));
+    super::opencv::yaml_matrix(&mut pose, "fundamental", 3, 3, &matrix_rows(&f));
     let mut depth = String::from("%YAML:1.0\n---\n");
     let _ = writeln!(depth, "depthShift: {shift_mm:.17e}");
     Ok(vec![

@@ -1,5 +1,5 @@
-//! OpenCV FileStorage YAML → rig or camera. Export uses [`crate::files::opencv_yaml_rig`] and
-//! [`crate::files::opencv_yaml_camera`] (the files `kfuse calibrate --opencv-yaml` writes).
+//! OpenCV FileStorage YAML → rig or camera. Export uses [`opencv_yaml_rig`] and
+//! [`opencv_yaml_camera`] (the files `kfuse calibrate --opencv-yaml` writes).
 //!
 //! Names accepted (OpenCV has no fixed schema; these are the ones its samples and
 //! `stereoCalibrate` users write):
@@ -17,6 +17,9 @@
 //! coefficients beyond `k3` (rational, thin-prism, tilt) must be zero, since kfuse's model has
 //! five.
 
+use std::fmt::Write as _;
+
+use geometry::GeometryError;
 use geometry::num_fmt::{fixed, num};
 use geometry::{CameraModel, Distortion, Intrinsics, Rig, RigidTransform};
 use nalgebra::{Matrix3, Vector3};
@@ -24,7 +27,6 @@ use serde_json::json;
 
 use super::yaml::{Doc, fmt_err};
 use super::{Calibration, ImportOptions, Imported, LengthUnit};
-use crate::CalibError;
 
 const K1_NAMES: &[&str] = &["M1", "K1", "cameraMatrix1", "camera_matrix_1", "cameraMatrixL"];
 const D1_NAMES: &[&str] = &["D1", "distCoeffs1", "dist_coeffs_1", "distCoeffsL"];
@@ -48,7 +50,7 @@ pub fn camera_from(
     size: (usize, usize),
     doc: &Doc,
     what: &str,
-) -> Result<CameraModel, CalibError> {
+) -> Result<CameraModel, GeometryError> {
     camera_from_values(k, d, size, doc.path(), what)
 }
 
@@ -59,7 +61,7 @@ pub fn camera_from_values(
     (w, h): (usize, usize),
     path: &std::path::Path,
     what: &str,
-) -> Result<CameraModel, CalibError> {
+) -> Result<CameraModel, GeometryError> {
     let err = |m: String| fmt_err(path, format!("{what}: {m}"));
     if k.len() != 9 {
         return Err(err(format!("camera matrix has {} values, expected 9", k.len())));
@@ -94,7 +96,7 @@ pub fn camera_from_values(
     Ok(cam)
 }
 
-fn matrix_of(doc: &Doc, names: &[&str]) -> Result<Option<(String, Vec<f64>)>, CalibError> {
+fn matrix_of(doc: &Doc, names: &[&str]) -> Result<Option<(String, Vec<f64>)>, GeometryError> {
     for n in names {
         if let Some((_, _, d)) = doc.matrix(n)? {
             return Ok(Some((n.to_string(), d)));
@@ -109,7 +111,7 @@ fn size_of(
     h: &str,
     given: Option<(usize, usize)>,
     flag: &str,
-) -> Result<(usize, usize), CalibError> {
+) -> Result<(usize, usize), GeometryError> {
     match (doc.size(w)?, doc.size(h)?, given) {
         (_, _, Some(s)) => Ok(s),
         (Some(w), Some(h), None) => Ok((w, h)),
@@ -123,10 +125,10 @@ fn size_of(
 }
 
 /// Imports OpenCV YAML (one file, or several of one calibration merged).
-pub fn import(docs: Vec<Doc>, opts: &ImportOptions) -> Result<Imported, CalibError> {
+pub fn import(docs: Vec<Doc>, opts: &ImportOptions) -> Result<Imported, GeometryError> {
     let mut docs = docs.into_iter();
     let Some(mut doc) = docs.next() else {
-        return Err(CalibError::InvalidArgument("no OpenCV file given".into()));
+        return Err(GeometryError::InvalidInput("no OpenCV file given".into()));
     };
     let files: Vec<String> = std::iter::once(doc.path().display().to_string()).collect();
     let mut files = files;
@@ -203,7 +205,11 @@ fn rodrigues_to_matrix(r: Vec<f64>) -> Vec<f64> {
     (0..3).flat_map(|i| (0..3).map(move |j| m[(i, j)])).collect()
 }
 
-fn t_unit(doc: &Doc, t: &[f64], opts: &ImportOptions) -> Result<(LengthUnit, String), CalibError> {
+fn t_unit(
+    doc: &Doc,
+    t: &[f64],
+    opts: &ImportOptions,
+) -> Result<(LengthUnit, String), GeometryError> {
     let norm = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
     if let Some(u) = doc.string("T_units") {
         let unit = LengthUnit::parse(&u).ok_or_else(|| {
@@ -235,4 +241,65 @@ fn t_unit(doc: &Doc, t: &[f64], opts: &ImportOptions) -> Result<(LengthUnit, Str
             ),
         )),
     }
+}
+
+/// One matrix in OpenCV FileStorage's `!!opencv-matrix` form (`rows`, `cols`, `dt: d`, `data`).
+pub fn yaml_matrix(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
+    let values: Vec<String> = data.iter().map(|v| format!("{v:.17e}")).collect();
+    let _ = writeln!(
+        out,
+        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]",
+        values.join(", ")
+    );
+}
+
+fn k_of(c: &CameraModel) -> [f64; 9] {
+    let k = c.intrinsics;
+    [k.fx, k.skew, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
+}
+
+/// OpenCV FileStorage YAML of one camera (`cv::FileStorage` reads it: `camera_matrix`,
+/// `distortion_coefficients`, `image_width`, `image_height`).
+pub fn opencv_yaml_camera(c: &CameraModel) -> String {
+    let mut s = String::from("%YAML:1.0\n---\n");
+    let _ = writeln!(s, "image_width: {}\nimage_height: {}", c.width, c.height);
+    yaml_matrix(&mut s, "camera_matrix", 3, 3, &k_of(c));
+    yaml_matrix(&mut s, "distortion_coefficients", 1, 5, &c.distortion.to_array());
+    s
+}
+
+/// OpenCV FileStorage YAML of a rig in `stereoCalibrate`'s naming: camera 1 = depth/IR
+/// (`M1`, `D1`), camera 2 = colour (`M2`, `D2`), `R`, `T` with `X_2 = R·X_1 + T`. `T` is in
+/// metres (`T_units: m`); multiply by 1000 for a board measured in millimetres.
+pub fn opencv_yaml_rig(rig: &Rig) -> String {
+    let mut s = String::from("%YAML:1.0\n---\n");
+    let _ = writeln!(s, "image_width_1: {}\nimage_height_1: {}", rig.depth.width, rig.depth.height);
+    let _ = writeln!(s, "image_width_2: {}\nimage_height_2: {}", rig.color.width, rig.color.height);
+    yaml_matrix(&mut s, "M1", 3, 3, &k_of(&rig.depth));
+    yaml_matrix(&mut s, "D1", 1, 5, &rig.depth.distortion.to_array());
+    yaml_matrix(&mut s, "M2", 3, 3, &k_of(&rig.color));
+    yaml_matrix(&mut s, "D2", 1, 5, &rig.color.distortion.to_array());
+    let cfd: &RigidTransform = &rig.color_from_depth;
+    let r = cfd.rotation.matrix();
+    let rd: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
+    yaml_matrix(&mut s, "R", 3, 3, &rd);
+    yaml_matrix(&mut s, "T", 3, 1, &[cfd.translation.x, cfd.translation.y, cfd.translation.z]);
+    let _ = writeln!(s, "T_units: m");
+    s
+}
+
+/// OpenCV FileStorage YAML of one camera of a rig of several cameras: [`opencv_yaml_camera`]'s
+/// keys, then its pose `R`, `T` (`X_camera = R·X_reference + T`, metres, `T_units: m`) and the
+/// reference camera's name (`reference`), so that `cv::FileStorage` reads every camera of the
+/// rig into one frame.
+pub fn opencv_yaml_rig_camera(c: &geometry::RigCamera, reference: &str) -> String {
+    let mut s = opencv_yaml_camera(&c.model);
+    let _ = writeln!(s, "camera_name: \"{}\"\nreference: \"{reference}\"", c.name.escape_default());
+    let pose = &c.camera_from_reference;
+    let r = pose.rotation.matrix();
+    let rd: Vec<f64> = (0..3).flat_map(|i| (0..3).map(move |j| r[(i, j)])).collect();
+    yaml_matrix(&mut s, "R", 3, 3, &rd);
+    yaml_matrix(&mut s, "T", 3, 1, &[pose.translation.x, pose.translation.y, pose.translation.z]);
+    let _ = writeln!(s, "T_units: m");
+    s
 }
