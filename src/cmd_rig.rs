@@ -353,7 +353,7 @@ fn mirrored(calibration: Calibration, source: &Path) -> Calibration {
 
 fn export(a: ExportArgs) -> Result<()> {
     check_not_input(&a.out, std::slice::from_ref(&a.rig))?;
-    let cal = match (rig_io::load_any(&a.rig)?, &a.sensor) {
+    let cal = match (kfuse_io::rig::read_rig(&a.rig)?, &a.sensor) {
         (rig_io::AnyRig::Multi(multi), None) => return export_multi(&a, &multi),
         (rig_io::AnyRig::Multi(multi), Some(sensor)) => Calibration::Rig(
             multi.sensor_rig(sensor).map_err(|e| anyhow::anyhow!("{}: {e}", a.rig.display()))?.0,
@@ -518,7 +518,7 @@ fn export_multi(a: &ExportArgs, rig: &geometry::MultiRig) -> Result<()> {
 
 fn show(path: &Path) -> Result<()> {
     let name = path.display().to_string();
-    let (text, warnings) = match rig_io::load_any(path)? {
+    let (text, warnings) = match kfuse_io::rig::read_rig(path)? {
         rig_io::AnyRig::Multi(multi) => rig_io::show::describe_multi(&name, &multi),
         rig_io::AnyRig::Single(cal) => rig_io::show::describe(&name, &cal),
     };

@@ -119,11 +119,10 @@ struct SensorRig {
 /// name the sensor (refused by name: its frames would be fused with another sensor's pose).
 fn sensor_rig(args: &ServeArgs, serial: &str, source: &SensorSource) -> Result<SensorRig> {
     let multi = match (&args.rig, source) {
-        (Some(path), _) => match kfuse_io::rig_io::load_multi(path)? {
-            Some(m) => Some((m, path.display().to_string())),
-            None => {
-                let c = kfuse_io::rig_io::load(path)?;
-                let kfuse_io::rig_io::Calibration::Rig(pair) = c else {
+        (Some(path), _) => match kfuse_io::rig::read_rig(path)? {
+            kfuse_io::rig::AnyRig::Multi(m) => Some((m, path.display().to_string())),
+            kfuse_io::rig::AnyRig::Single(c) => {
+                let kfuse_io::rig_io::Calibration::Rig(pair) = *c else {
                     bail!(
                         "{}: a single camera; --rig takes a rig of the sensor's depth and colour cameras",
                         path.display()

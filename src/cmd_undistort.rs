@@ -214,7 +214,7 @@ fn check_read_size(
 fn load_camera(args: &UndistortArgs) -> Result<geometry::CameraModel> {
     // A rig or the single-camera JSON that `kfuse calibrate --ir/--color --out` writes.
     let role = if args.camera == "color" { Role::Color } else { Role::Depth };
-    let calibration = kfuse_io::rig_io::load(&args.rig)?;
+    let calibration = kfuse_io::rig::read_rig(&args.rig)?.into_calibration(&args.rig)?;
     let cam = calibration.camera(role, &args.rig)?;
     let problems = calibration.plausibility_problems();
     if !problems.is_empty() {

@@ -190,8 +190,10 @@ fn fuse_three_kinects_into_one_cloud_against_the_truth() {
     assert_eq!(in_cloud as usize, cloud.points.len());
     assert_eq!(summary["view"], "RING0.color");
     // The rig written beside the cloud is the rig given.
-    let back =
-        kfuse_io::rig_io::load_multi(&out.join("rig.json")).unwrap().expect("a version-2 rig");
+    let back = kfuse_io::rig::read_rig(&out.join("rig.json"))
+        .unwrap()
+        .into_multi()
+        .expect("a version-2 rig");
     assert_eq!(back.names(), ring.rig.names());
     let zbuffer = kfuse_io::images::read_depth(&out.join("depth_zbuffer.png"), 0.001).unwrap();
     assert_eq!(zbuffer.size(), (1920, 1080));
@@ -468,7 +470,7 @@ fn fuse_a_simulated_three_kinect_capture_from_its_folder() {
     let (merged, merged_p90) = median_and_p90(errors_mm(&cloud.points));
     let summary = common::summary(&out_f);
     let mut singles = Vec::new();
-    let multi = kfuse_io::rig_io::load_multi(&rig).unwrap().unwrap();
+    let multi = kfuse_io::rig::read_rig(&rig).unwrap().into_multi().unwrap();
     for (k, s) in serials.iter().enumerate() {
         // A sensor's own samples: its mesh's vertices (every sample its colour camera sees).
         let mesh =

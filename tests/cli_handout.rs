@@ -44,7 +44,7 @@ fn ok(args: &[&str]) -> String {
 }
 
 fn read_rig(p: &Path) -> Rig {
-    kfuse_io::rig::read_rig_unchecked(p).unwrap()
+    kfuse_io::rig::read_rig(p).unwrap().into_pair(p).unwrap()
 }
 
 // ---------------------------------------------------------------------------------------

@@ -429,7 +429,7 @@ fn the_shared_lab_files_are_told_apart_and_the_8_bit_depth_refused() {
     // (--force: the course's synthetic rig has a 1 m baseline by design.)
     let o = kfuse(&["rig", "import", s(&course), "--out", s(&rig), "--force"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let rig = rigio::read_rig_unchecked(&rig).unwrap();
+    let rig = rigio::read_rig(&rig).unwrap().into_pair(&rig).unwrap();
     assert!(
         (rig.depth.intrinsics.fx - 0.024 / 5.625e-5).abs() < 1e-9,
         "{}",

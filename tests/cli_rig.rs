@@ -34,7 +34,7 @@ fn s(p: &Path) -> &str {
 }
 
 fn read_rig(p: &Path) -> Rig {
-    kfuse_io::rig::read_rig(p).unwrap()
+    kfuse_io::rig::read_pair(p).unwrap()
 }
 
 fn lab(data: &Path, f: &str) -> PathBuf {
@@ -517,10 +517,16 @@ fn show_prints_units_and_single_camera_files_are_accepted() {
         "--out",
         s(&p("ir_back.json")),
     ]);
-    let a =
-        kfuse_io::rig_io::load(&ir).unwrap().camera(kfuse_io::rig_io::Role::Depth, &ir).unwrap();
+    let a = kfuse_io::rig::read_rig(&ir)
+        .unwrap()
+        .into_calibration(&ir)
+        .unwrap()
+        .camera(kfuse_io::rig_io::Role::Depth, &ir)
+        .unwrap();
     let back = p("ir_back.json");
-    let b = kfuse_io::rig_io::load(&back)
+    let b = kfuse_io::rig::read_rig(&back)
+        .unwrap()
+        .into_calibration(&back)
         .unwrap()
         .camera(kfuse_io::rig_io::Role::Depth, &back)
         .unwrap();

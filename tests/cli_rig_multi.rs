@@ -121,7 +121,7 @@ fn export_writes_one_file_per_camera_with_the_true_poses() {
         s(&pair_path),
     ]);
     assert!(ok, "{out}\n{err}");
-    let pair: Rig = kfuse_io::rig::read_rig(&pair_path).unwrap();
+    let pair: Rig = kfuse_io::rig::read_pair(&pair_path).unwrap();
     let truth = geometry::synth::kinect_rig();
     assert_eq!((pair.depth, pair.color), (truth.depth, truth.color));
     let d = (pair.color_from_depth.matrix() - truth.color_from_depth.matrix()).abs().max();

@@ -27,7 +27,7 @@ const HELD_OUT_RMS_M: f64 = 0.002;
 const SMOOTH_SPAN_M: f64 = 0.05;
 
 fn read_rig(path: &Path) -> Rig {
-    Rig::from_json(&std::fs::read_to_string(path).unwrap(), path).unwrap()
+    kfuse_io::rig::read_rig(path).unwrap().into_pair(path).unwrap()
 }
 
 fn shot(dir: &Path, kind: &str, k: usize) -> PathBuf {

@@ -333,8 +333,8 @@ impl PyRig {
         // Kinect rig whose colour camera sits on the mirrored side (raw libfreenect2 output).
         let mut notices = Vec::new();
         if sources.len() == 1
-            && let Ok(bytes) = kfuse_io::rig::read_rig_bytes(&sources[0])
-            && let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes)
+            && let Ok(text) = rig_io::yaml::read_text(&sources[0])
+            && let Ok(v) = serde_json::from_str::<serde_json::Value>(&text)
             && v.get("format").and_then(|f| f.as_str()) == Some(rig_io::KINECT_PARAMS_FORMAT)
             && let Ok(params) = rig_io::kinect::FactoryParams::from_json(&v, &sources[0])
             && !params.scene_orientation
@@ -364,8 +364,8 @@ impl PyRig {
     fn from_kinect_params(py: Python<'_>, path: PathBuf, force: bool) -> PyResult<Self> {
         // Bounded as every rig file is read (a /dev/zero or a FIFO given here was read to
         // the end: the interpreter aborted at the address-space limit).
-        let bytes = kfuse_io::rig::read_rig_bytes(&path).map_err(geometry_err)?;
-        let format = serde_json::from_slice::<serde_json::Value>(&bytes)
+        let text = rig_io::yaml::read_text(&path).map_err(geometry_err)?;
+        let format = serde_json::from_str::<serde_json::Value>(&text)
             .ok()
             .map(|v| v.get("format").and_then(|f| f.as_str()).map(str::to_string));
         if format != Some(Some(rig_io::KINECT_PARAMS_FORMAT.to_string())) {

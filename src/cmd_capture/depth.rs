@@ -41,10 +41,9 @@ pub fn parse_depth_error(s: &str) -> std::result::Result<DepthError, String> {
 /// `capture scene --rig`: the rig's depth correction (a rig without one is refused: the
 /// corrected file would be the raw one again).
 pub fn scene_depth_correction(path: &Path) -> Result<DepthCorrection> {
-    let bytes = kfuse_io::rig::read_rig_bytes(path).map_err(|e| anyhow::anyhow!("--rig {e}"))?;
-    let text = String::from_utf8(bytes)
-        .map_err(|_| anyhow::anyhow!("--rig {}: binary data, not a rig file", path.display()))?;
-    let rig = geometry::Rig::from_json(&text, path)?;
+    let rig = kfuse_io::rig::read_rig(path)
+        .and_then(|r| r.into_pair(path))
+        .map_err(|e| anyhow::anyhow!("--rig {e}"))?;
     match rig.depth_correction {
         Some(c) => Ok(*c),
         None => bail!(

@@ -67,18 +67,7 @@ fn check_rig(rig: &Rig, source: &Path, force: bool) -> Result<()> {
 
 /// Reads `--rig`: a kfuse rig; a single-camera file is refused with how to get a rig.
 fn load_rig_for_fuse(path: &Path, force: bool) -> Result<Rig> {
-    let rig = match rig_io::load(path)? {
-        Calibration::Rig(rig) => rig,
-        Calibration::Camera { role, .. } => {
-            let which = role.map(|r| format!(" (the {} camera)", r.name())).unwrap_or_default();
-            bail!(
-                "{}: this is a single-camera file{which}; fuse needs both cameras and color_from_depth: \
-                 calibrate the pair with `kfuse calibrate --ir 'ir_*.png' --color 'color_*.png' --out rig.json`, \
-                 or make a rig from the lab's files with `kfuse rig import Calib_Results_stereo.mat --out rig.json`",
-                path.display()
-            );
-        }
-    };
+    let rig = kfuse_io::rig::read_rig(path)?.into_pair(path)?;
     check_rig(&rig, path, force)?;
     Ok(rig)
 }

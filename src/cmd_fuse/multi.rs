@@ -113,7 +113,7 @@ pub(super) fn check_serial_for_files(serial: &str, rig: &Path) -> Result<()> {
 /// Reads `--rig` as a rig of several cameras (version 2), its plausibility checked unless
 /// `force` (then the problems are printed as warnings).
 pub(super) fn load_multi_rig_for_fuse(path: &Path, force: bool) -> Result<MultiRig> {
-    let Some(rig) = kfuse_io::rig_io::load_multi(path)? else {
+    let Some(rig) = kfuse_io::rig::read_rig(path)?.into_multi() else {
         bail!(
             "{}: not a rig of several cameras (version 2): --sensor/--frames of several Kinects need one; make it with `kfuse calibrate --camera NAME=GLOB ...` (a two-camera rig fuses one Kinect: --color/--depth)",
             path.display()

@@ -10,7 +10,7 @@
 //! * `pipeline`: a run's images through this module, `pipeline::inputs` the first image's
 //!   header (`kfuse_io::image_header`) and the patterns' matches (`glob`), `pipeline::depth`
 //!   the depth images (`kfuse_io::images::read_depth`, `image::open` for the 16-bit IR) and
-//!   `--rig` (`kfuse_io::rig_io::load`).
+//!   `--rig` (`kfuse_io::rig::read_rig`).
 
 use std::path::Path;
 

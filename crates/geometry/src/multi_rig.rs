@@ -70,6 +70,14 @@ pub fn is_multi_rig_json(value: &serde_json::Value) -> bool {
         && value.get("version").and_then(|v| v.as_u64()) == Some(MULTI_RIG_VERSION.into())
 }
 
+/// Why a rig of `n` cameras (version 2) is refused where one depth + colour pair is needed,
+/// and how to pick one sensor's pair.
+pub fn not_a_pair_message(n: usize) -> String {
+    format!(
+        "a rig of {n} cameras (version {MULTI_RIG_VERSION}); this needs one depth + colour pair: pick one sensor's pair with `kfuse rig export --sensor SERIAL`, or use a command that takes several sensors"
+    )
+}
+
 /// What a camera of a rig is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

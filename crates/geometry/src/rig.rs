@@ -467,10 +467,7 @@ impl Rig {
         }
         if crate::multi_rig::is_multi_rig_json(&value) {
             let n = value["cameras"].as_array().map_or(0, Vec::len);
-            return Err(format_err(format!(
-                "a rig of {n} cameras (version {}); this needs one depth + colour pair: pick one sensor's pair with `kfuse rig export --sensor SERIAL`, or use a command that takes several sensors",
-                crate::multi_rig::MULTI_RIG_VERSION
-            )));
+            return Err(format_err(crate::multi_rig::not_a_pair_message(n)));
         }
         if is_rig && let Some(unknown) = unknown_rig_keys(&value).first() {
             return Err(format_err(unknown.clone()));

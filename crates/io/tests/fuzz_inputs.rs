@@ -262,7 +262,7 @@ fn rig_json_mutations_never_panic_and_accepted_rigs_are_plausible() {
             t.into_bytes()
         };
         std::fs::write(&path, &mutant).unwrap();
-        match rigio::read_rig(&path) {
+        match rigio::read_pair(&path) {
             Ok(rig) => {
                 ok += 1;
                 assert!(rig.plausibility_problems().is_empty());

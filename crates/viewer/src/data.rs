@@ -110,7 +110,7 @@ pub fn open_folder_shot(
 /// Reads a rig file and applies [`Rig::check_plausible`], or with `force` returns its problems
 /// as warnings.
 fn load_rig_for_view(path: &Path, force: bool) -> Result<(Rig, Vec<String>), ViewerError> {
-    let rig = rigio::read_rig_unchecked(path).map_err(|e| bad(path, e))?;
+    let rig = rigio::read_rig(path).and_then(|r| r.into_pair(path)).map_err(|e| bad(path, e))?;
     check_rig(rig, path, force)
 }
 

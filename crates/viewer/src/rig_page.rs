@@ -59,7 +59,7 @@ pub struct RigPage {
 /// True when `path` is a version-2 rig file, or a folder whose `rig.json` is one.
 pub fn is_multi_rig(path: &Path) -> bool {
     let file = if path.is_dir() { path.join("rig.json") } else { path.to_path_buf() };
-    kfuse_io::rig_io::load_multi(&file).is_ok_and(|r| r.is_some())
+    kfuse_io::rig::read_rig(&file).is_ok_and(|r| r.into_multi().is_some())
 }
 
 impl RigPage {
@@ -71,8 +71,9 @@ impl RigPage {
         } else {
             (path.to_path_buf(), None)
         };
-        let rig = kfuse_io::rig_io::load_multi(&file)
+        let rig = kfuse_io::rig::read_rig(&file)
             .map_err(|e| ViewerError::Rig(e.to_string()))?
+            .into_multi()
             .ok_or_else(|| {
                 ViewerError::Rig(format!(
                     "{}: not a rig of several cameras (version 2); open a two-camera rig's folder or report instead",

@@ -331,7 +331,7 @@ fn rig_file_folder_opens_with_the_rigs_cameras() {
     assert_eq!(a.cameras, b.cameras);
     assert_eq!(a.stereo, b.stereo);
     assert_eq!(a.depth_from_board, b.depth_from_board);
-    let rig = kfuse_io::rig::read_rig(&dir.join("rig/rig.json")).unwrap();
+    let rig = kfuse_io::rig::read_pair(&dir.join("rig/rig.json")).unwrap();
     assert_eq!(a.cameras[0].model, rig.depth);
     assert_eq!(a.cameras[1].model, rig.color);
 }

@@ -90,7 +90,7 @@ fn default_mesh_is_fuses_mesh_on_the_bundled_capture() {
     let dir = bundled_kinect();
     // The inputs read here as `kfuse fuse --rig rig.json --color desk_color.jpg --depth
     // desk_depth.png` reads them (z, 16-bit millimetres), independently of the viewer's loader.
-    let rig = kfuse_io::rig::read_rig(&dir.join("rig.json")).unwrap();
+    let rig = kfuse_io::rig::read_pair(&dir.join("rig.json")).unwrap();
     let color = kfuse_io::images::read_color(&dir.join("desk_color.jpg")).unwrap();
     let depth =
         kfuse_io::images::read_depth(&dir.join("desk_depth.png"), kfuse_io::images::MILLIMETRES)

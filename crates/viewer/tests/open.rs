@@ -342,7 +342,8 @@ fn rectified_rigs_are_used_without_distortion() {
     let input = tmp.path().join("input");
     std::fs::create_dir(&input).unwrap();
     write_capture(&input);
-    let mut rig = rigio::read_rig_unchecked(&input.join("rig.json")).unwrap();
+    let rig_path = input.join("rig.json");
+    let mut rig = rigio::read_rig(&rig_path).unwrap().into_pair(&rig_path).unwrap();
     rig.depth.distortion = lens;
     rig.color.distortion = lens;
     rigio::write_rig(&input.join("rig.json"), &rig).unwrap();

@@ -9,7 +9,7 @@ use geometry::{CameraModel, Image, Rig};
 use super::{Event, Observer};
 use crate::depth::{DepthFit, DepthShot, check_plausible, fit_depth_from_corners};
 use crate::{Board, CalibError, ViewCorners};
-use kfuse_io::rig_io::{self, Calibration};
+use kfuse_io::rig_io::Calibration;
 
 fn input(message: &str) -> Result<(), CalibError> {
     Err(CalibError::Input(message.into()))
@@ -57,7 +57,7 @@ pub fn check_args(
 
 /// Reads `--rig` (a kfuse rig).
 pub fn load_base_rig(path: &Path) -> Result<Rig, CalibError> {
-    match rig_io::load(path)? {
+    match kfuse_io::rig::read_rig(path)?.into_calibration(path)? {
         Calibration::Rig(rig) => Ok(rig),
         Calibration::Camera { .. } => Err(CalibError::Input(format!(
             "{}: a single-camera file; --rig needs a rig (both cameras), e.g. `kfuse rig import kinect_params.json --out rig.json`",

@@ -287,17 +287,32 @@ pub trait PerPixel {
         depth: &Image<f32>,
         params: &PixelParams,
         zbuffer: &mut [f32],
-        mut hole_mask: Option<&mut [bool]>,
+        hole_mask: Option<&mut [bool]>,
     ) -> Result<(), Self::Error> {
-        let plan = StreamPlan { holes: hole_mask.is_some(), color_on_depth: false };
-        let frames = [StreamFrame { depth, color: None }];
-        self.per_pixel_stream(rig, kind, &frames, params, plan, &mut |_, r| {
-            zbuffer.copy_from_slice(r.zbuffer);
-            if let (Some(out), Some(mask)) = (hole_mask.as_deref_mut(), r.hole_mask) {
-                out.copy_from_slice(mask);
-            }
-        })
+        per_pixel_into_by_copy(self, rig, kind, depth, params, zbuffer, hole_mask)
     }
+}
+
+/// [`PerPixel::per_pixel_into`] through [`PerPixel::per_pixel_stream`]: the frame streamed with
+/// [`StreamPlan::holes`] as `hole_mask` asks, and what the engine lends copied into the
+/// caller's buffers.
+fn per_pixel_into_by_copy<E: PerPixel + ?Sized>(
+    engine: &mut E,
+    rig: &Rig,
+    kind: DepthKind,
+    depth: &Image<f32>,
+    params: &PixelParams,
+    zbuffer: &mut [f32],
+    mut hole_mask: Option<&mut [bool]>,
+) -> Result<(), E::Error> {
+    let plan = StreamPlan { holes: hole_mask.is_some(), color_on_depth: false };
+    let frames = [StreamFrame { depth, color: None }];
+    engine.per_pixel_stream(rig, kind, &frames, params, plan, &mut |_, r| {
+        zbuffer.copy_from_slice(r.zbuffer);
+        if let (Some(out), Some(mask)) = (hole_mask.as_deref_mut(), r.hole_mask) {
+            out.copy_from_slice(mask);
+        }
+    })
 }
 
 /// The CPU engine. H7 and H8's mask run on [`Registration`] (the fast path of the
@@ -589,15 +604,7 @@ impl PerPixel for CpuPixels {
         hole_mask: Option<&mut [bool]>,
     ) -> Result<(), GeometryError> {
         if !params.zbuffer {
-            let plan = StreamPlan { holes: hole_mask.is_some(), color_on_depth: false };
-            let frames = [StreamFrame { depth, color: None }];
-            let mut hole_mask = hole_mask;
-            return self.per_pixel_stream(rig, kind, &frames, params, plan, &mut |_, r| {
-                zbuffer.copy_from_slice(r.zbuffer);
-                if let (Some(out), Some(mask)) = (hole_mask.as_deref_mut(), r.hole_mask) {
-                    out.copy_from_slice(mask);
-                }
-            });
+            return per_pixel_into_by_copy(self, rig, kind, depth, params, zbuffer, hole_mask);
         }
         let s = self.stream_state(rig, kind, params)?;
         if params.depth_range.is_all() {

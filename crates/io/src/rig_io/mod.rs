@@ -10,7 +10,7 @@
 //! | ROS `camera_info` YAML (one file per camera) | [`ros`] | rig (pair) or one camera |
 //! | iai_kinect2's folder (`calib_color.yaml`, `calib_ir.yaml`, `calib_pose.yaml`, `calib_depth.yaml`), or its files | [`iai`] | rig (with its depth shift), or one camera |
 //! | `kinect_params.json` (`kfuse capture`: the sensor's factory parameters) | [`kinect`] | rig (fitted, see there) |
-//! | kfuse rig JSON, kfuse single-camera JSON | [`load`] | rig or one camera |
+//! | kfuse rig JSON (two cameras or several), kfuse single-camera JSON | [`crate::rig::read_rig`] | rig or one camera |
 //!
 //! The format is recognised from the content (MATLAB header, JSON `format` field, YAML keys),
 //! not from the file name (a folder is read as iai_kinect2's, whose file names are fixed by
@@ -148,22 +148,8 @@ pub fn camera_file_json(
     serde_json::to_string_pretty(&v).unwrap_or_default()
 }
 
-/// Reads a kfuse calibration file: a rig (`kfuse-rig`) or a single camera (`kfuse-camera`).
-/// Commands that need one camera (`undistort`) take either.
-pub fn load(path: &Path) -> Result<Calibration, GeometryError> {
-    let text = read_text(path)?;
-    from_kfuse_json(&text, path)
-}
-
-/// A rig file of several cameras (version 2, `geometry::multi_rig`), validated; `None` when
-/// `path` holds anything else (a two-camera rig, a camera file, another tool's file: read
-/// those with [`load`] or [`import`]).
-pub fn load_multi(path: &Path) -> Result<Option<geometry::MultiRig>, GeometryError> {
-    let text = read_text(path)?;
-    multi_from_text(&text, path)
-}
-
-/// A kfuse rig file of either kind, told apart by its content.
+/// A kfuse rig file of any kind, told apart by its content: what [`crate::rig::read_rig`], the
+/// one reader of kfuse's rig and camera files, gives.
 #[derive(Debug, Clone)]
 pub enum AnyRig {
     /// A rig of several cameras (version 2).
@@ -172,14 +158,51 @@ pub enum AnyRig {
     Single(Box<Calibration>),
 }
 
-/// Reads a kfuse rig file of either kind with one read of `path`, so a pipe or a FIFO (which
-/// a second open would find empty) works as a regular file does: [`load_multi`] then [`load`]
-/// in one.
-pub fn load_any(path: &Path) -> Result<AnyRig, GeometryError> {
-    let text = read_text(path)?;
-    match multi_from_text(&text, path)? {
+impl AnyRig {
+    /// The depth + colour pair; a single-camera file or a rig of several cameras is refused,
+    /// naming `path` and how to get a pair.
+    pub fn into_pair(self, path: &Path) -> Result<Rig, GeometryError> {
+        match self.into_calibration(path)? {
+            Calibration::Rig(rig) => Ok(rig),
+            Calibration::Camera { role, .. } => {
+                let which = role.map(|r| format!(" (the {} camera)", r.name())).unwrap_or_default();
+                Err(fmt_err(
+                    path,
+                    format!(
+                        "this is a single-camera file{which}; this needs both cameras and color_from_depth: \
+                         calibrate the pair with `kfuse calibrate --ir 'ir_*.png' --color 'color_*.png' --out rig.json`, \
+                         or make a rig from the lab's files with `kfuse rig import Calib_Results_stereo.mat --out rig.json`"
+                    ),
+                ))
+            }
+        }
+    }
+
+    /// A two-camera rig or one camera; a rig of several cameras is refused, naming `path` and
+    /// how to pick one sensor's pair.
+    pub fn into_calibration(self, path: &Path) -> Result<Calibration, GeometryError> {
+        match self {
+            AnyRig::Single(c) => Ok(*c),
+            AnyRig::Multi(multi) => {
+                Err(fmt_err(path, geometry::multi_rig::not_a_pair_message(multi.cameras.len())))
+            }
+        }
+    }
+
+    /// The rig of several cameras, or `None` for a pair or a camera file.
+    pub fn into_multi(self) -> Option<geometry::MultiRig> {
+        match self {
+            AnyRig::Multi(multi) => Some(multi),
+            AnyRig::Single(_) => None,
+        }
+    }
+}
+
+/// Parses the text of a kfuse rig file of either kind (see [`crate::rig::read_rig`]).
+pub(crate) fn any_from_text(text: &str, path: &Path) -> Result<AnyRig, GeometryError> {
+    match multi_from_text(text, path)? {
         Some(multi) => Ok(AnyRig::Multi(multi)),
-        None => Ok(AnyRig::Single(Box::new(from_kfuse_json(&text, path)?))),
+        None => Ok(AnyRig::Single(Box::new(from_kfuse_json(text, path)?))),
     }
 }
 

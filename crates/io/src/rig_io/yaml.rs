@@ -406,7 +406,7 @@ mod tests {
     #[test]
     fn devices_and_pipes_are_read_to_the_limit_only() {
         use std::io::Write;
-        let e = crate::rig_io::load(Path::new("/dev/zero")).unwrap_err().to_string();
+        let e = read_text(Path::new("/dev/zero")).unwrap_err().to_string();
         assert!(e.starts_with("/dev/zero: "), "{e}");
         assert!(e.contains(&format!("more than {MAX_TEXT_BYTES} bytes")), "{e}");
         assert!(e.contains("a calibration file"), "{e}");
