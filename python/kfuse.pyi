@@ -159,6 +159,45 @@ def fuse(
     Depth whose median is outside 0.2-15 m (another unit) raises ValueError unless force.
     depth_range: --depth-range ("0.5m..2.5m") or (min, max) metres; samples outside are none."""
 
+class Volume:
+    """A sparse TSDF (what `kfuse fuse --tsdf` runs) that kfuse.fuse frames integrate into.
+    voxel_size / truncation in metres (truncation: 0.03, or 3 voxels if larger), max_memory in
+    bytes; out-of-range values are ValueErrors."""
+
+    def __init__(
+        self,
+        voxel_size: float = 0.005,
+        truncation: Optional[float] = None,
+        max_memory: Optional[int] = None,
+        color: bool = True,
+    ) -> None: ...
+    def integrate(
+        self, frame: FusedFrame, pose: Optional[npt.NDArray[np.float64]] = None
+    ) -> Dict[str, int]:
+        """The frame's depth and colour at pose (4x4 camera_from_volume, metres; None =
+        identity). MemoryError past max_memory, ValueError for a bad pose; nothing changes."""
+    def mesh(
+        self,
+    ) -> Tuple[
+        npt.NDArray[np.float32],
+        npt.NDArray[np.uint32],
+        npt.NDArray[np.uint8],
+        npt.NDArray[np.float32],
+    ]:
+        """Marching cubes: vertices (N, 3) m, faces (M, 3), colours (N, 3), normals (N, 3)."""
+    def save(self, folder: _Path, overwrite: bool = False) -> pathlib.Path:
+        """tsdf_mesh.ply (colours, normals) and tsdf_cloud.ply into folder."""
+    @property
+    def frames(self) -> int: ...
+    @property
+    def block_count(self) -> int: ...
+    @property
+    def memory_bytes(self) -> int: ...
+    @property
+    def voxel_size(self) -> float: ...
+    @property
+    def truncation(self) -> float: ...
+
 def read_depth(path: _Path) -> npt.NDArray[np.float32]:
     """A depth file read as `kfuse fuse --depth` reads it: float32 metres, NaN = no sample."""
 

@@ -130,10 +130,30 @@ fn mesh_arrays<'py>(py: Python<'py>, mesh: &Mesh) -> PyResult<MeshArrays<'py>> {
 #[pyclass(name = "FusedFrame", module = "kfuse", frozen)]
 pub(crate) struct PyFusedFrame {
     out: FusionOutput,
+    /// The depth camera as fused (rectification applied): what `kfuse.Volume` integrates with.
+    depth_camera: geometry::CameraModel,
     color: Image<[u8; 3]>,
     options: FusionOptions,
     inputs: serde_json::Value,
     used: EngineUsed,
+}
+
+impl PyFusedFrame {
+    /// Every output of the frame.
+    pub(crate) fn output(&self) -> &FusionOutput {
+        &self.out
+    }
+
+    /// The depth camera as fused.
+    pub(crate) fn depth_camera(&self) -> &geometry::CameraModel {
+        &self.depth_camera
+    }
+
+    /// The fused depth on the depth grid: each H1 point's z at its pixel, NaN elsewhere.
+    pub(crate) fn depth_z(&self) -> PyResult<Image<f32>> {
+        let c = &self.depth_camera;
+        crate::volume::z_from_cloud(c.width, c.height, &self.out.cloud, &self.out.cloud_pixels)
+    }
 }
 
 #[pymethods]
@@ -363,5 +383,5 @@ pub(crate) fn fuse(
     if let Some(c) = &rig.depth_correction {
         inputs["depth_correction"] = serde_json::json!({ "applied": true, "terms": c.describe() });
     }
-    Ok(PyFusedFrame { out, color, options, inputs, used })
+    Ok(PyFusedFrame { out, depth_camera: rig.depth, color, options, inputs, used })
 }

@@ -11,6 +11,7 @@ mod calibrate;
 mod device;
 mod fuse;
 mod recording;
+mod volume;
 
 use calib::CalibError;
 use fusion_gpu::{Engine, EngineUsed, GpuError, PixelEngine};
@@ -112,7 +113,7 @@ pub(crate) fn one_call_at_a_time<'a, T>(
     })
 }
 
-fn geometry_err(e: GeometryError) -> PyErr {
+pub(crate) fn geometry_err(e: GeometryError) -> PyErr {
     match e {
         GeometryError::Io { .. } => PyOSError::new_err(e.to_string()),
         other => PyValueError::new_err(other.to_string()),
@@ -216,7 +217,7 @@ fn writable<'py, T: numpy::Element>(
 }
 
 /// A C-contiguous 2-D array of `T` of exactly `rows x cols`, without a copy.
-fn array2<'py, T: numpy::Element>(
+pub(crate) fn array2<'py, T: numpy::Element>(
     obj: &Bound<'py, PyAny>,
     name: &str,
     dtype: &str,
@@ -1020,7 +1021,7 @@ pub(crate) fn try_flat<T: Copy, const N: usize>(v: &[[T; N]], what: &str) -> PyR
 }
 
 /// Rows of `N` values as an (len, N) array.
-fn rows<'py, T: numpy::Element + Copy, const N: usize>(
+pub(crate) fn rows<'py, T: numpy::Element + Copy, const N: usize>(
     py: Python<'py>,
     v: &[[T; N]],
 ) -> PyResult<Bound<'py, PyArray2<T>>> {
@@ -1178,6 +1179,7 @@ fn kfuse(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(decode, m)?)?;
     m.add_function(wrap_pyfunction!(read_depth, m)?)?;
     m.add_class::<fuse::PyFusedFrame>()?;
+    m.add_class::<volume::PyVolume>()?;
     m.add_function(wrap_pyfunction!(fuse::fuse, m)?)?;
     m.add_class::<fuse::PyEngine>()?;
     m.add_function(wrap_pyfunction!(to_open3d, m)?)?;

@@ -374,6 +374,42 @@ call("FusedFrame.save: new folder", frame.save, os.path.join(TMP, "fused"))
 call("FusedFrame.save: again, overwrite", frame.save, os.path.join(TMP, "fused"), overwrite=True)
 '''
 
+CASES["volume"] = r'''
+for v in NUMBERS + TEXTS[4:] + [1e-9, 10.0]:
+    call(f"Volume(): voxel_size={str(v)[:20]!r}", kfuse.Volume, voxel_size=v)
+    call(f"Volume(): truncation={str(v)[:20]!r}", kfuse.Volume, truncation=v)
+    call(f"Volume(): max_memory={str(v)[:20]!r}", kfuse.Volume, max_memory=v)
+call("Volume(): color='yes'", kfuse.Volume, color="yes")
+rig = kfuse.Rig.load(RIGS["kinect"])
+frame = kfuse.fuse(rig, np.zeros((1080, 1920, 3), np.uint8), np.full((424, 512), 1500, np.uint16))
+vol = call("Volume(): default", kfuse.Volume)
+for name, a in bad_arrays((4, 4), np.float64).items():
+    call(f"Volume.integrate: pose {name}", vol.integrate, frame, pose=a)
+for value in (np.nan, np.inf, 1e300, -1e300):
+    pose = np.eye(4)
+    pose[0, 3] = value
+    call(f"Volume.integrate: translation {value}", vol.integrate, frame, pose=pose)
+    call(f"Volume.integrate: rotation filled with {value}", vol.integrate, frame, pose=np.full((4, 4), value))
+for other in (None, 1e300, "frame", rig, vol):
+    call(f"Volume.integrate: frame={str(other)[:20]!r}", vol.integrate, other)
+# The finest voxels (1 mm) on a whole Kinect frame: past the 2 GiB default bound, refused as
+# MemoryError before the blocks are allocated; then a bound the frame fits in.
+fine = call("Volume(): voxel_size=0.001", kfuse.Volume, voxel_size=0.001)
+call("Volume.integrate: 1 mm voxels, default bound", fine.integrate, frame)
+call("Volume.integrate: a frame", vol.integrate, frame)
+call("Volume.integrate: the frame again, 1000 km away (refused)", vol.integrate, frame,
+     pose=np.array([[1, 0, 0, 1e6], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
+getters("Volume", vol)
+call("Volume.mesh: after two frames", vol.mesh)
+for name, path in targets("volume").items():
+    call(f"Volume.save: {name}", vol.save, path)
+    call(f"Volume.save: {name}, overwrite", vol.save, path, overwrite=True)
+call("Volume.save: new folder", vol.save, os.path.join(TMP, "vol"))
+empty = kfuse.Volume()
+call("Volume.mesh: empty", empty.mesh)
+call("Volume.save: empty", empty.save, os.path.join(TMP, "empty-vol"))
+'''
+
 CASES["fuse_50mpx"] = r'''
 rig = kfuse.Rig.load(RIGS["color_50mpx"], force=True)
 h, w = rig.color.height, rig.color.width

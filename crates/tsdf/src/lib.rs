@@ -47,8 +47,8 @@ pub use options::{
 };
 pub use volume::{
     BLOCK_BYTES, BLOCK_OVERHEAD_BYTES, BLOCK_SIDE, BLOCK_VOXELS, DepthFrame,
-    INTERPOLATION_MAX_STEP, IntegrationStats, RegisteredColor, TsdfVolume, Voxel, depth_sigma_m,
-    depth_weight,
+    INTERPOLATION_MAX_STEP, IntegrationStats, MAX_CAMERA_DISTANCE_M, RegisteredColor, TsdfVolume,
+    Voxel, depth_sigma_m, depth_weight,
 };
 
 use geometry::fusion::multi::MultiFusion;

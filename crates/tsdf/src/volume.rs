@@ -60,6 +60,12 @@ pub fn depth_weight(z: f64) -> f64 {
     1.0 / (s * s)
 }
 
+/// Farthest a camera may be from the volume's origin, metres: 100 km. Far beyond any scene a
+/// depth camera sees (a rig's poses are metres from its reference camera), and it keeps the
+/// block coordinates of the finest voxels (8 mm blocks) out to the farthest depth range
+/// (100 m) a hundred times inside `i32` (a pose 1e300 m away overflowed the block walk).
+pub const MAX_CAMERA_DISTANCE_M: f64 = 1.0e5;
+
 /// One voxel: the truncated signed distance (in units of the truncation, −1…1, positive in
 /// front of the surface, towards the cameras), its weight (0: never observed), and the
 /// weighted mean colour with its own weight (0: no colour seen).
@@ -234,10 +240,16 @@ impl TsdfVolume {
                 pose.translation.as_slice()
             )));
         }
+        let volume_from_camera = pose.inverse();
+        let distance = volume_from_camera.translation.norm();
+        if !(distance <= MAX_CAMERA_DISTANCE_M) {
+            return Err(TsdfError::InvalidFrame(format!(
+                "the camera is {distance:.3e} m from the volume's origin, farther than {MAX_CAMERA_DISTANCE_M} m: is the pose camera_from_volume in metres?"
+            )));
+        }
         let table = self.ray_table(camera);
         let rays = &self.rays[table].1;
         let o = self.options;
-        let volume_from_camera = pose.inverse();
         let block_m = o.voxel_size_m * BLOCK_SIDE as f64;
         let depth = frame.z.data();
 

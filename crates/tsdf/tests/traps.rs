@@ -240,6 +240,32 @@ fn memory_bound_and_nan_pose_are_clear_errors() {
         .to_string();
     assert!(e.contains("pose must be finite") && !e.contains('\n'), "{e}");
 
+    // A camera past MAX_CAMERA_DISTANCE_M (1e300 m overflowed the block walk: a panic in a
+    // debug build, a walk of 2^63 steps in a release one) is refused; one just inside is not.
+    for (x, refused) in [
+        (1e300, true),
+        (-1e300, true),
+        (2.0 * kfuse_tsdf::MAX_CAMERA_DISTANCE_M, true),
+        (1.0e4, false),
+    ] {
+        let mut far = pose;
+        far.translation.x = x;
+        let mut volume = TsdfVolume::new(TsdfOptions::default()).unwrap();
+        let r = volume.integrate(&DepthFrame {
+            camera: &camera,
+            camera_from_volume: far,
+            z: &z,
+            color: None,
+        });
+        if refused {
+            let e = r.unwrap_err().to_string();
+            assert!(e.contains("farther than") && !e.contains('\n'), "{e}");
+            assert_eq!((volume.block_count(), volume.frames()), (0, 0));
+        } else {
+            assert!(r.unwrap().blocks_allocated > 1000);
+        }
+    }
+
     let small = Image::filled(10, 10, 1.0f32);
     let e = volume
         .integrate(&DepthFrame {
