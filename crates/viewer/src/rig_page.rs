@@ -1,7 +1,10 @@
 //! The rig page: every camera of a rig of several cameras (`kfuse calibrate --camera …`, rig
 //! file version 2) as a frustum in the rig's reference frame, coloured per sensor and named,
 //! and the merged cloud of `kfuse fuse` with several sensors (`cloud.ply` beside the rig)
-//! when there is one. Everything is in the **reference camera's frame** (metres).
+//! when there is one, or the surface of its volumetric fusion (`tsdf_cloud.ply` of `--tsdf`,
+//! the marching-cubes mesh's vertices with their colours; shown instead of the merged cloud
+//! when the folder has it, a checkbox switches). Everything is in the **reference camera's
+//! frame** (metres).
 //!
 //! Opened by `kfuse view RIG.json` on a version-2 rig file, or `kfuse view DIR` on a folder
 //! whose `rig.json` is one.
@@ -52,6 +55,13 @@ pub struct RigPage {
     pub cloud: geometry::PointCloud,
     /// The cloud's file, when there is one.
     pub cloud_source: Option<PathBuf>,
+    /// The TSDF surface of `kfuse fuse --tsdf` (`tsdf_cloud.ply`, thinned to
+    /// [`MAX_DRAWN_POINTS`]), empty when the folder has none.
+    pub surface: geometry::PointCloud,
+    /// The surface's file, when there is one.
+    pub surface_source: Option<PathBuf>,
+    /// Draw the TSDF surface instead of the merged cloud (on when the folder has one).
+    pub show_surface: bool,
     orbit: OrbitCamera,
     home: OrbitCamera,
 }
@@ -80,14 +90,36 @@ impl RigPage {
                     file.display()
                 ))
             })?;
-        let cloud_source = folder.map(|f| f.join("cloud.ply")).filter(|p| p.is_file());
-        let cloud = match &cloud_source {
-            Some(p) => kfuse_io::ply::read_cloud_ply(p, Some(MAX_DRAWN_POINTS))
-                .map_err(|e| ViewerError::Rig(e.to_string()))?,
-            None => geometry::PointCloud::default(),
+        let read = |name: &str| -> Result<_, ViewerError> {
+            let source = folder.as_ref().map(|f| f.join(name)).filter(|p| p.is_file());
+            let cloud = match &source {
+                Some(p) => kfuse_io::ply::read_cloud_ply(p, Some(MAX_DRAWN_POINTS))
+                    .map_err(|e| ViewerError::Rig(e.to_string()))?,
+                None => geometry::PointCloud::default(),
+            };
+            Ok((cloud, source))
         };
-        let home = Self::home_orbit(&rig, &cloud);
-        Ok(Self { rig, source: file, cloud, cloud_source, orbit: home, home })
+        let (cloud, cloud_source) = read("cloud.ply")?;
+        let (surface, surface_source) = read("tsdf_cloud.ply")?;
+        let show_surface = surface_source.is_some();
+        let home = Self::home_orbit(&rig, if show_surface { &surface } else { &cloud });
+        Ok(Self {
+            rig,
+            source: file,
+            cloud,
+            cloud_source,
+            surface,
+            surface_source,
+            show_surface,
+            orbit: home,
+            home,
+        })
+    }
+
+    /// The points drawn: the TSDF surface when [`RigPage::show_surface`] (and the folder has
+    /// one), else the merged cloud.
+    pub fn drawn_points(&self) -> &geometry::PointCloud {
+        if self.show_surface && self.surface_source.is_some() { &self.surface } else { &self.cloud }
     }
 
     /// The rig's size: the largest distance of a camera centre from the reference, metres.
@@ -160,6 +192,13 @@ impl RigPage {
                 )),
                 None => ui.label("no cloud.ply beside the rig"),
             };
+            if let Some(p) = &self.surface_source {
+                let name = p.file_name().map(|f| f.to_string_lossy()).unwrap_or_default();
+                ui.checkbox(
+                    &mut self.show_surface,
+                    format!("TSDF surface instead: {} points ({name})", self.surface.len()),
+                );
+            }
         });
         egui::CentralPanel::default().show(ui, |ui| {
             ui.horizontal(|ui| {
@@ -170,13 +209,14 @@ impl RigPage {
             });
             let canvas = Canvas3d::new(ui, &mut self.orbit);
             let painter = ui.painter_at(canvas.rect);
-            for (i, p) in self.cloud.points.iter().enumerate() {
+            let drawn = self.drawn_points();
+            for (i, p) in drawn.points.iter().enumerate() {
                 let Some(at) =
                     canvas.project(Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
                 else {
                     continue;
                 };
-                let c = self.cloud.colors.get(i).copied().unwrap_or([200, 200, 200]);
+                let c = drawn.colors.get(i).copied().unwrap_or([200, 200, 200]);
                 painter.rect_filled(
                     egui::Rect::from_center_size(at, egui::vec2(2.0, 2.0)),
                     0.0,

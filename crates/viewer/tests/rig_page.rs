@@ -118,6 +118,37 @@ fn rig_page_shows_every_camera_at_its_ring_position() {
     assert!(app.rig.as_ref().unwrap().cloud.is_empty());
 }
 
+/// `kfuse fuse --tsdf`'s surface beside the merged cloud: read, drawn instead of the cloud by
+/// default, the checkbox's state switching back; a broken one is an error naming it.
+#[test]
+fn tsdf_surface_is_shown_instead_of_the_cloud() {
+    let dir = std::env::temp_dir().join(format!("kfuse-viewer-rig-tsdf-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    kfuse_io::rig::write_multi_rig(&dir.join("rig.json"), &ring_rig()).unwrap();
+    kfuse_io::ply::write_cloud_ply(&dir.join("cloud.ply"), &sphere_cloud(), "S0.depth").unwrap();
+    // The surface: every other point of the sphere, drawn grey (a different cloud).
+    let mut surface = sphere_cloud();
+    surface.points = surface.points.into_iter().step_by(2).collect();
+    surface.colors = vec![[128, 128, 128]; surface.points.len()];
+    kfuse_io::ply::write_cloud_ply(&dir.join("tsdf_cloud.ply"), &surface, "S0.depth").unwrap();
+    let mut app = ViewerApp::open(&dir, Engine::Cpu);
+    assert!(app.error.is_none(), "{:?}", app.error.as_ref().map(|e| e.to_string()));
+    let page = app.rig.as_mut().unwrap();
+    assert_eq!(page.surface, surface);
+    assert_eq!(page.cloud, sphere_cloud());
+    assert!(page.show_surface);
+    assert_eq!(page.drawn_points(), &surface);
+    page.show_surface = false;
+    assert_eq!(page.drawn_points(), &sphere_cloud());
+    let bytes = std::fs::read(dir.join("tsdf_cloud.ply")).unwrap();
+    std::fs::write(dir.join("tsdf_cloud.ply"), &bytes[..bytes.len() / 2]).unwrap();
+    let app = ViewerApp::open(&dir, Engine::Cpu);
+    let e = app.error.as_ref().map(|e| e.to_string()).unwrap_or_default();
+    assert!(e.contains("tsdf_cloud.ply") && e.contains("cut short"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn broken_cloud_is_an_error_naming_it() {
     let dir = std::env::temp_dir().join(format!("kfuse-viewer-rig-broken-{}", std::process::id()));
