@@ -147,23 +147,9 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("kfuse-rigkinds-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let camera = CameraModel::new(
-            512,
-            424,
-            Intrinsics::new(365.0, 365.0, 255.5, 211.5),
-            Distortion::NONE,
-        );
-        let color = CameraModel::new(
-            1920,
-            1080,
-            Intrinsics::new(1060.0, 1060.0, 959.5, 539.5),
-            Distortion::NONE,
-        );
-        let rig = Rig::new(
-            camera,
-            color,
-            RigidTransform::from_axis_angle(Vector3::zeros(), Vector3::new(-0.052, 0.0, 0.0)),
-        );
+        // The simulator's Kinect pair (geometry's `synth` feature, a dev-dependency here).
+        let rig = geometry::synth::kinect_rig();
+        let camera = rig.depth;
         let pair_path = dir.join("pair.json");
         write_rig(&pair_path, &rig).unwrap();
         let mut multi = MultiRig::from_pair(&rig, Some("A"));
