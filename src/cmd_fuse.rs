@@ -72,7 +72,8 @@ Outputs of several Kinects (--sensor or --frames of a capture of several sensors
                                  in the reference frame, textured by its own colour image
   virtual_depth.png, virtual_color.png   with --virtual-view (16-bit mm z; RGB)
   tsdf_mesh.ply, tsdf_cloud.ply  with --tsdf: the volumetric fusion's mesh (vertex colours,
-                                 normals) and its surface points (reference frame)
+                                 normals; also tsdf_mesh.obj + .mtl) and its surface points
+                                 (reference frame)
   summary.json                   points per sensor, mesh faces, consistency per pair")]
 pub struct FuseArgs {
     /// Rig file (JSON from `kfuse calibrate` or `kfuse rig import`) describing both cameras
@@ -177,8 +178,8 @@ pub struct FuseArgs {
     #[arg(long, value_name = "from=X,Y,Z;look-at=X,Y,Z", allow_hyphen_values = true)]
     pub virtual_view: Option<String>,
     /// Volumetric fusion (`kfuse-tsdf`): integrate depth into one truncated signed distance
-    /// field and write its marching-cubes mesh as tsdf_mesh.ply (vertex colours and normals)
-    /// and its surface points as tsdf_cloud.ply. With several Kinects: every sensor's depth, in
+    /// field and write its marching-cubes mesh as tsdf_mesh.ply (vertex colours and normals;
+    /// the same as tsdf_mesh.obj + .mtl) and its surface points as tsdf_cloud.ply. With several Kinects: every sensor's depth, in
     /// the rig's reference frame. With --recording (one fixed sensor): every frame's depth (or
     /// the first --frames-max N), in its depth camera's frame, coloured by the frames' colour
     /// images; index.json's `tsdf` lists the files and the volume.

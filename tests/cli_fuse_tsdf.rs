@@ -104,6 +104,22 @@ fn fuse_tsdf_of_three_kinects_against_the_truth() {
     assert!(tsdf_median < cloud_median, "{tsdf_median} mm vs the cloud's {cloud_median} mm");
     let cloud = kfuse_io::ply::read_cloud_ply(&mesh_path, None).unwrap();
     assert_eq!(cloud.colors.len(), vertices);
+    // The same mesh as OBJ, read by `tobj`: as many vertices and faces, normals and colours.
+    let (models, _) = tobj::load_obj(
+        out.join("tsdf_mesh.obj"),
+        &tobj::LoadOptions { triangulate: true, ..Default::default() },
+    )
+    .unwrap();
+    let m = &models[0].mesh;
+    assert_eq!(m.positions.len(), 3 * vertices);
+    assert_eq!(m.normals.len(), 3 * vertices);
+    assert_eq!(m.vertex_color.len(), 3 * vertices);
+    let ply_faces = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element face "))
+        .and_then(|n| n.trim().parse::<usize>().ok())
+        .unwrap();
+    assert_eq!(m.indices.len(), 3 * ply_faces);
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
     let t = &summary["tsdf"];

@@ -160,15 +160,15 @@ impl PyVolume {
     }
 
     /// Writes the mesh as `kfuse fuse --tsdf` does: `tsdf_mesh.ply` (vertex colours and
-    /// normals; MeshLab, Blender, CloudCompare and Open3D read it) and `tsdf_cloud.ply` (the
-    /// surface points) into `folder` (created if needed). An existing file is a
+    /// normals; MeshLab, Blender, CloudCompare and Open3D read it), the same as
+    /// `tsdf_mesh.obj` + `.mtl`, and `tsdf_cloud.ply` (the surface points) into `folder`
+    /// (created if needed). An existing file is a
     /// FileExistsError naming it unless overwrite=True. Returns the mesh file's path.
     #[pyo3(signature = (folder, overwrite = false))]
     fn save(&self, py: Python<'_>, folder: PathBuf, overwrite: bool) -> PyResult<PathBuf> {
-        let mesh_path = folder.join("tsdf_mesh.ply");
-        let cloud_path = folder.join("tsdf_cloud.ply");
-        for p in [&mesh_path, &cloud_path] {
-            check_output_file(p, overwrite, "tsdf_mesh.ply", &[])?;
+        let mesh_path = folder.join(kfuse_io::fused::TSDF_FILES[0]);
+        for name in kfuse_io::fused::TSDF_FILES {
+            check_output_file(&folder.join(name), overwrite, "tsdf_mesh.ply", &[])?;
         }
         let guard = self.volume()?;
         let volume: &TsdfVolume = &guard;
@@ -176,13 +176,7 @@ impl PyVolume {
             std::fs::create_dir_all(&folder)
                 .map_err(|source| geometry::GeometryError::Io { path: folder.clone(), source })?;
             let mesh = volume.extract_mesh();
-            kfuse_io::ply::write_mesh_ply_normals(
-                &mesh_path,
-                &mesh.to_mesh(),
-                &mesh.normals,
-                VOLUME_FRAME,
-            )?;
-            kfuse_io::ply::write_cloud_ply(&cloud_path, &mesh.to_point_cloud(), VOLUME_FRAME)
+            kfuse_io::fused::write_tsdf_files(&folder, &mesh.to_mesh(), &mesh.normals, VOLUME_FRAME)
         })
         .map_err(geometry_err)?;
         Ok(mesh_path)

@@ -195,6 +195,11 @@ def test_save_writes_a_ply_open3d_reads(rig, tmp_path):
     assert m.has_vertex_normals() and m.has_vertex_colors()
     assert np.allclose(np.asarray(m.vertices), verts, atol=1e-6)
     assert np.allclose(np.asarray(m.vertex_colors) * 255.0, colors, atol=0.51)
+    obj = o3d.io.read_triangle_mesh(str(tmp_path / "vol" / "tsdf_mesh.obj"))
+    assert len(obj.triangles) == len(faces) and obj.has_vertex_normals()
+    # Open3D's OBJ reader may repeat a vertex per face corner: compare the corners' positions.
+    corners = np.asarray(obj.vertices)[np.asarray(obj.triangles)].reshape(-1, 3)
+    assert np.allclose(np.sort(corners, axis=0), np.sort(verts[faces].reshape(-1, 3), axis=0), atol=1e-5)
 
 
 @pytest.mark.parametrize("kwargs, words", [

@@ -26,7 +26,7 @@ use super::{DepthKindArg, FuseArgs, options};
 const OUTPUTS: [&str; 4] = ["rig.json", "cloud.ply", "depth_zbuffer.png", "summary.json"];
 
 /// What `--tsdf` writes: the mesh (vertex colours and normals) and the surface points.
-const TSDF_OUTPUTS: [&str; 2] = ["tsdf_mesh.ply", "tsdf_cloud.ply"];
+const TSDF_OUTPUTS: [&str; 4] = kfuse_io::fused::TSDF_FILES;
 
 /// Bytes in a GiB, for the memory bound's message.
 const GIB: f64 = (1u64 << 30) as f64;
@@ -621,14 +621,12 @@ fn write_tsdf(
     let mesh = volume.extract_mesh();
     let mesh_ms = t1.elapsed().as_secs_f64() * 1e3;
     bar.finish_and_clear();
-    let frame = "rig reference camera";
-    ply::write_mesh_ply_normals(
-        &staged.join(TSDF_OUTPUTS[0]),
+    kfuse_io::fused::write_tsdf_files(
+        staged.path(),
         &mesh.to_mesh(),
         &mesh.normals,
-        frame,
+        "rig reference camera",
     )?;
-    ply::write_cloud_ply(&staged.join(TSDF_OUTPUTS[1]), &mesh.to_point_cloud(), frame)?;
     Ok(TsdfSummary {
         voxel_size_m: options.voxel_size_m,
         truncation_m: options.truncation_m,

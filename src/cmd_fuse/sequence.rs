@@ -476,23 +476,17 @@ impl Observer for TsdfShown<'_> {
                 self.integrated, self.options.min_depth_m, self.options.max_depth_m
             ));
         }
-        let frame = "depth camera";
-        kfuse_io::ply::write_mesh_ply_normals(
-            &staged.join("tsdf_mesh.ply"),
+        kfuse_io::fused::write_tsdf_files(
+            staged.path(),
             &mesh.to_mesh(),
             &mesh.normals,
-            frame,
-        )
-        .map_err(|e| e.to_string())?;
-        kfuse_io::ply::write_cloud_ply(
-            &staged.join("tsdf_cloud.ply"),
-            &mesh.to_point_cloud(),
-            frame,
+            "depth camera",
         )
         .map_err(|e| e.to_string())?;
         self.written = Some((mesh.vertices.len(), mesh.faces.len(), mesh_s));
         Ok(Some(serde_json::json!({
             "mesh": "tsdf_mesh.ply",
+            "mesh_obj": "tsdf_mesh.obj",
             "cloud": "tsdf_cloud.ply",
             "frame": "the depth camera's (metres)",
             "voxel_size_m": self.options.voxel_size_m,

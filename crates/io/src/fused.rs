@@ -159,3 +159,25 @@ pub fn save(
     write_summary(&staged, inputs, options, &out.summary, files)?;
     staged.commit()
 }
+
+/// The files of a volumetric fusion (`kfuse fuse --tsdf`, `kfuse.Volume.save`): the mesh with
+/// vertex colours and normals as PLY (MeshLab, CloudCompare, Open3D, Blender) and as OBJ + MTL
+/// (for the tools that read OBJ), and its vertices with their colours as a point cloud.
+pub const TSDF_FILES: [&str; 4] =
+    ["tsdf_mesh.ply", "tsdf_cloud.ply", "tsdf_mesh.obj", "tsdf_mesh.mtl"];
+
+/// Writes [`TSDF_FILES`] into `dir`: `mesh` (vertices, colours — none when empty — and
+/// triangles) with a unit normal per vertex, in the coordinate frame `frame` names. One writer
+/// for the CLI (several Kinects, recordings) and the Python package.
+pub fn write_tsdf_files(
+    dir: &Path,
+    mesh: &geometry::Mesh,
+    normals: &[[f32; 3]],
+    frame: &str,
+) -> Result<(), GeometryError> {
+    ply::write_mesh_ply_normals(&dir.join(TSDF_FILES[0]), mesh, normals, frame)?;
+    let cloud = geometry::PointCloud { points: mesh.vertices.clone(), colors: mesh.colors.clone() };
+    ply::write_cloud_ply(&dir.join(TSDF_FILES[1]), &cloud, frame)?;
+    obj::write_obj_with_normals(&dir.join(TSDF_FILES[2]), mesh, normals)?;
+    Ok(())
+}

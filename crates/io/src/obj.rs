@@ -34,6 +34,26 @@ pub fn write_textured_obj(
     mesh: &Mesh,
     texture: Option<&Image<[u8; 3]>>,
 ) -> Result<ObjFiles, GeometryError> {
+    write_obj(obj_path, mesh, texture, None)
+}
+
+/// Writes `mesh` with a unit normal per vertex (`vn nx ny nz`, faces `f a//a b//b c//c`; with
+/// its vertex colours when it has them) as `<obj_path>` + `<stem>.mtl`: the TSDF mesh of
+/// `kfuse fuse --tsdf` for the tools that read OBJ rather than PLY.
+pub fn write_obj_with_normals(
+    obj_path: &Path,
+    mesh: &Mesh,
+    normals: &[[f32; 3]],
+) -> Result<ObjFiles, GeometryError> {
+    write_obj(obj_path, mesh, None, Some(normals))
+}
+
+fn write_obj(
+    obj_path: &Path,
+    mesh: &Mesh,
+    texture: Option<&Image<[u8; 3]>>,
+    normals: Option<&[[f32; 3]]>,
+) -> Result<ObjFiles, GeometryError> {
     let n = mesh.vertices.len();
     let invalid = |m: String| GeometryError::InvalidInput(format!("{}: {m}", obj_path.display()));
     if !mesh.uvs.is_empty() && mesh.uvs.len() != n {
@@ -41,6 +61,11 @@ pub fn write_textured_obj(
     }
     if !mesh.colors.is_empty() && mesh.colors.len() != n {
         return Err(invalid(format!("{} colours for {n} vertices", mesh.colors.len())));
+    }
+    if let Some(normals) = normals
+        && normals.len() != n
+    {
+        return Err(invalid(format!("{} normals for {n} vertices", normals.len())));
     }
     if texture.is_some() && mesh.uvs.is_empty() && n > 0 {
         return Err(invalid("a texture needs per-vertex texture coordinates".into()));
@@ -100,11 +125,19 @@ pub fn write_textured_obj(
         for t in &mesh.uvs {
             writeln!(out, "vt {:.6} {:.6}", t[0], t[1])?;
         }
+        // Unit normals to 5 decimals: 1e-5 rad, far below what shading shows.
+        for v in normals.unwrap_or_default() {
+            writeln!(out, "vn {:.5} {:.5} {:.5}", v[0], v[1], v[2])?;
+        }
         writeln!(out, "usemtl {MATERIAL_NAME}")?;
         let uv = !mesh.uvs.is_empty();
         for f in &mesh.faces {
             let [a, b, c] = [f[0] + 1, f[1] + 1, f[2] + 1];
-            if uv {
+            if uv && normals.is_some() {
+                writeln!(out, "f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}")?;
+            } else if normals.is_some() {
+                writeln!(out, "f {a}//{a} {b}//{b} {c}//{c}")?;
+            } else if uv {
                 writeln!(out, "f {a}/{a} {b}/{b} {c}/{c}")?;
             } else {
                 writeln!(out, "f {a} {b} {c}")?;
@@ -118,6 +151,49 @@ pub fn write_textured_obj(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The TSDF mesh's OBJ: positions, colours and normals as `tobj` reads them.
+    #[test]
+    fn obj_with_normals_reads_back_with_tobj() {
+        let dir = std::env::temp_dir().join(format!("kfuse-obj-normals-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mesh = Mesh {
+            vertices: vec![[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [1.0, 1.0, 1.25]],
+            uvs: vec![],
+            colors: vec![[255, 0, 0], [0, 255, 0], [0, 0, 255], [51, 102, 153]],
+            faces: vec![[0, 2, 1], [1, 2, 3]],
+        };
+        let s = 0.6f32;
+        let normals = [[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, -0.8, -s], [0.8, 0.0, -s]];
+        let files = write_obj_with_normals(&dir.join("tsdf.obj"), &mesh, &normals).unwrap();
+        assert_eq!(files.texture, None);
+        let (models, _) = tobj::load_obj(
+            &files.obj,
+            &tobj::LoadOptions { single_index: true, triangulate: true, ..Default::default() },
+        )
+        .unwrap();
+        let m = &models[0].mesh;
+        // `single_index` renumbers the vertices in the order the faces first use them: compare
+        // each face corner's values with the vertex it was written from.
+        let corners: Vec<usize> = mesh.faces.iter().flatten().map(|&i| i as usize).collect();
+        assert_eq!(m.indices.len(), corners.len());
+        for (&read, &written) in m.indices.iter().zip(&corners) {
+            let r = read as usize;
+            let at = |v: &[f32]| [v[3 * r], v[3 * r + 1], v[3 * r + 2]];
+            let near = |a: [f32; 3], b: [f32; 3], tol: f32| {
+                a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol)
+            };
+            // Written with 5 decimals (positions, normals) and 4 (colours in 0..1).
+            assert!(near(at(&m.positions), mesh.vertices[written], 5e-6), "{written}");
+            assert!(near(at(&m.normals), normals[written], 5e-6), "{written}");
+            let c = mesh.colors[written].map(|c| f32::from(c) / 255.0);
+            assert!(near(at(&m.vertex_color), c, 5e-5), "{written}");
+        }
+        let e = write_obj_with_normals(&dir.join("bad.obj"), &mesh, &normals[..3]).unwrap_err();
+        assert!(e.to_string().contains("3 normals for 4 vertices"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn textured_obj_reads_back_with_tobj() {

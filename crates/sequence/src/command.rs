@@ -169,6 +169,8 @@ pub fn output_names() -> Vec<String> {
         // `kfuse fuse --recording … --tsdf`: the volume's mesh and surface points.
         "tsdf_mesh.ply",
         "tsdf_cloud.ply",
+        "tsdf_mesh.obj",
+        "tsdf_mesh.mtl",
     ]
     .map(String::from)
     .into()
