@@ -13,6 +13,7 @@ mod cmd_calibrate;
 mod cmd_capture;
 mod cmd_rig;
 mod cmd_serve;
+mod cmd_trace;
 mod cmd_undistort;
 mod interrupt;
 
@@ -47,6 +48,9 @@ enum Command {
     Capture(cmd_capture::CaptureArgs),
     /// Publish one Kinect v2 over Zenoh (ROS 2 topics via rmw_zenoh's keys) for `kfuse fuse --live`.
     Serve(cmd_serve::ServeArgs),
+    /// Replay a USB trace (`kfuse capture record --usb-trace FILE`) through the driver's
+    /// protocol code and stream parsers and print what they found.
+    ReplayTrace(cmd_trace::ReplayTraceArgs),
 }
 
 /// Exit status when standard output is closed before kfuse is done writing to it (`kfuse
@@ -116,6 +120,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Devices(a) => cmd_capture::run_devices(a)?,
         Command::Capture(a) => cmd_capture::run_capture(a)?,
         Command::Serve(a) => cmd_serve::run(a)?,
+        Command::ReplayTrace(a) => cmd_trace::run(&a)?,
     }
     Ok(())
 }
