@@ -284,8 +284,11 @@ enum CaptureMode {
     },
     /// Record raw USB stream packets and the device metadata for later replay.
     #[command(after_help = concat!("Examples:\n  kfuse capture record --out session.kfrec --frames 300\n  \
-        kfuse capture calib --replay session.kfrec --interval 0 --count 5 --out shots\n\n\
-        The recording holds every isochronous and bulk packet, so replay runs the same parsers and decoder.", settings_help!()))]
+        kfuse capture calib --replay session.kfrec --interval 0 --count 5 --out shots\n  \
+        kfuse capture record --out bug.kfrec --frames 30 --usb-trace bug.kftrace   # for a bug report\n\n\
+        The recording holds every isochronous and bulk packet, so replay runs the same parsers and decoder.\n\
+        --usb-trace also writes the session's USB calls and transfer headers (no images, about 1 MB/s);\n\
+        `kfuse replay-trace bug.kftrace` shows what it holds. Attach the trace to a bug report.", settings_help!()))]
     Record {
         /// Recording file (`--out`, as every other command names its output; `--output`, the
         /// first spelling, still works).

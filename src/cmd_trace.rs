@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
+use kinect_usb::KinectError;
 use kinect_usb::device::StreamKind;
 use kinect_usb::trace::{TraceEnd, replay_trace};
 
@@ -21,7 +22,15 @@ pub struct ReplayTraceArgs {
 
 /// Runs `kfuse replay-trace`.
 pub fn run(args: &ReplayTraceArgs) -> Result<()> {
-    let r = replay_trace(&args.trace)?;
+    let r = replay_trace(&args.trace).map_err(|e| match e {
+        // A trace that cannot be read or is damaged: the error names the file and the fix.
+        e @ (KinectError::File { .. } | KinectError::Trace { .. }) => anyhow::Error::new(e),
+        // What the device code answered to the recorded replies, as it did live.
+        e => anyhow::anyhow!(
+            "{}: the traced capture failed and its replay fails the same way: {e}",
+            args.trace.display()
+        ),
+    })?;
     let c = &r.counters;
     let kind = if r.payload { "with payloads" } else { "headers only" };
     println!("trace {}: {kind}", args.trace.display());

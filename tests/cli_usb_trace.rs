@@ -110,7 +110,9 @@ fn a_failed_start_leaves_a_trace_that_fails_the_same_way() {
     let r = replay_trace(dir.path());
     let rerr = String::from_utf8_lossy(&r.stderr);
     assert_eq!(r.status.code(), Some(1), "{rerr}");
-    assert!(rerr.contains("device busy"), "{rerr}");
+    assert!(rerr.contains("device busy") && rerr.contains("fails the same way"), "{rerr}");
+    assert_eq!(rerr.lines().count(), 1, "{rerr}");
+    assert!(r.stdout.is_empty());
 }
 
 #[test]
@@ -137,4 +139,45 @@ fn an_existing_trace_needs_overwrite() {
     assert!(!st.status.success());
     assert!(err.contains("--overwrite"), "{err}");
     assert_eq!(std::fs::read(dir.path().join("t.kftrace")).unwrap(), b"keep");
+}
+
+/// The counters of a `stream: N depth frames, D dropped (incomplete I), E iso packet errors;
+/// C colour frames, CD dropped` line (`kfuse capture record`) or of replay-trace's `depth:` and
+/// `colour:` lines, as (depth frames, depth lost, incomplete, iso errors, colour frames).
+fn numbers(line: &str) -> Vec<u64> {
+    line.split(|c: char| !c.is_ascii_digit()).filter_map(|w| w.parse().ok()).collect()
+}
+
+/// A lossy capture long enough that the trace holds more stream events than the replay's
+/// bound on events between two start calls (4096; the depth stream, started last, is
+/// followed by every event of the capture): replay-trace counts what the live parsers
+/// counted, number for number, and lists the recording's depth frames.
+#[test]
+fn a_lossy_capture_replays_to_the_live_counters() {
+    let dir = tempfile::tempdir().unwrap();
+    // 0.2 % of iso packets lost: a depth frame spans ~100 packets, so ~1 frame in 5 is
+    // incomplete; 35 frames take ~42 periods of ~130 events each (~5 500 events).
+    let st = record(dir.path(), &["--frames", "35", "--sim-iso-drop", "0.002"]);
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(st.status.success(), "{err}");
+    let live_line = err.lines().find(|l| l.starts_with("stream: ") && l.contains("iso packet"));
+    let live = numbers(live_line.unwrap_or_else(|| panic!("no counters line: {err}")));
+    // depth frames, dropped, incomplete, iso errors, colour frames, colour dropped
+    assert_eq!(live.len(), 6, "{live_line:?}");
+    assert!(live[2] > 0 && live[3] > 0, "the drop knob lost nothing: {live_line:?}");
+    let r = replay_trace(dir.path());
+    let out = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let line = |p: &str| numbers(out.lines().find(|l| l.starts_with(p)).unwrap());
+    let events = numbers(out.lines().find(|l| l.starts_with("replayed ")).unwrap());
+    assert!(events[1] > 4096, "only {} events: too short to test the bound", events[1]);
+    // "depth: F frames assembled, L lost, I incomplete, E packets with an error status"
+    let depth = line("depth: ");
+    assert_eq!(depth, [live[0], live[1], live[2], live[3]], "{out}\nlive: {live_line:?}");
+    // "colour: F frames assembled, D packets dropped, M with another header magic"
+    let colour = line("colour: ");
+    assert_eq!((colour[0], colour[1], colour[2]), (live[4], live[5], 0), "{out}");
+    let recorded = recorded_depth(&dir.path().join("r.kfrec"));
+    assert_eq!(recorded.len(), 35);
+    assert_eq!(traced_depth(&r), recorded, "{out}");
 }
