@@ -23,9 +23,11 @@ use kinect_usb::KinectError;
 use kinect_usb::decoder::DecoderPrecision;
 use kinect_usb::protocol::Exposure;
 use kinect_usb::sim::depth_error::DepthError;
+use kinect_usb::trace::TraceHandle;
 
 mod depth;
 mod several;
+mod usb_trace;
 use depth::{parse_depth_error, scene_depth_correction, write_corrected};
 
 /// The colour-camera and LED options' help, shared by every capture mode.
@@ -282,8 +284,11 @@ enum CaptureMode {
     },
     /// Record raw USB stream packets and the device metadata for later replay.
     #[command(after_help = concat!("Examples:\n  kfuse capture record --out session.kfrec --frames 300\n  \
-        kfuse capture calib --replay session.kfrec --interval 0 --count 5 --out shots\n\n\
-        The recording holds every isochronous and bulk packet, so replay runs the same parsers and decoder.", settings_help!()))]
+        kfuse capture calib --replay session.kfrec --interval 0 --count 5 --out shots\n  \
+        kfuse capture record --out bug.kfrec --frames 30 --usb-trace bug.kftrace   # for a bug report\n\n\
+        The recording holds every isochronous and bulk packet, so replay runs the same parsers and decoder.\n\
+        --usb-trace also writes the session's USB calls and transfer headers (no images, about 1 MB/s);\n\
+        `kfuse replay-trace bug.kftrace` shows what it holds. Attach the trace to a bug report.", settings_help!()))]
     Record {
         /// Recording file (`--out`, as every other command names its output; `--output`, the
         /// first spelling, still works).
@@ -300,6 +305,15 @@ enum CaptureMode {
         /// Replace an existing file.
         #[arg(long)]
         overwrite: bool,
+        /// Also write a USB trace to this file for a bug report: every USB call of the session
+        /// with its bytes, and each transfer's time, length, status and framing bytes (no
+        /// images); `kfuse replay-trace FILE` replays it. Finished even when the sensor fails.
+        #[arg(long, value_name = "FILE.kftrace", conflicts_with = "replay")]
+        usb_trace: Option<PathBuf>,
+        /// With `--usb-trace`: keep every transfer's whole payload, images included (about
+        /// 95 MB per second of streaming, capped at 64 MiB of events).
+        #[arg(long, requires = "usb_trace")]
+        usb_trace_payload: bool,
         #[command(flatten)]
         common: CommonArgs,
     },
@@ -440,10 +454,19 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
                 }
             }
         }
-        CaptureMode::Record { output, frames, overwrite, common } => match common.chosen()? {
-            Some(s) if s.len() > 1 => several::record(&output, frames, overwrite, &common, &s),
-            s => record(&output, frames, overwrite, &common.with_chosen(s)),
-        },
+        CaptureMode::Record { output, frames, overwrite, usb_trace, usb_trace_payload, common } => {
+            match common.chosen()? {
+                Some(s) if s.len() > 1 && usb_trace.is_some() => bail!(
+                    "--usb-trace traces one sensor: choose it with --device SERIAL (`kfuse devices` lists them)"
+                ),
+                Some(s) if s.len() > 1 => several::record(&output, frames, overwrite, &common, &s),
+                s => {
+                    let trace =
+                        usb_trace::TraceRequest::new(usb_trace, usb_trace_payload, overwrite);
+                    record(&output, frames, overwrite, &common.with_chosen(s), trace)
+                }
+            }
+        }
     }
 }
 
@@ -456,13 +479,24 @@ pub(crate) fn start(common: &CommonArgs) -> Result<Session> {
 /// [`start`] of `source` (the one `common` gives, changed by the caller: `kfuse serve` runs
 /// the simulator in real time).
 pub(crate) fn start_source(common: &CommonArgs, source: SensorSource) -> Result<Session> {
+    start_traced(common, source, None)
+}
+
+/// [`start_source`] with the session's USB traffic recorded in `trace` (`capture record
+/// --usb-trace`).
+fn start_traced(
+    common: &CommonArgs,
+    source: SensorSource,
+    trace: Option<&TraceHandle>,
+) -> Result<Session> {
+    let trace = trace.cloned();
     eprintln!("starting the {}…", source.name());
     // Opening renders the simulator's scene (seconds for the calibration scene's 17 poses) or
     // starts a real sensor: on a worker thread, so that Ctrl-C is answered within
     // `interrupt::run_until_interrupted`'s poll (nothing is written before the sensor runs).
     let mut session = crate::interrupt::run_until_interrupted(
         ": stopped while the sensor was starting; nothing was written",
-        move || Session::open(&source),
+        move || Session::open_traced(&source, trace.as_ref()),
     )??;
     match session.apply_settings(&common.settings()) {
         Ok(lines) => lines.iter().for_each(|l| eprintln!("{l}")),
@@ -731,7 +765,13 @@ pub(crate) fn report_counters(session: &Session) {
     }
 }
 
-fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> Result<()> {
+fn record(
+    output: &Path,
+    frames: u64,
+    overwrite: bool,
+    common: &CommonArgs,
+    trace: usb_trace::TraceRequest,
+) -> Result<()> {
     if output.is_dir() {
         bail!(
             "--out {}: is a folder; a recording is one file: give a file name such as session.kfrec",
@@ -757,7 +797,15 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             format!("--out {}: creating {}", output.display(), parent.display())
         })?;
     }
-    let mut session = start(common)?;
+    trace.check_path(output)?;
+    let handle = trace.create()?;
+    let mut session = match start_traced(common, common.source(), handle.as_ref()) {
+        Ok(s) => s,
+        Err(e) => {
+            usb_trace::finish_after_error(handle.as_ref(), &trace);
+            return Err(e);
+        }
+    };
     let bar = ProgressBar::new(frames);
     bar.set_style(
         ProgressStyle::with_template("{bar:30} {pos}/{len} depth frames")
@@ -770,8 +818,10 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
     bar.finish_and_clear();
     report_counters(&session);
     session.close();
+    let traced = usb_trace::finish(handle.as_ref(), &trace);
     write_sim_report(common, &session)?;
     let recorded = recorded?;
+    traced?;
     let got = recorded.frames;
     if let Some(e) = replay_outcome(common, &session) {
         bail!(
@@ -799,10 +849,7 @@ fn record(output: &Path, frames: u64, overwrite: bool, common: &CommonArgs) -> R
             Ok(())
         }
         Some(e @ KinectError::Disconnected { .. }) => {
-            bail!(
-                "{e}\nrecording stopped: {got} complete depth frames were saved in {} (a valid, replayable file)",
-                output.display()
-            )
+            bail!("{}", kfuse_capture::record::unplugged_message(&e, got, output))
         }
         Some(KinectError::EndOfStream) => {
             eprintln!("source recording ended: {got} depth frames written to {}", output.display());

@@ -13,6 +13,7 @@ mod cmd_calibrate;
 mod cmd_capture;
 mod cmd_rig;
 mod cmd_serve;
+mod cmd_trace;
 mod cmd_undistort;
 mod interrupt;
 
@@ -47,6 +48,18 @@ enum Command {
     Capture(cmd_capture::CaptureArgs),
     /// Publish one Kinect v2 over Zenoh (ROS 2 topics via rmw_zenoh's keys) for `kfuse fuse --live`.
     Serve(cmd_serve::ServeArgs),
+    /// Replay a USB trace (`kfuse capture record --usb-trace FILE`) through the driver's
+    /// protocol code and stream parsers and print what they found.
+    #[command(after_help = "Examples:\n  \
+        kfuse capture record --out bug.kfrec --frames 30 --usb-trace bug.kftrace\n  \
+        kfuse replay-trace bug.kftrace            # sensor, calls, frames, counters, how it ended\n  \
+        kfuse replay-trace bug.kftrace --frames   # plus one line per frame: stream sequence timestamp\n\n\
+        The replay answers kfuse's own start sequence from the trace (a trace of another kfuse version\n\
+        whose commands differ is refused, naming the first call that differs) and feeds the recorded\n\
+        transfers to the same frame parsers as a live sensor: `lost`, `incomplete` and the error\n\
+        counts are what the capture's parsers saw. A start that failed replays to the same error\n\
+        (exit status 1); a damaged or unfinished trace is refused with one line.")]
+    ReplayTrace(cmd_trace::ReplayTraceArgs),
 }
 
 /// Exit status when standard output is closed before kfuse is done writing to it (`kfuse
@@ -116,6 +129,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Devices(a) => cmd_capture::run_devices(a)?,
         Command::Capture(a) => cmd_capture::run_capture(a)?,
         Command::Serve(a) => cmd_serve::run(a)?,
+        Command::ReplayTrace(a) => cmd_trace::run(&a)?,
     }
     Ok(())
 }

@@ -26,12 +26,15 @@ const MAX_TIMEOUT_S: f64 = 60.0;
 /// recording holds about 3 MB per frame, so this is already ~300 GB).
 const MAX_RECORD_FRAMES: u64 = 30 * 3600;
 
-/// A capture error as the exception a Python user expects: no sensor, a busy one or a file
-/// that cannot be written is an OSError, a bad setting a ValueError, a failing stream a
+/// A capture error as the exception a Python user expects: no sensor, a busy one, a sensor
+/// that disappeared (unplugged) or a file that cannot be written is an OSError, a bad setting a ValueError, a failing stream a
 /// RuntimeError. The message is the CLI's (`error: ` aside).
 fn capture_err(e: CaptureError) -> PyErr {
     match &e {
-        CaptureError::NoSensor { .. } | CaptureError::Busy(_) | CaptureError::Write { .. } => {
+        CaptureError::NoSensor { .. }
+        | CaptureError::Busy(_)
+        | CaptureError::Write { .. }
+        | CaptureError::Device(kinect_usb::KinectError::Disconnected { .. }) => {
             PyOSError::new_err(e.to_string())
         }
         // A recording or parameter file that cannot be created (a missing folder, no
@@ -136,8 +139,9 @@ impl PyDeviceFrame {
 /// USB bus (or the one of this serial, as `kfuse capture --device SERIAL`), "sim" the
 /// simulated Kinect v2 (`--backend sim`: the synthetic scene, its own factory parameters, no
 /// hardware; with sim_sensors=2..4 one sensor of the simulated ring of `--sim-sensors N`,
-/// the first or the one of `serial`; kfuse.devices lists them). No
-/// sensor is an OSError with the message `kfuse capture` prints. Use it as a context manager
+/// the first or the one of `serial`; kfuse.devices lists them; sim_unplug_after=N: the
+/// simulated sensor disappears after N frame periods, `--sim-unplug-after N`). No sensor, or
+/// one that disappears (unplugged), is an OSError with the message `kfuse capture` prints. Use it as a context manager
 /// (or call close()) to release the sensor. next_frame() waits for a fresh depth + colour
 /// pair; iterating yields them one after another; record(path, frames) writes a .kfrec
 /// recording that kfuse.Recording and `kfuse fuse --recording` read. Waits release the GIL;
@@ -157,11 +161,21 @@ struct DeviceState {
     pump: FramePump,
 }
 
-/// The source of `backend` (and `serial`, `sim_sensors`): the CLI's `--backend`,
-/// `--device SERIAL` and `--sim-sensors N`.
-fn source_of(backend: &str, serial: Option<&str>, sim_sensors: usize) -> PyResult<SensorSource> {
+/// The source of `backend` (and `serial`, `sim_sensors`, `sim_unplug_after`): the CLI's
+/// `--backend`, `--device SERIAL`, `--sim-sensors N` and `--sim-unplug-after N`.
+fn source_of(
+    backend: &str,
+    serial: Option<&str>,
+    sim_sensors: usize,
+    sim_unplug_after: Option<u64>,
+) -> PyResult<SensorSource> {
     let backend = crate::short_text("backend", backend)?;
     let serial = serial.map(|s| crate::short_text("serial", s)).transpose()?;
+    if sim_unplug_after.is_some() && backend != "sim" {
+        return Err(PyValueError::new_err(format!(
+            "sim_unplug_after: only with backend=\"sim\", got backend={backend:?}"
+        )));
+    }
     let max = kinect_usb::sim::ring::MAX_SIM_SENSORS;
     if !(1..=max).contains(&sim_sensors) || (sim_sensors > 1 && backend != "sim") {
         return Err(PyValueError::new_err(format!(
@@ -175,7 +189,11 @@ fn source_of(backend: &str, serial: Option<&str>, sim_sensors: usize) -> PyResul
     });
     let base = match backend {
         "usb" => SensorSource::Usb,
-        "sim" => SensorSource::Sim(SimOptions { ring, ..SimOptions::default() }),
+        "sim" => SensorSource::Sim(SimOptions {
+            ring,
+            unplug_after: sim_unplug_after,
+            ..SimOptions::default()
+        }),
         // The CLI's hidden `--backend absent`: a bus with no Kinect, whatever is plugged in
         // (tests of what happens without a sensor).
         "absent" => SensorSource::Absent,
@@ -211,7 +229,7 @@ pub(crate) fn devices<'py>(
     backend: &str,
     sim_sensors: usize,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
-    let source = source_of(backend, None, sim_sensors)?;
+    let source = source_of(backend, None, sim_sensors, None)?;
     let sensors = py.detach(|| multi::connected(&source)).map_err(capture_err)?;
     sensors
         .into_iter()
@@ -241,14 +259,15 @@ impl PyDevice {
 impl PyDevice {
     /// See the class documentation.
     #[new]
-    #[pyo3(signature = (backend = "usb", serial = None, sim_sensors = 1))]
+    #[pyo3(signature = (backend = "usb", serial = None, sim_sensors = 1, sim_unplug_after = None))]
     fn new(
         py: Python<'_>,
         backend: &str,
         serial: Option<&str>,
         sim_sensors: usize,
+        sim_unplug_after: Option<u64>,
     ) -> PyResult<Self> {
-        let source = source_of(backend, serial, sim_sensors)?;
+        let source = source_of(backend, serial, sim_sensors, sim_unplug_after)?;
         let session = py.detach(|| Session::open(&source)).map_err(capture_err)?;
         let decoder = session.decoder(&DecoderOptions::default()).map_err(capture_err)?;
         let state = DeviceState { session: Some(session), pump: FramePump::new(decoder) };
@@ -267,8 +286,9 @@ impl PyDevice {
     }
 
     /// Waits for a depth and a colour frame both received after this call began (at most
-    /// `timeout` seconds, 0 < timeout <= 60) and returns them as a DeviceFrame. Errors: a
-    /// stream that stops (RuntimeError), Ctrl-C (KeyboardInterrupt), a closed device.
+    /// `timeout` seconds, 0 < timeout <= 60) and returns them as a DeviceFrame. Errors: the
+    /// sensor disappeared (OSError), a stream that stops otherwise (RuntimeError), Ctrl-C
+    /// (KeyboardInterrupt), a closed device.
     #[pyo3(signature = (timeout = 3.0))]
     fn next_frame(&self, py: Python<'_>, timeout: f64) -> PyResult<PyDeviceFrame> {
         if !(timeout > 0.0 && timeout <= MAX_TIMEOUT_S) {
@@ -325,7 +345,8 @@ impl PyDevice {
     /// naming it; a folder is a ValueError) unless `overwrite`, as Rig.save and
     /// Calibration.save refuse it. Returns the frames recorded. A stream that stops early
     /// still leaves a complete file of the frames so far (`stopped_by` in the result says
-    /// why); Ctrl-C stops at the next frame, writes the frames so far and then raises
+    /// why; a sensor that disappeared raises OSError with `kfuse capture record`'s message,
+    /// which says how many frames the file kept); Ctrl-C stops at the next frame, writes the frames so far and then raises
     /// KeyboardInterrupt (nothing is written when it comes before the first frame). Releases
     /// the GIL.
     #[pyo3(signature = (path, frames, overwrite = false))]
@@ -363,6 +384,10 @@ impl PyDevice {
                 "recording stopped before the first frame: nothing written".to_string()
             };
             return Err(PyKeyboardInterrupt::new_err(what));
+        }
+        if let Some(e @ kinect_usb::KinectError::Disconnected { .. }) = &done.stopped_by {
+            let m = kfuse_capture::record::unplugged_message(e, done.frames, &path);
+            return Err(PyOSError::new_err(m));
         }
         let d = PyDict::new(py);
         d.set_item("frames", done.frames)?;

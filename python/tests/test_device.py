@@ -319,3 +319,37 @@ def test_recording_into_a_missing_folder_is_a_file_not_found_error(tmp_path):
             dev.record(target, 2)
     assert str(e.value.filename) == str(target) and e.value.errno == 2
     assert not (tmp_path / "no").exists()
+
+
+def test_an_unplugged_sensor_is_an_oserror_with_the_cli_message(tmp_path):
+    """`kfuse capture record --sim-unplug-after 3` stops with one error line saying how many
+    frames the file kept; Device(sim_unplug_after=3).record raises OSError with that message
+    (for its own path), and both files replay with the 3 frames the sensor sent."""
+    cli_path = tmp_path / "cli.kfrec"
+    cli = subprocess.run([str(kfuse_binary()), "capture", "record", "--backend", "sim",
+                          "--sim-unplug-after", "3", "--frames", "10", "--out", str(cli_path)],
+                         capture_output=True, text=True)
+    assert cli.returncode == 1, cli.stderr
+    errors = [line for line in cli.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1, cli.stderr
+    py_path = tmp_path / "py.kfrec"
+    with kfuse.Device("sim", sim_unplug_after=3) as dev:
+        with pytest.raises(OSError) as e:
+            dev.record(py_path, 10)
+    expected = errors[0][len("error: "):].replace(str(cli_path), str(py_path))
+    assert str(e.value) == expected
+    assert "disappeared" in expected and "3 complete depth frames" in expected
+    assert len(list(kfuse.Recording(str(cli_path)))) == 3
+    assert len(list(kfuse.Recording(str(py_path)))) == 3
+
+
+def test_next_frame_on_an_unplugged_sensor_is_an_oserror(tmp_path):
+    with kfuse.Device("sim", sim_unplug_after=2) as dev:
+        taken = 0
+        with pytest.raises(OSError, match="disappeared"):
+            for _ in range(10):
+                dev.next_frame()
+                taken += 1
+        assert taken == 2
+    with pytest.raises(ValueError, match="sim_unplug_after"):
+        kfuse.Device("usb", sim_unplug_after=2)

@@ -28,6 +28,16 @@ pub struct Recorded {
     pub written: bool,
 }
 
+/// The one line of a recording that the sensor's disappearance ended early: what `kfuse
+/// capture record` prints and Python's `Device.record` raises (as an OSError).
+pub fn unplugged_message(e: &KinectError, frames: u64, output: &Path) -> String {
+    format!(
+        "{e}; recording stopped: {frames} complete depth frames were saved in {} (a valid, \
+         replayable file)",
+        output.display()
+    )
+}
+
 /// Records `frames` depth frames (and the colour frames between them) of `session` into
 /// `output`. `stop` is polled between frames (a signal handler's flag); `progress` is called
 /// with the count after each depth frame. A stream error or a stop request ends the

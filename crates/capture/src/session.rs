@@ -14,6 +14,7 @@ use kinect_usb::params::XzTables;
 use kinect_usb::protocol::{self, ExposureMode, LedMode, LedSetting};
 use kinect_usb::recording::{ReadOptions, ReadReport, RecordingReader};
 use kinect_usb::sim::SimDevice;
+use kinect_usb::trace::{TraceHandle, TracingBackend};
 use kinect_usb::{KinectError, usb};
 
 use crate::CaptureError;
@@ -104,6 +105,16 @@ impl Session {
     /// program holds it, [`CaptureError::Config`] for a drop rate outside `[0, 1]`,
     /// [`CaptureError::Device`] for a recording that does not open or a failed start.
     pub fn open(source: &SensorSource) -> Result<Self, CaptureError> {
+        Self::open_traced(source, None)
+    }
+
+    /// [`Session::open`] with every USB call and stream event of the session recorded in
+    /// `trace` (`kfuse capture record --usb-trace`; the caller finishes the trace once the
+    /// session is closed, or after a failed open: that trace is the one a bug report needs).
+    pub fn open_traced(
+        source: &SensorSource,
+        trace: Option<&TraceHandle>,
+    ) -> Result<Self, CaptureError> {
         let mut sim = None;
         let backend: Box<dyn UsbBackend> = match source {
             SensorSource::Replay(r) => {
@@ -132,6 +143,10 @@ impl Session {
                 Box::new(usb::open_at(*bus, *address).map_err(no_sensor)?)
             }
             SensorSource::Absent => return Err(no_sensor(KinectError::NotFound)),
+        };
+        let backend: Box<dyn UsbBackend> = match trace {
+            Some(t) => Box::new(TracingBackend::new(backend, t.clone())),
+            None => backend,
         };
         let mut dev = KinectDevice::open(backend).map_err(|e| match e {
             KinectError::Busy => CaptureError::Busy(e),

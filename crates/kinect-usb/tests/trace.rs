@@ -47,13 +47,18 @@ struct Live {
 
 /// Captures up to `FRAMES` frames from a simulated sensor with `faults`, traced to `path`.
 fn capture(path: &Path, faults: SimFaults, payload: bool) -> Live {
+    capture_n(path, faults, payload, FRAMES)
+}
+
+/// [`capture`] of up to `n` frames.
+fn capture_n(path: &Path, faults: SimFaults, payload: bool, n: usize) -> Live {
     let sim = Arc::new(Mutex::new(SimDevice::new(common::synthetic_profile(), scene(), faults)));
     let trace = TraceHandle::create(path, payload).unwrap();
     let mut dev = KinectDevice::open(TracingBackend::new(sim, trace.clone())).unwrap();
     let info = dev.start(true, true).unwrap().clone();
     let mut frames = Vec::new();
     let mut disconnected = false;
-    while frames.len() < FRAMES {
+    while frames.len() < n {
         match dev.next_frame(T, &mut |_, _| {}) {
             Ok(Some(Frame::Depth(f))) => frames.push(ReplayedFrame {
                 kind: StreamKind::Depth,
@@ -147,6 +152,30 @@ fn a_trace_replays_to_the_same_parsed_results_and_holds_no_image() {
     // Depth dominates: 152 of ~33 kB per packet (0.5 %); the P0 reply (1.3 MB) is in the file.
     assert!((traced as f64) < 0.01 * moved as f64, "{traced} of {moved} bytes traced");
     assert!(file < 2_000_000 + moved / 50, "{file} bytes of trace for {moved} streamed");
+}
+
+/// A capture longer than the replay's bound on events held between two calls of the start
+/// sequence (4096, `MAX_PENDING_EVENTS` in `trace/replay.rs`): the depth stream, started last,
+/// is followed by every event of the capture until the stop sequence, and the replay must not
+/// take them for damage (it did: `kfuse capture record --frames 60 --usb-trace` wrote a trace
+/// that `kfuse replay-trace` refused with "more than 4096 stream events between two calls").
+#[test]
+fn a_long_trace_replays_past_the_start_sequence_bound() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("long.kftrace");
+    // 60 periods of both streams: 120 frames.
+    let live = capture_n(&path, SimFaults { seed: 11, ..SimFaults::default() }, false, 120);
+    let events = read_trace(&path)
+        .unwrap()
+        .iter()
+        .filter(|r| matches!(r, TraceRecord::Event { .. }))
+        .count();
+    // The regression needs more events than the bound of 4096.
+    assert!(events > 4096, "only {events} events: the capture is too short to test the bound");
+    let r = assert_same(&live, &path);
+    assert_eq!(r.end, TraceEnd::EndOfTrace);
+    assert_eq!(r.counters.depth_frames, live.counters.depth_frames);
+    assert!(live.counters.depth_frames >= 60, "{:?}", live.counters);
 }
 
 #[test]

@@ -100,6 +100,34 @@ impl TraceReplay {
         }
     }
 
+    /// After the start record of the stream on `ep`: the error of its start, if it failed.
+    /// The recorder writes a failed start's stop right after its start, from the same thread;
+    /// only events of a stream already running (completions during the start call) can come
+    /// between. So the start succeeded once this stream's own first event, a record that is
+    /// not an event, or [`MAX_PENDING_EVENTS`] events of the other stream come first (the
+    /// last stream started is followed by the whole capture's events until the stop sequence:
+    /// scanning to that next call would hold them all). Events read are kept for
+    /// [`UsbBackend::service`].
+    fn failed_start(&mut self, ep: u8) -> Option<UsbError> {
+        loop {
+            match self.next()? {
+                TraceRecord::StreamStop { ep: e, result: Err(err), .. } if e == ep => {
+                    return Some(err);
+                }
+                TraceRecord::Event { ep: e, event, .. } => {
+                    self.pending.push_back((e, event));
+                    if e == ep || self.pending.len() >= MAX_PENDING_EVENTS {
+                        return None;
+                    }
+                }
+                r => {
+                    self.lookahead = Some(r);
+                    return None;
+                }
+            }
+        }
+    }
+
     fn diverge(&mut self, detail: String) {
         if self.error.is_none() {
             let (path, offset) = (self.reader.path().to_path_buf(), self.reader.offset());
@@ -264,12 +292,8 @@ impl UsbBackend for TraceReplay {
                 return Err(UsbError::Io);
             }
         }
-        // A start that failed is followed by its stream stop with the error.
-        match self.next_control() {
-            Some(TraceRecord::StreamStop { ep: e, result: Err(err), .. }) if e == ep => {
-                return Err(err);
-            }
-            other => self.lookahead = other,
+        if let Some(err) = self.failed_start(ep) {
+            return Err(err);
         }
         let h = StreamHandle(self.sinks.len() as u32 + 1);
         self.sinks.push((ep, h, sink));
