@@ -25,6 +25,7 @@ use kinect_usb::protocol::Exposure;
 use kinect_usb::sim::depth_error::DepthError;
 
 mod depth;
+mod rosbag2;
 mod several;
 use depth::{parse_depth_error, scene_depth_correction, write_corrected};
 
@@ -300,9 +301,25 @@ enum CaptureMode {
         /// Replace an existing file.
         #[arg(long)]
         overwrite: bool,
+        /// kfrec (raw packets, replayable) or rosbag2 (a ROS 2 bag folder with the topics of
+        /// `kfuse fuse --layout rosbag2`; recorded to a staged .kfrec, then converted).
+        #[arg(long, value_enum, default_value_t = RecordFormat::Kfrec)]
+        format: RecordFormat,
+        /// With --format rosbag2: add each frame's coloured cloud as sd/points (PointCloud2).
+        #[arg(long)]
+        points: bool,
         #[command(flatten)]
         common: CommonArgs,
     },
+}
+
+/// `kfuse capture record --format`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum RecordFormat {
+    /// A `.kfrec` file of raw USB packets.
+    Kfrec,
+    /// A rosbag2 folder (metadata.yaml + OUT_0.mcap) that `ros2 bag play` and Foxglove open.
+    Rosbag2,
 }
 
 /// Runs `kfuse devices`.
@@ -440,10 +457,25 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
                 }
             }
         }
-        CaptureMode::Record { output, frames, overwrite, common } => match common.chosen()? {
-            Some(s) if s.len() > 1 => several::record(&output, frames, overwrite, &common, &s),
-            s => record(&output, frames, overwrite, &common.with_chosen(s)),
-        },
+        CaptureMode::Record { output, frames, overwrite, format, points, common } => {
+            match (format, common.chosen()?) {
+                (RecordFormat::Rosbag2, Some(s)) if s.len() > 1 => bail!(
+                    "--format rosbag2 records one sensor: give one --device (or record .kfrec files and convert each with kfuse fuse --recording FILE --layout rosbag2)"
+                ),
+                (RecordFormat::Rosbag2, s) => {
+                    rosbag2::record(&output, frames, overwrite, points, &common.with_chosen(s))
+                }
+                (RecordFormat::Kfrec, _) if points => {
+                    bail!("--points adds a topic of --format rosbag2; add --format rosbag2")
+                }
+                (RecordFormat::Kfrec, Some(s)) if s.len() > 1 => {
+                    several::record(&output, frames, overwrite, &common, &s)
+                }
+                (RecordFormat::Kfrec, s) => {
+                    record(&output, frames, overwrite, &common.with_chosen(s))
+                }
+            }
+        }
     }
 }
 

@@ -365,8 +365,8 @@ impl Bag {
                 &self.path(),
                 &topic.name(&self.ns),
                 format!(
-                    "sensor time {ticks} ticks is {} s from the recording's anchor {} ticks, before 1970 in host time",
-                    (i128::from(ticks) - i128::from(self.clock.anchor_ticks)) / i128::from(TICKS_PER_SECOND),
+                    "sensor time {ticks} ticks is {:.3} s from the recording's last frame ({} ticks, at the file's modification time), before 1970 in host time: date the recording (touch -d) when it was made",
+                    (ticks as f64 - self.clock.anchor_ticks as f64) / TICKS_PER_SECOND as f64,
                     self.clock.anchor_ticks
                 ),
             )

@@ -9,6 +9,7 @@
 //! `mcap-ros2-support`) are python/tests/test_rosbag2.py's.
 
 use std::collections::BTreeMap;
+use std::error::Error as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -364,13 +365,20 @@ fn a_recording_dated_before_1970_is_one_clear_error_and_writes_nothing() {
     use std::time::{Duration, UNIX_EPOCH};
     let dir = tempfile::tempdir().unwrap();
     let (rec, rig, _) = record(dir.path());
-    let date = |t| std::fs::File::options().write(true).open(&rec).unwrap().set_modified(t).unwrap();
+    let date =
+        |t| std::fs::File::options().write(true).open(&rec).unwrap().set_modified(t).unwrap();
     let out = dir.path().join("bag");
     let o = options(Layout::Rosbag2, FileSet::default());
     // Its last frame 10 ms after the epoch: the first ones would be stamped before it.
     date(UNIX_EPOCH + Duration::from_millis(10));
     let opened = command::open(&input(&rec), &out, &o).unwrap();
-    let e = command::run(opened, &rig, &o, &mut Quiet, &|| false).unwrap_err().to_string();
+    let e = command::run(opened, &rig, &o, &mut Quiet, &|| false).unwrap_err();
+    // The whole chain, as the command line prints it on one line.
+    let mut e: (String, Option<&dyn std::error::Error>) = (e.to_string(), e.source());
+    while let Some(s) = e.1 {
+        e = (format!("{}: {s}", e.0), s.source());
+    }
+    let e = e.0;
     assert!(e.contains("before 1970") && e.contains("bag_0.mcap"), "{e}");
     assert!(e.contains("/hd/image_depth_rect") && !e.contains('\n'), "{e}");
     assert!(!out.exists());
