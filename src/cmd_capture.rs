@@ -26,6 +26,7 @@ use kinect_usb::sim::depth_error::DepthError;
 use kinect_usb::trace::TraceHandle;
 
 mod depth;
+mod rosbag2;
 mod several;
 mod usb_trace;
 use depth::{parse_depth_error, scene_depth_correction, write_corrected};
@@ -314,9 +315,25 @@ enum CaptureMode {
         /// 95 MB per second of streaming, capped at 64 MiB of events).
         #[arg(long, requires = "usb_trace")]
         usb_trace_payload: bool,
+        /// kfrec (raw packets, replayable) or rosbag2 (a ROS 2 bag folder with the topics of
+        /// `kfuse fuse --layout rosbag2`; recorded to a staged .kfrec, then converted).
+        #[arg(long, value_enum, default_value_t = RecordFormat::Kfrec)]
+        format: RecordFormat,
+        /// With --format rosbag2: add each frame's coloured cloud as sd/points (PointCloud2).
+        #[arg(long)]
+        points: bool,
         #[command(flatten)]
         common: CommonArgs,
     },
+}
+
+/// `kfuse capture record --format`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum RecordFormat {
+    /// A `.kfrec` file of raw USB packets.
+    Kfrec,
+    /// A rosbag2 folder (metadata.yaml + OUT_0.mcap) that `ros2 bag play` and Foxglove open.
+    Rosbag2,
 }
 
 /// Runs `kfuse devices`.
@@ -454,15 +471,39 @@ fn run_capture_mode(args: CaptureArgs) -> Result<()> {
                 }
             }
         }
-        CaptureMode::Record { output, frames, overwrite, usb_trace, usb_trace_payload, common } => {
-            match common.chosen()? {
-                Some(s) if s.len() > 1 && usb_trace.is_some() => bail!(
+        CaptureMode::Record {
+            output,
+            frames,
+            overwrite,
+            usb_trace,
+            usb_trace_payload,
+            format,
+            points,
+            common,
+        } => {
+            let trace = usb_trace::TraceRequest::new(usb_trace, usb_trace_payload, overwrite);
+            match (format, common.chosen()?) {
+                (_, Some(s)) if s.len() > 1 && trace.requested() => bail!(
                     "--usb-trace traces one sensor: choose it with --device SERIAL (`kfuse devices` lists them)"
                 ),
-                Some(s) if s.len() > 1 => several::record(&output, frames, overwrite, &common, &s),
-                s => {
-                    let trace =
-                        usb_trace::TraceRequest::new(usb_trace, usb_trace_payload, overwrite);
+                (RecordFormat::Rosbag2, Some(s)) if s.len() > 1 => bail!(
+                    "--format rosbag2 records one sensor: give one --device (or record .kfrec files and convert each with kfuse fuse --recording FILE --layout rosbag2)"
+                ),
+                (RecordFormat::Rosbag2, s) => rosbag2::record(
+                    &output,
+                    frames,
+                    overwrite,
+                    points,
+                    &common.with_chosen(s),
+                    trace,
+                ),
+                (RecordFormat::Kfrec, _) if points => {
+                    bail!("--points adds a topic of --format rosbag2; add --format rosbag2")
+                }
+                (RecordFormat::Kfrec, Some(s)) if s.len() > 1 => {
+                    several::record(&output, frames, overwrite, &common, &s)
+                }
+                (RecordFormat::Kfrec, s) => {
                     record(&output, frames, overwrite, &common.with_chosen(s), trace)
                 }
             }

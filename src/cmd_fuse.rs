@@ -37,6 +37,7 @@ Examples:
   kfuse fuse --recording session.kfrec --out seq               (every frame: depth/NNNNNN.png, index.json)
   kfuse fuse --recording session.kfrec --layout tum --out tum  (TUM RGB-D: rgb/, depth/, associations.txt)
   kfuse fuse --recording session.kfrec --layout rosbag2 --out bag  (ROS 2 bag: ros2 bag play bag, Foxglove)
+  kfuse fuse --recording session.kfrec --layout rosbag2 --points --out bag  (and the coloured cloud, sd/points)
   kfuse fuse --rig rig.json --frames shots --write holes,color-on-depth --out seq
   kfuse fuse --rig rig3.json --sensor A=a_color.jpg,a_depth.png --sensor B=b_color.jpg,b_depth.png \
              --sensor C=c_color.jpg,c_depth.png --out merged   (a rig of several Kinects)

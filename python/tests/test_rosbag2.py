@@ -1,6 +1,8 @@
-"""`kfuse fuse --recording --layout rosbag2` (issue 48) read back by independent readers: the
-bag of a simulated recording against the kfuse layout of the same recording (index.json, the
-depth PNGs, the colour JPEGs), the rig it was fused with, and kfuse.Recording's decoder depth.
+"""`kfuse fuse --recording --layout rosbag2 --points` (issue 48) read back by independent
+readers: the bag of a simulated recording against the kfuse layout of the same recording
+(index.json, the depth PNGs, the colour JPEGs, the PLY clouds), the rig it was fused with,
+kfuse.Recording's decoder depth, and the host clock around `kfuse capture record` (stamps are
+Unix time: the recording's last frame at its file's modification time).
 
 Readers: `rosbags` (rosbag2 folder reader and its Humble and Jazzy typestores) and `mcap` with
 `mcap_ros2.decoder`; neither shares code with kfuse. Missing readers skip, or fail where
@@ -10,6 +12,7 @@ import json
 import os
 import re
 import subprocess
+import time
 from collections import Counter
 
 import numpy as np
@@ -37,6 +40,7 @@ TYPES = {
     "hd/image_color/compressed": "sensor_msgs/msg/CompressedImage",
     "sd/camera_info": "sensor_msgs/msg/CameraInfo",
     "hd/camera_info": "sensor_msgs/msg/CameraInfo",
+    "sd/points": "sensor_msgs/msg/PointCloud2",
 }
 
 
@@ -59,14 +63,25 @@ def bag(tmp_path_factory):
     rec = tmp / "s.kfrec"
     run = lambda *a: subprocess.run([str(kfuse_binary()), *map(str, a)], check=True,
                                     capture_output=True)
+    before = time.time_ns()
     run("capture", "record", "--backend", "sim", "--frames", FRAMES, "--sim-iso-drop", ISO_DROP,
         "--output", rec)
-    run("fuse", "--recording", rec, "--engine", "cpu", "--layout", "rosbag2", "--out", tmp / "bag")
-    run("fuse", "--recording", rec, "--engine", "cpu", "--write", "color", "--out", tmp / "seq")
+    after = time.time_ns()
+    run("fuse", "--recording", rec, "--engine", "cpu", "--layout", "rosbag2", "--points",
+        "--out", tmp / "bag")
+    run("fuse", "--recording", rec, "--engine", "cpu", "--write", "color,cloud", "--out", tmp / "seq")
     ix = json.loads((tmp / "seq" / "index.json").read_text())
     ns = "/kinect2/sn_" + re.sub(r"[^A-Za-z0-9_]", "_", kfuse.Recording(rec).info["serial"])
     return {"rec": rec, "bag": tmp / "bag", "seq": tmp / "seq", "ix": ix, "ns": ns,
-            "rig": kfuse.Rig.load(tmp / "seq" / "kinect_params.json")}
+            "rig": kfuse.Rig.load(tmp / "seq" / "kinect_params.json"),
+            "recorded": (before, after)}
+
+
+def host_ns(bag, ticks):
+    """A sensor time in host time by the layout's rule: the last frame at the recording file's
+    modification time, the others by the sensor's spacing."""
+    last = bag["ix"]["frames"][-1]["depth_time_ticks"]
+    return os.stat(bag["rec"]).st_mtime_ns + (ticks - last) * NS_PER_TICK
 
 
 @pytest.fixture(scope="module")
@@ -115,13 +130,17 @@ def test_folder_metadata_topics_counts_and_qos(bag, messages):
         assert (q[0].durability == latched) == (topic == "/tf_static"), topic
 
 
-def test_timestamps_are_the_kfuse_index_times(bag, messages):
+def test_timestamps_are_the_kfuse_index_times_in_host_time(bag, messages):
     frames = bag["ix"]["frames"]
-    depth_ns = [f["depth_time_ticks"] * NS_PER_TICK for f in frames]
+    depth_ns = [host_ns(bag, f["depth_time_ticks"]) for f in frames]
     color_ns = []
     for f in frames:
-        if f["color"] and (not color_ns or color_ns[-1] != f["color"]["time_ticks"] * NS_PER_TICK):
-            color_ns.append(f["color"]["time_ticks"] * NS_PER_TICK)
+        if f["color"] and (not color_ns or color_ns[-1] != host_ns(bag, f["color"]["time_ticks"])):
+            color_ns.append(host_ns(bag, f["color"]["time_ticks"]))
+    # Host time: every frame was received while `kfuse capture record` ran (tolerance: none,
+    # the run's own start and end bound it).
+    before, after = bag["recorded"]
+    assert all(before <= t <= after for t in depth_ns + color_ns), (before, depth_ns, after)
     for rel in TYPES:
         got = decoded(bag, messages, rel)
         want = color_ns if rel.startswith("hd/image_color") else depth_ns
@@ -172,6 +191,46 @@ def test_jpeg_bytes_equal_the_kfuse_layout_jpegs(bag, messages):
     for (_, m), name in zip(got, files):
         assert m.format == "jpeg"
         assert bytes(m.data) == (bag["seq"] / name).read_bytes(), name
+
+
+def read_ply(path):
+    """A binary little-endian PLY of float x y z (and uchar red green blue) as a numpy record
+    array, read here, not by kfuse."""
+    raw = path.read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    head = raw[:end].decode()
+    n = int(re.search(r"^element vertex (\d+)$", head, re.M).group(1))
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if "property uchar red" in head:
+        fields += [("r", "u1"), ("g", "u1"), ("b", "u1")]
+    return np.frombuffer(raw, np.dtype(fields), count=n, offset=end)
+
+
+def test_points_equal_the_kfuse_layouts_ply_clouds(bag, messages):
+    frames = bag["ix"]["frames"]
+    clouds = decoded(bag, messages, "sd/points")
+    assert len(clouds) == len(frames)
+    point = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+    for (_, m), f in zip(clouds, frames):
+        assert [(x.name, x.offset, x.datatype, x.count) for x in m.fields] == [
+            ("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1), ("rgb", 12, 7, 1)]
+        assert (m.height, m.point_step, m.is_bigendian, m.is_dense) == (1, 16, False, True)
+        assert m.row_step == 16 * m.width and len(m.data) == m.row_step
+        assert m.header.frame_id.endswith("_ir_optical_frame")
+        ply = read_ply(bag["seq"] / next(n for n in f["files"] if n.startswith("cloud/")))
+        got = np.frombuffer(bytes(m.data), point)
+        assert len(got) == len(ply) > 100_000
+        # The same float32s (tolerance 0: both are the one cloud kfuse computes per frame).
+        for axis in "xyz":
+            assert np.array_equal(got[axis], ply[axis]), axis
+        assert np.all(np.isfinite(got["z"])) and got["z"].min() > 0
+        # rgb: the float32 whose bits are 0x00RRGGBB (PCL's packing), black without colour.
+        if "r" in ply.dtype.names:
+            want = (ply["r"].astype(np.uint32) << 16) | (ply["g"].astype(np.uint32) << 8) | ply["b"]
+            assert np.array_equal(got["rgb"], want)
+            assert np.count_nonzero(want) > 100_000
+        else:
+            assert not f["color"] and not np.any(got["rgb"])
 
 
 def test_camera_info_is_the_rig(bag, messages):
@@ -259,7 +318,7 @@ def test_mcap_reader_schemas_summary_and_decoded_values(bag, messages):
                 rect_first = np.frombuffer(bytes(msg.data), "<u2").reshape(msg.height, msg.width)
         assert got == Counter(top for top, *_ in messages)
         # Seeking through the index: messages from the last frame's time on only.
-        last = bag["ix"]["frames"][-1]["depth_time_ticks"] * NS_PER_TICK
+        last = host_ns(bag, bag["ix"]["frames"][-1]["depth_time_ticks"])
         tail = [m.log_time for _, _, m in reader.iter_messages(starting_at=last)]
         assert tail and min(tail) >= last and len(tail) < len(messages)
     png = np.asarray(Image.open(bag["seq"] / bag["ix"]["frames"][0]["files"][0])).astype(np.uint16)
@@ -272,3 +331,47 @@ def test_options_the_layout_cannot_take_are_one_clear_error(bag, tmp_path):
                         "rosbag2", "--write", "color", "--out", str(out)], capture_output=True, text=True)
     assert r.returncode != 0 and "drop --write" in r.stderr, r.stderr
     assert not out.exists()
+
+
+def test_capture_record_format_rosbag2_writes_the_same_topics(tmp_path):
+    """`kfuse capture record --format rosbag2`: the sensor straight into a bag (staged .kfrec,
+    converted by the rosbag2 layout's writer), read with rosbags; nothing else left behind."""
+    rosbag2 = need("rosbags.rosbag2")
+    out = tmp_path / "live"
+    before = time.time_ns()
+    r = subprocess.run([str(kfuse_binary()), "capture", "record", "--backend", "sim", "--frames", "4",
+                        "--format", "rosbag2", "--points", "--out", str(out)],
+                       capture_output=True, text=True)
+    after = time.time_ns()
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["live"], "staged recording left behind"
+    assert {"metadata.yaml", "live_0.mcap"} <= {p.name for p in out.iterdir()}
+    ts = typestores()[0]
+    with rosbag2.Reader(out) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        ns = next(t for t in topics if t.endswith("/sd/image_depth")).rsplit("/sd/", 1)[0]
+        want = {f"{ns}/{rel}": ty for rel, ty in TYPES.items()}
+        want["/tf_static"] = "tf2_msgs/msg/TFMessage"
+        assert topics == want
+        got = [(c.topic, t, ts.deserialize_cdr(raw, c.msgtype)) for c, t, raw in reader.messages()]
+    rect = [(t, m) for top, t, m in got if top == f"{ns}/hd/image_depth_rect"]
+    assert 3 <= len(rect) <= 4
+    for t, m in rect:
+        assert t == m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        assert before <= t <= after, (before, t, after)
+        assert np.count_nonzero(np.frombuffer(bytes(m.data), "<u2")) > 100_000
+    counts = Counter(top for top, *_ in got)
+    assert counts[f"{ns}/sd/points"] == counts[f"{ns}/sd/image_depth"] == len(rect)
+
+
+def test_capture_record_format_rosbag2_bad_output_is_one_line(tmp_path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    r = subprocess.run([str(kfuse_binary()), "capture", "record", "--backend", "sim", "--frames", "1",
+                        "--format", "rosbag2", "--out", str(f)], capture_output=True, text=True)
+    assert r.returncode != 0 and "is a file" in r.stderr and "folder" in r.stderr, r.stderr
+    assert f.read_text() == "x"
+    r = subprocess.run([str(kfuse_binary()), "capture", "record", "--backend", "sim", "--frames", "1",
+                        "--points", "--out", str(tmp_path / "x.kfrec")], capture_output=True, text=True)
+    assert r.returncode != 0 and "--format rosbag2" in r.stderr, r.stderr
+    assert not (tmp_path / "x.kfrec").exists()

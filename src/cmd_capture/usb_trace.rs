@@ -18,6 +18,11 @@ impl TraceRequest {
         TraceRequest { path, payload, overwrite }
     }
 
+    /// Whether `--usb-trace` asked for a trace.
+    pub(super) fn requested(&self) -> bool {
+        self.path.is_some()
+    }
+
     /// Refuses a trace that would replace the recording or an existing file without
     /// `--overwrite`, or that names a folder.
     pub(super) fn check_path(&self, recording: &Path) -> Result<()> {

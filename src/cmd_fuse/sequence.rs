@@ -62,6 +62,11 @@ pub struct SequenceArgs {
     /// color-on-depth (H6), cloud (PLY, depth camera frame), color (the sensor's JPEG).
     #[arg(long, value_enum, value_delimiter = ',', value_name = "WHAT")]
     pub write: Vec<WriteArg>,
+    /// With --layout rosbag2: add each frame's coloured cloud (the points --write cloud writes)
+    /// as the topic /kinect2/sn_SERIAL/sd/points (sensor_msgs/PointCloud2: x, y, z float32
+    /// metres in the IR optical frame, rgb float32 packed 0x00RRGGBB).
+    #[arg(long)]
+    pub points: bool,
     /// The lab's eight figures for every N-th frame (`every:N`), in figures/NNNNNN/; none by
     /// default (each costs a full single-frame fusion, ~1-3 s).
     #[arg(long, value_name = "every:N", value_parser = parse_every)]
@@ -283,6 +288,7 @@ fn options(args: &FuseArgs) -> Result<SequenceOptions> {
         engine: args.engine(),
         fusion,
         kept_color: false,
+        points: seq.points,
     })
 }
 

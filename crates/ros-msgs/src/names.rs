@@ -34,6 +34,9 @@ pub mod topic {
     pub const DEPTH_INFO: &str = "sd/camera_info";
     /// The colour camera's `CameraInfo`.
     pub const COLOR_INFO: &str = "hd/camera_info";
+    /// The cloud on the depth grid (`sensor_msgs/PointCloud2`, IR optical frame): iai_kinect2's
+    /// `sd/points`, which its launch file makes with depth_image_proc from the `sd/` images.
+    pub const POINTS: &str = "sd/points";
     /// The static transforms (global, not under the namespace).
     pub const TF_STATIC: &str = "/tf_static";
 }

@@ -20,6 +20,7 @@ use kinect_usb::device::DeviceInfo;
 use kinect_usb::recording::ReadOptions;
 
 use crate::bag::{BagSource, TopicChoice};
+use crate::host_time::{self, HostClock};
 use crate::pipeline::{self, Config, Input, Kept, Outcome, Report};
 use crate::process::{self, Extras, Processor};
 use crate::rosbag2::{self, Bag};
@@ -85,6 +86,9 @@ pub struct SequenceOptions {
     /// The frames handed to [`Observer::kept`] carry H6's colour on the depth grid
     /// ([`crate::pipeline::Kept::color_on_depth`]; `kfuse fuse --recording --tsdf`).
     pub kept_color: bool,
+    /// The rosbag2 layout's `sd/points` topic: each frame's coloured cloud as a
+    /// `sensor_msgs/PointCloud2` (`--points`).
+    pub points: bool,
 }
 
 impl SequenceOptions {
@@ -97,6 +101,13 @@ impl SequenceOptions {
         let skew = self.max_skew_ms;
         if !(skew.is_finite() && skew > 0.0 && skew <= MAX_SKEW_LIMIT_MS) {
             return bad(format!("--max-skew-ms must be in (0, {MAX_SKEW_LIMIT_MS}], got {skew}"));
+        }
+        if self.points && self.layout != Layout::Rosbag2 {
+            return bad(
+                "--points adds the rosbag2 layout's sd/points topic; give --layout rosbag2, or \
+                 write the clouds as files with --write cloud"
+                    .into(),
+            );
         }
         if self.layout == Layout::Rosbag2 {
             if matches!(input, SequenceInput::Frames(_)) {
@@ -134,8 +145,11 @@ impl SequenceOptions {
     fn extras(&self) -> Extras {
         Extras {
             holes: self.files.holes,
-            color_on_depth: self.files.color_on_depth || self.files.cloud || self.kept_color,
-            cloud: self.files.cloud,
+            color_on_depth: self.files.color_on_depth
+                || self.files.cloud
+                || self.points
+                || self.kept_color,
+            cloud: self.files.cloud || self.points,
             color_valid: self.kept_color,
         }
     }
@@ -207,6 +221,8 @@ pub struct Opened {
     started: Instant,
     /// A bag's own rig (its camera_infos and `/tf_static`), or why there is none.
     bag_rig: Option<Result<Rig>>,
+    /// The recording's host clock (the rosbag2 layout's stamps, [`crate::host_time`]).
+    clock: Option<HostClock>,
 }
 
 impl Opened {
@@ -266,8 +282,12 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
     let staged = StagedDir::new(out)?;
     staged.refuse_foreign(&output_names_for(out))?;
     let mut bag_rig = None;
+    let mut clock = None;
     let (input_, decoder, info, progress) = match input {
         SequenceInput::Recording(path, read) => {
+            if options.layout == Layout::Rosbag2 {
+                clock = Some(host_time::recording_clock(path, *read)?);
+            }
             let src = RecordingSource::open(path, *read)?;
             let info = src.info().clone();
             let decoder = process::recording_decoder(&info)?;
@@ -314,6 +334,7 @@ pub fn open(input: &SequenceInput, out: &Path, options: &SequenceOptions) -> Res
         source: input.path().to_path_buf(),
         started,
         bag_rig,
+        clock,
     })
 }
 
@@ -372,7 +393,8 @@ pub fn run(
     observer: &mut dyn Observer,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<Finished> {
-    let Opened { input, decoder, info, progress: _, staged, source, started, bag_rig } = opened;
+    let Opened { input, decoder, info, progress: _, staged, source, started, bag_rig, clock } =
+        opened;
     // Frames with sensor times: a recording's, or a bag's header stamps.
     let recording = info.is_some() || bag_rig.is_some();
     let engine = options.engine.open()?;
@@ -418,7 +440,17 @@ pub fn run(
             )
         })?;
         let file = rosbag2::mcap_name(staged.destination());
-        writer = writer.with_bag(Bag::create(staged.path(), &file, &info.serial, rig)?);
+        let clock = clock.ok_or_else(|| {
+            SequenceError::Pipeline("the rosbag2 layout's recording has no host clock".into())
+        })?;
+        writer = writer.with_bag(Bag::create(
+            staged.path(),
+            &file,
+            &info.serial,
+            rig,
+            clock,
+            options.points,
+        )?);
     }
     let (mut frames, mut missing, mut skipped) = (Vec::new(), Vec::new(), Vec::new());
     let mut on_report = |r: Report| -> Result<()> {

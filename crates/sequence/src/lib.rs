@@ -13,7 +13,7 @@
 //! | 3–4 decode, register | [`process`] | the `Fast` depth decoder, `geometry::fusion::Registration` (or `fusion_gpu::FusionContext::stream`), the hole mask, colour on the depth grid, the cloud |
 //! | 5–6 encode, write | [`write`] | PNG (fdeflate's fastest level, no row filter), the colour JPEG as the scene is ([`color`]: a capture's copied unchanged, a recording's flipped without loss in the DCT domain), `index.json` |
 //! | export | [`tum`] | `rgb.txt`, `depth.txt`, `associations.txt`, README of the TUM layout |
-//! | export | [`rosbag2`] | the rosbag2 layout: ROS 2 topics (depth, IR, registered depth, the sensor's JPEG, camera_info, `/tf_static`) in one MCAP file + `metadata.yaml` |
+//! | export | [`rosbag2`] | the rosbag2 layout: ROS 2 topics (depth, IR, registered depth, the sensor's JPEG, camera_info, `/tf_static`, optionally the cloud as `PointCloud2`) in one MCAP file + `metadata.yaml`, stamped in host time ([`host_time`]: the recording's sensor clock anchored at its file's modification time) |
 //! | pipeline | [`pipeline`] | the stages on one or two worker threads joined by bounded queues; Ctrl-C finishes the frames in flight |
 //! | the run | [`command`] | the whole `kfuse fuse --recording/--frames`: options checked, input and staged output opened ([`command::open`]), the pipeline, `index.json` and the TUM lists, the folder committed ([`command::run`]); the caller sees progress through [`command::Observer`] |
 //!
@@ -33,6 +33,7 @@ pub mod bag1;
 pub mod color;
 pub mod command;
 pub mod error;
+pub mod host_time;
 pub mod matching;
 pub mod pipeline;
 pub mod process;

@@ -20,9 +20,16 @@
 //! | `hd/image_color/compressed` | `sensor_msgs/CompressedImage` `jpeg` | the sensor's JPEG as the kfuse layout writes it (`color/NNNNNN.jpg`: flipped without loss), not re-encoded; once per colour frame | colour time, colour optical frame |
 //! | `sd/camera_info`, `hd/camera_info` | `sensor_msgs/CameraInfo` | the rig's depth and colour cameras as `kfuse rig export --format ros` writes them ([`kfuse_io::rig_io::ros::rig_camera_infos`]) | depth time |
 //! | `/tf_static` | `tf2_msgs/TFMessage`, transient local | the rig's `color_from_depth`: the IR optical frame's pose in the colour optical frame | first depth time |
+//! | `sd/points` (only with `--points`) | `sensor_msgs/PointCloud2` | the frame's cloud as `--write cloud` writes it (`cloud/NNNNNN.ply`: the depth samples within the depth range back-projected, metres, in the depth camera's frame, coloured by the colour on the depth grid), unordered (height 1), fields `x`, `y`, `z` float32 and `rgb`, a float32 whose bits are `0x00RRGGBB` as PCL and iai_kinect2 pack it ([`POINTS_FIELDS`]), 16 bytes a point, dense; `rgb` 0 (black) for a frame without a colour partner | depth time, IR optical frame |
 //!
-//! Times are the sensor's clock (0.125 ms ticks, as `index.json`'s `depth_time_ticks`) in
-//! nanoseconds, not Unix time: the header stamps and MCAP's log and publish times.
+//! # Times
+//!
+//! Header stamps and MCAP's log and publish times are host time, nanoseconds since the Unix
+//! epoch, as ROS stamps are: the sensor's timestamps (0.125 ms ticks of its own clock, as
+//! `index.json`'s `depth_time_ticks`) mapped by the recording's [`HostClock`]
+//! ([`crate::host_time`]): the last complete depth frame lands on the recording file's
+//! modification time, the host time at which `kfuse capture record` received it, and every
+//! other message keeps the sensor's spacing to it (ticks × 125 µs, exact).
 //!
 //! Writing happens in the staged output folder; [`Bag::finish`] closes the MCAP file (summary,
 //! footer) and writes `metadata.yaml`, and only then is the folder committed: an error or
@@ -39,10 +46,11 @@ use geometry::Rig;
 use kfuse_io::atomic::write_bytes_atomic;
 use kfuse_io::rig_io::ros::{CameraInfoValues, rig_camera_infos};
 use kfuse_ros_msgs::{
-    CameraInfo, CompressedImage, Header, Image, Message, Quaternion, TFMessage, Time, Transform,
-    TransformStamped, Vector3,
+    CameraInfo, CompressedImage, Header, Image, Message, POINT_FIELD_FLOAT32, PointCloud2,
+    PointField, Quaternion, TFMessage, Time, Transform, TransformStamped, Vector3,
 };
 
+use crate::host_time::HostClock;
 use crate::source::TICKS_PER_SECOND;
 use crate::{Result, SequenceError};
 
@@ -94,10 +102,12 @@ pub enum Topic {
     ColorInfo,
     /// `/tf_static`.
     TfStatic,
+    /// `sd/points` (optional: [`Bag::create`]'s `points`).
+    Points,
 }
 
 /// Every topic, in channel order.
-pub const TOPICS: [Topic; 7] = [
+pub const TOPICS: [Topic; 8] = [
     Topic::Depth,
     Topic::Ir,
     Topic::DepthRect,
@@ -105,7 +115,16 @@ pub const TOPICS: [Topic; 7] = [
     Topic::DepthInfo,
     Topic::ColorInfo,
     Topic::TfStatic,
+    Topic::Points,
 ];
+
+/// The fields of a `sd/points` point: `x`, `y`, `z` (metres) and `rgb` (`0x00RRGGBB` in a
+/// float32's bits, PCL's `PointXYZRGB` packing, which RViz2's and Foxglove's `RGB8` colour
+/// modes read), each a float32, at these byte offsets.
+pub const POINTS_FIELDS: [(&str, u32); 4] = [("x", 0), ("y", 4), ("z", 8), ("rgb", 12)];
+
+/// Bytes of a `sd/points` point: the four float32s of [`POINTS_FIELDS`], no padding.
+pub const POINT_STEP: u32 = 16;
 
 impl Topic {
     fn index(self) -> usize {
@@ -123,6 +142,7 @@ impl Topic {
             Topic::DepthInfo => topic::DEPTH_INFO,
             Topic::ColorInfo => topic::COLOR_INFO,
             Topic::TfStatic => return topic::TF_STATIC.into(),
+            Topic::Points => topic::POINTS,
         };
         format!("{ns}/{rel}")
     }
@@ -134,6 +154,7 @@ impl Topic {
             Topic::Color => CompressedImage::TYPE,
             Topic::DepthInfo | Topic::ColorInfo => CameraInfo::TYPE,
             Topic::TfStatic => TFMessage::TYPE,
+            Topic::Points => PointCloud2::TYPE,
         }
     }
 
@@ -143,6 +164,7 @@ impl Topic {
             Topic::Color => CompressedImage::schema(),
             Topic::DepthInfo | Topic::ColorInfo => CameraInfo::schema(),
             Topic::TfStatic => TFMessage::schema(),
+            Topic::Points => PointCloud2::schema(),
         }
     }
 
@@ -177,7 +199,7 @@ pub fn mcap_name(out: &Path) -> String {
     format!("{stem}_0.mcap")
 }
 
-/// A sensor time in ticks as nanoseconds.
+/// A sensor time in ticks as nanoseconds of the sensor's clock (not host time: [`HostClock`]).
 pub fn ticks_to_nanos(ticks: u64) -> u64 {
     ticks.saturating_mul(NANOS_PER_TICK)
 }
@@ -237,6 +259,8 @@ pub struct Bag {
     frames: (String, String),
     infos: (CameraInfoValues, CameraInfoValues),
     tf: Transform,
+    clock: HostClock,
+    topics: Vec<Topic>,
     open: Mutex<Option<Open>>,
 }
 
@@ -265,8 +289,16 @@ fn mcap_err(path: &Path, what: &str, e: mcap::McapError) -> SequenceError {
 
 impl Bag {
     /// Creates `<dir>/<file>` (`file` from [`mcap_name`]) for the sensor `serial` and `rig`:
-    /// the MCAP header, the schemas and the channels.
-    pub fn create(dir: &Path, file: &str, serial: &str, rig: &Rig) -> Result<Self> {
+    /// the MCAP header, the schemas and the channels (`sd/points` only with `points`). Sensor
+    /// times are stamped through `clock` (module docs, Times).
+    pub fn create(
+        dir: &Path,
+        file: &str,
+        serial: &str,
+        rig: &Rig,
+        clock: HostClock,
+        points: bool,
+    ) -> Result<Self> {
         let path = dir.join(file);
         let f = File::create(&path)
             .map_err(|e| SequenceError::input(&path, format!("cannot create the bag file: {e}")))?;
@@ -283,7 +315,9 @@ impl Bag {
             .map_err(|e| mcap_err(&path, "writing the MCAP header", e))?;
         let ns = namespace(serial);
         let mut channels = [0u16; TOPICS.len()];
-        for t in TOPICS {
+        let topics: Vec<Topic> =
+            TOPICS.into_iter().filter(|&t| points || t != Topic::Points).collect();
+        for &t in &topics {
             let schema = mcap
                 .add_schema(t.msg_type(), SCHEMA_ENCODING, t.schema().as_bytes())
                 .map_err(|e| mcap_err(&path, "writing a schema", e))?;
@@ -306,6 +340,8 @@ impl Bag {
             ns,
             infos: rig_camera_infos(rig),
             tf,
+            clock,
+            topics,
             open: Mutex::new(Some(Open {
                 mcap,
                 channels,
@@ -320,6 +356,21 @@ impl Bag {
 
     fn path(&self) -> PathBuf {
         self.dir.join(&self.file)
+    }
+
+    /// The host time of sensor time `ticks` (module docs, Times).
+    fn stamp(&self, topic: Topic, ticks: u64) -> Result<u64> {
+        self.clock.unix_ns(ticks).ok_or_else(|| {
+            cdr_err_text(
+                &self.path(),
+                &topic.name(&self.ns),
+                format!(
+                    "sensor time {ticks} ticks is {:.3} s from the recording's last frame ({} ticks, at the file's modification time), before 1970 in host time: date the recording (touch -d) when it was made",
+                    (ticks as f64 - self.clock.anchor_ticks as f64) / TICKS_PER_SECOND as f64,
+                    self.clock.anchor_ticks
+                ),
+            )
+        })
     }
 
     fn header(&self, time_ns: u64, frame: &str) -> Result<Header> {
@@ -373,9 +424,58 @@ impl Bag {
         self.encode(topic, &msg)
     }
 
+    /// Whether the bag has the `sd/points` topic.
+    pub fn has_points(&self) -> bool {
+        self.topics.contains(&Topic::Points)
+    }
+
+    /// A frame's cloud as a `sensor_msgs/PointCloud2` (module docs): unordered, fields
+    /// [`POINTS_FIELDS`], `rgb` from the cloud's colours (0 where it has none).
+    pub fn points_message(&self, header: Header, cloud: &geometry::PointCloud) -> Result<Vec<u8>> {
+        let topic = Topic::Points;
+        let bad = |m: String| cdr_err_text(&self.path(), &topic.name(&self.ns), m);
+        let n = cloud.points.len();
+        let colored = cloud.colors.len() == n;
+        let width = u32::try_from(n).map_err(|_| bad(format!("{n} points is too many")))?;
+        let row_step = width
+            .checked_mul(POINT_STEP)
+            .ok_or_else(|| bad(format!("{n} points is too many for one message")))?;
+        let mut data = Vec::with_capacity(row_step as usize);
+        for (i, p) in cloud.points.iter().enumerate() {
+            for c in p {
+                data.extend_from_slice(&c.to_le_bytes());
+            }
+            let rgb = if colored { packed_rgb(cloud.colors[i]) } else { 0.0 };
+            data.extend_from_slice(&rgb.to_le_bytes());
+        }
+        let fields = POINTS_FIELDS
+            .iter()
+            .map(|&(name, offset)| PointField {
+                name: name.into(),
+                offset,
+                datatype: POINT_FIELD_FLOAT32,
+                count: 1,
+            })
+            .collect();
+        let msg = PointCloud2 {
+            header,
+            height: 1,
+            width,
+            fields,
+            is_bigendian: false,
+            point_step: POINT_STEP,
+            row_step,
+            data,
+            // Only valid samples are back-projected: no NaN point.
+            is_dense: true,
+        };
+        self.encode(topic, &msg)
+    }
+
     /// A frame's messages: depth, IR, camera_info at the depth time `depth_ticks`, registered
     /// depth `depth_rect` (colour grid, `color_size`), the colour JPEG `jpeg` at
-    /// `color_ticks` (its sequence `color_sequence`).
+    /// `color_ticks` (its sequence `color_sequence`), the cloud `cloud` when the bag has
+    /// `sd/points`.
     #[allow(clippy::too_many_arguments)]
     pub fn frame_messages(
         &self,
@@ -385,8 +485,9 @@ impl Bag {
         depth_rect: &[u16],
         color_size: (usize, usize),
         jpeg: Option<(&[u8], u64, Option<u32>)>,
+        cloud: Option<&geometry::PointCloud>,
     ) -> Result<Vec<BagMessage>> {
-        let t = ticks_to_nanos(depth_ticks);
+        let t = self.stamp(Topic::DepthRect, depth_ticks)?;
         let (ir_frame, rgb_frame) = (&self.frames.0, &self.frames.1);
         let msg = |topic, data| BagMessage { topic, time_ns: t, color_sequence: None, data };
         let mut out = Vec::with_capacity(TOPICS.len());
@@ -401,7 +502,7 @@ impl Bag {
         let h = self.header(t, rgb_frame)?;
         out.push(msg(Topic::DepthRect, self.image(Topic::DepthRect, h, color_size, depth_rect)?));
         if let Some((bytes, color_ticks, sequence)) = jpeg {
-            let tc = ticks_to_nanos(color_ticks);
+            let tc = self.stamp(Topic::Color, color_ticks)?;
             let m = CompressedImage {
                 header: self.header(tc, rgb_frame)?,
                 format: "jpeg".into(),
@@ -418,6 +519,16 @@ impl Bag {
         out.push(msg(Topic::DepthInfo, self.camera_info(Topic::DepthInfo, h, &self.infos.0)?));
         let h = self.header(t, rgb_frame)?;
         out.push(msg(Topic::ColorInfo, self.camera_info(Topic::ColorInfo, h, &self.infos.1)?));
+        if self.has_points() {
+            let cloud = cloud.ok_or_else(|| {
+                SequenceError::Pipeline(format!(
+                    "{}: a frame reached the bag without the cloud its sd/points topic needs",
+                    self.path().display()
+                ))
+            })?;
+            let h = self.header(t, ir_frame)?;
+            out.push(msg(Topic::Points, self.points_message(h, cloud)?));
+        }
         Ok(out)
     }
 
@@ -499,7 +610,7 @@ impl Bag {
         write_bytes_atomic(&self.dir.join("metadata.yaml"), yaml.as_bytes())?;
         Ok(BagSummary {
             file: self.file.clone(),
-            counts: TOPICS.iter().map(|t| (t.name(&self.ns), counts[t.index()])).collect(),
+            counts: self.topics.iter().map(|t| (t.name(&self.ns), counts[t.index()])).collect(),
         })
     }
 
@@ -515,7 +626,7 @@ impl Bag {
         let _ = writeln!(s, "  starting_time:\n    nanoseconds_since_epoch: {start}");
         let _ = writeln!(s, "  message_count: {total}");
         let _ = writeln!(s, "  topics_with_message_count:");
-        for t in TOPICS {
+        for &t in &self.topics {
             let _ = writeln!(s, "    - topic_metadata:");
             let _ = writeln!(s, "        name: {}", t.name(&self.ns));
             let _ = writeln!(s, "        type: {}", t.msg_type());
@@ -532,6 +643,12 @@ impl Bag {
         let _ = writeln!(s, "      message_count: {total}");
         s
     }
+}
+
+/// An RGB colour packed as PCL packs `PointXYZRGB`'s `rgb`: the bits `0x00RRGGBB` read as a
+/// float32.
+pub fn packed_rgb([r, g, b]: [u8; 3]) -> f32 {
+    f32::from_bits((u32::from(r) << 16) | (u32::from(g) << 8) | u32::from(b))
 }
 
 fn cdr_err_text(path: &Path, topic: &str, message: String) -> SequenceError {
@@ -602,6 +719,13 @@ mod tests {
             [0, 0, 1, 1234, 1233, 65535]
         );
         assert_eq!(ir_u16(&[f32::NAN, 0.4, 0.5, 65535.7, 1e9]), [0, 0, 1, 65535, 65535]);
+    }
+
+    #[test]
+    fn rgb_packs_as_pcl_does() {
+        assert_eq!(packed_rgb([0x12, 0x34, 0x56]).to_bits(), 0x0012_3456);
+        assert_eq!(packed_rgb([255, 0, 0]).to_bits(), 0x00FF_0000);
+        assert_eq!(packed_rgb([0, 0, 0]), 0.0);
     }
 
     #[test]

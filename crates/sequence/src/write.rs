@@ -388,6 +388,7 @@ impl FrameWriter {
             &r.depth_units,
             self.color_size,
             color,
+            r.cloud.as_ref(),
         )?;
         Ok(Encoded { meta, landed: r.landed, files: Vec::new(), messages })
     }
