@@ -3,7 +3,30 @@
 use rayon::prelude::*;
 
 use super::pixel::{ColorProjection, register_pixel, zbuffer_index};
+use super::resample::NearestFill;
 use crate::Image;
+
+/// The depth the colour camera sees at a colour pixel (row-major index), for H6's occlusion
+/// test: a dense colour-frame depth image, or H3's nearest fill computed only where it is read
+/// ([`NearestFill`]).
+pub trait SeenDepth: Sync {
+    /// The depth at pixel `j` (NaN or <= 0: nothing seen there).
+    fn seen(&self, j: usize) -> f32;
+}
+
+impl SeenDepth for Image<f32> {
+    #[inline]
+    fn seen(&self, j: usize) -> f32 {
+        self.data()[j]
+    }
+}
+
+impl SeenDepth for NearestFill<'_> {
+    #[inline]
+    fn seen(&self, j: usize) -> f32 {
+        self.at(j)
+    }
+}
 
 /// Bilinear sample of `color` at sub-pixel `(u, v)` (pixel centres at integers), `None` unless
 /// `0 <= u <= width - 1` and `0 <= v <= height - 1`. Per channel, in `f32`:
@@ -42,12 +65,12 @@ pub fn bilinear_rgb(color: &[[u8; 3]], width: u32, height: u32, u: f32, v: f32) 
 /// `color_depth` (a dense colour-frame depth such as H3's nearest fill) is given, the point
 /// is not behind the surface the colour camera sees there: `z <= z_seen · (1 + occlusion_tolerance)`
 /// at the pixel `zbuffer_index(u, v)`. Invalid pixels are black.
-pub fn color_on_depth(
+pub fn color_on_depth<S: SeenDepth>(
     depth: &Image<f32>,
     rays: &[[f32; 3]],
     proj: &ColorProjection,
     color: &Image<[u8; 3]>,
-    color_depth: Option<&Image<f32>>,
+    color_depth: Option<&S>,
     occlusion_tolerance: f32,
 ) -> (Image<[u8; 3]>, Image<bool>) {
     let (w, h) = depth.size();
@@ -65,7 +88,7 @@ pub fn color_on_depth(
                 if let Some(cd) = color_depth
                     && let Some(j) = zbuffer_index(u, v, proj.width, proj.height)
                 {
-                    let seen = cd.data()[j];
+                    let seen = cd.seen(j);
                     if seen > 0.0 && z > seen * (1.0 + occlusion_tolerance) {
                         continue;
                     }

@@ -57,7 +57,7 @@ mod variants;
 
 use serde::Serialize;
 
-pub use color::{bilinear_rgb, color_on_depth};
+pub use color::{SeenDepth, bilinear_rgb, color_on_depth};
 pub use holes::{
     HoleMasker, PlaneFit, PlaneFitOptions, fill_holes_with_plane, fit_plane_ransac, hole_mask,
     plane_depth_pixel,
@@ -81,7 +81,9 @@ pub use pixel::{
 pub use range::{DepthRange, MAX_RANGE_M};
 pub use register::{ColorSample, backproject_cloud, first_write_wins, project_cloud};
 pub use request::{DEPTH_CORRECTION_NEEDS_Z, Request};
-pub use resample::{LinearStats, disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel};
+pub use resample::{
+    LinearStats, NearestFill, disc_offsets, linear_resample, nearest_fill, nearest_fill_pixel,
+};
 pub use stream::Registration;
 /// The z-buffer variants that benchmarks and comparison tests measure [`Registration`] against
 /// (feature `bench-variants`; bit-identical to it). Not part of the library's API: the one CPU

@@ -25,11 +25,12 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::{
-    ColorProjection, ColorSample, FusionOptions, FusionOutput, FusionSummary, MeshSource, PlaneFit,
-    Registration, StageTimings, StretchTest, backproject_cloud, check_inputs, color_on_depth,
-    coverage_radius_px, depth_ray_table, fill_holes_with_plane, first_write_wins, fit_plane_ransac,
-    hole_grow_px, hole_mask, linear_resample, mesh_from_depth, mesh_on_depth_grid, nearest_fill,
-    project_cloud, remove_edge_faces, sample_spacing_px, zbuffer_points,
+    ColorProjection, ColorSample, FusionOptions, FusionOutput, FusionSummary, MeshSource,
+    NearestFill, PlaneFit, Registration, SeenDepth, StageTimings, StretchTest, backproject_cloud,
+    check_inputs, color_on_depth, coverage_radius_px, depth_ray_table, fill_holes_with_plane,
+    first_write_wins, fit_plane_ransac, hole_grow_px, hole_mask, linear_resample, mesh_from_depth,
+    mesh_on_depth_grid, nearest_fill, project_cloud, remove_edge_faces, sample_spacing_px,
+    zbuffer_points,
 };
 use super::{DepthRange, Request};
 use crate::fusion::ZBUFFER_EMPTY;
@@ -395,12 +396,12 @@ fn h6(
     rays: &[[f32; 3]],
     proj: &ColorProjection,
     color: &Image<[u8; 3]>,
-    nearest: &Image<f32>,
+    nearest: &impl SeenDepth,
     params: &PixelParams,
 ) -> (Image<[u8; 3]>, Image<bool>) {
     match params.occlusion_tolerance {
         Some(tol) => color_on_depth(depth, rays, proj, color, Some(nearest), tol),
-        None => color_on_depth(depth, rays, proj, color, None, 0.0),
+        None => color_on_depth(depth, rays, proj, color, None::<&Image<f32>>, 0.0),
     }
 }
 
@@ -572,8 +573,9 @@ impl PerPixel for CpuPixels {
             }
             let colored = match f.color {
                 Some(color) if plan.color_on_depth => {
+                    // H3's nearest fill only where H6 reads it (`NearestFill`): the same values.
                     let zbuffer = s.reg.zbuffer_image();
-                    let nearest = nearest_fill(&zbuffer, params.radius_px, params.depth_jump);
+                    let nearest = NearestFill::new(&zbuffer, params.radius_px, params.depth_jump);
                     Some(h6(depth, &s.rays, &s.proj, color, &nearest, params))
                 }
                 _ => None,
