@@ -472,8 +472,9 @@ struct PyRegistration {
     /// A z-buffer of the registration's own, for `color_on_depth` and `cloud` (empty until
     /// one of them needs it).
     zbuffer: Image<f32>,
-    /// H3's nearest fill of the last frame, for H6's occlusion test (made on first use).
-    nearest: Option<Image<f32>>,
+    /// Whether `zbuffer` holds the last frame's registration (H6's occlusion test reads H3's
+    /// nearest fill of it, at the pixels the samples land on: `fusion::NearestFill`).
+    own_zbuffer_current: bool,
 }
 
 /// A `depth` argument, borrowed: uint16 millimetres (a 16-bit PNG's) or float32 millimetres
@@ -554,7 +555,7 @@ impl PyRegistration {
         fusion::register_on(engine, request, incoming, zbuffer, mask)?;
         std::mem::swap(&mut self.incoming, &mut self.depth);
         self.registered = true;
-        self.nearest = None;
+        self.own_zbuffer_current = false;
         Ok(())
     }
 
@@ -604,7 +605,7 @@ impl PyRegistration {
             return Err(GeometryError::InvalidInput("no frame registered yet".into()).into());
         }
         let params = self.request.params();
-        if self.nearest.is_none() {
+        if !self.own_zbuffer_current {
             let rig = self.request.rig();
             if self.zbuffer.size() != (rig.color.width, rig.color.height) {
                 self.zbuffer = Image::filled(rig.color.width, rig.color.height, f32::NAN);
@@ -612,19 +613,12 @@ impl PyRegistration {
             let Self { engine, request, depth, gpu_mask, zbuffer, .. } = self;
             let mask = matches!(engine, PixelEngine::Gpu(_)).then_some(&mut gpu_mask[..]);
             fusion::register_on(engine, request, depth, zbuffer.data_mut(), mask)?;
-            self.nearest =
-                Some(fusion::nearest_fill(&self.zbuffer, params.radius_px, params.depth_jump));
+            self.own_zbuffer_current = true;
         }
+        let nearest = fusion::NearestFill::new(&self.zbuffer, params.radius_px, params.depth_jump);
         let depth = params.depth_range.clip(&self.depth);
         let tol = params.occlusion_tolerance.unwrap_or(0.0);
-        Ok(fusion::color_on_depth(
-            &depth,
-            &self.rays,
-            &self.projection,
-            color,
-            self.nearest.as_ref(),
-            tol,
-        ))
+        Ok(fusion::color_on_depth(&depth, &self.rays, &self.projection, color, Some(&nearest), tol))
     }
 }
 
@@ -675,7 +669,7 @@ impl PyRegistration {
             registered: false,
             gpu_mask,
             zbuffer: Image::filled(0, 0, f32::NAN),
-            nearest: None,
+            own_zbuffer_current: false,
             force,
             engine,
             used,
@@ -836,12 +830,7 @@ impl PyRegistration {
                         let registered = self.register_incoming(zbuffer.data_mut());
                         self.zbuffer = zbuffer;
                         registered?;
-                        let params = self.request.params();
-                        self.nearest = Some(fusion::nearest_fill(
-                            &self.zbuffer,
-                            params.radius_px,
-                            params.depth_jump,
-                        ));
+                        self.own_zbuffer_current = true;
                         self.color_of_frame(&color_img)
                     })
                     .map_err(fuse::gpu_err)?;
